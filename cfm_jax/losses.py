@@ -1,0 +1,144 @@
+"""Forward-model and controller losses (paper section III).
+
+Every function here is a small pure function of arrays; none of them knows about networks.
+The gradient path is chosen where ``jax.grad`` is called (see ``cfm_jax.update``): the
+controller losses are differentiated with respect to the controller parameters only, so
+the forward model is never changed by them.
+
+Notation (1-D, paper section III-B): ``s_p = f_theta(s, g_beta(s, s_d))`` is the predicted
+next state, ``s_d`` the desired next state, ``s_a`` the observed (actual) next state, and
+``p' = df/dg * dg/dbeta``.
+
+Shapes: every per-sample loss takes arrays of shape ``(..., d)`` and returns the sum of
+squares over the last axis, shape ``(...)``. Means over batches are taken by the caller.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+CONTROLLER_LOSSES = ("joint", "task", "distal", "supervised")
+"""Names of the controller losses, in the order results are reported."""
+
+
+def task(predicted_next, desired_next):
+    """Task loss ``L = |s_p - s_d|^2`` (paper eq. 2).
+
+    1-D gradient: ``dL/dbeta = 2 p' (s_p - s_d)``; at rest where the *model* predicts the
+    desired state, ``s_p = s_d``, whatever the model's bias.
+
+    Args:
+      predicted_next: ``f(s, g(s, s*))``, shape ``(..., d)``.
+      desired_next: ``s*``, shape ``(..., d)``.
+    Returns:
+      shape ``(...)``.
+
+    Example:
+      >>> float(task(jnp.array([1.0]), jnp.array([3.0])))
+      4.0
+    """
+    return jnp.sum(jnp.square(predicted_next - desired_next), axis=-1)
+
+
+def joint(predicted_next, desired_next, observed_next):
+    """Joint loss ``L = |s_p - s_d|^2 + |s_p - s_a|^2`` (paper eq. 4, its contribution).
+
+    1-D gradient: ``dL/dbeta = 2 p' (2 s_p - s_d - s_a)``; at rest where
+    ``s_p = (s_d + s_a) / 2``.
+
+    Args:
+      predicted_next: ``f(s, g(s, s*))``, shape ``(..., d)``.
+      desired_next: ``s*``, shape ``(..., d)``.
+      observed_next: next state observed on the robot, shape ``(..., d)``.
+    Returns:
+      shape ``(...)``.
+
+    Example:
+      >>> float(joint(jnp.array([1.0]), jnp.array([3.0]), jnp.array([0.0])))
+      5.0
+    """
+    return task(predicted_next, desired_next) + task(predicted_next, observed_next)
+
+
+def distal(predicted_next, desired_next, observed_next):
+    """Distal-teacher loss ``L = |s_p - s_d|^2 - |s_p - s_a|^2`` (Jordan & Rumelhart 1992).
+
+    Paper section III-C. 1-D gradient: ``dL/dbeta = 2 p' (s_a - s_d)``: the model only
+    supplies the direction ``p'``; the error signal is the observed one. Gradient descent
+    moves ``beta`` along ``-p' (s_a - s_d)``, i.e. it moves ``s_a`` towards ``s_d`` when the
+    model's sign of ``p'`` is right.
+
+    Args and returns as :func:`joint`.
+
+    Example:
+      >>> float(distal(jnp.array([1.0]), jnp.array([3.0]), jnp.array([0.0])))
+      3.0
+    """
+    return task(predicted_next, desired_next) - task(predicted_next, observed_next)
+
+
+def supervised(predicted_action, executed_action):
+    """Supervised inverse loss ``L = |g(s_t, s_a) - tau_run|^2`` (paper eq. 3).
+
+    The controller is fed the *observed* next state in place of the desired one and
+    regressed onto the action that produced it; no forward model is involved.
+    1-D gradient: ``dL/dbeta = 2 g' (g - tau_run)``.
+
+    Args:
+      predicted_action: ``g(s, s_a)``, shape ``(..., m)``.
+      executed_action: ``tau_run``, shape ``(..., m)``.
+    Returns:
+      shape ``(...)``.
+
+    Example:
+      >>> float(supervised(jnp.array([1.0, 0.0]), jnp.array([0.0, 2.0])))
+      5.0
+    """
+    return jnp.sum(jnp.square(predicted_action - executed_action), axis=-1)
+
+
+def controller_loss(name, predicted_next, desired_next, observed_next):
+    """Dispatch the model-based controller losses by name (``task``, ``joint``, ``distal``).
+
+    ``supervised`` does not go through the forward model; call :func:`supervised`.
+    """
+    if name == "task":
+        return task(predicted_next, desired_next)
+    if name == "joint":
+        return joint(predicted_next, desired_next, observed_next)
+    if name == "distal":
+        return distal(predicted_next, desired_next, observed_next)
+    raise ValueError(
+        f"loss={name!r} is not a model-based controller loss; allowed: 'task', 'joint', "
+        "'distal' ('supervised' is computed by losses.supervised)"
+    )
+
+
+def squared_error(predicted, target):
+    """Forward-model supervised loss ``|f(s, tau) - s_next|^2`` (paper eq. 1).
+
+    Args:
+      predicted: shape ``(..., d)``; target: shape ``(..., d)``.
+    Returns:
+      shape ``(...)``.
+    """
+    return jnp.sum(jnp.square(predicted - target), axis=-1)
+
+
+def gaussian_nll(mean, log_variance, target):
+    """Gaussian negative log-likelihood of ``target`` (PETS, Chua et al. 2018), no constant.
+
+    ``L = sum_i (target_i - mean_i)^2 exp(-log_variance_i) + log_variance_i``
+    (twice the NLL minus ``d log 2 pi``). For fixed variance its gradient in ``mean`` is the
+    squared error's gradient scaled by ``exp(-log_variance)``.
+
+    Args:
+      mean, log_variance, target: shape ``(..., d)``.
+    Returns:
+      shape ``(...)``.
+
+    Example:
+      >>> float(gaussian_nll(jnp.array([0.0]), jnp.array([0.0]), jnp.array([2.0])))
+      4.0
+    """
+    return jnp.sum(jnp.square(target - mean) * jnp.exp(-log_variance) + log_variance, axis=-1)
