@@ -1,0 +1,286 @@
+"""Frozen, validated configuration dataclasses.
+
+Every field has a comment; every constructor checks its fields and raises
+:class:`ConfigError` naming the field, the bad value and what is allowed. Configs are plain
+data: they round-trip through JSON (:func:`to_dict` / :func:`from_dict`).
+
+Example:
+  >>> cfg = Config(loop=LoopConfig(iterations=2, seeds=1))
+  >>> cfg.loop.iterations
+  2
+  >>> cfg.replace(loss="task").loss
+  'task'
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any
+
+from cfm_jax import losses
+
+TASKS = ("inverse_dynamics",)
+"""Tasks available for ``Config.task.name``."""
+
+
+class ConfigError(ValueError):
+    """A configuration field has a value that is not allowed."""
+
+
+def _fail(field: str, value: Any, allowed: str) -> None:
+    raise ConfigError(f"{field}={value!r} is not allowed: {allowed}")
+
+
+def _positive_int(field: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+        _fail(field, value, "a positive integer")
+
+
+def _nonnegative_int(field: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        _fail(field, value, "an integer >= 0")
+
+
+def _positive_float(field: str, value: Any) -> None:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value <= 0
+    ):
+        _fail(field, value, "a finite number > 0")
+
+
+def _nonnegative_float(field: str, value: Any) -> None:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value < 0
+    ):
+        _fail(field, value, "a finite number >= 0")
+
+
+def _layer_sizes(field: str, value: Any) -> None:
+    if (
+        not isinstance(value, tuple)
+        or len(value) == 0
+        or any(isinstance(v, bool) or not isinstance(v, int) or v <= 0 for v in value)
+    ):
+        _fail(field, value, "a non-empty tuple of positive integers, e.g. (400, 400, 400)")
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskConfig:
+    """The tracking task: reaching trajectories in joint space and desired accelerations."""
+
+    # Task name; one of TASKS.
+    name: str = "inverse_dynamics"
+    # Duration of each reaching trajectory in seconds (home pose to target, quintic).
+    duration: float = 2.0
+    # Control period in seconds; a multiple of the MJCF timestep (the torque is held for
+    # control_dt / timestep physics steps). None: the MJCF timestep.
+    control_dt: float | None = 0.01
+    # Reaching targets as joint-position tuples, one per target; None: the robot's
+    # default targets (5 for every robot, derived from its joint ranges, see tasks.py).
+    targets: tuple[tuple[float, ...], ...] | None = None
+    # Start pose (joint positions); None: the MJCF keyframe named "home", else qpos0.
+    home: tuple[float, ...] | None = None
+    # Proportional gain (1/s^2) of the PD correction in the desired acceleration
+    # qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd). 0 and 0 give pure feed-forward.
+    kp: float = 100.0
+    # Derivative gain (1/s) of the same PD correction.
+    kd: float = 20.0
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or self.name not in TASKS:
+            _fail("task.name", self.name, f"one of {TASKS}")
+        _positive_float("task.duration", self.duration)
+        if self.control_dt is not None:
+            _positive_float("task.control_dt", self.control_dt)
+        _nonnegative_float("task.kp", self.kp)
+        _nonnegative_float("task.kd", self.kd)
+        if self.targets is not None:
+            targets = tuple(tuple(float(x) for x in t) for t in self.targets)
+            if len(targets) == 0 or len({len(t) for t in targets}) != 1:
+                _fail(
+                    "task.targets",
+                    self.targets,
+                    "a non-empty tuple of joint-position tuples of equal length",
+                )
+            if not all(math.isfinite(x) for t in targets for x in t):
+                _fail("task.targets", self.targets, "finite joint positions")
+            object.__setattr__(self, "targets", targets)
+        if self.home is not None:
+            home = tuple(float(x) for x in self.home)
+            if not all(math.isfinite(x) for x in home):
+                _fail("task.home", self.home, "finite joint positions")
+            object.__setattr__(self, "home", home)
+
+
+@dataclasses.dataclass(frozen=True)
+class ForwardModelConfig:
+    """Forward model f(s, tau) -> next joint acceleration: a PETS-style probabilistic ensemble."""
+
+    # Hidden layer widths (ReLU). Paper: three layers of 400.
+    hidden: tuple[int, ...] = (400, 400, 400)
+    # Number of ensemble members. Paper: 3.
+    ensemble_size: int = 3
+    # Adam learning rate.
+    learning_rate: float = 1e-3
+    # Gradient steps on the whole data set before the first iteration (after babbling).
+    initial_steps: int = 1000
+    # Gradient steps per iteration of Algorithm 1.
+    steps_per_iteration: int = 200
+    # Minibatch size (sampled uniformly from the data set, per member).
+    batch_size: int = 256
+    # Initial soft bounds of the predicted log-variance (normalised units); both bounds are
+    # learned, as in PETS.
+    min_log_variance: float = -10.0
+    max_log_variance: float = 0.5
+
+    def __post_init__(self):
+        object.__setattr__(self, "hidden", tuple(self.hidden))
+        _layer_sizes("forward.hidden", self.hidden)
+        _positive_int("forward.ensemble_size", self.ensemble_size)
+        _positive_float("forward.learning_rate", self.learning_rate)
+        _nonnegative_int("forward.initial_steps", self.initial_steps)
+        _nonnegative_int("forward.steps_per_iteration", self.steps_per_iteration)
+        _positive_int("forward.batch_size", self.batch_size)
+        for name in ("min_log_variance", "max_log_variance"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                _fail(f"forward.{name}", value, "a finite number")
+            if not math.isfinite(value):
+                _fail(f"forward.{name}", value, "a finite number")
+        if self.min_log_variance >= self.max_log_variance:
+            _fail(
+                "forward.min_log_variance",
+                self.min_log_variance,
+                f"a number below forward.max_log_variance={self.max_log_variance}",
+            )
+
+
+@dataclasses.dataclass(frozen=True)
+class ControllerConfig:
+    """Controller (inverse model) g(s, s*) -> tau, outputs squashed into the torque limits."""
+
+    # Hidden layer widths (ReLU). Paper: 300, 200, 100.
+    hidden: tuple[int, ...] = (300, 200, 100)
+    # Adam learning rate.
+    learning_rate: float = 1e-3
+    # Gradient steps before the first iteration (after the forward model's initial fit).
+    initial_steps: int = 1000
+    # Gradient steps per iteration of Algorithm 1.
+    steps_per_iteration: int = 200
+    # Minibatch size.
+    batch_size: int = 256
+
+    def __post_init__(self):
+        object.__setattr__(self, "hidden", tuple(self.hidden))
+        _layer_sizes("controller.hidden", self.hidden)
+        _positive_float("controller.learning_rate", self.learning_rate)
+        _nonnegative_int("controller.initial_steps", self.initial_steps)
+        _nonnegative_int("controller.steps_per_iteration", self.steps_per_iteration)
+        _positive_int("controller.batch_size", self.batch_size)
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopConfig:
+    """Algorithm 1: motor babbling, then iterations of rollout / refit f / refit g."""
+
+    # Iterations of Algorithm 1 (each: roll out g on every target, add data, refit f, g).
+    iterations: int = 10
+    # Number of independent runs (seeds 0..seeds-1 offset by Config.seed), a vmap axis.
+    seeds: int = 1
+    # Motor-babbling rollouts per target: PD-only tracking plus Gaussian torque noise.
+    babbling_rollouts: int = 2
+    # Standard deviation of the babbling torque noise, as a fraction of each torque limit.
+    babbling_noise: float = 0.1
+
+    def __post_init__(self):
+        _nonnegative_int("loop.iterations", self.iterations)
+        _positive_int("loop.seeds", self.seeds)
+        _positive_int("loop.babbling_rollouts", self.babbling_rollouts)
+        _nonnegative_float("loop.babbling_noise", self.babbling_noise)
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """A whole experiment: robot, task, both models, the controller loss and the loop."""
+
+    # Robot: a registered name ("iiwa14", "two_link_arm") or a path to a fixed-base MJCF
+    # with one torque motor per joint.
+    robot: str = "iiwa14"
+    # Controller loss; one of losses.CONTROLLER_LOSSES: joint, task, distal, supervised.
+    loss: str = "joint"
+    # Base seed; run k of loop.seeds uses seed + k.
+    seed: int = 0
+    task: TaskConfig = dataclasses.field(default_factory=TaskConfig)
+    forward: ForwardModelConfig = dataclasses.field(default_factory=ForwardModelConfig)
+    controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
+    loop: LoopConfig = dataclasses.field(default_factory=LoopConfig)
+
+    def __post_init__(self):
+        if not isinstance(self.robot, str) or not self.robot:
+            _fail("robot", self.robot, "a registered robot name or a path to an MJCF file")
+        if self.loss not in losses.CONTROLLER_LOSSES:
+            _fail("loss", self.loss, f"one of {losses.CONTROLLER_LOSSES}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            _fail("seed", self.seed, "an integer >= 0")
+        for name, cls in (
+            ("task", TaskConfig),
+            ("forward", ForwardModelConfig),
+            ("controller", ControllerConfig),
+            ("loop", LoopConfig),
+        ):
+            if not isinstance(getattr(self, name), cls):
+                _fail(name, getattr(self, name), f"a {cls.__name__}")
+
+    def replace(self, **changes) -> Config:
+        """A copy with top-level fields replaced (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+
+def to_dict(config: Config) -> dict:
+    """Plain nested dict (JSON-serialisable) of a config."""
+    return dataclasses.asdict(config)
+
+
+def from_dict(data: dict) -> Config:
+    """Inverse of :func:`to_dict`; unknown keys raise :class:`ConfigError` naming them."""
+    sections = {
+        "task": TaskConfig,
+        "forward": ForwardModelConfig,
+        "controller": ControllerConfig,
+        "loop": LoopConfig,
+    }
+    top_fields = {f.name for f in dataclasses.fields(Config)}
+    unknown = set(data) - top_fields
+    if unknown:
+        _fail("config", sorted(unknown), f"known top-level fields are {sorted(top_fields)}")
+    kwargs = {}
+    for key, value in data.items():
+        if key in sections:
+            cls = sections[key]
+            fields = {f.name for f in dataclasses.fields(cls)}
+            bad = set(value) - fields
+            if bad:
+                _fail(key, sorted(bad), f"known fields of {key} are {sorted(fields)}")
+            value = dict(value)
+            if key == "task" and value.get("targets") is not None:
+                value["targets"] = tuple(tuple(t) for t in value["targets"])
+            for tuple_field in ("hidden", "home"):
+                if isinstance(value.get(tuple_field), list):
+                    value[tuple_field] = tuple(value[tuple_field])
+            kwargs[key] = cls(**value)
+        else:
+            kwargs[key] = value
+    return Config(**kwargs)
+
+
+def seeds_of(config: Config) -> Sequence[int]:
+    """The seeds of the runs in this config: ``seed, seed + 1, ..., seed + seeds - 1``."""
+    return tuple(range(config.seed, config.seed + config.loop.seeds))

@@ -1,0 +1,175 @@
+"""Forward model and controller as ``(init, apply)`` pairs of pure functions (Flax linen).
+
+* Forward model ``f(s, tau) -> qdd``: an ensemble of probabilistic MLPs (PETS, Chua et al.
+  2018): each member outputs a Gaussian mean and a log-variance softly bounded between
+  learned limits. Inputs and outputs are normalised with statistics of the data
+  (:class:`Normaliser`); the members are one parameter pytree with a leading member axis.
+* Controller ``g(s, qdd*) -> tau``: an MLP whose output is squashed into the torque limits,
+  ``tau = tau_max * tanh(raw)``.
+
+Both models work in the space the desired state ``s*`` is given in (joint accelerations),
+so the task and joint losses compare like with like.
+
+Example:
+  >>> import jax, jax.numpy as jnp
+  >>> norm = Normaliser.identity(state_dim=4, nv=2, torque_limit=jnp.ones(2))
+  >>> fm = forward_model(hidden=(8,), ensemble_size=2, nv=2)
+  >>> params = fm.init(jax.random.key(0), state_dim=4)
+  >>> mean, log_var = fm.apply(params, norm, jnp.zeros(4), jnp.zeros(2))
+  >>> mean.shape, log_var.shape
+  ((2, 2), (2, 2))
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+
+@struct.dataclass
+class Normaliser:
+    """Data statistics for inputs and outputs (fixed after motor babbling).
+
+    Attributes:
+      state_mean, state_std: ``(state_dim,)``.
+      accel_mean, accel_std: ``(nv,)`` statistics of observed joint accelerations; the
+        forward model's outputs and the desired / observed accelerations use them.
+      torque_limit: ``(nv,)`` scale of the torques.
+    """
+
+    state_mean: jax.Array
+    state_std: jax.Array
+    accel_mean: jax.Array
+    accel_std: jax.Array
+    torque_limit: jax.Array
+
+    @classmethod
+    def identity(cls, state_dim: int, nv: int, torque_limit) -> Normaliser:
+        return cls(
+            jnp.zeros(state_dim),
+            jnp.ones(state_dim),
+            jnp.zeros(nv),
+            jnp.ones(nv),
+            jnp.asarray(torque_limit, jnp.float32),
+        )
+
+    @classmethod
+    def from_data(cls, states, observed_accel, torque_limit, weights=None) -> Normaliser:
+        """Statistics of ``states (n, state_dim)`` and ``observed_accel (n, nv)``.
+
+        ``weights (n,)`` (0 or 1) masks rows out (for example non-finite ones); standard
+        deviations are floored at 1e-3.
+        """
+        floor = 1e-3
+        n = states.shape[0]
+        weights = jnp.ones(n) if weights is None else weights.astype(jnp.float32)
+        total = jnp.maximum(jnp.sum(weights), 1.0)
+
+        def moments(x):
+            x = jnp.where(weights[:, None] > 0, x, 0.0)
+            mean = jnp.sum(weights[:, None] * x, 0) / total
+            var = jnp.sum(weights[:, None] * jnp.square(x - mean), 0) / total
+            return mean, jnp.maximum(jnp.sqrt(var), floor)
+
+        state_mean, state_std = moments(states)
+        accel_mean, accel_std = moments(observed_accel)
+        return cls(
+            state_mean, state_std, accel_mean, accel_std, jnp.asarray(torque_limit, jnp.float32)
+        )
+
+    def state(self, s):
+        return (s - self.state_mean) / self.state_std
+
+    def accel(self, qdd):
+        return (qdd - self.accel_mean) / self.accel_std
+
+    def accel_inverse(self, qdd_normalised):
+        return qdd_normalised * self.accel_std + self.accel_mean
+
+
+class _MLP(nn.Module):
+    hidden: tuple[int, ...]
+    out: int
+
+    @nn.compact
+    def __call__(self, x):
+        for width in self.hidden:
+            x = nn.relu(nn.Dense(width)(x))
+        return nn.Dense(self.out)(x)
+
+
+class Model(NamedTuple):
+    """An ``(init, apply)`` pair. ``init(key, state_dim) -> params``."""
+
+    init: Any
+    apply: Any
+
+
+def forward_model(
+    hidden: tuple[int, ...],
+    ensemble_size: int,
+    nv: int,
+    min_log_variance: float = -10.0,
+    max_log_variance: float = 0.5,
+) -> Model:
+    """Probabilistic ensemble ``f(s, tau)`` predicting the normalised joint acceleration.
+
+    ``apply(params, normaliser, state (..., state_dim), tau (..., nv))`` returns
+    ``(mean, log_variance)``, each ``(ensemble_size, ..., nv)``, in normalised units
+    (``normaliser.accel``). With ``per_member=True`` the inputs carry a leading member axis
+    ``(ensemble_size, ..., ·)`` and member ``e`` sees only ``state[e], tau[e]`` (used to
+    train every member on its own minibatches). Log-variance bounds follow PETS:
+    ``lv = max - softplus(max - raw); lv = min + softplus(lv - min)`` with learned ``max``
+    and ``min``.
+    """
+    mlp = _MLP(hidden=hidden, out=2 * nv)
+
+    def init(key, state_dim: int):
+        keys = jax.random.split(key, ensemble_size)
+        dummy = jnp.zeros((1, state_dim + nv))
+        members = jax.vmap(lambda k: mlp.init(k, dummy))(keys)
+        return {
+            "members": members,
+            "max_log_variance": jnp.full((nv,), max_log_variance, jnp.float32),
+            "min_log_variance": jnp.full((nv,), min_log_variance, jnp.float32),
+        }
+
+    def apply(params, normaliser: Normaliser, state, tau, per_member: bool = False):
+        x = jnp.concatenate([normaliser.state(state), tau / normaliser.torque_limit], -1)
+        in_axes = (0, 0) if per_member else (0, None)
+        out = jax.vmap(mlp.apply, in_axes=in_axes)(params["members"], x)
+        mean, raw = jnp.split(out, 2, axis=-1)
+        upper, lower = params["max_log_variance"], params["min_log_variance"]
+        log_variance = upper - jax.nn.softplus(upper - raw)
+        log_variance = lower + jax.nn.softplus(log_variance - lower)
+        return mean, log_variance
+
+    return Model(init, apply)
+
+
+def ensemble_mean(forward: Model, params, normaliser: Normaliser, state, tau):
+    """Prediction of the ensemble in normalised units: mean over members, ``(..., nv)``."""
+    mean, _ = forward.apply(params, normaliser, state, tau)
+    return jnp.mean(mean, axis=0)
+
+
+def controller(hidden: tuple[int, ...], nv: int) -> Model:
+    """Controller ``g(s, qdd*) -> tau``, squashed into the torque limits.
+
+    ``apply(params, normaliser, state (..., state_dim), desired_accel (..., nv))`` returns
+    ``tau (..., nv)`` with ``|tau| < normaliser.torque_limit``.
+    """
+    mlp = _MLP(hidden=hidden, out=nv)
+
+    def init(key, state_dim: int):
+        return mlp.init(key, jnp.zeros((1, state_dim + nv)))
+
+    def apply(params, normaliser: Normaliser, state, desired_accel):
+        x = jnp.concatenate([normaliser.state(state), normaliser.accel(desired_accel)], -1)
+        return normaliser.torque_limit * jnp.tanh(mlp.apply(params, x))
+
+    return Model(init, apply)

@@ -1,0 +1,196 @@
+"""Closed-loop rollouts in MuJoCo MJX: ``scan`` over control steps, ``vmap`` over targets.
+
+No gradient flows through the simulator (the method does not need one): rollouts produce
+transitions for the data set and tracking errors for the metrics.
+
+A *policy* is a pure function ``policy(mjx_model, data, step, key) -> tau`` of the MJX data
+at the current control step, a :class:`Step` of the state and reference, and a PRNG key.
+This module provides the learned controller's, the oracle's (MuJoCo's inverse dynamics)
+and PD-only policies.
+
+Example:
+  >>> import jax, numpy as np
+  >>> from cfm_jax import robots, tasks
+  >>> robot = robots.load("two_link_arm")
+  >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.1, control_dt=0.01)
+  >>> out = run(robot, oracle_policy(robot), tasks.as_jax(ref), kp=100.0, kd=20.0,
+  ...           control_dt=0.01, key=jax.random.key(0))
+  >>> out.transitions.state.shape
+  (1, 10, 4)
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from mujoco import mjx
+
+from cfm_jax import dataset, tasks
+
+
+class Step(NamedTuple):
+    """What a policy sees at control step ``t`` (arrays of one rollout)."""
+
+    state: jax.Array  # s_t = [q, qdot], (state_dim,)
+    desired: jax.Array  # qdd*_t, (nv,)
+    ref_q: jax.Array  # q_ref(t), (nq,)
+    ref_qd: jax.Array  # qd_ref(t), (nv,)
+    ref_qdd: jax.Array  # qdd_ref(t), (nv,)
+
+
+class Rollout(NamedTuple):
+    """Result of rollouts, leading axes ``(targets, steps)``.
+
+    Attributes:
+      transitions: :class:`cfm_jax.dataset.Transitions` with ``(targets, steps, ...)``.
+      position_error: ``q_{t+1} - q_ref(t+1)``, ``(targets, steps, nq)``.
+      finite: whether the simulator state after the step is finite, ``(targets, steps)``.
+    """
+
+    transitions: dataset.Transitions
+    position_error: jax.Array
+    finite: jax.Array
+
+
+def substeps(robot, control_dt: float) -> int:
+    """Physics steps per control step; ``control_dt`` must be a multiple of the timestep."""
+    ratio = control_dt / robot.timestep
+    count = int(round(ratio))
+    if count < 1 or abs(ratio - count) > 1e-6 * max(ratio, 1.0):
+        from cfm_jax.config import ConfigError
+
+        raise ConfigError(
+            f"task.control_dt={control_dt!r} is not allowed: a positive multiple of robot "
+            f"{robot.name!r}'s timestep {robot.timestep}"
+        )
+    return count
+
+
+def run(robot, policy, reference: tasks.Reference, kp, kd, control_dt, key) -> Rollout:
+    """Roll a policy out on every target of ``reference`` (pure; jit and vmap it).
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot` (its MJX model is closed over).
+      policy: ``policy(mjx_model, data, step, key) -> tau (nv,)``; torques are clipped to the
+        limits.
+      reference: a :class:`cfm_jax.tasks.Reference` of JAX arrays ``(targets, steps+1, nq)``.
+      kp, kd: gains of the PD correction in the desired acceleration.
+      control_dt: control period (a multiple of the physics timestep).
+      key: PRNG key, split per target and step.
+
+    Returns:
+      A :class:`Rollout`; every rollout starts at rest at ``reference.q[:, 0]``.
+    """
+    model = robot.mjx_model
+    n_sub = substeps(robot, control_dt)
+    limit = jnp.asarray(robot.torque_limit, jnp.float32)
+    nq = robot.nq
+
+    def one_target(ref_q, ref_qd, ref_qdd, target_key):
+        data = mjx.make_data(model).replace(qpos=ref_q[0], qvel=jnp.zeros_like(ref_qd[0]))
+
+        def control_step(carry, t):
+            data, key = carry
+            key, key_policy = jax.random.split(key)
+            q, qd = data.qpos, data.qvel
+            desired = tasks.desired_acceleration(ref_q[t], ref_qd[t], ref_qdd[t], q, qd, kp, kd)
+            step = Step(jnp.concatenate([q, qd]), desired, ref_q[t], ref_qd[t], ref_qdd[t])
+            tau = jnp.clip(policy(model, data, step, key_policy), -limit, limit)
+            data = data.replace(ctrl=robot.torque_to_ctrl(tau))
+            data = jax.lax.fori_loop(0, n_sub, lambda _, d: mjx.step(model, d), data)
+            observed = (data.qvel - qd) / control_dt
+            finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
+            out = (
+                dataset.Transitions(step.state, desired, tau, observed),
+                data.qpos[:nq] - ref_q[t + 1],
+                finite,
+            )
+            return (data, key), out
+
+        steps = ref_q.shape[0] - 1
+        _, (transitions, error, finite) = jax.lax.scan(
+            control_step, (data, target_key), jnp.arange(steps)
+        )
+        # Once the state is non-finite, everything after it is too.
+        finite = jnp.cumprod(finite.astype(jnp.int32)).astype(bool)
+        return Rollout(transitions, error, finite)
+
+    keys = jax.random.split(key, reference.q.shape[0])
+    return jax.vmap(one_target)(reference.q, reference.qd, reference.qdd, keys)
+
+
+def controller_policy(controller, params, normaliser):
+    """The learned controller ``tau = g(s_t, qdd*_t)``."""
+
+    def policy(model, data, step, key):
+        del model, data, key
+        return controller.apply(params, normaliser, step.state, step.desired)
+
+    return policy
+
+
+def oracle_policy(robot):
+    """MuJoCo's inverse dynamics at the current state: ``tau = M qdd* + c - passive``.
+
+    ``c`` is MuJoCo's bias force (Coriolis, centrifugal, gravity), ``passive`` the joint
+    damping and spring forces. With the Euler integrator and implicit damping, the
+    integrator's extra ``h D qdd`` term (``h`` the timestep, ``D`` the joint damping) is
+    added so that one physics step realises ``qdd*`` exactly (up to torque limits); with
+    several physics steps per control step the torque is held and tracking is approximate.
+    """
+    import mujoco
+
+    mj = robot.mj_model
+    eulerdamp = (
+        int(mj.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_EULER)
+        and not int(mj.opt.disableflags) & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
+    )
+    implicit_damping = jnp.asarray(
+        mj.dof_damping * mj.opt.timestep if eulerdamp else np.zeros(mj.nv), jnp.float32
+    )
+
+    def policy(model, data, step, key):
+        del key
+        data = mjx.fwd_position(model, data)
+        data = mjx.fwd_velocity(model, data)
+        inertial = mjx.mul_m(model, data, step.desired) + implicit_damping * step.desired
+        return inertial + data.qfrc_bias - data.qfrc_passive
+
+    return policy
+
+
+def pd_gains(robot, kp: float, kd: float, home) -> tuple[np.ndarray, np.ndarray]:
+    """Torque PD gains equivalent to the acceleration gains ``kp, kd`` at the home pose.
+
+    ``K_p = kp * diag(M(q_home))`` and ``K_d = kd * diag(M(q_home))``: the gains that give each
+    joint, taken alone at the home pose, the same closed-loop stiffness and damping as the
+    PD correction of the desired acceleration. No gravity compensation, no feed-forward.
+    """
+    inertia = robot.mass_matrix_diagonal(home)
+    return kp * inertia, kd * inertia
+
+
+def pd_policy(gain_p, gain_d, noise_std=None):
+    """PD-only feedback ``tau = K_p (q_ref - q) + K_d (qd_ref - qd)`` (+ Gaussian noise).
+
+    With ``noise_std`` (per joint, N·m) this is the motor-babbling policy.
+    """
+    gain_p = jnp.asarray(gain_p, jnp.float32)
+    gain_d = jnp.asarray(gain_d, jnp.float32)
+
+    def policy(model, data, step, key):
+        del model
+        tau = gain_p * (step.ref_q - data.qpos) + gain_d * (step.ref_qd - data.qvel)
+        if noise_std is not None:
+            tau = tau + jnp.asarray(noise_std, jnp.float32) * jax.random.normal(key, tau.shape)
+        return tau
+
+    return policy
+
+
+def tracking_mse(result: Rollout) -> jax.Array:
+    """Joint-position tracking MSE per target: mean over steps and joints, ``(targets,)``."""
+    return jnp.mean(jnp.square(result.position_error), axis=(-2, -1))

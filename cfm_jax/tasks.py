@@ -1,0 +1,143 @@
+"""Reference trajectories and desired states for the joint-space tracking task.
+
+The inverse-dynamics task (paper section IV-A-1): the robot reaches from its home pose to
+each target along a quintic (minimum-jerk) joint-space path of ``duration`` seconds. At each
+control step the desired next-step joint acceleration is
+
+    qdd*_t = qdd_ref(t) + kp (q_ref(t) - q_t) + kd (qd_ref(t) - qd_t)
+
+(``kp = kd = 0`` is pure feed-forward of the reference acceleration).
+
+Example:
+  >>> import numpy as np
+  >>> ref = quintic(np.zeros(1), np.ones(1), duration=1.0, control_dt=0.5)
+  >>> ref.q[:, 0].tolist()
+  [0.0, 0.5, 1.0]
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from cfm_jax.config import ConfigError, TaskConfig
+
+DEFAULT_TARGET_COUNT = 5
+# Largest default reaching distance per joint (rad or m), and the fraction of each joint's
+# range kept free at both ends when placing default targets.
+DEFAULT_REACH = 0.6
+RANGE_MARGIN = 0.1
+
+
+class Reference(NamedTuple):
+    """Reference trajectories, one per target.
+
+    Attributes:
+      q, qd, qdd: ``(targets, steps + 1, nq)`` position, velocity and acceleration at the
+        control times ``0, dt, ..., duration``.
+    """
+
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+
+    @property
+    def steps(self) -> int:
+        """Number of control steps per rollout."""
+        return self.q.shape[1] - 1
+
+
+def quintic(start, goal, duration: float, control_dt: float) -> Reference:
+    """Minimum-jerk path ``start -> goal`` sampled every ``control_dt``: one target.
+
+    ``q(t) = start + (goal - start) (10 u^3 - 15 u^4 + 6 u^5)``, ``u = t / duration``; zero
+    velocity and acceleration at both ends.
+
+    Returns:
+      A :class:`Reference` with a leading target axis of size 1.
+    """
+    start = np.asarray(start, dtype=np.float64)
+    goal = np.asarray(goal, dtype=np.float64)
+    steps = int(round(duration / control_dt))
+    t = np.arange(steps + 1) * control_dt
+    u = np.clip(t / duration, 0.0, 1.0)[:, None]
+    delta = (goal - start)[None, :]
+    q = start + delta * (10 * u**3 - 15 * u**4 + 6 * u**5)
+    qd = delta * (30 * u**2 - 60 * u**3 + 30 * u**4) / duration
+    qdd = delta * (60 * u - 180 * u**2 + 120 * u**3) / duration**2
+    return Reference(q[None], qd[None], qdd[None])
+
+
+def default_targets(joint_range: np.ndarray, home: np.ndarray) -> np.ndarray:
+    """Five reaching targets inside the joint limits, the same for every call.
+
+    Target ``i`` is ``home + reach * d_i``, where ``d_i`` are fixed directions with entries in
+    ``[-1, 1]`` (drawn once from a seeded generator), ``reach = min(0.6, range / 4)`` per
+    joint, and the result is clipped to the joint range shrunk by 10% at each end. Works for
+    any number of joints.
+
+    Returns:
+      ``(5, nq)`` target joint positions.
+    """
+    nq = home.shape[0]
+    directions = np.random.default_rng(0).uniform(-1.0, 1.0, size=(DEFAULT_TARGET_COUNT, nq))
+    # Make every target move every joint by at least a third of the reach.
+    directions = np.sign(directions) * np.maximum(np.abs(directions), 1 / 3)
+    width = joint_range[:, 1] - joint_range[:, 0]
+    reach = np.where(np.isfinite(width), np.minimum(DEFAULT_REACH, width / 4), DEFAULT_REACH)
+    lower = joint_range[:, 0] + RANGE_MARGIN * np.where(np.isfinite(width), width, 0.0)
+    upper = joint_range[:, 1] - RANGE_MARGIN * np.where(np.isfinite(width), width, 0.0)
+    return np.clip(home + reach * directions, lower, upper)
+
+
+def reaching(robot, task: TaskConfig, control_dt: float) -> Reference:
+    """Reference trajectories of the configured targets for a robot.
+
+    Raises:
+      ConfigError: targets or home of the wrong length or outside the joint limits.
+    """
+    home = robot.home if task.home is None else np.asarray(task.home)
+    check_positions("task.home", home[None], robot)
+    targets = (
+        default_targets(robot.joint_range, home)
+        if task.targets is None
+        else np.asarray(task.targets, dtype=np.float64)
+    )
+    check_positions("task.targets", targets, robot)
+    parts = [quintic(home, target, task.duration, control_dt) for target in targets]
+    return Reference(*(np.concatenate(arrays) for arrays in zip(*parts, strict=True)))
+
+
+def check_positions(field: str, positions: np.ndarray, robot) -> None:
+    """Raise ConfigError if joint positions ``(k, nq)`` have the wrong size or break limits."""
+    if positions.shape[-1] != robot.nq:
+        raise ConfigError(
+            f"{field} has {positions.shape[-1]} joint positions per entry; robot "
+            f"{robot.name!r} has nq={robot.nq} joints {robot.joint_names}"
+        )
+    low, high = robot.joint_range[:, 0], robot.joint_range[:, 1]
+    bad = (positions < low) | (positions > high)
+    if np.any(bad):
+        k, j = np.argwhere(bad)[0]
+        raise ConfigError(
+            f"{field}[{k}][{j}]={positions[k, j]:.4g} (joint {robot.joint_names[j]!r}) is "
+            f"outside the joint range [{low[j]:.4g}, {high[j]:.4g}]"
+        )
+
+
+def desired_acceleration(ref_q, ref_qd, ref_qdd, q, qd, kp: float, kd: float):
+    """``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``; all arrays ``(..., nv)``."""
+    return ref_qdd + kp * (ref_q - q) + kd * (ref_qd - qd)
+
+
+def rms_reach(reference: Reference) -> float:
+    """RMS reaching distance: ``sqrt(mean over targets and joints of (q_goal - q_home)^2)``."""
+    delta = reference.q[:, -1] - reference.q[:, 0]
+    return float(np.sqrt(np.mean(np.square(delta))))
+
+
+def as_jax(reference: Reference) -> Reference:
+    """The same reference as float32 JAX arrays."""
+    return Reference(*(jnp.asarray(x, jnp.float32) for x in reference))

@@ -1,0 +1,378 @@
+"""Algorithm 1 of the paper: a pure, compiled core inside a thin impure shell.
+
+Pure core (jit + vmap over seeds):
+
+* :meth:`Experiment.init` -- motor babbling (PD-only tracking of the references plus
+  Gaussian torque noise), normalisation statistics from the babbling data, initial fits of
+  the forward model and then the controller (with the chosen loss).
+* :meth:`Experiment.iteration` -- one iteration: roll the controller out on every target,
+  measure the metrics on the new data (before any refit), add the data, refit the forward
+  model, refit the controller. One compiled function of one :class:`TrainState`.
+* :meth:`Experiment.evaluate` -- the rollout and metrics alone (the final evaluation).
+
+Impure shell: :func:`train` (progress display, result files, tables); it says so below.
+
+Example:
+  >>> from cfm_jax import config as cfg
+  >>> small = cfg.Config(robot="two_link_arm", loop=cfg.LoopConfig(iterations=1))
+  >>> result = train(small, progress=False)  # doctest: +SKIP
+  >>> result.metrics.columns[:4].tolist()  # doctest: +SKIP
+  ['loss', 'seed', 'iteration', 'target']
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from functools import cached_property
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pandas as pd
+from flax import struct
+
+from cfm_jax import config as config_lib
+from cfm_jax import dataset, networks, robots, rollout, tasks, update
+
+METRIC_COLUMNS = (
+    "loss",
+    "seed",
+    "iteration",
+    "target",
+    "tracking_mse",
+    "prediction_error",
+    "predicted_task_error",
+    "finite_fraction",
+    "forward_loss",
+    "controller_loss",
+)
+
+
+@struct.dataclass
+class TrainState:
+    """Everything one run carries from iteration to iteration (a pytree).
+
+    With several seeds every leaf has a leading seed axis.
+    """
+
+    forward_params: Any
+    forward_opt_state: Any
+    controller_params: Any
+    controller_opt_state: Any
+    normaliser: networks.Normaliser
+    data: dataset.Dataset
+    key: jax.Array
+    iteration: jax.Array  # int32: completed iterations of Algorithm 1
+
+
+class Experiment:
+    """The static pieces of one config (robot, reference, models, optimisers) and its
+    compiled functions. Build once per config and reuse: each function compiles once."""
+
+    def __init__(self, config: config_lib.Config):
+        self.config = config
+        self.robot = robots.load(config.robot)
+        task = config.task
+        self.control_dt = task.control_dt if task.control_dt is not None else self.robot.timestep
+        rollout.substeps(self.robot, self.control_dt)  # validates control_dt
+        self.reference_np = tasks.reaching(self.robot, task, self.control_dt)
+        self.reference = tasks.as_jax(self.reference_np)
+        nv, state_dim = self.robot.nv, self.robot.state_dim
+        fm = config.forward
+        self.forward = networks.forward_model(
+            fm.hidden, fm.ensemble_size, nv, fm.min_log_variance, fm.max_log_variance
+        )
+        self.controller = networks.controller(config.controller.hidden, nv)
+        self.forward_optimizer = optax.adam(fm.learning_rate)
+        self.controller_optimizer = optax.adam(config.controller.learning_rate)
+        self.state_dim = state_dim
+        targets, steps = self.reference_np.q.shape[0], self.reference_np.steps
+        self.transitions_per_rollout = targets * steps
+        self.capacity = self.transitions_per_rollout * (
+            config.loop.babbling_rollouts + config.loop.iterations
+        )
+        home = self.reference_np.q[0, 0]
+        self.pd_gain_p, self.pd_gain_d = rollout.pd_gains(self.robot, task.kp, task.kd, home)
+
+    # ----- pure functions of one seed ---------------------------------------------------
+
+    def _run(self, policy, key):
+        task = self.config.task
+        return rollout.run(
+            self.robot, policy, self.reference, task.kp, task.kd, self.control_dt, key
+        )
+
+    def init_one(self, key) -> TrainState:
+        """Babbling data, normaliser, fresh parameters and the initial fits (one seed)."""
+        cfg = self.config
+        key, key_babble, key_fm, key_ctrl, key_fit_fm, key_fit_ctrl = jax.random.split(key, 6)
+        noise = cfg.loop.babbling_noise * self.robot.torque_limit
+        babble = rollout.pd_policy(self.pd_gain_p, self.pd_gain_d, noise_std=noise)
+        babble_keys = jax.random.split(key_babble, cfg.loop.babbling_rollouts)
+        results = jax.vmap(lambda k: self._run(babble, k))(babble_keys)
+        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[3:]), results.transitions)
+        valid = results.finite.reshape(-1)
+        normaliser = networks.Normaliser.from_data(
+            flat.state, flat.observed, self.robot.torque_limit, weights=valid
+        )
+        data = dataset.add(dataset.empty(self.capacity, self.state_dim, self.robot.nv), flat,
+                           valid)
+        forward_params = self.forward.init(key_fm, self.state_dim)
+        controller_params = self.controller.init(key_ctrl, self.state_dim)
+        forward_opt_state = self.forward_optimizer.init(forward_params)
+        controller_opt_state = self.controller_optimizer.init(controller_params)
+        forward_params, forward_opt_state, _ = update.fit_forward(
+            self.forward, self.forward_optimizer, forward_params, forward_opt_state,
+            normaliser, data, key_fit_fm, cfg.forward.initial_steps, cfg.forward.batch_size,
+        )
+        controller_params, controller_opt_state, _ = update.fit_controller(
+            cfg.loss, self.forward, self.controller, self.controller_optimizer,
+            controller_params, controller_opt_state, forward_params, normaliser, data,
+            key_fit_ctrl, cfg.controller.initial_steps, cfg.controller.batch_size,
+        )
+        return TrainState(
+            forward_params, forward_opt_state, controller_params, controller_opt_state,
+            normaliser, data, key, jnp.int32(0),
+        )
+
+    def _metrics(self, state: TrainState, result: rollout.Rollout) -> dict:
+        """Per-target metrics of a rollout of the current models (before any refit)."""
+        t = result.transitions
+        norm = state.normaliser
+        predicted = norm.accel_inverse(
+            networks.ensemble_mean(self.forward, state.forward_params, norm, t.state, t.action)
+        )
+        tau = self.controller.apply(state.controller_params, norm, t.state, t.desired)
+        predicted_task = norm.accel_inverse(
+            networks.ensemble_mean(self.forward, state.forward_params, norm, t.state, tau)
+        )
+        return {
+            "tracking_mse": rollout.tracking_mse(result),
+            "prediction_error": jnp.mean(jnp.square(predicted - t.observed), axis=(-2, -1)),
+            "predicted_task_error": jnp.mean(
+                jnp.square(predicted_task - t.desired), axis=(-2, -1)
+            ),
+            "finite_fraction": jnp.mean(result.finite.astype(jnp.float32), axis=-1),
+        }
+
+    def _rollout_controller(self, state: TrainState, key):
+        policy = rollout.controller_policy(
+            self.controller, state.controller_params, state.normaliser
+        )
+        return self._run(policy, key)
+
+    def iteration_one(self, state: TrainState) -> tuple[TrainState, dict]:
+        """One iteration of Algorithm 1 for one seed: rollout, metrics, add, refit f, g."""
+        cfg = self.config
+        key, key_rollout, key_fit_fm, key_fit_ctrl = jax.random.split(state.key, 4)
+        result = self._rollout_controller(state, key_rollout)
+        metrics = self._metrics(state, result)
+        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), result.transitions)
+        data = dataset.add(state.data, flat, result.finite.reshape(-1))
+        forward_params, forward_opt_state, forward_loss = update.fit_forward(
+            self.forward, self.forward_optimizer, state.forward_params,
+            state.forward_opt_state, state.normaliser, data, key_fit_fm,
+            cfg.forward.steps_per_iteration, cfg.forward.batch_size,
+        )
+        controller_params, controller_opt_state, controller_loss = update.fit_controller(
+            cfg.loss, self.forward, self.controller, self.controller_optimizer,
+            state.controller_params, state.controller_opt_state, forward_params,
+            state.normaliser, data, key_fit_ctrl, cfg.controller.steps_per_iteration,
+            cfg.controller.batch_size,
+        )
+        metrics["forward_loss"] = forward_loss
+        metrics["controller_loss"] = controller_loss
+        new_state = TrainState(
+            forward_params, forward_opt_state, controller_params, controller_opt_state,
+            state.normaliser, data, key, state.iteration + 1,
+        )
+        return new_state, metrics
+
+    def evaluate_one(self, state: TrainState) -> dict:
+        """Rollout and metrics of the current controller, no update (one seed).
+
+        Uses a key derived from the state's key without consuming it.
+        """
+        result = self._rollout_controller(state, jax.random.fold_in(state.key, 1))
+        metrics = self._metrics(state, result)
+        metrics["forward_loss"] = jnp.float32(jnp.nan)
+        metrics["controller_loss"] = jnp.float32(jnp.nan)
+        return metrics
+
+    # ----- compiled, vmapped over seeds ---------------------------------------------
+
+    @cached_property
+    def init(self):
+        """``init(keys (seeds,)) -> TrainState`` with a leading seed axis."""
+        return jax.jit(jax.vmap(self.init_one))
+
+    @cached_property
+    def iteration(self):
+        """``iteration(state) -> (state, metrics)``, vmapped over seeds, compiled once."""
+        return jax.jit(jax.vmap(self.iteration_one))
+
+    @cached_property
+    def evaluate(self):
+        return jax.jit(jax.vmap(self.evaluate_one))
+
+    def baselines(self) -> pd.DataFrame:
+        """Tracking MSE per target of the oracle (MuJoCo inverse dynamics) and PD-only."""
+        rows = []
+        policies = {
+            "oracle": rollout.oracle_policy(self.robot),
+            "pd_only": rollout.pd_policy(self.pd_gain_p, self.pd_gain_d),
+        }
+        for name, policy in policies.items():
+            result = jax.jit(lambda key, policy=policy: self._run(policy, key))(
+                jax.random.key(0)
+            )
+            mse = np.asarray(rollout.tracking_mse(result))
+            rows += [{"baseline": name, "target": k, "tracking_mse": float(v)}
+                     for k, v in enumerate(mse)]
+        return pd.DataFrame(rows)
+
+
+@dataclasses.dataclass
+class TrainResult:
+    """What :func:`train` returns.
+
+    Attributes:
+      config: the config that was run.
+      metrics: one row per (seed, iteration, target), columns :data:`METRIC_COLUMNS`.
+        Iteration ``i`` is measured on the rollout of the controller after ``i`` refits
+        (``0``: after babbling and the initial fit); ``forward_loss`` and
+        ``controller_loss`` are the mean training losses of the refit that followed.
+      baselines: oracle and PD-only tracking MSE per target.
+      state: the final :class:`TrainState` (parameters, optimiser states, data set, key),
+        leaves with a leading seed axis.
+      rms_reach: RMS reaching distance of the targets (rad), the scale for tracking errors.
+      seconds: wall time of the run, and ``compile_seconds`` of its first iteration.
+    """
+
+    config: config_lib.Config
+    metrics: pd.DataFrame
+    baselines: pd.DataFrame
+    state: TrainState
+    rms_reach: float
+    seconds: float
+    compile_seconds: float
+
+    @property
+    def params(self) -> dict:
+        """Final parameters: ``{"forward": ..., "controller": ...}`` (leading seed axis)."""
+        return {"forward": self.state.forward_params,
+                "controller": self.state.controller_params}
+
+    def final(self) -> pd.DataFrame:
+        """Rows of the last iteration."""
+        return self.metrics[self.metrics.iteration == self.metrics.iteration.max()]
+
+
+def _rows(loss, seeds, iteration, metrics) -> list[dict]:
+    metrics = jax.tree.map(np.asarray, metrics)
+    targets = metrics["tracking_mse"].shape[1]
+    rows = []
+    for s, seed in enumerate(seeds):
+        for k in range(targets):
+            row = {"loss": loss, "seed": seed, "iteration": iteration, "target": k}
+            for name in METRIC_COLUMNS[4:]:
+                value = metrics[name][s]
+                row[name] = float(value[k] if np.ndim(value) else value)
+            rows.append(row)
+    return rows
+
+
+def train(
+    config: config_lib.Config,
+    progress: bool = True,
+    out_dir: str | None = None,
+    experiment: Experiment | None = None,
+) -> TrainResult:
+    """Run Algorithm 1 for every seed of ``config`` (seeds as a vmap axis).
+
+    Impure shell: shows progress, writes ``out_dir/metrics.csv`` after every iteration (so
+    a crash loses at most the iteration in flight), ``out_dir/config.json`` and
+    ``out_dir/baselines.csv``. Everything under it is pure and compiled.
+
+    Args:
+      config: a :class:`cfm_jax.config.Config`.
+      progress: show a progress bar (rich).
+      out_dir: directory for result files (created), or None.
+      experiment: a prebuilt :class:`Experiment` for this config, to reuse its compiled
+        functions (optional).
+
+    Returns:
+      A :class:`TrainResult`.
+    """
+    start = time.perf_counter()
+    exp = experiment if experiment is not None else Experiment(config)
+    seeds = config_lib.seeds_of(config)
+    if out_dir:
+        os.makedirs(out_dir, exist_ok=True)
+        with open(os.path.join(out_dir, "config.json"), "w") as f:
+            json.dump(config_lib.to_dict(config), f, indent=2)
+    rows: list[dict] = []
+
+    def record(iteration, metrics):
+        rows.extend(_rows(config.loss, seeds, iteration, metrics))
+        if out_dir:
+            frame = pd.DataFrame(rows, columns=list(METRIC_COLUMNS))
+            tmp = os.path.join(out_dir, "metrics.csv.tmp")
+            frame.to_csv(tmp, index=False)
+            os.replace(tmp, os.path.join(out_dir, "metrics.csv"))
+
+    with _progress(progress) as bar:
+        total = config.loop.iterations + 2
+        task = bar.add_task(f"{config.robot} {config.loss}: babbling + initial fit", total=total)
+        keys = jax.vmap(jax.random.key)(jnp.asarray(seeds, jnp.uint32))
+        state = exp.init(keys)
+        jax.block_until_ready(state)
+        bar.advance(task)
+        compile_seconds = float("nan")
+        for i in range(config.loop.iterations):
+            bar.update(task, description=f"{config.robot} {config.loss}: iteration {i + 1}")
+            t0 = time.perf_counter()
+            state, metrics = exp.iteration(state)
+            metrics = jax.device_get(metrics)
+            if i == 0:
+                compile_seconds = time.perf_counter() - t0
+            record(i, metrics)
+            bar.advance(task)
+        bar.update(task, description=f"{config.robot} {config.loss}: final evaluation")
+        record(config.loop.iterations, jax.device_get(exp.evaluate(state)))
+        baselines = exp.baselines()
+        bar.advance(task)
+    if out_dir:
+        baselines.to_csv(os.path.join(out_dir, "baselines.csv"), index=False)
+    return TrainResult(
+        config=config,
+        metrics=pd.DataFrame(rows, columns=list(METRIC_COLUMNS)),
+        baselines=baselines,
+        state=state,
+        rms_reach=tasks.rms_reach(exp.reference_np),
+        seconds=time.perf_counter() - start,
+        compile_seconds=compile_seconds,
+    )
+
+
+def _progress(enabled: bool):
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+    )
+
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        disable=not enabled,
+    )
