@@ -1,0 +1,288 @@
+"""Robot loading and checks (cfm_jax/robots.py).
+
+Oracles: small MJCF strings written here with known joints/actuators, and MuJoCo's C engine
+(``mj_fullM``) for the mass matrix. The physics numbers of the shipped XML files are tested
+in tests/test_robot_models.py, not here.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from cfm_jax import robots
+from cfm_jax.robots import RobotError
+
+ROBOT_DIR = Path(__file__).resolve().parents[1] / "robots"
+
+
+def mjcf(body: str, actuators: str, option: str = "") -> str:
+    return f"""<mujoco model="test">
+  <compiler angle="radian" autolimits="true"/>
+  {option}
+  <worldbody>{body}</worldbody>
+  <actuator>{actuators}</actuator>
+</mujoco>"""
+
+
+TWO_HINGES = """
+<body name="a"><joint name="j1" type="hinge" axis="0 1 0" range="-1 1"/>
+  <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.02" mass="1"/>
+  <body name="b" pos="0.3 0 0"><joint name="j2" type="slide" axis="1 0 0"/>
+    <geom type="sphere" size="0.05" mass="0.5"/></body>
+</body>"""
+
+
+def write(tmp_path, text, name="robot.xml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return str(path)
+
+
+# ---- loading ---------------------------------------------------------------------------------
+
+
+def test_registered_robots():
+    assert set(robots.registered()) >= {"iiwa14", "two_link_arm"}
+
+
+@pytest.mark.parametrize("name, nv", [("iiwa14", 7), ("two_link_arm", 2)])
+def test_load_by_name_and_by_path_agree(name, nv):
+    by_name = robots.load(name)
+    by_path = robots.load(str(ROBOT_DIR / f"{name}.xml"))
+    for robot in (by_name, by_path):
+        assert robot.name == name
+        assert robot.nq == robot.nv == nv
+        assert robot.state_dim == 2 * nv
+        assert robot.timestep == 0.002
+        assert Path(robot.path).is_absolute()
+    np.testing.assert_array_equal(by_name.torque_limit, by_path.torque_limit)
+    np.testing.assert_array_equal(by_name.joint_range, by_path.joint_range)
+    np.testing.assert_array_equal(by_name.home, by_path.home)
+    assert by_name.joint_names == by_path.joint_names
+
+
+def test_two_link_arm_fields_from_its_xml():
+    # Numbers typed from robots/two_link_arm.xml: ctrlrange 20 / 10, range +-2.5, key "home".
+    robot = robots.load("two_link_arm")
+    assert robot.joint_names == ("shoulder", "elbow")
+    np.testing.assert_array_equal(robot.torque_limit, [20.0, 10.0])
+    np.testing.assert_array_equal(robot.joint_range, [[-2.5, 2.5], [-2.5, 2.5]])
+    np.testing.assert_allclose(robot.home, [-0.785398, 1.570796])
+    np.testing.assert_array_equal(robot.gear, [1.0, 1.0])
+
+
+def test_timestep_override():
+    robot = robots.load("two_link_arm", timestep=0.001)
+    assert robot.timestep == 0.001
+    # the override must not leak into another load of the same file
+    assert robots.load("two_link_arm").timestep == 0.002
+
+
+def test_user_file_fields(tmp_path):
+    # ctrlrange and forcerange both given: the torque limit is the smaller one;
+    # unlimited slide joint: range (-inf, inf); no keyframe: home = qpos0 (0 for both).
+    path = write(
+        tmp_path,
+        mjcf(
+            TWO_HINGES,
+            '<motor name="m2" joint="j2" gear="2" ctrlrange="-3 3" forcerange="-5 5"/>'
+            '<motor name="m1" joint="j1" ctrlrange="-4 4"/>',
+        ),
+        "my_arm.xml",
+    )
+    robot = robots.load(path)
+    assert robot.name == "my_arm"
+    assert robot.joint_names == ("j1", "j2")
+    np.testing.assert_array_equal(robot.actuator_of_joint, [1, 0])  # actuators listed reversed
+    np.testing.assert_array_equal(robot.gear, [1.0, 2.0])
+    # j1: ctrl 4 * gear 1 = 4; j2: min(ctrl 3 * gear 2 = 6, force 5) = 5
+    np.testing.assert_array_equal(robot.torque_limit, [4.0, 5.0])
+    np.testing.assert_array_equal(robot.joint_range, [[-1.0, 1.0], [-np.inf, np.inf]])
+    np.testing.assert_array_equal(robot.home, [0.0, 0.0])
+
+
+def test_torque_to_ctrl_with_gear(tmp_path):
+    # ctrl = tau / gear, placed at the joint's actuator index.
+    path = write(
+        tmp_path,
+        mjcf(
+            TWO_HINGES,
+            '<motor name="m2" joint="j2" gear="4" ctrlrange="-10 10"/>'
+            '<motor name="m1" joint="j1" gear="0.5" ctrlrange="-10 10"/>',
+        ),
+    )
+    robot = robots.load(path)
+    tau = jnp.array([[1.0, 2.0], [-3.0, 8.0]])  # (batch, nv) in joint order j1, j2
+    ctrl = jax.jit(robot.torque_to_ctrl)(tau)
+    # actuator 0 drives j2 (gear 4), actuator 1 drives j1 (gear 0.5)
+    np.testing.assert_array_equal(np.asarray(ctrl), [[0.5, 2.0], [2.0, -6.0]])
+    # torque limit = ctrlrange * |gear|
+    np.testing.assert_array_equal(robot.torque_limit, [5.0, 40.0])
+    # And MuJoCo C turns that ctrl (inside ctrlrange) into exactly tau on each dof.
+    data = mujoco.MjData(robot.mj_model)
+    data.ctrl[:] = np.asarray(ctrl[0])
+    mujoco.mj_forward(robot.mj_model, data)
+    np.testing.assert_allclose(data.qfrc_actuator, [1.0, 2.0], rtol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["iiwa14", "two_link_arm"])
+def test_mass_matrix_diagonal_matches_mj_fullM(name):
+    robot = robots.load(name)
+    rng = np.random.default_rng(0)
+    low = np.where(np.isfinite(robot.joint_range[:, 0]), robot.joint_range[:, 0], -1.0)
+    high = np.where(np.isfinite(robot.joint_range[:, 1]), robot.joint_range[:, 1], 1.0)
+    for _ in range(3):
+        q = rng.uniform(low, high)
+        # Oracle: a fresh MjData, mj_forward, then column i of M is mj_mulM(M, e_i) (a
+        # different C code path from the library's mj_fullM) and the diagonal is e_i' M e_i.
+        data = mujoco.MjData(robot.mj_model)
+        data.qpos[:] = q
+        mujoco.mj_forward(robot.mj_model, data)
+        diag = np.zeros(robot.nv)
+        for i in range(robot.nv):
+            unit, column = np.zeros(robot.nv), np.zeros(robot.nv)
+            unit[i] = 1.0
+            mujoco.mj_mulM(robot.mj_model, data, column, unit)
+            diag[i] = column[i]
+        # float64 products with a unit vector are exact sums of the same terms: 1e-12 rel.
+        np.testing.assert_allclose(robot.mass_matrix_diagonal(q), diag, rtol=1e-12)
+        # and the dense matrix from mj_fullM agrees, as documented
+        dense = np.zeros((robot.nv, robot.nv))
+        mujoco.mj_fullM(robot.mj_model, data, dense)
+        np.testing.assert_array_equal(robot.mass_matrix_diagonal(q), np.diag(dense))
+
+
+def test_mass_matrix_diagonal_two_link_closed_form():
+    # Planar two-link arm: M11 = I1 + I2 + m2 l1^2 + 2 m2 l1 c2 cos q2 + arm, M22 = I2 + arm,
+    # so M11(q2) - M11(q2') = 2 m2 l1 c2 (cos q2 - cos q2'), m2 = 0.8, l1 = 0.5, c2 = 0.2.
+    robot = robots.load("two_link_arm")
+    m_a = robot.mass_matrix_diagonal(np.array([0.3, 0.0]))
+    m_b = robot.mass_matrix_diagonal(np.array([-1.0, np.pi / 2]))
+    np.testing.assert_allclose(m_a[0] - m_b[0], 2 * 0.8 * 0.5 * 0.2 * (1.0 - 0.0), rtol=1e-9)
+    np.testing.assert_allclose(m_a[1], m_b[1], rtol=1e-12)  # M22 independent of q
+
+
+# ---- errors ----------------------------------------------------------------------------------
+
+
+def test_nonexistent_path(tmp_path):
+    missing = str(tmp_path / "nope.xml")
+    with pytest.raises(RobotError) as info:
+        robots.load(missing)
+    message = str(info.value)
+    assert repr(missing) in message and "no such MJCF file" in message
+    assert "iiwa14" in message  # lists the registered names as the alternative
+
+
+def test_unknown_registered_name():
+    with pytest.raises(RobotError) as info:
+        robots.load("solo12")
+    message = str(info.value)
+    assert "'solo12' is not a registered robot" in message
+    assert str(robots.registered()) in message
+    assert "iiwa14" in message and "two_link_arm" in message
+
+
+def test_mjcf_that_does_not_parse(tmp_path):
+    path = write(tmp_path, "<mujoco><worldbody><body></worldbody></mujoco>")
+    with pytest.raises(RobotError, match="does not parse"):
+        robots.load(path)
+
+
+def test_mjcf_with_unknown_joint_reference(tmp_path):
+    path = write(tmp_path, mjcf(TWO_HINGES, '<motor joint="nope" ctrlrange="-1 1"/>'))
+    with pytest.raises(RobotError, match="does not parse"):
+        robots.load(path)
+
+
+def test_no_actuators(tmp_path):
+    path = write(tmp_path, mjcf(TWO_HINGES, ""))
+    with pytest.raises(RobotError, match="has no actuators"):
+        robots.load(path)
+
+
+def test_position_actuator_rejected(tmp_path):
+    path = write(
+        tmp_path,
+        mjcf(
+            TWO_HINGES,
+            '<motor joint="j1" ctrlrange="-1 1"/>'
+            '<position name="servo" joint="j2" kp="10" ctrlrange="-1 1"/>',
+        ),
+    )
+    with pytest.raises(RobotError) as info:
+        robots.load(path)
+    message = str(info.value)
+    assert "actuator 'servo' is not a torque motor" in message
+
+
+def test_velocity_actuator_rejected(tmp_path):
+    path = write(
+        tmp_path,
+        mjcf(
+            TWO_HINGES,
+            '<velocity name="vel" joint="j1" kv="3" ctrlrange="-1 1"/>'
+            '<motor joint="j2" ctrlrange="-1 1"/>',
+        ),
+    )
+    with pytest.raises(RobotError, match="actuator 'vel' is not a torque motor"):
+        robots.load(path)
+
+
+def test_free_joint_rejected(tmp_path):
+    body = """
+<body name="base"><freejoint name="root"/><geom type="box" size="0.1 0.1 0.1" mass="1"/>
+  <body name="leg"><joint name="hip" axis="0 1 0"/>
+    <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="0.2"/></body>
+</body>"""
+    path = write(tmp_path, mjcf(body, '<motor joint="hip" ctrlrange="-1 1"/>'))
+    with pytest.raises(RobotError) as info:
+        robots.load(path)
+    message = str(info.value)
+    assert "joint 'root'" in message and "FREE" in message and "fixed-base" in message
+
+
+def test_ball_joint_rejected(tmp_path):
+    body = """
+<body name="a"><joint name="j1" axis="0 1 0"/><geom type="sphere" size="0.05" mass="1"/>
+  <body name="b" pos="0.2 0 0"><joint name="wrist" type="ball"/>
+    <geom type="sphere" size="0.05" mass="1"/></body>
+</body>"""
+    path = write(tmp_path, mjcf(body, '<motor joint="j1" ctrlrange="-1 1"/>'))
+    with pytest.raises(RobotError, match="joint 'wrist' is .*BALL"):
+        robots.load(path)
+
+
+def test_joint_without_motor(tmp_path):
+    path = write(tmp_path, mjcf(TWO_HINGES, '<motor joint="j1" ctrlrange="-1 1"/>'))
+    with pytest.raises(RobotError) as info:
+        robots.load(path)
+    assert "joints ['j2'] have no motor" in str(info.value)
+
+
+def test_joint_with_two_motors(tmp_path):
+    path = write(
+        tmp_path,
+        mjcf(
+            TWO_HINGES,
+            '<motor joint="j1" ctrlrange="-1 1"/><motor joint="j1" ctrlrange="-1 1"/>'
+            '<motor joint="j2" ctrlrange="-1 1"/>',
+        ),
+    )
+    with pytest.raises(RobotError, match="driven by more than one actuator"):
+        robots.load(path)
+
+
+def test_motor_without_torque_limit(tmp_path):
+    path = write(
+        tmp_path,
+        mjcf(TWO_HINGES, '<motor joint="j1" ctrlrange="-1 1"/><motor joint="j2"/>'),
+    )
+    with pytest.raises(RobotError, match=r"motors of joints \['j2'\] have no torque limit"):
+        robots.load(path)
