@@ -33,9 +33,7 @@ class RobotError(ValueError):
 def registered() -> tuple[str, ...]:
     """Names of the robots shipped with the package (the ``robots/*.xml`` files)."""
     files = importlib.resources.files(_ROBOT_PACKAGE)
-    return tuple(
-        sorted(p.name[:-4] for p in files.iterdir() if p.name.endswith(".xml"))
-    )
+    return tuple(sorted(p.name[:-4] for p in files.iterdir() if p.name.endswith(".xml")))
 
 
 def resolve(name_or_path: str) -> str:
@@ -143,7 +141,9 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
     try:
         model = mujoco.MjModel.from_xml_path(path)
     except Exception as error:  # mujoco raises ValueError with the parser's message
-        raise RobotError(f"robot={name_or_path!r}: MJCF file {path} does not parse: {error}")
+        raise RobotError(
+            f"robot={name_or_path!r}: MJCF file {path} does not parse: {error}"
+        ) from error
     name = os.path.splitext(os.path.basename(path))[0]
     where = f"robot={name_or_path!r} ({path})"
     if model.nu == 0:
@@ -193,8 +193,7 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
     missing = np.flatnonzero(actuator_of_joint < 0)
     if missing.size:
         names = [
-            mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, model.dof_jntid[d])
-            for d in missing
+            mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, model.dof_jntid[d]) for d in missing
         ]
         raise RobotError(f"{where}: joints {names} have no motor; every joint needs one")
     if not np.all(np.isfinite(torque_limit)):

@@ -21,7 +21,7 @@ Example:
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -144,10 +144,9 @@ def oracle_policy(robot):
     import mujoco
 
     mj = robot.mj_model
-    eulerdamp = (
-        int(mj.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_EULER)
-        and not int(mj.opt.disableflags) & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
-    )
+    eulerdamp = int(mj.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_EULER) and not int(
+        mj.opt.disableflags
+    ) & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
     implicit_damping = jnp.asarray(
         mj.dof_damping * mj.opt.timestep if eulerdamp else np.zeros(mj.nv), jnp.float32
     )
@@ -187,6 +186,71 @@ def pd_policy(gain_p, gain_d, noise_std=None):
         if noise_std is not None:
             tau = tau + jnp.asarray(noise_std, jnp.float32) * jax.random.normal(key, tau.shape)
         return tau
+
+    return policy
+
+
+class MixedPolicy(NamedTuple):
+    """Parameters of :func:`mixed_policy`: one compiled rollout serves every policy.
+
+    ``tau = controller_weight * g(s, qdd*) + oracle_weight * tau_oracle
+    + K_p (q_ref - q) + K_d (qd_ref - qd) + noise_std * N(0, 1)``.
+
+    Attributes:
+      controller_params, normaliser: the learned controller and its statistics.
+      controller_weight, oracle_weight: scalars (0 or 1).
+      gain_p, gain_d, noise_std: ``(nv,)``.
+    """
+
+    controller_params: Any
+    normaliser: Any
+    controller_weight: jax.Array
+    oracle_weight: jax.Array
+    gain_p: jax.Array
+    gain_d: jax.Array
+    noise_std: jax.Array
+
+    @classmethod
+    def of(
+        cls,
+        controller_params,
+        normaliser,
+        nv,
+        controller=0.0,
+        oracle=0.0,
+        gain_p=None,
+        gain_d=None,
+        noise_std=None,
+    ) -> MixedPolicy:
+        zeros = jnp.zeros(nv, jnp.float32)
+        as_vector = lambda x: zeros if x is None else jnp.asarray(x, jnp.float32)  # noqa: E731
+        return cls(
+            controller_params,
+            normaliser,
+            jnp.float32(controller),
+            jnp.float32(oracle),
+            as_vector(gain_p),
+            as_vector(gain_d),
+            as_vector(noise_std),
+        )
+
+
+def mixed_policy(robot, controller, parameters: MixedPolicy):
+    """The policy of :class:`MixedPolicy` parameters (the oracle term is computed only when
+    ``oracle_weight`` is non-zero, by ``lax.cond``)."""
+    learned = controller_policy(controller, parameters.controller_params, parameters.normaliser)
+    oracle = oracle_policy(robot)
+    pd = pd_policy(parameters.gain_p, parameters.gain_d, noise_std=parameters.noise_std)
+
+    def policy(model, data, step, key):
+        tau = parameters.controller_weight * learned(model, data, step, key)
+        tau = tau + pd(model, data, step, key)
+        tau_oracle = jax.lax.cond(
+            parameters.oracle_weight != 0,
+            lambda: oracle(model, data, step, key),
+            lambda: jnp.zeros_like(tau),
+        )
+        return tau + parameters.oracle_weight * tau_oracle
 
     return policy
 

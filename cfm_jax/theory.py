@@ -193,8 +193,7 @@ def biased_model(system: TrueSystem, gain_ratio=1.0, offset_error=0.0) -> Linear
 # ----------------------------------------------------------------------------- losses, gradients
 
 
-def controller_loss(name: str, controller: AffineController, model: LinearModel, desired,
-                    observed):
+def controller_loss(name: str, controller: AffineController, model: LinearModel, desired, observed):
     """A model-based controller loss of :mod:`cfm_jax.losses` on ``s_p = f(g(s_d))``.
 
     ``task``: ``(s_p - s_d)^2``; ``joint``: ``(s_p - s_d)^2 + (s_p - s_a)^2``;
@@ -239,8 +238,14 @@ def supervised_loss(controller: AffineController, observed, executed_action):
     )
 
 
-def controller_gradient(name: str, controller: AffineController, model: LinearModel, desired,
-                        observed, executed_action=None) -> AffineController:
+def controller_gradient(
+    name: str,
+    controller: AffineController,
+    model: LinearModel,
+    desired,
+    observed,
+    executed_action=None,
+) -> AffineController:
     """``dL/dbeta`` by ``jax.grad`` through ``f o g`` (scalar data).
 
     For ``task``/``joint`` this equals the paper's ``2 f' g' (s_p - s_d)`` and
@@ -260,8 +265,9 @@ def controller_gradient(name: str, controller: AffineController, model: LinearMo
       >>> float(g.offset), float(g.gain)      # 2 * 2 * (2 - 1) * (1, s_d)
       (4.0, 4.0)
     """
-    controller = AffineController(*(jnp.asarray(p, dtype=jnp.result_type(float))
-                                     for p in controller))
+    controller = AffineController(
+        *(jnp.asarray(p, dtype=jnp.result_type(float)) for p in controller)
+    )
     if name == "supervised":
         if executed_action is None:
             raise ValueError("the supervised loss needs executed_action (tau_run)")
@@ -331,8 +337,14 @@ def _linear_consistent_action(name, system, model, desired):
     return (desired - system.offset) / system.gain
 
 
-def consistent_rest_action(name: str, system: TrueSystem, model: LinearModel, desired,
-                           initial_action=None, newton_iterations: int = 40):
+def consistent_rest_action(
+    name: str,
+    system: TrueSystem,
+    model: LinearModel,
+    desired,
+    initial_action=None,
+    newton_iterations: int = 40,
+):
     """Consistent reading: the action where the gradient vanishes with ``s_a = h(tau)``.
 
     Equivalently the fixed point of the rollout iteration with a fixed model.
@@ -377,10 +389,17 @@ def _inner_residual_factor(name, model, inner_steps, learning_rate):
     return (1.0 - learning_rate * curvature) ** inner_steps
 
 
-def fixed_point(name: str, system: TrueSystem, model: LinearModel, desired, *,
-                refit: str = "none", inner_steps: int | None = None,
-                learning_rate: float = 0.1,
-                controller: AffineController | None = None) -> FixedPoint:
+def fixed_point(
+    name: str,
+    system: TrueSystem,
+    model: LinearModel,
+    desired,
+    *,
+    refit: str = "none",
+    inner_steps: int | None = None,
+    learning_rate: float = 0.1,
+    controller: AffineController | None = None,
+) -> FixedPoint:
     """Closed-form fixed point of the iterated Algorithm 1 and its contraction factor.
 
     The iteration (see :func:`iterate`): roll out ``tau_k``, observe ``s_a = h(tau_k)``,
@@ -437,8 +456,7 @@ def fixed_point(name: str, system: TrueSystem, model: LinearModel, desired, *,
     elif name == "distal":
         contraction = 1.0 - 2.0 * inner_steps * learning_rate * slope * model.gain
     elif name == "supervised":
-        contraction = (0.0 * action if refit == "none"
-                       else 1.0 - slope * controller.gain)
+        contraction = 0.0 * action if refit == "none" else 1.0 - slope * controller.gain
     else:
         left = _inner_residual_factor(name, model, inner_steps, learning_rate)
         share = slope / model.gain / (1.0 if name == "task" else 2.0)
@@ -458,16 +476,23 @@ def data_moments(actions, observed) -> DataMoments:
     observed = jnp.asarray(observed, dtype=jnp.result_type(float))
     return DataMoments(
         count=jnp.asarray(actions.shape[0], actions.dtype),
-        sum_x=jnp.sum(actions), sum_xx=jnp.sum(actions**2),
-        sum_y=jnp.sum(observed), sum_yy=jnp.sum(observed**2),
+        sum_x=jnp.sum(actions),
+        sum_xx=jnp.sum(actions**2),
+        sum_y=jnp.sum(observed),
+        sum_yy=jnp.sum(observed**2),
         sum_xy=jnp.sum(actions * observed),
     )
 
 
 def _add_pair(moments: DataMoments, action, observed) -> DataMoments:
-    return DataMoments(moments.count + 1.0, moments.sum_x + action,
-                       moments.sum_xx + action**2, moments.sum_y + observed,
-                       moments.sum_yy + observed**2, moments.sum_xy + action * observed)
+    return DataMoments(
+        moments.count + 1.0,
+        moments.sum_x + action,
+        moments.sum_xx + action**2,
+        moments.sum_y + observed,
+        moments.sum_yy + observed**2,
+        moments.sum_xy + action * observed,
+    )
 
 
 def fit_line(count, sum_x, sum_xx, sum_y, sum_xy, prior_slope, prior_intercept, prior_weight):
@@ -487,24 +512,52 @@ def fit_line(count, sum_x, sum_xx, sum_y, sum_xy, prior_slope, prior_intercept, 
 
 def fit_model(moments: DataMoments, prior: LinearModel, prior_weight=0.0) -> LinearModel:
     """Least-squares forward model ``s_a ~ a_hat tau + b_hat`` (ridge towards ``prior``)."""
-    gain, offset = fit_line(moments.count, moments.sum_x, moments.sum_xx, moments.sum_y,
-                            moments.sum_xy, prior.gain, prior.offset, prior_weight)
+    gain, offset = fit_line(
+        moments.count,
+        moments.sum_x,
+        moments.sum_xx,
+        moments.sum_y,
+        moments.sum_xy,
+        prior.gain,
+        prior.offset,
+        prior_weight,
+    )
     return LinearModel(gain, offset)
 
 
-def fit_inverse(moments: DataMoments, prior: AffineController,
-                prior_weight=0.0) -> AffineController:
+def fit_inverse(
+    moments: DataMoments, prior: AffineController, prior_weight=0.0
+) -> AffineController:
     """Supervised inverse model: least squares ``tau ~ beta_0 + beta_1 s_a`` (closed form of
     minimising :func:`cfm_jax.losses.supervised` over the data, ridge towards ``prior``)."""
-    gain, offset = fit_line(moments.count, moments.sum_y, moments.sum_yy, moments.sum_x,
-                            moments.sum_xy, prior.gain, prior.offset, prior_weight)
+    gain, offset = fit_line(
+        moments.count,
+        moments.sum_y,
+        moments.sum_yy,
+        moments.sum_x,
+        moments.sum_xy,
+        prior.gain,
+        prior.offset,
+        prior_weight,
+    )
     return AffineController(offset, gain)
 
 
 @partial(jax.jit, static_argnames=("name", "num_iters", "refit", "inner_steps"))
-def iterate(name: str, system: TrueSystem, model: LinearModel, controller: AffineController,
-            desired, *, num_iters: int, refit: str = "none", inner_steps: int | None = None,
-            learning_rate=0.1, babble_actions=None, prior_weight=0.0) -> IterationTrace:
+def iterate(
+    name: str,
+    system: TrueSystem,
+    model: LinearModel,
+    controller: AffineController,
+    desired,
+    *,
+    num_iters: int,
+    refit: str = "none",
+    inner_steps: int | None = None,
+    learning_rate=0.1,
+    babble_actions=None,
+    prior_weight=0.0,
+) -> IterationTrace:
     """Algorithm 1 in 1-D: roll out, observe, (refit), update the controller; repeat.
 
     Iteration ``k``: execute ``tau_k = g_k(s_d)``, observe ``s_a_k = h(tau_k)``, add the pair
@@ -572,12 +625,17 @@ def iterate(name: str, system: TrueSystem, model: LinearModel, controller: Affin
         offset = controller.offset
         if inner_steps is None:  # to rest: Newton on the (quadratic) loss in beta_0
             for _ in range(2):
-                offset = offset - (offset_grad(offset, controller.gain, model, observed)
-                                   / offset_curvature(offset, controller.gain, model, observed))
+                offset = offset - (
+                    offset_grad(offset, controller.gain, model, observed)
+                    / offset_curvature(offset, controller.gain, model, observed)
+                )
         else:
+
             def step(_, offset):
-                return offset - learning_rate * offset_grad(offset, controller.gain, model,
-                                                            observed)
+                return offset - learning_rate * offset_grad(
+                    offset, controller.gain, model, observed
+                )
+
             offset = jax.lax.fori_loop(0, inner_steps, step, offset)
         return AffineController(offset, controller.gain)
 
@@ -591,17 +649,31 @@ def iterate(name: str, system: TrueSystem, model: LinearModel, controller: Affin
         elif refit == "all":
             model = fit_model(moments, initial_model, prior_weight)
         controller = update_controller(controller, model, action, observed, moments)
-        record = (action, observed, observed - desired, model.gain, model.offset,
-                  controller.offset, controller.gain)
+        record = (
+            action,
+            observed,
+            observed - desired,
+            model.gain,
+            model.offset,
+            controller.offset,
+            controller.gain,
+        )
         return (controller, model, moments), record
 
-    _, records = jax.lax.scan(one_iteration, (controller, model, moments), None,
-                              length=num_iters)
+    _, records = jax.lax.scan(one_iteration, (controller, model, moments), None, length=num_iters)
     return IterationTrace(*records)
 
 
-def iterated_action_map(name: str, system: TrueSystem, model: LinearModel, desired, actions,
-                        *, inner_steps: int | None = None, learning_rate=0.1):
+def iterated_action_map(
+    name: str,
+    system: TrueSystem,
+    model: LinearModel,
+    desired,
+    actions,
+    *,
+    inner_steps: int | None = None,
+    learning_rate=0.1,
+):
     """One iteration ``tau_{k+1} = T(tau_k)`` with a fixed model (``refit="none"``).
 
     Runs :func:`iterate` for one rollout from each ``tau_k`` in ``actions`` (shape ``(n,)``);
@@ -609,8 +681,16 @@ def iterated_action_map(name: str, system: TrueSystem, model: LinearModel, desir
     """
 
     def next_action(action):
-        trace = iterate(name, system, model, AffineController(action, 0.0), desired,
-                        num_iters=1, inner_steps=inner_steps, learning_rate=learning_rate)
+        trace = iterate(
+            name,
+            system,
+            model,
+            AffineController(action, 0.0),
+            desired,
+            num_iters=1,
+            inner_steps=inner_steps,
+            learning_rate=learning_rate,
+        )
         return trace.controller_offsets[0]
 
     return jax.vmap(next_action)(actions)
@@ -619,9 +699,18 @@ def iterated_action_map(name: str, system: TrueSystem, model: LinearModel, desir
 # ----------------------------------------------------------------------------- sweep
 
 
-def sweep_model_bias(system: TrueSystem, desired, gain_ratios, offset_errors, *,
-                     refit: str = "none", num_iters: int = 50, inner_steps: int | None = None,
-                     distal_steps: int = 5, learning_rate=0.1) -> dict[str, jax.Array]:
+def sweep_model_bias(
+    system: TrueSystem,
+    desired,
+    gain_ratios,
+    offset_errors,
+    *,
+    refit: str = "none",
+    num_iters: int = 50,
+    inner_steps: int | None = None,
+    distal_steps: int = 5,
+    learning_rate=0.1,
+) -> dict[str, jax.Array]:
     """Fixed points, errors and iterated errors per loss over a grid of model biases.
 
     One ``vmap`` over the flattened grid ``gain_ratio x offset_error`` (model
@@ -643,8 +732,9 @@ def sweep_model_bias(system: TrueSystem, desired, gain_ratios, offset_errors, *,
     """
     if refit == "all":
         raise ValueError("refit='all' does not depend on the initial model's bias")
-    grid_gain, grid_offset = jnp.meshgrid(jnp.asarray(gain_ratios), jnp.asarray(offset_errors),
-                                          indexing="ij")
+    grid_gain, grid_offset = jnp.meshgrid(
+        jnp.asarray(gain_ratios), jnp.asarray(offset_errors), indexing="ij"
+    )
 
     def one_case(gain_ratio, offset_error):
         model = biased_model(system, gain_ratio, offset_error)
@@ -654,10 +744,27 @@ def sweep_model_bias(system: TrueSystem, desired, gain_ratios, offset_errors, *,
         for name in THEORY_LOSSES:
             steps = distal_steps if name == "distal" else inner_steps
             controller = inverse if name == "supervised" else start
-            fp = fixed_point(name, system, model, desired, refit=refit, inner_steps=steps,
-                             learning_rate=learning_rate, controller=inverse)
-            trace = iterate(name, system, model, controller, desired, num_iters=num_iters,
-                            refit=refit, inner_steps=steps, learning_rate=learning_rate)
+            fp = fixed_point(
+                name,
+                system,
+                model,
+                desired,
+                refit=refit,
+                inner_steps=steps,
+                learning_rate=learning_rate,
+                controller=inverse,
+            )
+            trace = iterate(
+                name,
+                system,
+                model,
+                controller,
+                desired,
+                num_iters=num_iters,
+                refit=refit,
+                inner_steps=steps,
+                learning_rate=learning_rate,
+            )
             row[f"{name}_action"] = fp.action
             row[f"{name}_error"] = fp.error
             row[f"{name}_contraction"] = fp.contraction

@@ -26,7 +26,7 @@ import dataclasses
 import json
 import os
 import time
-from functools import cached_property
+from functools import partial
 from typing import Any
 
 import jax
@@ -72,7 +72,12 @@ class TrainState:
 
 class Experiment:
     """The static pieces of one config (robot, reference, models, optimisers) and its
-    compiled functions. Build once per config and reuse: each function compiles once."""
+    compiled functions. Build once and reuse, also across losses: the rollout used for
+    babbling, evaluation and the baselines compiles once per experiment, and each loss's
+    iteration compiles once.
+
+    ``config.loss`` is only the default; every method takes the loss to use.
+    """
 
     def __init__(self, config: config_lib.Config):
         self.config = config
@@ -98,50 +103,105 @@ class Experiment:
         )
         home = self.reference_np.q[0, 0]
         self.pd_gain_p, self.pd_gain_d = rollout.pd_gains(self.robot, task.kp, task.kd, home)
+        self._compiled: dict = {}
+
+    def compatible(self, config: config_lib.Config) -> bool:
+        """True when ``config`` differs from this experiment's at most in ``loss``."""
+        return config_lib.to_dict(config.replace(loss=self.config.loss)) == config_lib.to_dict(
+            self.config
+        )
 
     # ----- pure functions of one seed ---------------------------------------------------
 
-    def _run(self, policy, key):
+    def _policy(self, **weights) -> rollout.MixedPolicy:
+        dummy = self.controller.init(jax.random.key(0), self.state_dim)
+        norm = networks.Normaliser.identity(self.state_dim, self.robot.nv, self.robot.torque_limit)
+        return rollout.MixedPolicy.of(dummy, norm, self.robot.nv, **weights)
+
+    def rollout_one(self, policy: rollout.MixedPolicy, key) -> rollout.Rollout:
+        """Roll a :class:`cfm_jax.rollout.MixedPolicy` out on every target (one seed)."""
         task = self.config.task
         return rollout.run(
-            self.robot, policy, self.reference, task.kp, task.kd, self.control_dt, key
+            self.robot,
+            rollout.mixed_policy(self.robot, self.controller, policy),
+            self.reference,
+            task.kp,
+            task.kd,
+            self.control_dt,
+            key,
         )
 
-    def init_one(self, key) -> TrainState:
-        """Babbling data, normaliser, fresh parameters and the initial fits (one seed)."""
+    def babbling_policy(self) -> rollout.MixedPolicy:
+        """PD-only tracking plus Gaussian torque noise (``loop.babbling_noise``)."""
+        return self._policy(
+            gain_p=self.pd_gain_p,
+            gain_d=self.pd_gain_d,
+            noise_std=self.config.loop.babbling_noise * self.robot.torque_limit,
+        )
+
+    def learned_policy(self, state: TrainState) -> rollout.MixedPolicy:
+        return rollout.MixedPolicy.of(
+            state.controller_params, state.normaliser, self.robot.nv, controller=1.0
+        )
+
+    def fit_initial_one(self, loss: str, babbling: rollout.Rollout, key) -> TrainState:
+        """Normaliser from the babbling data, fresh parameters, the initial fits (one seed)."""
         cfg = self.config
-        key, key_babble, key_fm, key_ctrl, key_fit_fm, key_fit_ctrl = jax.random.split(key, 6)
-        noise = cfg.loop.babbling_noise * self.robot.torque_limit
-        babble = rollout.pd_policy(self.pd_gain_p, self.pd_gain_d, noise_std=noise)
-        babble_keys = jax.random.split(key_babble, cfg.loop.babbling_rollouts)
-        results = jax.vmap(lambda k: self._run(babble, k))(babble_keys)
-        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[3:]), results.transitions)
-        valid = results.finite.reshape(-1)
+        key, key_fm, key_ctrl, key_fit_fm, key_fit_ctrl = jax.random.split(key, 5)
+        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[3:]), babbling.transitions)
+        valid = babbling.finite.reshape(-1)
         normaliser = networks.Normaliser.from_data(
             flat.state, flat.observed, self.robot.torque_limit, weights=valid
         )
-        data = dataset.add(dataset.empty(self.capacity, self.state_dim, self.robot.nv), flat,
-                           valid)
+        data = dataset.add(dataset.empty(self.capacity, self.state_dim, self.robot.nv), flat, valid)
         forward_params = self.forward.init(key_fm, self.state_dim)
         controller_params = self.controller.init(key_ctrl, self.state_dim)
         forward_opt_state = self.forward_optimizer.init(forward_params)
         controller_opt_state = self.controller_optimizer.init(controller_params)
         forward_params, forward_opt_state, _ = update.fit_forward(
-            self.forward, self.forward_optimizer, forward_params, forward_opt_state,
-            normaliser, data, key_fit_fm, cfg.forward.initial_steps, cfg.forward.batch_size,
+            self.forward,
+            self.forward_optimizer,
+            forward_params,
+            forward_opt_state,
+            normaliser,
+            data,
+            key_fit_fm,
+            cfg.forward.initial_steps,
+            cfg.forward.batch_size,
         )
         controller_params, controller_opt_state, _ = update.fit_controller(
-            cfg.loss, self.forward, self.controller, self.controller_optimizer,
-            controller_params, controller_opt_state, forward_params, normaliser, data,
-            key_fit_ctrl, cfg.controller.initial_steps, cfg.controller.batch_size,
+            loss,
+            self.forward,
+            self.controller,
+            self.controller_optimizer,
+            controller_params,
+            controller_opt_state,
+            forward_params,
+            normaliser,
+            data,
+            key_fit_ctrl,
+            cfg.controller.initial_steps,
+            cfg.controller.batch_size,
         )
         return TrainState(
-            forward_params, forward_opt_state, controller_params, controller_opt_state,
-            normaliser, data, key, jnp.int32(0),
+            forward_params,
+            forward_opt_state,
+            controller_params,
+            controller_opt_state,
+            normaliser,
+            data,
+            key,
+            jnp.int32(0),
         )
 
-    def _metrics(self, state: TrainState, result: rollout.Rollout) -> dict:
-        """Per-target metrics of a rollout of the current models (before any refit)."""
+    def metrics_one(self, state: TrainState, result: rollout.Rollout) -> dict:
+        """Per-target metrics of a rollout of the current models (before any refit).
+
+        * ``tracking_mse``: mean over steps and joints of ``(q - q_ref)^2`` (rad^2).
+        * ``prediction_error``: mean of ``(f(s, tau_run) - qdd_obs)^2`` ((rad/s^2)^2).
+        * ``predicted_task_error``: mean of ``(f(s, g(s, qdd*)) - qdd*)^2`` ((rad/s^2)^2).
+        * ``finite_fraction``: share of steps whose simulator state stayed finite.
+        """
         t = result.transitions
         norm = state.normaliser
         predicted = norm.accel_inverse(
@@ -154,87 +214,126 @@ class Experiment:
         return {
             "tracking_mse": rollout.tracking_mse(result),
             "prediction_error": jnp.mean(jnp.square(predicted - t.observed), axis=(-2, -1)),
-            "predicted_task_error": jnp.mean(
-                jnp.square(predicted_task - t.desired), axis=(-2, -1)
-            ),
+            "predicted_task_error": jnp.mean(jnp.square(predicted_task - t.desired), axis=(-2, -1)),
             "finite_fraction": jnp.mean(result.finite.astype(jnp.float32), axis=-1),
         }
 
-    def _rollout_controller(self, state: TrainState, key):
-        policy = rollout.controller_policy(
-            self.controller, state.controller_params, state.normaliser
-        )
-        return self._run(policy, key)
-
-    def iteration_one(self, state: TrainState) -> tuple[TrainState, dict]:
+    def iteration_one(self, loss: str, state: TrainState) -> tuple[TrainState, dict]:
         """One iteration of Algorithm 1 for one seed: rollout, metrics, add, refit f, g."""
         cfg = self.config
         key, key_rollout, key_fit_fm, key_fit_ctrl = jax.random.split(state.key, 4)
-        result = self._rollout_controller(state, key_rollout)
-        metrics = self._metrics(state, result)
+        result = self.rollout_one(self.learned_policy(state), key_rollout)
+        metrics = self.metrics_one(state, result)
         flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), result.transitions)
         data = dataset.add(state.data, flat, result.finite.reshape(-1))
         forward_params, forward_opt_state, forward_loss = update.fit_forward(
-            self.forward, self.forward_optimizer, state.forward_params,
-            state.forward_opt_state, state.normaliser, data, key_fit_fm,
-            cfg.forward.steps_per_iteration, cfg.forward.batch_size,
+            self.forward,
+            self.forward_optimizer,
+            state.forward_params,
+            state.forward_opt_state,
+            state.normaliser,
+            data,
+            key_fit_fm,
+            cfg.forward.steps_per_iteration,
+            cfg.forward.batch_size,
         )
         controller_params, controller_opt_state, controller_loss = update.fit_controller(
-            cfg.loss, self.forward, self.controller, self.controller_optimizer,
-            state.controller_params, state.controller_opt_state, forward_params,
-            state.normaliser, data, key_fit_ctrl, cfg.controller.steps_per_iteration,
+            loss,
+            self.forward,
+            self.controller,
+            self.controller_optimizer,
+            state.controller_params,
+            state.controller_opt_state,
+            forward_params,
+            state.normaliser,
+            data,
+            key_fit_ctrl,
+            cfg.controller.steps_per_iteration,
             cfg.controller.batch_size,
         )
         metrics["forward_loss"] = forward_loss
         metrics["controller_loss"] = controller_loss
         new_state = TrainState(
-            forward_params, forward_opt_state, controller_params, controller_opt_state,
-            state.normaliser, data, key, state.iteration + 1,
+            forward_params,
+            forward_opt_state,
+            controller_params,
+            controller_opt_state,
+            state.normaliser,
+            data,
+            key,
+            state.iteration + 1,
         )
         return new_state, metrics
 
-    def evaluate_one(self, state: TrainState) -> dict:
-        """Rollout and metrics of the current controller, no update (one seed).
-
-        Uses a key derived from the state's key without consuming it.
-        """
-        result = self._rollout_controller(state, jax.random.fold_in(state.key, 1))
-        metrics = self._metrics(state, result)
+    def evaluate_one(self, state: TrainState, result: rollout.Rollout) -> dict:
+        metrics = self.metrics_one(state, result)
         metrics["forward_loss"] = jnp.float32(jnp.nan)
         metrics["controller_loss"] = jnp.float32(jnp.nan)
         return metrics
 
-    # ----- compiled, vmapped over seeds ---------------------------------------------
+    # ----- compiled, vmapped over seeds (impure only in caching the compiled functions) --
 
-    @cached_property
-    def init(self):
-        """``init(keys (seeds,)) -> TrainState`` with a leading seed axis."""
-        return jax.jit(jax.vmap(self.init_one))
+    def _jit(self, name, fn, **kwargs):
+        if name not in self._compiled:
+            self._compiled[name] = jax.jit(fn, **kwargs)
+        return self._compiled[name]
 
-    @cached_property
-    def iteration(self):
-        """``iteration(state) -> (state, metrics)``, vmapped over seeds, compiled once."""
-        return jax.jit(jax.vmap(self.iteration_one))
+    def rollout(self, policy: rollout.MixedPolicy, keys) -> rollout.Rollout:
+        """Rollouts for a seed axis: ``policy`` leaves and ``keys`` have a leading seed axis.
+        Compiled once per experiment (babbling, evaluation and baselines share it)."""
+        return self._jit("rollout", jax.vmap(self.rollout_one))(policy, keys)
 
-    @cached_property
-    def evaluate(self):
-        return jax.jit(jax.vmap(self.evaluate_one))
+    def init(self, loss: str, keys) -> TrainState:
+        """Babbling, normaliser and initial fits for every seed of ``keys``."""
+        key_babble, key_fit = jax.vmap(lambda k: jax.random.split(k, 2))(keys).swapaxes(0, 1)
+        rollouts = self.babbling_rollouts(key_babble)
+        return self._jit(f"init/{loss}", jax.vmap(partial(self.fit_initial_one, loss)))(
+            rollouts, key_fit
+        )
+
+    def babbling_rollouts(self, keys) -> rollout.Rollout:
+        """``loop.babbling_rollouts`` babbling rollouts per seed, ``(seeds, rollouts, ...)``."""
+        count = self.config.loop.babbling_rollouts
+        seeds = keys.shape[0]
+        policy = _broadcast(self.babbling_policy(), seeds * count)
+        flat_keys = jax.vmap(lambda k: jax.random.split(k, count))(keys).reshape(-1)
+        result = self.rollout(policy, flat_keys)
+        return jax.tree.map(lambda x: x.reshape((seeds, count) + x.shape[1:]), result)
+
+    def iteration(self, loss: str, state: TrainState):
+        """``(state, metrics)`` after one iteration of Algorithm 1 for every seed."""
+        return self._jit(f"iteration/{loss}", jax.vmap(partial(self.iteration_one, loss)))(state)
+
+    def evaluate(self, state: TrainState) -> dict:
+        """Metrics of a rollout of the current controllers (no update), every seed.
+
+        The rollout key is derived from the state's key without consuming it."""
+        keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(state.key)
+        policy = jax.vmap(self.learned_policy)(state)
+        result = self.rollout(policy, keys)
+        return self._jit("evaluate", jax.vmap(self.evaluate_one))(state, result)
 
     def baselines(self) -> pd.DataFrame:
         """Tracking MSE per target of the oracle (MuJoCo inverse dynamics) and PD-only."""
-        rows = []
+        if "baselines" in self._compiled:
+            return self._compiled["baselines"]
         policies = {
-            "oracle": rollout.oracle_policy(self.robot),
-            "pd_only": rollout.pd_policy(self.pd_gain_p, self.pd_gain_d),
+            "oracle": self._policy(oracle=1.0),
+            "pd_only": self._policy(gain_p=self.pd_gain_p, gain_d=self.pd_gain_d),
         }
+        rows = []
         for name, policy in policies.items():
-            result = jax.jit(lambda key, policy=policy: self._run(policy, key))(
-                jax.random.key(0)
-            )
-            mse = np.asarray(rollout.tracking_mse(result))
-            rows += [{"baseline": name, "target": k, "tracking_mse": float(v)}
-                     for k, v in enumerate(mse)]
-        return pd.DataFrame(rows)
+            result = self.rollout(_broadcast(policy, 1), jax.random.split(jax.random.key(0), 1))
+            mse = np.asarray(rollout.tracking_mse(result))[0]
+            rows += [
+                {"baseline": name, "target": k, "tracking_mse": float(v)} for k, v in enumerate(mse)
+            ]
+        self._compiled["baselines"] = pd.DataFrame(rows)
+        return self._compiled["baselines"]
+
+
+def _broadcast(tree, n: int):
+    return jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + jnp.shape(x)), tree)
 
 
 @dataclasses.dataclass
@@ -265,8 +364,7 @@ class TrainResult:
     @property
     def params(self) -> dict:
         """Final parameters: ``{"forward": ..., "controller": ...}`` (leading seed axis)."""
-        return {"forward": self.state.forward_params,
-                "controller": self.state.controller_params}
+        return {"forward": self.state.forward_params, "controller": self.state.controller_params}
 
     def final(self) -> pd.DataFrame:
         """Rows of the last iteration."""
@@ -310,6 +408,8 @@ def train(
       A :class:`TrainResult`.
     """
     start = time.perf_counter()
+    if experiment is not None and not experiment.compatible(config):
+        raise ValueError("experiment was built for a config that differs in more than the loss")
     exp = experiment if experiment is not None else Experiment(config)
     seeds = config_lib.seeds_of(config)
     if out_dir:
@@ -330,14 +430,14 @@ def train(
         total = config.loop.iterations + 2
         task = bar.add_task(f"{config.robot} {config.loss}: babbling + initial fit", total=total)
         keys = jax.vmap(jax.random.key)(jnp.asarray(seeds, jnp.uint32))
-        state = exp.init(keys)
+        state = exp.init(config.loss, keys)
         jax.block_until_ready(state)
         bar.advance(task)
         compile_seconds = float("nan")
         for i in range(config.loop.iterations):
             bar.update(task, description=f"{config.robot} {config.loss}: iteration {i + 1}")
             t0 = time.perf_counter()
-            state, metrics = exp.iteration(state)
+            state, metrics = exp.iteration(config.loss, state)
             metrics = jax.device_get(metrics)
             if i == 0:
                 compile_seconds = time.perf_counter() - t0

@@ -82,8 +82,18 @@ def fit_forward(forward, optimizer, params, opt_state, normaliser, data, key, st
 
 
 def fit_controller(
-    loss, forward, controller, optimizer, params, opt_state, forward_params, normaliser, data,
-    key, steps, batch_size,
+    loss,
+    forward,
+    controller,
+    optimizer,
+    params,
+    opt_state,
+    forward_params,
+    normaliser,
+    data,
+    key,
+    steps,
+    batch_size,
 ):
     """``steps`` Adam steps of :func:`controller_objective` in the controller parameters."""
 

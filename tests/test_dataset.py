@@ -151,8 +151,9 @@ def test_sample_after_wrap_draws_all_rows():
 
 
 def test_filled_returns_first_size_rows():
-    data = dataset.add(dataset.empty(5, STATE_DIM, NV), make_batch(1, 3),
-                       valid=jnp.array([True, False, True]))
+    data = dataset.add(
+        dataset.empty(5, STATE_DIM, NV), make_batch(1, 3), valid=jnp.array([True, False, True])
+    )
     rows = dataset.filled(data)
     np.testing.assert_array_equal(np.asarray(rows.state[:, 0]), [1.0, 3.0])
     assert rows.action.shape == (2, NV)

@@ -113,16 +113,17 @@ def test_1d_gradients_match_paper_formulas(w, beta, s_d, s_a):
     }
     for name, value in expected.items():
         # Inputs are binary fractions: the products are exact in float32 up to 1 rounding.
-        np.testing.assert_allclose(_grad_1d(name, w, beta, s_d, s_a), value, rtol=1e-6,
-                                   err_msg=name)
+        np.testing.assert_allclose(
+            _grad_1d(name, w, beta, s_d, s_a), value, rtol=1e-6, err_msg=name
+        )
 
 
 def test_1d_supervised_gradient():
     # L = (g - tau)^2 with g = w beta: dL/dbeta = 2 g' (g - tau), g' = w.
     w, beta, tau = 1.5, -0.5, 2.0
-    grad = jax.grad(
-        lambda b: losses.supervised(jnp.array([w * b]), jnp.array([tau]))
-    )(jnp.float32(beta))
+    grad = jax.grad(lambda b: losses.supervised(jnp.array([w * b]), jnp.array([tau])))(
+        jnp.float32(beta)
+    )
     np.testing.assert_allclose(float(grad), 2 * w * (w * beta - tau), rtol=1e-6)
 
 

@@ -52,8 +52,9 @@ def test_controller_is_limit_times_tanh_of_mlp():
 @pytest.mark.parametrize("scale", [1.0, 1e3, 1e6])
 def test_forward_log_variance_within_learned_bounds(scale):
     low, high = -10.0, 0.5
-    fm = networks.forward_model(hidden=(16,), ensemble_size=3, nv=NV, min_log_variance=low,
-                                max_log_variance=high)
+    fm = networks.forward_model(
+        hidden=(16,), ensemble_size=3, nv=NV, min_log_variance=low, max_log_variance=high
+    )
     params = fm.init(jax.random.key(0), STATE_DIM)
     # Learned bounds: move them away from the initial values to check the learned ones count.
     params["max_log_variance"] = jnp.array([1.0, -1.0])
@@ -84,8 +85,11 @@ def test_forward_per_member_equals_members_applied_separately():
     fm = networks.forward_model(hidden=(16, 8), ensemble_size=members, nv=NV)
     params = fm.init(jax.random.key(4), STATE_DIM)
     norm = networks.Normaliser(
-        jnp.array([0.1, -0.2, 0.3, 0.0]), jnp.array([1.5, 0.5, 2.0, 1.0]),
-        jnp.zeros(NV), jnp.ones(NV), LIMIT,
+        jnp.array([0.1, -0.2, 0.3, 0.0]),
+        jnp.array([1.5, 0.5, 2.0, 1.0]),
+        jnp.zeros(NV),
+        jnp.ones(NV),
+        LIMIT,
     )
     keys = jax.random.split(jax.random.key(5), 2)
     state = jax.random.normal(keys[0], (members, 7, STATE_DIM))
@@ -96,20 +100,20 @@ def test_forward_per_member_equals_members_applied_separately():
     assert mean.shape == (members, 7, NV)
     for e in range(members):
         # A one-member ensemble holding member e's parameters, applied to member e's inputs.
-        single = dict(params, members=jax.tree.map(lambda x, e=e: x[e : e + 1],
-                                                  params["members"]))
+        single = dict(params, members=jax.tree.map(lambda x, e=e: x[e : e + 1], params["members"]))
         m_e, lv_e = fm.apply(single, norm, state[e], tau[e])
         # Same float32 ops on the same numbers; vmap may reorder nothing here, but allow
         # 1e-6 relative for a possible different matmul blocking.
-        np.testing.assert_allclose(np.asarray(mean[e]), np.asarray(m_e[0]), rtol=1e-6,
-                                   atol=1e-6)
-        np.testing.assert_allclose(np.asarray(log_var[e]), np.asarray(lv_e[0]), rtol=1e-6,
-                                   atol=1e-6)
+        np.testing.assert_allclose(np.asarray(mean[e]), np.asarray(m_e[0]), rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(
+            np.asarray(log_var[e]), np.asarray(lv_e[0]), rtol=1e-6, atol=1e-6
+        )
     # Without per_member every member sees the same input: member e's row differs from the
     # per-member result whenever the inputs differ.
     shared_mean, _ = fm.apply(params, norm, state[0], tau[0])
-    np.testing.assert_allclose(np.asarray(shared_mean[0]), np.asarray(mean[0]), rtol=1e-6,
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(shared_mean[0]), np.asarray(mean[0]), rtol=1e-6, atol=1e-6
+    )
     assert not np.allclose(np.asarray(shared_mean[1]), np.asarray(mean[1]))
 
 
@@ -121,7 +125,9 @@ def test_forward_members_differ_and_ensemble_mean():
     assert not np.allclose(np.asarray(mean[0]), np.asarray(mean[1]))  # independent inits
     np.testing.assert_allclose(
         np.asarray(networks.ensemble_mean(fm, params, normaliser(), s, t)),
-        np.asarray(mean).mean(axis=0), rtol=1e-6, atol=1e-7,  # float32 mean of 4 numbers
+        np.asarray(mean).mean(axis=0),
+        rtol=1e-6,
+        atol=1e-7,  # float32 mean of 4 numbers
     )
 
 
@@ -157,8 +163,9 @@ def test_normaliser_from_data_without_weights_and_roundtrip():
     states = rng.normal(size=(25, STATE_DIM))
     accel = rng.normal(3.0, 2.0, size=(25, NV))
     norm = networks.Normaliser.from_data(jnp.asarray(states), jnp.asarray(accel), LIMIT)
-    np.testing.assert_allclose(np.asarray(norm.state_mean), states.mean(0), rtol=1e-5,
-                               atol=1e-6)  # float32, values ~1: atol for means near 0
+    np.testing.assert_allclose(
+        np.asarray(norm.state_mean), states.mean(0), rtol=1e-5, atol=1e-6
+    )  # float32, values ~1: atol for means near 0
     np.testing.assert_allclose(np.asarray(norm.accel_std), accel.std(0), rtol=1e-5)
     x = jnp.asarray(accel, jnp.float32)
     # accel_inverse(accel(x)) = x up to float32 rounding of values ~5: atol 1e-5

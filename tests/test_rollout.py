@@ -73,8 +73,7 @@ def arm():
 
 def test_iiwa_mjx_rollout_matches_mujoco_c(iiwa):
     steps = 50
-    ref = tasks.quintic(iiwa.home, iiwa.home, duration=steps * CONTROL_DT,
-                        control_dt=CONTROL_DT)
+    ref = tasks.quintic(iiwa.home, iiwa.home, duration=steps * CONTROL_DT, control_dt=CONTROL_DT)
     # Gravity compensation at home plus sinusoids of 5 % of each torque limit: the arm moves
     # by a few tenths of a radian without touching a joint limit (checked below), so there
     # are no constraints and both engines integrate the same smooth ODE.
@@ -87,11 +86,17 @@ def test_iiwa_mjx_rollout_matches_mujoco_c(iiwa):
         2 * np.pi * 2.0 * t + phase
     )
     out = jax.jit(
-        lambda tq: rollout.run(iiwa, open_loop_policy(tq, CONTROL_DT), tasks.as_jax(ref),
-                               kp=0.0, kd=0.0, control_dt=CONTROL_DT, key=jax.random.key(0))
+        lambda tq: rollout.run(
+            iiwa,
+            open_loop_policy(tq, CONTROL_DT),
+            tasks.as_jax(ref),
+            kp=0.0,
+            kd=0.0,
+            control_dt=CONTROL_DT,
+            key=jax.random.key(0),
+        )
     )(jnp.asarray(torques, jnp.float32))
-    q_c, qd_c, constraints = c_rollout(iiwa, iiwa.home, torques.astype(np.float32),
-                                       CONTROL_DT)
+    q_c, qd_c, constraints = c_rollout(iiwa, iiwa.home, torques.astype(np.float32), CONTROL_DT)
     assert constraints == 0  # no joint limit became active: a clean comparison
     q_mjx = np.asarray(out.position_error[0]) + ref.q[0, 1:]
     # The executed torques are the requested ones (inside the limits).
@@ -106,13 +111,14 @@ def test_iiwa_mjx_rollout_matches_mujoco_c(iiwa):
     # modelling difference (a wrong gear, damping, armature or substep count) gives errors
     # of 1e-3 and more.
     np.testing.assert_allclose(q_mjx, q_c, atol=1e-5, rtol=0)
-    qd_mjx = np.asarray(out.transitions.state[0, 1:, iiwa.nq:])
+    qd_mjx = np.asarray(out.transitions.state[0, 1:, iiwa.nq :])
     np.testing.assert_allclose(qd_mjx, qd_c[:-1], atol=2e-5, rtol=0)
     # Observed acceleration is (qd_{t+1} - qd_t) / control_dt of the C run: two velocity
     # errors over 0.01 s, 2 * 2e-5 / 0.01 = 4e-3 rad/s^2.
     qd_prev = np.concatenate([np.zeros((1, iiwa.nv)), qd_c[:-1]])
-    np.testing.assert_allclose(np.asarray(out.transitions.observed[0]),
-                               (qd_c - qd_prev) / CONTROL_DT, atol=4e-3, rtol=0)
+    np.testing.assert_allclose(
+        np.asarray(out.transitions.observed[0]), (qd_c - qd_prev) / CONTROL_DT, atol=4e-3, rtol=0
+    )
     assert bool(np.all(np.asarray(out.finite)))
 
 
@@ -123,16 +129,19 @@ ARM_STEPS = 10  # duration 0.1 s at control_dt 0.01
 
 @pytest.fixture(scope="module")
 def arm_case(arm):
-    ref = tasks.quintic(arm.home, arm.home + np.array([0.1, -0.1]), duration=0.1,
-                        control_dt=CONTROL_DT)
+    ref = tasks.quintic(
+        arm.home, arm.home + np.array([0.1, -0.1]), duration=0.1, control_dt=CONTROL_DT
+    )
     gain_p, gain_d = rollout.pd_gains(arm, 100.0, 20.0, arm.home)
 
     @jax.jit
     def run(torques, key):
-        policy = open_loop_policy(torques, CONTROL_DT, jnp.asarray(gain_p, jnp.float32),
-                                  jnp.asarray(gain_d, jnp.float32))
-        return rollout.run(arm, policy, tasks.as_jax(ref), kp=100.0, kd=20.0,
-                           control_dt=CONTROL_DT, key=key)
+        policy = open_loop_policy(
+            torques, CONTROL_DT, jnp.asarray(gain_p, jnp.float32), jnp.asarray(gain_d, jnp.float32)
+        )
+        return rollout.run(
+            arm, policy, tasks.as_jax(ref), kp=100.0, kd=20.0, control_dt=CONTROL_DT, key=key
+        )
 
     data = mujoco.MjData(arm.mj_model)
     data.qpos[:] = arm.home
@@ -140,8 +149,12 @@ def arm_case(arm):
     # gravity compensation at home plus a ramp; the second joint's torque exceeds its
     # 10 N m limit in the last steps so clipping is exercised
     torques = data.qfrc_bias[None, :] + np.linspace(0, 1, ARM_STEPS)[:, None] * [3.0, 30.0]
-    return dict(ref=ref, run=run, torques=torques.astype(np.float32),
-                gains=(np.float32(gain_p), np.float32(gain_d)))
+    return dict(
+        ref=ref,
+        run=run,
+        torques=torques.astype(np.float32),
+        gains=(np.float32(gain_p), np.float32(gain_d)),
+    )
 
 
 def test_scan_rollout_matches_python_loop_of_mjx_step(arm, arm_case):
@@ -156,14 +169,14 @@ def test_scan_rollout_matches_python_loop_of_mjx_step(arm, arm_case):
     gain_p, gain_d = arm_case["gains"]
     limit = np.float32(arm.torque_limit)
     ref32 = [np.asarray(x[0], np.float32) for x in ref]
-    data = mjx.make_data(model).replace(qpos=jnp.asarray(ref32[0][0]),
-                                        qvel=jnp.zeros(arm.nv))
+    data = mjx.make_data(model).replace(qpos=jnp.asarray(ref32[0][0]), qvel=jnp.zeros(arm.nv))
     states, actions, observed, errors, desired = [], [], [], [], []
     for t in range(ARM_STEPS):
         q, qd = np.asarray(data.qpos), np.asarray(data.qvel)
         desired.append(ref32[2][t] + 100.0 * (ref32[0][t] - q) + 20.0 * (ref32[1][t] - qd))
-        tau = np.clip(torques[t] + gain_p * (ref32[0][t] - q) + gain_d * (ref32[1][t] - qd),
-                      -limit, limit)
+        tau = np.clip(
+            torques[t] + gain_p * (ref32[0][t] - q) + gain_d * (ref32[1][t] - qd), -limit, limit
+        )
         data = data.replace(ctrl=jnp.asarray(tau))
         for _ in range(5):
             data = step_fn(model, data)
@@ -186,8 +199,9 @@ def test_scan_rollout_matches_python_loop_of_mjx_step(arm, arm_case):
     np.testing.assert_allclose(np.asarray(out.position_error[0]), errors, atol=2e-6)
     assert bool(np.all(np.asarray(out.finite)))
     # tracking_mse is the mean square of the position errors
-    np.testing.assert_allclose(np.asarray(rollout.tracking_mse(out)),
-                               [np.mean(np.square(errors))], rtol=1e-4)
+    np.testing.assert_allclose(
+        np.asarray(rollout.tracking_mse(out)), [np.mean(np.square(errors))], rtol=1e-4
+    )
 
 
 def test_nan_torque_makes_finite_false_from_that_step_on(arm_case):
@@ -211,11 +225,17 @@ def test_oracle_policy_realises_desired_acceleration(arm):
     # torque M qdd* + h D qdd* + bias - passive makes MuJoCo's Euler step (implicit joint
     # damping) produce exactly qdd* = qdd_ref(t).
     dt = arm.timestep
-    ref = tasks.quintic(arm.home, arm.home + np.array([0.05, -0.05]), duration=0.1,
-                        control_dt=dt)
+    ref = tasks.quintic(arm.home, arm.home + np.array([0.05, -0.05]), duration=0.1, control_dt=dt)
     out = jax.jit(
-        lambda: rollout.run(arm, rollout.oracle_policy(arm), tasks.as_jax(ref), kp=0.0,
-                            kd=0.0, control_dt=dt, key=jax.random.key(0))
+        lambda: rollout.run(
+            arm,
+            rollout.oracle_policy(arm),
+            tasks.as_jax(ref),
+            kp=0.0,
+            kd=0.0,
+            control_dt=dt,
+            key=jax.random.key(0),
+        )
     )()
     qdd_ref = ref.qdd[0, :-1]
     np.testing.assert_allclose(np.asarray(out.transitions.desired[0]), qdd_ref, atol=1e-5)

@@ -110,8 +110,9 @@ def test_reaching_default_targets(arm):
     ref = tasks.reaching(arm, TaskConfig(duration=0.5), control_dt=0.01)
     assert ref.q.shape == (5, 51, 2)
     np.testing.assert_allclose(ref.q[:, 0], np.broadcast_to(arm.home, (5, 2)), atol=1e-15)
-    np.testing.assert_allclose(ref.q[:, -1], tasks.default_targets(arm.joint_range, arm.home),
-                               atol=1e-15)
+    np.testing.assert_allclose(
+        ref.q[:, -1], tasks.default_targets(arm.joint_range, arm.home), atol=1e-15
+    )
 
 
 def test_reaching_explicit_targets_and_home(arm):

@@ -69,8 +69,9 @@ def test_gradients_match_paper_formulas():
         got = grad("supervised", controller, model, s_d, s_a, tau_run)
         g_of_observed = controller.offset + controller.gain * s_a
         want = 2 * (g_of_observed - tau_run) * np.array([1.0, s_a])
-        np.testing.assert_allclose([got.offset, got.gain], want,
-                                   atol=F32_ATOL * (1 + np.abs(want).max()))
+        np.testing.assert_allclose(
+            [got.offset, got.gain], want, atol=F32_ATOL * (1 + np.abs(want).max())
+        )
 
 
 def test_losses_are_the_library_losses():
@@ -89,7 +90,8 @@ def test_loss_landscape_gradient_is_derivative_of_loss():
     actions = jnp.linspace(-2.0, 2.0, 9)
     for name in theory.MODEL_BASED_LOSSES:
         loss, grad = jax.jit(theory.loss_landscape, static_argnums=0)(
-            name, model, 1.0, -0.5, actions)
+            name, model, 1.0, -0.5, actions
+        )
         # central difference of an exact quadratic in tau is exact up to rounding
         step = 1e-2
         plus, _ = theory.loss_landscape(name, model, 1.0, -0.5, actions + step)
@@ -123,8 +125,10 @@ def test_rest_action_zeroes_the_gradient_and_matches_closed_form():
     grad = jax.jit(theory.controller_gradient, static_argnums=0)
     for system, model, s_d in random_linear_cases(15):
         s_a = h(system, 0.3)
-        for name, want in (("task", (s_d - model.offset) / model.gain),
-                           ("joint", ((s_d + s_a) / 2 - model.offset) / model.gain)):
+        for name, want in (
+            ("task", (s_d - model.offset) / model.gain),
+            ("joint", ((s_d + s_a) / 2 - model.offset) / model.gain),
+        ):
             tau = theory.rest_action(name, model, s_d, s_a)
             np.testing.assert_allclose(tau, want, rtol=1e-5, atol=F32_ATOL)
             g = grad(name, theory.AffineController(tau, 0.0), model, s_d, s_a)
@@ -138,20 +142,23 @@ def test_joint_fixed_point_closed_forms():
         a, b, a_hat, b_hat = system.gain, system.offset, model.gain, model.offset
         joint = theory.fixed_point("joint", system, model, s_d)
         task = theory.fixed_point("task", system, model, s_d)
-        np.testing.assert_allclose(joint.action, (s_d - 2 * b_hat + b) / (2 * a_hat - a),
-                                   rtol=1e-5, atol=F32_ATOL)
+        np.testing.assert_allclose(
+            joint.action, (s_d - 2 * b_hat + b) / (2 * a_hat - a), rtol=1e-5, atol=F32_ATOL
+        )
         e_task = a * (s_d - b_hat) / a_hat + b - s_d
         np.testing.assert_allclose(task.error, e_task, rtol=1e-5, atol=F32_ATOL)
         # amplification 2 a_hat / (2 a_hat - a) <= 6 for a_hat / a >= 0.6
-        np.testing.assert_allclose(joint.error, e_task * 2 * a_hat / (2 * a_hat - a),
-                                   rtol=1e-5, atol=6 * F32_ATOL)
+        np.testing.assert_allclose(
+            joint.error, e_task * 2 * a_hat / (2 * a_hat - a), rtol=1e-5, atol=6 * F32_ATOL
+        )
         np.testing.assert_allclose(joint.contraction, a / (2 * a_hat), rtol=1e-6)
         # with a right-sign gain above a / 2 the joint loss's error is never smaller
         assert abs(float(joint.error)) >= abs(float(task.error)) - 6 * F32_ATOL
 
 
-def python_iteration(name, system, model, s_d, tau0, *, refit, inner_steps, learning_rate,
-                     num_iters, beta_1=None):
+def python_iteration(
+    name, system, model, s_d, tau0, *, refit, inner_steps, learning_rate, num_iters, beta_1=None
+):
     """Plain-Python Algorithm 1 with hand-written updates; returns the actions tau_k."""
     a_hat, b_hat = model.gain, model.offset
     tau, actions = tau0, []
@@ -181,9 +188,15 @@ def python_iteration(name, system, model, s_d, tau0, *, refit, inner_steps, lear
 
 
 LINEAR_CONFIGS = [
-    ("task", "none", None), ("joint", "none", None), ("task", "none", 3),
-    ("joint", "none", 3), ("distal", "none", 2), ("task", "latest", None),
-    ("joint", "latest", None), ("joint", "latest", 4), ("distal", "latest", 3),
+    ("task", "none", None),
+    ("joint", "none", None),
+    ("task", "none", 3),
+    ("joint", "none", 3),
+    ("distal", "none", 2),
+    ("task", "latest", None),
+    ("joint", "latest", None),
+    ("joint", "latest", 4),
+    ("distal", "latest", 3),
     ("supervised", "latest", None),
 ]
 
@@ -191,25 +204,42 @@ LINEAR_CONFIGS = [
 @pytest.mark.parametrize("name,refit,inner_steps", LINEAR_CONFIGS)
 def test_closed_form_fixed_points_match_iteration(name, refit, inner_steps):
     learning_rate = 0.05
-    iterate = jax.jit(theory.iterate,
-                      static_argnames=("name", "num_iters", "refit", "inner_steps"))
+    iterate = jax.jit(theory.iterate, static_argnames=("name", "num_iters", "refit", "inner_steps"))
     checked = 0
     for system, model, s_d in random_linear_cases(12, gain_ratio_range=(0.8, 2.5)):
         beta_1 = 1.0 / model.gain
         controller = theory.AffineController(-model.offset * beta_1, beta_1)
-        fp = theory.fixed_point(name, system, model, s_d, refit=refit, inner_steps=inner_steps,
-                                learning_rate=learning_rate, controller=controller)
+        fp = theory.fixed_point(
+            name,
+            system,
+            model,
+            s_d,
+            refit=refit,
+            inner_steps=inner_steps,
+            learning_rate=learning_rate,
+            controller=controller,
+        )
         lam = float(fp.contraction)
         if abs(lam) > 0.9:  # slowly or not converging for this draw: nothing to compare
             continue
         checked += 1
         tau0 = (controller.offset + beta_1 * s_d) if name == "supervised" else s_d + 0.7
-        actions = python_iteration(name, system, model, s_d, tau0, refit=refit,
-                                   inner_steps=inner_steps, learning_rate=learning_rate,
-                                   num_iters=400, beta_1=beta_1)
+        actions = python_iteration(
+            name,
+            system,
+            model,
+            s_d,
+            tau0,
+            refit=refit,
+            inner_steps=inner_steps,
+            learning_rate=learning_rate,
+            num_iters=400,
+            beta_1=beta_1,
+        )
         np.testing.assert_allclose(actions[-1], fp.action, rtol=1e-5, atol=F32_ATOL)
-        np.testing.assert_allclose(h(system, actions[-1]) - s_d, fp.error, rtol=1e-5,
-                                   atol=F32_ATOL * (1 + system.gain))
+        np.testing.assert_allclose(
+            h(system, actions[-1]) - s_d, fp.error, rtol=1e-5, atol=F32_ATOL * (1 + system.gain)
+        )
         # contraction factor = ratio of successive distances to the fixed point (linear map)
         gaps = actions[:4] - actions[-1]
         assert abs(gaps[0]) > 1e-3 or lam == 0.0
@@ -220,12 +250,21 @@ def test_closed_form_fixed_points_match_iteration(name, refit, inner_steps):
         elif lam == 0.0:
             np.testing.assert_allclose(gaps[1:], 0.0, atol=1e-9)
         start = controller if name == "supervised" else theory.AffineController(tau0, 0.0)
-        trace = iterate(name, system, model, start, s_d, num_iters=400, refit=refit,
-                        inner_steps=inner_steps, learning_rate=learning_rate)
-        np.testing.assert_allclose(trace.actions[:5], actions[:5], rtol=1e-5,
-                                   atol=F32_ATOL * 10)  # up to 1/(1-0.9) accumulated rounding
-        np.testing.assert_allclose(trace.actions[-1], fp.action, rtol=1e-5,
-                                   atol=F32_ATOL * 10)
+        trace = iterate(
+            name,
+            system,
+            model,
+            start,
+            s_d,
+            num_iters=400,
+            refit=refit,
+            inner_steps=inner_steps,
+            learning_rate=learning_rate,
+        )
+        np.testing.assert_allclose(
+            trace.actions[:5], actions[:5], rtol=1e-5, atol=F32_ATOL * 10
+        )  # up to 1/(1-0.9) accumulated rounding
+        np.testing.assert_allclose(trace.actions[-1], fp.action, rtol=1e-5, atol=F32_ATOL * 10)
     assert checked >= 5
 
 
@@ -234,8 +273,9 @@ def test_diverging_joint_iteration_when_model_gain_below_half():
     model = theory.biased_model(system, gain_ratio=0.45)
     fp = theory.fixed_point("joint", system, model, 1.0)
     np.testing.assert_allclose(fp.contraction, 1.0 / 0.9, rtol=1e-6)
-    trace = theory.iterate("joint", system, model, theory.AffineController(2.0, 0.0), 1.0,
-                           num_iters=40)
+    trace = theory.iterate(
+        "joint", system, model, theory.AffineController(2.0, 0.0), 1.0, num_iters=40
+    )
     gaps = np.abs(np.asarray(trace.actions) - float(fp.action))
     assert gaps[-1] > 10 * gaps[0]
 
@@ -246,8 +286,9 @@ def test_cubic_consistent_rest_matches_python_iteration():
     rest = jax.jit(theory.consistent_rest_action, static_argnums=0)
     checked = 0
     for _ in range(20):
-        system = theory.TrueSystem(rng.uniform(0.5, 1.5), rng.uniform(-0.5, 0.5),
-                                   rng.uniform(-0.2, 0.3))
+        system = theory.TrueSystem(
+            rng.uniform(0.5, 1.5), rng.uniform(-0.5, 0.5), rng.uniform(-0.2, 0.3)
+        )
         model = theory.LinearModel(system.gain * rng.uniform(1.0, 2.0), rng.uniform(-0.5, 0.5))
         s_d = rng.uniform(-1.0, 1.0)
         for name in ("joint", "distal"):
@@ -284,16 +325,26 @@ def test_refit_on_all_data_of_linear_system_is_exact():
     babble = jnp.array([-1.0, 0.5, 1.0])
     start = theory.AffineController(2.0, 0.0)
     model = theory.LinearModel(0.9, 0.4)  # forgotten: the refit uses only data
-    task = theory.iterate("task", system, model, start, 0.8, num_iters=6, refit="all",
-                          babble_actions=babble)
+    task = theory.iterate(
+        "task", system, model, start, 0.8, num_iters=6, refit="all", babble_actions=babble
+    )
     np.testing.assert_allclose(task.errors[1:], 0.0, atol=F32_ATOL)
     np.testing.assert_allclose(task.model_gains, 1.7, rtol=1e-5)
-    joint = theory.iterate("joint", system, model, start, 0.8, num_iters=6, refit="all",
-                           babble_actions=babble)
+    joint = theory.iterate(
+        "joint", system, model, start, 0.8, num_iters=6, refit="all", babble_actions=babble
+    )
     errors = np.asarray(joint.errors)
     np.testing.assert_allclose(errors[1:] / errors[:-1], 0.5, rtol=1e-4)
-    sup = theory.iterate("supervised", system, model, theory.AffineController(), 0.8,
-                         num_iters=3, refit="all", babble_actions=babble)
+    sup = theory.iterate(
+        "supervised",
+        system,
+        model,
+        theory.AffineController(),
+        0.8,
+        num_iters=3,
+        refit="all",
+        babble_actions=babble,
+    )
     np.testing.assert_allclose(sup.errors[1:], 0.0, atol=F32_ATOL)
     np.testing.assert_allclose(sup.controller_gains, 1 / 1.7, rtol=1e-5)
 
@@ -309,27 +360,33 @@ def test_fit_line_matches_numpy_ridge():
     got = theory.fit_line(m.count, m.sum_x, m.sum_xx, m.sum_y, m.sum_xy, *prior, weight)
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=F32_ATOL)
     inverse = theory.fit_inverse(m, theory.AffineController(), 0.0)
-    np.testing.assert_allclose([inverse.gain, inverse.offset], np.polyfit(y, x, 1),
-                               rtol=1e-4, atol=F32_ATOL)
+    np.testing.assert_allclose(
+        [inverse.gain, inverse.offset], np.polyfit(y, x, 1), rtol=1e-4, atol=F32_ATOL
+    )
 
 
 def test_sweep_matches_single_fixed_points():
     system = theory.TrueSystem(1.2, 0.1, 0.0)
     gains, offsets = jnp.array([0.7, 1.0, 1.6]), jnp.array([-0.3, 0.0, 0.25])
-    table = theory.sweep_model_bias(system, 0.9, gains, offsets, num_iters=200,
-                                    distal_steps=5, learning_rate=0.05)
+    table = theory.sweep_model_bias(
+        system, 0.9, gains, offsets, num_iters=200, distal_steps=5, learning_rate=0.05
+    )
     assert table["joint_error"].shape == (9,)
     for i in range(9):
         model = theory.biased_model(system, table["gain_ratio"][i], table["offset_error"][i])
         for name in ("task", "joint"):
             fp = theory.fixed_point(name, system, model, 0.9)
             np.testing.assert_allclose(table[f"{name}_error"][i], fp.error, atol=F32_ATOL)
-            np.testing.assert_allclose(table[f"{name}_iterated_error"][i], fp.error,
-                                       atol=10 * F32_ATOL)  # contraction <= 0.72
+            np.testing.assert_allclose(
+                table[f"{name}_iterated_error"][i], fp.error, atol=10 * F32_ATOL
+            )  # contraction <= 0.72
         np.testing.assert_allclose(table["distal_iterated_error"][i], 0.0, atol=F32_ATOL)
     # exact model: every loss rests at the target
-    exact = int(np.flatnonzero((np.asarray(gains) == 1.0).repeat(3)
-                               & (np.tile(np.asarray(offsets), 3) == 0.0))[0])
+    exact = int(
+        np.flatnonzero(
+            (np.asarray(gains) == 1.0).repeat(3) & (np.tile(np.asarray(offsets), 3) == 0.0)
+        )[0]
+    )
     for name in theory.THEORY_LOSSES:
         assert abs(float(table[f"{name}_error"][exact])) < F32_ATOL
 

@@ -47,8 +47,9 @@ def make_rows(rng, n):
 def setup():
     rng = np.random.default_rng(1)
     states, desired, tau, observed = make_rows(rng, ROWS)
-    batch = dataset.Transitions(*(jnp.asarray(x, jnp.float32)
-                                  for x in (states, desired, tau, observed)))
+    batch = dataset.Transitions(
+        *(jnp.asarray(x, jnp.float32) for x in (states, desired, tau, observed))
+    )
     data = dataset.add(dataset.empty(ROWS, S, NV), batch)
     norm = networks.Normaliser.from_data(batch.state, batch.observed, jnp.asarray(LIMIT))
     fm = networks.forward_model(hidden=(16,), ensemble_size=2, nv=NV)
@@ -95,8 +96,7 @@ def test_controller_gradient_matches_hand_built_chain_rule(setup, loss):
 
 
 def test_supervised_gradient_matches_hand_built_chain_rule(setup):
-    ctrl, norm, batch, cp, fp, fm = (setup[k] for k in ("ctrl", "norm", "batch", "cp", "fp",
-                                                       "fm"))
+    ctrl, norm, batch, cp, fp, fm = (setup[k] for k in ("ctrl", "norm", "batch", "cp", "fp", "fm"))
     got = jax.grad(update.controller_objective)(cp, fp, "supervised", fm, ctrl, norm, batch)
 
     # g is fed the observed acceleration; residual in torque / limit units.
@@ -108,8 +108,9 @@ def test_supervised_gradient_matches_hand_built_chain_rule(setup):
     scale = max(float(jnp.max(jnp.abs(x))) for x in jax.tree.leaves(expected))
     tree_allclose(got, expected, rtol=1e-4, atol=1e-5 * scale)  # as above
     # no forward model on this path: the gradient w.r.t. the forward params is exactly zero
-    g_fp = jax.grad(update.controller_objective, argnums=1)(cp, fp, "supervised", fm, ctrl,
-                                                             norm, batch)
+    g_fp = jax.grad(update.controller_objective, argnums=1)(
+        cp, fp, "supervised", fm, ctrl, norm, batch
+    )
     assert all(np.all(np.asarray(x) == 0) for x in jax.tree.leaves(g_fp))
 
 
@@ -123,8 +124,7 @@ def test_distal_objective_value(setup):
         for name in ("task", "joint", "distal")
     }
     # float32 means of ~256 terms of size ~1-10: rtol 1e-5
-    np.testing.assert_allclose(values["joint"] + values["distal"], 2 * values["task"],
-                               rtol=1e-5)
+    np.testing.assert_allclose(values["joint"] + values["distal"], 2 * values["task"], rtol=1e-5)
 
 
 def test_unknown_loss_name_raises(setup):
@@ -138,21 +138,20 @@ def test_unknown_loss_name_raises(setup):
 
 @pytest.mark.parametrize("loss", ["task", "joint", "distal", "supervised"])
 def test_fit_controller_changes_only_controller(setup, loss):
-    fm, ctrl, norm, data, fp, cp = (setup[k] for k in ("fm", "ctrl", "norm", "data", "fp",
-                                                       "cp"))
+    fm, ctrl, norm, data, fp, cp = (setup[k] for k in ("fm", "ctrl", "norm", "data", "fp", "cp"))
     # The controller objective does depend on the forward params (except for supervised),
     # so a gradient step on all parameters would move them; fit_controller must not.
-    g_fp = jax.grad(update.controller_objective, argnums=1)(cp, fp, loss, fm, ctrl, norm,
-                                                             setup["batch"])
-    assert (loss == "supervised") == all(
-        np.all(np.asarray(x) == 0) for x in jax.tree.leaves(g_fp)
+    g_fp = jax.grad(update.controller_objective, argnums=1)(
+        cp, fp, loss, fm, ctrl, norm, setup["batch"]
     )
+    assert (loss == "supervised") == all(np.all(np.asarray(x) == 0) for x in jax.tree.leaves(g_fp))
     fp_before = jax.tree.map(lambda x: np.array(x, copy=True), fp)
     cp_before = jax.tree.map(lambda x: np.array(x, copy=True), cp)
     optimizer = optax.adam(1e-3)
     fit = jax.jit(update.fit_controller, static_argnums=(0, 1, 2, 3, 10, 11))
-    new_cp, _, value = fit(loss, fm, ctrl, optimizer, cp, optimizer.init(cp), fp, norm, data,
-                           jax.random.key(4), 5, 32)
+    new_cp, _, value = fit(
+        loss, fm, ctrl, optimizer, cp, optimizer.init(cp), fp, norm, data, jax.random.key(4), 5, 32
+    )
     # Forward params: bitwise unchanged (compared with a host copy taken before the fit).
     jax.tree.map(np.testing.assert_array_equal, fp_before, jax.tree.map(np.asarray, fp))
     # Controller params: every leaf moved (Adam's first steps move every parameter with a
@@ -163,15 +162,34 @@ def test_fit_controller_changes_only_controller(setup, loss):
 
 
 def test_fit_controller_reduces_task_objective_with_fixed_model(setup):
-    fm, ctrl, norm, data, fp, cp, batch = (setup[k] for k in ("fm", "ctrl", "norm", "data",
-                                                              "fp", "cp", "batch"))
-    objective = functools.partial(update.controller_objective, loss="task", forward=fm,
-                                  controller=ctrl, normaliser=norm, batch=batch)
+    fm, ctrl, norm, data, fp, cp, batch = (
+        setup[k] for k in ("fm", "ctrl", "norm", "data", "fp", "cp", "batch")
+    )
+    objective = functools.partial(
+        update.controller_objective,
+        loss="task",
+        forward=fm,
+        controller=ctrl,
+        normaliser=norm,
+        batch=batch,
+    )
     before = float(objective(cp, fp))
     optimizer = optax.adam(1e-2)
     fit = jax.jit(update.fit_controller, static_argnums=(0, 1, 2, 3, 10, 11))
-    new_cp, _, _ = fit("task", fm, ctrl, optimizer, cp, optimizer.init(cp), fp, norm, data,
-                       jax.random.key(5), 200, 64)
+    new_cp, _, _ = fit(
+        "task",
+        fm,
+        ctrl,
+        optimizer,
+        cp,
+        optimizer.init(cp),
+        fp,
+        norm,
+        data,
+        jax.random.key(5),
+        200,
+        64,
+    )
     after = float(objective(new_cp, fp))
     # Adam on minibatches of the same rows: the full-batch objective must go down clearly;
     # 20 % is far below what 200 steps achieve and robust to minibatch noise.
@@ -179,12 +197,11 @@ def test_fit_controller_reduces_task_objective_with_fixed_model(setup):
 
 
 def test_zero_steps_returns_nan_loss_and_same_params(setup):
-    fm, ctrl, norm, data, fp, cp = (setup[k] for k in ("fm", "ctrl", "norm", "data", "fp",
-                                                       "cp"))
+    fm, ctrl, norm, data, fp, cp = (setup[k] for k in ("fm", "ctrl", "norm", "data", "fp", "cp"))
     optimizer = optax.adam(1e-3)
-    new_cp, _, value = update.fit_controller("task", fm, ctrl, optimizer, cp,
-                                             optimizer.init(cp), fp, norm, data,
-                                             jax.random.key(0), 0, 8)
+    new_cp, _, value = update.fit_controller(
+        "task", fm, ctrl, optimizer, cp, optimizer.init(cp), fp, norm, data, jax.random.key(0), 0, 8
+    )
     assert np.isnan(float(value))
     jax.tree.map(np.testing.assert_array_equal, cp, new_cp)
 
@@ -207,8 +224,9 @@ def test_fit_forward_learns_linear_map(setup):
     # objective on a fixed per-member batch of the whole data set
     full = jax.tree.map(lambda x: jnp.stack([x, x]), setup["batch"])
     before = float(update.forward_objective(fp, fm, norm, full))
-    params, _, mean_loss = fit(fm, optimizer, fp, optimizer.init(fp), norm, data,
-                               jax.random.key(8), 1000, 64)
+    params, _, mean_loss = fit(
+        fm, optimizer, fp, optimizer.init(fp), norm, data, jax.random.key(8), 1000, 64
+    )
     after = float(update.forward_objective(params, fm, norm, full))
     assert after < before - 5.0, (before, after)  # NLL drops from ~1 to about -10
     assert np.isfinite(float(mean_loss))

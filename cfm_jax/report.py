@@ -1,0 +1,135 @@
+"""Summaries, tables and figures of training results (pandas, rich, matplotlib).
+
+Example:
+  >>> import pandas as pd
+  >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [1, 1],
+  ...                         "target": [0, 0], "tracking_mse": [1.0, 3.0]})
+  >>> summary(metrics).loc["joint", "tracking_mse_mean"]
+  np.float64(2.0)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from cfm_jax import losses
+
+
+def summary(
+    metrics: pd.DataFrame, baselines: pd.DataFrame | None = None, rms_reach: float | None = None
+) -> pd.DataFrame:
+    """Final-iteration tracking MSE per loss: mean and std over seeds and targets.
+
+    With ``baselines``, rows ``oracle`` and ``pd_only`` are added (std over targets). With
+    ``rms_reach``, the column ``rmse_over_reach`` gives the tracking RMSE (square root of the
+    mean MSE over seeds and targets) as a fraction of the RMS reaching distance.
+    """
+    rows = {}
+    order = [name for name in losses.CONTROLLER_LOSSES if name in set(metrics["loss"])]
+    for loss in order:
+        frame = metrics[metrics["loss"] == loss]
+        final = frame[frame["iteration"] == frame["iteration"].max()]
+        rows[loss] = {
+            "iteration": int(final["iteration"].iloc[0]),
+            "tracking_mse_mean": final["tracking_mse"].mean(),
+            "tracking_mse_std": final["tracking_mse"].std(ddof=0),
+            "runs": len(final),
+        }
+        for column in ("prediction_error", "predicted_task_error"):
+            if column in final:
+                rows[loss][f"{column}_mean"] = final[column].mean()
+    if baselines is not None:
+        for name, frame in baselines.groupby("baseline", sort=False):
+            rows[name] = {
+                "tracking_mse_mean": frame["tracking_mse"].mean(),
+                "tracking_mse_std": frame["tracking_mse"].std(ddof=0),
+                "runs": len(frame),
+            }
+    table = pd.DataFrame.from_dict(rows, orient="index")
+    if rms_reach is not None:
+        table["rmse_over_reach"] = np.sqrt(table["tracking_mse_mean"]) / rms_reach
+    return table
+
+
+def print_summary(table: pd.DataFrame, title: str = "Final tracking error") -> None:
+    """Print a :func:`summary` table with rich."""
+    from rich.console import Console
+    from rich.table import Table
+
+    out = Table(title=title)
+    out.add_column("controller")
+    columns = [c for c in table.columns if c != "iteration"]
+    for column in columns:
+        out.add_column(column, justify="right")
+    for name, row in table.iterrows():
+        out.add_row(str(name), *(_format(row[c]) for c in columns))
+    Console().print(out)
+
+
+def _format(value) -> str:
+    if isinstance(value, float | np.floating):
+        if np.isnan(value):
+            return "-"
+        return f"{value:.3g}" if abs(value) >= 1e-3 or value == 0 else f"{value:.2e}"
+    return str(value)
+
+
+def markdown(table: pd.DataFrame) -> str:
+    """The table as GitHub markdown (numbers to 3 significant digits)."""
+    columns = [c for c in table.columns if c != "iteration"]
+    lines = ["| controller | " + " | ".join(columns) + " |", "|---|" + "---:|" * len(columns)]
+    for name, row in table.iterrows():
+        lines.append(f"| {name} | " + " | ".join(_format(row[c]) for c in columns) + " |")
+    return "\n".join(lines)
+
+
+def plot_learning_curves(
+    metrics: pd.DataFrame, path: str, baselines: pd.DataFrame | None = None, title: str = ""
+) -> str:
+    """Tracking MSE, prediction error and predicted task error per iteration, per loss.
+
+    Mean and standard deviation over seeds and targets (the paper's Fig. 3 and 4 style);
+    oracle and PD-only tracking MSE as horizontal lines. Log scale. Returns ``path``.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [
+        ("tracking_mse", "joint tracking MSE (rad$^2$)"),
+        ("prediction_error", "forward-model prediction error"),
+        ("predicted_task_error", "predicted task error"),
+    ]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    for ax, (column, label) in zip(axes, panels, strict=True):
+        for loss in [n for n in losses.CONTROLLER_LOSSES if n in set(metrics["loss"])]:
+            frame = metrics[metrics["loss"] == loss].groupby("iteration")[column]
+            mean, std = frame.mean(), frame.std(ddof=0).fillna(0.0)
+            (line,) = ax.plot(mean.index, mean.values, marker="o", ms=3, label=loss)
+            lower = np.maximum(mean.values - std.values, mean.values * 1e-2)
+            ax.fill_between(
+                mean.index, lower, mean.values + std.values, alpha=0.2, color=line.get_color()
+            )
+        if column == "tracking_mse" and baselines is not None:
+            styles = {"oracle": ":", "pd_only": "--"}
+            for name, frame in baselines.groupby("baseline", sort=False):
+                ax.axhline(
+                    frame["tracking_mse"].mean(),
+                    color="k",
+                    ls=styles.get(name, "-."),
+                    lw=1,
+                    label=name,
+                )
+        ax.set_yscale("log")
+        ax.set_xlabel("iteration")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
