@@ -24,6 +24,9 @@ from cfm_jax import losses
 TASKS = ("inverse_dynamics",)
 """Tasks available for ``Config.task.name``."""
 
+SIMULATORS = ("native", "mjx")
+"""Physics back ends for ``Config.simulator`` (see :mod:`cfm_jax.rollout`)."""
+
 
 class ConfigError(ValueError):
     """A configuration field has a value that is not allowed."""
@@ -100,10 +103,20 @@ class TaskConfig:
         _positive_float("task.duration", self.duration)
         if self.control_dt is not None:
             _positive_float("task.control_dt", self.control_dt)
+            from cfm_jax.tasks import check_duration
+
+            check_duration(self.duration, self.control_dt)
         _nonnegative_float("task.kp", self.kp)
         _nonnegative_float("task.kd", self.kd)
         if self.targets is not None:
-            targets = tuple(tuple(float(x) for x in t) for t in self.targets)
+            try:
+                targets = tuple(tuple(float(x) for x in t) for t in self.targets)
+            except (TypeError, ValueError):
+                _fail(
+                    "task.targets",
+                    self.targets,
+                    "a non-empty tuple of joint-position tuples of numbers",
+                )
             if len(targets) == 0 or len({len(t) for t in targets}) != 1:
                 _fail(
                     "task.targets",
@@ -114,7 +127,10 @@ class TaskConfig:
                 _fail("task.targets", self.targets, "finite joint positions")
             object.__setattr__(self, "targets", targets)
         if self.home is not None:
-            home = tuple(float(x) for x in self.home)
+            try:
+                home = tuple(float(x) for x in self.home)
+            except (TypeError, ValueError):
+                _fail("task.home", self.home, "a tuple of joint positions (numbers)")
             if not all(math.isfinite(x) for x in home):
                 _fail("task.home", self.home, "finite joint positions")
             object.__setattr__(self, "home", home)
@@ -218,6 +234,9 @@ class Config:
     loss: str = "joint"
     # Base seed; run k of loop.seeds uses seed + k.
     seed: int = 0
+    # Physics back end of the rollouts; one of SIMULATORS. "native": MuJoCo C through
+    # jax.pure_callback (fast on CPU, exact MuJoCo); "mjx": MuJoCo MJX in JAX (on device).
+    simulator: str = "native"
     task: TaskConfig = dataclasses.field(default_factory=TaskConfig)
     forward: ForwardModelConfig = dataclasses.field(default_factory=ForwardModelConfig)
     controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
@@ -230,6 +249,8 @@ class Config:
             _fail("loss", self.loss, f"one of {losses.CONTROLLER_LOSSES}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             _fail("seed", self.seed, "an integer >= 0")
+        if self.simulator not in SIMULATORS:
+            _fail("simulator", self.simulator, f"one of {SIMULATORS}")
         for name, cls in (
             ("task", TaskConfig),
             ("forward", ForwardModelConfig),

@@ -1,7 +1,16 @@
-"""Closed-loop rollouts in MuJoCo MJX: ``scan`` over control steps, ``vmap`` over targets.
+"""Closed-loop rollouts: ``scan`` over control steps, ``vmap`` over targets (and seeds).
 
 No gradient flows through the simulator (the method does not need one): rollouts produce
-transitions for the data set and tracking errors for the metrics.
+transitions for the data set and tracking errors for the metrics. Two simulators step the
+physics inside the same compiled rollout (see :data:`SIMULATORS`):
+
+* ``"native"`` (default): MuJoCo's C engine (``mujoco.rollout``), called once per control
+  step for the whole batch through ``jax.pure_callback``. Exact MuJoCo physics in float64
+  (the state is stored as float32 between control steps), joint limits and contacts at C
+  speed, compiles in about a second. Runs on any JAX backend (on a GPU the state crosses to
+  the host every control step).
+* ``"mjx"``: ``mujoco.mjx.step`` in JAX (float32), everything on the device. On CPU it is
+  slower, in particular with joint-limit constraints, and compiles for 15-30 s.
 
 A *policy* is a pure function ``policy(mjx_model, data, step, key) -> tau`` of the MJX data
 at the current control step, a :class:`Step` of the state and reference, and a PRNG key.
@@ -21,6 +30,7 @@ Example:
 
 from __future__ import annotations
 
+import os
 from typing import Any, NamedTuple
 
 import jax
@@ -29,6 +39,10 @@ import numpy as np
 from mujoco import mjx
 
 from cfm_jax import dataset, tasks
+
+
+SIMULATORS = ("native", "mjx")
+"""Physics back ends for :func:`run`."""
 
 
 class Step(NamedTuple):
@@ -69,50 +83,60 @@ def substeps(robot, control_dt: float) -> int:
     return count
 
 
-def run(robot, policy, reference: tasks.Reference, kp, kd, control_dt, key) -> Rollout:
+def run(
+    robot, policy, reference: tasks.Reference, kp, kd, control_dt, key, simulator="native"
+) -> Rollout:
     """Roll a policy out on every target of ``reference`` (pure; jit and vmap it).
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot` (its MJX model is closed over).
+      robot: a :class:`cfm_jax.robots.Robot` (its models are closed over).
       policy: ``policy(mjx_model, data, step, key) -> tau (nv,)``; torques are clipped to the
-        limits.
+        limits. ``data`` is an ``mjx.Data`` holding the current ``qpos, qvel`` and ``time``
+        (with either simulator; other fields are not computed).
       reference: a :class:`cfm_jax.tasks.Reference` of JAX arrays ``(targets, steps+1, nq)``.
       kp, kd: gains of the PD correction in the desired acceleration.
       control_dt: control period (a multiple of the physics timestep).
       key: PRNG key, split per target and step.
+      simulator: one of :data:`SIMULATORS`.
 
     Returns:
       A :class:`Rollout`; every rollout starts at rest at ``reference.q[:, 0]``.
     """
+    if simulator not in SIMULATORS:
+        from cfm_jax.config import ConfigError
+
+        raise ConfigError(f"simulator={simulator!r} is not allowed: one of {SIMULATORS}")
     model = robot.mjx_model
     n_sub = substeps(robot, control_dt)
     limit = jnp.asarray(robot.torque_limit, jnp.float32)
     nq = robot.nq
+    physics = native_physics(robot, n_sub) if simulator == "native" else mjx_physics(robot, n_sub)
+    blank = mjx.make_data(model)
 
     def one_target(ref_q, ref_qd, ref_qdd, target_key):
-        data = mjx.make_data(model).replace(qpos=ref_q[0], qvel=jnp.zeros_like(ref_qd[0]))
+        q0 = ref_q[0].astype(jnp.float32)
+        qd0 = jnp.zeros(robot.nv, jnp.float32)
 
         def control_step(carry, t):
-            data, key = carry
+            q, qd, key = carry
             key, key_policy = jax.random.split(key)
-            q, qd = data.qpos, data.qvel
+            data = blank.replace(qpos=q, qvel=qd, time=t * jnp.float32(control_dt))
             desired = tasks.desired_acceleration(ref_q[t], ref_qd[t], ref_qdd[t], q, qd, kp, kd)
             step = Step(jnp.concatenate([q, qd]), desired, ref_q[t], ref_qd[t], ref_qdd[t])
             tau = jnp.clip(policy(model, data, step, key_policy), -limit, limit)
-            data = data.replace(ctrl=robot.torque_to_ctrl(tau))
-            data = jax.lax.fori_loop(0, n_sub, lambda _, d: mjx.step(model, d), data)
-            observed = (data.qvel - qd) / control_dt
-            finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
+            q_next, qd_next = physics(q, qd, robot.torque_to_ctrl(tau))
+            observed = (qd_next - qd) / control_dt
+            finite = jnp.all(jnp.isfinite(q_next)) & jnp.all(jnp.isfinite(qd_next))
             out = (
                 dataset.Transitions(step.state, desired, tau, observed),
-                data.qpos[:nq] - ref_q[t + 1],
+                q_next[:nq] - ref_q[t + 1],
                 finite,
             )
-            return (data, key), out
+            return (q_next, qd_next, key), out
 
         steps = ref_q.shape[0] - 1
         _, (transitions, error, finite) = jax.lax.scan(
-            control_step, (data, target_key), jnp.arange(steps)
+            control_step, (q0, qd0, target_key), jnp.arange(steps)
         )
         # Once the state is non-finite, everything after it is too.
         finite = jnp.cumprod(finite.astype(jnp.int32)).astype(bool)
@@ -120,6 +144,125 @@ def run(robot, policy, reference: tasks.Reference, kp, kd, control_dt, key) -> R
 
     keys = jax.random.split(key, reference.q.shape[0])
     return jax.vmap(one_target)(reference.q, reference.qd, reference.qdd, keys)
+
+
+def mjx_physics(robot, n_sub: int):
+    """``physics(qpos, qvel, ctrl) -> (qpos, qvel)`` after ``n_sub`` ``mjx.step`` calls
+    from rest-free state ``(qpos, qvel)`` (time and warm start start at zero)."""
+    model = robot.mjx_model
+    blank = mjx.make_data(model)
+
+    def physics(qpos, qvel, ctrl):
+        data = blank.replace(qpos=qpos, qvel=qvel, ctrl=ctrl)
+        data = jax.lax.fori_loop(0, n_sub, lambda _, d: mjx.step(model, d), data)
+        return data.qpos, data.qvel
+
+    return physics
+
+
+class _NativeStepper:
+    """Host side of :func:`native_physics`: steps a batch of states with MuJoCo's C engine.
+
+    Holds a copy of the robot's ``MjModel`` with automatic reset on numerical instability
+    disabled (``mjDSBL_AUTORESET``), so a diverging state stays non-finite and is flagged
+    like in MJX, instead of silently jumping back to ``qpos0``; a non-finite control makes
+    the state non-finite too (MuJoCo would zero it and step on). Batches of at least
+    :attr:`THREADED_BATCH` use a pool of two threads (``mujoco.rollout.Rollout``); results
+    do not depend on the thread count (each rollout is computed by one thread).
+    """
+
+    THREADED_BATCH = 32
+
+    def __init__(self, mj_model, n_sub: int):
+        import mujoco
+        from mujoco import rollout as mj_rollout
+
+        self.model = copy_model(mj_model)
+        self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
+        self.n_sub = n_sub
+        self.spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        self.ctrl_spec = int(mujoco.mjtState.mjSTATE_CTRL)
+        data = mujoco.MjData(self.model)
+        self.nstate = mujoco.mj_stateSize(self.model, self.spec)
+        self.template = np.empty(self.nstate)
+        mujoco.mj_getState(self.model, data, self.template, self.spec)
+        self.template[0] = 0.0  # time
+        nq, nv = self.model.nq, self.model.nv
+        self.qpos = slice(1, 1 + nq)
+        self.qvel = slice(1 + nq, 1 + nq + nv)
+        self.threads = max(1, min(2, os.cpu_count() or 1))
+        self.datas = [mujoco.MjData(self.model) for _ in range(self.threads)]
+        self.single = mj_rollout.Rollout(nthread=0)
+        self.pool = mj_rollout.Rollout(nthread=self.threads) if self.threads > 1 else None
+
+    def __call__(self, qpos, qvel, ctrl):
+        nq, nv, nu = self.model.nq, self.model.nv, self.model.nu
+        batch_shape = np.shape(qpos)[:-1]
+        qpos = np.asarray(qpos, np.float64).reshape(-1, nq)
+        batch = qpos.shape[0]
+        state = np.tile(self.template, (batch, 1))
+        state[:, self.qpos] = qpos
+        state[:, self.qvel] = np.asarray(qvel, np.float64).reshape(-1, nv)
+        control = np.repeat(np.asarray(ctrl, np.float64).reshape(-1, 1, nu), self.n_sub, axis=1)
+        out = np.empty((batch, self.n_sub, self.nstate))
+        sensors = np.empty((batch, self.n_sub, self.model.nsensordata))
+        threaded = self.pool is not None and batch >= self.THREADED_BATCH
+        runner, datas = (self.pool, self.datas) if threaded else (self.single, self.datas[:1])
+        runner.rollout(
+            [self.model] * batch,
+            datas,
+            state,
+            np.ascontiguousarray(control),
+            control_spec=self.ctrl_spec,
+            skip_checks=True,
+            nstep=self.n_sub,
+            state=out,
+            sensordata=sensors,
+            chunk_size=max(1, batch // (2 * len(datas))),
+        )
+        last = out[:, -1]
+        # MuJoCo zeroes a non-finite ctrl (with a warning) and steps on; mark such rollouts
+        # non-finite instead, as MJX's NaN propagation does.
+        bad = ~np.all(np.isfinite(control[:, 0]), axis=-1)
+        last[bad] = np.nan
+        return (
+            last[:, self.qpos].astype(np.float32).reshape(*batch_shape, nq),
+            last[:, self.qvel].astype(np.float32).reshape(*batch_shape, nv),
+        )
+
+
+_STEPPERS: dict = {}
+
+
+def copy_model(mj_model):
+    """A deep copy of an ``MjModel``."""
+    import copy
+
+    return copy.deepcopy(mj_model)
+
+
+def native_physics(robot, n_sub: int):
+    """``physics(qpos, qvel, ctrl) -> (qpos, qvel)`` after ``n_sub`` steps of MuJoCo C.
+
+    A ``jax.pure_callback`` (``vmap_method="broadcast_all"``): under ``vmap`` the whole
+    batch (targets x seeds) is stepped in one host call per control step. Time, warm start
+    and actuator state start at the model defaults on every call.
+    """
+    cache_key = (id(robot.mj_model), n_sub)
+    if cache_key not in _STEPPERS:
+        _STEPPERS[cache_key] = (robot.mj_model, _NativeStepper(robot.mj_model, n_sub))
+    stepper = _STEPPERS[cache_key][1]
+
+    def physics(qpos, qvel, ctrl):
+        shapes = (
+            jax.ShapeDtypeStruct(jnp.shape(qpos), jnp.float32),
+            jax.ShapeDtypeStruct(jnp.shape(qvel), jnp.float32),
+        )
+        return jax.pure_callback(
+            stepper, shapes, qpos, qvel, ctrl, vmap_method="broadcast_all"
+        )
+
+    return physics
 
 
 def controller_policy(controller, params, normaliser):

@@ -70,6 +70,17 @@ def quintic(start, goal, duration: float, control_dt: float) -> Reference:
     return Reference(q[None], qd[None], qdd[None])
 
 
+def check_duration(duration: float, control_dt: float) -> None:
+    """``duration`` must be a whole number (>= 1) of control periods, so that the sampled
+    path ends exactly at the goal with zero velocity."""
+    ratio = duration / control_dt
+    if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-6 * max(ratio, 1.0):
+        raise ConfigError(
+            f"task.duration={duration!r} is not allowed: a whole multiple (>= 1) of the "
+            f"control period {control_dt!r} s"
+        )
+
+
 def default_targets(joint_range: np.ndarray, home: np.ndarray) -> np.ndarray:
     """Five reaching targets inside the joint limits, the same for every call.
 
@@ -96,8 +107,10 @@ def reaching(robot, task: TaskConfig, control_dt: float) -> Reference:
     """Reference trajectories of the configured targets for a robot.
 
     Raises:
-      ConfigError: targets or home of the wrong length or outside the joint limits.
+      ConfigError: targets or home of the wrong length or outside the joint limits, or a
+        duration that is not a whole number of control periods.
     """
+    check_duration(task.duration, control_dt)
     home = robot.home if task.home is None else np.asarray(task.home)
     check_positions("task.home", home[None], robot)
     targets = (

@@ -129,6 +129,7 @@ class Experiment:
             task.kd,
             self.control_dt,
             key,
+            simulator=self.config.simulator,
         )
 
     def babbling_policy(self) -> rollout.MixedPolicy:

@@ -109,16 +109,8 @@ def test_each_field_rejects_bad_values(cls, keyword, bad, field, allowed):
     assert allowed in message, message
 
 
-# LIBRARY BUG (cfm_jax/config.py, TaskConfig.__post_init__, the lines
-# ``targets = tuple(tuple(float(x) for x in t) ...)`` and ``home = tuple(float(x) ...)``):
-# targets/home that are not sequences of numbers escape validation as a bare TypeError or
-# ValueError ("'float' object is not iterable", "could not convert string to float") that
-# names neither the field nor what is allowed, against the module's contract ("every
-# constructor ... raises ConfigError naming the field"). A flat tuple for ``targets`` (one
-# target without the outer tuple) is an easy user mistake. Proposed fix: wrap the two
-# conversions in ``try: ... except (TypeError, ValueError): _fail("task.targets", ...,
-# "a non-empty tuple of joint-position tuples of equal length")`` (and likewise task.home,
-# "a tuple of finite joint positions").
+# Targets/home that are not sequences of numbers (a flat tuple for one target is an easy
+# mistake) must raise ConfigError naming the field, not a bare TypeError/ValueError.
 MALFORMED = [
     ("targets", (0.1, 0.2), "task.targets"),
     ("targets", (("a", 0.0),), "task.targets"),
@@ -127,12 +119,6 @@ MALFORMED = [
 ]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=(TypeError, ValueError),
-    reason="LIBRARY BUG: malformed task.targets/home raise TypeError/ValueError instead of "
-    "ConfigError (see comment above)",
-)
 @pytest.mark.parametrize(
     "keyword, bad, field", MALFORMED, ids=[f"{r[0]}={r[1]!r}" for r in MALFORMED]
 )
@@ -140,6 +126,28 @@ def test_malformed_targets_and_home_raise_config_error(keyword, bad, field):
     with pytest.raises(ConfigError) as info:
         TaskConfig(**{keyword: bad})
     assert str(info.value).startswith(f"{field}={bad!r}")
+
+
+@pytest.mark.parametrize("duration, control_dt", [(0.105, 0.01), (0.004, 0.01), (1.0, 0.3)])
+def test_duration_must_be_whole_control_periods(duration, control_dt):
+    # A quintic sampled every control_dt only ends at the goal (zero velocity) when the
+    # duration is a whole number of periods.
+    with pytest.raises(ConfigError) as info:
+        TaskConfig(duration=duration, control_dt=control_dt)
+    assert str(info.value).startswith(f"task.duration={duration!r}")
+
+
+def test_whole_control_periods_are_accepted():
+    assert TaskConfig(duration=0.3, control_dt=0.01).duration == 0.3
+    assert TaskConfig(duration=1.2, control_dt=0.3).duration == 1.2
+
+
+@pytest.mark.parametrize("bad", ["bullet", "MJX", None, 3])
+def test_unknown_simulator(bad):
+    with pytest.raises(ConfigError) as info:
+        Config(simulator=bad)
+    assert str(info.value).startswith(f"simulator={bad!r}")
+    assert "native" in str(info.value) and "mjx" in str(info.value)
 
 
 def test_config_error_is_a_value_error():

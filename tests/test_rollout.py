@@ -71,7 +71,8 @@ def arm():
 # ---- (a) MJX vs MuJoCo C on the iiwa ----------------------------------------------------------
 
 
-def test_iiwa_mjx_rollout_matches_mujoco_c(iiwa):
+@pytest.mark.parametrize("simulator", rollout.SIMULATORS)
+def test_iiwa_rollout_matches_mujoco_c(iiwa, simulator):
     steps = 50
     ref = tasks.quintic(iiwa.home, iiwa.home, duration=steps * CONTROL_DT, control_dt=CONTROL_DT)
     # Gravity compensation at home plus sinusoids of 5 % of each torque limit: the arm moves
@@ -94,6 +95,7 @@ def test_iiwa_mjx_rollout_matches_mujoco_c(iiwa):
             kd=0.0,
             control_dt=CONTROL_DT,
             key=jax.random.key(0),
+            simulator=simulator,
         )
     )(jnp.asarray(torques, jnp.float32))
     q_c, qd_c, constraints = c_rollout(iiwa, iiwa.home, torques.astype(np.float32), CONTROL_DT)
@@ -103,7 +105,8 @@ def test_iiwa_mjx_rollout_matches_mujoco_c(iiwa):
     np.testing.assert_allclose(np.asarray(out.transitions.action[0]), torques, rtol=1e-6)
     # The arm really moves (otherwise the comparison is vacuous).
     assert np.max(np.abs(q_c[-1] - iiwa.home)) > 0.05
-    # Tolerance: float32 MJX (eps 1.2e-7) vs float64 C over 250 steps of h = 0.002 s, no
+    # Tolerance: float32 MJX (eps 1.2e-7) vs float64 C over 250 steps (the native simulator
+    # is C in float64 with the state rounded to float32 between control steps: smaller) of h = 0.002 s, no
     # constraints. Each qpos += h qd update rounds at eps * |q| ~ 2e-7 rad (|q| <= 1.7); over
     # 250 steps these add as a random walk, sqrt(250) * 2e-7 ~ 3e-6 rad (observed 3e-7). The
     # acceleration's relative rounding (~1e-6 on |qdd| ~ 10 rad/s^2) integrated over 0.5 s
@@ -127,8 +130,8 @@ def test_iiwa_mjx_rollout_matches_mujoco_c(iiwa):
 ARM_STEPS = 10  # duration 0.1 s at control_dt 0.01
 
 
-@pytest.fixture(scope="module")
-def arm_case(arm):
+@pytest.fixture(scope="module", params=rollout.SIMULATORS)
+def arm_case(arm, request):
     ref = tasks.quintic(
         arm.home, arm.home + np.array([0.1, -0.1]), duration=0.1, control_dt=CONTROL_DT
     )
@@ -140,7 +143,14 @@ def arm_case(arm):
             torques, CONTROL_DT, jnp.asarray(gain_p, jnp.float32), jnp.asarray(gain_d, jnp.float32)
         )
         return rollout.run(
-            arm, policy, tasks.as_jax(ref), kp=100.0, kd=20.0, control_dt=CONTROL_DT, key=key
+            arm,
+            policy,
+            tasks.as_jax(ref),
+            kp=100.0,
+            kd=20.0,
+            control_dt=CONTROL_DT,
+            key=key,
+            simulator=request.param,
         )
 
     data = mujoco.MjData(arm.mj_model)
@@ -154,36 +164,62 @@ def arm_case(arm):
         run=run,
         torques=torques.astype(np.float32),
         gains=(np.float32(gain_p), np.float32(gain_d)),
+        simulator=request.param,
     )
 
 
-def test_scan_rollout_matches_python_loop_of_mjx_step(arm, arm_case):
+def python_loop_physics(arm, simulator):
+    """``physics(q, qd, tau) -> (q, qd)`` after 5 physics steps, one call at a time:
+    jitted ``mjx.step`` for MJX, ``mujoco.mj_step`` on an ``MjData`` (float64, state
+    rounded to float32 between control steps, as the library stores it) for native."""
+    if simulator == "mjx":
+        model = arm.mjx_model
+        step_fn = jax.jit(mjx.step)
+
+        def physics(q, qd, tau):
+            data = mjx.make_data(model).replace(
+                qpos=jnp.asarray(q), qvel=jnp.asarray(qd), ctrl=jnp.asarray(tau)
+            )
+            for _ in range(5):
+                data = step_fn(model, data)
+            return np.asarray(data.qpos), np.asarray(data.qvel)
+
+        return physics
+
+    def physics(q, qd, tau):
+        data = mujoco.MjData(arm.mj_model)
+        data.qpos[:], data.qvel[:], data.ctrl[:] = q, qd, tau
+        for _ in range(5):
+            mujoco.mj_step(arm.mj_model, data)
+        return data.qpos.astype(np.float32), data.qvel.astype(np.float32)
+
+    return physics
+
+
+def test_scan_rollout_matches_python_loop(arm, arm_case):
     ref, torques = arm_case["ref"], arm_case["torques"]
     out = arm_case["run"](jnp.asarray(torques), jax.random.key(0))
     assert out.transitions.state.shape == (1, ARM_STEPS, 4)
     assert out.position_error.shape == (1, ARM_STEPS, 2)
 
-    # Plain Python loop: same policy, same clipping, same n_sub = 5 mjx.step calls.
-    model = arm.mjx_model
-    step_fn = jax.jit(mjx.step)
+    # Plain Python loop: same policy, same clipping, same n_sub = 5 physics steps.
+    physics = python_loop_physics(arm, arm_case["simulator"])
     gain_p, gain_d = arm_case["gains"]
     limit = np.float32(arm.torque_limit)
     ref32 = [np.asarray(x[0], np.float32) for x in ref]
-    data = mjx.make_data(model).replace(qpos=jnp.asarray(ref32[0][0]), qvel=jnp.zeros(arm.nv))
+    q, qd = ref32[0][0], np.zeros(arm.nv, np.float32)
     states, actions, observed, errors, desired = [], [], [], [], []
     for t in range(ARM_STEPS):
-        q, qd = np.asarray(data.qpos), np.asarray(data.qvel)
         desired.append(ref32[2][t] + 100.0 * (ref32[0][t] - q) + 20.0 * (ref32[1][t] - qd))
         tau = np.clip(
             torques[t] + gain_p * (ref32[0][t] - q) + gain_d * (ref32[1][t] - qd), -limit, limit
         )
-        data = data.replace(ctrl=jnp.asarray(tau))
-        for _ in range(5):
-            data = step_fn(model, data)
+        q_next, qd_next = physics(q, qd, tau)
         states.append(np.concatenate([q, qd]))
         actions.append(tau)
-        observed.append((np.asarray(data.qvel) - qd) / CONTROL_DT)
-        errors.append(np.asarray(data.qpos) - ref32[0][t + 1])
+        observed.append((qd_next - qd) / CONTROL_DT)
+        errors.append(q_next - ref32[0][t + 1])
+        q, qd = q_next, qd_next
     # The clip was active at the end (elbow torque request > 10 N m).
     assert np.max(np.abs(np.array(actions)[:, 1])) == limit[1]
     # Same float32 operations in a different compiled program (scan + fori_loop vs separate
@@ -220,7 +256,8 @@ def test_nan_torque_makes_finite_false_from_that_step_on(arm_case):
 # ---- (c) the oracle policy ------------------------------------------------------------------
 
 
-def test_oracle_policy_realises_desired_acceleration(arm):
+@pytest.mark.parametrize("simulator", rollout.SIMULATORS)
+def test_oracle_policy_realises_desired_acceleration(arm, simulator):
     # kp = kd = 0 and control_dt = timestep (1 physics step per control step): the oracle's
     # torque M qdd* + h D qdd* + bias - passive makes MuJoCo's Euler step (implicit joint
     # damping) produce exactly qdd* = qdd_ref(t).
@@ -235,6 +272,7 @@ def test_oracle_policy_realises_desired_acceleration(arm):
             kd=0.0,
             control_dt=dt,
             key=jax.random.key(0),
+            simulator=simulator,
         )
     )()
     qdd_ref = ref.qdd[0, :-1]
@@ -277,3 +315,31 @@ def test_substeps_rejects_non_multiples(arm, control_dt):
     message = str(info.value)
     assert message.startswith(f"task.control_dt={control_dt!r}"), message
     assert "multiple" in message and "0.002" in message and "'two_link_arm'" in message
+
+
+# ---- (f) the native simulator's host side ----------------------------------------------------
+
+
+@pytest.mark.parametrize("batch", [1, 3, 40])  # 40 >= THREADED_BATCH: the thread pool
+def test_native_stepper_matches_mj_step_per_element(iiwa, batch):
+    # Any batch shape, single-threaded or pooled, equals stepping each state alone in C.
+    rng = np.random.default_rng(batch)
+    n_sub = 5
+    low, high = iiwa.joint_range[:, 0], iiwa.joint_range[:, 1]
+    qpos = rng.uniform(0.8 * low, 0.8 * high, (batch, iiwa.nq)).astype(np.float32)
+    qvel = rng.normal(0.0, 0.5, (batch, iiwa.nv)).astype(np.float32)
+    ctrl = rng.uniform(-0.3, 0.3, (batch, iiwa.mj_model.nu)).astype(np.float32)
+    stepper = rollout._NativeStepper(iiwa.mj_model, n_sub)
+    q_out, qd_out = stepper(qpos.reshape(batch, 1, -1), qvel, ctrl)  # extra axis: reshaped
+    assert q_out.shape == (batch, 1, iiwa.nq) and q_out.dtype == np.float32
+    data = mujoco.MjData(iiwa.mj_model)
+    for i in range(batch):
+        mujoco.mj_resetData(iiwa.mj_model, data)
+        data.qpos[:], data.qvel[:], data.ctrl[:] = qpos[i], qvel[i], ctrl[i]
+        for _ in range(n_sub):
+            mujoco.mj_step(iiwa.mj_model, data)
+        # Same C code on the same float64 inputs: equal up to the float32 output rounding.
+        np.testing.assert_array_equal(q_out[i, 0], data.qpos.astype(np.float32))
+        np.testing.assert_array_equal(qd_out[i, 0], data.qvel.astype(np.float32))
+    # The robot's own model keeps automatic reset (only the stepper's copy disables it).
+    assert not iiwa.mj_model.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
