@@ -1,7 +1,21 @@
 """cfm_jax: coupled forward and inverse models for learning robot controllers.
 
-JAX + MuJoCo MJX implementation of Bechtle et al., "Leveraging Forward Model Prediction Error
+JAX + MuJoCo implementation of Bechtle et al., "Leveraging Forward Model Prediction Error
 for Learning Control" (ICRA 2021).
+
+Example:
+  >>> import cfm_jax
+  >>> config = cfm_jax.Config(robot="iiwa14", loss="joint")
+  >>> result = cfm_jax.train(config)  # doctest: +SKIP
+  >>> result.metrics.groupby("iteration").tracking_mse.mean()  # doctest: +SKIP
+
+Public names (imported on first use, so ``import cfm_jax`` stays cheap and sets the XLA
+flag before JAX's backend starts): :func:`train`, :class:`TrainResult`,
+:class:`Experiment` (from :mod:`cfm_jax.training`); :class:`Config`, :class:`TaskConfig`,
+:class:`ForwardModelConfig`, :class:`ControllerConfig`, :class:`LoopConfig`,
+:class:`ConfigError` (from :mod:`cfm_jax.config`). Submodules: ``robots``, ``tasks``,
+``networks``, ``losses``, ``dataset``, ``rollout``, ``update``, ``training``, ``report``,
+``theory``.
 """
 
 from cfm_jax import _xla
@@ -9,3 +23,32 @@ from cfm_jax import _xla
 FAST_XLA = _xla.configure()  # must run before any JAX computation; see cfm_jax/_xla.py
 
 __version__ = "0.1.0"
+
+_LAZY = {
+    "train": "cfm_jax.training",
+    "TrainResult": "cfm_jax.training",
+    "Experiment": "cfm_jax.training",
+    "METRIC_COLUMNS": "cfm_jax.training",
+    "Config": "cfm_jax.config",
+    "TaskConfig": "cfm_jax.config",
+    "ForwardModelConfig": "cfm_jax.config",
+    "ControllerConfig": "cfm_jax.config",
+    "LoopConfig": "cfm_jax.config",
+    "ConfigError": "cfm_jax.config",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'cfm_jax' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(list(globals()) + list(_LAZY))

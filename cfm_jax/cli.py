@@ -46,7 +46,7 @@ def train(
         override its robot, task, seeds, iterations and seed.
       quiet: no progress bar.
     """
-    from cfm_jax import train as train_lib
+    from cfm_jax import training as train_lib
 
     names = _losses(loss)
     base = config_lib.Config()
@@ -126,9 +126,21 @@ def _write_outputs(out, frames, result, base) -> None:
 
 
 def main() -> None:
+    import sys
+
     import tyro
 
-    tyro.extras.subcommand_cli_from_dict({"train": train})
+    from cfm_jax.robots import RobotError
+
+    try:
+        tyro.extras.subcommand_cli_from_dict({"train": train})
+    except (config_lib.ConfigError, RobotError) as error:
+        print(f"cfm-jax: error: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+if __name__ == "__main__":
+    main()
 
 
 if __name__ == "__main__":

@@ -40,7 +40,6 @@ from mujoco import mjx
 
 from cfm_jax import dataset, tasks
 
-
 SIMULATORS = ("native", "mjx")
 """Physics back ends for :func:`run`."""
 
@@ -258,9 +257,7 @@ def native_physics(robot, n_sub: int):
             jax.ShapeDtypeStruct(jnp.shape(qpos), jnp.float32),
             jax.ShapeDtypeStruct(jnp.shape(qvel), jnp.float32),
         )
-        return jax.pure_callback(
-            stepper, shapes, qpos, qvel, ctrl, vmap_method="broadcast_all"
-        )
+        return jax.pure_callback(stepper, shapes, qpos, qvel, ctrl, vmap_method="broadcast_all")
 
     return physics
 
@@ -275,7 +272,7 @@ def controller_policy(controller, params, normaliser):
     return policy
 
 
-def oracle_policy(robot):
+def oracle_policy(robot, simulator="native"):
     """MuJoCo's inverse dynamics at the current state: ``tau = M qdd* + c - passive``.
 
     ``c`` is MuJoCo's bias force (Coriolis, centrifugal, gravity), ``passive`` the joint
@@ -283,6 +280,10 @@ def oracle_policy(robot):
     integrator's extra ``h D qdd`` term (``h`` the timestep, ``D`` the joint damping) is
     added so that one physics step realises ``qdd*`` exactly (up to torque limits); with
     several physics steps per control step the torque is held and tracking is approximate.
+
+    ``simulator="native"`` computes it with MuJoCo C (``mj_fwdPosition``,
+    ``mj_fwdVelocity``, ``mj_mulM``) through ``jax.pure_callback``; ``"mjx"`` with the
+    corresponding MJX functions.
     """
     import mujoco
 
@@ -290,9 +291,20 @@ def oracle_policy(robot):
     eulerdamp = int(mj.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_EULER) and not int(
         mj.opt.disableflags
     ) & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
-    implicit_damping = jnp.asarray(
-        mj.dof_damping * mj.opt.timestep if eulerdamp else np.zeros(mj.nv), jnp.float32
-    )
+    damping = mj.dof_damping * mj.opt.timestep if eulerdamp else np.zeros(mj.nv)
+    implicit_damping = jnp.asarray(damping, jnp.float32)
+
+    if simulator == "native":
+        inverse = _native_inverse(mj, damping)
+
+        def policy(model, data, step, key):
+            del model, key
+            shape = jax.ShapeDtypeStruct(jnp.shape(step.desired), jnp.float32)
+            return jax.pure_callback(
+                inverse, shape, data.qpos, data.qvel, step.desired, vmap_method="broadcast_all"
+            )
+
+        return policy
 
     def policy(model, data, step, key):
         del key
@@ -302,6 +314,32 @@ def oracle_policy(robot):
         return inertial + data.qfrc_bias - data.qfrc_passive
 
     return policy
+
+
+def _native_inverse(mj_model, implicit_damping):
+    """Host function ``(qpos, qvel, qacc) -> M qacc + h D qacc + bias - passive`` (float32),
+    any leading batch shape."""
+    import mujoco
+
+    data = mujoco.MjData(mj_model)
+    nq, nv = mj_model.nq, mj_model.nv
+
+    def inverse(qpos, qvel, qacc):
+        shape = np.shape(qacc)
+        qpos = np.asarray(qpos, np.float64).reshape(-1, nq)
+        qvel = np.asarray(qvel, np.float64).reshape(-1, nv)
+        qacc = np.asarray(qacc, np.float64).reshape(-1, nv)
+        out = np.empty_like(qacc)
+        inertial = np.empty(nv)
+        for i in range(qacc.shape[0]):
+            data.qpos[:], data.qvel[:] = qpos[i], qvel[i]
+            mujoco.mj_fwdPosition(mj_model, data)
+            mujoco.mj_fwdVelocity(mj_model, data)
+            mujoco.mj_mulM(mj_model, data, inertial, qacc[i])
+            out[i] = inertial + implicit_damping * qacc[i] + data.qfrc_bias - data.qfrc_passive
+        return out.astype(np.float32).reshape(shape)
+
+    return inverse
 
 
 def pd_gains(robot, kp: float, kd: float, home) -> tuple[np.ndarray, np.ndarray]:
@@ -378,11 +416,11 @@ class MixedPolicy(NamedTuple):
         )
 
 
-def mixed_policy(robot, controller, parameters: MixedPolicy):
+def mixed_policy(robot, controller, parameters: MixedPolicy, simulator="native"):
     """The policy of :class:`MixedPolicy` parameters (the oracle term is computed only when
     ``oracle_weight`` is non-zero, by ``lax.cond``)."""
     learned = controller_policy(controller, parameters.controller_params, parameters.normaliser)
-    oracle = oracle_policy(robot)
+    oracle = oracle_policy(robot, simulator)
     pd = pd_policy(parameters.gain_p, parameters.gain_d, noise_std=parameters.noise_std)
 
     def policy(model, data, step, key):

@@ -105,9 +105,10 @@ def test_iiwa_rollout_matches_mujoco_c(iiwa, simulator):
     np.testing.assert_allclose(np.asarray(out.transitions.action[0]), torques, rtol=1e-6)
     # The arm really moves (otherwise the comparison is vacuous).
     assert np.max(np.abs(q_c[-1] - iiwa.home)) > 0.05
-    # Tolerance: float32 MJX (eps 1.2e-7) vs float64 C over 250 steps (the native simulator
-    # is C in float64 with the state rounded to float32 between control steps: smaller) of h = 0.002 s, no
-    # constraints. Each qpos += h qd update rounds at eps * |q| ~ 2e-7 rad (|q| <= 1.7); over
+    # Tolerance: float32 MJX (eps 1.2e-7) vs float64 C over 250 steps of h = 0.002 s, no
+    # constraints (the native simulator is C in float64 with the state rounded to float32
+    # between control steps: smaller errors). Each qpos += h qd update rounds at
+    # eps * |q| ~ 2e-7 rad (|q| <= 1.7); over
     # 250 steps these add as a random walk, sqrt(250) * 2e-7 ~ 3e-6 rad (observed 3e-7). The
     # acceleration's relative rounding (~1e-6 on |qdd| ~ 10 rad/s^2) integrated over 0.5 s
     # adds ~1e-6 rad and ~1e-5 rad/s at worst. 1e-5 rad and 2e-5 rad/s bound these; a
@@ -266,7 +267,7 @@ def test_oracle_policy_realises_desired_acceleration(arm, simulator):
     out = jax.jit(
         lambda: rollout.run(
             arm,
-            rollout.oracle_policy(arm),
+            rollout.oracle_policy(arm, simulator),
             tasks.as_jax(ref),
             kp=0.0,
             kd=0.0,

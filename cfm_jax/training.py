@@ -123,7 +123,7 @@ class Experiment:
         task = self.config.task
         return rollout.run(
             self.robot,
-            rollout.mixed_policy(self.robot, self.controller, policy),
+            rollout.mixed_policy(self.robot, self.controller, policy, self.config.simulator),
             self.reference,
             task.kp,
             task.kd,

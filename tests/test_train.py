@@ -1,0 +1,193 @@
+"""Algorithm 1 end to end (cfm_jax/training.py, cfm_jax/cli.py) on tiny configs.
+
+Oracles: separate single-seed runs for the vmapped seed axis (a loop over seeds), a second
+identical run for determinism, XLA's compilation cache for "one compiled function per
+iteration", and the files the CLI promises. The tiny networks and step counts make these
+runs fast; they check the wiring, not learning quality (that is the acceptance run in the
+README, and ``test_joint_loss_learns_two_link_arm`` under the ``slow`` marker).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+import pytest
+
+import cfm_jax
+from cfm_jax import config as config_lib
+from cfm_jax import training
+
+TINY = config_lib.Config(
+    robot="two_link_arm",
+    task=config_lib.TaskConfig(duration=0.3),
+    forward=config_lib.ForwardModelConfig(
+        hidden=(16,), ensemble_size=2, initial_steps=20, steps_per_iteration=10, batch_size=32
+    ),
+    controller=config_lib.ControllerConfig(
+        hidden=(16,), initial_steps=20, steps_per_iteration=10, batch_size=32
+    ),
+    loop=config_lib.LoopConfig(iterations=2, seeds=2, babbling_rollouts=1),
+)
+TARGETS = 5  # default targets of every robot
+
+
+@pytest.fixture(scope="module")
+def experiment():
+    return training.Experiment(TINY)
+
+
+@pytest.fixture(scope="module")
+def two_seeds(experiment):
+    return cfm_jax.train(TINY, progress=False, experiment=experiment)
+
+
+def test_public_api_and_metric_columns(two_seeds):
+    result = two_seeds
+    assert isinstance(result, cfm_jax.TrainResult)
+    frame = result.metrics
+    assert isinstance(frame, pd.DataFrame)
+    required = ["loss", "seed", "iteration", "target", "tracking_mse", "prediction_error"]
+    assert set(required + ["predicted_task_error"]) <= set(frame.columns)
+    # One row per seed x (iterations + final evaluation) x target.
+    assert len(frame) == 2 * (TINY.loop.iterations + 1) * TARGETS
+    assert sorted(frame.seed.unique()) == [0, 1]
+    assert sorted(frame.iteration.unique()) == [0, 1, 2]
+    assert (frame.loss == "joint").all()
+    for column in ("tracking_mse", "prediction_error", "predicted_task_error"):
+        assert np.all(np.isfinite(frame[column])) and np.all(frame[column] >= 0)
+    # Training losses are recorded for refits, NaN for the final evaluation only.
+    last = frame.iteration == TINY.loop.iterations
+    assert frame.loc[last, "forward_loss"].isna().all()
+    assert np.isfinite(frame.loc[~last, "forward_loss"]).all()
+    # Final parameters with a leading seed axis.
+    leaves = jax.tree.leaves(result.params["controller"])
+    assert leaves and all(leaf.shape[0] == 2 for leaf in leaves)
+    assert int(result.state.iteration[0]) == TINY.loop.iterations
+
+
+def test_baselines_bracket_the_problem(two_seeds):
+    # Oracle: MuJoCo's exact inverse dynamics (+ PD on the reference); PD-only: no
+    # feed-forward. On the gravity-loaded arm the oracle tracks far better than PD alone.
+    base = two_seeds.baselines
+    oracle = base[base.baseline == "oracle"].tracking_mse.to_numpy()
+    pd_only = base[base.baseline == "pd_only"].tracking_mse.to_numpy()
+    assert oracle.shape == pd_only.shape == (TARGETS,)
+    assert np.all(oracle < 0.01 * pd_only)
+    # Tracking error scale: the RMS reaching distance of the default targets is positive.
+    assert two_seeds.rms_reach > 0.05
+
+
+def test_vmapped_seeds_equal_a_loop_over_seeds(two_seeds):
+    # Oracle: the same seeds run one at a time (seed axis of size 1).
+    frame = two_seeds.metrics.set_index(["seed", "iteration", "target"]).sort_index()
+    for seed in (0, 1):
+        alone = (
+            cfm_jax.train(
+                TINY.replace(
+                    seed=seed,
+                    loop=config_lib.LoopConfig(
+                        **{
+                            **config_lib.to_dict(TINY)["loop"],
+                            "seeds": 1,
+                        }
+                    ),
+                ),
+                progress=False,
+            )
+            .metrics.set_index(["seed", "iteration", "target"])
+            .sort_index()
+        )
+        together = frame.loc[seed]
+        alone = alone.loc[seed]
+        # XLA:CPU may pick different kernels for batched (vmapped) and unbatched matrix
+        # products, so float32 results agree to rounding rather than bitwise; 20 Adam
+        # steps and a rollout do not amplify 1e-7 differences beyond 1e-4 relative.
+        for column in ("tracking_mse", "prediction_error", "predicted_task_error"):
+            np.testing.assert_allclose(
+                together[column].to_numpy(), alone[column].to_numpy(), rtol=1e-4, err_msg=column
+            )
+
+
+def test_same_config_twice_gives_identical_metrics(two_seeds, experiment):
+    again = cfm_jax.train(TINY, progress=False, experiment=experiment)
+    pd.testing.assert_frame_equal(again.metrics, two_seeds.metrics, check_exact=True)
+
+
+def test_one_compiled_function_per_loss_iteration(experiment, two_seeds):
+    # After the run (2 iterations) and the determinism run, the compiled iteration exists
+    # once for the loss: every call re-used it. A second loss adds exactly one more.
+    compiled = experiment._compiled
+    assert compiled["iteration/joint"]._cache_size() == 1
+    keys = jax.vmap(jax.random.key)(jnp.arange(2, dtype=jnp.uint32))
+    state = experiment.init("task", keys)
+    for _ in range(2):
+        state, _ = experiment.iteration("task", state)
+    assert compiled["iteration/task"]._cache_size() == 1
+    assert compiled["iteration/joint"]._cache_size() == 1
+
+
+def test_experiment_reuse_is_refused_for_a_different_config(experiment):
+    other = TINY.replace(seed=3)
+    with pytest.raises(ValueError, match="differs"):
+        cfm_jax.train(other, progress=False, experiment=experiment)
+
+
+def test_train_writes_results_per_iteration(tmp_path, experiment):
+    out = tmp_path / "run"
+    result = cfm_jax.train(TINY, progress=False, out_dir=str(out), experiment=experiment)
+    written = pd.read_csv(out / "metrics.csv")
+    assert list(written.columns) == list(training.METRIC_COLUMNS)
+    np.testing.assert_allclose(
+        written.tracking_mse.to_numpy(), result.metrics.tracking_mse.to_numpy(), rtol=1e-6
+    )
+    assert config_lib.from_dict(json.loads((out / "config.json").read_text())) == TINY
+    assert set(pd.read_csv(out / "baselines.csv").baseline) == {"oracle", "pd_only"}
+
+
+def test_cli_train_end_to_end(tmp_path):
+    # A real subprocess of the installed entry point, on a tiny config file.
+    config_file = tmp_path / "tiny.json"
+    config_file.write_text(json.dumps(config_lib.to_dict(TINY)))
+    out = tmp_path / "cli"
+    command = [
+        sys.executable, "-m", "cfm_jax.cli", "train", "--robot", "two_link_arm",
+        "--loss", "joint,supervised", "--seeds", "1", "--iterations", "1",
+        "--config", str(config_file), "--out", str(out), "--quiet",
+    ]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    metrics = pd.read_csv(out / "metrics.csv")
+    assert set(metrics.loss) == {"joint", "supervised"}
+    assert len(metrics) == 2 * 1 * 2 * TARGETS  # losses x seeds x (iterations + 1) x targets
+    saved = json.loads((out / "config.json").read_text())
+    assert saved["loop"]["iterations"] == 1 and saved["loop"]["seeds"] == 1
+    assert (out / "learning_curves.png").stat().st_size > 10_000
+    assert "supervised" in (out / "summary.md").read_text()
+    assert "pd_only" in done.stdout and "oracle" in done.stdout  # the printed table
+    for loss in ("joint", "supervised"):
+        assert os.path.exists(out / loss / "metrics.csv")
+
+
+def test_cli_rejects_unknown_loss(tmp_path):
+    command = [sys.executable, "-m", "cfm_jax.cli", "train", "--loss", "joint,foo",
+               "--out", str(tmp_path)]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert done.returncode != 0
+    assert "--loss='joint,foo' is not allowed" in done.stderr
+
+
+@pytest.mark.slow
+def test_joint_loss_learns_two_link_arm():
+    # Learning, not just wiring: a few iterations of the joint loss beat PD-only feedback.
+    cfg = config_lib.Config(robot="two_link_arm", loop=config_lib.LoopConfig(iterations=4, seeds=1))
+    result = cfm_jax.train(cfg, progress=False)
+    final = result.final().tracking_mse.mean()
+    base = result.baselines
+    assert final < base[base.baseline == "pd_only"].tracking_mse.mean()
