@@ -145,8 +145,14 @@ class Experiment:
             state.controller_params, state.normaliser, self.robot.nv, controller=1.0
         )
 
-    def fit_initial_one(self, loss: str, babbling: rollout.Rollout, key) -> TrainState:
-        """Normaliser from the babbling data, fresh parameters, the initial fits (one seed)."""
+    def prepare_one(self, babbling: rollout.Rollout, key) -> tuple[TrainState, jax.Array]:
+        """The loss-independent start of a run (one seed): normaliser from the babbling data,
+        the data set, fresh parameters and the initial fit of the forward model.
+
+        Returns the state (controller initialised, not yet fitted) and the key of the
+        controller's initial fit. Every loss of an experiment starts from the same prepared
+        state, so losses are compared on the same data and the same initial forward model.
+        """
         cfg = self.config
         key, key_fm, key_ctrl, key_fit_fm, key_fit_ctrl = jax.random.split(key, 5)
         flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[3:]), babbling.transitions)
@@ -170,21 +176,7 @@ class Experiment:
             cfg.forward.initial_steps,
             cfg.forward.batch_size,
         )
-        controller_params, controller_opt_state, _ = update.fit_controller(
-            loss,
-            self.forward,
-            self.controller,
-            self.controller_optimizer,
-            controller_params,
-            controller_opt_state,
-            forward_params,
-            normaliser,
-            data,
-            key_fit_ctrl,
-            cfg.controller.initial_steps,
-            cfg.controller.batch_size,
-        )
-        return TrainState(
+        state = TrainState(
             forward_params,
             forward_opt_state,
             controller_params,
@@ -193,6 +185,27 @@ class Experiment:
             data,
             key,
             jnp.int32(0),
+        )
+        return state, key_fit_ctrl
+
+    def fit_initial_controller_one(self, loss: str, state: TrainState, key) -> TrainState:
+        """The controller's initial fit with ``loss`` on the babbling data (one seed)."""
+        controller_params, controller_opt_state, _ = update.fit_controller(
+            loss,
+            self.forward,
+            self.controller,
+            self.controller_optimizer,
+            state.controller_params,
+            state.controller_opt_state,
+            state.forward_params,
+            state.normaliser,
+            state.data,
+            key,
+            self.config.controller.initial_steps,
+            self.config.controller.batch_size,
+        )
+        return state.replace(
+            controller_params=controller_params, controller_opt_state=controller_opt_state
         )
 
     def metrics_one(self, state: TrainState, result: rollout.Rollout) -> dict:
@@ -285,12 +298,24 @@ class Experiment:
         return self._jit("rollout", jax.vmap(self.rollout_one))(policy, keys)
 
     def init(self, loss: str, keys) -> TrainState:
-        """Babbling, normaliser and initial fits for every seed of ``keys``."""
-        key_babble, key_fit = jax.vmap(lambda k: jax.random.split(k, 2))(keys).swapaxes(0, 1)
-        rollouts = self.babbling_rollouts(key_babble)
-        return self._jit(f"init/{loss}", jax.vmap(partial(self.fit_initial_one, loss)))(
-            rollouts, key_fit
-        )
+        """Babbling, normaliser and initial fits for every seed of ``keys``.
+
+        The loss-independent part (:meth:`prepare_one`) is computed once per set of keys
+        and shared by every loss of this experiment."""
+        prepared, key_fit = self.prepare(keys)
+        fit = self._jit(f"init/{loss}", jax.vmap(partial(self.fit_initial_controller_one, loss)))
+        return fit(prepared, key_fit)
+
+    def prepare(self, keys) -> tuple[TrainState, jax.Array]:
+        """:meth:`prepare_one` for every seed of ``keys`` (cached for the last keys)."""
+        cache_key = np.asarray(jax.random.key_data(keys)).tobytes()
+        cached = self._compiled.get("prepared")
+        if cached is None or cached[0] != cache_key:
+            key_babble, key_fit = jax.vmap(lambda k: jax.random.split(k, 2))(keys).swapaxes(0, 1)
+            rollouts = self.babbling_rollouts(key_babble)
+            prepared = self._jit("prepare", jax.vmap(self.prepare_one))(rollouts, key_fit)
+            self._compiled["prepared"] = (cache_key, prepared)
+        return self._compiled["prepared"][1]
 
     def babbling_rollouts(self, keys) -> rollout.Rollout:
         """``loop.babbling_rollouts`` babbling rollouts per seed, ``(seeds, rollouts, ...)``."""
