@@ -52,19 +52,37 @@ def summary(
     return table
 
 
+SHORT_HEADERS = {
+    "tracking_mse_mean": "MSE mean",
+    "tracking_mse_std": "MSE std",
+    "runs": "runs",
+    "prediction_error_mean": "pred. err",
+    "predicted_task_error_mean": "pred. task err",
+    "rmse_over_reach": "RMSE/reach",
+}
+
+
 def print_summary(table: pd.DataFrame, title: str = "Final tracking error") -> None:
-    """Print a :func:`summary` table with rich."""
+    """Print a :func:`summary` table with rich (short column headers, explained below it)."""
     from rich.console import Console
     from rich.table import Table
 
-    out = Table(title=title)
+    out = Table(
+        title=title,
+        caption="MSE: joint-position tracking MSE (rad^2), mean/std over seeds x targets; "
+        "pred. err / pred. task err: forward-model prediction error and predicted task "
+        "error ((rad/s^2)^2); RMSE/reach: sqrt(MSE mean) / RMS reaching distance",
+    )
     out.add_column("controller")
     columns = [c for c in table.columns if c != "iteration"]
     for column in columns:
-        out.add_column(column, justify="right")
+        out.add_column(SHORT_HEADERS.get(column, column), justify="right")
     for name, row in table.iterrows():
         out.add_row(str(name), *(_format(row[c]) for c in columns))
-    Console().print(out)
+    console = Console()
+    if not console.is_terminal:  # files and pipes: do not squeeze the table into 80 columns
+        console = Console(width=110)
+    console.print(out)
 
 
 def _format(value) -> str:
@@ -96,11 +114,12 @@ def plot_learning_curves(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     panels = [
         ("tracking_mse", "joint tracking MSE (rad$^2$)"),
-        ("prediction_error", "forward-model prediction error"),
-        ("predicted_task_error", "predicted task error"),
+        ("prediction_error", "forward-model prediction error ((rad/s$^2$)$^2$)"),
+        ("predicted_task_error", "predicted task error ((rad/s$^2$)$^2$)"),
     ]
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     for ax, (column, label) in zip(axes, panels, strict=True):
@@ -123,10 +142,11 @@ def plot_learning_curves(
                     label=name,
                 )
         ax.set_yscale("log")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_xlabel("iteration")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-    axes[0].legend()
+    axes[0].legend(fontsize="small", framealpha=0.8)
     if title:
         fig.suptitle(title)
     fig.tight_layout()
