@@ -37,8 +37,9 @@ def configure() -> bool:
     if backend_started():
         warnings.warn(
             "JAX's backend was initialised before cfm_jax was imported, without "
-            f"XLA_FLAGS={FAST_FLAG}. MJX rollouts of deep kinematic chains (the iiwa) will "
-            "run about 1000x slower on CPU. Import cfm_jax before running any JAX "
+            f"XLA_FLAGS={FAST_FLAG}. With simulator='mjx', MJX rollouts of deep kinematic "
+            "chains (the iiwa) will run about 1000x slower on CPU (the default "
+            "simulator='native' is not affected). Import cfm_jax before running any JAX "
             f"computation, or start Python with XLA_FLAGS={FAST_FLAG} (restart the "
             "notebook kernel).",
             SlowBackendWarning,
@@ -47,6 +48,19 @@ def configure() -> bool:
         return False
     os.environ["XLA_FLAGS"] = (flags + " " + FAST_FLAG).strip()
     return True
+
+
+def warn_if_slow_mjx() -> None:
+    """Warn (:class:`SlowBackendWarning`) when MJX is about to be used without the flag."""
+    if not fast_path_active():
+        warnings.warn(
+            f"simulator='mjx' without XLA_FLAGS={FAST_FLAG} in force (JAX started before "
+            "cfm_jax was imported): MJX rollouts of deep kinematic chains will be very slow "
+            f"on CPU. Restart Python with XLA_FLAGS={FAST_FLAG}, import cfm_jax first, or "
+            "use simulator='native'.",
+            SlowBackendWarning,
+            stacklevel=3,
+        )
 
 
 def backend_started() -> bool:

@@ -36,8 +36,8 @@ import optax
 import pandas as pd
 from flax import struct
 
+from cfm_jax import _xla, dataset, networks, robots, rollout, tasks, update
 from cfm_jax import config as config_lib
-from cfm_jax import dataset, networks, robots, rollout, tasks, update
 
 METRIC_COLUMNS = (
     "loss",
@@ -81,6 +81,8 @@ class Experiment:
 
     def __init__(self, config: config_lib.Config):
         self.config = config
+        if config.simulator == "mjx" and jax.default_backend() == "cpu":
+            _xla.warn_if_slow_mjx()
         self.robot = robots.load(config.robot)
         task = config.task
         self.control_dt = task.control_dt if task.control_dt is not None else self.robot.timestep
