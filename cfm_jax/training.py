@@ -167,17 +167,6 @@ class Experiment:
         controller_params = self.controller.init(key_ctrl, self.state_dim)
         forward_opt_state = self.forward_optimizer.init(forward_params)
         controller_opt_state = self.controller_optimizer.init(controller_params)
-        forward_params, forward_opt_state, _ = update.fit_forward(
-            self.forward,
-            self.forward_optimizer,
-            forward_params,
-            forward_opt_state,
-            normaliser,
-            data,
-            key_fit_fm,
-            cfg.forward.initial_steps,
-            cfg.forward.batch_size,
-        )
         state = TrainState(
             forward_params,
             forward_opt_state,
@@ -188,11 +177,34 @@ class Experiment:
             key,
             jnp.int32(0),
         )
+        state, _ = self._fit_forward(state, key_fit_fm, cfg.forward.initial_steps)
         return state, key_fit_ctrl
 
     def fit_initial_controller_one(self, loss: str, state: TrainState, key) -> TrainState:
         """The controller's initial fit with ``loss`` on the babbling data (one seed)."""
-        controller_params, controller_opt_state, _ = update.fit_controller(
+        state, _ = self._fit_controller(loss, state, key, self.config.controller.initial_steps)
+        return state
+
+    def _fit_forward(self, state: TrainState, key, steps: int) -> tuple[TrainState, jax.Array]:
+        """``steps`` forward-model updates on ``state.data``; returns the state and mean loss."""
+        params, opt_state, loss = update.fit_forward(
+            self.forward,
+            self.forward_optimizer,
+            state.forward_params,
+            state.forward_opt_state,
+            state.normaliser,
+            state.data,
+            key,
+            steps,
+            self.config.forward.batch_size,
+        )
+        return state.replace(forward_params=params, forward_opt_state=opt_state), loss
+
+    def _fit_controller(
+        self, loss: str, state: TrainState, key, steps: int
+    ) -> tuple[TrainState, jax.Array]:
+        """``steps`` controller updates with ``loss`` through ``state``'s forward model."""
+        params, opt_state, mean_loss = update.fit_controller(
             loss,
             self.forward,
             self.controller,
@@ -203,12 +215,10 @@ class Experiment:
             state.normaliser,
             state.data,
             key,
-            self.config.controller.initial_steps,
+            steps,
             self.config.controller.batch_size,
         )
-        return state.replace(
-            controller_params=controller_params, controller_opt_state=controller_opt_state
-        )
+        return state.replace(controller_params=params, controller_opt_state=opt_state), mean_loss
 
     def metrics_one(self, state: TrainState, result: rollout.Rollout) -> dict:
         """Per-target metrics of a rollout of the current models (before any refit).
@@ -242,43 +252,14 @@ class Experiment:
         metrics = self.metrics_one(state, result)
         flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), result.transitions)
         data = dataset.add(state.data, flat, result.finite.reshape(-1))
-        forward_params, forward_opt_state, forward_loss = update.fit_forward(
-            self.forward,
-            self.forward_optimizer,
-            state.forward_params,
-            state.forward_opt_state,
-            state.normaliser,
-            data,
-            key_fit_fm,
-            cfg.forward.steps_per_iteration,
-            cfg.forward.batch_size,
-        )
-        controller_params, controller_opt_state, controller_loss = update.fit_controller(
-            loss,
-            self.forward,
-            self.controller,
-            self.controller_optimizer,
-            state.controller_params,
-            state.controller_opt_state,
-            forward_params,
-            state.normaliser,
-            data,
-            key_fit_ctrl,
-            cfg.controller.steps_per_iteration,
-            cfg.controller.batch_size,
+        state = state.replace(data=data)
+        state, forward_loss = self._fit_forward(state, key_fit_fm, cfg.forward.steps_per_iteration)
+        state, controller_loss = self._fit_controller(
+            loss, state, key_fit_ctrl, cfg.controller.steps_per_iteration
         )
         metrics["forward_loss"] = forward_loss
         metrics["controller_loss"] = controller_loss
-        new_state = TrainState(
-            forward_params,
-            forward_opt_state,
-            controller_params,
-            controller_opt_state,
-            state.normaliser,
-            data,
-            key,
-            state.iteration + 1,
-        )
+        new_state = state.replace(key=key, iteration=state.iteration + 1)
         return new_state, metrics
 
     def evaluate_one(self, state: TrainState, result: rollout.Rollout) -> dict:
