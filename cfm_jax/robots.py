@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import importlib.resources
 import os
+import pathlib
 from functools import cached_property
 
 import mujoco
@@ -30,9 +31,19 @@ class RobotError(ValueError):
     """An MJCF file that cannot be used as a cfm_jax robot (the message says why)."""
 
 
+def robot_dir():
+    """Folder of the shipped MJCF files: the installed package data ``cfm_jax._robot_files``
+    (a wheel or an editable install), else ``robots/`` of the source checkout this module
+    was imported from (for example Python started in a clone that shadows the install)."""
+    try:
+        return importlib.resources.files(_ROBOT_PACKAGE)
+    except ModuleNotFoundError:
+        return pathlib.Path(__file__).resolve().parent.parent / "robots"
+
+
 def registered() -> tuple[str, ...]:
     """Names of the robots shipped with the package (the ``robots/*.xml`` files)."""
-    files = importlib.resources.files(_ROBOT_PACKAGE)
+    files = robot_dir()
     return tuple(sorted(p.name[:-4] for p in files.iterdir() if p.name.endswith(".xml")))
 
 
@@ -50,7 +61,7 @@ def resolve(name_or_path: str) -> str:
                 f"file or a registered robot name {registered()}"
             )
         return os.path.abspath(name_or_path)
-    path = importlib.resources.files(_ROBOT_PACKAGE) / f"{name_or_path}.xml"
+    path = robot_dir() / f"{name_or_path}.xml"
     if not path.is_file():
         raise RobotError(
             f"robot={name_or_path!r} is not a registered robot; allowed: {registered()} or a "

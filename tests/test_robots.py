@@ -286,3 +286,11 @@ def test_motor_without_torque_limit(tmp_path):
     )
     with pytest.raises(RobotError, match=r"motors of joints \['j2'\] have no torque limit"):
         robots.load(path)
+
+
+def test_shipped_robots_found_from_a_checkout_without_package_data(monkeypatch):
+    # Python started inside a clone imports cfm_jax from the clone, where the package-data
+    # module cfm_jax._robot_files (mapped from robots/ at install time) does not exist.
+    monkeypatch.setattr(robots, "_ROBOT_PACKAGE", "cfm_jax._no_such_module")
+    assert {"iiwa14", "two_link_arm"} <= set(robots.registered())
+    assert robots.resolve("iiwa14") == str(ROBOT_DIR / "iiwa14.xml")
