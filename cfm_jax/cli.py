@@ -25,6 +25,7 @@ def train(
     out: str = "results/train",
     seed: int = 0,
     config: str | None = None,
+    simulator: str | None = None,
     quiet: bool = False,
 ) -> None:
     """Learn a tracking controller with Algorithm 1 and compare controller losses.
@@ -44,6 +45,7 @@ def train(
       seed: first seed.
       config: JSON file of a full config (as written to config.json); the flags above
         override its robot, task, seeds, iterations and seed.
+      simulator: physics back end, native (MuJoCo C) or mjx; default: the config's (native).
       quiet: no progress bar.
     """
     from cfm_jax import training as train_lib
@@ -57,6 +59,7 @@ def train(
         robot=robot,
         loss=names[0],
         seed=seed,
+        simulator=base.simulator if simulator is None else simulator,
         task=config_lib.TaskConfig(**{**config_lib.to_dict(base)["task"], "name": task}),
         forward=base.forward,
         controller=base.controller,

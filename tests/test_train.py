@@ -183,6 +183,15 @@ def test_cli_rejects_unknown_loss(tmp_path):
     assert "--loss='joint,foo' is not allowed" in done.stderr
 
 
+def test_cli_rejects_unknown_simulator(tmp_path):
+    command = [sys.executable, "-m", "cfm_jax.cli", "train", "--simulator", "bullet",
+               "--out", str(tmp_path)]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2
+    assert "simulator='bullet' is not allowed: one of ('native', 'mjx')" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
 @pytest.mark.slow
 def test_joint_loss_learns_two_link_arm():
     # Learning, not just wiring: a few iterations of the joint loss beat PD-only feedback.
