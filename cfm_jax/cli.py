@@ -26,6 +26,7 @@ def train(
     seed: int = 0,
     config: str | None = None,
     simulator: str | None = None,
+    resume: bool = False,
     quiet: bool = False,
 ) -> None:
     """Learn a tracking controller with Algorithm 1 and compare controller losses.
@@ -46,6 +47,9 @@ def train(
       config: JSON file of a full config (as written to config.json); the flags above
         override its robot, task, seeds, iterations and seed.
       simulator: physics back end, native (MuJoCo C) or mjx; default: the config's (native).
+      resume: continue an interrupted run in OUT (same flags and config): every loss
+        resumes from its newest valid checkpoint in OUT/<loss>/checkpoints (finished losses
+        are only re-evaluated), losses without checkpoints start fresh.
       quiet: no progress bar.
     """
     from cfm_jax import training as train_lib
@@ -73,8 +77,13 @@ def train(
     frames, result = [], None
     for name in names:
         run_dir = os.path.join(out, name)
+        can_resume = resume and os.path.isdir(os.path.join(run_dir, "checkpoints"))
         result = train_lib.train(
-            base.replace(loss=name), progress=not quiet, out_dir=run_dir, experiment=experiment
+            base.replace(loss=name),
+            progress=not quiet,
+            out_dir=run_dir,
+            experiment=experiment,
+            resume=run_dir if can_resume else None,
         )
         frames.append(result.metrics)
         _write_outputs(out, frames, result, base)
@@ -140,10 +149,6 @@ def main() -> None:
     except (config_lib.ConfigError, RobotError) as error:
         print(f"cfm-jax: error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
-
-
-if __name__ == "__main__":
-    main()
 
 
 if __name__ == "__main__":

@@ -215,12 +215,19 @@ class LoopConfig:
     babbling_rollouts: int = 2
     # Standard deviation of the babbling torque noise, as a fraction of each torque limit.
     babbling_noise: float = 0.1
+    # Save a checkpoint every this many iterations (and after the initial fit and the last
+    # iteration) when train() has an output directory; 0: no checkpoints.
+    checkpoint_every: int = 1
+    # Number of most recent checkpoints kept on disk.
+    checkpoint_keep: int = 3
 
     def __post_init__(self):
         _nonnegative_int("loop.iterations", self.iterations)
         _positive_int("loop.seeds", self.seeds)
         _positive_int("loop.babbling_rollouts", self.babbling_rollouts)
         _nonnegative_float("loop.babbling_noise", self.babbling_noise)
+        _nonnegative_int("loop.checkpoint_every", self.checkpoint_every)
+        _positive_int("loop.checkpoint_keep", self.checkpoint_keep)
 
 
 @dataclasses.dataclass(frozen=True)

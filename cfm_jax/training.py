@@ -394,17 +394,77 @@ def _rows(loss, seeds, iteration, metrics) -> list[dict]:
     return rows
 
 
+class DivergenceError(RuntimeError):
+    """Training produced a non-finite quantity (the message names iteration, quantity, seed
+    and where the last good checkpoint is)."""
+
+
+def config_differences(old: dict, new: dict, prefix: str = "") -> list[str]:
+    """Dotted names of the fields that differ between two config dicts, with both values."""
+    out = []
+    for key in sorted(set(old) | set(new)):
+        a, b = old.get(key), new.get(key)
+        name = f"{prefix}{key}"
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += config_differences(a, b, name + ".")
+        elif a != b:
+            out.append(f"{name} ({a!r} in the run, {b!r} now)")
+    return out
+
+
+def _jsonable(config: config_lib.Config) -> dict:
+    return json.loads(json.dumps(config_lib.to_dict(config)))
+
+
+def _check_finite(
+    state: TrainState, metrics: dict, iteration: int, seeds, where: str, losses: bool = True
+) -> None:
+    """Raise :class:`DivergenceError` for the first non-finite quantity, by seed."""
+    checks = [("simulator state", np.asarray(metrics["finite_fraction"]) < 1.0)]
+    if losses:  # the final evaluation has no refit, its losses are NaN by design
+        checks += [
+            ("forward_loss", ~np.isfinite(np.asarray(metrics["forward_loss"]))),
+            ("controller_loss", ~np.isfinite(np.asarray(metrics["controller_loss"]))),
+        ]
+    for name, params in (
+        ("forward-model parameters", state.forward_params),
+        ("controller parameters", state.controller_params),
+    ):
+        finite = [
+            np.asarray(jnp.all(jnp.isfinite(x.reshape(x.shape[0], -1)), axis=1))
+            for x in jax.tree.leaves(params)
+        ]
+        checks.append((name, ~np.all(np.stack(finite), axis=0)))
+    for name, bad in checks:
+        bad = np.asarray(bad).reshape(len(seeds), -1)
+        for s, seed in enumerate(seeds):
+            if np.any(bad[s]):
+                detail = ""
+                if name == "simulator state":
+                    targets = np.flatnonzero(bad[s]).tolist()
+                    detail = f" in the rollout of target(s) {targets}"
+                raise DivergenceError(
+                    f"iteration {iteration}, seed {seed}: {name} became non-finite (NaN or "
+                    f"Inf){detail}. {where}"
+                )
+
+
 def train(
     config: config_lib.Config,
     progress: bool = True,
     out_dir: str | None = None,
     experiment: Experiment | None = None,
+    resume: str | None = None,
 ) -> TrainResult:
     """Run Algorithm 1 for every seed of ``config`` (seeds as a vmap axis).
 
     Impure shell: shows progress, writes ``out_dir/metrics.csv`` after every iteration (so
-    a crash loses at most the iteration in flight), ``out_dir/config.json`` and
-    ``out_dir/baselines.csv``. Everything under it is pure and compiled.
+    a crash loses at most the iteration in flight), ``out_dir/config.json``,
+    ``out_dir/baselines.csv`` and Orbax checkpoints of the whole state in
+    ``out_dir/checkpoints/`` (``loop.checkpoint_every``, ``loop.checkpoint_keep``). After
+    every iteration the metrics, losses and parameters are checked: a non-finite value
+    stops the run with :class:`DivergenceError`, before it is checkpointed. Everything
+    under it is pure and compiled.
 
     Args:
       config: a :class:`cfm_jax.config.Config`.
@@ -412,28 +472,77 @@ def train(
       out_dir: directory for result files (created), or None.
       experiment: a prebuilt :class:`Experiment` for this config, to reuse its compiled
         functions (optional).
+      resume: the ``out_dir`` of an interrupted run of the same config: continue from its
+        newest valid checkpoint (results go to ``out_dir``, default ``resume``). The
+        metrics equal those of an uninterrupted run bit for bit.
 
     Returns:
       A :class:`TrainResult`.
+
+    Raises:
+      ConfigError: ``resume`` names a run of a different config (the fields are listed).
+      CheckpointError: the newest checkpoint is corrupt (the previous valid one is offered).
+      DivergenceError: a non-finite simulator state, loss or parameter.
     """
+    from cfm_jax import checkpoint as ckpt_lib
+
     start = time.perf_counter()
     if experiment is not None and not experiment.compatible(config):
         raise ValueError("experiment was built for a config that differs in more than the loss")
+    if resume is not None:
+        out_dir = out_dir or resume
+        saved_path = os.path.join(resume, "config.json")
+        if not os.path.isfile(saved_path):
+            raise config_lib.ConfigError(
+                f"resume={resume!r} is not allowed: no config.json there (not a run directory)"
+            )
+        with open(saved_path) as f:
+            saved = json.load(f)
+        diff = config_differences(saved, _jsonable(config))
+        if diff:
+            raise config_lib.ConfigError(
+                f"resume={resume!r} is not allowed: the run there has a different config in "
+                + "; ".join(diff)
+            )
     exp = experiment if experiment is not None else Experiment(config)
     seeds = config_lib.seeds_of(config)
+    checkpointer = None
     if out_dir:
         os.makedirs(out_dir, exist_ok=True)
         with open(os.path.join(out_dir, "config.json"), "w") as f:
             json.dump(config_lib.to_dict(config), f, indent=2)
+        if config.loop.checkpoint_every > 0:
+            checkpointer = ckpt_lib.Checkpointer(
+                os.path.join(resume or out_dir, "checkpoints"), keep=config.loop.checkpoint_keep
+            )
     rows: list[dict] = []
 
-    def record(iteration, metrics):
-        rows.extend(_rows(config.loss, seeds, iteration, metrics))
+    def write_metrics():
         if out_dir:
             frame = pd.DataFrame(rows, columns=list(METRIC_COLUMNS))
             tmp = os.path.join(out_dir, "metrics.csv.tmp")
             frame.to_csv(tmp, index=False)
             os.replace(tmp, os.path.join(out_dir, "metrics.csv"))
+
+    def record(iteration, metrics):
+        rows.extend(_rows(config.loss, seeds, iteration, metrics))
+        write_metrics()
+
+    last_saved = [None]
+
+    def where() -> str:
+        if checkpointer is None or last_saved[0] is None:
+            return "No checkpoint was written."
+        return (
+            f"The last good checkpoint (iteration {last_saved[0]}) is in {checkpointer.directory}."
+        )
+
+    def save(state, done: int, final: bool = False):
+        if checkpointer is None:
+            return
+        if final or done % config.loop.checkpoint_every == 0:
+            checkpointer.save(done, state, {"rows": rows, "config": _jsonable(config)})
+            last_saved[0] = done
 
     with _progress(progress) as bar:
         total = config.loop.iterations + 2
@@ -441,21 +550,34 @@ def train(
         keys = jax.vmap(jax.random.key)(jnp.asarray(seeds, jnp.uint32))
         state = exp.init(config.loss, keys)
         jax.block_until_ready(state)
-        bar.advance(task)
+        first = 0
+        if resume is not None and checkpointer is not None:
+            state, rows, first = _restore(checkpointer, state)
+            last_saved[0] = first
+            write_metrics()
+        elif first == 0:
+            save(state, 0, final=config.loop.iterations == 0)
+        bar.advance(task, 1 + first)
         compile_seconds = float("nan")
-        for i in range(config.loop.iterations):
+        for i in range(first, config.loop.iterations):
             bar.update(task, description=f"{config.robot} {config.loss}: iteration {i + 1}")
             t0 = time.perf_counter()
             state, metrics = exp.iteration(config.loss, state)
             metrics = jax.device_get(metrics)
-            if i == 0:
+            if i == first:
                 compile_seconds = time.perf_counter() - t0
+            _check_finite(state, metrics, i, seeds, where())
             record(i, metrics)
+            save(state, i + 1, final=i + 1 == config.loop.iterations)
             bar.advance(task)
         bar.update(task, description=f"{config.robot} {config.loss}: final evaluation")
-        record(config.loop.iterations, jax.device_get(exp.evaluate(state)))
+        final_metrics = jax.device_get(exp.evaluate(state))
+        _check_finite(state, final_metrics, config.loop.iterations, seeds, where(), losses=False)
+        record(config.loop.iterations, final_metrics)
         baselines = exp.baselines()
         bar.advance(task)
+    if checkpointer is not None:
+        checkpointer.close()
     if out_dir:
         baselines.to_csv(os.path.join(out_dir, "baselines.csv"), index=False)
     return TrainResult(
@@ -466,6 +588,28 @@ def train(
         rms_reach=tasks.rms_reach(exp.reference_np),
         seconds=time.perf_counter() - start,
         compile_seconds=compile_seconds,
+    )
+
+
+def _restore(checkpointer, template: TrainState):
+    """Newest usable checkpoint: ``(state, rows, completed iterations)``. Steps left
+    incomplete by a kill (no manifest) are skipped with a warning; a corrupt step raises
+    :class:`cfm_jax.checkpoint.CheckpointError` offering the previous valid one."""
+    import warnings
+
+    from cfm_jax import checkpoint as ckpt_lib
+
+    for step in reversed(checkpointer.steps()):
+        problem = checkpointer.problem(step)
+        if problem is not None and "is incomplete" in problem:
+            warnings.warn(f"skipping checkpoint step {step}: {problem}; removed it", stacklevel=3)
+            checkpointer.delete(step)
+            continue
+        state, meta = checkpointer.restore(step, template)
+        rows = [r for r in meta["rows"] if r["iteration"] < step]
+        return state, rows, step
+    raise ckpt_lib.CheckpointError(
+        f"no usable checkpoint in {checkpointer.directory}: start the run again without resume"
     )
 
 

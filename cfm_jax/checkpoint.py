@@ -1,0 +1,159 @@
+"""Checkpoints of the whole training state with Orbax, verified by a content manifest.
+
+A checkpoint ``DIR/<step>/`` (``step`` = completed iterations of Algorithm 1) holds the
+:class:`cfm_jax.training.TrainState` of every seed (both models' parameters and optimiser
+states, normalisation statistics, the data set, the PRNG key as raw key data, the
+iteration counter) and a JSON ``meta`` part (the config and the metric rows so far). Orbax
+writes each step atomically (a temporary directory renamed on commit) and keeps the last
+``keep``. After Orbax commits, :class:`Checkpointer` writes ``cfm_manifest.json`` with the
+size and SHA-256 of every file of the step, so a truncated or altered file is detected on
+restore; a step without a manifest (killed between the two writes) counts as incomplete.
+
+Example:
+  >>> ckpt = Checkpointer("/tmp/run/checkpoints", keep=3)  # doctest: +SKIP
+  >>> ckpt.save(2, state, {"rows": rows})  # doctest: +SKIP
+  >>> state, meta, step = ckpt.restore_latest(template)  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+
+import jax
+import numpy as np
+
+MANIFEST = "cfm_manifest.json"
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint that cannot be used (the message names it and what to do)."""
+
+
+def _files(step_dir: str) -> list[str]:
+    out = []
+    for root, _, names in os.walk(step_dir):
+        for name in names:
+            path = os.path.join(root, name)
+            if os.path.relpath(path, step_dir) != MANIFEST:
+                out.append(path)
+    return sorted(out)
+
+
+def _digest(path: str) -> str:
+    sha = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            sha.update(block)
+    return sha.hexdigest()
+
+
+def _to_storable(state):
+    return state.replace(key=jax.random.key_data(state.key))
+
+
+def _from_storable(state):
+    return state.replace(key=jax.random.wrap_key_data(np.asarray(state.key)))
+
+
+class Checkpointer:
+    """Save and restore training states under ``directory`` (created), keeping ``keep``."""
+
+    def __init__(self, directory: str, keep: int = 3):
+        import orbax.checkpoint as ocp
+
+        self.directory = os.path.abspath(directory)
+        self._ocp = ocp
+        self._manager = ocp.CheckpointManager(
+            self.directory,
+            options=ocp.CheckpointManagerOptions(max_to_keep=keep, create=True),
+        )
+
+    def steps(self) -> list[int]:
+        """Steps present on disk (complete or not), ascending."""
+        self._manager.reload()
+        return sorted(self._manager.all_steps())
+
+    def save(self, step: int, state, meta: dict) -> None:
+        """Write ``state`` and JSON ``meta`` as ``step``; returns once it is on disk."""
+        ocp = self._ocp
+        self._manager.save(
+            step,
+            args=ocp.args.Composite(
+                state=ocp.args.StandardSave(_to_storable(state)),
+                meta=ocp.args.JsonSave(meta),
+            ),
+            force=True,
+        )
+        self._manager.wait_until_finished()
+        step_dir = os.path.join(self.directory, str(step))
+        manifest = {
+            os.path.relpath(p, step_dir): [os.path.getsize(p), _digest(p)] for p in _files(step_dir)
+        }
+        tmp = os.path.join(step_dir, MANIFEST + ".tmp")
+        with open(tmp, "w") as f:
+            json.dump(manifest, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, os.path.join(step_dir, MANIFEST))
+
+    def problem(self, step: int) -> str | None:
+        """Why ``step`` cannot be restored (missing manifest, missing/truncated/changed
+        file), or None when it verifies."""
+        step_dir = os.path.join(self.directory, str(step))
+        try:
+            with open(os.path.join(step_dir, MANIFEST)) as f:
+                manifest = json.load(f)
+        except FileNotFoundError:
+            return f"{step_dir} is incomplete (no {MANIFEST}: the run stopped while writing it)"
+        except (OSError, ValueError) as error:
+            return f"{os.path.join(step_dir, MANIFEST)} is unreadable ({error})"
+        for name, (size, digest) in sorted(manifest.items()):
+            path = os.path.join(step_dir, name)
+            if not os.path.isfile(path):
+                return f"{path} is missing"
+            actual = os.path.getsize(path)
+            if actual != size:
+                return f"{path} is truncated or changed ({actual} bytes, expected {size})"
+            if _digest(path) != digest:
+                return f"{path} is corrupt (its SHA-256 differs from the manifest)"
+        return None
+
+    def restore(self, step: int, template):
+        """``(state, meta)`` of ``step``; ``template`` is a state of the same structure.
+
+        Raises:
+          CheckpointError: the step does not verify; the message offers the newest
+            earlier step that does.
+        """
+        problem = self.problem(step)
+        if problem is not None:
+            earlier = [s for s in self.steps() if s < step and self.problem(s) is None]
+            offer = (
+                f"the previous valid checkpoint is step {earlier[-1]}: delete "
+                f"{os.path.join(self.directory, str(step))} to resume from it"
+                if earlier
+                else "no earlier valid checkpoint exists: start the run again"
+            )
+            raise CheckpointError(f"checkpoint step {step} is not usable: {problem}; {offer}")
+        ocp = self._ocp
+        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, _to_storable(template))
+        restored = self._manager.restore(
+            step,
+            args=ocp.args.Composite(
+                state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore()
+            ),
+        )
+        return _from_storable(restored.state), restored.meta
+
+    def delete(self, step: int) -> None:
+        """Remove ``step`` from disk (for example one left incomplete by a kill)."""
+        self._manager.delete(step)
+
+    def latest_step(self) -> int | None:
+        steps = self.steps()
+        return steps[-1] if steps else None
+
+    def close(self) -> None:
+        self._manager.close()

@@ -1,0 +1,198 @@
+"""Checkpoints, resume after SIGKILL, divergence guards (cfm_jax/checkpoint.py, training.py).
+
+Oracles: an uninterrupted run of the same config (bit-for-bit metrics), the files on disk,
+and faults injected on purpose: a real SIGKILL of a training subprocess, a truncated
+checkpoint file, a NaN put into the simulator's state on the host and into the parameters.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+import pytest
+
+import cfm_jax
+from cfm_jax import checkpoint, rollout, training
+from cfm_jax import config as config_lib
+
+CFG = config_lib.Config(
+    robot="two_link_arm",
+    task=config_lib.TaskConfig(duration=0.3),
+    forward=config_lib.ForwardModelConfig(
+        hidden=(16,), ensemble_size=2, initial_steps=20, steps_per_iteration=10, batch_size=32
+    ),
+    controller=config_lib.ControllerConfig(
+        hidden=(16,), initial_steps=20, steps_per_iteration=10, batch_size=32
+    ),
+    loop=config_lib.LoopConfig(iterations=4, seeds=2, babbling_rollouts=1, checkpoint_keep=2),
+)
+STEPS = 30  # control steps per rollout (0.3 s at 0.01 s)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    out = tmp_path_factory.mktemp("full")
+    return cfm_jax.train(CFG, progress=False, out_dir=str(out)), out
+
+
+def test_checkpoints_written_and_pruned(uninterrupted):
+    _, out = uninterrupted
+    ckpt = checkpoint.Checkpointer(str(out / "checkpoints"), keep=2)
+    assert ckpt.steps() == [3, 4]  # every iteration, the last 2 kept
+    assert all(ckpt.problem(s) is None for s in ckpt.steps())
+
+
+def test_same_seed_twice_identical(uninterrupted):
+    again = cfm_jax.train(CFG, progress=False)
+    pd.testing.assert_frame_equal(again.metrics, uninterrupted[0].metrics, check_exact=True)
+
+
+SCRIPT = """
+import json, sys
+import cfm_jax
+from cfm_jax import config
+cfg = config.from_dict(json.load(open(sys.argv[1])))
+cfm_jax.train(cfg, progress=False, out_dir=sys.argv[2])
+print("FINISHED")
+"""
+
+
+def test_sigkill_then_resume_gives_identical_metrics(uninterrupted, tmp_path):
+    config_file = tmp_path / "config.json"
+    config_file.write_text(json.dumps(config_lib.to_dict(CFG)))
+    out = tmp_path / "killed"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", SCRIPT, str(config_file), str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    )  # fmt: skip
+    manifest = out / "checkpoints" / "2" / checkpoint.MANIFEST
+    deadline = time.time() + 300
+    while not manifest.exists() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run ended before it could be killed"
+    proc.send_signal(signal.SIGKILL)  # mid-run: after iteration 2 of 4
+    proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    partial = pd.read_csv(out / "metrics.csv")
+    assert partial.iteration.max() < CFG.loop.iterations  # it really was interrupted
+    resumed = cfm_jax.train(CFG, progress=False, resume=str(out))
+    pd.testing.assert_frame_equal(resumed.metrics, uninterrupted[0].metrics, check_exact=True)
+    on_disk = pd.read_csv(out / "metrics.csv")
+    assert len(on_disk) == len(uninterrupted[0].metrics)
+
+
+def test_resume_with_a_different_config_is_refused(uninterrupted):
+    _, out = uninterrupted
+    other = CFG.replace(seed=5, task=config_lib.TaskConfig(duration=0.3, kp=50.0))
+    with pytest.raises(config_lib.ConfigError) as info:
+        cfm_jax.train(other, progress=False, resume=str(out))
+    message = str(info.value)
+    assert "seed (0 in the run, 5 now)" in message
+    assert "task.kp (100.0 in the run, 50.0 now)" in message
+    assert "loop" not in message  # only the fields that differ
+
+
+def test_resume_from_a_directory_without_a_run(tmp_path):
+    with pytest.raises(config_lib.ConfigError, match="no config.json there"):
+        cfm_jax.train(CFG, progress=False, resume=str(tmp_path))
+
+
+def _copy_run(src, dst):
+    import shutil
+
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_truncated_checkpoint_detected_and_previous_offered(uninterrupted, tmp_path):
+    out = _copy_run(uninterrupted[1], tmp_path / "run")
+    step_dir = out / "checkpoints" / "4"
+    manifest = json.loads((step_dir / checkpoint.MANIFEST).read_text())
+    biggest = max(manifest, key=lambda name: manifest[name][0])
+    path = step_dir / biggest
+    path.write_bytes(path.read_bytes()[: manifest[biggest][0] // 2])
+    with pytest.raises(checkpoint.CheckpointError) as info:
+        cfm_jax.train(CFG, progress=False, resume=str(out))
+    message = str(info.value)
+    assert "checkpoint step 4 is not usable" in message and "truncated" in message
+    assert str(path) in message
+    assert "the previous valid checkpoint is step 3" in message
+
+
+def test_incomplete_last_step_is_skipped_on_resume(uninterrupted, tmp_path):
+    # A kill between Orbax's commit and the manifest leaves a step without manifest.
+    out = _copy_run(uninterrupted[1], tmp_path / "run")
+    os.remove(out / "checkpoints" / "4" / checkpoint.MANIFEST)
+    with pytest.warns(UserWarning, match="skipping checkpoint step 4"):
+        resumed = cfm_jax.train(CFG, progress=False, resume=str(out))
+    pd.testing.assert_frame_equal(resumed.metrics, uninterrupted[0].metrics, check_exact=True)
+
+
+def test_nan_in_simulator_state_stops_with_named_error(tmp_path, monkeypatch):
+    # Put a NaN into the state MuJoCo returns for the first batch element (seed 0,
+    # target 0) during the rollout of iteration index 1 (the second iteration).
+    original = rollout._NativeStepper.__call__
+    calls = {"n": 0}
+    babbling_calls = STEPS  # one batched call per control step
+
+    def poisoned(self, qpos, qvel, ctrl):
+        q, qd = original(self, qpos, qvel, ctrl)
+        calls["n"] += 1
+        if calls["n"] == babbling_calls + STEPS + 10:
+            q = q.copy()
+            q.reshape(-1, q.shape[-1])[0, 0] = np.nan
+        return q, qd
+
+    monkeypatch.setattr(rollout._NativeStepper, "__call__", poisoned)
+    out = tmp_path / "nan_sim"
+    with pytest.raises(training.DivergenceError) as info:
+        cfm_jax.train(CFG, progress=False, out_dir=str(out))
+    message = str(info.value)
+    assert message.startswith("iteration 1, seed 0: simulator state became non-finite")
+    assert "target(s) [0]" in message
+    assert "last good checkpoint (iteration 1)" in message
+    ckpt = checkpoint.Checkpointer(str(out / "checkpoints"))
+    assert ckpt.steps()[-1] == 1 and ckpt.problem(1) is None
+    # The checkpoint left behind restores, and its data set is all finite.
+    template = training.Experiment(CFG).init("joint", _keys())
+    state, _ = ckpt.restore(1, template)
+    assert np.all(np.isfinite(np.asarray(state.data.data.state)))
+    # metrics.csv holds the finished iteration only
+    assert pd.read_csv(out / "metrics.csv").iteration.max() == 0
+
+
+def _keys():
+    return jax.vmap(jax.random.key)(jnp.arange(2, dtype=jnp.uint32))
+
+
+def test_nan_in_parameters_stops_with_named_error(tmp_path, monkeypatch):
+    original = training.Experiment.iteration
+    calls = {"n": 0}
+
+    def poisoned(self, loss, state):
+        state, metrics = original(self, loss, state)
+        calls["n"] += 1
+        if calls["n"] == 3:  # iteration index 2, seed 1
+            params = jax.tree.map(lambda x: x.at[1].set(jnp.nan), state.controller_params)
+            state = state.replace(controller_params=params)
+        return state, metrics
+
+    monkeypatch.setattr(training.Experiment, "iteration", poisoned)
+    out = tmp_path / "nan_params"
+    with pytest.raises(training.DivergenceError) as info:
+        cfm_jax.train(CFG, progress=False, out_dir=str(out))
+    assert str(info.value).startswith(
+        "iteration 2, seed 1: controller parameters became non-finite"
+    )
+    assert "last good checkpoint (iteration 2)" in str(info.value)
+    ckpt = checkpoint.Checkpointer(str(out / "checkpoints"))
+    assert ckpt.steps()[-1] == 2 and ckpt.problem(2) is None
