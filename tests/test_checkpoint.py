@@ -196,3 +196,30 @@ def test_nan_in_parameters_stops_with_named_error(tmp_path, monkeypatch):
     assert "last good checkpoint (iteration 2)" in str(info.value)
     ckpt = checkpoint.Checkpointer(str(out / "checkpoints"))
     assert ckpt.steps()[-1] == 2 and ckpt.problem(2) is None
+
+
+def test_cli_resume_continues_each_loss(tmp_path):
+    # Run the CLI for one iteration of two losses, drop the second loss's last checkpoint
+    # and its metrics as a kill would, and resume: the final table is the same.
+    config_file = tmp_path / "config.json"
+    config_file.write_text(json.dumps(config_lib.to_dict(CFG)))
+    out = tmp_path / "cli"
+    command = [
+        sys.executable, "-m", "cfm_jax.cli", "train", "--robot", "two_link_arm",
+        "--loss", "joint,task", "--seeds", "2", "--iterations", "2",
+        "--config", str(config_file), "--out", str(out), "--quiet",
+    ]  # fmt: skip
+    first = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr[-3000:]
+    complete = pd.read_csv(out / "metrics.csv")
+    import shutil
+
+    shutil.rmtree(out / "task" / "checkpoints" / "2")
+    again = subprocess.run(command + ["--resume"], capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr[-3000:]
+    pd.testing.assert_frame_equal(pd.read_csv(out / "metrics.csv"), complete, check_exact=True)
+    refused = subprocess.run(
+        command[:-1] + ["--seed", "3", "--quiet", "--resume"], capture_output=True, text=True
+    )
+    assert refused.returncode == 2
+    assert "seed (0 in the run, 3 now)" in refused.stderr and "Traceback" not in refused.stderr
