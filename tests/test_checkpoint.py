@@ -19,22 +19,13 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
+from tiny import cli_command, tiny_config
 
 import cfm_jax
 from cfm_jax import checkpoint, rollout, training
 from cfm_jax import config as config_lib
 
-CFG = config_lib.Config(
-    robot="two_link_arm",
-    task=config_lib.TaskConfig(duration=0.3),
-    forward=config_lib.ForwardModelConfig(
-        hidden=(16,), ensemble_size=2, initial_steps=20, steps_per_iteration=10, batch_size=32
-    ),
-    controller=config_lib.ControllerConfig(
-        hidden=(16,), initial_steps=20, steps_per_iteration=10, batch_size=32
-    ),
-    loop=config_lib.LoopConfig(iterations=4, seeds=2, babbling_rollouts=1, checkpoint_keep=2),
-)
+CFG = tiny_config(iterations=4, checkpoint_keep=2)
 STEPS = 30  # control steps per rollout (0.3 s at 0.01 s)
 
 
@@ -201,14 +192,8 @@ def test_nan_in_parameters_stops_with_named_error(tmp_path, monkeypatch):
 def test_cli_resume_continues_each_loss(tmp_path):
     # Run the CLI for one iteration of two losses, drop the second loss's last checkpoint
     # and its metrics as a kill would, and resume: the final table is the same.
-    config_file = tmp_path / "config.json"
-    config_file.write_text(json.dumps(config_lib.to_dict(CFG)))
     out = tmp_path / "cli"
-    command = [
-        sys.executable, "-m", "cfm_jax.cli", "train", "--robot", "two_link_arm",
-        "--loss", "joint,task", "--seeds", "2", "--iterations", "2",
-        "--config", str(config_file), "--out", str(out), "--quiet",
-    ]  # fmt: skip
+    command = cli_command(CFG, tmp_path, out, "joint,task", seeds=2, iterations=2)
     first = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert first.returncode == 0, first.stderr[-3000:]
     complete = pd.read_csv(out / "metrics.csv")

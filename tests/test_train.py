@@ -19,22 +19,13 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
+from tiny import cli_command, tiny_config
 
 import cfm_jax
 from cfm_jax import config as config_lib
 from cfm_jax import training
 
-TINY = config_lib.Config(
-    robot="two_link_arm",
-    task=config_lib.TaskConfig(duration=0.3),
-    forward=config_lib.ForwardModelConfig(
-        hidden=(16,), ensemble_size=2, initial_steps=20, steps_per_iteration=10, batch_size=32
-    ),
-    controller=config_lib.ControllerConfig(
-        hidden=(16,), initial_steps=20, steps_per_iteration=10, batch_size=32
-    ),
-    loop=config_lib.LoopConfig(iterations=2, seeds=2, babbling_rollouts=1),
-)
+TINY = tiny_config()
 TARGETS = 5  # default targets of every robot
 
 
@@ -153,14 +144,8 @@ def test_train_writes_results_per_iteration(tmp_path, experiment):
 
 def test_cli_train_end_to_end(tmp_path):
     # A real subprocess of the installed entry point, on a tiny config file.
-    config_file = tmp_path / "tiny.json"
-    config_file.write_text(json.dumps(config_lib.to_dict(TINY)))
     out = tmp_path / "cli"
-    command = [
-        sys.executable, "-m", "cfm_jax.cli", "train", "--robot", "two_link_arm",
-        "--loss", "joint,supervised", "--seeds", "1", "--iterations", "1",
-        "--config", str(config_file), "--out", str(out), "--quiet",
-    ]  # fmt: skip
+    command = cli_command(TINY, tmp_path, out, "joint,supervised", seeds=1, iterations=1)
     done = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     metrics = pd.read_csv(out / "metrics.csv")

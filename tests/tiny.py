@@ -1,0 +1,39 @@
+"""Shared tiny configs and CLI helpers for the end-to-end tests (fast, wiring only)."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from cfm_jax import config as config_lib
+
+
+def tiny_config(**loop) -> config_lib.Config:
+    """The two-link arm, 0.3 s references, 16-unit networks and a few dozen fit steps."""
+    return config_lib.Config(
+        robot="two_link_arm",
+        task=config_lib.TaskConfig(duration=0.3),
+        forward=config_lib.ForwardModelConfig(
+            hidden=(16,),
+            ensemble_size=2,
+            initial_steps=20,
+            steps_per_iteration=10,
+            batch_size=32,
+        ),  # fmt: skip
+        controller=config_lib.ControllerConfig(
+            hidden=(16,), initial_steps=20, steps_per_iteration=10, batch_size=32
+        ),
+        loop=config_lib.LoopConfig(**{"iterations": 2, "seeds": 2, "babbling_rollouts": 1, **loop}),
+    )
+
+
+def cli_command(config: config_lib.Config, tmp_path, out, losses: str, seeds: int,
+                iterations: int) -> list[str]:  # fmt: skip
+    """``python -m cfm_jax.cli train`` on ``config`` written to a JSON file in tmp_path."""
+    config_file = tmp_path / "config.json"
+    config_file.write_text(json.dumps(config_lib.to_dict(config)))
+    return [
+        sys.executable, "-m", "cfm_jax.cli", "train", "--robot", config.robot,
+        "--loss", losses, "--seeds", str(seeds), "--iterations", str(iterations),
+        "--config", str(config_file), "--out", str(out), "--quiet",
+    ]  # fmt: skip
