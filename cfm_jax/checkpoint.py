@@ -151,9 +151,5 @@ class Checkpointer:
         """Remove ``step`` from disk (for example one left incomplete by a kill)."""
         self._manager.delete(step)
 
-    def latest_step(self) -> int | None:
-        steps = self.steps()
-        return steps[-1] if steps else None
-
     def close(self) -> None:
         self._manager.close()

@@ -30,6 +30,7 @@ Example:
 
 from __future__ import annotations
 
+import copy
 import os
 from typing import Any, NamedTuple
 
@@ -176,7 +177,7 @@ class _NativeStepper:
         import mujoco
         from mujoco import rollout as mj_rollout
 
-        self.model = copy_model(mj_model)
+        self.model = copy.deepcopy(mj_model)
         self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
         self.n_sub = n_sub
         self.spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
@@ -231,13 +232,6 @@ class _NativeStepper:
 
 
 _STEPPERS: dict = {}
-
-
-def copy_model(mj_model):
-    """A deep copy of an ``MjModel``."""
-    import copy
-
-    return copy.deepcopy(mj_model)
 
 
 def native_physics(robot, n_sub: int):
