@@ -30,8 +30,6 @@ Example:
 
 from __future__ import annotations
 
-import copy
-import os
 from typing import Any, NamedTuple
 
 import jax
@@ -39,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from cfm_jax import dataset, tasks
+from cfm_jax import dataset, native, tasks
 
 SIMULATORS = ("native", "mjx")
 """Physics back ends for :func:`run`."""
@@ -124,7 +122,7 @@ def run(
             desired = tasks.desired_acceleration(ref_q[t], ref_qd[t], ref_qdd[t], q, qd, kp, kd)
             step = Step(jnp.concatenate([q, qd]), desired, ref_q[t], ref_qd[t], ref_qdd[t])
             tau = jnp.clip(policy(model, data, step, key_policy), -limit, limit)
-            q_next, qd_next = physics(q, qd, robot.torque_to_ctrl(tau))
+            q_next, qd_next, _ = physics(q, qd, robot.torque_to_ctrl(tau))
             observed = (qd_next - qd) / control_dt
             finite = jnp.all(jnp.isfinite(q_next)) & jnp.all(jnp.isfinite(qd_next))
             out = (
@@ -147,95 +145,31 @@ def run(
 
 
 def mjx_physics(robot, n_sub: int):
-    """``physics(qpos, qvel, ctrl) -> (qpos, qvel)`` after ``n_sub`` ``mjx.step`` calls
-    from rest-free state ``(qpos, qvel)`` (time and warm start start at zero)."""
+    """``physics(qpos, qvel, ctrl) -> (qpos, qvel, sensordata (n_sub, nsensordata))`` after
+    ``n_sub`` ``mjx.step`` calls from the state ``(qpos, qvel)`` (time and warm start start
+    at zero); as :func:`native_physics`."""
     model = robot.mjx_model
     blank = mjx.make_data(model)
 
     def physics(qpos, qvel, ctrl):
         data = blank.replace(qpos=qpos, qvel=qvel, ctrl=ctrl)
-        data = jax.lax.fori_loop(0, n_sub, lambda _, d: mjx.step(model, d), data)
-        return data.qpos, data.qvel
+
+        def substep(data, _):
+            data = mjx.step(model, data)
+            return data, data.sensordata
+
+        data, sensors = jax.lax.scan(substep, data, None, length=n_sub)
+        return data.qpos, data.qvel, sensors
 
     return physics
-
-
-class _NativeStepper:
-    """Host side of :func:`native_physics`: steps a batch of states with MuJoCo's C engine.
-
-    Holds a copy of the robot's ``MjModel`` with automatic reset on numerical instability
-    disabled (``mjDSBL_AUTORESET``), so a diverging state stays non-finite and is flagged
-    like in MJX, instead of silently jumping back to ``qpos0``; a non-finite control makes
-    the state non-finite too (MuJoCo would zero it and step on). Batches of at least
-    :attr:`THREADED_BATCH` use a pool of two threads (``mujoco.rollout.Rollout``); results
-    do not depend on the thread count (each rollout is computed by one thread).
-    """
-
-    THREADED_BATCH = 32
-
-    def __init__(self, mj_model, n_sub: int):
-        import mujoco
-        from mujoco import rollout as mj_rollout
-
-        self.model = copy.deepcopy(mj_model)
-        self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
-        self.n_sub = n_sub
-        self.spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
-        self.ctrl_spec = int(mujoco.mjtState.mjSTATE_CTRL)
-        data = mujoco.MjData(self.model)
-        self.nstate = mujoco.mj_stateSize(self.model, self.spec)
-        self.template = np.empty(self.nstate)
-        mujoco.mj_getState(self.model, data, self.template, self.spec)
-        self.template[0] = 0.0  # time
-        nq, nv = self.model.nq, self.model.nv
-        self.qpos = slice(1, 1 + nq)
-        self.qvel = slice(1 + nq, 1 + nq + nv)
-        self.threads = max(1, min(2, os.cpu_count() or 1))
-        self.datas = [mujoco.MjData(self.model) for _ in range(self.threads)]
-        self.single = mj_rollout.Rollout(nthread=0)
-        self.pool = mj_rollout.Rollout(nthread=self.threads) if self.threads > 1 else None
-
-    def __call__(self, qpos, qvel, ctrl):
-        nq, nv, nu = self.model.nq, self.model.nv, self.model.nu
-        batch_shape = np.shape(qpos)[:-1]
-        qpos = np.asarray(qpos, np.float64).reshape(-1, nq)
-        batch = qpos.shape[0]
-        state = np.tile(self.template, (batch, 1))
-        state[:, self.qpos] = qpos
-        state[:, self.qvel] = np.asarray(qvel, np.float64).reshape(-1, nv)
-        control = np.repeat(np.asarray(ctrl, np.float64).reshape(-1, 1, nu), self.n_sub, axis=1)
-        out = np.empty((batch, self.n_sub, self.nstate))
-        sensors = np.empty((batch, self.n_sub, self.model.nsensordata))
-        threaded = self.pool is not None and batch >= self.THREADED_BATCH
-        runner, datas = (self.pool, self.datas) if threaded else (self.single, self.datas[:1])
-        runner.rollout(
-            [self.model] * batch,
-            datas,
-            state,
-            np.ascontiguousarray(control),
-            control_spec=self.ctrl_spec,
-            skip_checks=True,
-            nstep=self.n_sub,
-            state=out,
-            sensordata=sensors,
-            chunk_size=max(1, batch // (2 * len(datas))),
-        )
-        last = out[:, -1]
-        # MuJoCo zeroes a non-finite ctrl (with a warning) and steps on; mark such rollouts
-        # non-finite instead, as MJX's NaN propagation does.
-        bad = ~np.all(np.isfinite(control[:, 0]), axis=-1)
-        last[bad] = np.nan
-        return (
-            last[:, self.qpos].astype(np.float32).reshape(*batch_shape, nq),
-            last[:, self.qvel].astype(np.float32).reshape(*batch_shape, nv),
-        )
 
 
 _STEPPERS: dict = {}
 
 
 def native_physics(robot, n_sub: int):
-    """``physics(qpos, qvel, ctrl) -> (qpos, qvel)`` after ``n_sub`` steps of MuJoCo C.
+    """``physics(qpos, qvel, ctrl) -> (qpos, qvel, sensordata (n_sub, nsensordata))`` after
+    ``n_sub`` steps of MuJoCo C (:class:`cfm_jax.native.Stepper`).
 
     A ``jax.pure_callback`` (``vmap_method="broadcast_all"``): under ``vmap`` the whole
     batch (targets x seeds) is stepped in one host call per control step. Time, warm start
@@ -243,13 +177,14 @@ def native_physics(robot, n_sub: int):
     """
     cache_key = (id(robot.mj_model), n_sub)
     if cache_key not in _STEPPERS:
-        _STEPPERS[cache_key] = (robot.mj_model, _NativeStepper(robot.mj_model, n_sub))
+        _STEPPERS[cache_key] = (robot.mj_model, native.Stepper(robot.mj_model, n_sub))
     stepper = _STEPPERS[cache_key][1]
 
     def physics(qpos, qvel, ctrl):
         shapes = (
             jax.ShapeDtypeStruct(jnp.shape(qpos), jnp.float32),
             jax.ShapeDtypeStruct(jnp.shape(qvel), jnp.float32),
+            jax.ShapeDtypeStruct((n_sub, robot.mj_model.nsensordata), jnp.float32),
         )
         return jax.pure_callback(stepper, shapes, qpos, qvel, ctrl, vmap_method="broadcast_all")
 

@@ -22,7 +22,7 @@ import pytest
 from tiny import cli_command, tiny_config
 
 import cfm_jax
-from cfm_jax import checkpoint, rollout, training
+from cfm_jax import checkpoint, native, training
 from cfm_jax import config as config_lib
 
 CFG = tiny_config(iterations=4, checkpoint_keep=2)
@@ -131,19 +131,19 @@ def test_incomplete_last_step_is_skipped_on_resume(uninterrupted, tmp_path):
 def test_nan_in_simulator_state_stops_with_named_error(tmp_path, monkeypatch):
     # Put a NaN into the state MuJoCo returns for the first batch element (seed 0,
     # target 0) during the rollout of iteration index 1 (the second iteration).
-    original = rollout._NativeStepper.__call__
+    original = native.Stepper.__call__
     calls = {"n": 0}
     babbling_calls = STEPS  # one batched call per control step
 
     def poisoned(self, qpos, qvel, ctrl):
-        q, qd = original(self, qpos, qvel, ctrl)
+        q, qd, sensors = original(self, qpos, qvel, ctrl)
         calls["n"] += 1
         if calls["n"] == babbling_calls + STEPS + 10:
             q = q.copy()
             q.reshape(-1, q.shape[-1])[0, 0] = np.nan
-        return q, qd
+        return q, qd, sensors
 
-    monkeypatch.setattr(rollout._NativeStepper, "__call__", poisoned)
+    monkeypatch.setattr(native.Stepper, "__call__", poisoned)
     out = tmp_path / "nan_sim"
     with pytest.raises(training.DivergenceError) as info:
         cfm_jax.train(CFG, progress=False, out_dir=str(out))

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from cfm_jax import robots, rollout, tasks
+from cfm_jax import native, robots, rollout, tasks
 from cfm_jax.config import ConfigError
 
 CONTROL_DT = 0.01  # 5 physics steps of 0.002 s per control step
@@ -330,8 +330,8 @@ def test_native_stepper_matches_mj_step_per_element(iiwa, batch):
     qpos = rng.uniform(0.8 * low, 0.8 * high, (batch, iiwa.nq)).astype(np.float32)
     qvel = rng.normal(0.0, 0.5, (batch, iiwa.nv)).astype(np.float32)
     ctrl = rng.uniform(-0.3, 0.3, (batch, iiwa.mj_model.nu)).astype(np.float32)
-    stepper = rollout._NativeStepper(iiwa.mj_model, n_sub)
-    q_out, qd_out = stepper(qpos.reshape(batch, 1, -1), qvel, ctrl)  # extra axis: reshaped
+    stepper = native.Stepper(iiwa.mj_model, n_sub)
+    q_out, qd_out, _ = stepper(qpos.reshape(batch, 1, -1), qvel, ctrl)  # extra axis: reshaped
     assert q_out.shape == (batch, 1, iiwa.nq) and q_out.dtype == np.float32
     data = mujoco.MjData(iiwa.mj_model)
     for i in range(batch):
