@@ -27,10 +27,12 @@ class Transitions(NamedTuple):
     """A batch of transitions ``(n, ...)``.
 
     Attributes:
-      state: ``s_t = [q, qdot]``, ``(n, state_dim)``.
-      desired: desired next-step acceleration ``qdd*_t``, ``(n, nv)``.
-      action: executed torque ``tau_run``, ``(n, nv)``.
-      observed: observed acceleration ``(qdot_{t+1} - qdot_t) / dt``, ``(n, nv)``.
+      state: the task's state ``s_t`` (``[q, qdot]`` for the arm tasks), ``(n, state_dim)``.
+      desired: the desired quantity ``s*_t`` (the desired next-step joint acceleration
+        ``qdd*_t`` for the joint-space task), ``(n, desired_dim)``.
+      action: executed torque ``tau_run``, ``(n, action_dim)``.
+      observed: the observed quantity the forward model predicts (the acceleration
+        ``(qdot_{t+1} - qdot_t) / dt`` for the joint-space task), ``(n, output_dim)``.
     """
 
     state: jax.Array
@@ -52,9 +54,16 @@ class Dataset:
         return self.data.state.shape[0]
 
 
-def empty(capacity: int, state_dim: int, nv: int) -> Dataset:
-    """An empty data set for ``capacity`` transitions."""
-    dims = (state_dim, nv, nv, nv)
+def empty(
+    capacity: int,
+    state_dim: int,
+    nv: int,
+    action_dim: int | None = None,
+    output_dim: int | None = None,
+) -> Dataset:
+    """An empty data set for ``capacity`` transitions; ``nv`` is the desired quantity's size,
+    ``action_dim`` and ``output_dim`` default to it (the joint-space task)."""
+    dims = (state_dim, nv, action_dim or nv, output_dim or nv)
     data = Transitions(*(jnp.zeros((capacity, d), jnp.float32) for d in dims))
     return Dataset(data, jnp.int32(0), jnp.int32(0))
 

@@ -97,11 +97,26 @@ def supervised(predicted_action, executed_action):
     return jnp.sum(jnp.square(predicted_action - executed_action), axis=-1)
 
 
-def controller_loss(name, predicted_next, desired_next, observed_next):
+def controller_loss(name, predicted_next, desired_next, observed_next, select=None):
     """Dispatch the model-based controller losses by name (``task``, ``joint``, ``distal``).
+
+    ``select(y)`` picks the entries of a prediction or observation ``(..., d)`` that the
+    desired state specifies (``None``: all; for example the end-effector acceleration among
+    the joint and end-effector accelerations the forward model predicts). Then, with
+    ``P`` that selection, ``task = |P s_p - s_d|^2``, ``joint = |P s_p - s_d|^2 +
+    |s_p - s_a|^2`` (the whole prediction error), ``distal = |P s_p - s_d|^2 -
+    |P s_p - P s_a|^2`` (error signal ``P s_a - s_d``).
 
     ``supervised`` does not go through the forward model; call :func:`supervised`.
     """
+    if select is not None:
+        selected = select(predicted_next)
+        if name == "task":
+            return task(selected, desired_next)
+        if name == "joint":
+            return task(selected, desired_next) + task(predicted_next, observed_next)
+        if name == "distal":
+            return distal(selected, desired_next, select(observed_next))
     if name == "task":
         return task(predicted_next, desired_next)
     if name == "joint":

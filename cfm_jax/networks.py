@@ -12,7 +12,7 @@ so the task and joint losses compare like with like.
 
 Example:
   >>> import jax, jax.numpy as jnp
-  >>> norm = Normaliser.identity(state_dim=4, nv=2, torque_limit=jnp.ones(2))
+  >>> norm = Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
   >>> fm = forward_model(hidden=(8,), ensemble_size=2, nv=2)
   >>> params = fm.init(jax.random.key(0), state_dim=4)
   >>> mean, log_var = fm.apply(params, norm, jnp.zeros(4), jnp.zeros(2))
@@ -36,30 +36,40 @@ class Normaliser:
 
     Attributes:
       state_mean, state_std: ``(state_dim,)``.
-      accel_mean, accel_std: ``(nv,)`` statistics of observed joint accelerations; the
-        forward model's outputs and the desired / observed accelerations use them.
-      torque_limit: ``(nv,)`` scale of the torques.
+      output_mean, output_std: ``(output_dim,)`` statistics of the observed quantity the
+        forward model predicts (joint accelerations for the joint-space task); the forward
+        model's outputs, the observed quantity and (by ``desired_index``) the desired
+        quantity are normalised with them.
+      torque_limit: ``(action_dim,)`` scale of the torques.
+      desired_index: static tuple, the entries of the output the desired quantity specifies
+        (``None``: all of them, in order).
     """
 
     state_mean: jax.Array
     state_std: jax.Array
-    accel_mean: jax.Array
-    accel_std: jax.Array
+    output_mean: jax.Array
+    output_std: jax.Array
     torque_limit: jax.Array
+    desired_index: tuple[int, ...] | None = struct.field(pytree_node=False, default=None)
 
     @classmethod
-    def identity(cls, state_dim: int, nv: int, torque_limit) -> Normaliser:
+    def identity(
+        cls, state_dim: int, output_dim: int, torque_limit, desired_index=None
+    ) -> Normaliser:
         return cls(
             jnp.zeros(state_dim),
             jnp.ones(state_dim),
-            jnp.zeros(nv),
-            jnp.ones(nv),
+            jnp.zeros(output_dim),
+            jnp.ones(output_dim),
             jnp.asarray(torque_limit, jnp.float32),
+            _index(desired_index, output_dim),
         )
 
     @classmethod
-    def from_data(cls, states, observed_accel, torque_limit, weights=None) -> Normaliser:
-        """Statistics of ``states (n, state_dim)`` and ``observed_accel (n, nv)``.
+    def from_data(
+        cls, states, observed, torque_limit, weights=None, desired_index=None
+    ) -> Normaliser:
+        """Statistics of ``states (n, state_dim)`` and ``observed (n, output_dim)``.
 
         ``weights (n,)`` (0 or 1) masks rows out (for example non-finite ones); standard
         deviations are floored at 1e-3.
@@ -76,19 +86,42 @@ class Normaliser:
             return mean, jnp.maximum(jnp.sqrt(var), floor)
 
         state_mean, state_std = moments(states)
-        accel_mean, accel_std = moments(observed_accel)
+        output_mean, output_std = moments(observed)
         return cls(
-            state_mean, state_std, accel_mean, accel_std, jnp.asarray(torque_limit, jnp.float32)
+            state_mean,
+            state_std,
+            output_mean,
+            output_std,
+            jnp.asarray(torque_limit, jnp.float32),
+            _index(desired_index, observed.shape[-1]),
         )
 
     def state(self, s):
         return (s - self.state_mean) / self.state_std
 
-    def accel(self, qdd):
-        return (qdd - self.accel_mean) / self.accel_std
+    def output(self, y):
+        """Normalised observed / predicted quantity ``(..., output_dim)``."""
+        return (y - self.output_mean) / self.output_std
 
-    def accel_inverse(self, qdd_normalised):
-        return qdd_normalised * self.accel_std + self.accel_mean
+    def output_inverse(self, y_normalised):
+        return y_normalised * self.output_std + self.output_mean
+
+    def select(self, y):
+        """The entries ``desired_index`` of an output ``(..., output_dim)``."""
+        return y if self.desired_index is None else y[..., jnp.asarray(self.desired_index)]
+
+    def desired(self, d):
+        """Normalised desired quantity ``(..., desired_dim)`` (the output's statistics at
+        ``desired_index``)."""
+        return (d - self.select(self.output_mean)) / self.select(self.output_std)
+
+
+def _index(desired_index, output_dim: int):
+    """``None`` when the desired quantity is the whole output in order, else a tuple."""
+    if desired_index is None:
+        return None
+    index = tuple(int(i) for i in desired_index)
+    return None if index == tuple(range(output_dim)) else index
 
 
 class _MLP(nn.Module):
@@ -115,22 +148,26 @@ def forward_model(
     nv: int,
     min_log_variance: float = -10.0,
     max_log_variance: float = 0.5,
+    action_dim: int | None = None,
 ) -> Model:
-    """Probabilistic ensemble ``f(s, tau)`` predicting the normalised joint acceleration.
+    """Probabilistic ensemble ``f(s, tau)`` predicting the normalised observed quantity.
 
-    ``apply(params, normaliser, state (..., state_dim), tau (..., nv))`` returns
+    ``nv`` is the output size (the joint accelerations for the joint-space task; in
+    general the task's ``output_dim``), ``action_dim`` the size of ``tau`` (default ``nv``).
+    ``apply(params, normaliser, state (..., state_dim), tau (..., action_dim))`` returns
     ``(mean, log_variance)``, each ``(ensemble_size, ..., nv)``, in normalised units
-    (``normaliser.accel``). With ``per_member=True`` the inputs carry a leading member axis
+    (``normaliser.output``). With ``per_member=True`` the inputs carry a leading member axis
     ``(ensemble_size, ..., ·)`` and member ``e`` sees only ``state[e], tau[e]`` (used to
     train every member on its own minibatches). Log-variance bounds follow PETS:
     ``lv = max - softplus(max - raw); lv = min + softplus(lv - min)`` with learned ``max``
     and ``min``.
     """
     mlp = _MLP(hidden=hidden, out=2 * nv)
+    action_dim = nv if action_dim is None else action_dim
 
     def init(key, state_dim: int):
         keys = jax.random.split(key, ensemble_size)
-        dummy = jnp.zeros((1, state_dim + nv))
+        dummy = jnp.zeros((1, state_dim + action_dim))
         members = jax.vmap(lambda k: mlp.init(k, dummy))(keys)
         return {
             "members": members,
@@ -157,19 +194,22 @@ def ensemble_mean(forward: Model, params, normaliser: Normaliser, state, tau):
     return jnp.mean(mean, axis=0)
 
 
-def controller(hidden: tuple[int, ...], nv: int) -> Model:
-    """Controller ``g(s, qdd*) -> tau``, squashed into the torque limits.
+def controller(hidden: tuple[int, ...], nv: int, desired_dim: int | None = None) -> Model:
+    """Controller ``g(s, s*) -> tau``, squashed into the torque limits.
 
-    ``apply(params, normaliser, state (..., state_dim), desired_accel (..., nv))`` returns
+    ``nv`` is the number of torques (``action_dim``), ``desired_dim`` the size of the
+    desired quantity ``s*`` (default ``nv``: a desired joint acceleration).
+    ``apply(params, normaliser, state (..., state_dim), desired (..., desired_dim))`` returns
     ``tau (..., nv)`` with ``|tau| < normaliser.torque_limit``.
     """
     mlp = _MLP(hidden=hidden, out=nv)
+    desired_dim = nv if desired_dim is None else desired_dim
 
     def init(key, state_dim: int):
-        return mlp.init(key, jnp.zeros((1, state_dim + nv)))
+        return mlp.init(key, jnp.zeros((1, state_dim + desired_dim)))
 
-    def apply(params, normaliser: Normaliser, state, desired_accel):
-        x = jnp.concatenate([normaliser.state(state), normaliser.accel(desired_accel)], -1)
+    def apply(params, normaliser: Normaliser, state, desired):
+        x = jnp.concatenate([normaliser.state(state), normaliser.desired(desired)], -1)
         return normaliser.torque_limit * jnp.tanh(mlp.apply(params, x))
 
     return Model(init, apply)

@@ -12,18 +12,21 @@ physics inside the same compiled rollout (see :data:`SIMULATORS`):
 * ``"mjx"``: ``mujoco.mjx.step`` in JAX (float32), everything on the device. On CPU it is
   slower, in particular with joint-limit constraints, and compiles for 15-30 s.
 
-A *policy* is a pure function ``policy(mjx_model, data, step, key) -> tau`` of the MJX data
-at the current control step, a :class:`Step` of the state and reference, and a PRNG key.
-This module provides the learned controller's, the oracle's (MuJoCo's inverse dynamics)
-and PD-only policies.
+What is tracked, the learning state, the desired quantity and the observed quantity are
+the *task*'s (:mod:`cfm_jax.tasks`); this module only steps the physics in a loop.
+A *policy* is a pure function ``policy(step, key) -> tau`` of a :class:`Step` (the
+simulator state, the task's state, desired quantity and reference at the current control
+step) and a PRNG key. This module provides the learned controller's policy, MuJoCo's
+inverse dynamics (the joint-space oracle) and :func:`mixed_policy`, which combines a
+controller, the task's oracle, its PD feedback and noise in one compiled rollout.
 
 Example:
   >>> import jax, numpy as np
   >>> from cfm_jax import robots, tasks
   >>> robot = robots.load("two_link_arm")
   >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.1, control_dt=0.01)
-  >>> out = run(robot, oracle_policy(robot), tasks.as_jax(ref), kp=100.0, kd=20.0,
-  ...           control_dt=0.01, key=jax.random.key(0))
+  >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
+  >>> out = run(task, oracle_policy(robot), key=jax.random.key(0))
   >>> out.transitions.state.shape
   (1, 10, 4)
 """
@@ -37,20 +40,33 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from cfm_jax import dataset, native, tasks
+from cfm_jax import dataset, native
 
 SIMULATORS = ("native", "mjx")
 """Physics back ends for :func:`run`."""
 
 
 class Step(NamedTuple):
-    """What a policy sees at control step ``t`` (arrays of one rollout)."""
+    """What a policy sees at control step ``t`` (arrays of one rollout).
 
-    state: jax.Array  # s_t = [q, qdot], (state_dim,)
-    desired: jax.Array  # qdd*_t, (nv,)
-    ref_q: jax.Array  # q_ref(t), (nq,)
-    ref_qd: jax.Array  # qd_ref(t), (nv,)
-    ref_qdd: jax.Array  # qdd_ref(t), (nv,)
+    Attributes:
+      t: the control step index (int32 scalar).
+      qpos, qvel: the simulator's generalised positions ``(nq,)`` and velocities ``(nv,)``.
+      features: the task's extra measurements of this state (for example contact forces),
+        ``(task.feature_dim,)``; empty for the joint-space task.
+      state: the learning state ``s_t`` of the task, ``(task.state_dim,)``.
+      desired: the task's desired quantity ``s*`` for this step, ``(task.desired_dim,)``.
+      reference: the task's reference at ``t`` (a pytree, for example a
+        :class:`cfm_jax.tasks.Reference` of one time step).
+    """
+
+    t: jax.Array
+    qpos: jax.Array
+    qvel: jax.Array
+    features: jax.Array
+    state: jax.Array
+    desired: jax.Array
+    reference: Any
 
 
 class Rollout(NamedTuple):
@@ -58,13 +74,17 @@ class Rollout(NamedTuple):
 
     Attributes:
       transitions: :class:`cfm_jax.dataset.Transitions` with ``(targets, steps, ...)``.
-      position_error: ``q_{t+1} - q_ref(t+1)``, ``(targets, steps, nq)``.
+      tracking_error: the task's tracking error after each step (for the joint-space task
+        ``q_{t+1} - q_ref(t+1)``), ``(targets, steps, k)``.
       finite: whether the simulator state after the step is finite, ``(targets, steps)``.
+      extras: the task's further per-step records (a dict of ``(targets, steps, ...)``
+        arrays; see the task's ``record``).
     """
 
     transitions: dataset.Transitions
-    position_error: jax.Array
+    tracking_error: jax.Array
     finite: jax.Array
+    extras: Any = None
 
 
 def substeps(robot, control_dt: float) -> int:
@@ -81,67 +101,73 @@ def substeps(robot, control_dt: float) -> int:
     return count
 
 
-def run(
-    robot, policy, reference: tasks.Reference, kp, kd, control_dt, key, simulator="native"
-) -> Rollout:
-    """Roll a policy out on every target of ``reference`` (pure; jit and vmap it).
+def run(task, policy, key, simulator="native") -> Rollout:
+    """Roll a policy out on every target of a task (pure; jit and vmap it).
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot` (its models are closed over).
-      policy: ``policy(mjx_model, data, step, key) -> tau (nv,)``; torques are clipped to the
-        limits. ``data`` is an ``mjx.Data`` holding the current ``qpos, qvel`` and ``time``
-        (with either simulator; other fields are not computed).
-      reference: a :class:`cfm_jax.tasks.Reference` of JAX arrays ``(targets, steps+1, nq)``.
-      kp, kd: gains of the PD correction in the desired acceleration.
-      control_dt: control period (a multiple of the physics timestep).
+      task: a task (:class:`cfm_jax.tasks.JointSpaceTask` or another task of
+        :func:`cfm_jax.tasks.make`): its robot, references, state map and desired quantity.
+      policy: ``policy(step, key) -> tau (action_dim,)`` of a :class:`Step`; torques are
+        clipped to the robot's limits.
       key: PRNG key, split per target and step.
       simulator: one of :data:`SIMULATORS`.
 
     Returns:
-      A :class:`Rollout`; every rollout starts at rest at ``reference.q[:, 0]``.
+      A :class:`Rollout`; rollout ``k`` starts where the task says (``task.start``), for the
+      joint-space task at rest at the reference's first position.
     """
     if simulator not in SIMULATORS:
         from cfm_jax.config import ConfigError
 
         raise ConfigError(f"simulator={simulator!r} is not allowed: one of {SIMULATORS}")
-    model = robot.mjx_model
-    n_sub = substeps(robot, control_dt)
+    robot = task.robot
+    n_sub = substeps(robot, task.control_dt)
     limit = jnp.asarray(robot.torque_limit, jnp.float32)
-    nq = robot.nq
     physics = native_physics(robot, n_sub) if simulator == "native" else mjx_physics(robot, n_sub)
-    blank = mjx.make_data(model)
 
-    def one_target(ref_q, ref_qd, ref_qdd, target_key):
-        q0 = ref_q[0].astype(jnp.float32)
-        qd0 = jnp.zeros(robot.nv, jnp.float32)
+    def one_target(reference, target_key):
+        qpos0, qvel0, features0 = task.start(reference)
 
         def control_step(carry, t):
-            q, qd, key = carry
+            qpos, qvel, features, key = carry
             key, key_policy = jax.random.split(key)
-            data = blank.replace(qpos=q, qvel=qd, time=t * jnp.float32(control_dt))
-            desired = tasks.desired_acceleration(ref_q[t], ref_qd[t], ref_qdd[t], q, qd, kp, kd)
-            step = Step(jnp.concatenate([q, qd]), desired, ref_q[t], ref_qd[t], ref_qdd[t])
-            tau = jnp.clip(policy(model, data, step, key_policy), -limit, limit)
-            q_next, qd_next, _ = physics(q, qd, robot.torque_to_ctrl(tau))
-            observed = (qd_next - qd) / control_dt
-            finite = jnp.all(jnp.isfinite(q_next)) & jnp.all(jnp.isfinite(qd_next))
-            out = (
-                dataset.Transitions(step.state, desired, tau, observed),
-                q_next[:nq] - ref_q[t + 1],
-                finite,
+            ref_t = jax.tree.map(lambda x: x[t], reference)
+            ref_next = jax.tree.map(lambda x: x[t + 1], reference)
+            step = Step(
+                t,
+                qpos,
+                qvel,
+                features,
+                task.state(qpos, qvel, features),
+                task.desired(ref_t, qpos, qvel, features),
+                ref_t,
             )
-            return (q_next, qd_next, key), out
+            tau = jnp.clip(policy(step, key_policy), -limit, limit)
+            qpos_next, qvel_next, sensors = physics(qpos, qvel, robot.torque_to_ctrl(tau))
+            finite = jnp.all(jnp.isfinite(qpos_next)) & jnp.all(jnp.isfinite(qvel_next))
+            features_next = task.features(qpos_next, qvel_next, sensors)
+            out = (
+                dataset.Transitions(
+                    step.state,
+                    step.desired,
+                    tau,
+                    task.observed(step, qpos_next, qvel_next, features_next),
+                ),
+                task.tracking_error(ref_next, qpos_next, qvel_next, features_next),
+                finite,
+                task.record(step, tau, qpos_next, qvel_next, features_next),
+            )
+            return (qpos_next, qvel_next, features_next, key), out
 
-        steps = ref_q.shape[0] - 1
-        _, (transitions, error, finite) = jax.lax.scan(
-            control_step, (q0, qd0, target_key), jnp.arange(steps)
+        _, (transitions, error, finite, extras) = jax.lax.scan(
+            control_step, (qpos0, qvel0, features0, target_key), jnp.arange(task.steps)
         )
         # Once the state is non-finite, everything after it is too.
         finite = jnp.cumprod(finite.astype(jnp.int32)).astype(bool)
-        return Rollout(transitions, error, finite)
+        return Rollout(transitions, error, finite, extras)
 
-    keys = jax.random.split(key, reference.q.shape[0])
-    return jax.vmap(one_target)(reference.q, reference.qd, reference.qdd, keys)
+    keys = jax.random.split(key, task.targets)
+    return jax.vmap(one_target)(task.reference, keys)
 
 
 def mjx_physics(robot, n_sub: int):
@@ -192,17 +218,18 @@ def native_physics(robot, n_sub: int):
 
 
 def controller_policy(controller, params, normaliser):
-    """The learned controller ``tau = g(s_t, qdd*_t)``."""
+    """The learned controller ``tau = g(s_t, s*_t)``."""
 
-    def policy(model, data, step, key):
-        del model, data, key
+    def policy(step, key):
+        del key
         return controller.apply(params, normaliser, step.state, step.desired)
 
     return policy
 
 
 def oracle_policy(robot, simulator="native"):
-    """MuJoCo's inverse dynamics at the current state: ``tau = M qdd* + c - passive``.
+    """MuJoCo's inverse dynamics at the current state: ``tau = M qdd* + c - passive``,
+    with ``qdd* = step.desired`` (the joint-space task's desired acceleration).
 
     ``c`` is MuJoCo's bias force (Coriolis, centrifugal, gravity), ``passive`` the joint
     damping and spring forces. With the Euler integrator and implicit damping, the
@@ -214,35 +241,46 @@ def oracle_policy(robot, simulator="native"):
     ``mj_fwdVelocity``, ``mj_mulM``) through ``jax.pure_callback``; ``"mjx"`` with the
     corresponding MJX functions.
     """
-    import mujoco
-
     mj = robot.mj_model
-    eulerdamp = int(mj.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_EULER) and not int(
-        mj.opt.disableflags
-    ) & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
-    damping = mj.dof_damping * mj.opt.timestep if eulerdamp else np.zeros(mj.nv)
-    implicit_damping = jnp.asarray(damping, jnp.float32)
+    damping = implicit_damping(mj)
 
     if simulator == "native":
         inverse = _native_inverse(mj, damping)
 
-        def policy(model, data, step, key):
-            del model, key
+        def policy(step, key):
+            del key
             shape = jax.ShapeDtypeStruct(jnp.shape(step.desired), jnp.float32)
             return jax.pure_callback(
-                inverse, shape, data.qpos, data.qvel, step.desired, vmap_method="broadcast_all"
+                inverse, shape, step.qpos, step.qvel, step.desired, vmap_method="broadcast_all"
             )
 
         return policy
 
-    def policy(model, data, step, key):
+    model = robot.mjx_model
+    blank = mjx.make_data(model)
+    damping = jnp.asarray(damping, jnp.float32)
+
+    def policy(step, key):
         del key
+        data = blank.replace(qpos=step.qpos, qvel=step.qvel)
         data = mjx.fwd_position(model, data)
         data = mjx.fwd_velocity(model, data)
-        inertial = mjx.mul_m(model, data, step.desired) + implicit_damping * step.desired
+        inertial = mjx.mul_m(model, data, step.desired) + damping * step.desired
         return inertial + data.qfrc_bias - data.qfrc_passive
 
     return policy
+
+
+def implicit_damping(mj_model) -> np.ndarray:
+    """``h D`` per dof when MuJoCo's Euler integrator treats joint damping implicitly
+    (``h`` the timestep, ``D`` the damping), else zeros: the extra inertia-like term that
+    one Euler step adds to ``M qdd``."""
+    import mujoco
+
+    eulerdamp = int(mj_model.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_EULER) and not int(
+        mj_model.opt.disableflags
+    ) & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
+    return mj_model.dof_damping * mj_model.opt.timestep if eulerdamp else np.zeros(mj_model.nv)
 
 
 def _native_inverse(mj_model, implicit_damping):
@@ -282,42 +320,25 @@ def pd_gains(robot, kp: float, kd: float, home) -> tuple[np.ndarray, np.ndarray]
     return kp * inertia, kd * inertia
 
 
-def pd_policy(gain_p, gain_d, noise_std=None):
-    """PD-only feedback ``tau = K_p (q_ref - q) + K_d (qd_ref - qd)`` (+ Gaussian noise).
-
-    With ``noise_std`` (per joint, N·m) this is the motor-babbling policy.
-    """
-    gain_p = jnp.asarray(gain_p, jnp.float32)
-    gain_d = jnp.asarray(gain_d, jnp.float32)
-
-    def policy(model, data, step, key):
-        del model
-        tau = gain_p * (step.ref_q - data.qpos) + gain_d * (step.ref_qd - data.qvel)
-        if noise_std is not None:
-            tau = tau + jnp.asarray(noise_std, jnp.float32) * jax.random.normal(key, tau.shape)
-        return tau
-
-    return policy
-
-
 class MixedPolicy(NamedTuple):
     """Parameters of :func:`mixed_policy`: one compiled rollout serves every policy.
 
-    ``tau = controller_weight * g(s, qdd*) + oracle_weight * tau_oracle
-    + K_p (q_ref - q) + K_d (qd_ref - qd) + noise_std * N(0, 1)``.
+    ``tau = controller_weight * g(s, s*) + oracle_weight * tau_oracle
+    + feedback_weight * tau_feedback + noise_std * N(0, 1)``, where ``tau_oracle`` and
+    ``tau_feedback`` are the task's oracle (for example MuJoCo's inverse dynamics) and its
+    PD-only feedback on the reference (for example ``K_p (q_ref - q) + K_d (qd_ref - qd)``).
 
     Attributes:
       controller_params, normaliser: the learned controller and its statistics.
-      controller_weight, oracle_weight: scalars (0 or 1).
-      gain_p, gain_d, noise_std: ``(nv,)``.
+      controller_weight, oracle_weight, feedback_weight: scalars (0 or 1).
+      noise_std: ``(action_dim,)``.
     """
 
     controller_params: Any
     normaliser: Any
     controller_weight: jax.Array
     oracle_weight: jax.Array
-    gain_p: jax.Array
-    gain_d: jax.Array
+    feedback_weight: jax.Array
     noise_std: jax.Array
 
     @classmethod
@@ -325,39 +346,36 @@ class MixedPolicy(NamedTuple):
         cls,
         controller_params,
         normaliser,
-        nv,
+        action_dim,
         controller=0.0,
         oracle=0.0,
-        gain_p=None,
-        gain_d=None,
+        feedback=0.0,
         noise_std=None,
     ) -> MixedPolicy:
-        zeros = jnp.zeros(nv, jnp.float32)
-        as_vector = lambda x: zeros if x is None else jnp.asarray(x, jnp.float32)  # noqa: E731
+        noise = jnp.zeros(action_dim, jnp.float32) if noise_std is None else noise_std
         return cls(
             controller_params,
             normaliser,
             jnp.float32(controller),
             jnp.float32(oracle),
-            as_vector(gain_p),
-            as_vector(gain_d),
-            as_vector(noise_std),
+            jnp.float32(feedback),
+            jnp.asarray(noise, jnp.float32),
         )
 
 
-def mixed_policy(robot, controller, parameters: MixedPolicy, simulator="native"):
-    """The policy of :class:`MixedPolicy` parameters (the oracle term is computed only when
-    ``oracle_weight`` is non-zero, by ``lax.cond``)."""
+def mixed_policy(task, controller, parameters: MixedPolicy, simulator="native"):
+    """The policy of :class:`MixedPolicy` parameters for a task (the oracle term is computed
+    only when ``oracle_weight`` is non-zero, by ``lax.cond``)."""
     learned = controller_policy(controller, parameters.controller_params, parameters.normaliser)
-    oracle = oracle_policy(robot, simulator)
-    pd = pd_policy(parameters.gain_p, parameters.gain_d, noise_std=parameters.noise_std)
+    oracle = task.oracle_policy(simulator)
 
-    def policy(model, data, step, key):
-        tau = parameters.controller_weight * learned(model, data, step, key)
-        tau = tau + pd(model, data, step, key)
+    def policy(step, key):
+        tau = parameters.controller_weight * learned(step, key)
+        tau = tau + parameters.feedback_weight * task.feedback(step)
+        tau = tau + parameters.noise_std * jax.random.normal(key, tau.shape)
         tau_oracle = jax.lax.cond(
             parameters.oracle_weight != 0,
-            lambda: oracle(model, data, step, key),
+            lambda: oracle(step, key),
             lambda: jnp.zeros_like(tau),
         )
         return tau + parameters.oracle_weight * tau_oracle
@@ -366,5 +384,6 @@ def mixed_policy(robot, controller, parameters: MixedPolicy, simulator="native")
 
 
 def tracking_mse(result: Rollout) -> jax.Array:
-    """Joint-position tracking MSE per target: mean over steps and joints, ``(targets,)``."""
-    return jnp.mean(jnp.square(result.position_error), axis=(-2, -1))
+    """Tracking MSE per target: mean over steps and components of the task's tracking
+    error, ``(targets,)``."""
+    return jnp.mean(jnp.square(result.tracking_error), axis=(-2, -1))

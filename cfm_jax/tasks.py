@@ -154,3 +154,115 @@ def rms_reach(reference: Reference) -> float:
 def as_jax(reference: Reference) -> Reference:
     """The same reference as float32 JAX arrays."""
     return Reference(*(jnp.asarray(x, jnp.float32) for x in reference))
+
+
+class JointSpaceTask:
+    """The joint-space tracking task (``inverse_dynamics``) as the learning loop sees it.
+
+    A *task* tells :func:`cfm_jax.rollout.run` and :mod:`cfm_jax.training` what the learning
+    problem is; every task has the same attributes and methods (this class documents them):
+
+    * ``state(qpos, qvel, features) -> s``: the learning state (here ``[q, qdot]``).
+    * ``desired(ref_t, qpos, qvel, features) -> s*``: the desired quantity the controller is
+      given (here ``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``).
+    * ``observed(step, qpos', qvel', features') -> y``: what the forward model predicts,
+      measured after the control step (here ``(qdot' - qdot) / control_dt``).
+      ``desired_index`` says which entries of ``y`` the desired quantity specifies (all here).
+    * ``features(qpos, qvel, sensordata) -> features``: further measurements carried in the
+      state (contact forces for legged robots; none here).
+    * ``tracking_error(ref_{t+1}, qpos', qvel', features')``: what the tracking MSE is
+      taken over (here ``q' - q_ref(t+1)``, rad), ``record(...)`` further per-step
+      records, ``metrics(rollout)`` further per-target metrics.
+    * ``start(reference) -> (qpos0, qvel0, features0)``: initial state of a rollout.
+    * ``feedback(step) -> tau``: the PD-only baseline (and babbling) feedback;
+      ``oracle_policy(simulator)``: the model-based oracle.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      reference: a :class:`Reference` (NumPy, ``(targets, steps + 1, nq)``).
+      kp, kd: gains of the PD correction in the desired acceleration.
+      control_dt: control period (a multiple of the robot's timestep).
+    """
+
+    name = "inverse_dynamics"
+    tracking_label = "joint tracking MSE (rad$^2$)"
+    metric_names: tuple[str, ...] = ()
+
+    def __init__(self, robot, reference: Reference, kp: float, kd: float, control_dt: float):
+        from cfm_jax import rollout
+
+        self.robot = robot
+        self.reference_np = reference
+        self.reference = as_jax(reference)
+        self.kp, self.kd, self.control_dt = float(kp), float(kd), float(control_dt)
+        gain_p, gain_d = rollout.pd_gains(robot, kp, kd, reference.q[0, 0])
+        self.gain_p = jnp.asarray(gain_p, jnp.float32)
+        self.gain_d = jnp.asarray(gain_d, jnp.float32)
+        nv = robot.nv
+        self.targets, self.steps = reference.q.shape[0], reference.steps
+        self.state_dim, self.desired_dim, self.output_dim = robot.nq + nv, nv, nv
+        self.action_dim, self.feature_dim = nv, 0
+        self.desired_index = tuple(range(nv))
+
+    @property
+    def tracking_scale(self) -> float:
+        """RMS reaching distance (rad), the scale of the tracking error."""
+        return rms_reach(self.reference_np)
+
+    def start(self, reference):
+        return (
+            reference.q[0],
+            jnp.zeros(self.robot.nv, jnp.float32),
+            jnp.zeros(0, jnp.float32),
+        )
+
+    def state(self, qpos, qvel, features):
+        del features
+        return jnp.concatenate([qpos, qvel])
+
+    def desired(self, ref_t, qpos, qvel, features):
+        del features
+        return desired_acceleration(ref_t.q, ref_t.qd, ref_t.qdd, qpos, qvel, self.kp, self.kd)
+
+    def features(self, qpos, qvel, sensors):
+        del qpos, qvel, sensors
+        return jnp.zeros(0, jnp.float32)
+
+    def observed(self, step, qpos_next, qvel_next, features_next):
+        del qpos_next, features_next
+        return (qvel_next - step.qvel) / self.control_dt
+
+    def tracking_error(self, ref_next, qpos_next, qvel_next, features_next):
+        del qvel_next, features_next
+        return qpos_next - ref_next.q
+
+    def record(self, step, tau, qpos_next, qvel_next, features_next):
+        return {}
+
+    def metrics(self, result) -> dict:
+        return {}
+
+    def feedback(self, step):
+        """``K_p (q_ref - q) + K_d (qd_ref - qd)`` with :func:`cfm_jax.rollout.pd_gains`."""
+        ref = step.reference
+        return self.gain_p * (ref.q - step.qpos) + self.gain_d * (ref.qd - step.qvel)
+
+    def oracle_policy(self, simulator: str):
+        """MuJoCo's inverse dynamics of the desired acceleration
+        (:func:`cfm_jax.rollout.oracle_policy`)."""
+        from cfm_jax import rollout
+
+        return rollout.oracle_policy(self.robot, simulator)
+
+
+def make(robot, task: TaskConfig, control_dt: float):
+    """The task object of a :class:`cfm_jax.config.TaskConfig` for a robot.
+
+    Raises:
+      ConfigError: the task does not fit the robot (the message says why).
+    """
+    if task.name == "inverse_dynamics":
+        return JointSpaceTask(
+            robot, reaching(robot, task, control_dt), task.kp, task.kd, control_dt
+        )
+    raise ConfigError(f"task.name={task.name!r} is not allowed: no such task")

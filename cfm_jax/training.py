@@ -87,25 +87,32 @@ class Experiment:
         task = config.task
         self.control_dt = task.control_dt if task.control_dt is not None else self.robot.timestep
         rollout.substeps(self.robot, self.control_dt)  # validates control_dt
-        self.reference_np = tasks.reaching(self.robot, task, self.control_dt)
-        self.reference = tasks.as_jax(self.reference_np)
-        nv, state_dim = self.robot.nv, self.robot.state_dim
+        self.task = tasks.make(self.robot, task, self.control_dt)
         fm = config.forward
         self.forward = networks.forward_model(
-            fm.hidden, fm.ensemble_size, nv, fm.min_log_variance, fm.max_log_variance
+            fm.hidden,
+            fm.ensemble_size,
+            self.task.output_dim,
+            fm.min_log_variance,
+            fm.max_log_variance,
+            action_dim=self.task.action_dim,
         )
-        self.controller = networks.controller(config.controller.hidden, nv)
+        self.controller = networks.controller(
+            config.controller.hidden, self.task.action_dim, self.task.desired_dim
+        )
         self.forward_optimizer = optax.adam(fm.learning_rate)
         self.controller_optimizer = optax.adam(config.controller.learning_rate)
-        self.state_dim = state_dim
-        targets, steps = self.reference_np.q.shape[0], self.reference_np.steps
-        self.transitions_per_rollout = targets * steps
+        self.state_dim = self.task.state_dim
+        self.transitions_per_rollout = self.task.targets * self.task.steps
         self.capacity = self.transitions_per_rollout * (
             config.loop.babbling_rollouts + config.loop.iterations
         )
-        home = self.reference_np.q[0, 0]
-        self.pd_gain_p, self.pd_gain_d = rollout.pd_gains(self.robot, task.kp, task.kd, home)
         self._compiled: dict = {}
+
+    @property
+    def metric_columns(self) -> tuple[str, ...]:
+        """Columns of the metrics table: :data:`METRIC_COLUMNS` and the task's metrics."""
+        return METRIC_COLUMNS + tuple(self.task.metric_names)
 
     def compatible(self, config: config_lib.Config) -> bool:
         """True when ``config`` differs from this experiment's at most in ``loss``."""
@@ -115,36 +122,36 @@ class Experiment:
 
     # ----- pure functions of one seed ---------------------------------------------------
 
+    def _normaliser_identity(self) -> networks.Normaliser:
+        task = self.task
+        return networks.Normaliser.identity(
+            task.state_dim, task.output_dim, self.robot.torque_limit, task.desired_index
+        )
+
     def _policy(self, **weights) -> rollout.MixedPolicy:
         dummy = self.controller.init(jax.random.key(0), self.state_dim)
-        norm = networks.Normaliser.identity(self.state_dim, self.robot.nv, self.robot.torque_limit)
-        return rollout.MixedPolicy.of(dummy, norm, self.robot.nv, **weights)
+        norm = self._normaliser_identity()
+        return rollout.MixedPolicy.of(dummy, norm, self.task.action_dim, **weights)
 
     def rollout_one(self, policy: rollout.MixedPolicy, key) -> rollout.Rollout:
         """Roll a :class:`cfm_jax.rollout.MixedPolicy` out on every target (one seed)."""
-        task = self.config.task
+        simulator = self.config.simulator
         return rollout.run(
-            self.robot,
-            rollout.mixed_policy(self.robot, self.controller, policy, self.config.simulator),
-            self.reference,
-            task.kp,
-            task.kd,
-            self.control_dt,
+            self.task,
+            rollout.mixed_policy(self.task, self.controller, policy, simulator),
             key,
-            simulator=self.config.simulator,
+            simulator=simulator,
         )
 
     def babbling_policy(self) -> rollout.MixedPolicy:
-        """PD-only tracking plus Gaussian torque noise (``loop.babbling_noise``)."""
+        """The task's PD-only feedback plus Gaussian torque noise (``loop.babbling_noise``)."""
         return self._policy(
-            gain_p=self.pd_gain_p,
-            gain_d=self.pd_gain_d,
-            noise_std=self.config.loop.babbling_noise * self.robot.torque_limit,
+            feedback=1.0, noise_std=self.config.loop.babbling_noise * self.robot.torque_limit
         )
 
     def learned_policy(self, state: TrainState) -> rollout.MixedPolicy:
         return rollout.MixedPolicy.of(
-            state.controller_params, state.normaliser, self.robot.nv, controller=1.0
+            state.controller_params, state.normaliser, self.task.action_dim, controller=1.0
         )
 
     def prepare_one(self, babbling: rollout.Rollout, key) -> tuple[TrainState, jax.Array]:
@@ -160,9 +167,13 @@ class Experiment:
         flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[3:]), babbling.transitions)
         valid = babbling.finite.reshape(-1)
         normaliser = networks.Normaliser.from_data(
-            flat.state, flat.observed, self.robot.torque_limit, weights=valid
+            flat.state,
+            flat.observed,
+            self.robot.torque_limit,
+            weights=valid,
+            desired_index=self.task.desired_index,
         )
-        data = dataset.add(dataset.empty(self.capacity, self.state_dim, self.robot.nv), flat, valid)
+        data = dataset.add(self.empty_dataset(), flat, valid)
         forward_params = self.forward.init(key_fm, self.state_dim)
         controller_params = self.controller.init(key_ctrl, self.state_dim)
         forward_opt_state = self.forward_optimizer.init(forward_params)
@@ -179,6 +190,13 @@ class Experiment:
         )
         state, _ = self._fit_forward(state, key_fit_fm, cfg.forward.initial_steps)
         return state, key_fit_ctrl
+
+    def empty_dataset(self) -> dataset.Dataset:
+        """An empty data set of this experiment's capacity and the task's sizes."""
+        task = self.task
+        return dataset.empty(
+            self.capacity, task.state_dim, task.desired_dim, task.action_dim, task.output_dim
+        )
 
     def fit_initial_controller_one(self, loss: str, state: TrainState, key) -> TrainState:
         """The controller's initial fit with ``loss`` on the babbling data (one seed)."""
@@ -223,25 +241,32 @@ class Experiment:
     def metrics_one(self, state: TrainState, result: rollout.Rollout) -> dict:
         """Per-target metrics of a rollout of the current models (before any refit).
 
-        * ``tracking_mse``: mean over steps and joints of ``(q - q_ref)^2`` (rad^2).
-        * ``prediction_error``: mean of ``(f(s, tau_run) - qdd_obs)^2`` ((rad/s^2)^2).
-        * ``predicted_task_error``: mean of ``(f(s, g(s, qdd*)) - qdd*)^2`` ((rad/s^2)^2).
+        * ``tracking_mse``: mean over steps and components of the task's tracking error
+          squared (joint-space task: ``(q - q_ref)^2``, rad^2).
+        * ``prediction_error``: mean of ``(f(s, tau_run) - y_obs)^2`` over the forward
+          model's outputs (joint-space task: accelerations, (rad/s^2)^2).
+        * ``predicted_task_error``: mean of ``(P f(s, g(s, s*)) - s*)^2`` over the desired
+          entries ``P``.
         * ``finite_fraction``: share of steps whose simulator state stayed finite.
+        * the task's own metrics (``task.metric_names``).
         """
         t = result.transitions
         norm = state.normaliser
-        predicted = norm.accel_inverse(
+        predicted = norm.output_inverse(
             networks.ensemble_mean(self.forward, state.forward_params, norm, t.state, t.action)
         )
         tau = self.controller.apply(state.controller_params, norm, t.state, t.desired)
-        predicted_task = norm.accel_inverse(
-            networks.ensemble_mean(self.forward, state.forward_params, norm, t.state, tau)
+        predicted_task = norm.select(
+            norm.output_inverse(
+                networks.ensemble_mean(self.forward, state.forward_params, norm, t.state, tau)
+            )
         )
         return {
             "tracking_mse": rollout.tracking_mse(result),
             "prediction_error": jnp.mean(jnp.square(predicted - t.observed), axis=(-2, -1)),
             "predicted_task_error": jnp.mean(jnp.square(predicted_task - t.desired), axis=(-2, -1)),
             "finite_fraction": jnp.mean(result.finite.astype(jnp.float32), axis=-1),
+            **self.task.metrics(result),
         }
 
     def iteration_one(self, loss: str, state: TrainState) -> tuple[TrainState, dict]:
@@ -328,7 +353,7 @@ class Experiment:
             return self._compiled["baselines"]
         policies = {
             "oracle": self._policy(oracle=1.0),
-            "pd_only": self._policy(gain_p=self.pd_gain_p, gain_d=self.pd_gain_d),
+            "pd_only": self._policy(feedback=1.0),
         }
         rows = []
         for name, policy in policies.items():
@@ -351,7 +376,8 @@ class TrainResult:
 
     Attributes:
       config: the config that was run.
-      metrics: one row per (seed, iteration, target), columns :data:`METRIC_COLUMNS`.
+      metrics: one row per (seed, iteration, target), columns :data:`METRIC_COLUMNS` and
+        the task's own metrics (``Experiment.metric_columns``).
         Iteration ``i`` is measured on the rollout of the controller after ``i`` refits
         (``0``: after babbling and the initial fit); ``forward_loss`` and
         ``controller_loss`` are the mean training losses of the refit that followed.
@@ -380,14 +406,14 @@ class TrainResult:
         return self.metrics[self.metrics.iteration == self.metrics.iteration.max()]
 
 
-def _rows(loss, seeds, iteration, metrics) -> list[dict]:
+def _rows(loss, seeds, iteration, metrics, columns=METRIC_COLUMNS) -> list[dict]:
     metrics = jax.tree.map(np.asarray, metrics)
     targets = metrics["tracking_mse"].shape[1]
     rows = []
     for s, seed in enumerate(seeds):
         for k in range(targets):
             row = {"loss": loss, "seed": seed, "iteration": iteration, "target": k}
-            for name in METRIC_COLUMNS[4:]:
+            for name in columns[4:]:
                 value = metrics[name][s]
                 row[name] = float(value[k] if np.ndim(value) else value)
             rows.append(row)
@@ -519,13 +545,13 @@ def train(
 
     def write_metrics():
         if out_dir:
-            frame = pd.DataFrame(rows, columns=list(METRIC_COLUMNS))
+            frame = pd.DataFrame(rows, columns=list(exp.metric_columns))
             tmp = os.path.join(out_dir, "metrics.csv.tmp")
             frame.to_csv(tmp, index=False)
             os.replace(tmp, os.path.join(out_dir, "metrics.csv"))
 
     def record(iteration, metrics):
-        rows.extend(_rows(config.loss, seeds, iteration, metrics))
+        rows.extend(_rows(config.loss, seeds, iteration, metrics, exp.metric_columns))
         write_metrics()
 
     last_saved = [None]
@@ -582,10 +608,10 @@ def train(
         baselines.to_csv(os.path.join(out_dir, "baselines.csv"), index=False)
     return TrainResult(
         config=config,
-        metrics=pd.DataFrame(rows, columns=list(METRIC_COLUMNS)),
+        metrics=pd.DataFrame(rows, columns=list(exp.metric_columns)),
         baselines=baselines,
         state=state,
-        rms_reach=tasks.rms_reach(exp.reference_np),
+        rms_reach=exp.task.tracking_scale,
         seconds=time.perf_counter() - start,
         compile_seconds=compile_seconds,
     )

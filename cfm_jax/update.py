@@ -32,7 +32,7 @@ def forward_objective(forward_params, forward, normaliser, batch: dataset.Transi
     mean, log_var = forward.apply(
         forward_params, normaliser, batch.state, batch.action, per_member=True
     )
-    nll = losses.gaussian_nll(mean, log_var, normaliser.accel(batch.observed))
+    nll = losses.gaussian_nll(mean, log_var, normaliser.output(batch.observed))
     bounds = jnp.sum(forward_params["max_log_variance"]) - jnp.sum(
         forward_params["min_log_variance"]
     )
@@ -45,11 +45,15 @@ def controller_objective(
     """Mean controller loss over a minibatch (normalised acceleration / torque units).
 
     * ``task``, ``joint``, ``distal``: through ``s_p = f(s, g(s, s*))`` (ensemble mean),
-      with ``s*`` the desired and ``s_a`` the observed acceleration of each transition.
-    * ``supervised``: ``|g(s, s_a) - tau_run|^2`` with torques divided by their limits.
+      with ``s*`` the desired and ``s_a`` the observed quantity of each transition (only
+      the entries ``normaliser.desired_index`` of ``s_p`` and ``s_a`` are compared with
+      ``s*``; see :func:`cfm_jax.losses.controller_loss`).
+    * ``supervised``: ``|g(s, P s_a) - tau_run|^2`` with torques divided by their limits
+      (``P s_a`` the observed values of the desired entries).
     """
     if loss == "supervised":
-        predicted = controller.apply(controller_params, normaliser, batch.state, batch.observed)
+        achieved = normaliser.select(batch.observed)
+        predicted = controller.apply(controller_params, normaliser, batch.state, achieved)
         scale = normaliser.torque_limit
         return jnp.mean(losses.supervised(predicted / scale, batch.action / scale))
     tau = controller.apply(controller_params, normaliser, batch.state, batch.desired)
@@ -57,8 +61,9 @@ def controller_objective(
     per_sample = losses.controller_loss(
         loss,
         predicted,
-        normaliser.accel(batch.desired),
-        normaliser.accel(batch.observed),
+        normaliser.desired(batch.desired),
+        normaliser.output(batch.observed),
+        select=None if normaliser.desired_index is None else normaliser.select,
     )
     return jnp.mean(per_sample)
 

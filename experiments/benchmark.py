@@ -65,23 +65,22 @@ def rollout_rows(robot_name: str, batches, repeats: int) -> list[dict]:
     controller = networks.controller((300, 200, 100), robot.nv)
     params = controller.init(jax.random.key(0), robot.state_dim)
     norm = networks.Normaliser.identity(robot.state_dim, robot.nv, robot.torque_limit)
-    gain_p, gain_d = rollout.pd_gains(robot, 100.0, 20.0, robot.home)
     # A freshly initialised controller plus PD feedback: realistic torques that move the
     # arm along the references (and near, sometimes onto, the joint limits).
-    policy_params = rollout.MixedPolicy.of(
-        params, norm, robot.nv, controller=1.0, gain_p=gain_p, gain_d=gain_d
-    )
+    policy_params = rollout.MixedPolicy.of(params, norm, robot.nv, controller=1.0, feedback=1.0)
     rows = []
     for batch in batches:
-        ref = tasks.as_jax(reference_batch(robot, batch, duration, control_dt))
-        steps = ref.q.shape[1] - 1
+        task = tasks.JointSpaceTask(
+            robot, reference_batch(robot, batch, duration, control_dt), 100.0, 20.0, control_dt
+        )
+        steps = task.steps
         physics_steps = batch * steps * n_sub
         applied = None
         for simulator in rollout.SIMULATORS:
-            policy = rollout.mixed_policy(robot, controller, policy_params, simulator)
+            policy = rollout.mixed_policy(task, controller, policy_params, simulator)
             fn = jax.jit(
-                lambda key, policy=policy, simulator=simulator, ref=ref: rollout.run(
-                    robot, policy, ref, 100.0, 20.0, control_dt, key, simulator=simulator
+                lambda key, policy=policy, simulator=simulator, task=task: rollout.run(
+                    task, policy, key, simulator=simulator
                 )
             )
             start = time.perf_counter()

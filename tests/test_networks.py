@@ -153,8 +153,8 @@ def test_normaliser_from_data_with_weights_equals_numpy_of_unmasked_rows():
     expected_std = np.maximum(kept_s.std(0), 1e-3)
     np.testing.assert_allclose(np.asarray(norm.state_std), expected_std, rtol=1e-5)
     assert float(norm.state_std[3]) == pytest.approx(1e-3)
-    np.testing.assert_allclose(np.asarray(norm.accel_mean), kept_a.mean(0), rtol=1e-5)
-    np.testing.assert_allclose(np.asarray(norm.accel_std), kept_a.std(0), rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(norm.output_mean), kept_a.mean(0), rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(norm.output_std), kept_a.std(0), rtol=1e-5)
     np.testing.assert_array_equal(np.asarray(norm.torque_limit), np.asarray(LIMIT))
 
 
@@ -166,10 +166,10 @@ def test_normaliser_from_data_without_weights_and_roundtrip():
     np.testing.assert_allclose(
         np.asarray(norm.state_mean), states.mean(0), rtol=1e-5, atol=1e-6
     )  # float32, values ~1: atol for means near 0
-    np.testing.assert_allclose(np.asarray(norm.accel_std), accel.std(0), rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(norm.output_std), accel.std(0), rtol=1e-5)
     x = jnp.asarray(accel, jnp.float32)
-    # accel_inverse(accel(x)) = x up to float32 rounding of values ~5: atol 1e-5
-    np.testing.assert_allclose(np.asarray(norm.accel_inverse(norm.accel(x))), accel, atol=1e-5)
-    z = np.asarray(norm.accel(x))
+    # output_inverse(output(x)) = x up to float32 rounding of values ~5: atol 1e-5
+    np.testing.assert_allclose(np.asarray(norm.output_inverse(norm.output(x))), accel, atol=1e-5)
+    z = np.asarray(norm.output(x))
     np.testing.assert_allclose(z.mean(0), 0.0, atol=1e-5)
     np.testing.assert_allclose(z.std(0), 1.0, rtol=1e-5)

@@ -24,18 +24,14 @@ CONTROL_DT = 0.01  # 5 physics steps of 0.002 s per control step
 
 
 def open_loop_policy(torques, control_dt, gain_p=0.0, gain_d=0.0):
-    """tau_t = torques[t] (+ optional PD feedback on the reference); t from data.time.
+    """tau_t = torques[t] (+ optional PD feedback on the reference)."""
+    del control_dt
 
-    data.time is a float32 sum of 0.002 s steps; round(time / control_dt) is the control
-    step index as long as the accumulated error stays below half a control period (it is
-    ~1e-7 s here).
-    """
-
-    def policy(model, data, step, key):
-        del model, key
-        index = jnp.round(data.time / control_dt).astype(jnp.int32)
-        feedback = gain_p * (step.ref_q - data.qpos) + gain_d * (step.ref_qd - data.qvel)
-        return torques[index] + feedback
+    def policy(step, key):
+        del key
+        ref = step.reference
+        feedback = gain_p * (ref.q - step.qpos) + gain_d * (ref.qd - step.qvel)
+        return torques[step.t] + feedback
 
     return policy
 
@@ -88,19 +84,15 @@ def test_iiwa_rollout_matches_mujoco_c(iiwa, simulator):
     )
     out = jax.jit(
         lambda tq: rollout.run(
-            iiwa,
+            tasks.JointSpaceTask(iiwa, ref, kp=0.0, kd=0.0, control_dt=CONTROL_DT),
             open_loop_policy(tq, CONTROL_DT),
-            tasks.as_jax(ref),
-            kp=0.0,
-            kd=0.0,
-            control_dt=CONTROL_DT,
             key=jax.random.key(0),
             simulator=simulator,
         )
     )(jnp.asarray(torques, jnp.float32))
     q_c, qd_c, constraints = c_rollout(iiwa, iiwa.home, torques.astype(np.float32), CONTROL_DT)
     assert constraints == 0  # no joint limit became active: a clean comparison
-    q_mjx = np.asarray(out.position_error[0]) + ref.q[0, 1:]
+    q_mjx = np.asarray(out.tracking_error[0]) + ref.q[0, 1:]
     # The executed torques are the requested ones (inside the limits).
     np.testing.assert_allclose(np.asarray(out.transitions.action[0]), torques, rtol=1e-6)
     # The arm really moves (otherwise the comparison is vacuous).
@@ -144,12 +136,8 @@ def arm_case(arm, request):
             torques, CONTROL_DT, jnp.asarray(gain_p, jnp.float32), jnp.asarray(gain_d, jnp.float32)
         )
         return rollout.run(
-            arm,
+            tasks.JointSpaceTask(arm, ref, kp=100.0, kd=20.0, control_dt=CONTROL_DT),
             policy,
-            tasks.as_jax(ref),
-            kp=100.0,
-            kd=20.0,
-            control_dt=CONTROL_DT,
             key=key,
             simulator=request.param,
         )
@@ -201,7 +189,7 @@ def test_scan_rollout_matches_python_loop(arm, arm_case):
     ref, torques = arm_case["ref"], arm_case["torques"]
     out = arm_case["run"](jnp.asarray(torques), jax.random.key(0))
     assert out.transitions.state.shape == (1, ARM_STEPS, 4)
-    assert out.position_error.shape == (1, ARM_STEPS, 2)
+    assert out.tracking_error.shape == (1, ARM_STEPS, 2)
 
     # Plain Python loop: same policy, same clipping, same n_sub = 5 physics steps.
     physics = python_loop_physics(arm, arm_case["simulator"])
@@ -233,7 +221,7 @@ def test_scan_rollout_matches_python_loop(arm, arm_case):
     np.testing.assert_allclose(np.asarray(out.transitions.action[0]), actions, atol=1e-4)
     np.testing.assert_allclose(np.asarray(out.transitions.desired[0]), desired, atol=3e-4)
     np.testing.assert_allclose(np.asarray(out.transitions.observed[0]), observed, atol=4e-4)
-    np.testing.assert_allclose(np.asarray(out.position_error[0]), errors, atol=2e-6)
+    np.testing.assert_allclose(np.asarray(out.tracking_error[0]), errors, atol=2e-6)
     assert bool(np.all(np.asarray(out.finite)))
     # tracking_mse is the mean square of the position errors
     np.testing.assert_allclose(
@@ -266,12 +254,8 @@ def test_oracle_policy_realises_desired_acceleration(arm, simulator):
     ref = tasks.quintic(arm.home, arm.home + np.array([0.05, -0.05]), duration=0.1, control_dt=dt)
     out = jax.jit(
         lambda: rollout.run(
-            arm,
+            tasks.JointSpaceTask(arm, ref, kp=0.0, kd=0.0, control_dt=dt),
             rollout.oracle_policy(arm, simulator),
-            tasks.as_jax(ref),
-            kp=0.0,
-            kd=0.0,
-            control_dt=dt,
             key=jax.random.key(0),
             simulator=simulator,
         )
@@ -292,12 +276,12 @@ def test_oracle_policy_realises_desired_acceleration(arm, simulator):
         qd = qd + dt * ref.qdd[0, t]
         q = q + dt * qd
         expected.append(q)
-    q_mjx = np.asarray(out.position_error[0], np.float64) + ref.q[0, 1:]
+    q_mjx = np.asarray(out.tracking_error[0], np.float64) + ref.q[0, 1:]
     # float32 positions ~1 rad: 50 rounded increments, 50 * 1.2e-7 = 6e-6; allow 1e-5.
     np.testing.assert_allclose(q_mjx, expected, atol=1e-5)
     # And against the closed form of the reference the only error is the Euler
     # discretisation, O(h * reach) = 0.002 * 0.05 * 15/8 / 0.1 ~ 2e-4 rad: tiny.
-    assert np.max(np.abs(np.asarray(out.position_error[0]))) < 3e-4
+    assert np.max(np.abs(np.asarray(out.tracking_error[0]))) < 3e-4
 
 
 # ---- (e) control_dt must be a multiple of the timestep ---------------------------------------

@@ -81,7 +81,7 @@ def test_controller_gradient_matches_hand_built_chain_rule(setup, loss):
         return jnp.mean(mean, axis=0)
 
     s_p, vjp = jax.vjp(predicted, cp)
-    s_d, s_a = norm.accel(batch.desired), norm.accel(batch.observed)
+    s_d, s_a = norm.desired(batch.desired), norm.output(batch.observed)
     dl_dsp = {
         "task": 2 * (s_p - s_d),
         "joint": 2 * (2 * s_p - s_d - s_a),
@@ -218,7 +218,7 @@ def test_fit_forward_learns_linear_map(setup):
     s32, t32 = jnp.asarray(test_s, jnp.float32), jnp.asarray(test_tau, jnp.float32)
 
     def rmse(params):
-        pred = norm.accel_inverse(networks.ensemble_mean(fm, params, norm, s32, t32))
+        pred = norm.output_inverse(networks.ensemble_mean(fm, params, norm, s32, t32))
         return np.sqrt(np.mean(np.square(np.asarray(pred) - test_qdd), axis=0))
 
     # objective on a fixed per-member batch of the whole data set
