@@ -16,10 +16,13 @@ Example:
 
 from __future__ import annotations
 
+import json
+import os
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 
@@ -104,3 +107,87 @@ def filled(dataset: Dataset) -> Transitions:
     """The filled rows as a host-side view (not jittable: the size is data-dependent)."""
     n = int(dataset.size)
     return jax.tree.map(lambda x: x[:n], dataset.data)
+
+
+class Recorded(NamedTuple):
+    """The data sets a run collected, one per seed, in the order they were collected: a
+    result of its own (:func:`save`, :func:`load`; ``dataset.npz`` of every run with an
+    output directory), and the input of a replay (``cfm_jax.train(config, data=...)``).
+
+    Attributes:
+      transitions: :class:`Transitions`, leaves ``(seeds, rows, ...)``; row ``i`` of seed
+        ``k`` is valid for ``i < size[k]``.
+      size: ``(seeds,)`` filled rows per seed.
+      segments: ``(seeds, 1 + iterations)`` rows added by motor babbling and then by each
+        iteration's rollout (their sum is ``size``).
+      seeds: the seeds of the run, ``(seeds,)``.
+      config: the run's config as a dict (:func:`cfm_jax.config.to_dict`).
+    """
+
+    transitions: Transitions
+    size: np.ndarray
+    segments: np.ndarray
+    seeds: np.ndarray
+    config: dict
+
+    @property
+    def iterations(self) -> int:
+        return self.segments.shape[1] - 1
+
+    def chunk(self, segment: int, rows: int) -> tuple[Transitions, np.ndarray]:
+        """Segment ``segment`` (0: babbling, ``i``: iteration ``i``) of every seed, padded to
+        ``rows`` rows: ``(transitions (seeds, rows, ...), valid (seeds, rows))``."""
+        seeds = self.size.shape[0]
+        start = np.concatenate([np.zeros((seeds, 1), np.int64), np.cumsum(self.segments, 1)], 1)
+        out = [np.zeros((seeds, rows) + x.shape[2:], np.float32) for x in self.transitions]
+        valid = np.zeros((seeds, rows), bool)
+        for k in range(seeds):
+            n = int(self.segments[k, segment])
+            if n > rows:
+                raise ValueError(f"segment {segment} of seed {k} has {n} rows, more than {rows}")
+            lo = int(start[k, segment])
+            for buffer, x in zip(out, self.transitions, strict=True):
+                buffer[k, :n] = x[k, lo : lo + n]
+            valid[k, :n] = True
+        return Transitions(*out), valid
+
+
+def save(path: str, data: Dataset, segments, seeds, config: dict) -> None:
+    """Write the filled rows of a seed-batched :class:`Dataset` (leaves ``(seeds, ...)``) and
+    its segments to ``path`` (NumPy ``.npz``, written atomically)."""
+    size = np.asarray(data.size)
+    if not np.all(np.asarray(segments).sum(axis=1) == size):
+        raise ValueError(f"segments {np.asarray(segments).tolist()} do not add up to {size}")
+    rows = int(size.max())
+    arrays = {name: np.asarray(x)[:, :rows] for name, x in data.data._asdict().items()}
+    tmp = path + ".tmp.npz"
+    np.savez_compressed(
+        tmp,
+        size=size,
+        segments=np.asarray(segments, np.int64),
+        seeds=np.asarray(seeds, np.int64),
+        config=np.frombuffer(json.dumps(config).encode(), np.uint8),
+        **arrays,
+    )
+    os.replace(tmp, path)
+
+
+def load(path: str) -> Recorded:
+    """Read a data set written by :func:`save`.
+
+    Raises:
+      FileNotFoundError: no such file. ValueError: the file is not a cfm_jax data set.
+    """
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"data={path!r}: no such file (a run writes OUT/dataset.npz)")
+    with np.load(path) as f:
+        missing = {"size", "segments", "seeds", "config", *Transitions._fields} - set(f.files)
+        if missing:
+            raise ValueError(f"data={path!r} is not a cfm_jax data set: no {sorted(missing)}")
+        return Recorded(
+            Transitions(*(f[name] for name in Transitions._fields)),
+            f["size"],
+            f["segments"],
+            f["seeds"],
+            json.loads(bytes(f["config"]).decode()),
+        )

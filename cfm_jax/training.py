@@ -162,10 +162,16 @@ class Experiment:
         controller's initial fit. Every loss of an experiment starts from the same prepared
         state, so losses are compared on the same data and the same initial forward model.
         """
+        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[3:]), babbling.transitions)
+        return self.prepare_from_data_one(flat, babbling.finite.reshape(-1), key)
+
+    def prepare_from_data_one(
+        self, flat: dataset.Transitions, valid, key
+    ) -> tuple[TrainState, jax.Array]:
+        """:meth:`prepare_one` from given transitions ``(n, ...)`` and their ``valid`` mask
+        instead of babbling rollouts (the start of :meth:`replay`)."""
         cfg = self.config
         key, key_fm, key_ctrl, key_fit_fm, key_fit_ctrl = jax.random.split(key, 5)
-        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[3:]), babbling.transitions)
-        valid = babbling.finite.reshape(-1)
         normaliser = networks.Normaliser.from_data(
             flat.state,
             flat.observed,
@@ -287,6 +293,26 @@ class Experiment:
         new_state = state.replace(key=key, iteration=state.iteration + 1)
         return new_state, metrics
 
+    def replay_iteration_one(
+        self, loss: str, state: TrainState, chunk: dataset.Transitions, valid
+    ) -> tuple[TrainState, dict]:
+        """:meth:`iteration_one` with the data given instead of collected: roll the current
+        controller out (for the metrics only), add ``chunk`` (rows with ``valid``), refit f
+        and g. Given the chunk a run collected in this iteration, with the same seed and
+        loss, this is that run's iteration exactly (the rollout is the same rollout)."""
+        cfg = self.config
+        key, key_rollout, key_fit_fm, key_fit_ctrl = jax.random.split(state.key, 4)
+        result = self.rollout_one(self.learned_policy(state), key_rollout)
+        metrics = self.metrics_one(state, result)
+        state = state.replace(data=dataset.add(state.data, chunk, valid))
+        state, forward_loss = self._fit_forward(state, key_fit_fm, cfg.forward.steps_per_iteration)
+        state, controller_loss = self._fit_controller(
+            loss, state, key_fit_ctrl, cfg.controller.steps_per_iteration
+        )
+        metrics["forward_loss"] = forward_loss
+        metrics["controller_loss"] = controller_loss
+        return state.replace(key=key, iteration=state.iteration + 1), metrics
+
     def evaluate_one(self, state: TrainState, result: rollout.Rollout) -> dict:
         metrics = self.metrics_one(state, result)
         metrics["forward_loss"] = jnp.float32(jnp.nan)
@@ -333,6 +359,21 @@ class Experiment:
         flat_keys = jax.vmap(lambda k: jax.random.split(k, count))(keys).reshape(-1)
         result = self.rollout(policy, flat_keys)
         return jax.tree.map(lambda x: x.reshape((seeds, count) + x.shape[1:]), result)
+
+    def init_from_data(self, loss: str, keys, chunk: dataset.Transitions, valid) -> TrainState:
+        """:meth:`init` with the babbling data given (``chunk`` and ``valid`` with a leading
+        seed axis) instead of collected; the keys are used exactly as :meth:`init` uses
+        them, so the same data and seed give the same state."""
+        key_fit = jax.vmap(lambda k: jax.random.split(k, 2)[1])(keys)
+        prepare = self._jit("prepare_from_data", jax.vmap(self.prepare_from_data_one))
+        prepared, key_ctrl = prepare(chunk, valid, key_fit)
+        fit = self._jit(f"init/{loss}", jax.vmap(partial(self.fit_initial_controller_one, loss)))
+        return fit(prepared, key_ctrl)
+
+    def replay_iteration(self, loss: str, state: TrainState, chunk, valid):
+        """:meth:`replay_iteration_one` for every seed (leading seed axes)."""
+        fn = jax.vmap(partial(self.replay_iteration_one, loss))
+        return self._jit(f"replay/{loss}", fn)(state, chunk, valid)
 
     def iteration(self, loss: str, state: TrainState):
         """``(state, metrics)`` after one iteration of Algorithm 1 for every seed."""
@@ -481,6 +522,7 @@ def train(
     out_dir: str | None = None,
     experiment: Experiment | None = None,
     resume: str | None = None,
+    data: str | dataset.Recorded | None = None,
 ) -> TrainResult:
     """Run Algorithm 1 for every seed of ``config`` (seeds as a vmap axis).
 
@@ -501,6 +543,13 @@ def train(
       resume: the ``out_dir`` of an interrupted run of the same config: continue from its
         newest valid checkpoint (results go to ``out_dir``, default ``resume``). The
         metrics equal those of an uninterrupted run bit for bit.
+      data: replay a recorded data set (a path to a run's ``dataset.npz`` or a
+        :class:`cfm_jax.dataset.Recorded`) instead of collecting data: f and g are
+        trained from scratch with ``config.loss`` on the recorded babbling data, then each
+        iteration adds the rows the recorded run collected in that iteration (its seed
+        ``k`` for run ``k``) and refits f and g. The controller is still rolled out on
+        the robot every iteration, for the metrics only. With the run's own data, seed
+        and loss this reproduces the run exactly.
 
     Returns:
       A :class:`TrainResult`.
@@ -532,6 +581,7 @@ def train(
             )
     exp = experiment if experiment is not None else Experiment(config)
     seeds = config_lib.seeds_of(config)
+    recorded = None if data is None else _recorded_for(exp, data)
     checkpointer = None
     if out_dir:
         os.makedirs(out_dir, exist_ok=True)
@@ -574,7 +624,11 @@ def train(
         total = config.loop.iterations + 2
         task = bar.add_task(f"{config.robot} {config.loss}: babbling + initial fit", total=total)
         keys = jax.vmap(jax.random.key)(jnp.asarray(seeds, jnp.uint32))
-        state = exp.init(config.loss, keys)
+        if recorded is None:
+            state = exp.init(config.loss, keys)
+        else:
+            babbling_rows = config.loop.babbling_rollouts * exp.transitions_per_rollout
+            state = exp.init_from_data(config.loss, keys, *recorded.chunk(0, babbling_rows))
         jax.block_until_ready(state)
         first = 0
         if resume is not None and checkpointer is not None:
@@ -588,7 +642,11 @@ def train(
         for i in range(first, config.loop.iterations):
             bar.update(task, description=f"{config.robot} {config.loss}: iteration {i + 1}")
             t0 = time.perf_counter()
-            state, metrics = exp.iteration(config.loss, state)
+            if recorded is None:
+                state, metrics = exp.iteration(config.loss, state)
+            else:
+                chunk = recorded.chunk(i + 1, exp.transitions_per_rollout)
+                state, metrics = exp.replay_iteration(config.loss, state, *chunk)
             metrics = jax.device_get(metrics)
             if i == first:
                 compile_seconds = time.perf_counter() - t0
@@ -606,6 +664,13 @@ def train(
         checkpointer.close()
     if out_dir:
         baselines.to_csv(os.path.join(out_dir, "baselines.csv"), index=False)
+        dataset.save(
+            os.path.join(out_dir, "dataset.npz"),
+            state.data,
+            _segments(exp, state, rows, recorded),
+            seeds,
+            _jsonable(config),
+        )
     return TrainResult(
         config=config,
         metrics=pd.DataFrame(rows, columns=list(exp.metric_columns)),
@@ -615,6 +680,75 @@ def train(
         seconds=time.perf_counter() - start,
         compile_seconds=compile_seconds,
     )
+
+
+def _segments(exp: Experiment, state: TrainState, rows: list[dict], recorded) -> np.ndarray:
+    """Rows added to each seed's data set by babbling and by each iteration,
+    ``(seeds, 1 + iterations)``: an iteration adds its rollout's finite steps (from the
+    ``finite_fraction`` metric), or in a replay the recorded segment; babbling the rest."""
+    iterations = exp.config.loop.iterations
+    size = np.asarray(state.data.size)
+    if recorded is not None:
+        added = np.asarray(recorded.segments[:, 1 : iterations + 1])
+    else:
+        frame = pd.DataFrame(rows)
+        frame = frame[frame.iteration < iterations]
+        steps = frame.finite_fraction * exp.task.steps
+        frame = frame.assign(added=np.round(steps).astype(np.int64))
+        table = frame.pivot_table(index="seed", columns="iteration", values="added", aggfunc="sum")
+        added = table.reindex(columns=range(iterations)).to_numpy(np.int64)
+        added = added.reshape(size.shape[0], iterations)
+    return np.concatenate([(size - added.sum(1))[:, None], added], axis=1)
+
+
+def _recorded_for(exp: Experiment, data) -> dataset.Recorded:
+    """Load ``data`` and check that it can be replayed by this experiment's config."""
+    recorded = dataset.load(data) if isinstance(data, str | os.PathLike) else data
+    config = exp.config
+    seeds = len(recorded.seeds)
+    where = f"data={data!r}" if isinstance(data, str | os.PathLike) else "data"
+    if seeds != config.loop.seeds:
+        raise config_lib.ConfigError(
+            f"loop.seeds={config.loop.seeds} is not allowed with {where}: it holds the data "
+            f"sets of {seeds} seeds {recorded.seeds.tolist()}; set loop.seeds={seeds}"
+        )
+    if config.loop.iterations > recorded.iterations:
+        raise config_lib.ConfigError(
+            f"loop.iterations={config.loop.iterations} is not allowed with {where}: it holds "
+            f"the data of {recorded.iterations} iterations; at most {recorded.iterations}"
+        )
+    task = exp.task
+    dims = dict(
+        state=task.state_dim,
+        desired=task.desired_dim,
+        action=task.action_dim,
+        observed=task.output_dim,
+    )
+    for name, dim in dims.items():
+        got = getattr(recorded.transitions, name).shape[-1]
+        if got != dim:
+            raise config_lib.ConfigError(
+                f"{where} does not fit robot={config.robot!r}, task.name={task.name!r}: its "
+                f"{name} has {got} entries per row, this task {dim} (the recorded run was "
+                f"robot={recorded.config.get('robot')!r}, task "
+                f"{recorded.config.get('task', {}).get('name')!r})"
+            )
+    babbling_rows = config.loop.babbling_rollouts * exp.transitions_per_rollout
+    most = int(recorded.segments[:, 0].max())
+    if most > babbling_rows:
+        raise config_lib.ConfigError(
+            f"loop.babbling_rollouts={config.loop.babbling_rollouts} is not allowed with "
+            f"{where}: its babbling data has {most} rows, more than {babbling_rows}; use the "
+            "recorded run's babbling_rollouts"
+        )
+    per_iteration = int(recorded.segments[:, 1:].max(initial=0))
+    if per_iteration > exp.transitions_per_rollout:
+        raise config_lib.ConfigError(
+            f"{where} does not fit this task: an iteration added {per_iteration} rows, one "
+            f"rollout of this task has {exp.transitions_per_rollout}; use the recorded "
+            "run's task settings (targets, duration, control_dt)"
+        )
+    return recorded
 
 
 def _restore(checkpointer, template: TrainState):

@@ -1,0 +1,106 @@
+"""Recorded data sets and replays (cfm_jax/dataset.py ``save``/``load``/``Recorded``,
+``cfm_jax.train(config, data=...)``).
+
+Oracle: the run that recorded the data. Replaying a run's own data set with the same
+config, seed and loss must give that run's metrics and final controller bit for bit (the
+replay's evaluation rollout is the very rollout the run collected); the recorded segments
+must be the rows each phase added, counted independently from the rollouts' finite flags.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from tiny import tiny_config
+
+import cfm_jax
+from cfm_jax import dataset, training
+from cfm_jax.config import ConfigError
+
+TINY = tiny_config()
+
+
+@pytest.fixture(scope="module")
+def experiment():
+    return training.Experiment(TINY)
+
+
+@pytest.fixture(scope="module")
+def recorded_run(tmp_path_factory, experiment):
+    out = tmp_path_factory.mktemp("recorded")
+    result = cfm_jax.train(TINY, progress=False, out_dir=str(out), experiment=experiment)
+    return result, out / "dataset.npz"
+
+
+def test_saved_data_set_holds_the_run_in_collection_order(recorded_run, experiment):
+    result, path = recorded_run
+    recorded = dataset.load(str(path))
+    size = np.asarray(result.state.data.size)
+    np.testing.assert_array_equal(recorded.size, size)
+    np.testing.assert_array_equal(recorded.seeds, [0, 1])
+    assert recorded.iterations == TINY.loop.iterations
+    # Every rollout of the tiny run stays finite: babbling adds babbling_rollouts rollouts,
+    # every iteration one rollout of every target.
+    per_rollout = experiment.transitions_per_rollout
+    expected = [[TINY.loop.babbling_rollouts * per_rollout] + [per_rollout] * 2] * 2
+    np.testing.assert_array_equal(recorded.segments, expected)
+    for name in ("state", "desired", "action", "observed"):
+        np.testing.assert_array_equal(
+            getattr(recorded.transitions, name),
+            np.asarray(getattr(result.state.data.data, name))[:, : size.max()],
+        )
+    chunk, valid = recorded.chunk(2, per_rollout + 3)  # the second iteration, padded
+    assert valid.shape == (2, per_rollout + 3) and valid[:, :per_rollout].all()
+    assert not valid[:, per_rollout:].any()
+    start = expected[0][0] + per_rollout
+    np.testing.assert_array_equal(
+        chunk.action[:, :per_rollout], recorded.transitions.action[:, start : start + per_rollout]
+    )
+
+
+def test_replaying_own_data_reproduces_the_run_exactly(recorded_run, experiment):
+    result, path = recorded_run
+    replay = cfm_jax.train(TINY, progress=False, data=str(path), experiment=experiment)
+    pd.testing.assert_frame_equal(replay.metrics, result.metrics, check_exact=True)
+    for got, want in zip(
+        jax_leaves(replay.params["controller"]),
+        jax_leaves(result.params["controller"]),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_replay_with_another_loss_trains_on_the_same_data(recorded_run, experiment, tmp_path):
+    result, path = recorded_run
+    other = cfm_jax.train(
+        TINY.replace(loss="task"), progress=False, data=str(path), experiment=experiment,
+        out_dir=str(tmp_path / "swap"),
+    )  # fmt: skip
+    # The data set it ends with is the recorded one (no rollout was added) ...
+    ended = dataset.load(str(tmp_path / "swap" / "dataset.npz"))
+    recorded = dataset.load(str(path))
+    np.testing.assert_array_equal(ended.transitions.observed, recorded.transitions.observed)
+    np.testing.assert_array_equal(ended.segments, recorded.segments)
+    # ... but the controller differs: it was trained with the task loss.
+    assert not np.array_equal(
+        other.metrics.tracking_mse.to_numpy(), result.metrics.tracking_mse.to_numpy()
+    )
+
+
+def test_replay_rejects_data_that_does_not_fit(recorded_run):
+    _, path = recorded_run
+    with pytest.raises(ConfigError, match=r"loop.seeds=1 .* holds the data sets of 2 seeds"):
+        cfm_jax.train(tiny_config(seeds=1), progress=False, data=str(path))
+    with pytest.raises(ConfigError, match=r"loop.iterations=3 .* at most 2"):
+        cfm_jax.train(tiny_config(iterations=3), progress=False, data=str(path))
+    with pytest.raises(ConfigError, match=r"state has 4 entries per row, this task 14"):
+        cfm_jax.train(TINY.replace(robot="iiwa14"), progress=False, data=str(path))
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        dataset.load(str(path) + ".missing")
+
+
+def jax_leaves(tree):
+    import jax
+
+    return [np.asarray(x) for x in jax.tree.leaves(tree)]
