@@ -1,0 +1,179 @@
+"""The data-set swap study (paper section IV-A-3, Fig. 3c): is the joint loss better only
+because it collects better data?
+
+1. Collect: run Algorithm 1 on the iiwa inverse-dynamics task with the task loss and with
+   the joint loss (``--seeds`` seeds, ``--iterations`` iterations); each run writes its data
+   set (``dataset.npz``).
+2. Swap: retrain f and g from scratch on each recorded data set with each of the two losses
+   (``cfm_jax.train(config, data=...)``: the recorded data is revealed iteration by
+   iteration as it was collected, no new data enters; the controller is evaluated on the
+   robot every iteration). Seed ``k`` of a retrain uses the data of seed ``k``.
+3. Report: the 2 x 2 table of final tracking MSE (mean and std over seeds x targets) and a
+   figure of the tracking MSE per iteration (mean and std), one panel per data set.
+
+Finished runs are skipped when the script is started again (each run's ``metrics.csv``
+and ``dataset.npz`` mark it done), so an interrupted study resumes.
+
+Usage:
+  python experiments/swap_study.py --out results/swap            # 3 seeds x 10 iterations
+  python experiments/swap_study.py --out /tmp/swap --quick       # tiny, for a smoke test
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+import matplotlib
+import numpy as np
+import pandas as pd
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+import cfm_jax  # noqa: E402
+from cfm_jax import config as config_lib  # noqa: E402
+from cfm_jax import training  # noqa: E402
+
+LOSSES = ("task", "joint")
+
+
+def base_config(seeds: int, iterations: int, quick: bool) -> config_lib.Config:
+    if quick:
+        return config_lib.Config(
+            robot="two_link_arm",
+            task=config_lib.TaskConfig(duration=0.3),
+            forward=config_lib.ForwardModelConfig(
+                hidden=(16,),
+                ensemble_size=2,
+                initial_steps=20,
+                steps_per_iteration=10,
+                batch_size=32,
+            ),  # fmt: skip
+            controller=config_lib.ControllerConfig(
+                hidden=(16,), initial_steps=20, steps_per_iteration=10, batch_size=32
+            ),
+            loop=config_lib.LoopConfig(iterations=iterations, seeds=seeds, babbling_rollouts=1),
+        )
+    return config_lib.Config(
+        robot="iiwa14", loop=config_lib.LoopConfig(iterations=iterations, seeds=seeds)
+    )
+
+
+def done(run_dir: str, config: config_lib.Config) -> bool:
+    """A finished run of this config: its dataset.npz exists and metrics.csv has the final
+    evaluation of every seed."""
+    try:
+        with open(os.path.join(run_dir, "config.json")) as f:
+            same = json.load(f) == json.loads(json.dumps(config_lib.to_dict(config)))
+        metrics = pd.read_csv(os.path.join(run_dir, "metrics.csv"))
+    except (FileNotFoundError, json.JSONDecodeError, pd.errors.EmptyDataError):
+        return False
+    final = metrics[metrics.iteration == config.loop.iterations]
+    return (
+        same
+        and os.path.isfile(os.path.join(run_dir, "dataset.npz"))
+        and final.seed.nunique() == config.loop.seeds
+    )
+
+
+def run(out: str, seeds: int, iterations: int, quick: bool, progress: bool) -> pd.DataFrame:
+    base = base_config(seeds, iterations, quick)
+    experiment = training.Experiment(base)
+    frames, walls = [], {}
+    for collected in LOSSES:
+        config = base.replace(loss=collected)
+        run_dir = os.path.join(out, "collect", collected)
+        start = time.perf_counter()
+        if not done(run_dir, config):
+            cfm_jax.train(config, progress=progress, out_dir=run_dir, experiment=experiment)
+        walls[f"collect {collected}"] = time.perf_counter() - start
+        data = os.path.join(run_dir, "dataset.npz")
+        for loss in LOSSES:
+            config = base.replace(loss=loss)
+            replay_dir = os.path.join(out, "replay", f"{collected}_data", loss)
+            start = time.perf_counter()
+            if not done(replay_dir, config):
+                cfm_jax.train(
+                    config, progress=progress, out_dir=replay_dir, experiment=experiment, data=data
+                )
+            walls[f"retrain {loss} on {collected}-loss data"] = time.perf_counter() - start
+            metrics = pd.read_csv(os.path.join(replay_dir, "metrics.csv"))
+            frames.append(metrics.assign(data=collected))
+    metrics = pd.concat(frames, ignore_index=True)
+    metrics.to_csv(os.path.join(out, "swap_metrics.csv"), index=False)
+    with open(os.path.join(out, "wall_times.json"), "w") as f:
+        json.dump(walls, f, indent=2)
+    return metrics, walls
+
+
+def table(metrics: pd.DataFrame) -> pd.DataFrame:
+    """Rows: the data set (collected with loss ...); columns: the retraining loss; cells:
+    final tracking MSE mean and std over seeds x targets."""
+    final = metrics[metrics.iteration == metrics.iteration.max()]
+    cells = final.groupby(["data", "loss"]).tracking_mse.agg(["mean", "std"])
+    rows = {}
+    for collected in LOSSES:
+        rows[f"data collected with the {collected} loss"] = {
+            f"retrained with {loss}": "{:.3g} ({:.2g})".format(*cells.loc[(collected, loss)])
+            for loss in LOSSES
+        }
+    return pd.DataFrame.from_dict(rows, orient="index")
+
+
+def figure(metrics: pd.DataFrame, path: str) -> None:
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    for ax, collected in zip(axes, LOSSES, strict=True):
+        for loss, color in zip(LOSSES, ("tab:blue", "tab:red"), strict=True):
+            frame = metrics[(metrics.data == collected) & (metrics.loss == loss)]
+            stats = frame.groupby("iteration").tracking_mse.agg(["mean", "std"])
+            ax.plot(stats.index, stats["mean"], marker="o", ms=3, color=color, label=loss)
+            lower = np.maximum(stats["mean"] - stats["std"], stats["mean"] * 1e-2)
+            ax.fill_between(
+                stats.index, lower, stats["mean"] + stats["std"], color=color, alpha=0.2
+            )
+        ax.set_title(f"data collected with the {collected} loss")
+        ax.set_yscale("log")
+        ax.set_xlabel("iteration (data revealed so far)")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("joint tracking MSE (rad$^2$)")
+    axes[0].legend(title="retrained with")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--out", default="results/swap")
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--iterations", type=int, default=10)
+    parser.add_argument("--quick", action="store_true", help="two-link arm, tiny networks")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    args = parser.parse_args()
+    os.makedirs(args.out, exist_ok=True)
+    start = time.perf_counter()
+    metrics, walls = run(args.out, args.seeds, args.iterations, args.quick, not args.quiet)
+    summary = table(metrics)
+    markdown = summary.to_markdown() if _has_tabulate() else summary.to_string()
+    with open(os.path.join(args.out, "swap_table.md"), "w") as f:
+        f.write(markdown + "\n")
+    figure(metrics, os.path.join(args.out, "swap_study.png"))
+    print(markdown)
+    for name, seconds in walls.items():
+        print(f"{name}: {seconds:.0f} s")
+    print(f"total {time.perf_counter() - start:.0f} s; results in {args.out}/")
+
+
+def _has_tabulate() -> bool:
+    try:
+        import tabulate  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+if __name__ == "__main__":
+    main()
