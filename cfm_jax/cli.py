@@ -27,6 +27,7 @@ def train(
     config: str | None = None,
     simulator: str | None = None,
     resume: bool = False,
+    data: str | None = None,
     quiet: bool = False,
 ) -> None:
     """Learn a tracking controller with Algorithm 1 and compare controller losses.
@@ -50,6 +51,10 @@ def train(
       resume: continue an interrupted run in OUT (same flags and config): every loss
         resumes from its newest valid checkpoint in OUT/<loss>/checkpoints (finished losses
         are only re-evaluated), losses without checkpoints start fresh.
+      data: replay a recorded data set instead of collecting data (a run's
+        OUT/<loss>/dataset.npz): every loss trains f and g from scratch on it, revealed
+        iteration by iteration as it was recorded; the controller is evaluated on the
+        robot every iteration. --seeds must equal the recorded run's.
       quiet: no progress bar.
     """
     from cfm_jax import training as train_lib
@@ -84,6 +89,7 @@ def train(
             out_dir=run_dir,
             experiment=experiment,
             resume=run_dir if can_resume else None,
+            data=data,
         )
         frames.append(result.metrics)
         _write_outputs(out, frames, result, base)

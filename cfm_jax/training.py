@@ -703,7 +703,13 @@ def _segments(exp: Experiment, state: TrainState, rows: list[dict], recorded) ->
 
 def _recorded_for(exp: Experiment, data) -> dataset.Recorded:
     """Load ``data`` and check that it can be replayed by this experiment's config."""
-    recorded = dataset.load(data) if isinstance(data, str | os.PathLike) else data
+    if isinstance(data, str | os.PathLike):
+        try:
+            recorded = dataset.load(str(data))
+        except (FileNotFoundError, ValueError) as error:
+            raise config_lib.ConfigError(str(error)) from error
+    else:
+        recorded = data
     config = exp.config
     seeds = len(recorded.seeds)
     where = f"data={data!r}" if isinstance(data, str | os.PathLike) else "data"

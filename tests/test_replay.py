@@ -9,10 +9,12 @@ must be the rows each phase added, counted independently from the rollouts' fini
 
 from __future__ import annotations
 
+import subprocess
+
 import numpy as np
 import pandas as pd
 import pytest
-from tiny import tiny_config
+from tiny import cli_command, tiny_config
 
 import cfm_jax
 from cfm_jax import dataset, training
@@ -98,6 +100,25 @@ def test_replay_rejects_data_that_does_not_fit(recorded_run):
         cfm_jax.train(TINY.replace(robot="iiwa14"), progress=False, data=str(path))
     with pytest.raises(FileNotFoundError, match="no such file"):
         dataset.load(str(path) + ".missing")
+    with pytest.raises(ConfigError, match=r"data=.*\.missing.*no such file"):
+        cfm_jax.train(TINY, progress=False, data=str(path) + ".missing")
+
+
+def test_cli_replays_a_recorded_data_set(recorded_run, tmp_path):
+    # The CLI's --data runs the same replay: its joint-loss metrics equal the recording run's.
+    result, path = recorded_run
+    out = tmp_path / "cli_replay"
+    command = cli_command(TINY, tmp_path, out, "joint", seeds=2, iterations=2)
+    done = subprocess.run([*command, "--data", str(path)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    written = pd.read_csv(out / "joint" / "metrics.csv")
+    np.testing.assert_array_equal(
+        written.tracking_mse.to_numpy(), result.metrics.tracking_mse.to_numpy()
+    )
+    bad = subprocess.run(
+        [*command, "--data", str(tmp_path / "nothing.npz")], capture_output=True, text=True
+    )
+    assert bad.returncode == 2 and "no such file" in bad.stderr and "Traceback" not in bad.stderr
 
 
 def jax_leaves(tree):
