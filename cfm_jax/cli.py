@@ -38,7 +38,7 @@ def train(
 
     Args:
       robot: registered robot name (iiwa14, two_link_arm) or path to an MJCF file.
-      task: task name (inverse_dynamics).
+      task: task name (inverse_dynamics, opspace).
       loss: a controller loss (joint, task, distal, supervised), a comma-separated list of
         them, or "all".
       seeds: number of seeds (run together as a vmap axis).
@@ -92,16 +92,18 @@ def train(
             data=data,
         )
         frames.append(result.metrics)
-        _write_outputs(out, frames, result, base)
+        _write_outputs(out, frames, result, base, experiment.task)
     wall = time.perf_counter() - start
     table = report.summary(_concat(frames), result.baselines, result.rms_reach)
+    label, unit = experiment.task.tracking_name, experiment.task.tracking_unit
     report.print_summary(
         table,
-        title=f"{base.robot} {task}: final tracking MSE (rad^2), mean/std over "
+        title=f"{base.robot} {task}: final tracking MSE ({unit}^2), mean/std over "
         f"{seeds} seed(s) x targets; wall time {wall:.0f} s",
+        tracking=f"{label} ({unit}^2)",
     )
     print(
-        f"RMS reaching distance {result.rms_reach:.4f} rad. Results in {out}/ "
+        f"RMS reaching distance {result.rms_reach:.4f} {unit}. Results in {out}/ "
         f"(metrics.csv, summary.md, learning_curves.png)"
     )
 
@@ -125,7 +127,7 @@ def _concat(frames):
     return pd.concat(frames, ignore_index=True)
 
 
-def _write_outputs(out, frames, result, base) -> None:
+def _write_outputs(out, frames, result, base, task) -> None:
     """Write the combined files after every loss, so finished losses are never lost."""
     metrics = _concat(frames)
     metrics.to_csv(os.path.join(out, "metrics.csv"), index=False)
@@ -140,6 +142,8 @@ def _write_outputs(out, frames, result, base) -> None:
         os.path.join(out, "learning_curves.png"),
         result.baselines,
         title=f"{base.robot} {base.task.name}",
+        tracking_label=f"{task.tracking_name} ({task.tracking_unit}$^2$)",
+        output_unit=task.output_unit,
     )
 
 

@@ -21,7 +21,7 @@ from typing import Any
 
 from cfm_jax import losses
 
-TASKS = ("inverse_dynamics",)
+TASKS = ("inverse_dynamics", "opspace")
 """Tasks available for ``Config.task.name``."""
 
 SIMULATORS = ("native", "mjx")
@@ -77,7 +77,12 @@ def _layer_sizes(field: str, value: Any) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class TaskConfig:
-    """The tracking task: reaching trajectories in joint space and desired accelerations."""
+    """The tracking task: reaching trajectories and desired accelerations.
+
+    ``inverse_dynamics``: joint-space reaching, the controller gets a desired joint
+    acceleration. ``opspace``: Cartesian reaching of an end-effector site, the controller
+    gets a desired end-effector acceleration (see :mod:`cfm_jax.tasks`).
+    """
 
     # Task name; one of TASKS.
     name: str = "inverse_dynamics"
@@ -86,8 +91,9 @@ class TaskConfig:
     # Control period in seconds; a multiple of the MJCF timestep (the torque is held for
     # control_dt / timestep physics steps). None: the MJCF timestep.
     control_dt: float | None = 0.01
-    # Reaching targets as joint-position tuples, one per target; None: the robot's
-    # default targets (5 for every robot, derived from its joint ranges, see tasks.py).
+    # Reaching targets, one tuple per target: joint positions (inverse_dynamics) or
+    # end-effector positions (x, y, z) in metres (opspace); None: the robot's 5 default
+    # targets (derived from its joint ranges, see tasks.py and opspace.py).
     targets: tuple[tuple[float, ...], ...] | None = None
     # Start pose (joint positions); None: the MJCF keyframe named "home", else qpos0.
     home: tuple[float, ...] | None = None
@@ -96,6 +102,8 @@ class TaskConfig:
     kp: float = 100.0
     # Derivative gain (1/s) of the same PD correction.
     kd: float = 20.0
+    # opspace: name of the end-effector site of the MJCF; None: the site "ee", else "flange".
+    site: str | None = None
 
     def __post_init__(self):
         if not isinstance(self.name, str) or self.name not in TASKS:
@@ -108,6 +116,8 @@ class TaskConfig:
             check_duration(self.duration, self.control_dt)
         _nonnegative_float("task.kp", self.kp)
         _nonnegative_float("task.kd", self.kd)
+        if self.site is not None and (not isinstance(self.site, str) or not self.site):
+            _fail("task.site", self.site, "None or the name of a site of the robot's MJCF")
         if self.targets is not None:
             try:
                 targets = tuple(tuple(float(x) for x in t) for t in self.targets)

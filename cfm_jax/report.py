@@ -62,16 +62,22 @@ SHORT_HEADERS = {
 }
 
 
-def print_summary(table: pd.DataFrame, title: str = "Final tracking error") -> None:
-    """Print a :func:`summary` table with rich (short column headers, explained below it)."""
+def print_summary(
+    table: pd.DataFrame,
+    title: str = "Final tracking error",
+    tracking: str = "joint-position tracking MSE (rad^2)",
+) -> None:
+    """Print a :func:`summary` table with rich (short column headers, explained below it;
+    ``tracking`` names the tracking error and its unit)."""
     from rich.console import Console
     from rich.table import Table
 
     out = Table(
         title=title,
-        caption="MSE: joint-position tracking MSE (rad^2), mean/std over seeds x targets; "
+        caption=f"MSE: {tracking}, mean/std over seeds x targets; "
         "pred. err / pred. task err: forward-model prediction error and predicted task "
-        "error ((rad/s^2)^2); RMSE/reach: sqrt(MSE mean) / RMS reaching distance",
+        "error (squared units of the predicted quantities); RMSE/reach: sqrt(MSE mean) / "
+        "RMS reaching distance",
     )
     out.add_column("controller")
     columns = [c for c in table.columns if c != "iteration"]
@@ -103,12 +109,19 @@ def markdown(table: pd.DataFrame) -> str:
 
 
 def plot_learning_curves(
-    metrics: pd.DataFrame, path: str, baselines: pd.DataFrame | None = None, title: str = ""
+    metrics: pd.DataFrame,
+    path: str,
+    baselines: pd.DataFrame | None = None,
+    title: str = "",
+    tracking_label: str = "joint tracking MSE (rad$^2$)",
+    output_unit: str = "(rad/s$^2$)$^2$",
 ) -> str:
     """Tracking MSE, prediction error and predicted task error per iteration, per loss.
 
     Mean and standard deviation over seeds and targets (the paper's Fig. 3 and 4 style);
-    oracle and PD-only tracking MSE as horizontal lines. Log scale. Returns ``path``.
+    oracle and PD-only tracking MSE as horizontal lines. Log scale. ``tracking_label`` and
+    ``output_unit`` label the task's tracking error and predicted quantity. Returns
+    ``path``.
     """
     import matplotlib
 
@@ -117,9 +130,9 @@ def plot_learning_curves(
     from matplotlib.ticker import MaxNLocator
 
     panels = [
-        ("tracking_mse", "joint tracking MSE (rad$^2$)"),
-        ("prediction_error", "forward-model prediction error ((rad/s$^2$)$^2$)"),
-        ("predicted_task_error", "predicted task error ((rad/s$^2$)$^2$)"),
+        ("tracking_mse", tracking_label),
+        ("prediction_error", f"forward-model prediction error ({output_unit})"),
+        ("predicted_task_error", f"predicted task error ({output_unit})"),
     ]
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     for ax, (column, label) in zip(axes, panels, strict=True):

@@ -185,7 +185,11 @@ class JointSpaceTask:
     """
 
     name = "inverse_dynamics"
-    tracking_label = "joint tracking MSE (rad$^2$)"
+    # What the tracking MSE measures and its unit, and the squared unit of the forward
+    # model's output (for tables and figures).
+    tracking_name = "joint-position tracking MSE"
+    tracking_unit = "rad"
+    output_unit = "(rad/s$^2$)$^2$"
     metric_names: tuple[str, ...] = ()
 
     def __init__(self, robot, reference: Reference, kp: float, kd: float, control_dt: float):
@@ -255,6 +259,109 @@ class JointSpaceTask:
         return rollout.oracle_policy(self.robot, simulator)
 
 
+class OperationalSpaceTask(JointSpaceTask):
+    """Operational-space control (``opspace``, paper section IV-A-2): the controller gets
+    ``s = [q, qdot]`` and a desired end-effector acceleration
+    ``xdd* = xdd_ref + kp (x_ref - x) + kd (xd_ref - xd)`` (3-D, world frame, of the
+    configured site) and outputs joint torques; the forward model predicts the joint *and*
+    end-effector accelerations ``y = [qdd, xdd]`` (observed over the control period as
+    ``(qdot' - qdot) / dt`` and ``(xd' - xd) / dt``), of which the desired quantity specifies
+    the last three (``desired_index``). Redundant arms make ``tau`` for a given ``xdd*``
+    non-unique. The tracking error is the site position error ``x' - x_ref(t+1)`` (m).
+    Site kinematics come from MuJoCo C (:mod:`cfm_jax.opspace`); the features carried in
+    the rollout are ``[x, xd]`` of the site. Baselines: the analytic operational-space
+    controller (Khatib) as oracle and task-space PD (``J^T (K_p e + K_d ed)``).
+
+    Args:
+      robot: a fixed-base arm with the end-effector site.
+      task: the :class:`cfm_jax.config.TaskConfig` (``site``, ``targets`` as ``(k, 3)``
+        positions or None for the defaults, ``home``, ``duration``, ``kp``, ``kd``).
+      control_dt: control period.
+    """
+
+    name = "opspace"
+    tracking_name = "end-effector position tracking MSE"
+    tracking_unit = "m"
+    output_unit = "(rad/s$^2$)$^2$ and (m/s$^2$)$^2$"
+
+    def __init__(self, robot, task: TaskConfig, control_dt: float):
+        from cfm_jax import opspace
+
+        check_duration(task.duration, control_dt)
+        home = robot.home if task.home is None else np.asarray(task.home, np.float64)
+        check_positions("task.home", home[None], robot)
+        self.robot, self.opspace = robot, opspace
+        self.site = opspace.ee_site(robot, task.site)
+        targets = (
+            opspace.default_cartesian_targets(robot, self.site, home)
+            if task.targets is None
+            else opspace.check_targets(robot, task.targets, self.site)
+        )
+        self.reference_np = opspace.cartesian_reaching(
+            robot, self.site, targets, task.duration, control_dt, home
+        )
+        self.reference = opspace.as_jax(self.reference_np)
+        self.home = jnp.asarray(home, jnp.float32)
+        self.kp, self.kd, self.control_dt = float(task.kp), float(task.kd), float(control_dt)
+        gain_p, gain_d = opspace.pd_gains(robot, task.kp, task.kd, self.site, home)
+        self._pd = opspace.pd_policy(robot, gain_p, gain_d, self.site)
+        self._home_tuple = home
+        nv = robot.nv
+        self.targets, self.steps = self.reference_np.x.shape[0], self.reference_np.steps
+        self.state_dim, self.desired_dim, self.output_dim = robot.nq + nv, 3, nv + 3
+        self.action_dim, self.feature_dim = nv, 6
+        self.desired_index = (nv, nv + 1, nv + 2)
+
+    @property
+    def tracking_scale(self) -> float:
+        """RMS end-effector reaching distance (m): ``sqrt(mean((x_goal - x_home)^2))``."""
+        delta = self.reference_np.x[:, -1] - self.reference_np.x[:, 0]
+        return float(np.sqrt(np.mean(np.square(delta))))
+
+    def _site(self, qpos, qvel):
+        kin = self.opspace.kinematics(self.robot, qpos, qvel, self.site)
+        return jnp.concatenate([kin.position, kin.velocity], -1)
+
+    def start(self, reference):
+        del reference
+        qvel = jnp.zeros(self.robot.nv, jnp.float32)
+        return self.home, qvel, self._site(self.home, qvel)
+
+    def desired(self, ref_t, qpos, qvel, features):
+        return self.opspace.desired_acceleration(
+            ref_t.x, ref_t.xd, ref_t.xdd, features[:3], features[3:], self.kp, self.kd
+        )
+
+    def features(self, qpos, qvel, sensors):
+        del sensors
+        return self._site(qpos, qvel)
+
+    def observed(self, step, qpos_next, qvel_next, features_next):
+        joint = (qvel_next - step.qvel) / self.control_dt
+        site = (features_next[3:] - step.features[3:]) / self.control_dt
+        return jnp.concatenate([joint, site])
+
+    def tracking_error(self, ref_next, qpos_next, qvel_next, features_next):
+        return features_next[:3] - ref_next.x
+
+    def feedback(self, step):
+        """Task-space PD ``J^T (K_p (x_ref - x) + K_d (xd_ref - xd))``
+        (:func:`cfm_jax.opspace.pd_policy`)."""
+        return self._pd(step.qpos, step.qvel, step.reference.x, step.reference.xd)
+
+    def oracle_policy(self, simulator: str):
+        """The analytic operational-space controller (:func:`cfm_jax.opspace.oracle_policy`;
+        MuJoCo C on the host for either simulator)."""
+        del simulator
+        torque = self.opspace.oracle_policy(self.robot, self.site, self._home_tuple)
+
+        def policy(step, key):
+            del key
+            return torque(step.qpos, step.qvel, step.desired)
+
+        return policy
+
+
 def make(robot, task: TaskConfig, control_dt: float):
     """The task object of a :class:`cfm_jax.config.TaskConfig` for a robot.
 
@@ -265,4 +372,6 @@ def make(robot, task: TaskConfig, control_dt: float):
         return JointSpaceTask(
             robot, reaching(robot, task, control_dt), task.kp, task.kd, control_dt
         )
+    if task.name == "opspace":
+        return OperationalSpaceTask(robot, task, control_dt)
     raise ConfigError(f"task.name={task.name!r} is not allowed: no such task")
