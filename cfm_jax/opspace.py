@@ -150,9 +150,11 @@ class Kinematics(NamedTuple):
 
 def task_acceleration(kin: Kinematics, qacc):
     """``xdd = J qacc + Jdot qd`` from :class:`Kinematics` and joint accelerations
-    ``qacc (..., nv)``; ``(..., 3)``. Pure ``jnp`` (works on NumPy arrays too), linear and
-    differentiable in ``qacc``."""
-    return jnp.einsum("...ij,...j->...i", kin.jacobian, qacc) + kin.bias_acceleration
+    ``qacc (..., nv)``; ``(..., 3)``. Linear and differentiable in ``qacc``; NumPy in
+    (float64 :class:`HostKinematics`), NumPy out, otherwise ``jnp``."""
+    arrays = (kin.jacobian, kin.bias_acceleration, qacc)
+    xp = np if all(isinstance(a, np.ndarray) for a in arrays) else jnp
+    return xp.einsum("...ij,...j->...i", kin.jacobian, qacc) + kin.bias_acceleration
 
 
 class HostKinematics:
