@@ -1,0 +1,581 @@
+"""Operational-space building blocks (cfm_jax/opspace.py).
+
+Oracles: closed-form planar kinematics of the two-link arm and the iiwa's home pose worked
+by hand from the facts sheet; central finite differences of MuJoCo's site positions and of
+the site velocity along an RK4 trajectory; MuJoCo's own velocity / acceleration recursions
+(``mj_objectVelocity``, ``mj_rnePostConstraint`` + ``mj_objectAcceleration``, whose linear
+part is the classical acceleration minus gravity); one ``mj_step`` of the C engine for the
+oracle controller; closed forms of the quintic; sums worked by hand for the metrics.
+"""
+
+from __future__ import annotations
+
+import copy
+import types
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from cfm_jax import opspace, robots, rollout, tasks
+from cfm_jax.config import ConfigError
+
+L1, L2, SHOULDER_Z = 0.5, 0.4, 1.0  # two-link arm geometry (robots/two_link_arm.xml)
+# iiwa home flange, by hand: J2 at z = 0.36; link2..4 (0.42 m) tilted by q2 = pi/4 about +y,
+# J4..flange (0.4 + 0.126 = 0.526 m) tilted by q2 - q4 = 3 pi/4: x = 0.946 s, z = 0.36 - 0.106 s
+# with s = sin(pi/4).
+S45 = np.sqrt(0.5)
+IIWA_HOME_FLANGE = np.array([0.946 * S45, 0.0, 0.36 - 0.106 * S45])
+IIWA_REACH = 0.2045 + 0.2155 + 0.1845 + 0.2155 + 0.081 + 0.045  # J2 -> flange, [1.2]
+
+
+@pytest.fixture(scope="module")
+def iiwa():
+    return robots.load("iiwa14")
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return robots.load("two_link_arm")
+
+
+def site_kinematics_closed_form(q, qd):
+    """Tip position, Jacobian and Jdot qd of the planar two-link arm (x-z plane)."""
+    q1, q12 = q[0], q[0] + q[1]
+    w1, w12 = qd[0], qd[0] + qd[1]
+    x = np.array(
+        [L1 * np.cos(q1) + L2 * np.cos(q12), 0.0, SHOULDER_Z + L1 * np.sin(q1) + L2 * np.sin(q12)]
+    )
+    jac = np.array(
+        [
+            [-L1 * np.sin(q1) - L2 * np.sin(q12), -L2 * np.sin(q12)],
+            [0.0, 0.0],
+            [L1 * np.cos(q1) + L2 * np.cos(q12), L2 * np.cos(q12)],
+        ]
+    )
+    bias = np.array(
+        [
+            -L1 * np.cos(q1) * w1**2 - L2 * np.cos(q12) * w12**2,
+            0.0,
+            -L1 * np.sin(q1) * w1**2 - L2 * np.sin(q12) * w12**2,
+        ]
+    )
+    return x, jac, bias
+
+
+def mujoco_site_acceleration(model, site, qpos, qvel, qacc):
+    """Classical linear site acceleration from MuJoCo's cacc recursion: mj_objectAcceleration
+    (world orientation) plus gravity (the recursion starts from the world at -gravity)."""
+    data = mujoco.MjData(model)
+    data.qpos[:], data.qvel[:] = qpos, qvel
+    mujoco.mj_forward(model, data)
+    data.qacc[:] = qacc
+    mujoco.mj_rnePostConstraint(model, data)
+    res = np.zeros(6)
+    mujoco.mj_objectAcceleration(model, data, mujoco.mjtObj.mjOBJ_SITE, site, res, 0)
+    return res[3:] + model.opt.gravity
+
+
+def random_states(robot, rng, count, spread=0.5):
+    """States near home (inside the joint limits), moderate velocities."""
+    low, high = robot.joint_range[:, 0], robot.joint_range[:, 1]
+    q = np.clip(
+        robot.home + rng.uniform(-spread, spread, (count, robot.nq)),
+        low + 0.1 * (high - low),
+        high - 0.1 * (high - low),
+    )
+    return q, rng.uniform(-1.0, 1.0, (count, robot.nv))
+
+
+# ---- site -------------------------------------------------------------------------------
+
+TOY_XML = """
+<mujoco>
+  <worldbody>
+    <site name="fixed"/>
+    <body name="link">
+      <joint name="hinge" axis="0 0 1"/>
+      <geom type="capsule" fromto="0 0 0 1 0 0" size="0.05"/>
+      <site name="flange" pos="1 0 0"/>
+      <site name="ee" pos="1.2 0 0"/>
+    </body>
+  </worldbody>
+  <actuator><motor joint="hinge" ctrlrange="-1 1"/></actuator>
+</mujoco>
+"""
+
+
+def toy_robot():
+    return types.SimpleNamespace(name="toy", mj_model=mujoco.MjModel.from_xml_string(TOY_XML))
+
+
+def test_ee_site_default_is_the_iiwa_flange(iiwa):
+    site = opspace.ee_site(iiwa)
+    assert site == opspace.ee_site(iiwa, "flange")
+    assert opspace.site_names(iiwa)[site] == "flange"
+
+
+def test_ee_site_prefers_ee_over_flange_and_rejects_fixed_site():
+    toy = toy_robot()
+    assert opspace.site_names(toy)[opspace.ee_site(toy)] == "ee"
+    with pytest.raises(ConfigError) as info:
+        opspace.ee_site(toy, "fixed")
+    message = str(info.value)
+    assert message.startswith("task.site='fixed' is not allowed: it is fixed to the world")
+    assert "('fixed', 'flange', 'ee')" in message
+
+
+def test_ee_site_unknown_name_lists_sites(iiwa):
+    with pytest.raises(ConfigError) as info:
+        opspace.ee_site(iiwa, "hand")
+    message = str(info.value)
+    assert message.startswith("task.site='hand' is not allowed: robot 'iiwa14' has no such site")
+    assert "('flange',)" in message
+
+
+def test_ee_site_no_default_names_the_sites(arm):
+    with pytest.raises(ConfigError) as info:
+        opspace.ee_site(arm)
+    message = str(info.value)
+    assert message.startswith("task.site=None is not allowed for robot 'two_link_arm'"), message
+    assert "'ee' or 'flange'" in message and "('tip',)" in message
+    assert opspace.ee_site(arm, "tip") == 0
+
+
+# ---- kinematics -------------------------------------------------------------------------
+
+
+def test_host_kinematics_two_link_closed_form(arm):
+    rng = np.random.default_rng(1)
+    q, qd = random_states(arm, rng, 6, spread=1.5)
+    kin = opspace.HostKinematics(arm, "tip")(q, qd)
+    assert kin.position.shape == (6, 3) and kin.jacobian.shape == (6, 3, 2)
+    for i in range(6):
+        x, jac, bias = site_kinematics_closed_form(q[i], qd[i])
+        # float64 trigonometry and MuJoCo's quaternion chain agree to a few ulps of 1 m.
+        np.testing.assert_allclose(kin.position[i], x, atol=1e-13)
+        np.testing.assert_allclose(kin.jacobian[i], jac, atol=1e-13)
+        np.testing.assert_allclose(kin.velocity[i], jac @ qd[i], atol=1e-13)
+        np.testing.assert_allclose(kin.bias_acceleration[i], bias, atol=1e-12)
+
+
+def test_host_kinematics_iiwa_poses_by_hand(iiwa):
+    kin = opspace.HostKinematics(iiwa)(np.stack([np.zeros(7), iiwa.home]), np.zeros((2, 7)))
+    np.testing.assert_allclose(kin.position[0], [0.0, 0.0, 1.306], atol=1e-12)  # [1.2]
+    # keyframe home is (0, 0.785398, 0, -1.5708, 0, 0, 0): pi/4 and -pi/2 to 6-7 digits,
+    # so 1e-6 rad of angle error times < 1 m of lever.
+    np.testing.assert_allclose(kin.position[1], IIWA_HOME_FLANGE, atol=2e-6)
+    np.testing.assert_array_equal(kin.velocity, 0.0)
+    np.testing.assert_array_equal(kin.bias_acceleration, 0.0)
+
+
+def test_iiwa_jacobian_by_finite_differences_and_velocity_by_mujoco(iiwa):
+    model, site = iiwa.mj_model, opspace.ee_site(iiwa)
+    rng = np.random.default_rng(2)
+    q, qd = random_states(iiwa, rng, 4)
+    kin = opspace.HostKinematics(iiwa)(q, qd)
+    data = mujoco.MjData(model)
+
+    def position(qpos):
+        data.qpos[:] = qpos
+        mujoco.mj_kinematics(model, data)
+        return data.site_xpos[site].copy()
+
+    h = 1e-6
+    for i in range(4):
+        fd = np.stack(
+            [(position(q[i] + h * e) - position(q[i] - h * e)) / (2 * h) for e in np.eye(7)],
+            axis=1,
+        )
+        # truncation h^2/6 |x'''| < 1e-12 (|x'''| ~ 1 m), rounding eps |x| / h ~ 2e-10
+        np.testing.assert_allclose(kin.jacobian[i], fd, atol=2e-9)
+        # MuJoCo's velocity recursion (cvel), linear part in world orientation
+        data.qpos[:], data.qvel[:] = q[i], qd[i]
+        mujoco.mj_forward(model, data)
+        res = np.zeros(6)
+        mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_SITE, site, res, 0)
+        np.testing.assert_allclose(kin.velocity[i], res[3:], atol=1e-13)
+
+
+def test_iiwa_acceleration_by_finite_differences_along_a_trajectory(iiwa):
+    # RK4 at h = 1 ms, constant torque (half the gravity compensation at home, so the arm
+    # sags while moving): data.qacc at each state is the exact ODE acceleration, and the
+    # central difference of the site velocity differs from xdd only by truncation.
+    model = copy.deepcopy(iiwa.mj_model)
+    model.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
+    h = model.opt.timestep = 1e-3
+    site = opspace.ee_site(iiwa)
+    data = mujoco.MjData(model)
+    data.qpos[:], data.qvel[:] = iiwa.home, np.linspace(-1.0, 1.0, 7)
+    mujoco.mj_forward(model, data)
+    data.ctrl[:] = 0.5 * data.qfrc_bias[iiwa.actuator_of_joint]
+    states, velocities = [], []
+    for _ in range(51):
+        mujoco.mj_forward(model, data)
+        states.append((data.qpos.copy(), data.qvel.copy(), data.qacc.copy()))
+        velocity = np.zeros(6)  # MuJoCo's recursion, independent of our J
+        mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_SITE, site, velocity, 0)
+        velocities.append(velocity[3:])
+        mujoco.mj_step(model, data)
+    q, qd, qdd = (np.array(x) for x in zip(*states, strict=True))
+    kin = opspace.HostKinematics(iiwa)(q, qd)
+    xdd = opspace.task_acceleration(kin, qdd)
+    assert xdd.dtype == np.float64
+    velocities = np.array(velocities)
+    fd = (velocities[2:] - velocities[:-2]) / (2 * h)
+    # Truncation of the central difference: h^2/6 max|v'''|, v''' from third differences.
+    jerk_rate = np.max(np.abs(np.diff(velocities, 3, axis=0))) / h**3
+    bound = h**2 / 6 * jerk_rate
+    assert 1e-6 < bound < 1e-5  # ~4.4e-6 for |v'''| ~ 27 m/s^4
+    assert np.max(np.abs(xdd)) > 3.0  # a real acceleration, gravity sag included
+    np.testing.assert_allclose(xdd[1:-1], fd, atol=1.2 * bound)
+    # MuJoCo's acceleration recursion, with the spatial -> classical and gravity conversion
+    for i in (0, 25, 50):
+        oracle = mujoco_site_acceleration(model, site, q[i], qd[i], qdd[i])
+        np.testing.assert_allclose(xdd[i], oracle, atol=1e-12)
+        # without adding gravity back, mj_objectAcceleration is off by 9.81 m/s^2 in z
+        assert abs((oracle - model.opt.gravity)[2] - xdd[i, 2]) > 9.8
+
+
+def test_jax_kinematics_match_host_under_jit_and_vmap(iiwa):
+    rng = np.random.default_rng(3)
+    q, qd = random_states(iiwa, rng, 6)
+    qdd = rng.uniform(-2.0, 2.0, (6, 7))
+    q32, qd32, qdd32 = (np.asarray(a, np.float32) for a in (q, qd, qdd))
+    host = opspace.HostKinematics(iiwa)(q32, qd32)
+
+    @jax.jit
+    def functions(q, qd, qdd):
+        return (
+            opspace.ee_position(iiwa, q),
+            opspace.ee_velocity(iiwa, q, qd),
+            opspace.ee_jacobian(iiwa, q),
+            opspace.ee_acceleration(iiwa, q, qd, qdd),
+        )
+
+    x, xd, jac, xdd = jax.vmap(functions)(q32, qd32, qdd32)
+    assert x.dtype == jnp.float32 and jac.shape == (6, 3, 7)
+    # float32 rounding of outputs of size ~1 (values computed in float64 from the same
+    # float32 inputs); the acceleration adds 7 float32 products of size ~2.
+    np.testing.assert_allclose(x, host.position, atol=1e-7)
+    np.testing.assert_allclose(xd, host.velocity, atol=1e-6)
+    np.testing.assert_allclose(jac, host.jacobian, atol=1e-7)
+    expected = np.einsum("nij,nj->ni", host.jacobian, qdd32) + host.bias_acceleration
+    np.testing.assert_allclose(xdd, expected, atol=2e-6)
+
+
+def test_ee_acceleration_differentiable_in_qacc_constant_in_state(iiwa):
+    q = jnp.asarray(iiwa.home, jnp.float32)
+    qd = jnp.linspace(-1.0, 1.0, 7, dtype=jnp.float32)
+    qdd = jnp.ones(7, jnp.float32)
+    loss = lambda q, qd, qdd: jnp.sum(opspace.ee_acceleration(iiwa, q, qd, qdd))  # noqa: E731
+    grad_q, grad_qd, grad_qdd = jax.jit(jax.grad(loss, argnums=(0, 1, 2)))(q, qd, qdd)
+    jac = opspace.HostKinematics(iiwa)(np.asarray(q), np.asarray(qd)).jacobian
+    np.testing.assert_allclose(grad_qdd, jac.sum(axis=0), atol=1e-6)  # d(1^T J qdd)/dqdd
+    np.testing.assert_array_equal(grad_q, 0.0)  # kinematics are constants of the state
+    np.testing.assert_array_equal(grad_qd, 0.0)
+
+
+# ---- references -------------------------------------------------------------------------
+
+
+def test_cartesian_reaching_quintic_straight_lines(iiwa):
+    targets = np.array([[0.6, 0.2, 0.4], [0.5, -0.3, 0.3]])
+    ref = opspace.cartesian_reaching(iiwa, None, targets, duration=2.0, control_dt=0.5)
+    assert ref.x.shape == ref.xd.shape == ref.xdd.shape == (2, 5, 3) and ref.steps == 4
+    np.testing.assert_allclose(ref.x[:, 0], np.tile(IIWA_HOME_FLANGE, (2, 1)), atol=2e-6)
+    np.testing.assert_allclose(ref.x[:, -1], targets, atol=1e-15)
+    start = ref.x[:, :1]
+    delta = targets[:, None] - start
+    # straight line: x(t) - x_home parallel to x_goal - x_home
+    np.testing.assert_allclose(np.cross(ref.x - start, delta), 0.0, atol=1e-15)
+    # t = T/2: s = 1/2, s' = 15/8 / T, s'' = 0; t = T/4: s = 106/1024, s'' = 5.625 / T^2
+    np.testing.assert_allclose(ref.x[:, 2], start[:, 0] + delta[:, 0] / 2, atol=1e-15)
+    np.testing.assert_allclose(ref.xd[:, 2], 15 / 8 * delta[:, 0] / 2.0, atol=1e-15)
+    np.testing.assert_allclose(ref.xdd[:, 2], 0.0, atol=1e-15)
+    np.testing.assert_allclose(ref.x[:, 1], start[:, 0] + delta[:, 0] * 106 / 1024, atol=1e-15)
+    np.testing.assert_allclose(ref.xdd[:, 1], 5.625 * delta[:, 0] / 4.0, atol=1e-14)
+    for end in (0, -1):
+        np.testing.assert_allclose(ref.xd[:, end], 0.0, atol=1e-12)
+        np.testing.assert_allclose(ref.xdd[:, end], 0.0, atol=1e-12)
+
+
+def test_default_targets_are_the_tip_at_the_default_joint_targets(arm):
+    joint_targets = tasks.default_targets(arm.joint_range, arm.home)
+    expected = np.array([site_kinematics_closed_form(q, np.zeros(2))[0] for q in joint_targets])
+    targets = opspace.default_cartesian_targets(arm, "tip")
+    np.testing.assert_allclose(targets, expected, atol=1e-13)
+    ref = opspace.cartesian_reaching(arm, "tip", None, duration=0.5, control_dt=0.01)
+    assert ref.x.shape == (5, 51, 3)
+    np.testing.assert_allclose(ref.x[:, -1], expected, atol=1e-13)
+    home_tip = site_kinematics_closed_form(arm.home, np.zeros(2))[0]
+    np.testing.assert_allclose(ref.x[:, 0], np.tile(home_tip, (5, 1)), atol=1e-13)
+
+
+def test_default_targets_iiwa_deterministic_distinct_within_reach(iiwa):
+    targets = opspace.default_cartesian_targets(iiwa)
+    assert targets.shape == (5, 3)
+    model, data = iiwa.mj_model, mujoco.MjData(iiwa.mj_model)
+    for target, q in zip(targets, tasks.default_targets(iiwa.joint_range, iiwa.home), strict=True):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        np.testing.assert_allclose(target, data.site_xpos[opspace.ee_site(iiwa)], atol=1e-15)
+    distance = np.linalg.norm(targets - IIWA_HOME_FLANGE, axis=1)
+    assert np.all(distance > 0.2) and np.all(distance < 0.6)  # documented 0.21 .. 0.57 m
+    assert np.all(np.linalg.norm(targets - [0, 0, 0.36], axis=1) < IIWA_REACH)
+    np.random.seed(7)
+    np.testing.assert_array_equal(opspace.default_cartesian_targets(iiwa), targets)
+
+
+def test_reach_from_the_model(iiwa, arm):
+    length, base, joint = opspace.reach(iiwa)
+    assert joint == "joint2"
+    np.testing.assert_allclose(base, [0.0, 0.0, 0.36], atol=1e-15)
+    np.testing.assert_allclose(length, IIWA_REACH, rtol=1e-12)
+    length, base, joint = opspace.reach(arm, "tip")
+    assert joint == "shoulder"
+    np.testing.assert_allclose((length, *base), (L1 + L2, 0.0, 0.0, SHOULDER_Z), atol=1e-15)
+
+
+def test_targets_beyond_reach_name_target_and_distance(iiwa):
+    inside = [0.0, 0.0, 0.36 + 0.94]  # 0.94 m above joint 2: within reach 0.946
+    far = [2.0, 0.0, 0.36]
+    with pytest.raises(ConfigError) as info:
+        opspace.cartesian_reaching(iiwa, None, [inside, far], 2.0, 0.01)
+    message = str(info.value)
+    assert message.startswith("task.targets[1]=(2.0, 0.0, 0.36) is not allowed: it is 2.000 m"), (
+        message
+    )
+    assert "joint 'joint2' at (0.0, 0.0, 0.36)" in message and "reach of 0.946 m" in message
+    assert opspace.check_targets(iiwa, [inside]).shape == (1, 3)
+
+
+@pytest.mark.parametrize(
+    ("targets", "start"),
+    [
+        ([[0.5, 0.1]], "task.targets=[[0.5, 0.1]] is not allowed (shape (1, 2))"),
+        ([], "task.targets=[] is not allowed (shape (0,))"),
+        ([[0.5, 0.0, 0.4], [0.5, np.nan, 0.4]], "task.targets[1]=(0.5, nan, 0.4) is not allowed"),
+        ("far", "task.targets='far' is not allowed (shape None)"),
+    ],
+)
+def test_bad_targets(iiwa, targets, start):
+    with pytest.raises(ConfigError) as info:
+        opspace.cartesian_reaching(iiwa, None, targets, 2.0, 0.01)
+    assert str(info.value).startswith(start), str(info.value)
+
+
+def test_bad_duration_and_home(arm):
+    with pytest.raises(ConfigError, match=r"^task\.duration=0\.015 is not allowed"):
+        opspace.cartesian_reaching(arm, "tip", None, 0.015, 0.01)
+    with pytest.raises(ConfigError, match=r"^task\.home\[0\]\[1\]=3 \(joint 'elbow'\)"):
+        opspace.cartesian_reaching(arm, "tip", None, 0.5, 0.01, home=np.array([0.0, 3.0]))
+
+
+def test_desired_acceleration_formula():
+    out = opspace.desired_acceleration(
+        np.array([1.0, 0.0, 0.5]),
+        np.array([0.0, 0.1, 0.0]),
+        np.array([0.2, 0.0, -1.0]),
+        np.array([0.99, 0.0, 0.5]),
+        np.array([0.0, 0.0, 0.05]),
+        100.0,
+        20.0,
+    )
+    # x: 0.2 + 100 * 0.01 = 1.2; y: 20 * 0.1 = 2; z: -1 - 20 * 0.05 = -2
+    np.testing.assert_allclose(np.asarray(out), [1.2, 2.0, -2.0], atol=1e-12)
+
+
+# ---- oracle -----------------------------------------------------------------------------
+
+
+def step_once(robot, qpos, qvel, tau):
+    """One mj_step of the C engine with torque tau; returns the new qvel and #constraints."""
+    model = robot.mj_model
+    data = mujoco.MjData(model)
+    data.qpos[:], data.qvel[:] = qpos, qvel
+    data.ctrl[robot.actuator_of_joint] = tau / robot.gear
+    mujoco.mj_step(model, data)
+    return data.qvel.copy(), data.nefc
+
+
+@pytest.mark.parametrize(("name", "site"), [("iiwa14", None), ("two_link_arm", "tip")])
+def test_oracle_realises_desired_site_acceleration_in_one_step(name, site):
+    robot = robots.load(name)
+    model, site_id = robot.mj_model, opspace.ee_site(robot, site)
+    oracle = opspace.HostOracle(robot, site)
+    rng = np.random.default_rng(4)
+    checked = 0
+    while checked < 8:
+        q, qd = random_states(robot, rng, 1)
+        desired = rng.uniform(-2.0, 2.0, 3)
+        if name == "two_link_arm":
+            desired[1] = 0.0  # the arm moves in the x-z plane
+        tau = oracle(q[0], qd[0], desired)
+        if np.any(np.abs(tau) >= robot.torque_limit):
+            continue  # the test is about the dynamics, not about saturation
+        qvel, constraints = step_once(robot, q[0], qd[0], tau)
+        assert constraints == 0
+        realised_qacc = (qvel - qd[0]) / model.opt.timestep
+        realised = mujoco_site_acceleration(model, site_id, q[0], qd[0], realised_qacc)
+        # float64: (qd1 - qd0) / h amplifies rounding by 1/h = 500; measured ~4e-14.
+        np.testing.assert_allclose(realised, desired, atol=1e-11)
+        checked += 1
+
+
+def test_oracle_null_space_term_is_invisible_at_the_site(iiwa):
+    # The posture term changes the torque but, through J Mt^-1 N^T = 0, not the site
+    # acceleration: one C step with either torque realises the same xdd.
+    rng = np.random.default_rng(5)
+    q, qd = random_states(iiwa, rng, 1, spread=0.3)
+    desired = np.array([0.5, -0.5, 1.0])
+    with_posture = opspace.HostOracle(iiwa)(q[0], qd[0], desired)
+    without = opspace.HostOracle(iiwa, null_kp=0.0, null_kd=0.0)(q[0], qd[0], desired)
+    assert np.linalg.norm(with_posture - without) > 1.0
+    site, h = opspace.ee_site(iiwa), iiwa.mj_model.opt.timestep
+    for tau in (with_posture, without):
+        assert np.all(np.abs(tau) < iiwa.torque_limit)
+        qvel, _ = step_once(iiwa, q[0], qd[0], tau)
+        xdd = mujoco_site_acceleration(iiwa.mj_model, site, q[0], qd[0], (qvel - qd[0]) / h)
+        np.testing.assert_allclose(xdd, desired, atol=1e-11)
+
+
+def test_implicit_damping_only_for_euler(iiwa):
+    np.testing.assert_allclose(opspace.implicit_damping(iiwa.mj_model), 0.5 * 0.002)
+    model = copy.deepcopy(iiwa.mj_model)
+    model.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
+    np.testing.assert_array_equal(opspace.implicit_damping(model), 0.0)
+    model = copy.deepcopy(iiwa.mj_model)
+    model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
+    np.testing.assert_array_equal(opspace.implicit_damping(model), 0.0)
+
+
+def test_oracle_policy_jax_matches_host(iiwa):
+    rng = np.random.default_rng(6)
+    q, qd = (np.asarray(a, np.float32) for a in random_states(iiwa, rng, 5))
+    desired = rng.uniform(-1.0, 1.0, (5, 3)).astype(np.float32)
+    torque = jax.jit(jax.vmap(opspace.oracle_policy(iiwa)))(q, qd, desired)
+    expected = opspace.HostOracle(iiwa)(q, qd, desired)
+    assert torque.dtype == jnp.float32 and torque.shape == (5, 7)
+    # float32 rounding of torques up to a few hundred N m
+    np.testing.assert_allclose(torque, expected, atol=1e-4 * np.max(np.abs(expected)))
+
+
+# ---- PD baseline ------------------------------------------------------------------------
+
+
+def test_pd_gains_give_kp_acceleration_at_home(iiwa):
+    # A task-space force F = K_p e applied from rest at home (with the bias compensated so
+    # that only F acts) accelerates the site at kp e over one C step: K_p = kp Lambda(home).
+    kp, kd = 100.0, 20.0
+    gain_p, gain_d = opspace.pd_gains(iiwa, kp, kd)
+    np.testing.assert_allclose(gain_d, gain_p * kd / kp, rtol=1e-15)
+    np.testing.assert_allclose(gain_p, gain_p.T, atol=1e-9)
+    assert np.all(np.linalg.eigvalsh(gain_p) > 0)
+    model, site = iiwa.mj_model, opspace.ee_site(iiwa)
+    data = mujoco.MjData(model)
+    data.qpos[:] = iiwa.home
+    mujoco.mj_forward(model, data)
+    jac = np.zeros((3, 7))
+    mujoco.mj_jacSite(model, data, jac, None, site)
+    error = np.array([0.01, -0.02, 0.005])
+    tau = jac.T @ gain_p @ error + data.qfrc_bias
+    qvel, _ = step_once(iiwa, iiwa.home, np.zeros(7), tau)
+    xdd = mujoco_site_acceleration(model, site, iiwa.home, np.zeros(7), qvel / model.opt.timestep)
+    np.testing.assert_allclose(xdd, kp * error, atol=1e-11)
+
+
+def test_pd_policy_formula(iiwa):
+    gain_p = np.diag([300.0, 200.0, 100.0])
+    gain_d = np.diag([30.0, 20.0, 10.0])
+    rng = np.random.default_rng(8)
+    q, qd = random_states(iiwa, rng, 3)
+    ref_x = rng.uniform(0.3, 0.7, (3, 3))
+    ref_xd = rng.uniform(-0.5, 0.5, (3, 3))
+    args = [np.asarray(a, np.float32) for a in (q, qd, ref_x, ref_xd)]
+    torque = jax.jit(opspace.pd_policy(iiwa, gain_p, gain_d))(*args)
+    model, site = iiwa.mj_model, opspace.ee_site(iiwa)
+    data = mujoco.MjData(model)
+    for i in range(3):
+        data.qpos[:], data.qvel[:] = args[0][i], args[1][i]
+        mujoco.mj_forward(model, data)
+        jac = np.zeros((3, 7))
+        mujoco.mj_jacSite(model, data, jac, None, site)
+        force = gain_p @ (args[2][i] - data.site_xpos[site]) + gain_d @ (
+            args[3][i] - jac @ args[1][i]
+        )
+        np.testing.assert_allclose(torque[i], jac.T @ force, atol=1e-5 * np.abs(force).max())
+
+
+# ---- metrics and closed loop ------------------------------------------------------------
+
+
+def test_tracking_mse_by_hand():
+    reference = np.zeros((2, 3, 3))
+    reference[1, 1:] = 1.0
+    positions = np.zeros((2, 2, 3))
+    positions[0, 0] = [0.1, 0.2, 0.2]  # error^2 sum 0.09 over 6 numbers
+    positions[1] = 1.0  # exactly on the reference after step 0
+    mse = opspace.tracking_mse(positions, reference)
+    np.testing.assert_allclose(np.asarray(mse), [0.09 / 6, 0.0], rtol=1e-6)
+    np.testing.assert_allclose(opspace.tracking_mse(positions, reference[:, 1:]), mse)
+
+
+def test_closed_loop_oracle_tracks_pd_does_not(iiwa):
+    # 5 default references, 2 s, control_dt 0.01 (torque held for 5 physics steps).
+    ref = opspace.cartesian_reaching(iiwa, None, None, 2.0, 0.01)
+    oracle = opspace.HostOracle(iiwa)
+    out = opspace.host_rollout(
+        iiwa, ref, lambda q, qd, xdd, *_: oracle(q, qd, xdd), 100.0, 20.0, 0.01
+    )
+    assert out.position.shape == (5, 200, 3)
+    assert np.all(np.abs(out.tau) < iiwa.torque_limit)
+    rmse = np.sqrt(np.asarray(opspace.tracking_mse(out.position, ref.x)))
+    # exact per physics step, the held torque leaves ~0.05 mm (measured 0.03-0.08 mm)
+    assert np.all(rmse < 2e-4), rmse
+    gains = opspace.pd_gains(iiwa, 100.0, 20.0)
+    kin = opspace.HostKinematics(iiwa)
+
+    def pd(q, qd, desired, ref_x, ref_xd):
+        state = kin(q, qd)
+        force = (ref_x - state.position) @ gains[0].T + (ref_xd - state.velocity) @ gains[1].T
+        return np.einsum("bij,bi->bj", state.jacobian, force)
+
+    pd_out = opspace.host_rollout(iiwa, ref, pd, 100.0, 20.0, 0.01)
+    pd_rmse = np.sqrt(np.asarray(opspace.tracking_mse(pd_out.position, ref.x)))
+    assert np.all(pd_rmse > 0.02), pd_rmse  # no gravity compensation: sags by centimetres
+
+
+def test_jax_closed_loop_matches_host_rollout(arm):
+    # The JAX policies inside a scanned, vmapped loop with the native simulator reproduce
+    # the host reference loop (what a wired-in opspace rollout must do).
+    control_dt, kp, kd = 0.01, 100.0, 20.0
+    ref = opspace.cartesian_reaching(arm, "tip", None, 0.5, control_dt)
+    oracle = opspace.HostOracle(arm, "tip")
+    host = opspace.host_rollout(
+        arm, ref, lambda q, qd, xdd, *_: oracle(q, qd, xdd), kp, kd, control_dt, "tip"
+    )
+    physics = rollout.native_physics(arm, rollout.substeps(arm, control_dt))
+    torque = opspace.oracle_policy(arm, "tip")
+    limit = jnp.asarray(arm.torque_limit, jnp.float32)
+
+    def one_target(ref_x, ref_xd, ref_xdd):
+        def step(carry, t):
+            q, qd = carry
+            kin = opspace.kinematics(arm, q, qd, "tip")
+            desired = opspace.desired_acceleration(
+                ref_x[t], ref_xd[t], ref_xdd[t], kin.position, kin.velocity, kp, kd
+            )
+            tau = jnp.clip(torque(q, qd, desired), -limit, limit)
+            q, qd, _ = physics(q, qd, arm.torque_to_ctrl(tau))
+            return (q, qd), opspace.ee_position(arm, q, "tip")
+
+        q0 = jnp.asarray(arm.home, jnp.float32)
+        return jax.lax.scan(step, (q0, jnp.zeros_like(q0)), jnp.arange(ref_x.shape[0] - 1))[1]
+
+    positions = jax.jit(jax.vmap(one_target))(*opspace.as_jax(ref))
+    # float32 desired accelerations vs float64 in the host loop: differences ~1e-6 m/s^2
+    # that the stable closed loop does not amplify.
+    np.testing.assert_allclose(positions, host.position, atol=1e-6)
