@@ -695,3 +695,49 @@ def default_walks(**kwargs) -> list[LocomotionReference]:
 def default_jumps(**kwargs) -> list[LocomotionReference]:
     """The 5 jumps (:data:`JUMP_HEIGHTS` of foot clearance)."""
     return [jump_reference(h, **kwargs) for h in JUMP_HEIGHTS]
+
+
+def commanded_distance(params: WalkParams) -> float:
+    """Forward distance of the commanded base motion: stand, linear speed ramp, cruise."""
+    walk = max(params.duration - params.stand, 0.0)
+    ramp = min(walk, params.ramp)
+    return params.speed * (ramp * ramp / (2 * params.ramp) + (walk - ramp))
+
+
+def plot_foot_force(
+    ref: LocomotionReference,
+    path: str | os.PathLike,
+    *,
+    observed: np.ndarray | None = None,
+    predicted: np.ndarray | None = None,
+    foot: str = "FR",
+    title: str | None = None,
+):
+    """Plot desired (``ref.foot_force``) vs observed (and optionally predicted) force of one
+    foot over time, one panel per world axis, like the paper's Fig. 6; saves a PNG. The
+    force arrays are ``(T+1, 4, 3)`` (or ``(T, 4, 3)`` for the states after each step)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    leg = LEGS.index(foot)
+    t = np.arange(len(ref.foot_force)) * ref.control_dt
+    fig, axes = plt.subplots(3, 1, figsize=(7, 6), sharex=True)
+    curves = [("desired", ref.foot_force, dict(color="k", lw=2.0, alpha=0.6))]
+    if observed is not None:
+        curves.append(("observed", np.asarray(observed), dict(color="C0", lw=1.2)))
+    if predicted is not None:
+        curves.append(("predicted", np.asarray(predicted), dict(color="C3", lw=1.0, ls="--")))
+    for axis, ax in enumerate(axes):
+        for label, force, style in curves:
+            ax.plot(t[-len(force) :], force[:, leg, axis], label=label, **style)
+        ax.set_ylabel(f"f{'xyz'[axis]} [N]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(title or f"{ref.kind}: contact force of the {foot} foot (world frame)")
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
