@@ -222,8 +222,11 @@ class LocomotionReference(NamedTuple):
       ``(qvel[t+1] - qvel[t]) / control_dt`` (exact: Euler integration, torque held).
     * ``tau (T, 12)``: the joint torque applied (held) during period ``t``: this is the
       feed-forward torque of the reference.
-    * ``foot_force (T+1, 4, 3)``: floor force on each foot (world frame) at the state ``t``,
-      as the contact sensors report it in the ``mj_forward`` of that state.
+    * ``foot_force (T+1, 4, 3)``: floor force on each foot (world frame) at the state ``t``
+      with the torque ``tau[t]`` applied (``tau[T-1]`` for the last state), as the contact
+      sensors report it in the ``mj_forward`` of that state: the first of the ``n_sub``
+      sensordata entries the native stepper returns for period ``t``. MuJoCo's contact
+      forces depend on the applied torque, not only on the state.
     * ``foot_force_mean (T, 4, 3)``: mean over the physics steps of period ``t`` of the
       sensor force (the average of the ``n_sub`` sensordata entries the native stepper
       returns for that period): the force consistent with ``qacc[t]``.
@@ -584,20 +587,21 @@ def replay(ref: LocomotionReference, model=None, qpos0=None, qvel0=None) -> Repl
     n_sub = int(round(ref.control_dt / model.opt.timestep))
     d.qpos[:] = ref.qpos[0] if qpos0 is None else qpos0
     d.qvel[:] = ref.qvel[0] if qvel0 is None else qvel0
-    mujoco.mj_forward(model, d)
     limit = model.actuator_ctrlrange[:, 1]
-    qpos, qvel, taus, forces = [d.qpos.copy()], [d.qvel.copy()], [], [foot_forces(d.sensordata)]
+    qpos, qvel, taus, forces = [d.qpos.copy()], [d.qvel.copy()], [], []
     for t in range(ref.horizon):
         tau = ref.tau[t] + ref.kp * (ref.qpos[t, 7:] - d.qpos[7:])
         tau = np.clip(tau + ref.kd * (ref.qvel[t, 6:] - d.qvel[6:]), -limit, limit)
         d.ctrl[:] = tau
-        for _ in range(n_sub):
+        for k in range(n_sub):
             mujoco.mj_step(model, d)
-        mujoco.mj_forward(model, d)
+            if k == 0:  # sensors of the state at t under the torque applied at t
+                forces.append(foot_forces(d.sensordata))
         qpos.append(d.qpos.copy())
         qvel.append(d.qvel.copy())
         taus.append(tau)
-        forces.append(foot_forces(d.sensordata))
+    mujoco.mj_forward(model, d)  # final state, last torque still applied
+    forces.append(foot_forces(d.sensordata))
     qpos = np.array(qpos)
     forces = np.array(forces)
     return Replay(qpos, np.array(qvel), np.array(taus), forces, bool(fell(qpos, forces).any()))
