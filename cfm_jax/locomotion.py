@@ -745,3 +745,79 @@ def plot_foot_force(
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def summary(ref: LocomotionReference, model=None) -> dict:
+    """Key numbers of a reference: distance, cruise speed, clearance, peak torque, forces."""
+    out = {
+        "kind": ref.kind,
+        "duration_s": ref.duration,
+        "distance_m": float(ref.qpos[-1, 0] - ref.qpos[0, 0]),
+        "peak_torque_Nm": float(np.abs(ref.tau).max()),
+        "peak_normal_force_N": float(ref.foot_force[..., 2].max()),
+        "max_tilt_deg": float(np.degrees(np.arccos(quat_to_mat(ref.qpos[:, 3:7])[:, 2, 2])).max()),
+    }
+    if ref.kind == "jump":
+        out["clearance_m"] = jump_clearance(ref)
+        out["base_apex_gain_m"] = float(ref.qpos[:, 2].max() - ref.qpos[0, 2])
+        out["push_force_N"] = json.loads(ref.params)["push_force"]
+    else:
+        last = min(ref.horizon, int(round(1.0 / ref.control_dt)))
+        out["speed_last_1s_mps"] = float(
+            (ref.qpos[-1, 0] - ref.qpos[-1 - last, 0]) / (last * ref.control_dt)
+        )
+    return out
+
+
+def _main(out_dir: str = "docs/figures") -> None:  # pragma: no cover - figure script
+    """Print the default references' numbers and write the figures of docs/locomotion.md."""
+    import time
+
+    from cfm_jax import render
+
+    model = load_model()
+    start = time.perf_counter()
+    walks, jumps = default_walks(), default_jumps()
+    print(f"references: {time.perf_counter() - start:.1f} s (cached after the first run)")
+    for ref in walks + jumps:
+        q0 = ref.qpos[0].copy()
+        q0[2] += 0.005
+        q0[7:] += 0.03 * np.where(np.arange(12) % 2, 1.0, -1.0)
+        run = replay(ref, model, qpos0=q0)
+        row = summary(ref)
+        row["perturbed_base_err_m"] = float(np.abs(run.qpos[:, :3] - ref.qpos[:, :3]).max())
+        row["perturbed_joint_rms_rad"] = float(np.sqrt(np.mean((run.qpos - ref.qpos)[:, 7:] ** 2)))
+        print({k: round(v, 4) if isinstance(v, float) else v for k, v in row.items()})
+    out = Path(out_dir)
+    walk, jump = walks[-1], jumps[3]
+    q0 = walk.qpos[0].copy()
+    q0[2] += 0.005
+    q0[7:] += 0.03 * np.where(np.arange(12) % 2, 1.0, -1.0)
+    run = replay(walk, model, qpos0=q0)
+    sl = slice(0, int(round(1.5 / walk.control_dt)) + 1)
+    plot_foot_force(
+        walk._replace(foot_force=walk.foot_force[sl]),
+        out / "solo12_walk_force_FR.png",
+        observed=run.foot_force[sl],
+        foot="FR",
+        title="trot reference (desired) vs replay from a perturbed start (observed), FR foot",
+    )
+    ok, why = render.render_available()
+    if not ok:
+        print(f"skipping pictures: {why}")
+        return
+    idx = np.linspace(int(0.9 / walk.control_dt), walk.horizon, 6).round().astype(int)
+    cam = {"distance": 1.1, "azimuth": 90.0, "elevation": -12.0, "lookat": [0, 0, 0.15]}
+    render.frame_strip(model, walk.qpos, out / "solo12_walk_strip.png", indices=idx, camera=cam)
+    apex = int(np.argmax(jump.qpos[:, 2]))
+    idx = [int(0.05 / jump.control_dt), int(0.4 / jump.control_dt), apex - 25, apex, apex + 40]
+    idx.append(jump.horizon)
+    cam = {"distance": 1.1, "azimuth": 90.0, "elevation": -5.0, "lookat": [0, 0, 0.25]}
+    render.frame_strip(
+        model, jump.qpos, out / "solo12_jump_strip.png", indices=idx, camera=cam, track=False
+    )
+    print(f"figures in {out}")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    _main()
