@@ -1,0 +1,823 @@
+"""Solo12 locomotion helpers: foot forces from sensordata, leg kinematics, fall detection, and
+dynamically consistent walk / jump references recorded from a whole-body controller.
+
+The references stand in for the paper's kino-dynamic planner (Ponton et al. 2018). Instead of
+planning, a simple whole-body controller (joint PD on analytic leg inverse kinematics plus a
+stance feed-forward ``-J^T f``) is *run in MuJoCo on our model* (``robots/solo12.xml``) and
+every physics step is recorded. The recording is therefore exactly consistent with the
+model: replaying its torques reproduces it, and ``mj_inverse`` on the recorded
+``(qpos, qvel, qacc)`` returns the recorded torques (see :func:`inverse_dynamics_residual`).
+
+Conventions (see docs/locomotion.md):
+
+* ``qpos`` (19) = base position (3), base quaternion w x y z (4), 12 joints in the order
+  FL, FR, HL, HR, each (HAA, HFE, KFE); ``qvel`` (18) = base linear velocity (world frame),
+  base angular velocity (base frame, MuJoCo's free-joint convention), 12 joint velocities.
+* ``foot_force (..., 4, 3)``: force the floor exerts on each foot, world frame, in newtons
+  (z > 0 when standing).
+* Physics timestep 0.002 s (from the XML); references are given at ``control_dt`` 0.004 s
+  (250 Hz, the paper's rate), so each control step holds the torque for 2 physics steps,
+  like :class:`cfm_jax.native.Stepper`.
+
+Example:
+  >>> from cfm_jax import locomotion
+  >>> ref = locomotion.walk_reference(1.0)  # doctest: +SKIP
+  >>> ref.qpos.shape, ref.tau.shape, ref.foot_force.shape  # doctest: +SKIP
+  ((251, 19), (250, 12), (251, 4, 3))
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+LEGS = ("FL", "FR", "HL", "HR")
+JOINTS = tuple(f"{leg}_{j}" for leg in LEGS for j in ("HAA", "HFE", "KFE"))
+# (front +1 / hind -1, left +1 / right -1) for each leg, [2.1] of the facts sheet.
+LEG_SIGNS = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], dtype=float)
+
+# Kinematic constants of robots/solo12.xml (facts sheet [2.2], [2.4]).
+HAA_X, HAA_Y = 0.2141, 0.0875
+HFE_DX = 0.0195  # HFE sits 19.5 mm inboard of HAA
+LEG_Y = 0.014 + 0.03745 + 0.009  # lateral offset of the foot from the HAA axis (shoulder frame)
+L_UPPER = L_LOWER = 0.16
+FOOT_RADIUS = 0.017
+BASE_HALF = np.array([0.196, 0.05, 0.025])  # visual base box half-extents
+
+SENSOR_SLOT = 10  # per foot: found (1), force in contact frame (3), normal (3), tangent (3)
+HOME_JOINTS = np.array([0, 0.8, -1.6, 0, 0.8, -1.6, 0, -0.8, 1.6, 0, -0.8, 1.6])
+KP, KD = 5.0, 0.1  # robot_properties_solo default joint PD [2.5]
+CONTROL_DT = 0.004  # 250 Hz, the paper's authors' control rate
+
+CACHE_ENV = "CFM_JAX_REFERENCE_CACHE"
+_FORMAT_VERSION = 1
+
+
+def model_path() -> str:
+    """Path of the shipped ``solo12.xml`` (package data, or ``robots/`` of a checkout)."""
+    try:
+        import importlib.resources
+
+        path = importlib.resources.files("cfm_jax._robot_files") / "solo12.xml"
+        if path.is_file():
+            return str(path)
+    except ModuleNotFoundError:
+        pass
+    return str(Path(__file__).resolve().parent.parent / "robots" / "solo12.xml")
+
+
+def load_model(path: str | None = None):
+    """``mujoco.MjModel`` of Solo12 (``cfm_jax.robots.load`` rejects floating bases)."""
+    import mujoco
+
+    return mujoco.MjModel.from_xml_path(path or model_path())
+
+
+# ---- contact forces --------------------------------------------------------------------------
+
+
+def foot_forces(sensordata, xp=np):
+    """World-frame force of the floor on each foot, ``(..., 4, 3)``, from ``sensordata``.
+
+    Works on ``(..., 40)`` arrays (the four contact sensors of ``solo12.xml``), with NumPy or
+    ``jax.numpy`` (pass ``xp=jnp``). The contact sensors report the force in the contact frame
+    (normal, tangent, bitangent = normal x tangent, the force that geom1 = foot exerts on
+    geom2 = floor) together with the frame's normal and tangent in the world frame; this
+    rotates it to the world frame and flips the sign so it is the floor's force on the foot.
+    Slots with no contact are all zero, giving zero force.
+    """
+    s = xp.reshape(sensordata[..., : 4 * SENSOR_SLOT], sensordata.shape[:-1] + (4, SENSOR_SLOT))
+    f, n, t = s[..., 1:4], s[..., 4:7], s[..., 7:10]
+    b = xp.cross(n, t)
+    world = f[..., 0:1] * n + f[..., 1:2] * t + f[..., 2:3] * b
+    return -world
+
+
+def foot_contact(sensordata, xp=np):
+    """Whether each foot touches the floor, ``(..., 4)`` bool, from the sensors' found count."""
+    s = xp.reshape(sensordata[..., : 4 * SENSOR_SLOT], sensordata.shape[:-1] + (4, SENSOR_SLOT))
+    return s[..., 0] > 0.5
+
+
+# ---- leg kinematics (base frame) ------------------------------------------------------------
+
+
+def _rot_x(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def leg_fk(q_leg, leg: int) -> np.ndarray:
+    """Foot centre of leg ``leg`` (0..3 = FL, FR, HL, HR) in the base frame for joints
+    ``(HAA, HFE, KFE)``; closed form of the chain in solo12.xml ([2.2])."""
+    sx, sy = LEG_SIGNS[leg]
+    q0, q1, q2 = q_leg
+    x = -sx * HFE_DX - L_UPPER * np.sin(q1) - L_LOWER * np.sin(q1 + q2)
+    z = -L_UPPER * np.cos(q1) - L_LOWER * np.cos(q1 + q2)
+    return np.array([sx * HAA_X, sy * HAA_Y, 0.0]) + _rot_x(q0) @ np.array([x, sy * LEG_Y, z])
+
+
+def knee_fk(q_leg, leg: int) -> np.ndarray:
+    """Knee (KFE axis) of leg ``leg`` in the base frame."""
+    sx, sy = LEG_SIGNS[leg]
+    q0, q1, _ = q_leg
+    local = [-sx * HFE_DX - L_UPPER * np.sin(q1), sy * (0.014 + 0.03745), -L_UPPER * np.cos(q1)]
+    return np.array([sx * HAA_X, sy * HAA_Y, 0.0]) + _rot_x(q0) @ np.array(local)
+
+
+def leg_ik(foot, leg: int) -> np.ndarray:
+    """Joints ``(HAA, HFE, KFE)`` that put the foot centre of leg ``leg`` at ``foot`` (base
+    frame). Knee branch of the ODRI demos: front legs KFE < 0, hind legs KFE > 0 (knees point
+    to the body centre). Unreachable targets are clipped to the workspace boundary."""
+    sx, sy = LEG_SIGNS[leg]
+    r = np.asarray(foot, float) - [sx * HAA_X, sy * HAA_Y, 0.0]
+    ys = sy * LEG_Y
+    zs = -np.sqrt(max(r[1] ** 2 + r[2] ** 2 - ys**2, 1e-12))
+    q0 = np.arctan2(r[2], r[1]) - np.arctan2(zs, ys)
+    q0 = (q0 + np.pi) % (2 * np.pi) - np.pi
+    x, z = r[0] + sx * HFE_DX, zs
+    d2 = x * x + z * z
+    c2 = np.clip((d2 - L_UPPER**2 - L_LOWER**2) / (2 * L_UPPER * L_LOWER), -1.0, 1.0)
+    q2 = -sx * np.arccos(c2)
+    phi = np.arctan2(-x, -z)  # angle of the hip->foot line from straight down, + backward
+    q1 = phi - q2 / 2  # equal link lengths
+    return np.array([q0, q1, q2])
+
+
+def quat_to_mat(quat, xp=np):
+    """Rotation matrices ``(..., 3, 3)`` of unit quaternions ``(..., 4)`` (w, x, y, z)."""
+    w, x, y, z = (quat[..., i] for i in range(4))
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    return xp.stack([xp.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+# ---- fall detection -------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class FallLimits:
+    """Thresholds of :func:`fell`. ``min_base_height``: base origin height (standing is
+    0.239 m, the deepest crouch of the jumps ~0.16 m); ``max_tilt``: angle between the base z
+    axis and the world z axis (rad); ``body_clearance``: the lowest base-box corner or knee
+    must stay this far above the floor (the model has no body-floor contacts, so touching the
+    floor is detected geometrically)."""
+
+    min_base_height: float = 0.10
+    max_tilt: float = 0.8
+    body_clearance: float = 0.005
+
+
+def fell(qpos, foot_force=None, limits: FallLimits = FallLimits()) -> np.ndarray:
+    """True where the robot has fallen: base too low, body (base box corner or knee) at the
+    floor, or base tilted more than ``limits.max_tilt``. ``qpos (..., 19)``; returns
+    ``(...)`` bool. ``foot_force (..., 4, 3)`` is optional: a foot pulling the floor (negative
+    normal force beyond 1e-6 N) also counts, which only happens for non-physical states.
+
+    Knees are computed in closed form (:func:`knee_fk`), the base corners from the base pose.
+    """
+    qpos = np.asarray(qpos, float)
+    batch = qpos.shape[:-1]
+    flat = qpos.reshape(-1, qpos.shape[-1])
+    rot = quat_to_mat(flat[:, 3:7] / np.linalg.norm(flat[:, 3:7], axis=-1, keepdims=True))
+    pos = flat[:, :3]
+    tilt = np.arccos(np.clip(rot[:, 2, 2], -1.0, 1.0))
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    corners = corners * BASE_HALF
+    lowest = (pos[:, None, :] + np.einsum("bij,kj->bki", rot, corners))[..., 2].min(axis=1)
+    for i in range(len(flat)):
+        for leg in range(4):
+            knee = pos[i] + rot[i] @ knee_fk(flat[i, 7 + 3 * leg : 10 + 3 * leg], leg)
+            lowest[i] = min(lowest[i], knee[2])
+    out = (
+        (pos[:, 2] < limits.min_base_height)
+        | (tilt > limits.max_tilt)
+        | (lowest < limits.body_clearance)
+    )
+    if foot_force is not None:
+        fz = np.asarray(foot_force, float).reshape(-1, 4, 3)[..., 2]
+        out |= np.any(fz < -1e-6, axis=-1)
+    return out.reshape(batch)
+
+
+# ---- references ------------------------------------------------------------------------------
+
+
+class LocomotionReference(NamedTuple):
+    """A reference motion at the control rate, recorded from MuJoCo on ``solo12.xml``.
+
+    ``T`` control steps of ``control_dt``; index ``t`` is the state at time ``t * control_dt``.
+
+    * ``qpos (T+1, 19)``, ``qvel (T+1, 18)``: states at the control instants.
+    * ``qacc (T, 18)``: mean acceleration over control period ``t``,
+      ``(qvel[t+1] - qvel[t]) / control_dt`` (exact: Euler integration, torque held).
+    * ``tau (T, 12)``: the joint torque applied (held) during period ``t``: this is the
+      feed-forward torque of the reference.
+    * ``foot_force (T+1, 4, 3)``: floor force on each foot (world frame) at the state ``t``
+      with the torque ``tau[t]`` applied (``tau[T-1]`` for the last state), as the contact
+      sensors report it in the ``mj_forward`` of that state: the first of the ``n_sub``
+      sensordata entries the native stepper returns for period ``t``. MuJoCo's contact
+      forces depend on the applied torque, not only on the state.
+    * ``foot_force_mean (T, 4, 3)``: mean over the physics steps of period ``t`` of the
+      sensor force (the average of the ``n_sub`` sensordata entries the native stepper
+      returns for that period): the force consistent with ``qacc[t]``.
+    * ``contact (T+1, 4)``: foot touches the floor at state ``t``.
+    * ``kp``, ``kd``: joint feedback gains to use around the reference,
+      ``tau_t = tau[t] + kp (q_ref - q) + kd (qd_ref - qd)`` on the 12 joints.
+    * ``kind``: "walk" or "jump"; ``params``: the generating parameters (JSON text).
+    """
+
+    control_dt: float
+    qpos: np.ndarray
+    qvel: np.ndarray
+    qacc: np.ndarray
+    tau: np.ndarray
+    foot_force: np.ndarray
+    foot_force_mean: np.ndarray
+    contact: np.ndarray
+    kp: float
+    kd: float
+    kind: str
+    params: str
+
+    @property
+    def horizon(self) -> int:
+        return len(self.tau)
+
+    @property
+    def duration(self) -> float:
+        return self.horizon * self.control_dt
+
+    @property
+    def desired_next(self) -> np.ndarray:
+        """The inverse model's desired input per step ``t``: ``[qacc[t] * control_dt,
+        foot_force[t+1].ravel()]`` (18 + 12), the paper's ``s*_{t+1}``."""
+        return np.concatenate(
+            [self.qacc * self.control_dt, self.foot_force[1:].reshape(self.horizon, 12)], axis=1
+        )
+
+
+class PhysicsRecording(NamedTuple):
+    """Every physics step of a reference run: state before the step, the acceleration
+    MuJoCo integrated, the torque held and the sensordata of that step."""
+
+    qpos: np.ndarray  # (K+1, 19)
+    qvel: np.ndarray  # (K+1, 18)
+    qacc: np.ndarray  # (K, 18)
+    tau: np.ndarray  # (K, 12)
+    sensordata: np.ndarray  # (K, nsensordata)
+
+
+@dataclasses.dataclass(frozen=True)
+class WalkParams:
+    """Trot: diagonal pairs (FL+HR, FR+HL) alternate, ``period`` s per gait cycle (each pair
+    swings for half of it), swing apex ``swing_height``; forward speed ramps linearly from 0
+    to ``speed`` over ``ramp`` s. The base is commanded at ``height`` and level; every foot
+    target is converted to joint targets by :func:`leg_ik`."""
+
+    duration: float = 2.0
+    speed: float = 0.3
+    period: float = 0.3
+    swing_height: float = 0.05
+    height: float = 0.24
+    ramp: float = 0.6
+    stand: float = 0.1  # s of standing before the first step
+
+
+@dataclasses.dataclass(frozen=True)
+class JumpParams:
+    """Vertical jump: settle, crouch to ``crouch_height`` (base origin height), push with a
+    vertical ground force ``push_force`` per foot (``-J^T f`` plus posture PD) until the
+    foot-to-hip depth reaches ``extension``, fly with the legs held at the landing posture,
+    land with joint PD plus the standing feed-forward, stand until ``duration``.
+
+    ``height`` is the requested foot clearance (lowest foot bottom above the floor at the
+    apex, m); ``push_force`` is found by bisection to reach it (see :func:`jump_reference`).
+    """
+
+    height: float = 0.1
+    duration: float = 1.5
+    settle: float = 0.1
+    crouch: float = 0.3
+    crouch_height: float = 0.17
+    extension: float = 0.27
+    push_force: float | None = None
+
+
+def _total_mass(model) -> float:
+    return float(np.sum(model.body_mass))
+
+
+class _Sim:
+    """MuJoCo simulation at the control rate with per-physics-step recording."""
+
+    def __init__(self, model, control_dt: float):
+        import mujoco
+
+        self.mj = mujoco
+        self.m = model
+        self.d = mujoco.MjData(model)
+        n_sub = control_dt / model.opt.timestep
+        if abs(n_sub - round(n_sub)) > 1e-9:
+            raise ValueError(
+                f"control_dt {control_dt} is not a whole number of physics steps "
+                f"({model.opt.timestep})"
+            )
+        self.n_sub = int(round(n_sub))
+        self.control_dt = control_dt
+        mujoco.mj_resetDataKeyframe(model, self.d, model.key("home").id)
+        mujoco.mj_forward(model, self.d)
+        self.site = [model.site(f"{leg}_foot").id for leg in LEGS]
+        self.jac = np.zeros((3, model.nv))
+        self.rec = {k: [] for k in ("qpos", "qvel", "qacc", "tau", "sensordata")}
+        self.limit = model.actuator_ctrlrange[:, 1].copy()
+
+    @property
+    def q(self):
+        return self.d.qpos[7:]
+
+    @property
+    def qd(self):
+        return self.d.qvel[6:]
+
+    def contact(self):
+        return foot_contact(self.d.sensordata)
+
+    def leg_jacobian(self, leg: int) -> np.ndarray:
+        """3x3 world-frame Jacobian of the foot centre w.r.t. the leg's joints."""
+        self.mj.mj_jacSite(self.m, self.d, self.jac, None, self.site[leg])
+        return self.jac[:, 6 + 3 * leg : 9 + 3 * leg].copy()
+
+    def ff_force(self, forces) -> np.ndarray:
+        """Joint torques ``-J^T f`` producing the ground forces ``forces (4, 3)`` (world)."""
+        tau = np.zeros(12)
+        for leg in range(4):
+            if np.any(forces[leg]):
+                tau[3 * leg : 3 * leg + 3] = -self.leg_jacobian(leg).T @ forces[leg]
+        return tau
+
+    def step(self, tau):
+        tau = np.clip(tau, -self.limit, self.limit)
+        self.d.ctrl[:] = tau
+        for _ in range(self.n_sub):
+            self.rec["qpos"].append(self.d.qpos.copy())
+            self.rec["qvel"].append(self.d.qvel.copy())
+            self.mj.mj_step(self.m, self.d)
+            self.rec["qacc"].append(self.d.qacc.copy())
+            self.rec["tau"].append(tau.copy())
+            self.rec["sensordata"].append(self.d.sensordata.copy())
+        self.mj.mj_forward(self.m, self.d)  # kinematics and sensors of the new state
+
+    def recording(self) -> PhysicsRecording:
+        return PhysicsRecording(
+            qpos=np.array(self.rec["qpos"] + [self.d.qpos.copy()]),
+            qvel=np.array(self.rec["qvel"] + [self.d.qvel.copy()]),
+            qacc=np.array(self.rec["qacc"]),
+            tau=np.array(self.rec["tau"]),
+            sensordata=np.array(self.rec["sensordata"] + [self.d.sensordata.copy()]),
+        )
+
+
+def _to_reference(rec: PhysicsRecording, n_sub, control_dt, kind, params) -> LocomotionReference:
+    k = len(rec.tau)
+    steps = k // n_sub
+    idx = np.arange(steps + 1) * n_sub
+    force = foot_forces(rec.sensordata)  # (K+1, 4, 3); entry K is the final state's
+    qvel = rec.qvel[idx]
+    return LocomotionReference(
+        control_dt=control_dt,
+        qpos=rec.qpos[idx],
+        qvel=qvel,
+        qacc=(qvel[1:] - qvel[:-1]) / control_dt,
+        tau=rec.tau[idx[:-1]],
+        foot_force=force[idx],
+        foot_force_mean=force[:k].reshape(steps, n_sub, 4, 3).mean(axis=1),
+        contact=foot_contact(rec.sensordata)[idx],
+        kp=KP,
+        kd=KD,
+        kind=kind,
+        params=json.dumps(params, sort_keys=True),
+    )
+
+
+def _stance_feedforward(sim: _Sim, stance: np.ndarray, weight: float) -> np.ndarray:
+    n = int(stance.sum())
+    forces = np.zeros((4, 3))
+    if n:
+        forces[stance, 2] = weight / n
+    return sim.ff_force(forces)
+
+
+def hip_positions() -> np.ndarray:
+    """Nominal foot positions under the hips at the home pose, base frame ``(4, 3)``."""
+    return np.array([leg_fk(HOME_JOINTS[3 * i : 3 * i + 3], i) for i in range(4)])
+
+
+def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT):
+    """Run the trot controller; returns ``(LocomotionReference, PhysicsRecording)``."""
+    model = model if model is not None else load_model()
+    sim = _Sim(model, control_dt)
+    weight = _total_mass(model) * -model.opt.gravity[2]
+    nominal = hip_positions()
+    half = params.period / 2
+    steps = int(round(params.duration / control_dt))
+    x_base = 0.0
+    for step in range(steps):
+        t = step * control_dt
+        tw = t - params.stand  # walking clock
+        speed = params.speed * np.clip(tw / params.ramp, 0.0, 1.0) if tw > 0 else 0.0
+        targets = np.zeros(12)
+        stance = np.ones(4, bool)
+        for leg in range(4):
+            foot = nominal[leg].copy()
+            foot[2] = -params.height + FOOT_RADIUS  # depth of the foot centre below the base
+            if tw > 0:
+                pair = 0 if leg in (0, 3) else 1
+                phase = ((tw / half) + pair) % 2.0  # [0, 1): swing, [1, 2): stance
+                stride = speed * half  # base travel during one stance phase
+                if phase < 1.0:
+                    s = phase
+                    foot[0] += stride * (s - 0.5)
+                    foot[2] += params.swing_height * np.sin(np.pi * s)
+                    stance[leg] = False
+                else:
+                    s = phase - 1.0
+                    foot[0] += stride * (0.5 - s)
+            targets[3 * leg : 3 * leg + 3] = leg_ik(foot, leg)
+        # the first half-cycle: pair 1 (FR+HL) starts in stance, pair 0 swings
+        tau = KP * (targets - sim.q) - KD * sim.qd
+        tau += _stance_feedforward(sim, stance, weight)
+        sim.step(tau)
+        x_base += speed * control_dt
+    rec = sim.recording()
+    ref = _to_reference(rec, sim.n_sub, control_dt, "walk", dataclasses.asdict(params))
+    return ref, rec
+
+
+def _jump_run(params: JumpParams, push_force: float, model, control_dt):
+    sim = _Sim(model, control_dt)
+    weight = _total_mass(model) * -model.opt.gravity[2]
+    nominal = hip_positions()
+    stand_depth = -nominal[0, 2]
+    crouch_depth = params.crouch_height - FOOT_RADIUS
+    steps = int(round(params.duration / control_dt))
+    phase = "settle"
+    t_phase = 0.0
+    for step in range(steps):
+        t = step * control_dt
+        contact = sim.contact()
+        if phase == "settle" and t >= params.settle:
+            phase, t_phase = "crouch", t
+        if phase == "crouch" and t - t_phase >= params.crouch:
+            phase, t_phase = "push", t
+        if phase == "push":
+            depth = np.mean([-leg_fk(sim.q[3 * i : 3 * i + 3], i)[2] for i in range(4)])
+            if depth >= params.extension or not contact.any():
+                phase, t_phase = "flight", t
+        if phase == "flight" and t - t_phase > 0.02 and contact.any():
+            phase, t_phase = "land", t
+        if phase in ("settle", "flight", "land"):
+            depth = stand_depth
+        elif phase == "crouch":
+            s = 0.5 - 0.5 * np.cos(np.pi * min((t - t_phase) / params.crouch, 1.0))
+            depth = stand_depth + s * (crouch_depth - stand_depth)
+        else:  # push: hold the lateral posture, legs extend under the force
+            depth = params.extension
+        targets = np.concatenate(
+            [leg_ik(nominal[i] * [1, 1, 0] + [0, 0, -depth], i) for i in range(4)]
+        )
+        tau = KP * (targets - sim.q) - KD * sim.qd
+        if phase == "push":
+            tau = KP * (targets - sim.q) * np.tile([1.0, 0.0, 0.0], 4) - KD * sim.qd
+            forces = np.zeros((4, 3))
+            forces[:, 2] = push_force
+            tau = tau + sim.ff_force(forces)
+        elif phase != "flight":
+            tau += _stance_feedforward(sim, contact if contact.any() else np.ones(4, bool), weight)
+        sim.step(tau)
+    return sim
+
+
+def jump_clearance(ref_or_rec) -> float:
+    """Largest foot clearance reached: max over time of the lowest foot bottom above the
+    floor (m), from the recorded qpos (closed-form leg kinematics)."""
+    qpos = ref_or_rec.qpos
+    rot = quat_to_mat(qpos[:, 3:7])
+    lowest = np.full(len(qpos), np.inf)
+    for leg in range(4):
+        feet = np.array([leg_fk(q[7 + 3 * leg : 10 + 3 * leg], leg) for q in qpos])
+        z = qpos[:, 2] + np.einsum("tj,tj->t", rot[:, 2, :], feet) - FOOT_RADIUS
+        lowest = np.minimum(lowest, z)
+    return float(lowest.max())
+
+
+def simulate_jump(params: JumpParams, model=None, control_dt: float = CONTROL_DT):
+    """Run the jump controller; with ``params.push_force`` None the push force is found by
+    bisection so that :func:`jump_clearance` equals ``params.height`` to 2 %. Returns
+    ``(LocomotionReference, PhysicsRecording)``."""
+    model = model if model is not None else load_model()
+    weight = _total_mass(model) * -model.opt.gravity[2]
+    if params.push_force is not None:
+        force = params.push_force
+    else:
+        lo, hi = weight / 4, 3.0 * weight
+        force = hi
+        for _ in range(30):
+            force = 0.5 * (lo + hi)
+            rec = _jump_run(params, force, model, control_dt).recording()
+            got = jump_clearance(rec)
+            if abs(got - params.height) <= 0.02 * params.height:
+                break
+            lo, hi = (force, hi) if got < params.height else (lo, force)
+        params = dataclasses.replace(params, push_force=float(force))
+    sim = _jump_run(params, force, model, control_dt)
+    rec = sim.recording()
+    ref = _to_reference(rec, sim.n_sub, control_dt, "jump", dataclasses.asdict(params))
+    return ref, rec
+
+
+# ---- checks -----------------------------------------------------------------------------------
+
+
+def inverse_dynamics_residual(rec: PhysicsRecording, model=None) -> np.ndarray:
+    """Per physics step, ``mj_inverse(qpos, qvel, qacc)`` minus the generalized force the
+    recording applied (the torques on the 12 joints, zero on the 6 base dofs), ``(K, 18)``.
+    Zero up to the forward solver's tolerance when the recording is consistent with the
+    model (MuJoCo's soft contacts make the inverse well defined)."""
+    import mujoco
+
+    model = model if model is not None else load_model()
+    d = mujoco.MjData(model)
+    out = np.empty((len(rec.tau), model.nv))
+    for k in range(len(rec.tau)):
+        d.qpos[:], d.qvel[:], d.qacc[:] = rec.qpos[k], rec.qvel[k], rec.qacc[k]
+        mujoco.mj_inverse(model, d)
+        out[k] = d.qfrc_inverse
+        out[k, 6:] -= rec.tau[k]
+    return out
+
+
+class Replay(NamedTuple):
+    """A closed-loop replay of a reference (control rate)."""
+
+    qpos: np.ndarray  # (T+1, 19)
+    qvel: np.ndarray  # (T+1, 18)
+    tau: np.ndarray  # (T, 12) applied (clipped) torques
+    foot_force: np.ndarray  # (T+1, 4, 3)
+    fell: bool
+
+
+def replay(ref: LocomotionReference, model=None, qpos0=None, qvel0=None) -> Replay:
+    """Simulate ``tau = ref.tau[t] + kp (q_ref - q) + kd (qd_ref - qd)`` (clipped to the
+    torque limit) from ``(qpos0, qvel0)`` (default: the reference's first state), with the
+    control held for each ``control_dt`` like :class:`cfm_jax.native.Stepper`."""
+    import mujoco
+
+    model = model if model is not None else load_model()
+    d = mujoco.MjData(model)
+    n_sub = int(round(ref.control_dt / model.opt.timestep))
+    d.qpos[:] = ref.qpos[0] if qpos0 is None else qpos0
+    d.qvel[:] = ref.qvel[0] if qvel0 is None else qvel0
+    limit = model.actuator_ctrlrange[:, 1]
+    qpos, qvel, taus, forces = [d.qpos.copy()], [d.qvel.copy()], [], []
+    for t in range(ref.horizon):
+        tau = ref.tau[t] + ref.kp * (ref.qpos[t, 7:] - d.qpos[7:])
+        tau = np.clip(tau + ref.kd * (ref.qvel[t, 6:] - d.qvel[6:]), -limit, limit)
+        d.ctrl[:] = tau
+        for k in range(n_sub):
+            mujoco.mj_step(model, d)
+            if k == 0:  # sensors of the state at t under the torque applied at t
+                forces.append(foot_forces(d.sensordata))
+        qpos.append(d.qpos.copy())
+        qvel.append(d.qvel.copy())
+        taus.append(tau)
+    mujoco.mj_forward(model, d)  # final state, last torque still applied
+    forces.append(foot_forces(d.sensordata))
+    qpos = np.array(qpos)
+    forces = np.array(forces)
+    return Replay(qpos, np.array(qvel), np.array(taus), forces, bool(fell(qpos, forces).any()))
+
+
+# ---- reference API with on-disk cache ----------------------------------------------------------
+
+WALK_DURATIONS = (1.0, 1.5, 2.0, 2.5, 3.0)  # s, the 5 walking horizons
+JUMP_HEIGHTS = (0.05, 0.08, 0.11, 0.14, 0.17)  # m of foot clearance, the 5 jump heights
+
+
+def cache_dir(path: str | os.PathLike | None = None) -> Path:
+    """Reference cache folder: ``path``, else ``$CFM_JAX_REFERENCE_CACHE``, else
+    ``~/.cache/cfm_jax/references``."""
+    if path is not None:
+        return Path(path)
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV])
+    return Path.home() / ".cache" / "cfm_jax" / "references"
+
+
+def _cache_key(kind: str, params, control_dt: float, model_file: str) -> str:
+    h = hashlib.sha256()
+    meta = {"kind": kind, "params": dataclasses.asdict(params), "control_dt": control_dt}
+    meta["format"] = _FORMAT_VERSION
+    h.update(json.dumps(meta, sort_keys=True).encode())
+    h.update(Path(model_file).read_bytes())
+    return h.hexdigest()[:24]
+
+
+def _save(ref: LocomotionReference, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
+    np.savez(tmp, **{k: np.asarray(v) for k, v in ref._asdict().items()})
+    os.replace(tmp, path)
+
+
+def _load(path: Path) -> LocomotionReference:
+    with np.load(path) as z:
+        fields = {k: z[k] for k in LocomotionReference._fields}
+    for k in ("control_dt", "kp", "kd"):
+        fields[k] = float(fields[k])
+    for k in ("kind", "params"):
+        fields[k] = str(fields[k])
+    return LocomotionReference(**fields)
+
+
+def _cached(kind, params, control_dt, model_file, cache, use_cache, simulate):
+    model_file = model_file or model_path()
+    path = cache_dir(cache) / f"{kind}-{_cache_key(kind, params, control_dt, model_file)}.npz"
+    if use_cache and path.is_file():
+        return _load(path)
+    ref, _ = simulate(params, load_model(model_file), control_dt)
+    if use_cache:
+        _save(ref, path)
+    return ref
+
+
+def walk_reference(
+    duration: float = 2.0,
+    *,
+    control_dt: float = CONTROL_DT,
+    model_file: str | None = None,
+    cache: str | os.PathLike | None = None,
+    use_cache: bool = True,
+    **params,
+) -> LocomotionReference:
+    """Trot reference of ``duration`` s (other :class:`WalkParams` fields as keywords),
+    loaded from the cache when present (:func:`cache_dir`; key: parameters, control_dt and
+    the model file's bytes)."""
+    p = WalkParams(duration=duration, **params)
+    return _cached("walk", p, control_dt, model_file, cache, use_cache, simulate_walk)
+
+
+def jump_reference(
+    height: float = 0.1,
+    *,
+    control_dt: float = CONTROL_DT,
+    model_file: str | None = None,
+    cache: str | os.PathLike | None = None,
+    use_cache: bool = True,
+    **params,
+) -> LocomotionReference:
+    """Vertical jump reference reaching ``height`` m of foot clearance (other
+    :class:`JumpParams` fields as keywords), cached like :func:`walk_reference`."""
+    p = JumpParams(height=height, **params)
+    return _cached("jump", p, control_dt, model_file, cache, use_cache, simulate_jump)
+
+
+def default_walks(**kwargs) -> list[LocomotionReference]:
+    """The 5 walking horizons (:data:`WALK_DURATIONS`, 0.3 m/s trot)."""
+    return [walk_reference(t, **kwargs) for t in WALK_DURATIONS]
+
+
+def default_jumps(**kwargs) -> list[LocomotionReference]:
+    """The 5 jumps (:data:`JUMP_HEIGHTS` of foot clearance)."""
+    return [jump_reference(h, **kwargs) for h in JUMP_HEIGHTS]
+
+
+def commanded_distance(params: WalkParams) -> float:
+    """Forward distance of the commanded base motion: stand, linear speed ramp, cruise."""
+    walk = max(params.duration - params.stand, 0.0)
+    ramp = min(walk, params.ramp)
+    return params.speed * (ramp * ramp / (2 * params.ramp) + (walk - ramp))
+
+
+def plot_foot_force(
+    ref: LocomotionReference,
+    path: str | os.PathLike,
+    *,
+    observed: np.ndarray | None = None,
+    predicted: np.ndarray | None = None,
+    foot: str = "FR",
+    title: str | None = None,
+):
+    """Plot desired (``ref.foot_force``) vs observed (and optionally predicted) force of one
+    foot over time, one panel per world axis, like the paper's Fig. 6; saves a PNG. The
+    force arrays are ``(T+1, 4, 3)`` (or ``(T, 4, 3)`` for the states after each step)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    leg = LEGS.index(foot)
+    t = np.arange(len(ref.foot_force)) * ref.control_dt
+    fig, axes = plt.subplots(3, 1, figsize=(7, 6), sharex=True)
+    curves = [("desired", ref.foot_force, dict(color="k", lw=2.0, alpha=0.6))]
+    if observed is not None:
+        curves.append(("observed", np.asarray(observed), dict(color="C0", lw=1.2)))
+    if predicted is not None:
+        curves.append(("predicted", np.asarray(predicted), dict(color="C3", lw=1.0, ls="--")))
+    for axis, ax in enumerate(axes):
+        for label, force, style in curves:
+            ax.plot(t[-len(force) :], force[:, leg, axis], label=label, **style)
+        ax.set_ylabel(f"f{'xyz'[axis]} [N]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(title or f"{ref.kind}: contact force of the {foot} foot (world frame)")
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def summary(ref: LocomotionReference, model=None) -> dict:
+    """Key numbers of a reference: distance, cruise speed, clearance, peak torque, forces."""
+    out = {
+        "kind": ref.kind,
+        "duration_s": ref.duration,
+        "distance_m": float(ref.qpos[-1, 0] - ref.qpos[0, 0]),
+        "peak_torque_Nm": float(np.abs(ref.tau).max()),
+        "peak_normal_force_N": float(ref.foot_force[..., 2].max()),
+        "max_tilt_deg": float(np.degrees(np.arccos(quat_to_mat(ref.qpos[:, 3:7])[:, 2, 2])).max()),
+    }
+    if ref.kind == "jump":
+        out["clearance_m"] = jump_clearance(ref)
+        out["base_apex_gain_m"] = float(ref.qpos[:, 2].max() - ref.qpos[0, 2])
+        out["push_force_N"] = json.loads(ref.params)["push_force"]
+    else:
+        last = min(ref.horizon, int(round(1.0 / ref.control_dt)))
+        out["speed_last_1s_mps"] = float(
+            (ref.qpos[-1, 0] - ref.qpos[-1 - last, 0]) / (last * ref.control_dt)
+        )
+    return out
+
+
+def _main(out_dir: str = "docs/figures") -> None:  # pragma: no cover - figure script
+    """Print the default references' numbers and write the figures of docs/locomotion.md."""
+    import time
+
+    from cfm_jax import render
+
+    model = load_model()
+    start = time.perf_counter()
+    walks, jumps = default_walks(), default_jumps()
+    print(f"references: {time.perf_counter() - start:.1f} s (cached after the first run)")
+    for ref in walks + jumps:
+        q0 = ref.qpos[0].copy()
+        q0[2] += 0.005
+        q0[7:] += 0.03 * np.where(np.arange(12) % 2, 1.0, -1.0)
+        run = replay(ref, model, qpos0=q0)
+        row = summary(ref)
+        row["perturbed_base_err_m"] = float(np.abs(run.qpos[:, :3] - ref.qpos[:, :3]).max())
+        row["perturbed_joint_rms_rad"] = float(np.sqrt(np.mean((run.qpos - ref.qpos)[:, 7:] ** 2)))
+        print({k: round(v, 4) if isinstance(v, float) else v for k, v in row.items()})
+    out = Path(out_dir)
+    walk, jump = walks[-1], jumps[3]
+    q0 = walk.qpos[0].copy()
+    q0[2] += 0.005
+    q0[7:] += 0.03 * np.where(np.arange(12) % 2, 1.0, -1.0)
+    run = replay(walk, model, qpos0=q0)
+    sl = slice(0, int(round(1.5 / walk.control_dt)) + 1)
+    plot_foot_force(
+        walk._replace(foot_force=walk.foot_force[sl]),
+        out / "solo12_walk_force_FR.png",
+        observed=run.foot_force[sl],
+        foot="FR",
+        title="trot reference (desired) vs replay from a perturbed start (observed), FR foot",
+    )
+    ok, why = render.render_available()
+    if not ok:
+        print(f"skipping pictures: {why}")
+        return
+    idx = np.linspace(int(0.9 / walk.control_dt), walk.horizon, 6).round().astype(int)
+    cam = {"distance": 1.1, "azimuth": 90.0, "elevation": -12.0, "lookat": [0, 0, 0.15]}
+    render.frame_strip(model, walk.qpos, out / "solo12_walk_strip.png", indices=idx, camera=cam)
+    apex = int(np.argmax(jump.qpos[:, 2]))
+    idx = [int(0.05 / jump.control_dt), int(0.4 / jump.control_dt), apex - 25, apex, apex + 40]
+    idx.append(jump.horizon)
+    cam = {"distance": 1.1, "azimuth": 90.0, "elevation": -5.0, "lookat": [0, 0, 0.25]}
+    render.frame_strip(
+        model, jump.qpos, out / "solo12_jump_strip.png", indices=idx, camera=cam, track=False
+    )
+    print(f"figures in {out}")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    _main()
