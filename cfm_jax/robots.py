@@ -1,11 +1,14 @@
 """Robots as data: MJCF file -> :class:`Robot` (MuJoCo model, MJX model, state map, limits).
 
 A robot is loaded by registered name (``"iiwa14"``, ``"two_link_arm"``: files shipped in the
-package, from the repository's ``robots/`` folder) or by a path to any fixed-base MJCF whose
-every degree of freedom is a hinge or slide joint driven by exactly one torque motor.
+package, from the repository's ``robots/`` folder) or by a path to any MJCF whose every
+hinge or slide joint is driven by exactly one torque motor; the robot may have a floating
+base (one free joint at the root of the tree, not actuated), as legged robots do.
 
-The state map is ``s = [q, qdot]`` (``nq + nv`` numbers, here ``nq == nv``); the action is the
-joint torque ``tau`` (one per joint, in joint order), which becomes ``ctrl = tau / gear``.
+The action is the torque ``tau`` of the actuated joints (``action_dim`` of them, in dof
+order), which becomes ``ctrl = tau / gear``. Fixed-base arms have ``nq == nv == action_dim``
+and the arm tasks use the state ``s = [q, qdot]``; which tasks fit which robot is checked
+by the task (:func:`cfm_jax.tasks.make`).
 
 Example:
   >>> robot = load("iiwa14")
@@ -72,18 +75,21 @@ def resolve(name_or_path: str) -> str:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Robot:
-    """A fixed-base, torque-controlled robot.
+    """A torque-controlled robot: a fixed-base arm or a floating-base (legged) robot.
 
     Attributes:
       name: registered name or file stem.
       path: absolute path of the MJCF file.
       mj_model: the MuJoCo model (C engine); the oracle and native baselines use it.
-      joint_names: names of the actuated joints, in ``qpos`` order.
-      joint_range: ``(nq, 2)`` position limits (``-inf, inf`` for unlimited joints).
-      torque_limit: ``(nv,)`` symmetric torque limit per joint (N·m or N).
-      gear: ``(nv,)`` actuator gear per joint; ``ctrl = tau / gear``.
-      actuator_of_joint: ``(nv,)`` index of the actuator driving each joint.
+      joint_names: names of all joints, in model order.
+      joint_range: ``(njnt, 2)`` position limits (``-inf, inf`` for unlimited joints and
+        the free joint).
+      torque_limit: ``(action_dim,)`` symmetric torque limit per actuated joint (N·m or N).
+      gear: ``(action_dim,)`` actuator gear per actuated joint; ``ctrl = tau / gear``.
+      actuator_of_joint: ``(action_dim,)`` index of the actuator driving each actuated joint.
       home: ``(nq,)`` the keyframe ``home`` if present, else ``qpos0``.
+      actuated_dofs: ``(action_dim,)`` dof (``qvel``) index of each actuated joint.
+      floating_base: whether the root is a free joint (its 6 dofs are not actuated).
     """
 
     name: str
@@ -95,6 +101,8 @@ class Robot:
     gear: np.ndarray
     actuator_of_joint: np.ndarray
     home: np.ndarray
+    actuated_dofs: np.ndarray
+    floating_base: bool = False
 
     @property
     def nq(self) -> int:
@@ -110,6 +118,11 @@ class Robot:
         return self.nq + self.nv
 
     @property
+    def action_dim(self) -> int:
+        """Number of actuated joints (torques)."""
+        return int(self.actuated_dofs.shape[0])
+
+    @property
     def timestep(self) -> float:
         return float(self.mj_model.opt.timestep)
 
@@ -121,7 +134,7 @@ class Robot:
         return mjx.put_model(self.mj_model)
 
     def torque_to_ctrl(self, tau):
-        """Map joint torques ``(..., nv)`` to the ``ctrl`` vector ``(..., nu)``."""
+        """Map joint torques ``(..., action_dim)`` to the ``ctrl`` vector ``(..., nu)``."""
         import jax.numpy as jnp
 
         ctrl = jnp.zeros(tau.shape[:-1] + (self.mj_model.nu,), tau.dtype)
@@ -145,8 +158,9 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
       timestep: override of the MJCF physics timestep in seconds (None: keep it).
 
     Raises:
-      RobotError: the file does not exist, does not parse, has a floating base or ball
-        joints, no actuators, non-torque actuators, or joints without exactly one motor.
+      RobotError: the file does not exist, does not parse, has ball joints or a free joint
+        other than a single floating base, no actuators, non-torque actuators, or hinge /
+        slide joints without exactly one motor.
     """
     path = resolve(name_or_path)
     try:
@@ -159,17 +173,26 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
     where = f"robot={name_or_path!r} ({path})"
     if model.nu == 0:
         raise RobotError(f"{where} has no actuators; add one <motor> per joint")
+    floating_base = False
+    unactuated = set()
     for j in range(model.njnt):
         jtype = int(model.jnt_type[j])
+        jname = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j)
+        is_root_free = (
+            jtype == int(mujoco.mjtJoint.mjJNT_FREE)
+            and j == 0
+            and model.body_parentid[model.jnt_bodyid[j]] == 0
+        )
+        if is_root_free:
+            floating_base = True
+            unactuated.update(range(int(model.jnt_dofadr[j]), int(model.jnt_dofadr[j]) + 6))
+            continue
         if jtype not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
             kind = mujoco.mjtJoint(jtype).name
-            jname = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j)
             raise RobotError(
-                f"{where}: joint {jname!r} is {kind}; only fixed-base robots with hinge or "
-                "slide joints are supported"
+                f"{where}: joint {jname!r} is {kind}; supported are hinge and slide joints, "
+                "on a fixed base or below one free joint at the root (a floating base)"
             )
-    if model.nq != model.nv:
-        raise RobotError(f"{where}: nq={model.nq} != nv={model.nv}; need hinge/slide joints")
     actuator_of_joint = -np.ones(model.nv, dtype=np.int32)
     gear = np.ones(model.nv)
     torque_limit = np.full(model.nv, np.inf)
@@ -201,16 +224,19 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
             limits.append(np.max(np.abs(model.actuator_forcerange[a])))
         if limits:
             torque_limit[dof] = min(limits)
-    missing = np.flatnonzero(actuator_of_joint < 0)
+    actuated = np.array([d for d in range(model.nv) if d not in unactuated], dtype=np.int32)
+    if np.any(actuator_of_joint[sorted(unactuated)] >= 0):
+        raise RobotError(f"{where}: the floating base (free joint) cannot be actuated")
+    missing = actuated[actuator_of_joint[actuated] < 0]
     if missing.size:
         names = [
             mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, model.dof_jntid[d]) for d in missing
         ]
         raise RobotError(f"{where}: joints {names} have no motor; every joint needs one")
-    if not np.all(np.isfinite(torque_limit)):
+    if not np.all(np.isfinite(torque_limit[actuated])):
         unlimited = [
             mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, model.dof_jntid[d])
-            for d in np.flatnonzero(~np.isfinite(torque_limit))
+            for d in actuated[~np.isfinite(torque_limit[actuated])]
         ]
         raise RobotError(
             f"{where}: motors of joints {unlimited} have no torque limit; set ctrlrange "
@@ -235,10 +261,12 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
         mj_model=model,
         joint_names=joint_names,
         joint_range=joint_range,
-        torque_limit=torque_limit,
-        gear=gear,
-        actuator_of_joint=actuator_of_joint,
+        torque_limit=torque_limit[actuated],
+        gear=gear[actuated],
+        actuator_of_joint=actuator_of_joint[actuated],
         home=home,
+        actuated_dofs=actuated,
+        floating_base=floating_base,
     )
     robot.mjx_model  # noqa: B018 -- build the device copy now, never inside a jit trace
     return robot

@@ -368,6 +368,12 @@ def make(robot, task: TaskConfig, control_dt: float):
     Raises:
       ConfigError: the task does not fit the robot (the message says why).
     """
+    if task.name in ("inverse_dynamics", "opspace") and robot.floating_base:
+        raise ConfigError(
+            f"task.name={task.name!r} is not allowed for robot {robot.name!r}: it has a "
+            "floating base (a free joint), and this task needs a fixed-base arm with every "
+            "joint actuated"
+        )
     if task.name == "inverse_dynamics":
         return JointSpaceTask(
             robot, reaching(robot, task, control_dt), task.kp, task.kd, control_dt

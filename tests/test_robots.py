@@ -15,7 +15,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import robots
+from cfm_jax import robots, tasks
+from cfm_jax.config import ConfigError, TaskConfig
 from cfm_jax.robots import RobotError
 
 ROBOT_DIR = Path(__file__).resolve().parents[1] / "robots"
@@ -182,9 +183,9 @@ def test_nonexistent_path(tmp_path):
 
 def test_unknown_registered_name():
     with pytest.raises(RobotError) as info:
-        robots.load("solo12")
+        robots.load("anymal")
     message = str(info.value)
-    assert "'solo12' is not a registered robot" in message
+    assert "'anymal' is not a registered robot" in message
     assert str(robots.registered()) in message
     assert "iiwa14" in message and "two_link_arm" in message
 
@@ -235,17 +236,43 @@ def test_velocity_actuator_rejected(tmp_path):
         robots.load(path)
 
 
-def test_free_joint_rejected(tmp_path):
-    body = """
+FLOATING = """
 <body name="base"><freejoint name="root"/><geom type="box" size="0.1 0.1 0.1" mass="1"/>
   <body name="leg"><joint name="hip" axis="0 1 0"/>
-    <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="0.2"/></body>
+    <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="0.2"/>
+    <body name="shin" pos="0 0 -0.3"><joint name="knee" axis="0 1 0"/>
+      <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="0.2"/></body></body>
 </body>"""
-    path = write(tmp_path, mjcf(body, '<motor joint="hip" ctrlrange="-1 1"/>'))
-    with pytest.raises(RobotError) as info:
+
+
+def test_floating_base_loads_with_its_joints_actuated_and_arm_tasks_refuse_it(tmp_path):
+    motors = '<motor joint="knee" gear="2" ctrlrange="-1 1"/><motor joint="hip" ctrlrange="-3 3"/>'
+    robot = robots.load(write(tmp_path, mjcf(FLOATING, motors)))
+    assert robot.floating_base and (robot.nq, robot.nv, robot.action_dim) == (9, 8, 2)
+    np.testing.assert_array_equal(robot.actuated_dofs, [6, 7])  # after the 6 base dofs
+    np.testing.assert_array_equal(robot.torque_limit, [3.0, 2.0])  # hip, knee (2 x 1)
+    np.testing.assert_array_equal(robot.actuator_of_joint, [1, 0])
+    ctrl = np.asarray(robot.torque_to_ctrl(np.array([1.5, 1.0])))
+    np.testing.assert_allclose(ctrl, [0.5, 1.5])  # knee: 1 N m / gear 2; hip: 1.5
+    for name in ("inverse_dynamics", "opspace"):
+        with pytest.raises(ConfigError, match=f"task.name='{name}' .* floating base"):
+            tasks.make(robot, TaskConfig(name=name), 0.01)
+
+
+def test_second_free_joint_or_actuated_base_rejected(tmp_path):
+    # (MuJoCo itself refuses free joints below the top level; a second free body is ours
+    # to refuse.)
+    nested = """
+<body name="a"><joint name="j1" axis="0 1 0"/><geom type="sphere" size="0.05" mass="1"/></body>
+<body name="b" pos="0.5 0 0"><freejoint name="loose"/>
+  <geom type="sphere" size="0.05" mass="1"/></body>"""
+    path = write(tmp_path, mjcf(nested, '<motor joint="j1" ctrlrange="-1 1"/>'))
+    with pytest.raises(RobotError, match="joint 'loose' is .*FREE.*floating base"):
         robots.load(path)
-    message = str(info.value)
-    assert "joint 'root'" in message and "FREE" in message and "fixed-base" in message
+    motors = '<motor joint="root" ctrlrange="-1 1"/><motor joint="hip" ctrlrange="-1 1"/>'
+    motors += '<motor joint="knee" ctrlrange="-1 1"/>'
+    with pytest.raises(RobotError, match="floating base .* cannot be actuated"):
+        robots.load(write(tmp_path, mjcf(FLOATING, motors)))
 
 
 def test_ball_joint_rejected(tmp_path):
