@@ -21,7 +21,7 @@ from typing import Any
 
 from cfm_jax import losses
 
-TASKS = ("inverse_dynamics", "opspace")
+TASKS = ("inverse_dynamics", "opspace", "walk", "jump")
 """Tasks available for ``Config.task.name``."""
 
 SIMULATORS = ("native", "mjx")

@@ -48,6 +48,7 @@ METRIC_COLUMNS = (
     "prediction_error",
     "predicted_task_error",
     "finite_fraction",
+    "transitions_added",
     "forward_loss",
     "controller_loss",
 )
@@ -144,9 +145,11 @@ class Experiment:
         )
 
     def babbling_policy(self) -> rollout.MixedPolicy:
-        """The task's PD-only feedback plus Gaussian torque noise (``loop.babbling_noise``)."""
+        """The task's babbling controller (``task.babbling_weights``: PD-only feedback for
+        the arms) plus Gaussian torque noise (``loop.babbling_noise`` of each limit)."""
         return self._policy(
-            feedback=1.0, noise_std=self.config.loop.babbling_noise * self.robot.torque_limit
+            **self.task.babbling_weights,
+            noise_std=self.config.loop.babbling_noise * self.robot.torque_limit,
         )
 
     def learned_policy(self, state: TrainState) -> rollout.MixedPolicy:
@@ -163,7 +166,7 @@ class Experiment:
         state, so losses are compared on the same data and the same initial forward model.
         """
         flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[3:]), babbling.transitions)
-        return self.prepare_from_data_one(flat, babbling.finite.reshape(-1), key)
+        return self.prepare_from_data_one(flat, _valid(babbling).reshape(-1), key)
 
     def prepare_from_data_one(
         self, flat: dataset.Transitions, valid, key
@@ -254,7 +257,11 @@ class Experiment:
         * ``predicted_task_error``: mean of ``(P f(s, g(s, s*)) - s*)^2`` over the desired
           entries ``P``.
         * ``finite_fraction``: share of steps whose simulator state stayed finite.
+        * ``transitions_added``: the rollout's steps that are data (finite, and inside the
+          target's horizon for tasks with horizons of different lengths).
         * the task's own metrics (``task.metric_names``).
+
+        Means are over the steps inside each target's horizon (all steps for the arms).
         """
         t = result.transitions
         norm = state.normaliser
@@ -267,11 +274,20 @@ class Experiment:
                 networks.ensemble_mean(self.forward, state.forward_params, norm, t.state, tau)
             )
         )
+        step_mean = _step_mean(result)
         return {
-            "tracking_mse": rollout.tracking_mse(result),
-            "prediction_error": jnp.mean(jnp.square(predicted - t.observed), axis=(-2, -1)),
-            "predicted_task_error": jnp.mean(jnp.square(predicted_task - t.desired), axis=(-2, -1)),
+            "prediction_error": step_mean(predicted - t.observed),
+            "predicted_task_error": step_mean(predicted_task - t.desired),
+            **self.rollout_metrics(result),
+        }
+
+    def rollout_metrics(self, result: rollout.Rollout) -> dict:
+        """Per-target metrics of a rollout that need no model: ``tracking_mse``,
+        ``finite_fraction``, ``transitions_added`` and the task's own."""
+        return {
+            "tracking_mse": _step_mean(result)(result.tracking_error),
             "finite_fraction": jnp.mean(result.finite.astype(jnp.float32), axis=-1),
+            "transitions_added": jnp.sum(_valid(result), axis=-1).astype(jnp.float32),
             **self.task.metrics(result),
         }
 
@@ -282,7 +298,7 @@ class Experiment:
         result = self.rollout_one(self.learned_policy(state), key_rollout)
         metrics = self.metrics_one(state, result)
         flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), result.transitions)
-        data = dataset.add(state.data, flat, result.finite.reshape(-1))
+        data = dataset.add(state.data, flat, _valid(result).reshape(-1))
         state = state.replace(data=data)
         state, forward_loss = self._fit_forward(state, key_fit_fm, cfg.forward.steps_per_iteration)
         state, controller_loss = self._fit_controller(
@@ -399,12 +415,37 @@ class Experiment:
         rows = []
         for name, policy in policies.items():
             result = self.rollout(_broadcast(policy, 1), jax.random.split(jax.random.key(0), 1))
-            mse = np.asarray(rollout.tracking_mse(result))[0]
-            rows += [
-                {"baseline": name, "target": k, "tracking_mse": float(v)} for k, v in enumerate(mse)
-            ]
+            metrics = jax.device_get(jax.vmap(self.rollout_metrics)(result))
+            names = ["tracking_mse", *self.task.metric_names]
+            for k in range(self.task.targets):
+                row = {"baseline": name, "target": k}
+                row.update({m: float(np.asarray(metrics[m])[0, k]) for m in names})
+                rows.append(row)
         self._compiled["baselines"] = pd.DataFrame(rows)
         return self._compiled["baselines"]
+
+
+def _step_mean(result: rollout.Rollout):
+    """``x (targets, steps, k) -> (targets,)``: mean of ``x^2`` over components and over the
+    steps inside each target's horizon (every step when the task has no horizons)."""
+    active = _active(result)
+    if active is None:
+        return lambda x: jnp.mean(jnp.square(x), axis=(-2, -1))
+    weights = active.astype(jnp.float32)
+    count = jnp.maximum(jnp.sum(weights, axis=-1), 1.0)
+    return lambda x: jnp.sum(jnp.mean(jnp.square(x), axis=-1) * weights, axis=-1) / count
+
+
+def _active(result: rollout.Rollout):
+    """The task's mask of steps inside each target's horizon, or None (every step)."""
+    extras = result.extras
+    return extras.get("active") if isinstance(extras, dict) else None
+
+
+def _valid(result: rollout.Rollout):
+    """Steps that become data: finite, and inside the horizon when the task has one."""
+    active = _active(result)
+    return result.finite if active is None else result.finite & active
 
 
 def _broadcast(tree, n: int):
@@ -684,8 +725,8 @@ def train(
 
 def _segments(exp: Experiment, state: TrainState, rows: list[dict], recorded) -> np.ndarray:
     """Rows added to each seed's data set by babbling and by each iteration,
-    ``(seeds, 1 + iterations)``: an iteration adds its rollout's finite steps (from the
-    ``finite_fraction`` metric), or in a replay the recorded segment; babbling the rest."""
+    ``(seeds, 1 + iterations)``: an iteration adds its rollout's ``transitions_added``, in
+    a replay the recorded segment; babbling the rest."""
     iterations = exp.config.loop.iterations
     size = np.asarray(state.data.size)
     if recorded is not None:
@@ -693,8 +734,7 @@ def _segments(exp: Experiment, state: TrainState, rows: list[dict], recorded) ->
     else:
         frame = pd.DataFrame(rows)
         frame = frame[frame.iteration < iterations]
-        steps = frame.finite_fraction * exp.task.steps
-        frame = frame.assign(added=np.round(steps).astype(np.int64))
+        frame = frame.assign(added=np.round(frame.transitions_added).astype(np.int64))
         table = frame.pivot_table(index="seed", columns="iteration", values="added", aggfunc="sum")
         added = table.reindex(columns=range(iterations)).to_numpy(np.int64)
         added = added.reshape(size.shape[0], iterations)

@@ -1,0 +1,96 @@
+"""The legged tasks ``walk`` and ``jump`` on the Solo12 (cfm_jax/tasks.py ``LeggedTask``).
+
+Oracle: the references recorded by cfm_jax.locomotion from MuJoCo C on the same model.
+Replaying a reference's own controller (feed-forward torque plus joint PD) in the
+library's compiled rollout must reproduce the recording, and then the desired quantity
+(reference accelerations and foot forces, no feedback error) must equal the observed one;
+horizons of different length must be masked out of the data and the metrics.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import cfm_jax
+from cfm_jax import config as config_lib
+from cfm_jax import locomotion, robots, rollout, tasks, training
+
+
+@pytest.fixture(scope="module")
+def solo():
+    return robots.load("solo12")
+
+
+@pytest.fixture(scope="module")
+def walk(solo):
+    return tasks.make(solo, config_lib.TaskConfig(name="walk", control_dt=0.004), 0.004)
+
+
+def test_sizes_and_padding(walk, solo):
+    # s = [qpos 19, foot forces 12, qvel 18]; y = s* = [qacc dt 18, foot forces 12].
+    assert (walk.state_dim, walk.desired_dim, walk.output_dim, walk.action_dim) == (49, 30, 30, 12)
+    horizons = [round(d / 0.004) for d in locomotion.WALK_DURATIONS]
+    assert walk.steps == max(horizons) and walk.targets == 5
+    active = np.asarray(walk.reference.active)
+    np.testing.assert_array_equal(active.sum(axis=1), horizons)
+
+
+def test_reference_controller_reproduces_the_recording(walk):
+    out = jax.jit(lambda: rollout.run(walk, walk.oracle_policy("native"), jax.random.key(0)))()
+    active = np.asarray(out.extras["active"])
+    for k, ref in enumerate(walk.references):
+        n = ref.horizon
+        np.testing.assert_array_equal(active[k], np.arange(walk.steps) < n)
+        qpos = np.asarray(out.transitions.state[k, :n, :19])
+        # float32 state between control steps against the float64 recording: 1e-5.
+        np.testing.assert_allclose(qpos, ref.qpos[:n], atol=1e-5)
+        # Following the reference with no feedback error, desired == observed: the
+        # accelerations times dt and the mean foot forces of each period.
+        desired = np.asarray(out.transitions.desired[k, :n])
+        observed = np.asarray(out.transitions.observed[k, :n])
+        np.testing.assert_allclose(desired[:, :18], ref.qacc * 0.004, atol=1e-5)
+        np.testing.assert_allclose(observed[:, :18], ref.qacc * 0.004, atol=1e-4)
+        forces = ref.foot_force_mean.reshape(n, 12)
+        np.testing.assert_allclose(observed[:, 18:], forces, atol=1e-2)  # N, of ~12 N
+    fell = np.asarray(out.extras["fell"])
+    assert not np.any(fell & active)
+    # The walk moves forward by the recorded distance.
+    assert walk.references[-1].qpos[-1, 0] - walk.references[-1].qpos[0, 0] > 0.5
+
+
+def test_falls_are_flagged_when_the_robot_goes_down(walk):
+    # Zero torque: the robot collapses; the fall flag and the base error see it.
+    out = jax.jit(
+        lambda: rollout.run(walk, lambda step, key: 0.0 * step.reference.tau, jax.random.key(0))
+    )()
+    assert np.all(np.any(np.asarray(out.extras["fell"]), axis=1))
+    assert float(np.max(np.abs(np.asarray(out.tracking_error[..., 2])))) > 0.1
+
+
+def test_legged_tasks_refuse_arms_and_slow_control(solo):
+    arm = robots.load("iiwa14")
+    with pytest.raises(config_lib.ConfigError, match="task.name='walk' .* floating base"):
+        tasks.make(arm, config_lib.TaskConfig(name="walk"), 0.01)
+    with pytest.raises(config_lib.ConfigError, match=r"task.control_dt=0.01 .* 0.004"):
+        tasks.make(solo, config_lib.TaskConfig(name="jump"), 0.01)
+
+
+def test_jump_trains_end_to_end_with_masked_metrics():
+    from tiny import tiny_config
+
+    config = tiny_config(iterations=1, seeds=1).replace(
+        robot="solo12", task=config_lib.TaskConfig(name="jump", control_dt=0.004)
+    )
+    experiment = training.Experiment(config)
+    result = cfm_jax.train(config, progress=False, experiment=experiment)
+    frame = result.metrics
+    horizons = [r.horizon for r in experiment.task.references]
+    added = frame[frame.iteration == 0].transitions_added.to_numpy()
+    np.testing.assert_array_equal(added, horizons)  # no falls to NaN: every step is data
+    for column in ("force_mse", "fell", "base_position_mse", "tracking_mse"):
+        assert np.all(np.isfinite(frame[column]))
+    base = result.baselines.set_index(["baseline", "target"])
+    assert base.loc["oracle"].fell.max() == 0.0
+    assert base.loc["oracle"].tracking_mse.max() < 1e-8
