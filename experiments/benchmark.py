@@ -1,20 +1,17 @@
-"""Benchmark: rollout physics steps/s (ours vs native MuJoCo), training iteration time, compile.
+"""Write docs/benchmarks.md: ``cfm-jax bench`` for both robots plus scaling sweeps.
 
-Not a test: prints numbers and writes them to ``docs/benchmarks.md``.
+Not a test: prints numbers and writes them to ``docs/benchmarks.md``. Everything is
+measured by :mod:`cfm_jax.bench` (see its docstring for what each number means):
 
-* Rollouts: the library's closed-loop rollout (:func:`cfm_jax.rollout.run`: learned
-  controller network + PD feedback, torques clipped, 5 physics steps per control step) of
-  the iiwa at batch 16 and 64, with each simulator (``native``: MuJoCo C through
-  ``jax.pure_callback``; ``mjx``), next to ``mujoco.rollout`` (MuJoCo C, open loop, the
-  same model, the same batch, the torques our rollout applied) in the same process.
-  Physics steps/s = batch x control steps x substeps / seconds (best of ``--repeats``).
-* Training: seconds per iteration of Algorithm 1 (default config: rollout on 5 targets,
-  200 forward and 200 controller steps at batch 256) for 1 and 3 seeds, and the compile
-  time of the iteration (first call minus a later one).
+* ``cfm-jax bench`` for the iiwa14 (with the training iteration and the PyTorch
+  reference) and for Solo12 (rollouts) at batch 16;
+* rollout throughput of the library's closed loop and of ``mujoco.rollout`` versus batch
+  (1 to 256);
+* forward-ensemble updates per second per seed versus vmapped seeds (1 to 8), inside one
+  ``lax.scan`` of updates.
 
 Usage:
-  python experiments/benchmark.py            # full (~5 min on 2 cores)
-  python experiments/benchmark.py --quick    # rollouts only, batch 16
+  python experiments/benchmark.py [--solo12 PATH] [--repeats 3]
 """
 
 from __future__ import annotations
@@ -22,222 +19,153 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import platform
 import time
-from importlib import metadata
 
-import jax
-import jax.numpy as jnp
-import mujoco
-import numpy as np
-from mujoco import rollout as mj_rollout
-
-import cfm_jax  # noqa: F401  (sets the XLA flag before JAX's backend starts)
-from cfm_jax import config as config_lib
-from cfm_jax import networks, robots, rollout, tasks, training
+import cfm_jax  # noqa: F401  (sets the XLA flag before JAX starts)
+from cfm_jax import bench
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def best_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - start)
-    return min(times)
+def seed_scaling(seed_counts, fit_steps: int, repeats: int) -> list[dict]:
+    """Forward-ensemble updates/s per seed with ``seeds`` vmapped fits (iiwa sizes)."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+    import optax
 
+    from cfm_jax import dataset, networks, update
 
-def reference_batch(robot, batch: int, duration: float, control_dt: float) -> tasks.Reference:
-    """``batch`` reaching references: the 5 default targets, repeated."""
-    targets = tasks.default_targets(robot.joint_range, robot.home)
-    parts = [
-        tasks.quintic(robot.home, targets[i % len(targets)], duration, control_dt)
-        for i in range(batch)
-    ]
-    return tasks.Reference(*(np.concatenate(a) for a in zip(*parts, strict=True)))
-
-
-def rollout_rows(robot_name: str, batches, repeats: int) -> list[dict]:
-    robot = robots.load(robot_name)
-    control_dt, duration = 0.01, 2.0
-    n_sub = rollout.substeps(robot, control_dt)
-    controller = networks.controller((300, 200, 100), robot.nv)
-    params = controller.init(jax.random.key(0), robot.state_dim)
-    norm = networks.Normaliser.identity(robot.state_dim, robot.nv, robot.torque_limit)
-    # A freshly initialised controller plus PD feedback: realistic torques that move the
-    # arm along the references (and near, sometimes onto, the joint limits).
-    policy_params = rollout.MixedPolicy.of(params, norm, robot.nv, controller=1.0, feedback=1.0)
-    rows = []
-    for batch in batches:
-        task = tasks.JointSpaceTask(
-            robot, reference_batch(robot, batch, duration, control_dt), 100.0, 20.0, control_dt
-        )
-        steps = task.steps
-        physics_steps = batch * steps * n_sub
-        applied = None
-        for simulator in rollout.SIMULATORS:
-            policy = rollout.mixed_policy(task, controller, policy_params, simulator)
-            fn = jax.jit(
-                lambda key, policy=policy, simulator=simulator, task=task: rollout.run(
-                    task, policy, key, simulator=simulator
-                )
-            )
-            start = time.perf_counter()
-            out = jax.block_until_ready(fn(jax.random.key(0)))
-            first = time.perf_counter() - start
-            seconds = best_time(lambda fn=fn: fn(jax.random.key(0)), repeats)
-            if simulator == "native":
-                applied = np.asarray(out.transitions.action)
-            rows.append(
-                dict(
-                    robot=robot_name,
-                    path=f"cfm_jax rollout, simulator={simulator}",
-                    batch=batch,
-                    steps_per_s=physics_steps / seconds,
-                    compile_s=first - seconds,
-                )
-            )
-        # Native MuJoCo, open loop: the same torques, held for n_sub steps.
-        ctrl = np.asarray(robot.torque_to_ctrl(jnp.asarray(applied)), np.float64)
-        ctrl = np.repeat(ctrl, n_sub, axis=1)
-        spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
-        data = mujoco.MjData(robot.mj_model)
-        state0 = np.empty(mujoco.mj_stateSize(robot.mj_model, spec))
-        data.qpos[:] = robot.home
-        mujoco.mj_getState(robot.mj_model, data, state0, spec)
-        initial = np.tile(state0, (batch, 1))
-        for threads in (1, 2):
-            datas = [mujoco.MjData(robot.mj_model) for _ in range(threads)]
-            with mj_rollout.Rollout(nthread=threads if threads > 1 else 0) as runner:
-                seconds = best_time(
-                    lambda runner=runner, datas=datas, initial=initial, ctrl=ctrl: runner.rollout(
-                        robot.mj_model, datas, initial, ctrl
-                    ),
-                    repeats,
-                )
-            rows.append(
-                dict(
-                    robot=robot_name,
-                    path=f"mujoco.rollout (C, open loop), {threads} thread(s)",
-                    batch=batch,
-                    steps_per_s=physics_steps / seconds,
-                    compile_s=float("nan"),
-                )
-            )
-    return rows
-
-
-def training_rows(seed_counts, iterations: int) -> list[dict]:
-    rows = []
-    for seeds in seed_counts:
-        cfg = config_lib.Config(loop=config_lib.LoopConfig(iterations=iterations, seeds=seeds))
-        exp = training.Experiment(cfg)
-        keys = jax.vmap(jax.random.key)(jnp.arange(seeds, dtype=jnp.uint32))
-        start = time.perf_counter()
-        state = jax.block_until_ready(exp.init(cfg.loss, keys))
-        init_s = time.perf_counter() - start
-        start = time.perf_counter()
-        state, _ = jax.block_until_ready(exp.iteration(cfg.loss, state))
-        first = time.perf_counter() - start
-        times = []
-        for _ in range(iterations - 1):
-            start = time.perf_counter()
-            state, _ = jax.block_until_ready(exp.iteration(cfg.loss, state))
-            times.append(time.perf_counter() - start)
-        per_iteration = float(np.mean(times))
-        rows.append(
-            dict(
-                seeds=seeds,
-                loss=cfg.loss,
-                seconds_per_iteration=per_iteration,
-                iteration_compile_s=first - per_iteration,
-                babbling_and_initial_fit_s=init_s,
-            )
-        )
-    return rows
-
-
-def versions() -> str:
-    names = ["jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "orbax-checkpoint"]
-    return ", ".join(f"{n} {metadata.version(n)}" for n in names)
-
-
-def machine() -> str:
-    cores = os.cpu_count()
-    try:
-        with open("/proc/meminfo") as f:
-            mem_kb = int(f.readline().split()[1])
-        memory = f"{mem_kb / 2**20:.0f} GiB"
-    except OSError:
-        memory = "?"
-    return (
-        f"{platform.processor() or platform.machine()}, {cores} cores, {memory}, "
-        f"{platform.system()} {platform.release()}, Python {platform.python_version()}, "
-        f"JAX backend {jax.default_backend()}, XLA_FLAGS={os.environ.get('XLA_FLAGS', '')!r}"
+    state_dim, nv, rows = 14, 7, 15000
+    rng = np.random.default_rng(0)
+    flat = dataset.Transitions(
+        *(jnp.asarray(rng.normal(size=(rows, d)), jnp.float32) for d in (state_dim, nv, nv, nv))
     )
-
-
-def markdown(rollouts: list[dict], train_rows: list[dict]) -> str:
-    lines = [
-        "| robot | path | batch | physics steps/s | compile (s) |",
-        "|---|---|---:|---:|---:|",
-    ]
-    for r in rollouts:
-        compile_s = "" if np.isnan(r["compile_s"]) else f"{r['compile_s']:.1f}"
-        lines.append(
-            f"| {r['robot']} | {r['path']} | {r['batch']} | {r['steps_per_s']:,.0f} | {compile_s} |"
-        )
-    if train_rows:
-        lines += [
-            "",
-            "| seeds | loss | s per iteration | iteration compile (s) | "
-            "babbling + initial fit incl. compile (s) |",
-            "|---:|---|---:|---:|---:|",
-        ]
-        for r in train_rows:
-            lines.append(
-                f"| {r['seeds']} | {r['loss']} | {r['seconds_per_iteration']:.2f} | "
-                f"{r['iteration_compile_s']:.1f} | {r['babbling_and_initial_fit_s']:.1f} |"
+    data = dataset.add(dataset.empty(rows, state_dim, nv), flat)
+    norm = networks.Normaliser.from_data(flat.state, flat.observed, jnp.full(nv, 50.0))
+    forward = networks.forward_model((400, 400, 400), 3, nv)
+    optimizer = optax.adam(1e-3)
+    out = []
+    for seeds in seed_counts:
+        keys = jax.random.split(jax.random.key(0), seeds)
+        params = jax.vmap(lambda k: forward.init(k, state_dim))(keys)
+        opt_state = jax.vmap(optimizer.init)(params)
+        fit = jax.jit(
+            jax.vmap(
+                lambda p, o, k: update.fit_forward(
+                    forward, optimizer, p, o, norm, data, k, fit_steps, 256
+                )
             )
-    return "\n".join(lines)
+        )
+        jax.block_until_ready(fit(params, opt_state, keys))
+        best = min(
+            _timed(lambda fit=fit, p=params, o=opt_state, k=keys: fit(p, o, k))
+            for _ in range(repeats)
+        )
+        out.append(dict(seeds=seeds, per_seed=fit_steps / best, total=seeds * fit_steps / best))
+    for row in out:
+        row["efficiency"] = row["per_seed"] / out[0]["per_seed"]
+    return out
+
+
+def _timed(fn) -> float:
+    import jax
+
+    start = time.perf_counter()
+    jax.block_until_ready(fn())
+    return time.perf_counter() - start
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true", help="rollouts only, batch 16")
+    default_solo = os.path.join(ROOT, "robots", "solo12.xml")
+    parser.add_argument("--solo12", default=default_solo, help="Solo12 MJCF")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument(
-        "--out", default=os.path.join(ROOT, "docs", "benchmarks.md"), help="markdown file"
-    )
+    parser.add_argument("--out", default=os.path.join(ROOT, "docs", "benchmarks.md"))
     args = parser.parse_args()
-    batches = (16,) if args.quick else (16, 64)
-    rollouts = rollout_rows("iiwa14", batches, args.repeats)
-    train_rows = [] if args.quick else training_rows((1, 3), iterations=3)
-    table = markdown(rollouts, train_rows)
-    print(table)
-    stamp = datetime.date.today().isoformat()
+    r = args.repeats
+
+    iiwa = bench.run("iiwa14", batch=16, repeats=r)
+    print(bench.table(iiwa), flush=True)
+    solo = bench.run(args.solo12, batch=16, repeats=r, train=False)
+    print(bench.table(solo), flush=True)
+    sweeps = []
+    for name, robot in (("iiwa14", "iiwa14"), ("solo12", args.solo12)):
+        b = bench.Bench.load(robot)
+        for batch in (1, 4, 16, 64, 256):
+            row = bench.measure_rollout(b, batch, 200, r)
+            sweeps.append(dict(robot=name, **row))
+            print(sweeps[-1], flush=True)
+    seeds = seed_scaling((1, 2, 4, 8), fit_steps=50, repeats=r)
+    print(seeds, flush=True)
+
+    def rollout_line(name, x):
+        return (
+            f"| {name} | {x['batch']} | {x['rollout_steps_per_s']:,.0f} | "
+            f"{x['native_steps_per_s']:,.0f} | {x['ratio']:.2f} | {x['rollout_compile_s']:.1f} |"
+        )
+
+    head = [
+        "| robot | batch | cfm_jax closed loop (steps/s) | mujoco.rollout 2 threads, open "
+        "loop (steps/s) | ratio | compile (s) |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    headline = head + [rollout_line("iiwa14", iiwa), rollout_line("solo12", solo)]
+    sweep = head + [rollout_line(x["robot"], x) for x in sweeps]
+    it = iiwa
+    breakdown = [
+        "| part | seconds | share of the parts |",
+        "|---|---:|---:|",
+    ]
+    parts = ("rollout_s", "forward_update_s", "controller_update_s")
+    total = sum(it[p] for p in parts)
+    for p in parts:
+        breakdown.append(f"| {p[:-2].replace('_', ' ')} | {it[p]:.3f} | {it[p] / total:.0%} |")
+    breakdown.append(f"| **one iteration, compiled as one function** | {it['iteration_s']:.3f} | |")
+    updates = [
+        "| update (batch 256) | cfm_jax (updates/s) | PyTorch 1 thread | PyTorch 2 threads "
+        "| cfm_jax / best PyTorch |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    if it.get("torch_version"):
+        for n, label in (("forward", "forward ensemble 3 x 400^3, NLL"),
+                         ("controller", "controller 300-200-100, joint loss")):  # fmt: skip
+            updates.append(
+                f"| {label} | {it[f'{n}_updates_per_s']:.1f} | "
+                f"{it[f'torch_{n}_updates_per_s_1t']:.1f} | "
+                f"{it[f'torch_{n}_updates_per_s_2t']:.1f} | "
+                f"{it[f'{n}_speedup_vs_torch']:.2f}x |"
+            )
+    seed_table = [
+        "| vmapped seeds | updates/s per seed | updates/s total | per-seed rate vs 1 seed |",
+        "|---:|---:|---:|---:|",
+    ] + [
+        f"| {x['seeds']} | {x['per_seed']:.1f} | {x['total']:.1f} | {x['efficiency']:.2f} |"
+        for x in seeds
+    ]
+    with open(os.path.join(ROOT, "docs", "benchmarks_notes.md")) as f:
+        notes = f.read()
     text = (
         "# Benchmarks\n\n"
-        "Written by `python experiments/benchmark.py` "
-        f"({'--quick' if args.quick else 'full'}), {stamp}.\n\n"
-        f"- Machine: {machine()}\n- Versions: {versions()}\n\n"
-        "Rollouts: the iiwa14 tracking the 5 default reaching references (repeated to fill "
-        "the batch) for 2 s at control_dt 0.01 s (5 physics steps of 0.002 s each), with a "
-        "freshly initialised controller network plus PD feedback, joint limits on. "
-        "`mujoco.rollout` replays the torques of our native rollout open loop on the same "
-        "model. Best of the repeats; compile = first call minus best call.\n\n"
-        f"{table}\n\n"
-        "Reading the numbers: the native simulator runs MuJoCo C once per control step for "
-        "the whole batch through `jax.pure_callback`; each call costs a fixed few hundred "
-        "microseconds of host round trip (measured with a no-op callback), so it trails "
-        "open-loop `mujoco.rollout` most at small batches and closes in as the batch grows. "
-        "MJX pays for its joint-limit constraint solver on CPU and compiles for tens of "
-        "seconds. A training iteration is dominated by the network fits (200 forward-model "
-        "steps of a 3 x 400 ensemble at batch 256 per member, and 200 controller steps), not "
-        "by the rollout.\n"
+        f"Written by `python experiments/benchmark.py`, {datetime.date.today().isoformat()}.\n\n"
+        f"- Machine: {iiwa['machine']}\n- Versions: {iiwa['versions']}, "
+        f"torch {it.get('torch_version')}\n"
+        f"- Peak memory of the iiwa bench process: {iiwa['peak_memory_mib']:.0f} MiB\n\n"
+        "## Acceptance runs (`cfm-jax bench --robot R --batch 16 --json`)\n\n"
+        + "\n".join(headline)
+        + "\n\nOne training iteration (iiwa14, 5 targets x 200 control steps, 200 forward and "
+        "200 controller Adam steps at batch 256), compiled as one function: "
+        f"{it['iteration_s']:.2f} s, compile {it['iteration_compile_s']:.1f} s, "
+        f"recompiled after the first call: {it['recompiled_after_first']}.\n\n"
+        + "\n".join(breakdown)
+        + "\n\n"
+        + "\n".join(updates)
+        + "\n\n## Rollout throughput versus batch\n\n"
+        + "\n".join(sweep)
+        + "\n\n## Forward-ensemble updates versus vmapped seeds\n\n"
+        "50 Adam steps of the 3 x 400^3 ensemble at batch 256 per member inside one "
+        "`lax.scan`, `vmap`ped over seeds.\n\n" + "\n".join(seed_table) + "\n\n" + notes
     )
-    os.makedirs(os.path.dirname(args.out), exist_ok=True)
     with open(args.out, "w") as f:
         f.write(text)
     print(f"wrote {args.out}")

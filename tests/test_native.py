@@ -1,0 +1,171 @@
+"""The native stepper and its JAX operation against MuJoCo's ``mj_step``, one state at a time.
+
+Oracle: a fresh ``MjData`` per state, ``qpos, qvel, ctrl`` set, ``mj_step`` called ``n_sub``
+times, ``sensordata`` read after each step (MuJoCo's own loop, no batching, no threads).
+"""
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from cfm_jax import native, robots
+
+SENSOR_ARM = """
+<mujoco>
+  <option timestep="0.002"/>
+  <worldbody>
+    <body name="upper">
+      <joint name="shoulder" type="hinge" axis="0 1 0" damping="0.1" range="-1 1" limited="true"/>
+      <geom type="capsule" fromto="0 0 0 0 0 -0.5" size="0.05" mass="1"/>
+      <body name="lower" pos="0 0 -0.5">
+        <joint name="elbow" type="hinge" axis="0 1 0" damping="0.1"/>
+        <geom type="capsule" fromto="0 0 0 0 0 -0.5" size="0.05" mass="1"/>
+        <site name="tip" pos="0 0 -0.5"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor name="shoulder" joint="shoulder" ctrlrange="-5 5" ctrllimited="true"/>
+    <motor joint="elbow" ctrlrange="-5 5" ctrllimited="true"/>
+  </actuator>
+  <sensor>
+    <jointpos joint="elbow"/>
+    <framepos objtype="site" objname="tip"/>
+    <actuatorfrc actuator="shoulder"/>
+  </sensor>
+</mujoco>
+"""
+
+
+def oracle(model, qpos, qvel, ctrl, n_sub):
+    """``mj_step`` one state at a time (float64), inputs as the stepper sees them."""
+    qpos, qvel, ctrl = (np.asarray(x, np.float32).astype(np.float64) for x in (qpos, qvel, ctrl))
+    batch = qpos.shape[0]
+    out_q = np.empty((batch, model.nq))
+    out_qd = np.empty((batch, model.nv))
+    sensors = np.empty((batch, n_sub, model.nsensordata))
+    for i in range(batch):
+        data = mujoco.MjData(model)
+        data.qpos[:], data.qvel[:], data.ctrl[:] = qpos[i], qvel[i], ctrl[i]
+        for k in range(n_sub):
+            mujoco.mj_step(model, data)
+            sensors[i, k] = data.sensordata
+        out_q[i], out_qd[i] = data.qpos, data.qvel
+    return out_q, out_qd, sensors
+
+
+def random_inputs(model, batch, seed):
+    rng = np.random.default_rng(seed)
+    qpos = model.qpos0 + 0.3 * rng.standard_normal((batch, model.nq))
+    qvel = rng.standard_normal((batch, model.nv))
+    ctrl = rng.uniform(-3, 3, (batch, model.nu))
+    return qpos.astype(np.float32), qvel.astype(np.float32), ctrl.astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def sensor_arm():
+    return mujoco.MjModel.from_xml_string(SENSOR_ARM)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("batch", [1, 3, 17])
+def test_stepper_matches_mj_step(sensor_arm, threads, batch):
+    stepper = native.Stepper(sensor_arm, n_sub=4, threads=threads)
+    qpos, qvel, ctrl = random_inputs(sensor_arm, batch, seed=batch)
+    q, qd, sensors = stepper(qpos, qvel, ctrl)
+    want_q, want_qd, want_sensors = oracle(sensor_arm, qpos, qvel, ctrl, 4)
+    assert q.dtype == qd.dtype == sensors.dtype == np.float32
+    assert sensors.shape == (batch, 4, sensor_arm.nsensordata)
+    np.testing.assert_allclose(q, want_q, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(qd, want_qd, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(sensors, want_sensors, rtol=1e-6, atol=1e-6)
+
+
+def test_stepper_reuses_buffers_without_carrying_state(sensor_arm):
+    # Calls of different batch sizes interleaved give what a fresh stepper gives: the
+    # preallocated buffers of one call never leak into the next.
+    stepper = native.Stepper(sensor_arm, n_sub=3, threads=2)
+    for batch, seed in [(5, 0), (2, 1), (5, 2), (16, 3), (5, 4)]:
+        inputs = random_inputs(sensor_arm, batch, seed)
+        got = stepper(*inputs)
+        want = native.Stepper(sensor_arm, n_sub=3, threads=1)(*inputs)
+        for a, b in zip(got, want, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_stepper_leading_batch_shape_and_nan_control(sensor_arm):
+    stepper = native.Stepper(sensor_arm, n_sub=2)
+    qpos, qvel, ctrl = random_inputs(sensor_arm, 6, seed=7)
+    ctrl[4, 1] = np.nan
+    q, qd, sensors = stepper(qpos.reshape(2, 3, -1), qvel.reshape(2, 3, -1), ctrl.reshape(2, 3, -1))
+    assert q.shape == (2, 3, sensor_arm.nq) and sensors.shape == (2, 3, 2, 5)
+    q, qd, sensors = q.reshape(6, -1), qd.reshape(6, -1), sensors.reshape(6, 2, -1)
+    assert np.all(np.isnan(q[4])) and np.all(np.isnan(qd[4])) and np.all(np.isnan(sensors[4]))
+    keep = [0, 1, 2, 3, 5]
+    want_q, want_qd, _ = oracle(sensor_arm, qpos[keep], qvel[keep], ctrl[keep], 2)
+    np.testing.assert_allclose(q[keep], want_q, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(qd[keep], want_qd, rtol=1e-6, atol=1e-6)
+
+
+def test_stepper_iiwa_matches_mj_step():
+    robot = robots.load("iiwa14")
+    stepper = native.Stepper(robot.mj_model, n_sub=5)
+    qpos, qvel, ctrl = random_inputs(robot.mj_model, 16, seed=3)
+    got = stepper(qpos, qvel, ctrl)
+    want = oracle(robot.mj_model, qpos, qvel, ctrl, 5)
+    for a, b in zip(got[:2], want[:2], strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)
+
+
+def closed_loop(stepper, fast, steps=6):
+    """A compiled vmap(scan) of PD feedback through :func:`native.host_step`, with a
+    nested vmap (seeds x targets) and a control shared by the batch on the first step."""
+
+    def one(q0):
+        def step(carry, t):
+            q, qd = carry
+            ctrl = jnp.where(t == 0, jnp.ones(2), -5.0 * q - qd)
+            q, qd, sensors = native.host_step(stepper, q, qd, ctrl, fast=fast)
+            return (q, qd), (q, sensors)
+
+        return jax.lax.scan(step, (q0, jnp.zeros_like(q0)), jnp.arange(steps))[1]
+
+    return jax.jit(jax.vmap(jax.vmap(one)))
+
+
+def test_host_step_fast_equals_pure_callback_and_python_loop(sensor_arm):
+    stepper = native.Stepper(sensor_arm, n_sub=3)
+    q0 = jnp.asarray(np.random.default_rng(0).uniform(-0.5, 0.5, (2, 3, 2)), jnp.float32)
+    fast_q, fast_s = closed_loop(stepper, fast=True)(q0)
+    slow_q, slow_s = closed_loop(stepper, fast=False)(q0)
+    assert native.FAST_CALLBACK is True  # jax 0.10: the direct host callback is in use
+    np.testing.assert_array_equal(np.asarray(fast_q), np.asarray(slow_q))
+    np.testing.assert_array_equal(np.asarray(fast_s), np.asarray(slow_s))
+    # Oracle: the same loop in plain Python, one state at a time with mj_step.
+    flat = np.asarray(q0).reshape(6, 2)
+    for i in range(6):
+        q, qd = flat[i : i + 1], np.zeros((1, 2), np.float32)
+        for t in range(6):
+            ctrl = np.ones((1, 2), np.float32) if t == 0 else -5.0 * q - qd
+            ctrl = ctrl.astype(np.float32)
+            q, qd, sensors = oracle(sensor_arm, q, qd, ctrl, 3)
+            q, qd = q.astype(np.float32), qd.astype(np.float32)
+            np.testing.assert_allclose(
+                np.asarray(fast_q).reshape(6, 6, 2)[i, t], q[0], rtol=1e-5, atol=1e-5
+            )
+            np.testing.assert_allclose(
+                np.asarray(fast_s).reshape(6, 6, 3, 5)[i, t], sensors[0], rtol=1e-5, atol=1e-5
+            )
+
+
+def test_host_step_eager_and_unbatched(sensor_arm):
+    stepper = native.Stepper(sensor_arm, n_sub=2)
+    qpos, qvel, ctrl = random_inputs(sensor_arm, 1, seed=11)
+    eager = native.host_step(stepper, qpos[0], qvel[0], ctrl[0])
+    jitted = jax.jit(lambda a, b, c: native.host_step(stepper, a, b, c))(qpos[0], qvel[0], ctrl[0])
+    want = oracle(sensor_arm, qpos, qvel, ctrl, 2)
+    for a, b, w in zip(eager, jitted, want, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        np.testing.assert_allclose(np.asarray(a), w[0], rtol=1e-6, atol=1e-6)
