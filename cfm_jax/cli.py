@@ -28,6 +28,8 @@ def train(
     simulator: str | None = None,
     resume: bool = False,
     data: str | None = None,
+    control_dt: float | None = None,
+    site: str | None = None,
     quiet: bool = False,
 ) -> None:
     """Learn a tracking controller with Algorithm 1 and compare controller losses.
@@ -46,7 +48,9 @@ def train(
       out: output directory.
       seed: first seed.
       config: JSON file of a full config (as written to config.json); the flags above
-        override its robot, task, seeds, iterations and seed.
+        override its robot, task, seeds, iterations and seed. Without it, the task's
+        defaults (cfm_jax.config.for_task: for walk and jump the paper's quadruped
+        networks and 250 Hz control).
       simulator: physics back end, native (MuJoCo C) or mjx; default: the config's (native).
       resume: continue an interrupted run in OUT (same flags and config): every loss
         resumes from its newest valid checkpoint in OUT/<loss>/checkpoints (finished losses
@@ -55,21 +59,28 @@ def train(
         OUT/<loss>/dataset.npz): every loss trains f and g from scratch on it, revealed
         iteration by iteration as it was recorded; the controller is evaluated on the
         robot every iteration. --seeds must equal the recorded run's.
+      control_dt: control period in seconds (default: the config's or the task's).
+      site: opspace: the end-effector site of the MJCF (default: "ee", else "flange").
       quiet: no progress bar.
     """
     from cfm_jax import training as train_lib
 
     names = _losses(loss)
-    base = config_lib.Config()
+    base = config_lib.for_task(task)
     if config is not None:
         with open(config) as f:
             base = config_lib.from_dict(json.load(f))
+    task_fields = {**config_lib.to_dict(base)["task"], "name": task}
+    if control_dt is not None:
+        task_fields["control_dt"] = control_dt
+    if site is not None:
+        task_fields["site"] = site
     base = config_lib.Config(
         robot=robot,
         loss=names[0],
         seed=seed,
         simulator=base.simulator if simulator is None else simulator,
-        task=config_lib.TaskConfig(**{**config_lib.to_dict(base)["task"], "name": task}),
+        task=config_lib.TaskConfig(**task_fields),
         forward=base.forward,
         controller=base.controller,
         loop=config_lib.LoopConfig(

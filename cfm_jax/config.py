@@ -282,6 +282,32 @@ class Config:
         return dataclasses.replace(self, **changes)
 
 
+def for_task(task: str, **changes) -> Config:
+    """The default :class:`Config` of a task, with top-level ``changes``.
+
+    The arm tasks (``inverse_dynamics``, ``opspace``) use the defaults of the dataclasses
+    (the paper's arm networks, 100 Hz control). The legged tasks (``walk``, ``jump``) use
+    the paper's quadruped networks (forward model 1000-500-500, a single member; controller
+    3 x 300) and 250 Hz control (``task.control_dt = 0.004``).
+
+    Example:
+      >>> for_task("walk", robot="solo12").task.control_dt
+      0.004
+    """
+    if task not in TASKS:
+        _fail("task.name", task, f"one of {TASKS}")
+    config = Config(task=TaskConfig(name=task))
+    if task in ("walk", "jump"):
+        config = dataclasses.replace(
+            config,
+            robot="solo12",
+            task=TaskConfig(name=task, control_dt=0.004),
+            forward=ForwardModelConfig(hidden=(1000, 500, 500), ensemble_size=1),
+            controller=ControllerConfig(hidden=(300, 300, 300)),
+        )
+    return dataclasses.replace(config, **changes)
+
+
 def to_dict(config: Config) -> dict:
     """Plain nested dict (JSON-serialisable) of a config."""
     return dataclasses.asdict(config)

@@ -247,3 +247,17 @@ def test_from_dict_validates_values():
 def test_seeds_of():
     cfg = Config(seed=4, loop=LoopConfig(seeds=3))
     assert tuple(config.seeds_of(cfg)) == (4, 5, 6)
+
+
+def test_for_task_defaults():
+    from cfm_jax import config as config_lib
+
+    walk = config_lib.for_task("walk")
+    assert (walk.robot, walk.task.name, walk.task.control_dt) == ("solo12", "walk", 0.004)
+    assert walk.forward.hidden == (1000, 500, 500) and walk.forward.ensemble_size == 1
+    assert walk.controller.hidden == (300, 300, 300)  # the paper's quadruped networks
+    arm = config_lib.for_task("opspace", seed=3)
+    assert arm.task.name == "opspace" and arm.seed == 3
+    assert arm.forward == config_lib.ForwardModelConfig()  # the arm defaults
+    with pytest.raises(config_lib.ConfigError, match="task.name='swim' is not allowed"):
+        config_lib.for_task("swim")
