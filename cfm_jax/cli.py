@@ -158,44 +158,16 @@ def _write_outputs(out, frames, result, base, task) -> None:
     )
 
 
-def bench(
-    robot: str = "iiwa14",
-    batch: int = 16,
-    steps: int = 200,
-    repeats: int = 5,
-    train: bool = True,
-    torch: bool = True,
-    fit_steps: int = 200,
-    json: bool = False,  # noqa: A002  (the flag's name)
-) -> None:
-    """Rollout steps/s next to native mujoco.rollout (2 threads) on the same model and
-    batch, a training iteration's cost (rollout, forward and controller updates), compile
-    time, PyTorch reference updates/s (if torch is installed), peak memory.
-
-    Args:
-      robot: registered robot name or path to an MJCF file (fixed or floating base).
-      batch: rollouts stepped together.
-      steps: control steps per rollout (0.01 s each).
-      repeats: best of this many timed runs.
-      train: also time a training iteration (--no-train: rollouts only).
-      torch: also time the PyTorch reference (needs the bench extra).
-      fit_steps: Adam steps per refit in the timed iteration.
-      json: print one JSON line instead of a table.
-    """
-    from cfm_jax import bench as bench_lib
-
-    bench_lib.bench(robot, batch, steps, repeats, train, torch, fit_steps, json)
-
-
 def main() -> None:
     import sys
 
     import tyro
 
+    from cfm_jax import bench
     from cfm_jax.robots import RobotError
 
     try:
-        tyro.extras.subcommand_cli_from_dict({"train": train, "bench": bench})
+        tyro.extras.subcommand_cli_from_dict({"train": train, "bench": bench.bench})
     except (config_lib.ConfigError, RobotError) as error:
         print(f"cfm-jax: error: {error}", file=sys.stderr)
         raise SystemExit(2) from None

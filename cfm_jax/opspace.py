@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from cfm_jax import native, tasks
+from cfm_jax import native, rollout, tasks
 from cfm_jax.config import ConfigError
 
 DEFAULT_SITES = ("ee", "flange")
@@ -461,18 +461,6 @@ def as_jax(reference: CartesianReference) -> CartesianReference:
 # ---- oracle: operational-space control --------------------------------------------------
 
 
-def implicit_damping(mj_model) -> np.ndarray:
-    """``h D``, ``(nv,)``: the joint damping the Euler integrator treats implicitly (zero for
-    other integrators or with ``mjDSBL_EULERDAMP``). One Euler step realises
-    ``qdd = (M + h D)^-1 (tau + passive - bias)`` instead of ``M^-1 (...)``."""
-    eulerdamp = int(mj_model.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_EULER) and not (
-        int(mj_model.opt.disableflags) & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
-    )
-    if not eulerdamp:
-        return np.zeros(mj_model.nv)
-    return mj_model.dof_damping * mj_model.opt.timestep
-
-
 class HostOracle:
     """Analytic operational-space controller (Khatib 1987) with MuJoCo C, float64.
 
@@ -485,11 +473,12 @@ class HostOracle:
 
     ``bias`` is MuJoCo's ``qfrc_bias`` (Coriolis, centrifugal, gravity), ``passive``
     ``qfrc_passive`` (joint damping and springs), ``M`` the joint-space inertia (with
-    armature), ``h D`` :func:`implicit_damping`. ``^+`` is the pseudo-inverse (relative
-    cut-off :data:`RCOND`), which is the inverse when ``J`` has full row rank.
+    armature), ``h D`` :func:`cfm_jax.rollout.implicit_damping`. ``^+`` is the
+    pseudo-inverse (relative cut-off :data:`RCOND`), which is the inverse when ``J`` has
+    full row rank.
 
     Derivation: one Euler step realises ``qdd = Mt^-1 (tau + passive - bias)``
-    (:func:`implicit_damping`), so ``J qdd = J Mt^-1 J^T Lambda (xdd* - Jdot qd) +
+    (:func:`cfm_jax.rollout.implicit_damping`), so ``J qdd = J Mt^-1 J^T Lambda (xdd* - Jdot qd) +
     J Mt^-1 N^T tau_null``. The first term is ``xdd* - Jdot qd`` (``J Mt^-1 J^T Lambda = I``
     on the range of ``J``); the second is zero because ``J Mt^-1 N^T = J Mt^-1 -
     (J Mt^-1 J^T) Lambda J Mt^-1 = 0`` (dynamically consistent projector). Hence the site's
@@ -523,7 +512,7 @@ class HostOracle:
         self.data = self.kinematics.data
         self.home = np.asarray(robot.home if home is None else home, np.float64)
         self.null_kp, self.null_kd = float(null_kp), float(null_kd)
-        self.implicit_damping = implicit_damping(self.model)
+        self.implicit_damping = rollout.implicit_damping(self.model)
 
     def task_inertia(self, qpos) -> np.ndarray:
         """``Lambda(q) = (J Mt^-1 J^T)^+``, ``(3, 3)``, at one pose (kg)."""

@@ -443,13 +443,13 @@ def test_oracle_null_space_term_is_invisible_at_the_site(iiwa):
 
 
 def test_implicit_damping_only_for_euler(iiwa):
-    np.testing.assert_allclose(opspace.implicit_damping(iiwa.mj_model), 0.5 * 0.002)
+    np.testing.assert_allclose(rollout.implicit_damping(iiwa.mj_model), 0.5 * 0.002)
     model = copy.deepcopy(iiwa.mj_model)
     model.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
-    np.testing.assert_array_equal(opspace.implicit_damping(model), 0.0)
+    np.testing.assert_array_equal(rollout.implicit_damping(model), 0.0)
     model = copy.deepcopy(iiwa.mj_model)
     model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
-    np.testing.assert_array_equal(opspace.implicit_damping(model), 0.0)
+    np.testing.assert_array_equal(rollout.implicit_damping(model), 0.0)
 
 
 def test_oracle_policy_jax_matches_host(iiwa):
