@@ -13,9 +13,10 @@ Public names (imported on first use, so ``import cfm_jax`` stays cheap and sets 
 flag before JAX's backend starts): :func:`train`, :class:`TrainResult`,
 :class:`Experiment` (from :mod:`cfm_jax.training`); :class:`Config`, :class:`TaskConfig`,
 :class:`ForwardModelConfig`, :class:`ControllerConfig`, :class:`LoopConfig`,
-:class:`ConfigError` (from :mod:`cfm_jax.config`). Submodules: ``robots``, ``tasks``,
-``networks``, ``losses``, ``dataset``, ``rollout``, ``update``, ``training``, ``report``,
-``theory``.
+:class:`ConfigError`, :func:`for_task` (from :mod:`cfm_jax.config`). Submodules:
+``robots``, ``tasks``, ``opspace``, ``locomotion``, ``networks``, ``losses``, ``dataset``,
+``native``, ``rollout``, ``update``, ``training``, ``checkpoint``, ``report``, ``render``,
+``bench``, ``theory``.
 """
 
 from cfm_jax import _xla
@@ -35,6 +36,7 @@ _LAZY = {
     "ControllerConfig": "cfm_jax.config",
     "LoopConfig": "cfm_jax.config",
     "ConfigError": "cfm_jax.config",
+    "for_task": "cfm_jax.config",
 }
 
 __all__ = sorted(_LAZY)
