@@ -309,7 +309,7 @@ class OperationalSpaceTask(JointSpaceTask):
         self.kp, self.kd, self.control_dt = float(task.kp), float(task.kd), float(control_dt)
         gain_p, gain_d = opspace.pd_gains(robot, task.kp, task.kd, self.site, home)
         self._pd = opspace.pd_policy(robot, gain_p, gain_d, self.site)
-        self._home_tuple = home
+        self._home_np = home
         nv = robot.nv
         self.targets, self.steps = self.reference_np.x.shape[0], self.reference_np.steps
         self.state_dim, self.desired_dim, self.output_dim = robot.nq + nv, 3, nv + 3
@@ -357,7 +357,7 @@ class OperationalSpaceTask(JointSpaceTask):
         """The analytic operational-space controller (:func:`cfm_jax.opspace.oracle_policy`;
         MuJoCo C on the host for either simulator)."""
         del simulator
-        torque = self.opspace.oracle_policy(self.robot, self.site, self._home_tuple)
+        torque = self.opspace.oracle_policy(self.robot, self.site, self._home_np)
 
         def policy(step, key):
             del key
@@ -489,9 +489,8 @@ class LeggedTask(JointSpaceTask):
             refs = [locomotion.walk_reference(d, **kwargs) for d in locomotion.WALK_DURATIONS]
         else:
             refs = [locomotion.jump_reference(h, **kwargs) for h in locomotion.JUMP_HEIGHTS]
-        self.references = refs
+        self.references = refs  # the NumPy recordings (the other tasks' reference_np)
         self.reference = as_jax_legged(refs)
-        self.reference_np = refs
         self.kp, self.kd, self.control_dt = float(task.kp), float(task.kd), float(control_dt)
         self.gain_p = jnp.float32(refs[0].kp)
         self.gain_d = jnp.float32(refs[0].kd)
@@ -552,9 +551,8 @@ class LeggedTask(JointSpaceTask):
 
     def record(self, step, tau, qpos_next, qvel_next, features_next):
         quat = qpos_next[3:7] / jnp.linalg.norm(qpos_next[3:7])
-        w, x, y, z = quat
-        up = 1 - 2 * (x * x + y * y)  # world z component of the base z axis
         rotation = self.locomotion.quat_to_mat(quat, xp=jnp)
+        up = rotation[2, 2]  # world z component of the base z axis
         half = jnp.asarray(self.locomotion.BASE_HALF, jnp.float32)
         signs = jnp.asarray(
             [[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], jnp.float32
