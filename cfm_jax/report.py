@@ -10,6 +10,8 @@ Example:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import pandas as pd
 
@@ -123,23 +125,148 @@ def plot_learning_curves(
     ``output_unit`` label the task's tracking error and predicted quantity. Returns
     ``path``.
     """
+    series = []
+    for loss in [n for n in losses.CONTROLLER_LOSSES if n in set(metrics["loss"])]:
+        grouped = metrics[metrics["loss"] == loss].groupby("iteration")
+        stats = {}
+        for column, _ in _panels(tracking_label, output_unit):
+            frame = grouped[column]
+            stats[column] = (frame.mean(), frame.std(ddof=0).fillna(0.0))
+        series.append((loss, stats))
+    return _plot_series(series, path, baselines, title, tracking_label, output_unit)
+
+
+CURVE_ID_COLUMNS = ("seed", "iteration", "target")
+"""Columns of a metrics table that identify a row rather than measure something."""
+
+
+def seed_curves(
+    metrics: pd.DataFrame, by: Sequence[str] = ("loss",), columns: Sequence[str] | None = None
+) -> pd.DataFrame:
+    """Mean and standard deviation over seeds, per iteration, for each group ``by`` (each
+    loss, or each loss and override combination of a sweep): the paper's learning curves.
+
+    Each seed's value at an iteration is first averaged over the targets; the mean and the
+    population standard deviation (``ddof=0``, as in :func:`summary`) are then taken over
+    the seeds. ``columns``: the metrics to summarise (default: every numeric column that
+    is not an id, a group column, ``finite_fraction``, ``transitions_added`` or a training
+    loss). Returns one row per group and iteration, groups in order of first appearance,
+    iterations ascending: the ``by`` columns, ``iteration``, ``seeds`` and
+    ``<column>_mean``, ``<column>_std`` for each column.
+    """
+    by = list(by)
+    if columns is None:
+        skip = set(CURVE_ID_COLUMNS) | set(by) | {
+            "finite_fraction", "transitions_added", "forward_loss", "controller_loss"
+        }  # fmt: skip
+        numeric = pd.api.types.is_numeric_dtype
+        columns = [c for c in metrics.columns if c not in skip and numeric(metrics[c])]
+    columns = list(columns)
+    missing = [c for c in by + columns + ["seed", "iteration"] if c not in metrics.columns]
+    if missing:
+        raise ValueError(f"columns {missing} are not in the metrics table")
+    per_seed = (
+        metrics.groupby(by + ["seed", "iteration"], sort=False, dropna=False)[columns]
+        .mean()
+        .reset_index()
+    )
+    grouped = per_seed.groupby(by + ["iteration"], sort=False, dropna=False)
+    mean, std = grouped[columns].mean(), grouped[columns].std(ddof=0)
+    out = pd.DataFrame({"seeds": grouped.size()})
+    for column in columns:
+        out[f"{column}_mean"] = mean[column]
+        out[f"{column}_std"] = std[column]
+    out = out.reset_index()
+    rank = {key: i for i, key in enumerate(dict.fromkeys(_group_keys(out, by)))}
+    out["_rank"] = [rank[key] for key in _group_keys(out, by)]
+    out = out.sort_values(["_rank", "iteration"], kind="stable").drop(columns="_rank")
+    return out.reset_index(drop=True)
+
+
+def _group_keys(frame: pd.DataFrame, by: Sequence[str]) -> list[tuple]:
+    return [tuple(row) for row in frame[list(by)].astype(str).itertuples(index=False)]
+
+
+def curves_markdown(
+    curves: pd.DataFrame,
+    by: Sequence[str] = ("loss",),
+    iteration: int | None = None,
+    columns: Sequence[str] | None = None,
+) -> str:
+    """A :func:`seed_curves` table at one ``iteration`` (default: the last) as GitHub
+    markdown: one row per group, each metric as ``mean ± std`` over seeds (3 significant
+    digits)."""
+    by = list(by)
+    if iteration is None:
+        iteration = int(curves["iteration"].max())
+    rows = curves[curves["iteration"] == iteration]
+    if columns is None:
+        columns = [c[: -len("_mean")] for c in curves.columns if c.endswith("_mean")]
+    header = [*by, "seeds", *columns]
+    lines = [
+        f"iteration {iteration}; mean ± std over seeds (each seed averaged over targets)",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(by) + "---:|" * (1 + len(columns)),
+    ]
+    for _, row in rows.iterrows():
+        cells = [str(row[c]) for c in by] + [str(int(row["seeds"]))]
+        cells += [f"{_format(row[c + '_mean'])} ± {_format(row[c + '_std'])}" for c in columns]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def plot_curves(
+    curves: pd.DataFrame,
+    path: str,
+    by: Sequence[str] = ("loss",),
+    baselines: pd.DataFrame | None = None,
+    title: str = "",
+    tracking_label: str = "joint tracking MSE (rad$^2$)",
+    output_unit: str = "(rad/s$^2$)$^2$",
+) -> str:
+    """The figure of :func:`plot_learning_curves` from a :func:`seed_curves` table: one
+    line per group (mean over seeds, band of one std). Returns ``path``."""
+    by = list(by)
+    series = []
+    for key, frame in curves.groupby(by, sort=False, dropna=False):
+        key = key if isinstance(key, tuple) else (key,)
+        pairs = zip(by[1:], key[1:], strict=True)
+        label = str(key[0]) + "".join(f", {name}={value}" for name, value in pairs)
+        frame = frame.set_index("iteration")
+        stats = {}
+        for column, _ in _panels(tracking_label, output_unit):
+            if f"{column}_mean" in frame:
+                stats[column] = (frame[f"{column}_mean"], frame[f"{column}_std"].fillna(0.0))
+        series.append((label, stats))
+    return _plot_series(series, path, baselines, title, tracking_label, output_unit)
+
+
+def _panels(tracking_label: str, output_unit: str) -> list[tuple[str, str]]:
+    return [
+        ("tracking_mse", tracking_label),
+        ("prediction_error", f"forward-model prediction error ({output_unit})"),
+        ("predicted_task_error", f"predicted task error ({output_unit})"),
+    ]
+
+
+def _plot_series(series, path, baselines, title, tracking_label, output_unit) -> str:
+    """Three log-scale panels; ``series``: ``[(label, {column: (mean, std)})]`` with
+    iteration-indexed mean and std."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.ticker import MaxNLocator
 
-    panels = [
-        ("tracking_mse", tracking_label),
-        ("prediction_error", f"forward-model prediction error ({output_unit})"),
-        ("predicted_task_error", f"predicted task error ({output_unit})"),
-    ]
+    panels = _panels(tracking_label, output_unit)
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     for ax, (column, label) in zip(axes, panels, strict=True):
-        for loss in [n for n in losses.CONTROLLER_LOSSES if n in set(metrics["loss"])]:
-            frame = metrics[metrics["loss"] == loss].groupby("iteration")[column]
-            mean, std = frame.mean(), frame.std(ddof=0).fillna(0.0)
-            (line,) = ax.plot(mean.index, mean.values, marker="o", ms=3, label=loss)
+        for name, stats in series:
+            if column not in stats:
+                continue
+            mean, std = stats[column]
+            (line,) = ax.plot(mean.index, mean.values, marker="o", ms=3, label=name)
             lower = np.maximum(mean.values - std.values, mean.values * 1e-2)
             ax.fill_between(
                 mean.index, lower, mean.values + std.values, alpha=0.2, color=line.get_color()
