@@ -13,10 +13,11 @@ Public names (imported on first use, so ``import cfm_jax`` stays cheap and sets 
 flag before JAX's backend starts): :func:`train`, :class:`TrainResult`,
 :class:`Experiment` (from :mod:`cfm_jax.training`); :class:`Config`, :class:`TaskConfig`,
 :class:`ForwardModelConfig`, :class:`ControllerConfig`, :class:`LoopConfig`,
-:class:`ConfigError`, :func:`for_task` (from :mod:`cfm_jax.config`). Submodules:
+:class:`ConfigError`, :func:`for_task` (from :mod:`cfm_jax.config`); :func:`sweep`,
+:class:`SweepResult`, :class:`SweepError` (from :mod:`cfm_jax.sweeps`). Submodules:
 ``robots``, ``tasks``, ``opspace``, ``locomotion``, ``networks``, ``losses``, ``dataset``,
 ``native``, ``rollout``, ``update``, ``training``, ``checkpoint``, ``report``, ``render``,
-``bench``, ``theory``.
+``bench``, ``theory``, ``sweeps``.
 """
 
 from cfm_jax import _xla
@@ -37,6 +38,9 @@ _LAZY = {
     "LoopConfig": "cfm_jax.config",
     "ConfigError": "cfm_jax.config",
     "for_task": "cfm_jax.config",
+    "sweep": "cfm_jax.sweeps",
+    "SweepResult": "cfm_jax.sweeps",
+    "SweepError": "cfm_jax.sweeps",
 }
 
 __all__ = sorted(_LAZY)

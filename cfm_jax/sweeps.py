@@ -1,0 +1,727 @@
+"""Sweeps: a grid of configs run as one study, in-process or on a Ray cluster.
+
+The module is ``sweeps`` so that ``cfm_jax.sweep`` (the function) never shadows it.
+
+A sweep is a grid of *cells*: every combination of the ``overrides`` (dotted config paths
+such as ``"task.kp"`` or ``"controller.learning_rate"``, each with a list of values) times
+every controller loss. Each cell is one call of :func:`cfm_jax.train` with all the seeds as
+its vmap axis, so a cell compiles once and runs its seeds as one program; cells that share
+everything but the loss also share one :class:`cfm_jax.training.Experiment` (babbling
+data, initial forward fit and the compiled rollout), as ``cfm-jax train --loss all`` does.
+
+Impure shell: this module runs cells, writes files and talks to Ray. Each finished cell is
+written to ``out_dir/cells/<cell id>/`` at once (``config.json``, ``cell.json``,
+``baselines.csv`` and last ``metrics.csv``, each written to a temporary file and renamed),
+so an interrupted sweep loses at most the cells in flight, and a re-run with the same
+arguments skips every finished cell. A cell id is the loss and a digest of the cell's
+whole config, so it does not depend on the order of the grid.
+
+Backends:
+
+* ``"local"``: cells one after another in this process (no server).
+* ``"ray"``: each cell a Ray task (``max_retries`` retries when its worker dies);
+  ``address`` an existing cluster, or ``None`` for a local one started on demand (all
+  cores) and stopped at the end. Results come back to this process, which writes them, so
+  workers need no shared filesystem (see ``checkpoints``). Needs ``pip install
+  'cfm_jax[ray]'``.
+
+Example:
+  >>> import cfm_jax
+  >>> config = cfm_jax.Config(robot="two_link_arm")
+  >>> result = cfm_jax.sweep(config, seeds=3, losses=["joint", "task"],
+  ...                        overrides={"task.kp": [50.0, 100.0]}, out_dir="results/s")
+  ... # doctest: +SKIP
+  >>> result.curves()  # mean and std over seeds per iteration  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import functools
+import hashlib
+import itertools
+import json
+import os
+import socket
+import time
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import pandas as pd
+
+from cfm_jax import config as config_lib
+from cfm_jax import losses as losses_lib
+from cfm_jax import report
+
+BACKENDS = ("local", "ray")
+"""Backends of :func:`sweep`."""
+
+RESERVED = {"loss": "losses", "seed": "seeds", "loop.seeds": "seeds"}
+"""Config paths that are axes of the sweep itself, not overrides (path -> argument)."""
+
+EXPERIMENT_CACHE_SIZE = 2
+"""Compiled experiments kept per process (also in each Ray worker), most recent first."""
+
+
+class SweepError(RuntimeError):
+    """Some cells failed. The other cells' results are kept (on disk when the sweep has an
+    ``out_dir``; a re-run runs only the missing cells).
+
+    Attributes:
+      failures: ``{cell id: error text}``.
+      result: a :class:`SweepResult` of the cells that finished.
+    """
+
+    def __init__(self, failures: dict[str, str], result: SweepResult, total: int):
+        self.failures = dict(failures)
+        self.result = result
+        where = (
+            f"the finished cells are kept in {result.out_dir}/cells; run the same sweep again "
+            "to run only the missing cells"
+            if result.out_dir
+            else "no out_dir, so nothing was written"
+        )
+        lines = [f"{len(failures)} of {total} cells failed ({where}):"]
+        for cell_id, text in failures.items():
+            lines.append(f"  {cell_id}: {text.strip().splitlines()[-1] if text.strip() else ''}")
+        super().__init__("\n".join(lines))
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    """One cell of the grid: a full config (its loss, seeds and override values)."""
+
+    id: str
+    config: config_lib.Config
+    overrides: dict[str, Any]  # dotted path -> value of this cell
+
+    @property
+    def loss(self) -> str:
+        return self.config.loss
+
+
+@dataclasses.dataclass
+class CellOutput:
+    """What running one cell gives back (:func:`run_cell`, or a custom ``runner``).
+
+    Attributes:
+      metrics: :attr:`cfm_jax.TrainResult.metrics` of the cell.
+      baselines: :attr:`cfm_jax.TrainResult.baselines` of the cell.
+      seconds: wall time of the cell.
+      pid, host: the process and machine that ran it.
+      labels: axis labels of the task for figures (``tracking_label``, ``output_unit``).
+    """
+
+    metrics: pd.DataFrame
+    baselines: pd.DataFrame
+    seconds: float
+    pid: int
+    host: str
+    labels: dict = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
+class SweepResult:
+    """What :func:`sweep` returns.
+
+    Attributes:
+      metrics: the tidy table, one row per (cell, seed, iteration, target): columns
+        ``cell``, one column per override path (its value in that cell; tuples as JSON
+        text), then the columns of :attr:`cfm_jax.TrainResult.metrics` (``loss``, ``seed``,
+        ``iteration``, ``target``, ...). Rows in grid order (overrides, then losses), the
+        same whatever the backend or the order in which cells finished.
+      baselines: oracle and PD-only tracking per target, one set per combination of
+        override values (they do not depend on the loss).
+      cells: one row per cell: ``cell``, the override columns, ``loss``, ``seconds``,
+        ``pid``, ``host``, ``status`` (``ran``, or ``done before`` for a skipped cell).
+      override_columns: the override paths, in the order given.
+      out_dir: where the files are, or None.
+      seconds: wall time of the sweep.
+    """
+
+    metrics: pd.DataFrame
+    baselines: pd.DataFrame
+    cells: pd.DataFrame
+    override_columns: tuple[str, ...]
+    out_dir: str | None
+    seconds: float
+
+    @property
+    def group_columns(self) -> list[str]:
+        """``loss`` and the override columns: what tells one curve from another."""
+        return ["loss", *self.override_columns]
+
+    def curves(self, columns: Sequence[str] | None = None) -> pd.DataFrame:
+        """Mean and std over seeds per iteration for each loss and override combination
+        (:func:`cfm_jax.report.seed_curves`)."""
+        return report.seed_curves(self.metrics, by=self.group_columns, columns=columns)
+
+    def markdown(self, iteration: int | None = None) -> str:
+        """The curves at ``iteration`` (default: the last) as a markdown table."""
+        return report.curves_markdown(self.curves(), self.group_columns, iteration)
+
+    def plot(self, path: str, title: str = "", **labels) -> str:
+        """The paper-style figure of the curves (:func:`cfm_jax.report.plot_curves`); the
+        baselines are drawn when the sweep has no overrides. Returns ``path``."""
+        baselines = self.baselines if not self.override_columns else None
+        return report.plot_curves(
+            self.curves(), path, self.group_columns, baselines=baselines, title=title, **labels
+        )
+
+
+# ----- the grid ---------------------------------------------------------------------
+
+
+def grid(
+    base_config: config_lib.Config,
+    seeds: int | Sequence[int] | None = None,
+    losses: str | Sequence[str] | None = None,
+    overrides: Mapping[str, Sequence[Any]] | None = None,
+) -> list[Cell]:
+    """The cells of a sweep, in grid order: every combination of the override values (the
+    first path varies slowest), and for each every loss.
+
+    Args:
+      base_config: the config every cell starts from.
+      seeds: the number of seeds (``base_config.seed`` onwards), or the seeds themselves as
+        consecutive integers (``range(3, 6)``); None: ``base_config``'s.
+      losses: a loss name, a list of them, or ``"all"``; None: ``base_config.loss``.
+      overrides: ``{dotted path: [values]}``, e.g. ``{"controller.learning_rate": [1e-3,
+        3e-4], "task.targets": [targets_a, targets_b]}``. An int given for a field whose
+        base value is a float is taken as that float (so ``100`` and ``100.0`` name the
+        same cell).
+
+    Raises:
+      ConfigError: naming the argument or path, the bad value and what is allowed.
+    """
+    if not isinstance(base_config, config_lib.Config):
+        config_lib._fail("base_config", base_config, "a cfm_jax.Config")
+    first, count = _seeds(base_config, seeds)
+    names = _losses(base_config, losses)
+    paths, value_lists = _overrides(base_config, overrides)
+    base = config_lib.to_dict(base_config)
+    base["seed"] = first
+    base["loop"] = {**base["loop"], "seeds": count}
+    cells = []
+    for values in itertools.product(*value_lists):
+        changed = json.loads(json.dumps(base))
+        for path, value in zip(paths, values, strict=True):
+            _set_path(changed, path, value)
+        for loss in names:
+            changed["loss"] = loss
+            config = config_lib.from_dict(_tuples(changed))
+            cells.append(Cell(cell_id(config), config, dict(zip(paths, values, strict=True))))
+    return cells
+
+
+def cell_id(config: config_lib.Config) -> str:
+    """``<loss>-<first 12 hex digits of the SHA-256 of the config's JSON>``."""
+    text = json.dumps(config_lib.to_dict(config), sort_keys=True)
+    return f"{config.loss}-{hashlib.sha256(text.encode()).hexdigest()[:12]}"
+
+
+def _seeds(base: config_lib.Config, seeds) -> tuple[int, int]:
+    if seeds is None:
+        return base.seed, base.loop.seeds
+    if isinstance(seeds, int) and not isinstance(seeds, bool):
+        if seeds <= 0:
+            config_lib._fail("seeds", seeds, "a positive number of seeds or consecutive seeds")
+        return base.seed, seeds
+    try:
+        values = [int(s) for s in seeds]
+    except (TypeError, ValueError):
+        config_lib._fail("seeds", seeds, "a positive number of seeds or consecutive seeds")
+    if (
+        not values
+        or values[0] < 0
+        or values != list(range(values[0], values[0] + len(values)))
+        or any(isinstance(s, bool) or int(s) != s for s in seeds)
+    ):
+        config_lib._fail(
+            "seeds",
+            seeds,
+            "consecutive integers >= 0 in increasing order (they are one vmap axis), "
+            "e.g. range(3) or [3, 4, 5]",
+        )
+    return values[0], len(values)
+
+
+def _losses(base: config_lib.Config, losses) -> list[str]:
+    if losses is None:
+        return [base.loss]
+    if losses == "all":
+        return list(losses_lib.CONTROLLER_LOSSES)
+    names = [losses] if isinstance(losses, str) else list(losses)
+    bad = [n for n in names if n not in losses_lib.CONTROLLER_LOSSES]
+    if not names or bad or len(set(names)) != len(names):
+        config_lib._fail(
+            "losses",
+            losses,
+            f"'all' or distinct names from {losses_lib.CONTROLLER_LOSSES}",
+        )
+    return names
+
+
+def _overrides(base: config_lib.Config, overrides) -> tuple[list[str], list[list[Any]]]:
+    if overrides is None:
+        return [], []
+    if not isinstance(overrides, Mapping):
+        config_lib._fail("overrides", overrides, "a dict {dotted config path: [values]}")
+    tree = config_lib.to_dict(base)
+    paths, value_lists = [], []
+    for path, values in overrides.items():
+        field = f"overrides[{path!r}]"
+        if not isinstance(path, str):
+            config_lib._fail("overrides", path, "dotted config paths (strings) as keys")
+        if path in RESERVED:
+            config_lib._fail(
+                field, values, f"{path} is an axis of the sweep: use sweep's {RESERVED[path]}="
+            )
+        current = _get_path(tree, path)
+        if isinstance(values, str | bytes) or not isinstance(values, Sequence) or not values:
+            config_lib._fail(field, values, "a non-empty list of values, e.g. [1e-3, 3e-4]")
+        normal = [_normalise(current, v) for v in values]
+        texts = [json.dumps(v) for v in normal]
+        if len(set(texts)) != len(texts):
+            config_lib._fail(field, values, "distinct values (a value appears twice)")
+        paths.append(path)
+        value_lists.append(normal)
+    return paths, value_lists
+
+
+def _get_path(tree: dict, path: str):
+    node = tree
+    parts = path.split(".")
+    for depth, part in enumerate(parts):
+        here = ".".join(parts[:depth]) or "the config"
+        if not isinstance(node, dict) or part not in node:
+            known = sorted(node) if isinstance(node, dict) else []
+            config_lib._fail(
+                f"overrides[{path!r}]",
+                path,
+                f"a dotted path to a config field; the fields of {here} are {known}",
+            )
+        node = node[part]
+    if isinstance(node, dict):
+        config_lib._fail(
+            f"overrides[{path!r}]",
+            path,
+            f"a path to a single field, not a section; its fields are {sorted(node)}",
+        )
+    return node
+
+
+def _set_path(tree: dict, path: str, value) -> None:
+    *parents, last = path.split(".")
+    node = tree
+    for part in parents:
+        node = node[part]
+    node[last] = value
+
+
+def _normalise(current, value):
+    """Lists to tuples (configs hold tuples); an int for a float field to a float."""
+    value = _tuples(value)
+    if isinstance(current, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
+def _tuples(value):
+    if isinstance(value, dict):
+        return {k: _tuples(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return tuple(_tuples(v) for v in value)
+    return value
+
+
+def _plain(overrides: dict) -> dict:
+    """Override values as JSON data (tuples become lists when dumped)."""
+    return {path: _tuples(value) for path, value in overrides.items()}
+
+
+def _column_value(value):
+    """An override value as a table entry: scalars as they are, tuples as JSON text."""
+    return json.dumps(value) if isinstance(value, tuple | list) else value
+
+
+# ----- running one cell ---------------------------------------------------------------
+
+_EXPERIMENTS: collections.OrderedDict = collections.OrderedDict()
+
+
+def experiment_for(config: config_lib.Config):
+    """A :class:`cfm_jax.training.Experiment` for ``config``, reused (with its compiled
+    functions and babbling data) for configs that differ only in the loss. The last
+    :data:`EXPERIMENT_CACHE_SIZE` are kept per process."""
+    from cfm_jax import training
+
+    key = json.dumps(config_lib.to_dict(config.replace(loss="joint")), sort_keys=True)
+    if key in _EXPERIMENTS:
+        _EXPERIMENTS.move_to_end(key)
+        return _EXPERIMENTS[key]
+    experiment = training.Experiment(config)
+    _EXPERIMENTS[key] = experiment
+    while len(_EXPERIMENTS) > EXPERIMENT_CACHE_SIZE:
+        _EXPERIMENTS.popitem(last=False)
+    return experiment
+
+
+def run_cell(
+    config: config_lib.Config, run_dir: str | None = None, progress: bool = False
+) -> CellOutput:
+    """Run one cell: :func:`cfm_jax.train` on ``config`` (seeds as the vmap axis).
+
+    With ``run_dir``, train writes its run files there (checkpoints, ``dataset.npz``);
+    when ``run_dir`` already holds checkpoints of an interrupted attempt of this cell, the
+    cell resumes from the newest valid one (bit for bit the uninterrupted run), and starts
+    afresh when none is usable. This is the default ``runner`` of :func:`sweep`.
+    """
+    import warnings
+
+    from cfm_jax import checkpoint as ckpt_lib
+    from cfm_jax import training
+
+    start = time.perf_counter()
+    experiment = experiment_for(config)
+    resume = None
+    if run_dir is not None and config.loop.checkpoint_every > 0:
+        if os.path.isdir(os.path.join(run_dir, "checkpoints")) and os.path.isfile(
+            os.path.join(run_dir, "config.json")
+        ):
+            resume = run_dir
+    try:
+        result = training.train(
+            config, progress=progress, out_dir=run_dir, experiment=experiment, resume=resume
+        )
+    except ckpt_lib.CheckpointError as error:
+        if resume is None:
+            raise
+        warnings.warn(f"{run_dir}: {error}; running the cell from the start", stacklevel=2)
+        import shutil
+
+        shutil.rmtree(run_dir)
+        result = training.train(config, progress=progress, out_dir=run_dir, experiment=experiment)
+    task = experiment.task
+    return CellOutput(
+        metrics=result.metrics,
+        baselines=result.baselines,
+        seconds=time.perf_counter() - start,
+        pid=os.getpid(),
+        host=socket.gethostname(),
+        labels={
+            "tracking_label": f"{task.tracking_name} ({task.tracking_unit}$^2$)",
+            "output_unit": task.output_unit,
+        },
+    )
+
+
+def _ray_task(runner, config: dict, run_dir: str | None) -> CellOutput:
+    """The body of a Ray task: one cell (the config travels as plain JSON data)."""
+    return runner(config_lib.from_dict(_tuples(config)), run_dir)
+
+
+# ----- the sweep ----------------------------------------------------------------------
+
+
+def sweep(
+    base_config: config_lib.Config,
+    seeds: int | Sequence[int] | None = None,
+    losses: str | Sequence[str] | None = None,
+    overrides: Mapping[str, Sequence[Any]] | None = None,
+    out_dir: str | None = None,
+    backend: str = "local",
+    address: str | None = None,
+    max_retries: int = 3,
+    cpus_per_cell: float = 1.0,
+    checkpoints: bool = True,
+    progress: bool = True,
+    runner: Callable[[config_lib.Config, str | None], CellOutput] | None = None,
+) -> SweepResult:
+    """Run a grid of cells (:func:`grid`: override combinations x losses), each with all
+    the seeds as one vmapped :func:`cfm_jax.train` call, and gather one tidy table.
+
+    Args:
+      base_config, seeds, losses, overrides: the grid (see :func:`grid`).
+      out_dir: where results go (created). Each finished cell is written to
+        ``out_dir/cells/<cell id>/`` as it finishes; a re-run skips finished cells. When
+        all cells are done: ``metrics.csv`` and ``metrics.parquet`` (the tidy table),
+        ``baselines.csv``, ``cells.csv``, ``sweep.json`` (the grid), ``summary.md`` (the
+        curves at the last iteration) and ``curves.png``. None: nothing is written.
+      backend: ``"local"`` (this process, one cell after another) or ``"ray"``.
+      address: ray only: the address of an existing cluster (``"host:port"`` or
+        ``"auto"``); None: connect to the Ray instance this process already has, else
+        start a local one (all cores) and stop it at the end.
+      max_retries: ray only: how often a cell is retried when its worker process dies.
+        A Python exception in a cell is not retried (it would fail again); it is reported.
+      cpus_per_cell: ray only: the CPUs a cell reserves (sets how many run at once).
+      checkpoints: give each cell the run directory ``out_dir/cells/<id>/run`` (train's
+        checkpoints and ``dataset.npz``, written by the process that runs the cell), so a
+        cell interrupted mid-way resumes from its last checkpoint. On a cluster without a
+        shared filesystem the directory is on the worker's machine (a retry elsewhere
+        starts the cell over).
+      progress: progress bars (local) and a line per finished cell.
+      runner: ``runner(config, run_dir) -> CellOutput`` runs one cell; default
+        :func:`run_cell`. For extra per-cell work; on Ray it must be picklable.
+
+    Returns:
+      A :class:`SweepResult`.
+
+    Raises:
+      ConfigError: a bad argument (named, with what is allowed).
+      SweepError: some cells failed; the others are kept (``error.result``).
+    """
+    start = time.perf_counter()
+    cells = grid(base_config, seeds, losses, overrides)
+    if backend not in BACKENDS:
+        config_lib._fail("backend", backend, f"one of {BACKENDS}")
+    if backend == "local" and address is not None:
+        config_lib._fail("address", address, "None with backend='local' (ray only)")
+    if isinstance(max_retries, bool) or not isinstance(max_retries, int) or max_retries < 0:
+        config_lib._fail("max_retries", max_retries, "an integer >= 0")
+    if isinstance(cpus_per_cell, bool) or not isinstance(cpus_per_cell, int | float):
+        config_lib._fail("cpus_per_cell", cpus_per_cell, "a number > 0")
+    if cpus_per_cell <= 0:
+        config_lib._fail("cpus_per_cell", cpus_per_cell, "a number > 0")
+    paths = tuple(cells[0].overrides)
+    outputs: dict[str, CellOutput] = {}
+    done_before: set[str] = set()
+    if out_dir is not None:
+        os.makedirs(os.path.join(out_dir, "cells"), exist_ok=True)
+        for cell in cells:
+            output = _load_cell(out_dir, cell)
+            if output is not None:
+                outputs[cell.id] = output
+                done_before.add(cell.id)
+    todo = [cell for cell in cells if cell.id not in outputs]
+    failures: dict[str, str] = {}
+    say = _reporter(progress, len(cells), len(done_before))
+
+    def finished(cell: Cell, output: CellOutput) -> None:
+        outputs[cell.id] = output
+        if out_dir is not None:
+            _write_cell(out_dir, cell, output)
+        say(cell, f"done in {output.seconds:.0f} s")
+
+    def failed(cell: Cell, text: str) -> None:
+        failures[cell.id] = text
+        say(cell, "FAILED: " + (text.strip().splitlines() or [""])[-1])
+
+    def run_dir(cell: Cell) -> str | None:
+        if out_dir is None or not checkpoints:
+            return None
+        return os.path.abspath(os.path.join(out_dir, "cells", cell.id, "run"))
+
+    if todo and backend == "local":
+        run = runner or functools.partial(run_cell, progress=progress)
+        for cell in todo:
+            try:
+                output = run(cell.config, run_dir(cell))
+            except Exception as error:  # reported in SweepError; the other cells go on
+                failed(cell, f"{type(error).__name__}: {error}")
+            else:
+                finished(cell, output)
+    elif todo:
+        _run_ray(todo, runner or run_cell, run_dir, address, max_retries, cpus_per_cell,
+                 finished, failed)  # fmt: skip
+    result = _collect(cells, outputs, done_before, paths, out_dir, time.perf_counter() - start)
+    if failures:
+        raise SweepError(failures, result, len(cells))
+    if out_dir is not None:
+        _write_tables(out_dir, result, base_config, cells, outputs[cells[0].id].labels)
+    return result
+
+
+def _run_ray(todo, runner, run_dir, address, max_retries, cpus_per_cell, finished, failed):
+    try:
+        import ray
+    except ImportError:
+        config_lib._fail(
+            "backend", "ray", "'local' here: Ray is not installed (pip install 'cfm_jax[ray]')"
+        )
+    started = False
+    if not ray.is_initialized():
+        if address is None:
+            ray.init(include_dashboard=False)
+        else:
+            ray.init(address=address)
+        started = True
+    try:
+        task = ray.remote(_ray_task).options(
+            max_retries=max_retries, retry_exceptions=False, num_cpus=cpus_per_cell
+        )
+        refs = {
+            task.remote(runner, config_lib.to_dict(cell.config), run_dir(cell)): cell
+            for cell in todo
+        }
+        pending = list(refs)
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            for ref in ready:
+                cell = refs[ref]
+                try:
+                    output = ray.get(ref)
+                except ray.exceptions.RayError as error:
+                    cause = getattr(error, "cause", None)
+                    if isinstance(cause, BaseException):
+                        failed(cell, f"{type(cause).__name__}: {cause}")
+                    else:
+                        failed(cell, f"{type(error).__name__}: {error}")
+                else:
+                    finished(cell, output)
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _reporter(progress: bool, total: int, done_before: int):
+    count = [done_before]
+    if progress and done_before:
+        print(f"sweep: {done_before} of {total} cells finished before, skipped", flush=True)
+
+    def say(cell: Cell, text: str) -> None:
+        count[0] += 1
+        if progress:
+            print(f"sweep: cell {count[0]}/{total} {cell.id} {text}", flush=True)
+
+    return say
+
+
+# ----- files --------------------------------------------------------------------------
+
+
+def _atomic(path: str, write: Callable[[str], None]) -> None:
+    tmp = f"{path}.tmp{os.getpid()}"
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def _write_text(path: str, text: str) -> None:
+    def write(tmp):
+        with open(tmp, "w") as f:
+            f.write(text)
+
+    _atomic(path, write)
+
+
+def _jsonable(config: config_lib.Config) -> dict:
+    return json.loads(json.dumps(config_lib.to_dict(config)))
+
+
+def _write_cell(out_dir: str, cell: Cell, output: CellOutput) -> None:
+    """``config.json``, ``cell.json``, ``baselines.csv`` and, last, ``metrics.csv`` (its
+    presence marks the cell finished); each written whole and renamed into place."""
+    directory = os.path.join(out_dir, "cells", cell.id)
+    os.makedirs(directory, exist_ok=True)
+    config_text = json.dumps(_jsonable(cell.config), indent=2)
+    _write_text(os.path.join(directory, "config.json"), config_text)
+    info = {
+        "cell": cell.id,
+        "loss": cell.loss,
+        "overrides": _plain(cell.overrides),
+        "seconds": output.seconds,
+        "pid": output.pid,
+        "host": output.host,
+        "labels": output.labels,
+    }
+    _write_text(os.path.join(directory, "cell.json"), json.dumps(info, indent=2))
+    _atomic(
+        os.path.join(directory, "baselines.csv"),
+        lambda tmp: output.baselines.to_csv(tmp, index=False),
+    )
+    _atomic(
+        os.path.join(directory, "metrics.csv"), lambda tmp: output.metrics.to_csv(tmp, index=False)
+    )
+
+
+def _read_csv(path: str) -> pd.DataFrame:
+    # pandas writes floats as their shortest repr and reads them back exactly (tested)
+    return pd.read_csv(path)
+
+
+def _load_cell(out_dir: str, cell: Cell) -> CellOutput | None:
+    """The saved output of a finished cell of this exact config, else None."""
+    directory = os.path.join(out_dir, "cells", cell.id)
+    try:
+        with open(os.path.join(directory, "config.json")) as f:
+            if json.load(f) != _jsonable(cell.config):
+                return None
+        with open(os.path.join(directory, "cell.json")) as f:
+            info = json.load(f)
+        metrics = _read_csv(os.path.join(directory, "metrics.csv"))
+        baselines = _read_csv(os.path.join(directory, "baselines.csv"))
+    except (FileNotFoundError, json.JSONDecodeError, pd.errors.EmptyDataError):
+        return None
+    return CellOutput(
+        metrics, baselines, info["seconds"], info["pid"], info["host"], info.get("labels", {})
+    )
+
+
+def _collect(cells, outputs, done_before, paths, out_dir, seconds) -> SweepResult:
+    frames, base_frames, rows, seen = [], [], [], set()
+    for cell in cells:
+        output = outputs.get(cell.id)
+        if output is None:
+            continue
+        columns = {"cell": cell.id}
+        columns.update({p: _column_value(cell.overrides[p]) for p in paths})
+        metrics = output.metrics.copy()
+        for position, (name, value) in enumerate(columns.items()):
+            metrics.insert(position, name, [value] * len(metrics))
+        frames.append(metrics)
+        combination = json.dumps([cell.overrides[p] for p in paths])
+        if combination not in seen:
+            seen.add(combination)
+            baselines = output.baselines.copy()
+            for position, path in enumerate(paths):
+                value = _column_value(cell.overrides[path])
+                baselines.insert(position, path, [value] * len(baselines))
+            base_frames.append(baselines)
+        rows.append(
+            {
+                **columns,
+                "loss": cell.loss,
+                "seconds": output.seconds,
+                "pid": output.pid,
+                "host": output.host,
+                "status": "done before" if cell.id in done_before else "ran",
+            }
+        )
+    return SweepResult(
+        metrics=pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(),
+        baselines=pd.concat(base_frames, ignore_index=True) if base_frames else pd.DataFrame(),
+        cells=pd.DataFrame(rows),
+        override_columns=tuple(paths),
+        out_dir=out_dir,
+        seconds=seconds,
+    )
+
+
+def _write_tables(out_dir: str, result: SweepResult, base_config, cells, labels) -> None:
+    """The tidy table as CSV and Parquet (pyarrow), the baselines, the cells, the grid, the
+    summary table and the figure; each file written whole and renamed into place."""
+    _atomic(
+        os.path.join(out_dir, "metrics.csv"), lambda tmp: result.metrics.to_csv(tmp, index=False)
+    )
+    _atomic(
+        os.path.join(out_dir, "metrics.parquet"),
+        lambda tmp: result.metrics.to_parquet(tmp, index=False, engine="pyarrow"),
+    )
+    _atomic(
+        os.path.join(out_dir, "baselines.csv"),
+        lambda tmp: result.baselines.to_csv(tmp, index=False),
+    )
+    _atomic(os.path.join(out_dir, "cells.csv"), lambda tmp: result.cells.to_csv(tmp, index=False))
+    description = {
+        "base_config": _jsonable(base_config),
+        "cells": [{"cell": c.id, "loss": c.loss, "overrides": _plain(c.overrides)} for c in cells],
+    }
+    _write_text(os.path.join(out_dir, "sweep.json"), json.dumps(description, indent=2))
+    _write_text(os.path.join(out_dir, "summary.md"), result.markdown() + "\n")
+    config = cells[0].config
+    result.plot(
+        os.path.join(out_dir, "curves.png"),
+        title=f"{config.robot} {config.task.name}",
+        **labels,
+    )
