@@ -3,6 +3,8 @@
 Example:
   cfm-jax train --robot iiwa14 --task inverse_dynamics --loss all --seeds 3 \\
       --iterations 10 --out results/iiwa
+  cfm-jax sweep --robot iiwa14 --task inverse_dynamics --losses joint,task --seeds 2 \\
+      --iterations 1 --override task.kp=50,100 --out results/sweep
 """
 
 from __future__ import annotations
@@ -66,26 +68,8 @@ def train(
     from cfm_jax import training as train_lib
 
     names = _losses(loss)
-    base = config_lib.for_task(task)
-    if config is not None:
-        with open(config) as f:
-            base = config_lib.from_dict(json.load(f))
-    task_fields = {**config_lib.to_dict(base)["task"], "name": task}
-    if control_dt is not None:
-        task_fields["control_dt"] = control_dt
-    if site is not None:
-        task_fields["site"] = site
-    base = config_lib.Config(
-        robot=robot,
-        loss=names[0],
-        seed=seed,
-        simulator=base.simulator if simulator is None else simulator,
-        task=config_lib.TaskConfig(**task_fields),
-        forward=base.forward,
-        controller=base.controller,
-        loop=config_lib.LoopConfig(
-            **{**config_lib.to_dict(base)["loop"], "iterations": iterations, "seeds": seeds}
-        ),
+    base = _base_config(
+        robot, task, names[0], seed, seeds, iterations, config, simulator, control_dt, site
     )
     os.makedirs(out, exist_ok=True)
     start = time.perf_counter()
@@ -119,14 +103,149 @@ def train(
     )
 
 
-def _losses(spec: str) -> list[str]:
+def _base_config(
+    robot, task, loss, seed, seeds, iterations, config, simulator, control_dt, site
+) -> config_lib.Config:
+    """The config of the flags: the task's defaults (or the --config file) with the flags'
+    robot, task, loss, seed, seeds, iterations, simulator, control_dt and site."""
+    base = config_lib.for_task(task)
+    if config is not None:
+        with open(config) as f:
+            base = config_lib.from_dict(json.load(f))
+    task_fields = {**config_lib.to_dict(base)["task"], "name": task}
+    if control_dt is not None:
+        task_fields["control_dt"] = control_dt
+    if site is not None:
+        task_fields["site"] = site
+    return config_lib.Config(
+        robot=robot,
+        loss=loss,
+        seed=seed,
+        simulator=base.simulator if simulator is None else simulator,
+        task=config_lib.TaskConfig(**task_fields),
+        forward=base.forward,
+        controller=base.controller,
+        loop=config_lib.LoopConfig(
+            **{**config_lib.to_dict(base)["loop"], "iterations": iterations, "seeds": seeds}
+        ),
+    )
+
+
+def sweep(
+    robot: str = "iiwa14",
+    task: str = "inverse_dynamics",
+    losses: str = "all",
+    seeds: int = 1,
+    iterations: int = 4,
+    out: str = "results/sweep",
+    override: tuple[str, ...] = (),
+    seed: int = 0,
+    config: str | None = None,
+    simulator: str | None = None,
+    control_dt: float | None = None,
+    site: str | None = None,
+    backend: str = "local",
+    address: str | None = None,
+    max_retries: int = 3,
+    quiet: bool = False,
+) -> None:
+    """Run a grid of experiments (override values x losses, seeds vmapped in each cell).
+
+    Writes OUT/cells/<cell>/ as each cell finishes (a re-run skips finished cells), then
+    OUT/metrics.csv and OUT/metrics.parquet (one row per cell, seed, iteration, target,
+    with a column per override), OUT/baselines.csv, OUT/cells.csv, OUT/sweep.json,
+    OUT/summary.md (mean and std over seeds at the last iteration) and OUT/curves.png,
+    and prints the summary table.
+
+    Args:
+      robot: registered robot name (iiwa14, two_link_arm, solo12) or path to an MJCF file.
+      task: task name (inverse_dynamics, opspace, walk, jump).
+      losses: "all", or a comma-separated list of controller losses (joint, task, distal,
+        supervised).
+      seeds: number of seeds (a vmap axis inside every cell).
+      iterations: iterations of Algorithm 1.
+      out: output directory.
+      override: grid axes, each PATH=V1,V2,... (values parsed as JSON numbers, true/false,
+        null, else text) or PATH=[JSON list] for values that contain commas, e.g.
+        --override task.kp=50,100 controller.learning_rate=1e-3,3e-4
+        'task.targets=[[[0.5,0.5]],[[1.0,0.2]]]'.
+      seed: first seed.
+      config: JSON file of a full config (as written to config.json); the flags above
+        override its robot, task, seeds, iterations and seed. Without it, the task's
+        defaults (cfm_jax.config.for_task).
+      simulator: physics back end, native (MuJoCo C) or mjx; default: the config's (native).
+      control_dt: control period in seconds (default: the config's or the task's).
+      site: opspace: the end-effector site of the MJCF (default: "ee", else "flange").
+      backend: local (this process) or ray (each cell a Ray task; pip install 'cfm_jax[ray]').
+      address: ray: address of an existing cluster (host:port or auto); default: start a
+        local one on this machine.
+      max_retries: ray: retries of a cell whose worker process died.
+      quiet: no progress output.
+    """
+    from cfm_jax import sweeps
+
+    names = _losses(losses, flag="--losses")
+    base = _base_config(
+        robot, task, names[0], seed, seeds, iterations, config, simulator, control_dt, site
+    )
+    grid_axes = dict(_override(text) for text in override)
+    start = time.perf_counter()
+    result = sweeps.sweep(
+        base,
+        losses=names,
+        overrides=grid_axes,
+        out_dir=out,
+        backend=backend,
+        address=address,
+        max_retries=max_retries,
+        progress=not quiet,
+    )
+    ran = int((result.cells["status"] == "ran").sum())
+    print(result.markdown())
+    print(
+        f"{len(result.cells)} cells ({ran} ran, {len(result.cells) - ran} finished before); "
+        f"wall time {time.perf_counter() - start:.0f} s. Results in {out}/ (metrics.csv, "
+        "metrics.parquet, summary.md, curves.png, cells/)"
+    )
+
+
+def _override(text: str) -> tuple[str, list]:
+    """``PATH=V1,V2`` or ``PATH=[JSON list]`` -> ``(PATH, [values])``."""
+    path, sep, values = text.partition("=")
+    if not sep or not path.strip() or not values.strip():
+        raise config_lib.ConfigError(
+            f"--override={text!r} is not allowed: PATH=V1,V2,... or PATH=[JSON list], "
+            "e.g. task.kp=50,100"
+        )
+    values = values.strip()
+    if values.startswith("["):
+        try:
+            parsed = json.loads(values)
+        except json.JSONDecodeError as error:
+            raise config_lib.ConfigError(
+                f"--override={text!r} is not allowed: the values are not a JSON list ({error})"
+            ) from None
+        if not isinstance(parsed, list):
+            raise config_lib.ConfigError(f"--override={text!r} is not allowed: a JSON list")
+        return path.strip(), parsed
+    return path.strip(), [_scalar(v.strip()) for v in values.split(",")]
+
+
+def _scalar(text: str):
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def _losses(spec: str, flag: str = "--loss") -> list[str]:
     if spec == "all":
         return list(losses.CONTROLLER_LOSSES)
     names = [s.strip() for s in spec.split(",") if s.strip()]
     bad = [n for n in names if n not in losses.CONTROLLER_LOSSES]
     if not names or bad:
         raise config_lib.ConfigError(
-            f"--loss={spec!r} is not allowed: 'all' or a comma-separated list of "
+            f"{flag}={spec!r} is not allowed: 'all' or a comma-separated list of "
             f"{losses.CONTROLLER_LOSSES}"
         )
     return names
@@ -167,10 +286,17 @@ def main() -> None:
     from cfm_jax.robots import RobotError
 
     try:
-        tyro.extras.subcommand_cli_from_dict({"train": train, "bench": bench.bench})
+        tyro.extras.subcommand_cli_from_dict({"train": train, "sweep": sweep, "bench": bench.bench})
     except (config_lib.ConfigError, RobotError) as error:
         print(f"cfm-jax: error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
+    except RuntimeError as error:
+        from cfm_jax.sweeps import SweepError
+
+        if not isinstance(error, SweepError):
+            raise
+        print(f"cfm-jax: error: {error}", file=sys.stderr)
+        raise SystemExit(1) from None
 
 
 if __name__ == "__main__":
