@@ -12,13 +12,19 @@ resume with ``--resume``.
 
 Usage:
   python experiments/opspace_study.py --out results/opspace      # 3 seeds x 10 iterations
+  python experiments/opspace_study.py --quick --out /tmp/opspace  # pipeline smoke test
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+
+import _study
 
 from cfm_jax import cli
+from cfm_jax import config as config_lib
 
 
 def main() -> None:
@@ -29,14 +35,29 @@ def main() -> None:
     parser.add_argument("--robot", default="iiwa14")
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--quiet", action="store_true")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"tiny networks, 0.3 s references, 2 seeds, 1 iteration, losses "
+        f"{_study.QUICK_LOSSES}: a smoke test of the pipeline, not a result",
+    )
     args = parser.parse_args()
+    config, loss, seeds, iterations = None, "all", args.seeds, args.iterations
+    if args.quick:
+        os.makedirs(args.out, exist_ok=True)
+        config = os.path.join(args.out, "quick_config.json")
+        quick = _study.quick_config(config_lib.for_task("opspace", robot=args.robot))
+        with open(config, "w") as f:
+            json.dump(config_lib.to_dict(quick), f, indent=2)
+        loss, seeds, iterations = _study.QUICK_LOSSES, 2, 1
     cli.train(
         robot=args.robot,
         task="opspace",
-        loss="all",
-        seeds=args.seeds,
-        iterations=args.iterations,
+        loss=loss,
+        seeds=seeds,
+        iterations=iterations,
         out=args.out,
+        config=config,
         resume=args.resume,
         quiet=args.quiet,
     )

@@ -1,0 +1,80 @@
+"""Shared pieces of the sweep-based study scripts (iiwa_inverse_dynamics.py,
+solo_locomotion.py): their flags, the --quick config and the run through cfm_jax.sweep."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+
+import cfm_jax
+from cfm_jax import config as config_lib
+
+QUICK_LOSSES = "joint,task"
+
+
+def parser(description: str, default_out: str) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--out", default=default_out)
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--iterations", type=int, default=10)
+    parser.add_argument("--losses", default="all", help="'all' or a comma-separated list")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"tiny networks and fit steps, 2 seeds, 1 iteration, losses {QUICK_LOSSES} "
+        "(arm tasks: 0.3 s references): a smoke test of the pipeline, not a result",
+    )
+    parser.add_argument("--backend", default="local", choices=("local", "ray"))
+    parser.add_argument("--address", default=None, help="ray: an existing cluster")
+    parser.add_argument("--quiet", action="store_true", help="no progress output")
+    return parser
+
+
+def quick_config(config: config_lib.Config) -> config_lib.Config:
+    """The same robot and task with 16-unit networks and a few dozen fit steps."""
+    task = config.task
+    if task.name in ("inverse_dynamics", "opspace"):
+        task = dataclasses.replace(task, duration=0.3)
+    return config.replace(
+        task=task,
+        forward=dataclasses.replace(
+            config.forward,
+            hidden=(16,),
+            ensemble_size=min(2, config.forward.ensemble_size),
+            initial_steps=20,
+            steps_per_iteration=10,
+            batch_size=32,
+        ),
+        controller=dataclasses.replace(
+            config.controller,
+            hidden=(16,),
+            initial_steps=20,
+            steps_per_iteration=10,
+            batch_size=32,
+        ),
+        loop=dataclasses.replace(config.loop, babbling_rollouts=1),
+    )
+
+
+def run(config: config_lib.Config, args) -> tuple[cfm_jax.SweepResult, float, config_lib.Config]:
+    """The sweep of ``config`` with the flags' seeds, iterations, losses and backend;
+    returns the result, its wall time in seconds and the base config that ran."""
+    seeds, iterations, losses = args.seeds, args.iterations, args.losses
+    if args.quick:
+        config = quick_config(config)
+        seeds, iterations = 2, 1
+        losses = QUICK_LOSSES if losses == "all" else losses
+    config = config.replace(loop=dataclasses.replace(config.loop, iterations=iterations))
+    names = "all" if losses == "all" else [s.strip() for s in losses.split(",") if s.strip()]
+    start = time.perf_counter()
+    result = cfm_jax.sweep(
+        config,
+        seeds=seeds,
+        losses=names,
+        out_dir=args.out,
+        backend=args.backend,
+        address=args.address,
+        progress=not args.quiet,
+    )
+    return result, time.perf_counter() - start, config
