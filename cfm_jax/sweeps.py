@@ -451,8 +451,9 @@ def sweep(
         curves at the last iteration) and ``curves.png``. None: nothing is written.
       backend: ``"local"`` (this process, one cell after another) or ``"ray"``.
       address: ray only: the address of an existing cluster (``"host:port"`` or
-        ``"auto"``); None: connect to the Ray instance this process already has, else
-        start a local one (all cores) and stop it at the end.
+        ``"auto"``); None: use the Ray instance this process is already connected to,
+        else start a local one (all cores) and stop it at the end. A connection this
+        call opens is closed at its end.
       max_retries: ray only: how often a cell is retried when its worker process dies.
         A Python exception in a cell is not retried (it would fail again); it is reported.
       cpus_per_cell: ray only: the CPUs a cell reserves (sets how many run at once).
@@ -541,6 +542,15 @@ def _run_ray(todo, runner, run_dir, address, max_retries, cpus_per_cell, finishe
             "backend", "ray", "'local' here: Ray is not installed (pip install 'cfm_jax[ray]')"
         )
     started = False
+    if ray.is_initialized() and address not in (None, "auto"):
+        current = ray.get_runtime_context().gcs_address
+        if address != current:
+            config_lib._fail(
+                "address",
+                address,
+                f"None or {current!r}: this process is already connected to the Ray cluster "
+                f"at {current} (ray.shutdown() first to use another)",
+            )
     if not ray.is_initialized():
         if address is None:
             ray.init(include_dashboard=False)
@@ -651,11 +661,11 @@ def _load_cell(out_dir: str, cell: Cell) -> CellOutput | None:
             info = json.load(f)
         metrics = _read_csv(os.path.join(directory, "metrics.csv"))
         baselines = _read_csv(os.path.join(directory, "baselines.csv"))
-    except (FileNotFoundError, json.JSONDecodeError, pd.errors.EmptyDataError):
+        return CellOutput(
+            metrics, baselines, info["seconds"], info["pid"], info["host"], info.get("labels", {})
+        )
+    except (FileNotFoundError, KeyError, json.JSONDecodeError, pd.errors.EmptyDataError):
         return None
-    return CellOutput(
-        metrics, baselines, info["seconds"], info["pid"], info["host"], info.get("labels", {})
-    )
 
 
 def _collect(cells, outputs, done_before, paths, out_dir, seconds) -> SweepResult:
