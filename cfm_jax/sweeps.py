@@ -42,6 +42,7 @@ import functools
 import hashlib
 import itertools
 import json
+import numbers
 import os
 import socket
 import time
@@ -224,10 +225,10 @@ def cell_id(config: config_lib.Config) -> str:
 def _seeds(base: config_lib.Config, seeds) -> tuple[int, int]:
     if seeds is None:
         return base.seed, base.loop.seeds
-    if isinstance(seeds, int) and not isinstance(seeds, bool):
+    if isinstance(seeds, numbers.Integral) and not isinstance(seeds, bool):
         if seeds <= 0:
             config_lib._fail("seeds", seeds, "a positive number of seeds or consecutive seeds")
-        return base.seed, seeds
+        return base.seed, int(seeds)
     try:
         values = [int(s) for s in seeds]
     except (TypeError, ValueError):
