@@ -17,7 +17,7 @@ from cfm_jax import losses, report
 
 
 def train(
-    robot: str = "iiwa14",
+    robot: str | None = None,
     task: str = "inverse_dynamics",
     loss: str = "all",
     seeds: int = 1,
@@ -39,8 +39,10 @@ def train(
     OUT/learning_curves.png, and prints the table of final tracking error per loss.
 
     Args:
-      robot: registered robot name (iiwa14, two_link_arm) or path to an MJCF file.
-      task: task name (inverse_dynamics, opspace).
+      robot: registered robot name (iiwa14, two_link_arm, solo12) or path to an MJCF
+        file (default: the task's robot, iiwa14 for the arm tasks and solo12 for walk and
+        jump).
+      task: task name (inverse_dynamics, opspace, walk, jump).
       loss: a controller loss (joint, task, distal, supervised), a comma-separated list of
         them, or "all".
       seeds: number of seeds (run together as a vmap axis).
@@ -76,7 +78,7 @@ def train(
     if site is not None:
         task_fields["site"] = site
     base = config_lib.Config(
-        robot=robot,
+        robot=base.robot if robot is None else robot,
         loss=names[0],
         seed=seed,
         simulator=base.simulator if simulator is None else simulator,

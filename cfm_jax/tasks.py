@@ -424,6 +424,9 @@ class LeggedTask(JointSpaceTask):
 
     * State ``s_t = [base pose and joint positions (qpos), foot forces f_t (world frame,
       mean over the previous control period), base and joint velocities (qvel)]``.
+    * A step where the robot fell is terminal (``extras["terminal"]``): the rest of that
+      rollout does not become data (the model has foot-floor contacts only, so a fallen
+      body sinks through the floor).
     * The forward model predicts ``y = [qacc dt, f_{t+1}]``: the base and joint
       accelerations over the control period times ``dt`` (``qvel' - qvel``) and the mean
       foot forces over the period; the desired quantity is the same
@@ -567,6 +570,7 @@ class LeggedTask(JointSpaceTask):
             "active": step.reference.active > 0,
             "force_error": features_next - step.reference.force,
             "fell": fell,
+            "terminal": fell,  # no data from a fallen robot (see training._before_terminal)
         }
 
     def metrics(self, result) -> dict:

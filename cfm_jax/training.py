@@ -261,7 +261,9 @@ class Experiment:
           target's horizon for tasks with horizons of different lengths).
         * the task's own metrics (``task.metric_names``).
 
-        Means are over the steps inside each target's horizon (all steps for the arms).
+        Means are over the steps inside each target's horizon (all steps for the arms);
+        ``prediction_error`` and ``predicted_task_error`` only over the steps before the
+        first terminal step (a legged robot's fall), the steps that become data.
         """
         t = result.transitions
         norm = state.normaliser
@@ -274,7 +276,7 @@ class Experiment:
                 networks.ensemble_mean(self.forward, state.forward_params, norm, t.state, tau)
             )
         )
-        step_mean = _step_mean(result)
+        step_mean = _step_mean(result, before_terminal=True)
         return {
             "prediction_error": step_mean(predicted - t.observed),
             "predicted_task_error": step_mean(predicted_task - t.desired),
@@ -425,12 +427,18 @@ class Experiment:
         return self._compiled["baselines"]
 
 
-def _step_mean(result: rollout.Rollout):
+def _step_mean(result: rollout.Rollout, before_terminal: bool = False):
     """``x (targets, steps, k) -> (targets,)``: mean of ``x^2`` over components and over the
-    steps inside each target's horizon (every step when the task has no horizons)."""
+    steps inside each target's horizon (every step when the task has no horizons); with
+    ``before_terminal``, only over the steps before the first terminal one (a fall)."""
     active = _active(result)
-    if active is None:
+    alive = _before_terminal(result) if before_terminal else None
+    if active is None and alive is None:
         return lambda x: jnp.mean(jnp.square(x), axis=(-2, -1))
+    if active is None:
+        active = alive
+    elif alive is not None:
+        active = active & alive
     weights = active.astype(jnp.float32)
     count = jnp.maximum(jnp.sum(weights, axis=-1), 1.0)
     return lambda x: jnp.sum(jnp.mean(jnp.square(x), axis=-1) * weights, axis=-1) / count
@@ -442,10 +450,28 @@ def _active(result: rollout.Rollout):
     return extras.get("active") if isinstance(extras, dict) else None
 
 
+def _before_terminal(result: rollout.Rollout):
+    """``(targets, steps)`` mask of the steps before the first terminal step, or None.
+
+    A task marks a step terminal (``extras["terminal"]``, for example a legged robot that
+    fell) when what follows it is not the dynamics the models should learn: the legged
+    models have foot-floor contacts only, so a fallen body sinks through the floor.
+    """
+    extras = result.extras
+    if not isinstance(extras, dict) or "terminal" not in extras:
+        return None
+    return jnp.cumsum(extras["terminal"].astype(jnp.int32), axis=-1) == 0
+
+
 def _valid(result: rollout.Rollout):
-    """Steps that become data: finite, and inside the horizon when the task has one."""
+    """Steps that become data: finite, inside the horizon when the task has one, and before
+    the first terminal step when the task has those."""
+    valid = result.finite
     active = _active(result)
-    return result.finite if active is None else result.finite & active
+    if active is not None:
+        valid = valid & active
+    alive = _before_terminal(result)
+    return valid if alive is None else valid & alive
 
 
 def _broadcast(tree, n: int):
