@@ -148,7 +148,9 @@ def gaussian_nll(mean, log_variance, target):
     squared error's gradient scaled by ``exp(-log_variance)``.
 
     Args:
-      mean, log_variance, target: shape ``(..., d)``.
+      mean: predicted mean, shape ``(..., d)``.
+      log_variance: predicted log-variance, shape ``(..., d)``.
+      target: observed value, shape ``(..., d)``.
     Returns:
       shape ``(...)``.
 

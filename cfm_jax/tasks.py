@@ -181,7 +181,8 @@ class JointSpaceTask:
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       reference: a :class:`Reference` (NumPy, ``(targets, steps + 1, nq)``).
-      kp, kd: gains of the PD correction in the desired acceleration.
+      kp: proportional gain (1/s^2) of the PD correction in the desired acceleration.
+      kd: derivative gain (1/s) of the same correction.
       control_dt: control period (a multiple of the robot's timestep).
     """
 

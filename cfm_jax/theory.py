@@ -201,8 +201,11 @@ def controller_loss(name: str, controller: AffineController, model: LinearModel,
 
     Args:
       name: ``"task"``, ``"joint"`` or ``"distal"``.
-      controller, model: parameters (scalars, or arrays broadcasting with the data).
-      desired: ``s_d``, shape ``(...)``; observed: ``s_a``, shape ``(...)``, held fixed.
+      controller: an :class:`AffineController` (scalars, or arrays broadcasting with the
+        data).
+      model: a :class:`LinearModel` (likewise).
+      desired: ``s_d``, shape ``(...)``.
+      observed: ``s_a``, shape ``(...)``, held fixed.
     Returns:
       loss of shape ``(...)``.
 
@@ -255,7 +258,11 @@ def controller_gradient(
 
     Args:
       name: one of :data:`THEORY_LOSSES`.
-      controller, model: scalar parameters; desired, observed, executed_action: scalars.
+      controller: an :class:`AffineController` of scalars.
+      model: a :class:`LinearModel` of scalars.
+      desired: ``s_d`` (scalar).
+      observed: ``s_a`` (scalar), held fixed.
+      executed_action: ``tau_run`` (scalar), used by the supervised loss.
     Returns:
       an :class:`AffineController` holding ``(dL/dbeta_0, dL/dbeta_1)``.
 
@@ -424,7 +431,8 @@ def fixed_point(
 
     Args:
       name: one of :data:`THEORY_LOSSES`.
-      system, model: scalar parameters (``vmap`` for arrays).
+      system: a :class:`TrueSystem` of scalars (``vmap`` for arrays).
+      model: a :class:`LinearModel` of scalars.
       desired: ``s_d``.
       refit: one of :data:`REFIT_MODES`.
       inner_steps: ``None`` trains to rest (not possible for ``distal``, which needs steps).
@@ -575,11 +583,15 @@ def iterate(
 
     Args:
       name: one of :data:`THEORY_LOSSES`.
-      system, model, controller: initial parameters (scalars).
+      system: the :class:`TrueSystem` (scalars).
+      model: the initial :class:`LinearModel` (scalars).
+      controller: the initial :class:`AffineController` (scalars).
       desired: ``s_d`` (scalar).
       num_iters: number of rollouts ``K``.
       refit: one of :data:`REFIT_MODES`.
-      inner_steps, learning_rate: inner controller training (see above).
+      inner_steps: gradient steps of the controller update per iteration (``None``: to
+        rest, see above).
+      learning_rate: step size of those gradient steps.
       babble_actions: actions of the motor-babbling data set (shape ``(n,)``), used by
         ``refit="all"``; with ``None`` the only data are the rollouts.
       prior_weight: ridge weight pulling ``refit="all"`` fits towards the initial model and

@@ -52,6 +52,9 @@ METRIC_COLUMNS = (
     "forward_loss",
     "controller_loss",
 )
+"""Columns of every metrics table, in order: the run's ``loss``, ``seed``, ``iteration`` and
+``target``, then the metrics of every task (see :meth:`Experiment.metrics_one`); a task
+adds its own after them (``Experiment.metric_columns``)."""
 
 
 @struct.dataclass
