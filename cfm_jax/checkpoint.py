@@ -9,7 +9,7 @@ writes each step atomically (a temporary directory renamed on commit) and keeps 
 size and SHA-256 of every file of the step, so a truncated or altered file is detected on
 restore; a step without a manifest (killed between the two writes) counts as incomplete.
 
-Example:
+Examples:
   >>> ckpt = Checkpointer("/tmp/run/checkpoints", keep=3)  # doctest: +SKIP
   >>> ckpt.save(2, state, {"rows": rows})  # doctest: +SKIP
   >>> state, meta, step = ckpt.restore_latest(template)  # doctest: +SKIP

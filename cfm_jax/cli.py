@@ -1,6 +1,6 @@
 """Command-line program ``cfm-jax`` (tyro turns the typed signatures into flags).
 
-Example:
+Examples:
   cfm-jax train --robot iiwa14 --task inverse_dynamics --loss all --seeds 3 \\
       --iterations 10 --out results/iiwa
 """

@@ -9,7 +9,7 @@ so this module uses MuJoCo's EGL context instead (headless, works with Mesa). Wh
 works, :class:`RenderUnavailable` is raised with the reason; :func:`render_available` asks
 without raising, so callers can skip pictures with a clear message.
 
-Example:
+Examples:
   >>> import mujoco
   >>> from cfm_jax import render
   >>> model = mujoco.MjModel.from_xml_path("robots/solo12.xml")  # doctest: +SKIP
@@ -27,7 +27,14 @@ import numpy as np
 
 
 class RenderUnavailable(RuntimeError):
-    """No OpenGL context could be created (the message says why and what to try)."""
+    """No OpenGL context could be created (the message says why and what to try).
+
+    Examples:
+      >>> try:
+      ...     frames = render_frames(model, qpos)  # doctest: +SKIP
+      ... except RenderUnavailable as error:
+      ...     print(error)  # doctest: +SKIP
+    """
 
 
 def _gl_context_class():
@@ -64,7 +71,16 @@ def _renderer(model, height: int, width: int):
 
 
 def render_available() -> tuple[bool, str]:
-    """``(True, "")`` when an offscreen context can be created, else ``(False, reason)``."""
+    """Whether an offscreen OpenGL context can be created here.
+
+    Returns:
+      ``(True, "")`` when it can, else ``(False, reason)``.
+
+    Examples:
+      >>> ok, why = render_available()
+      >>> isinstance(ok, bool) and (ok or "MUJOCO_GL" in why)
+      True
+    """
     import mujoco
 
     try:
@@ -104,13 +120,30 @@ def render_frames(
     camera: str | int | dict | None = None,
     track: bool = True,
 ) -> np.ndarray:
-    """RGB frames ``(N, height, width, 3)`` uint8 of the states ``qpos (N, nq)``.
+    """RGB frames of the states ``qpos (N, nq)``, offscreen.
 
-    ``camera``: a camera name or id of the model, or a dict of free-camera settings
-    (``distance``, ``azimuth``, ``elevation``, ``lookat``); default a side view (azimuth 90,
-    the camera on the -y side looking along +y) of the first body's subtree COM. With
-    ``track`` the free camera follows that COM (height fixed when ``lookat`` is given).
-    Raises :class:`RenderUnavailable` when there is no GL.
+    Args:
+      model: a ``mujoco.MjModel``.
+      qpos: ``(N, nq)`` generalised positions (one ``(nq,)`` state is accepted too).
+      width: image width in pixels (at most the model's ``offwidth``).
+      height: image height in pixels (at most the model's ``offheight``).
+      camera: a camera name or id of the model, or a dict of free-camera settings
+        (``distance``, ``azimuth``, ``elevation``, ``lookat``); default a side view (azimuth
+        90, the camera on the -y side looking along +y) of the first body's subtree COM.
+      track: the free camera follows that COM (height fixed when ``lookat`` is given).
+
+    Returns:
+      ``(N, height, width, 3)`` uint8.
+
+    Raises:
+      RenderUnavailable: no OpenGL context.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> frames = render_frames(arm.mj_model, arm.home, width=64, height=48)  # doctest: +SKIP
+      >>> frames.shape  # doctest: +SKIP
+      (1, 48, 64, 3)
     """
     import mujoco
 
@@ -144,9 +177,34 @@ def frame_strip(
     track: bool = True,
     gap: int = 4,
 ) -> np.ndarray:
-    """Render ``n_frames`` evenly spaced states of ``qpos (T, nq)`` (or the given
-    ``indices``) side by side, separated by ``gap`` white pixels, and save a PNG at ``path``.
-    Returns the strip image ``(height, n*width + (n-1)*gap, 3)``."""
+    """Render a few states side by side into one PNG (like the paper's image sequences).
+
+    Args:
+      model: a ``mujoco.MjModel``.
+      qpos: ``(T, nq)`` generalised positions.
+      path: the PNG to write (folders are created).
+      n_frames: number of evenly spaced states to show (when ``indices`` is None).
+      indices: the states to show instead.
+      width: width of each frame in pixels.
+      height: height of each frame in pixels.
+      camera: as for :func:`render_frames`.
+      track: as for :func:`render_frames`.
+      gap: white pixels between frames.
+
+    Returns:
+      The strip image ``(height, n * width + (n - 1) * gap, 3)`` uint8.
+
+    Raises:
+      RenderUnavailable: no OpenGL context.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> strip = frame_strip(arm.mj_model, [arm.home] * 10, "/tmp/strip.png", n_frames=3,
+      ...                     width=64, height=48, gap=4)  # doctest: +SKIP
+      >>> strip.shape  # doctest: +SKIP
+      (48, 200, 3)
+    """
     import matplotlib.image
 
     qpos = np.atleast_2d(np.asarray(qpos, float))
@@ -193,7 +251,7 @@ def write_video(frames: np.ndarray, path: str | os.PathLike, *, fps: float = 30.
       ValueError: frames of the wrong shape or dtype, an unknown extension or a bad ``fps``.
       RuntimeError: MP4 asked for and imageio's ffmpeg plugin is not installed.
 
-    Example:
+    Examples:
       >>> import numpy as np, tempfile, os
       >>> frames = np.zeros((5, 32, 48, 3), np.uint8)
       >>> frames[:, :, :24] = 255  # left half white
@@ -286,7 +344,7 @@ def video(
       RenderUnavailable: no OpenGL context (set ``MUJOCO_GL=egl`` on headless Linux).
       ValueError: a bad ``every``, ``qpos`` of the wrong width, or a bad path or ``fps``.
 
-    Example:
+    Examples:
       >>> import numpy as np
       >>> from cfm_jax import robots
       >>> arm = robots.load("two_link_arm")
@@ -331,7 +389,7 @@ def rollout_qpos(result, *, seed: int = 0, experiment=None) -> np.ndarray:
     Raises:
       ValueError: ``seed`` out of range.
 
-    Example:
+    Examples:
       >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
       >>> qpos = rollout_qpos(result)  # doctest: +SKIP
       >>> video(robots.load(config.robot), qpos[0], "target0.mp4", fps=100)  # doctest: +SKIP

@@ -20,7 +20,7 @@ step) and a PRNG key. This module provides the learned controller's policy, MuJo
 inverse dynamics (the joint-space oracle) and :func:`mixed_policy`, which combines a
 controller, the task's oracle, its PD feedback and noise in one compiled rollout.
 
-Example:
+Examples:
   >>> import jax, numpy as np
   >>> from cfm_jax import robots, tasks
   >>> robot = robots.load("two_link_arm")

@@ -8,10 +8,10 @@ control step the desired next-step joint acceleration is
 
 (``kp = kd = 0`` is pure feed-forward of the reference acceleration).
 
-Example:
+Examples:
   >>> import numpy as np
   >>> ref = quintic(np.zeros(1), np.ones(1), duration=1.0, control_dt=0.5)
-  >>> ref.q[:, 0].tolist()
+  >>> ref.q[0, :, 0].tolist()
   [0.0, 0.5, 1.0]
 """
 
