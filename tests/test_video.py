@@ -6,9 +6,9 @@ from __future__ import annotations
 import imageio.v3 as iio
 import numpy as np
 import pytest
+from tiny import tiny_config
 
 from cfm_jax import render, robots
-from tests.tiny import tiny_config
 
 OK, WHY = render.render_available()
 needs_gl = pytest.mark.skipif(not OK, reason=f"no offscreen OpenGL: {WHY}")
