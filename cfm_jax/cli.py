@@ -1,6 +1,6 @@
 """Command-line program ``cfm-jax`` (tyro turns the typed signatures into flags).
 
-Example:
+Examples:
   cfm-jax train --robot iiwa14 --task inverse_dynamics --loss all --seeds 3 \\
       --iterations 10 --out results/iiwa
 """
@@ -64,6 +64,14 @@ def train(
       control_dt: control period in seconds (default: the config's or the task's).
       site: opspace: the end-effector site of the MJCF (default: "ee", else "flange").
       quiet: no progress bar.
+
+    Examples:
+      On the command line (``cfm-jax train --help`` lists every flag)::
+
+          cfm-jax train --robot iiwa14 --loss all --seeds 3 --iterations 10 --out results/id
+          cfm-jax train --robot iiwa14 --loss all --seeds 3 --out results/id --resume
+
+      >>> train(robot="two_link_arm", iterations=1, out="/tmp/quick")  # doctest: +SKIP
     """
     from cfm_jax import training as train_lib
 
@@ -161,6 +169,13 @@ def _write_outputs(out, frames, result, base, task) -> None:
 
 
 def main() -> None:
+    """Entry point of the ``cfm-jax`` command: dispatch to ``train`` or ``bench`` (tyro).
+
+    Examples:
+      >>> import sys
+      >>> sys.argv = ["cfm-jax", "train", "--help"]  # doctest: +SKIP
+      >>> main()  # doctest: +SKIP
+    """
     import sys
 
     import tyro

@@ -1,6 +1,6 @@
 """Summaries, tables and figures of training results (pandas, rich, matplotlib).
 
-Example:
+Examples:
   >>> import pandas as pd
   >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [1, 1],
   ...                         "target": [0, 0], "tracking_mse": [1.0, 3.0]})
@@ -21,9 +21,25 @@ def summary(
 ) -> pd.DataFrame:
     """Final-iteration tracking MSE per loss: mean and std over seeds and targets.
 
-    With ``baselines``, rows ``oracle`` and ``pd_only`` are added (std over targets). With
-    ``rms_reach``, the column ``rmse_over_reach`` gives the tracking RMSE (square root of the
-    mean MSE over seeds and targets) as a fraction of the RMS reaching distance.
+    Args:
+      metrics: a metrics table (``TrainResult.metrics``, or several concatenated), with
+        columns ``loss``, ``iteration``, ``tracking_mse`` and optionally
+        ``prediction_error``, ``predicted_task_error``.
+      baselines: ``TrainResult.baselines``; adds rows ``oracle`` and ``pd_only`` (std over
+        targets).
+      rms_reach: the RMS reaching distance; adds the column ``rmse_over_reach`` (the square
+        root of the mean MSE over this distance).
+
+    Returns:
+      One row per loss (in ``losses.CONTROLLER_LOSSES`` order) and baseline, columns
+      ``iteration``, ``tracking_mse_mean``, ``tracking_mse_std``, ``runs`` and the others.
+
+    Examples:
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [1, 1],
+      ...                         "target": [0, 0], "tracking_mse": [1.0, 3.0]})
+      >>> summary(metrics).loc["joint", "tracking_mse_mean"]
+      np.float64(2.0)
     """
     rows = {}
     order = [name for name in losses.CONTROLLER_LOSSES if name in set(metrics["loss"])]
@@ -67,8 +83,18 @@ def print_summary(
     title: str = "Final tracking error",
     tracking: str = "joint-position tracking MSE (rad^2)",
 ) -> None:
-    """Print a :func:`summary` table with rich (short column headers, explained below it;
-    ``tracking`` names the tracking error and its unit)."""
+    """Print a :func:`summary` table with rich (short column headers, explained below it).
+
+    Args:
+      table: the output of :func:`summary`.
+      title: the table's title.
+      tracking: what the tracking error is and its unit (for the caption).
+
+    Examples:
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["task"], "iteration": [0], "tracking_mse": [0.5]})
+      >>> print_summary(summary(metrics))  # doctest: +SKIP
+    """
     from rich.console import Console
     from rich.table import Table
 
@@ -100,7 +126,22 @@ def _format(value) -> str:
 
 
 def markdown(table: pd.DataFrame) -> str:
-    """The table as GitHub markdown (numbers to 3 significant digits)."""
+    """The table as GitHub markdown (numbers to 3 significant digits).
+
+    Args:
+      table: the output of :func:`summary` (any frame with an index of row names).
+
+    Returns:
+      Markdown text, one line per row, the ``iteration`` column left out.
+
+    Examples:
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["task"], "iteration": [0], "tracking_mse": [0.5]})
+      >>> print(markdown(summary(metrics)))
+      | controller | tracking_mse_mean | tracking_mse_std | runs |
+      |---|---:|---:|---:|
+      | task | 0.5 | 0 | 1 |
+    """
     columns = [c for c in table.columns if c != "iteration"]
     lines = ["| controller | " + " | ".join(columns) + " |", "|---|" + "---:|" * len(columns)]
     for name, row in table.iterrows():

@@ -8,10 +8,10 @@ control step the desired next-step joint acceleration is
 
 (``kp = kd = 0`` is pure feed-forward of the reference acceleration).
 
-Example:
+Examples:
   >>> import numpy as np
   >>> ref = quintic(np.zeros(1), np.ones(1), duration=1.0, control_dt=0.5)
-  >>> ref.q[:, 0].tolist()
+  >>> ref.q[0, :, 0].tolist()
   [0.0, 0.5, 1.0]
 """
 
@@ -181,7 +181,8 @@ class JointSpaceTask:
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       reference: a :class:`Reference` (NumPy, ``(targets, steps + 1, nq)``).
-      kp, kd: gains of the PD correction in the desired acceleration.
+      kp: proportional gain (1/s^2) of the PD correction in the desired acceleration.
+      kd: derivative gain (1/s) of the same correction.
       control_dt: control period (a multiple of the robot's timestep).
     """
 
