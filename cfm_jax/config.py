@@ -403,9 +403,10 @@ def for_task(task: str, **changes) -> Config:
     The arm tasks (``inverse_dynamics``, ``opspace``) use the defaults of the dataclasses
     (the paper's arm networks, 100 Hz control). The legged tasks (``walk``, ``jump``) use
     the paper's quadruped networks (forward model 1000-500-500, a single member; controller
-    3 x 300), the Solo12, 250 Hz control (``task.control_dt = 0.004``) and wider motor babbling (4
-    rollouts per target at torque noise 0.3 of the limit: with the arms' 2 rollouts at 0.1,
-    the data stayed so close to the references that every first learned walk fell).
+    3 x 300), the Solo12, 250 Hz control (``task.control_dt = 0.004``) and wider motor
+    babbling (4 rollouts per target at torque noise 0.3 of the limit: with the arms' 2
+    rollouts at 0.1, the data stayed so close to the references that every first learned
+    walk fell).
 
     Args:
       task: one of :data:`TASKS`.
