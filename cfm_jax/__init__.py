@@ -3,7 +3,7 @@
 JAX + MuJoCo implementation of Bechtle et al., "Leveraging Forward Model Prediction Error
 for Learning Control" (ICRA 2021).
 
-Example:
+Examples:
   >>> import cfm_jax
   >>> config = cfm_jax.Config(robot="iiwa14", loss="joint")
   >>> result = cfm_jax.train(config)  # doctest: +SKIP

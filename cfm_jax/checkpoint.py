@@ -9,7 +9,7 @@ writes each step atomically (a temporary directory renamed on commit) and keeps 
 size and SHA-256 of every file of the step, so a truncated or altered file is detected on
 restore; a step without a manifest (killed between the two writes) counts as incomplete.
 
-Example:
+Examples:
   >>> ckpt = Checkpointer("/tmp/run/checkpoints", keep=3)  # doctest: +SKIP
   >>> ckpt.save(2, state, {"rows": rows})  # doctest: +SKIP
   >>> state, meta, step = ckpt.restore_latest(template)  # doctest: +SKIP
@@ -28,7 +28,14 @@ MANIFEST = "cfm_manifest.json"
 
 
 class CheckpointError(RuntimeError):
-    """A checkpoint that cannot be used (the message names it and what to do)."""
+    """A checkpoint that cannot be used (the message names it and what to do).
+
+    Examples:
+      >>> try:
+      ...     cfm_jax.train(config, resume="results/run")  # doctest: +SKIP
+      ... except CheckpointError as error:
+      ...     print(error)  # doctest: +SKIP
+    """
 
 
 def _files(step_dir: str) -> list[str]:
@@ -58,7 +65,20 @@ def _from_storable(state):
 
 
 class Checkpointer:
-    """Save and restore training states under ``directory`` (created), keeping ``keep``."""
+    """Save and restore training states under ``directory`` (created), keeping ``keep``.
+
+    Args:
+      directory: the checkpoint folder (``OUT/checkpoints`` for a run); one sub-folder per
+        step.
+      keep: number of most recent steps kept on disk (older ones are deleted by Orbax).
+
+    Examples:
+      >>> ckpt = Checkpointer("/tmp/run/checkpoints", keep=3)  # doctest: +SKIP
+      >>> ckpt.save(2, result.state, {"rows": []})  # doctest: +SKIP
+      >>> ckpt.steps(), ckpt.problem(2)  # doctest: +SKIP
+      ([2], None)
+      >>> state, meta = ckpt.restore(2, template=result.state)  # doctest: +SKIP
+    """
 
     def __init__(self, directory: str, keep: int = 3):
         import orbax.checkpoint as ocp

@@ -1,6 +1,6 @@
 """Command-line program ``cfm-jax`` (tyro turns the typed signatures into flags).
 
-Example:
+Examples:
   cfm-jax train --robot iiwa14 --task inverse_dynamics --loss all --seeds 3 \\
       --iterations 10 --out results/iiwa
   cfm-jax sweep --robot iiwa14 --task inverse_dynamics --losses joint,task --seeds 2 \\
@@ -19,7 +19,7 @@ from cfm_jax import losses, report
 
 
 def train(
-    robot: str = "iiwa14",
+    robot: str | None = None,
     task: str = "inverse_dynamics",
     loss: str = "all",
     seeds: int = 1,
@@ -41,8 +41,10 @@ def train(
     OUT/learning_curves.png, and prints the table of final tracking error per loss.
 
     Args:
-      robot: registered robot name (iiwa14, two_link_arm) or path to an MJCF file.
-      task: task name (inverse_dynamics, opspace).
+      robot: registered robot name (iiwa14, two_link_arm, solo12) or path to an MJCF
+        file (default: the task's robot, iiwa14 for the arm tasks and solo12 for walk and
+        jump).
+      task: task name (inverse_dynamics, opspace, walk, jump).
       loss: a controller loss (joint, task, distal, supervised), a comma-separated list of
         them, or "all".
       seeds: number of seeds (run together as a vmap axis).
@@ -64,6 +66,14 @@ def train(
       control_dt: control period in seconds (default: the config's or the task's).
       site: opspace: the end-effector site of the MJCF (default: "ee", else "flange").
       quiet: no progress bar.
+
+    Examples:
+      On the command line (``cfm-jax train --help`` lists every flag)::
+
+          cfm-jax train --robot iiwa14 --loss all --seeds 3 --iterations 10 --out results/id
+          cfm-jax train --robot iiwa14 --loss all --seeds 3 --out results/id --resume
+
+      >>> train(robot="two_link_arm", iterations=1, out="/tmp/quick")  # doctest: +SKIP
     """
     from cfm_jax import training as train_lib
 
@@ -118,7 +128,7 @@ def _base_config(
     if site is not None:
         task_fields["site"] = site
     return config_lib.Config(
-        robot=robot,
+        robot=base.robot if robot is None else robot,
         loss=loss,
         seed=seed,
         simulator=base.simulator if simulator is None else simulator,
@@ -132,7 +142,7 @@ def _base_config(
 
 
 def sweep(
-    robot: str = "iiwa14",
+    robot: str | None = None,
     task: str = "inverse_dynamics",
     losses: str = "all",
     seeds: int = 1,
@@ -158,7 +168,9 @@ def sweep(
     and prints the summary table.
 
     Args:
-      robot: registered robot name (iiwa14, two_link_arm, solo12) or path to an MJCF file.
+      robot: registered robot name (iiwa14, two_link_arm, solo12) or path to an MJCF
+        file (default: the task's robot, iiwa14 for the arm tasks and solo12 for walk and
+        jump).
       task: task name (inverse_dynamics, opspace, walk, jump).
       losses: "all", or a comma-separated list of controller losses (joint, task, distal,
         supervised).
@@ -181,6 +193,14 @@ def sweep(
         local one on this machine.
       max_retries: ray: retries of a cell whose worker process died.
       quiet: no progress output.
+
+    Examples:
+      On the command line (``cfm-jax sweep --help`` lists every flag)::
+
+          cfm-jax sweep --robot iiwa14 --losses joint,task --seeds 3 --out results/s
+          cfm-jax sweep --losses all --override task.kp=50,100 --backend ray --out results/kp
+
+      >>> sweep(robot="two_link_arm", iterations=1, out="/tmp/sweep")  # doctest: +SKIP
     """
     from cfm_jax import sweeps
 
@@ -278,6 +298,14 @@ def _write_outputs(out, frames, result, base, task) -> None:
 
 
 def main() -> None:
+    """Entry point of the ``cfm-jax`` command: dispatch to ``train``, ``sweep`` or ``bench``
+    (tyro).
+
+    Examples:
+      >>> import sys
+      >>> sys.argv = ["cfm-jax", "train", "--help"]  # doctest: +SKIP
+      >>> main()  # doctest: +SKIP
+    """
     import sys
 
     import tyro

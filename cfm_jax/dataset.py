@@ -5,7 +5,7 @@ transitions at the insertion point (overwriting the oldest when full), ``sample`
 uniform minibatches from the filled part. Transitions flagged invalid (for example from a
 rollout whose simulator state went non-finite) are not added.
 
-Example:
+Examples:
   >>> import jax, jax.numpy as jnp
   >>> data = empty(capacity=4, state_dim=2, nv=1)
   >>> batch = Transitions(*(jnp.ones((3, d)) for d in (2, 1, 1, 1)))
@@ -36,6 +36,11 @@ class Transitions(NamedTuple):
       action: executed torque ``tau_run``, ``(n, action_dim)``.
       observed: the observed quantity the forward model predicts (the acceleration
         ``(qdot_{t+1} - qdot_t) / dt`` for the joint-space task), ``(n, output_dim)``.
+
+    Examples:
+      >>> batch = Transitions(*(jnp.zeros((3, d)) for d in (4, 2, 2, 2)))
+      >>> batch.state.shape, batch._fields
+      ((3, 4), ('state', 'desired', 'action', 'observed'))
     """
 
     state: jax.Array
@@ -46,7 +51,18 @@ class Transitions(NamedTuple):
 
 @struct.dataclass
 class Dataset:
-    """Ring buffer: ``data`` holds ``capacity`` rows; rows ``[0, size)`` are filled."""
+    """Ring buffer: ``data`` holds ``capacity`` rows; rows ``[0, size)`` are filled.
+
+    Attributes:
+      data: :class:`Transitions` with leaves ``(capacity, ...)``.
+      size: number of filled rows (int32 scalar).
+      insert: the next row to write (int32 scalar).
+
+    Examples:
+      >>> data = empty(capacity=8, state_dim=4, nv=2)
+      >>> data.capacity, int(data.size), int(data.insert)
+      (8, 0, 0)
+    """
 
     data: Transitions
     size: jax.Array  # int32 scalar: number of filled rows
@@ -64,18 +80,49 @@ def empty(
     action_dim: int | None = None,
     output_dim: int | None = None,
 ) -> Dataset:
-    """An empty data set for ``capacity`` transitions; ``nv`` is the desired quantity's size,
-    ``action_dim`` and ``output_dim`` default to it (the joint-space task)."""
+    """An empty data set for ``capacity`` transitions.
+
+    Args:
+      capacity: number of rows (fixed: shapes never change, so the iteration compiles once).
+      state_dim: size of the state ``s``.
+      nv: size of the desired quantity ``s*``.
+      action_dim: size of the action (default ``nv``, the joint-space task).
+      output_dim: size of the observed quantity (default ``nv``).
+
+    Returns:
+      A :class:`Dataset` of float32 zeros, ``size = insert = 0``.
+
+    Examples:
+      >>> empty(capacity=8, state_dim=4, nv=2, output_dim=5).data.observed.shape
+      (8, 5)
+    """
     dims = (state_dim, nv, action_dim or nv, output_dim or nv)
     data = Transitions(*(jnp.zeros((capacity, d), jnp.float32) for d in dims))
     return Dataset(data, jnp.int32(0), jnp.int32(0))
 
 
 def add(dataset: Dataset, batch: Transitions, valid=None) -> Dataset:
-    """Append the ``valid`` rows of ``batch`` (all if None), oldest rows overwritten when full.
+    """Append the ``valid`` rows of ``batch``, the oldest rows overwritten when full.
 
-    Rows are written in order; invalid rows take no space. ``batch`` must not be larger than
-    the capacity.
+    Rows are written in order; invalid rows take no space.
+
+    Args:
+      dataset: the :class:`Dataset`.
+      batch: :class:`Transitions` ``(n, ...)`` with ``n <= capacity``.
+      valid: ``(n,)`` booleans, the rows to add (None: all).
+
+    Returns:
+      The new :class:`Dataset` (pure: the input is unchanged).
+
+    Raises:
+      ValueError: ``n`` larger than the capacity.
+
+    Examples:
+      >>> data = empty(capacity=4, state_dim=1, nv=1)
+      >>> batch = Transitions(*(jnp.arange(3.0)[:, None] for _ in range(4)))
+      >>> data = add(add(data, batch), batch)  # 6 rows into 4: the first two overwritten
+      >>> int(data.size), data.data.state[:, 0].tolist()
+      (4, [1.0, 2.0, 2.0, 0.0])
     """
     n = batch.state.shape[0]
     capacity = dataset.capacity
@@ -98,13 +145,42 @@ def add(dataset: Dataset, batch: Transitions, valid=None) -> Dataset:
 
 
 def sample(dataset: Dataset, key, batch_size: int) -> Transitions:
-    """``batch_size`` rows drawn uniformly (with replacement) from the filled part."""
+    """``batch_size`` rows drawn uniformly (with replacement) from the filled part.
+
+    Args:
+      dataset: the :class:`Dataset`.
+      key: PRNG key.
+      batch_size: number of rows (static).
+
+    Returns:
+      :class:`Transitions` ``(batch_size, ...)``.
+
+    Examples:
+      >>> data = add(empty(capacity=8, state_dim=1, nv=1),
+      ...            Transitions(*(jnp.ones((2, 1)) for _ in range(4))))
+      >>> batch = sample(data, jax.random.key(0), batch_size=5)
+      >>> batch.state.shape, float(batch.state.min())  # never an empty row
+      ((5, 1), 1.0)
+    """
     rows = jax.random.randint(key, (batch_size,), 0, jnp.maximum(dataset.size, 1))
     return jax.tree.map(lambda x: x[rows], dataset.data)
 
 
 def filled(dataset: Dataset) -> Transitions:
-    """The filled rows as a host-side view (not jittable: the size is data-dependent)."""
+    """The filled rows as a host-side view (not jittable: the size is data-dependent).
+
+    Args:
+      dataset: the :class:`Dataset`.
+
+    Returns:
+      :class:`Transitions` ``(size, ...)``.
+
+    Examples:
+      >>> data = add(empty(capacity=8, state_dim=1, nv=1),
+      ...            Transitions(*(jnp.ones((3, 1)) for _ in range(4))))
+      >>> filled(data).action.shape
+      (3, 1)
+    """
     n = int(dataset.size)
     return jax.tree.map(lambda x: x[:n], dataset.data)
 
@@ -122,6 +198,11 @@ class Recorded(NamedTuple):
         iteration's rollout (their sum is ``size``).
       seeds: the seeds of the run, ``(seeds,)``.
       config: the run's config as a dict (:func:`cfm_jax.config.to_dict`).
+
+    Examples:
+      >>> recorded = load("results/run/joint/dataset.npz")  # doctest: +SKIP
+      >>> recorded.iterations, recorded.segments.shape  # doctest: +SKIP
+      (10, (3, 11))
     """
 
     transitions: Transitions
@@ -153,8 +234,31 @@ class Recorded(NamedTuple):
 
 
 def save(path: str, data: Dataset, segments, seeds, config: dict) -> None:
-    """Write the filled rows of a seed-batched :class:`Dataset` (leaves ``(seeds, ...)``) and
-    its segments to ``path`` (NumPy ``.npz``, written atomically)."""
+    """Write the filled rows of a seed-batched :class:`Dataset` and its segments (``.npz``).
+
+    Written atomically (a temporary file renamed). :func:`load` reads it back.
+
+    Args:
+      path: the file to write (``.npz``).
+      data: a :class:`Dataset` with leaves ``(seeds, ...)``.
+      segments: ``(seeds, 1 + iterations)`` rows added by babbling and by each iteration;
+        each row must add up to that seed's ``size``.
+      seeds: the run's seeds, ``(seeds,)``.
+      config: the run's config as a dict (:func:`cfm_jax.config.to_dict`).
+
+    Raises:
+      ValueError: segments that do not add up to the sizes.
+
+    Examples:
+      >>> import os, tempfile
+      >>> one = add(empty(capacity=4, state_dim=1, nv=1),
+      ...           Transitions(*(jnp.ones((3, 1)) for _ in range(4))))
+      >>> two = jax.tree.map(lambda x: jnp.stack([x, x]), one)  # two seeds
+      >>> path = os.path.join(tempfile.mkdtemp(), "dataset.npz")
+      >>> save(path, two, segments=[[2, 1], [2, 1]], seeds=[0, 1], config={"robot": "x"})
+      >>> load(path).size.tolist()
+      [3, 3]
+    """
     size = np.asarray(data.size)
     if not np.all(np.asarray(segments).sum(axis=1) == size):
         raise ValueError(f"segments {np.asarray(segments).tolist()} do not add up to {size}")
@@ -175,8 +279,21 @@ def save(path: str, data: Dataset, segments, seeds, config: dict) -> None:
 def load(path: str) -> Recorded:
     """Read a data set written by :func:`save`.
 
+    Args:
+      path: the ``.npz`` file (a run's ``OUT/<loss>/dataset.npz``).
+
+    Returns:
+      A :class:`Recorded`.
+
     Raises:
-      FileNotFoundError: no such file. ValueError: the file is not a cfm_jax data set.
+      FileNotFoundError: no such file.
+      ValueError: the file is not a cfm_jax data set.
+
+    Examples:
+      >>> load("no/such/dataset.npz")
+      Traceback (most recent call last):
+      ...
+      FileNotFoundError: data='no/such/dataset.npz': no such file (a run writes OUT/dataset.npz)
     """
     if not os.path.isfile(path):
         raise FileNotFoundError(f"data={path!r}: no such file (a run writes OUT/dataset.npz)")

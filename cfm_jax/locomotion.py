@@ -19,7 +19,7 @@ Conventions (see docs/locomotion.md):
   (250 Hz, the paper's rate), so each control step holds the torque for 2 physics steps,
   like :class:`cfm_jax.native.Stepper`.
 
-Example:
+Examples:
   >>> from cfm_jax import locomotion
   >>> ref = locomotion.walk_reference(1.0)  # doctest: +SKIP
   >>> ref.qpos.shape, ref.tau.shape, ref.foot_force.shape  # doctest: +SKIP

@@ -33,7 +33,7 @@ def task(predicted_next, desired_next):
     Returns:
       shape ``(...)``.
 
-    Example:
+    Examples:
       >>> float(task(jnp.array([1.0]), jnp.array([3.0])))
       4.0
     """
@@ -53,7 +53,7 @@ def joint(predicted_next, desired_next, observed_next):
     Returns:
       shape ``(...)``.
 
-    Example:
+    Examples:
       >>> float(joint(jnp.array([1.0]), jnp.array([3.0]), jnp.array([0.0])))
       5.0
     """
@@ -63,14 +63,19 @@ def joint(predicted_next, desired_next, observed_next):
 def distal(predicted_next, desired_next, observed_next):
     """Distal-teacher loss ``L = |s_p - s_d|^2 - |s_p - s_a|^2`` (Jordan & Rumelhart 1992).
 
-    Paper section III-C. 1-D gradient: ``dL/dbeta = 2 p' (s_a - s_d)``: the model only
-    supplies the direction ``p'``; the error signal is the observed one. Gradient descent
-    moves ``beta`` along ``-p' (s_a - s_d)``, i.e. it moves ``s_a`` towards ``s_d`` when the
-    model's sign of ``p'`` is right.
+    1-D gradient: ``dL/dbeta = 2 p' (s_a - s_d)``, the distal teacher's update (paper
+    section III-D) up to its sign convention and a factor. It is linear in ``s_p``, so it has
+    no rest point for a held ``s_a`` and is unbounded below.
 
-    Args and returns as :func:`joint`.
+    Args:
+      predicted_next: ``f(s, g(s, s*))``, shape ``(..., d)``.
+      desired_next: ``s*``, shape ``(..., d)``.
+      observed_next: next state observed on the robot, shape ``(..., d)``.
 
-    Example:
+    Returns:
+      shape ``(...)``.
+
+    Examples:
       >>> float(distal(jnp.array([1.0]), jnp.array([3.0]), jnp.array([0.0])))
       3.0
     """
@@ -90,7 +95,7 @@ def supervised(predicted_action, executed_action):
     Returns:
       shape ``(...)``.
 
-    Example:
+    Examples:
       >>> float(supervised(jnp.array([1.0, 0.0]), jnp.array([0.0, 2.0])))
       5.0
     """
@@ -100,14 +105,32 @@ def supervised(predicted_action, executed_action):
 def controller_loss(name, predicted_next, desired_next, observed_next, select=None):
     """Dispatch the model-based controller losses by name (``task``, ``joint``, ``distal``).
 
-    ``select(y)`` picks the entries of a prediction or observation ``(..., d)`` that the
-    desired state specifies (``None``: all; for example the end-effector acceleration among
-    the joint and end-effector accelerations the forward model predicts). Then, with
-    ``P`` that selection, ``task = |P s_p - s_d|^2``, ``joint = |P s_p - s_d|^2 +
-    |s_p - s_a|^2`` (the whole prediction error), ``distal = |P s_p - s_d|^2 -
-    |P s_p - P s_a|^2`` (error signal ``P s_a - s_d``).
+    With ``P`` the selection ``select``: ``task = |P s_p - s_d|^2``, ``joint = |P s_p - s_d|^2
+    + |s_p - s_a|^2`` (the whole prediction error), ``distal = |P s_p - s_d|^2 -
+    |P s_p - P s_a|^2`` (error signal ``P s_a - s_d``). ``supervised`` does not go through
+    the forward model; call :func:`supervised`.
 
-    ``supervised`` does not go through the forward model; call :func:`supervised`.
+    Args:
+      name: ``"task"``, ``"joint"`` or ``"distal"``.
+      predicted_next: ``s_p = f(s, g(s, s*))``, shape ``(..., d_out)``: everything the
+        forward model predicts.
+      desired_next: ``s_d = s*``, shape ``(..., d)``.
+      observed_next: ``s_a``, the observed quantity, shape ``(..., d_out)``.
+      select: ``select(y)`` picks the ``d`` entries of a prediction or observation
+        ``(..., d_out)`` that the desired state specifies (``None``: all, ``d = d_out``; for
+        example the end-effector acceleration among the joint and end-effector accelerations
+        the forward model predicts).
+
+    Returns:
+      shape ``(...)``.
+
+    Raises:
+      ValueError: an unknown ``name`` (or ``supervised``).
+
+    Examples:
+      >>> p, d, o = jnp.array([1.0, 2.0]), jnp.array([3.0]), jnp.array([0.0, 2.0])
+      >>> float(controller_loss("joint", p, d, o, select=lambda y: y[..., :1]))
+      5.0
     """
     if select is not None:
         selected = select(predicted_next)
@@ -130,12 +153,18 @@ def controller_loss(name, predicted_next, desired_next, observed_next, select=No
 
 
 def squared_error(predicted, target):
-    """Forward-model supervised loss ``|f(s, tau) - s_next|^2`` (paper eq. 1).
+    """Sum of squared errors over the last axis, ``sum_i (predicted_i - target_i)^2``.
 
     Args:
-      predicted: shape ``(..., d)``; target: shape ``(..., d)``.
+      predicted: shape ``(..., d)``.
+      target: shape ``(..., d)``.
+
     Returns:
       shape ``(...)``.
+
+    Examples:
+      >>> float(squared_error(jnp.array([1.0, 2.0]), jnp.array([0.0, 0.0])))
+      5.0
     """
     return jnp.sum(jnp.square(predicted - target), axis=-1)
 
@@ -148,11 +177,13 @@ def gaussian_nll(mean, log_variance, target):
     squared error's gradient scaled by ``exp(-log_variance)``.
 
     Args:
-      mean, log_variance, target: shape ``(..., d)``.
+      mean: predicted mean, shape ``(..., d)``.
+      log_variance: predicted log-variance, shape ``(..., d)``.
+      target: observed value, shape ``(..., d)``.
     Returns:
       shape ``(...)``.
 
-    Example:
+    Examples:
       >>> float(gaussian_nll(jnp.array([0.0]), jnp.array([0.0]), jnp.array([2.0])))
       4.0
     """

@@ -14,7 +14,7 @@ back with ``np.asarray``; measured with a no-op callback inside a compiled
 it falls back to ``jax.pure_callback`` (:data:`FAST_CALLBACK` says which is in use), with
 the same results.
 
-Example:
+Examples:
   >>> import numpy as np
   >>> from cfm_jax import robots
   >>> arm = robots.load("two_link_arm")

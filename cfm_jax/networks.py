@@ -10,7 +10,7 @@
 Both models work in the space the desired state ``s*`` is given in (joint accelerations),
 so the task and joint losses compare like with like.
 
-Example:
+Examples:
   >>> import jax, jax.numpy as jnp
   >>> norm = Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
   >>> fm = forward_model(hidden=(8,), ensemble_size=2, nv=2)
@@ -43,6 +43,12 @@ class Normaliser:
       torque_limit: ``(action_dim,)`` scale of the torques.
       desired_index: static tuple, the entries of the output the desired quantity specifies
         (``None``: all of them, in order).
+
+    Examples:
+      >>> norm = Normaliser.from_data(jnp.array([[0.0], [2.0]]), jnp.array([[1.0], [3.0]]),
+      ...                             torque_limit=jnp.ones(1))
+      >>> norm.state_mean.tolist(), norm.state_std.tolist(), norm.output(jnp.array([3.0])).tolist()
+      ([1.0], [1.0], [1.0])
     """
 
     state_mean: jax.Array
@@ -136,7 +142,20 @@ class _MLP(nn.Module):
 
 
 class Model(NamedTuple):
-    """An ``(init, apply)`` pair. ``init(key, state_dim) -> params``."""
+    """An ``(init, apply)`` pair of pure functions.
+
+    Attributes:
+      init: ``init(key, state_dim) -> params``.
+      apply: ``apply(params, normaliser, state, other) -> output`` (see
+        :func:`forward_model` and :func:`controller`).
+
+    Examples:
+      >>> g = controller(hidden=(8,), nv=2)
+      >>> params = g.init(jax.random.key(0), state_dim=4)
+      >>> norm = Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
+      >>> g.apply(params, norm, jnp.zeros((3, 4)), jnp.zeros((3, 2))).shape
+      (3, 2)
+    """
 
     init: Any
     apply: Any
@@ -161,6 +180,26 @@ def forward_model(
     train every member on its own minibatches). Log-variance bounds follow PETS:
     ``lv = max - softplus(max - raw); lv = min + softplus(lv - min)`` with learned ``max``
     and ``min``.
+
+    Args:
+      hidden: hidden layer widths (ReLU).
+      ensemble_size: number of members ``E``.
+      nv: output size (the task's ``output_dim``).
+      min_log_variance: initial lower bound of the log-variance (learned).
+      max_log_variance: initial upper bound (learned).
+      action_dim: size of ``tau`` (default ``nv``).
+
+    Returns:
+      A :class:`Model`; ``init(key, state_dim)`` gives ``{"members": (E, ...) leaves,
+      "max_log_variance": (nv,), "min_log_variance": (nv,)}``.
+
+    Examples:
+      >>> norm = Normaliser.identity(state_dim=4, output_dim=3, torque_limit=jnp.ones(2))
+      >>> fm = forward_model(hidden=(8,), ensemble_size=3, nv=3, action_dim=2)
+      >>> params = fm.init(jax.random.key(0), state_dim=4)
+      >>> mean, log_var = fm.apply(params, norm, jnp.zeros((5, 4)), jnp.zeros((5, 2)))
+      >>> mean.shape, bool(jnp.all(log_var <= 0.5))
+      ((3, 5, 3), True)
     """
     mlp = _MLP(hidden=hidden, out=2 * nv)
     action_dim = nv if action_dim is None else action_dim
@@ -189,7 +228,25 @@ def forward_model(
 
 
 def ensemble_mean(forward: Model, params, normaliser: Normaliser, state, tau):
-    """Prediction of the ensemble in normalised units: mean over members, ``(..., nv)``."""
+    """Prediction of the ensemble in normalised units: the mean over members.
+
+    Args:
+      forward: the forward :class:`Model`.
+      params: its parameters.
+      normaliser: the :class:`Normaliser`.
+      state: ``(..., state_dim)``.
+      tau: ``(..., action_dim)``.
+
+    Returns:
+      ``(..., nv)`` (use ``normaliser.output_inverse`` for physical units).
+
+    Examples:
+      >>> norm = Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
+      >>> fm = forward_model(hidden=(8,), ensemble_size=3, nv=2)
+      >>> params = fm.init(jax.random.key(0), state_dim=4)
+      >>> ensemble_mean(fm, params, norm, jnp.zeros((5, 4)), jnp.zeros((5, 2))).shape
+      (5, 2)
+    """
     mean, _ = forward.apply(params, normaliser, state, tau)
     return jnp.mean(mean, axis=0)
 
@@ -201,6 +258,21 @@ def controller(hidden: tuple[int, ...], nv: int, desired_dim: int | None = None)
     desired quantity ``s*`` (default ``nv``: a desired joint acceleration).
     ``apply(params, normaliser, state (..., state_dim), desired (..., desired_dim))`` returns
     ``tau (..., nv)`` with ``|tau| < normaliser.torque_limit``.
+
+    Args:
+      hidden: hidden layer widths (ReLU).
+      nv: number of torques (``action_dim``).
+      desired_dim: size of ``s*`` (default ``nv``).
+
+    Returns:
+      A :class:`Model`.
+
+    Examples:
+      >>> norm = Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.array([5.0, 1.0]))
+      >>> g = controller(hidden=(8,), nv=2)
+      >>> tau = g.apply(g.init(jax.random.key(0), 4), norm, jnp.ones(4), 100 * jnp.ones(2))
+      >>> bool(jnp.all(jnp.abs(tau) <= jnp.array([5.0, 1.0])))
+      True
     """
     mlp = _MLP(hidden=hidden, out=nv)
     desired_dim = nv if desired_dim is None else desired_dim

@@ -24,7 +24,7 @@ Host classes (NumPy float64, any leading batch shape; the oracles of the tests):
 :func:`kinematics`, :func:`ee_position`, :func:`ee_velocity`, :func:`ee_jacobian`,
 :func:`ee_acceleration`, :func:`oracle_policy`, :func:`pd_policy`.
 
-Example:
+Examples:
   >>> import numpy as np
   >>> from cfm_jax import robots
   >>> iiwa = robots.load("iiwa14")
@@ -75,7 +75,7 @@ def ee_site(robot, name: str | None = None) -> int:
     """Id of the end-effector site: ``name`` if given, else the first of :data:`DEFAULT_SITES`
     (``"ee"``, then ``"flange"``) that the model has.
 
-    Example:
+    Examples:
       >>> from cfm_jax import robots
       >>> iiwa = robots.load("iiwa14")
       >>> ee_site(iiwa) == ee_site(iiwa, "flange")
@@ -164,7 +164,7 @@ class HostKinematics:
     float64 arrays. Per state: ``mj_kinematics``, ``mj_comPos``, ``mj_comVel``, then
     ``J = mj_jacSite`` (translational part) and ``Jdot = mj_jacDot`` at the site position.
 
-    Example:
+    Examples:
       >>> from cfm_jax import robots
       >>> iiwa = robots.load("iiwa14")
       >>> kin = HostKinematics(iiwa)(iiwa.home, np.zeros(7))
@@ -238,7 +238,7 @@ def kinematics(robot, qpos, qvel, site: int | str | None = None) -> Kinematics:
     One ``jax.pure_callback`` into :class:`HostKinematics` (under ``vmap``, one host call
     for the whole batch). Treated as a constant of ``(qpos, qvel)`` by ``jax.grad``.
 
-    Example:
+    Examples:
       >>> from cfm_jax import robots
       >>> iiwa = robots.load("iiwa14")
       >>> kin = jax.jit(lambda q, qd: kinematics(iiwa, q, qd))(iiwa.home, np.zeros(7))
@@ -491,7 +491,7 @@ class HostOracle:
     ``robot.home``) with the joint-space acceleration gains ``null_kp`` (1/s^2, default
     25) and ``null_kd`` (1/s, default 10, critical damping at 5 rad/s), scaled by ``Mt``.
 
-    Example:
+    Examples:
       >>> from cfm_jax import robots
       >>> iiwa = robots.load("iiwa14")
       >>> tau = HostOracle(iiwa)(iiwa.home, np.zeros(7), np.zeros(3))  # holds the pose
@@ -567,7 +567,7 @@ def oracle_policy(
     (float32; one ``jax.pure_callback`` into :class:`HostOracle`, one host call per batch
     under ``vmap``). Torques are not clipped.
 
-    Example:
+    Examples:
       >>> from cfm_jax import robots
       >>> iiwa = robots.load("iiwa14")
       >>> torque = oracle_policy(iiwa)
@@ -614,7 +614,7 @@ def pd_policy(robot, gain_p, gain_d, site: int | str | None = None):
     with ``x, xd, J`` from :func:`kinematics`. No gravity compensation, no feed-forward, no
     null-space term (the joint damping of the model is the only null-space damping).
 
-    Example:
+    Examples:
       >>> from cfm_jax import robots
       >>> iiwa = robots.load("iiwa14")
       >>> torque = pd_policy(iiwa, *pd_gains(iiwa, 100.0, 20.0))

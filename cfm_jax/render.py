@@ -9,7 +9,7 @@ so this module uses MuJoCo's EGL context instead (headless, works with Mesa). Wh
 works, :class:`RenderUnavailable` is raised with the reason; :func:`render_available` asks
 without raising, so callers can skip pictures with a clear message.
 
-Example:
+Examples:
   >>> import mujoco
   >>> from cfm_jax import render
   >>> model = mujoco.MjModel.from_xml_path("robots/solo12.xml")  # doctest: +SKIP
@@ -27,7 +27,14 @@ import numpy as np
 
 
 class RenderUnavailable(RuntimeError):
-    """No OpenGL context could be created (the message says why and what to try)."""
+    """No OpenGL context could be created (the message says why and what to try).
+
+    Examples:
+      >>> try:
+      ...     frames = render_frames(model, qpos)  # doctest: +SKIP
+      ... except RenderUnavailable as error:
+      ...     print(error)  # doctest: +SKIP
+    """
 
 
 def _gl_context_class():
@@ -64,7 +71,16 @@ def _renderer(model, height: int, width: int):
 
 
 def render_available() -> tuple[bool, str]:
-    """``(True, "")`` when an offscreen context can be created, else ``(False, reason)``."""
+    """Whether an offscreen OpenGL context can be created here.
+
+    Returns:
+      ``(True, "")`` when it can, else ``(False, reason)``.
+
+    Examples:
+      >>> ok, why = render_available()
+      >>> isinstance(ok, bool) and (ok or "MUJOCO_GL" in why)
+      True
+    """
     import mujoco
 
     try:
@@ -104,13 +120,30 @@ def render_frames(
     camera: str | int | dict | None = None,
     track: bool = True,
 ) -> np.ndarray:
-    """RGB frames ``(N, height, width, 3)`` uint8 of the states ``qpos (N, nq)``.
+    """RGB frames of the states ``qpos (N, nq)``, offscreen.
 
-    ``camera``: a camera name or id of the model, or a dict of free-camera settings
-    (``distance``, ``azimuth``, ``elevation``, ``lookat``); default a side view (azimuth 90,
-    the camera on the -y side looking along +y) of the first body's subtree COM. With
-    ``track`` the free camera follows that COM (height fixed when ``lookat`` is given).
-    Raises :class:`RenderUnavailable` when there is no GL.
+    Args:
+      model: a ``mujoco.MjModel``.
+      qpos: ``(N, nq)`` generalised positions (one ``(nq,)`` state is accepted too).
+      width: image width in pixels (at most the model's ``offwidth``).
+      height: image height in pixels (at most the model's ``offheight``).
+      camera: a camera name or id of the model, or a dict of free-camera settings
+        (``distance``, ``azimuth``, ``elevation``, ``lookat``); default a side view (azimuth
+        90, the camera on the -y side looking along +y) of the first body's subtree COM.
+      track: the free camera follows that COM (height fixed when ``lookat`` is given).
+
+    Returns:
+      ``(N, height, width, 3)`` uint8.
+
+    Raises:
+      RenderUnavailable: no OpenGL context.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> frames = render_frames(arm.mj_model, arm.home, width=64, height=48)  # doctest: +SKIP
+      >>> frames.shape  # doctest: +SKIP
+      (1, 48, 64, 3)
     """
     import mujoco
 
@@ -144,9 +177,34 @@ def frame_strip(
     track: bool = True,
     gap: int = 4,
 ) -> np.ndarray:
-    """Render ``n_frames`` evenly spaced states of ``qpos (T, nq)`` (or the given
-    ``indices``) side by side, separated by ``gap`` white pixels, and save a PNG at ``path``.
-    Returns the strip image ``(height, n*width + (n-1)*gap, 3)``."""
+    """Render a few states side by side into one PNG (like the paper's image sequences).
+
+    Args:
+      model: a ``mujoco.MjModel``.
+      qpos: ``(T, nq)`` generalised positions.
+      path: the PNG to write (folders are created).
+      n_frames: number of evenly spaced states to show (when ``indices`` is None).
+      indices: the states to show instead.
+      width: width of each frame in pixels.
+      height: height of each frame in pixels.
+      camera: as for :func:`render_frames`.
+      track: as for :func:`render_frames`.
+      gap: white pixels between frames.
+
+    Returns:
+      The strip image ``(height, n * width + (n - 1) * gap, 3)`` uint8.
+
+    Raises:
+      RenderUnavailable: no OpenGL context.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> strip = frame_strip(arm.mj_model, [arm.home] * 10, "/tmp/strip.png", n_frames=3,
+      ...                     width=64, height=48, gap=4)  # doctest: +SKIP
+      >>> strip.shape  # doctest: +SKIP
+      (48, 200, 3)
+    """
     import matplotlib.image
 
     qpos = np.atleast_2d(np.asarray(qpos, float))
@@ -166,3 +224,188 @@ def frame_strip(
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     matplotlib.image.imsave(str(path), strip)
     return strip
+
+
+VIDEO_FORMATS = (".mp4", ".gif")
+"""File extensions :func:`write_video` and :func:`video` can write."""
+
+
+def write_video(frames: np.ndarray, path: str | os.PathLike, *, fps: float = 30.0) -> Path:
+    """Write RGB frames as an MP4 (H.264) or an animated GIF, chosen by ``path``'s extension.
+
+    MP4 goes through imageio's ffmpeg plugin (``imageio-ffmpeg`` ships its own ffmpeg
+    binary; ``pip install "cfm_jax[video]"``), with ``yuv420p`` pixels so browsers and
+    notebooks play it; frames of odd width or height are padded by one edge pixel. GIF goes
+    through Pillow and loops forever.
+
+    Args:
+      frames: ``(N, height, width, 3)`` uint8 RGB images, for example from
+        :func:`render_frames`.
+      path: output file ending in ``.mp4`` or ``.gif`` (folders are created).
+      fps: frames per second of playback, > 0.
+
+    Returns:
+      The path written.
+
+    Raises:
+      ValueError: frames of the wrong shape or dtype, an unknown extension or a bad ``fps``.
+      RuntimeError: MP4 asked for and imageio's ffmpeg plugin is not installed.
+
+    Examples:
+      >>> import numpy as np, tempfile, os
+      >>> frames = np.zeros((5, 32, 48, 3), np.uint8)
+      >>> frames[:, :, :24] = 255  # left half white
+      >>> out = write_video(frames, os.path.join(tempfile.mkdtemp(), "clip.gif"), fps=10)
+      >>> out.suffix
+      '.gif'
+    """
+    frames = np.asarray(frames)
+    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8 or not len(frames):
+        raise ValueError(
+            f"frames must be a non-empty uint8 array (N, height, width, 3); got dtype "
+            f"{frames.dtype} and shape {frames.shape}"
+        )
+    if not (isinstance(fps, int | float) and np.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps={fps!r} is not allowed: a finite number > 0")
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in VIDEO_FORMATS:
+        raise ValueError(f"path={str(path)!r}: the extension must be one of {VIDEO_FORMATS}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if suffix == ".gif":
+        import imageio.v3 as iio
+
+        # GIF frame durations are whole hundredths of a second in most players.
+        duration_ms = max(10, int(round(100.0 / fps)) * 10)
+        iio.imwrite(path, frames, extension=".gif", duration=duration_ms, loop=0)
+        return path
+    try:
+        import imageio.v2 as iio2
+        import imageio_ffmpeg  # noqa: F401 - only to give a clear error when it is missing
+    except ImportError as err:
+        raise RuntimeError(
+            f"writing {str(path)!r} needs imageio's ffmpeg plugin: pip install "
+            '"cfm_jax[video]" (or imageio-ffmpeg); a .gif needs no plugin'
+        ) from err
+    pad_h, pad_w = frames.shape[1] % 2, frames.shape[2] % 2
+    if pad_h or pad_w:
+        frames = np.pad(frames, ((0, 0), (0, pad_h), (0, pad_w), (0, 0)), mode="edge")
+    writer = iio2.get_writer(
+        path,
+        format="FFMPEG",
+        fps=float(fps),
+        codec="libx264",
+        pixelformat="yuv420p",
+        macro_block_size=1,
+        output_params=["-crf", "18"],
+    )
+    try:
+        for frame in frames:
+            writer.append_data(frame)
+    finally:
+        writer.close()
+    return path
+
+
+def video(
+    model,
+    qpos: np.ndarray,
+    path: str | os.PathLike,
+    *,
+    fps: float = 30.0,
+    every: int = 1,
+    width: int = 320,
+    height: int = 240,
+    camera: str | int | dict | None = None,
+    track: bool = True,
+) -> np.ndarray:
+    """Render the states ``qpos (T, nq)`` offscreen and write them as an MP4 or a GIF.
+
+    A state every ``every`` steps is rendered; with states ``control_dt`` apart, real time
+    is ``fps = 1 / (every * control_dt)``.
+
+    Args:
+      model: a ``mujoco.MjModel`` or a :class:`cfm_jax.robots.Robot` (its ``mj_model``).
+      qpos: ``(T, nq)`` generalised positions, one per frame before subsampling.
+      path: output file, ``.mp4`` or ``.gif`` (see :func:`write_video`).
+      fps: frames per second of playback.
+      every: render every ``every``-th state (a positive integer).
+      width: image width in pixels (at most the model's offscreen buffer,
+        ``<visual><global offwidth>``).
+      height: image height in pixels (at most ``offheight``).
+      camera: a camera name or id of the model, or a dict of free-camera settings (as for
+        :func:`render_frames`).
+      track: let the free camera follow the robot (as for :func:`render_frames`).
+
+    Returns:
+      The frames written, ``(ceil(T / every), height, width, 3)`` uint8.
+
+    Raises:
+      RenderUnavailable: no OpenGL context (set ``MUJOCO_GL=egl`` on headless Linux).
+      ValueError: a bad ``every``, ``qpos`` of the wrong width, or a bad path or ``fps``.
+
+    Examples:
+      >>> import numpy as np
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> qpos = arm.home + np.linspace(0, 1, 20)[:, None] * np.array([1.0, -1.0])
+      >>> frames = video(arm, qpos, "/tmp/arm.gif", fps=20, every=2)  # doctest: +SKIP
+      >>> frames.shape  # doctest: +SKIP
+      (10, 240, 320, 3)
+    """
+    model = getattr(model, "mj_model", model)
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ValueError(f"every={every!r} is not allowed: a positive integer")
+    qpos = np.atleast_2d(np.asarray(qpos, float))
+    if qpos.shape[-1] != model.nq:
+        raise ValueError(f"qpos has {qpos.shape[-1]} columns; the model has nq={model.nq}")
+    if Path(path).suffix.lower() not in VIDEO_FORMATS:  # fail before the rendering work
+        raise ValueError(f"path={str(path)!r}: the extension must be one of {VIDEO_FORMATS}")
+    frames = render_frames(
+        model, qpos[::every], width=width, height=height, camera=camera, track=track
+    )
+    write_video(frames, path, fps=fps)
+    return frames
+
+
+def rollout_qpos(result, *, seed: int = 0, experiment=None) -> np.ndarray:
+    """Joint positions of the learned controller of a training run, rolled out again.
+
+    Rolls the final controller of one seed of ``result`` out on every target of its task
+    (the rollout of the run's final evaluation, compiled as :func:`cfm_jax.train` compiles
+    it) and returns the positions at the
+    start of each control step, ready for :func:`video` or :func:`frame_strip`.
+
+    Args:
+      result: a :class:`cfm_jax.training.TrainResult`.
+      seed: index into the run's seeds (``0 <= seed < config.loop.seeds``).
+      experiment: the :class:`cfm_jax.training.Experiment` of ``result.config`` to reuse its
+        compiled rollout (built when None).
+
+    Returns:
+      ``(targets, steps, nq)`` positions, ``control_dt`` apart (the first ``nq`` entries of
+      the task's state, which starts with ``qpos`` for every task).
+
+    Raises:
+      ValueError: ``seed`` out of range.
+
+    Examples:
+      >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
+      >>> qpos = rollout_qpos(result)  # doctest: +SKIP
+      >>> video(robots.load(config.robot), qpos[0], "target0.mp4", fps=100)  # doctest: +SKIP
+    """
+    import jax
+
+    from cfm_jax import training
+
+    seeds = result.config.loop.seeds
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < seeds:
+        raise ValueError(f"seed={seed!r} is not allowed: an index in [0, {seeds})")
+    exp = experiment if experiment is not None else training.Experiment(result.config)
+    state = jax.tree.map(lambda x: x[seed : seed + 1], result.state)
+    policy = jax.vmap(exp.learned_policy)(state)
+    keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(state.key)  # as Experiment.evaluate
+    out = exp.rollout(policy, keys)
+    # The state at the start of every control step begins with qpos for every task
+    # ([q, qdot] for the arms, [qpos, foot forces, qvel] for the legged robots).
+    return np.asarray(out.transitions.state[0, :, :, : exp.robot.nq])

@@ -1,6 +1,6 @@
 """Summaries, tables and figures of training results (pandas, rich, matplotlib).
 
-Example:
+Examples:
   >>> import pandas as pd
   >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [1, 1],
   ...                         "target": [0, 0], "tracking_mse": [1.0, 3.0]})
@@ -23,9 +23,25 @@ def summary(
 ) -> pd.DataFrame:
     """Final-iteration tracking MSE per loss: mean and std over seeds and targets.
 
-    With ``baselines``, rows ``oracle`` and ``pd_only`` are added (std over targets). With
-    ``rms_reach``, the column ``rmse_over_reach`` gives the tracking RMSE (square root of the
-    mean MSE over seeds and targets) as a fraction of the RMS reaching distance.
+    Args:
+      metrics: a metrics table (``TrainResult.metrics``, or several concatenated), with
+        columns ``loss``, ``iteration``, ``tracking_mse`` and optionally
+        ``prediction_error``, ``predicted_task_error``.
+      baselines: ``TrainResult.baselines``; adds rows ``oracle`` and ``pd_only`` (std over
+        targets).
+      rms_reach: the RMS reaching distance; adds the column ``rmse_over_reach`` (the square
+        root of the mean MSE over this distance).
+
+    Returns:
+      One row per loss (in ``losses.CONTROLLER_LOSSES`` order) and baseline, columns
+      ``iteration``, ``tracking_mse_mean``, ``tracking_mse_std``, ``runs`` and the others.
+
+    Examples:
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [1, 1],
+      ...                         "target": [0, 0], "tracking_mse": [1.0, 3.0]})
+      >>> summary(metrics).loc["joint", "tracking_mse_mean"]
+      np.float64(2.0)
     """
     rows = {}
     order = [name for name in losses.CONTROLLER_LOSSES if name in set(metrics["loss"])]
@@ -69,8 +85,18 @@ def print_summary(
     title: str = "Final tracking error",
     tracking: str = "joint-position tracking MSE (rad^2)",
 ) -> None:
-    """Print a :func:`summary` table with rich (short column headers, explained below it;
-    ``tracking`` names the tracking error and its unit)."""
+    """Print a :func:`summary` table with rich (short column headers, explained below it).
+
+    Args:
+      table: the output of :func:`summary`.
+      title: the table's title.
+      tracking: what the tracking error is and its unit (for the caption).
+
+    Examples:
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["task"], "iteration": [0], "tracking_mse": [0.5]})
+      >>> print_summary(summary(metrics))  # doctest: +SKIP
+    """
     from rich.console import Console
     from rich.table import Table
 
@@ -102,7 +128,22 @@ def _format(value) -> str:
 
 
 def markdown(table: pd.DataFrame) -> str:
-    """The table as GitHub markdown (numbers to 3 significant digits)."""
+    """The table as GitHub markdown (numbers to 3 significant digits).
+
+    Args:
+      table: the output of :func:`summary` (any frame with an index of row names).
+
+    Returns:
+      Markdown text, one line per row, the ``iteration`` column left out.
+
+    Examples:
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["task"], "iteration": [0], "tracking_mse": [0.5]})
+      >>> print(markdown(summary(metrics)))
+      | controller | tracking_mse_mean | tracking_mse_std | runs |
+      |---|---:|---:|---:|
+      | task | 0.5 | 0 | 1 |
+    """
     columns = [c for c in table.columns if c != "iteration"]
     lines = ["| controller | " + " | ".join(columns) + " |", "|---|" + "---:|" * len(columns)]
     for name, row in table.iterrows():
@@ -148,11 +189,32 @@ def seed_curves(
 
     Each seed's value at an iteration is first averaged over the targets; the mean and the
     population standard deviation (``ddof=0``, as in :func:`summary`) are then taken over
-    the seeds. ``columns``: the metrics to summarise (default: every numeric column that
-    is not an id, a group column, ``finite_fraction``, ``transitions_added`` or a training
-    loss). Returns one row per group and iteration, groups in order of first appearance,
-    iterations ascending: the ``by`` columns, ``iteration``, ``seeds`` and
-    ``<column>_mean``, ``<column>_std`` for each column.
+    the seeds.
+
+    Args:
+      metrics: a metrics table with ``seed``, ``iteration``, ``target``, the ``by`` columns
+        and the metrics (``TrainResult.metrics``, a sweep's table).
+      by: the columns that tell one curve from another.
+      columns: the metrics to summarise (default: every numeric column that is not an id,
+        a group column, ``finite_fraction``, ``transitions_added`` or a training loss).
+
+    Returns:
+      One row per group and iteration, groups in order of first appearance, iterations
+      ascending: the ``by`` columns, ``iteration``, ``seeds`` and ``<column>_mean``,
+      ``<column>_std`` for each column.
+
+    Raises:
+      ValueError: a column named in ``by`` or ``columns`` is not in ``metrics``.
+
+    Examples:
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["joint"] * 4, "seed": [0, 0, 1, 1],
+      ...                         "iteration": [0] * 4, "target": [0, 1, 0, 1],
+      ...                         "tracking_mse": [1.0, 3.0, 5.0, 7.0]})
+      >>> curves = seed_curves(metrics)  # seed means 2 and 6
+      >>> curves[["loss", "iteration", "seeds", "tracking_mse_mean", "tracking_mse_std"]]
+          loss  iteration  seeds  tracking_mse_mean  tracking_mse_std
+      0  joint          0      2                4.0               2.0
     """
     by = list(by)
     if columns is None:
@@ -193,9 +255,29 @@ def curves_markdown(
     iteration: int | None = None,
     columns: Sequence[str] | None = None,
 ) -> str:
-    """A :func:`seed_curves` table at one ``iteration`` (default: the last) as GitHub
-    markdown: one row per group, each metric as ``mean ± std`` over seeds (3 significant
-    digits)."""
+    """A :func:`seed_curves` table at one ``iteration`` as GitHub markdown: one row per
+    group, each metric as ``mean ± std`` over seeds (3 significant digits).
+
+    Args:
+      curves: the output of :func:`seed_curves`.
+      by: its group columns (as given to :func:`seed_curves`).
+      iteration: the iteration to show; None: the last.
+      columns: the metrics to show (default: all of ``curves``).
+
+    Returns:
+      Markdown text: a line naming the iteration, then the table.
+
+    Examples:
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [3, 3],
+      ...                         "target": [0, 0], "tracking_mse": [1.0, 3.0]})
+      >>> print(curves_markdown(seed_curves(metrics)))
+      iteration 3; mean ± std over seeds (each seed averaged over targets)
+      <BLANKLINE>
+      | loss | seeds | tracking_mse |
+      |---|---:|---:|
+      | joint | 2 | 2 ± 1 |
+    """
     by = list(by)
     if iteration is None:
         iteration = int(curves["iteration"].max())
@@ -226,7 +308,32 @@ def plot_curves(
     output_unit: str = "(rad/s$^2$)$^2$",
 ) -> str:
     """The figure of :func:`plot_learning_curves` from a :func:`seed_curves` table: one
-    line per group (mean over seeds, band of one std). Returns ``path``."""
+    line per group (mean over seeds, band of one std), log scale.
+
+    Args:
+      curves: the output of :func:`seed_curves` (with ``tracking_mse``, and
+        ``prediction_error`` and ``predicted_task_error`` when they are to be drawn).
+      path: the image file to write (its suffix picks the format).
+      by: the group columns of ``curves``; lines are labelled ``loss, path=value``.
+      baselines: oracle and PD-only tracking per target (drawn as horizontal lines), or
+        None.
+      title: the figure's title.
+      tracking_label: the label of the tracking error's axis.
+      output_unit: the unit of the forward model's output, for the other two axes.
+
+    Returns:
+      ``path``.
+
+    Examples:
+      >>> import os, tempfile
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["joint"] * 4, "seed": [0, 1, 0, 1],
+      ...                         "iteration": [0, 0, 1, 1], "target": [0] * 4,
+      ...                         "tracking_mse": [1.0, 3.0, 0.5, 0.7]})
+      >>> path = os.path.join(tempfile.mkdtemp(), "curves.png")
+      >>> plot_curves(seed_curves(metrics), path) == path and os.path.getsize(path) > 0
+      True
+    """
     by = list(by)
     series = []
     for key, frame in curves.groupby(by, sort=False, dropna=False):

@@ -10,7 +10,7 @@ order), which becomes ``ctrl = tau / gear``. Fixed-base arms have ``nq == nv == 
 and the arm tasks use the state ``s = [q, qdot]``; which tasks fit which robot is checked
 by the task (:func:`cfm_jax.tasks.make`).
 
-Example:
+Examples:
   >>> robot = load("iiwa14")
   >>> robot.nv, robot.state_dim
   (7, 14)
@@ -31,13 +31,29 @@ _ROBOT_PACKAGE = "cfm_jax._robot_files"
 
 
 class RobotError(ValueError):
-    """An MJCF file that cannot be used as a cfm_jax robot (the message says why)."""
+    """An MJCF file that cannot be used as a cfm_jax robot (the message says why).
+
+    Examples:
+      >>> try:
+      ...     load("no_such_robot")
+      ... except RobotError as error:
+      ...     print(str(error)[:45])
+      robot='no_such_robot' is not a registered rob
+    """
 
 
 def robot_dir():
     """Folder of the shipped MJCF files: the installed package data ``cfm_jax._robot_files``
     (a wheel or an editable install), else ``robots/`` of the source checkout this module
-    was imported from (for example Python started in a clone that shadows the install)."""
+    was imported from (for example Python started in a clone that shadows the install).
+
+    Returns:
+      A ``pathlib.Path`` or an ``importlib.resources`` traversable of the folder.
+
+    Examples:
+      >>> (robot_dir() / "iiwa14.xml").is_file()
+      True
+    """
     try:
         return importlib.resources.files(_ROBOT_PACKAGE)
     except ModuleNotFoundError:
@@ -45,7 +61,15 @@ def robot_dir():
 
 
 def registered() -> tuple[str, ...]:
-    """Names of the robots shipped with the package (the ``robots/*.xml`` files)."""
+    """Names of the robots shipped with the package (the ``robots/*.xml`` files).
+
+    Returns:
+      Sorted names, each usable as ``Config.robot``.
+
+    Examples:
+      >>> registered()
+      ('iiwa14', 'solo12', 'two_link_arm')
+    """
     files = robot_dir()
     return tuple(sorted(p.name[:-4] for p in files.iterdir() if p.name.endswith(".xml")))
 
@@ -53,9 +77,20 @@ def registered() -> tuple[str, ...]:
 def resolve(name_or_path: str) -> str:
     """Path of the MJCF file for a registered name or an existing path.
 
+    Args:
+      name_or_path: a registered name (see :func:`registered`) or a path to an ``.xml`` file
+        (anything with a path separator or ending in ``.xml`` is taken as a path).
+
+    Returns:
+      The absolute path of the file.
+
     Raises:
       RobotError: neither a registered name nor an existing file (the message lists the
         registered names).
+
+    Examples:
+      >>> resolve("two_link_arm").endswith("two_link_arm.xml")
+      True
     """
     if os.path.sep in name_or_path or name_or_path.endswith(".xml"):
         if not os.path.isfile(name_or_path):
@@ -90,6 +125,13 @@ class Robot:
       home: ``(nq,)`` the keyframe ``home`` if present, else ``qpos0``.
       actuated_dofs: ``(action_dim,)`` dof (``qvel``) index of each actuated joint.
       floating_base: whether the root is a free joint (its 6 dofs are not actuated).
+
+    Examples:
+      >>> arm = load("two_link_arm")
+      >>> arm.nq, arm.action_dim, arm.torque_limit.tolist(), arm.floating_base
+      (2, 2, [20.0, 10.0], False)
+      >>> arm.torque_to_ctrl(np.array([4.0, -2.0])).tolist()
+      [4.0, -2.0]
     """
 
     name: str
@@ -161,6 +203,14 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
       RobotError: the file does not exist, does not parse, has ball joints or a free joint
         other than a single floating base, no actuators, non-torque actuators, or hinge /
         slide joints without exactly one motor.
+
+    Returns:
+      The :class:`Robot` (its MJX model already built).
+
+    Examples:
+      >>> solo = load("solo12")
+      >>> solo.floating_base, solo.nq, solo.nv, solo.action_dim
+      (True, 19, 18, 12)
     """
     path = resolve(name_or_path)
     try:

@@ -20,7 +20,7 @@ step) and a PRNG key. This module provides the learned controller's policy, MuJo
 inverse dynamics (the joint-space oracle) and :func:`mixed_policy`, which combines a
 controller, the task's oracle, its PD feedback and noise in one compiled rollout.
 
-Example:
+Examples:
   >>> import jax, numpy as np
   >>> from cfm_jax import robots, tasks
   >>> robot = robots.load("two_link_arm")
@@ -51,13 +51,18 @@ class Step(NamedTuple):
 
     Attributes:
       t: the control step index (int32 scalar).
-      qpos, qvel: the simulator's generalised positions ``(nq,)`` and velocities ``(nv,)``.
+      qpos: the simulator's generalised positions ``(nq,)``.
+      qvel: the simulator's generalised velocities ``(nv,)``.
       features: the task's extra measurements of this state (for example contact forces),
         ``(task.feature_dim,)``; empty for the joint-space task.
       state: the learning state ``s_t`` of the task, ``(task.state_dim,)``.
       desired: the task's desired quantity ``s*`` for this step, ``(task.desired_dim,)``.
       reference: the task's reference at ``t`` (a pytree, for example a
         :class:`cfm_jax.tasks.Reference` of one time step).
+
+    Examples:
+      >>> def gravity_free_pd(step, key):  # a policy: Step and PRNG key -> torques
+      ...     return 10.0 * (step.reference.q - step.qpos) - 1.0 * step.qvel
     """
 
     t: jax.Array
@@ -79,6 +84,16 @@ class Rollout(NamedTuple):
       finite: whether the simulator state after the step is finite, ``(targets, steps)``.
       extras: the task's further per-step records (a dict of ``(targets, steps, ...)``
         arrays; see the task's ``record``).
+
+    Examples:
+      >>> import jax, numpy as np
+      >>> from cfm_jax import robots, tasks
+      >>> robot = robots.load("two_link_arm")
+      >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
+      >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
+      >>> out = run(task, oracle_policy(robot), key=jax.random.key(0))
+      >>> out.tracking_error.shape, out.finite.shape, out.transitions.action.shape
+      ((1, 20, 2), (1, 20), (1, 20, 2))
     """
 
     transitions: dataset.Transitions
@@ -88,7 +103,23 @@ class Rollout(NamedTuple):
 
 
 def substeps(robot, control_dt: float) -> int:
-    """Physics steps per control step; ``control_dt`` must be a multiple of the timestep."""
+    """Physics steps per control step; ``control_dt`` must be a multiple of the timestep.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      control_dt: the control period in seconds.
+
+    Returns:
+      ``control_dt / robot.timestep`` as an int.
+
+    Raises:
+      ConfigError: ``control_dt`` is not a positive multiple of the timestep.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> substeps(robots.load("two_link_arm"), 0.01)
+      5
+    """
     ratio = control_dt / robot.timestep
     count = int(round(ratio))
     if count < 1 or abs(ratio - count) > 1e-6 * max(ratio, 1.0):
@@ -115,6 +146,18 @@ def run(task, policy, key, simulator="native") -> Rollout:
     Returns:
       A :class:`Rollout`; rollout ``k`` starts where the task says (``task.start``), for the
       joint-space task at rest at the reference's first position.
+
+    Examples:
+      >>> import jax, numpy as np
+      >>> from cfm_jax import robots, tasks
+      >>> robot = robots.load("two_link_arm")
+      >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
+      >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
+      >>> out = run(task, oracle_policy(robot), key=jax.random.key(0))
+      >>> out.transitions.state.shape  # (targets, steps, state_dim)
+      (1, 20, 4)
+      >>> bool(tracking_mse(out)[0] < 1e-5)  # the oracle tracks the reference
+      True
     """
     if simulator not in SIMULATORS:
         from cfm_jax.config import ConfigError
@@ -171,9 +214,26 @@ def run(task, policy, key, simulator="native") -> Rollout:
 
 
 def mjx_physics(robot, n_sub: int):
-    """``physics(qpos, qvel, ctrl) -> (qpos, qvel, sensordata (n_sub, nsensordata))`` after
-    ``n_sub`` ``mjx.step`` calls from the state ``(qpos, qvel)`` (time and warm start start
-    at zero); as :func:`native_physics`."""
+    """The MJX physics step of a rollout: ``n_sub`` ``mjx.step`` calls.
+
+    Time and warm start start at zero at every call; as :func:`native_physics`.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot` (its ``mjx_model``).
+      n_sub: physics steps per call (:func:`substeps`).
+
+    Returns:
+      ``physics(qpos, qvel, ctrl) -> (qpos, qvel, sensordata (n_sub, nsensordata))``, pure
+      and traceable.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> physics = mjx_physics(arm, n_sub=5)
+      >>> qpos, qvel, _ = jax.jit(physics)(arm.home, np.zeros(2), np.zeros(2))
+      >>> qpos.shape, bool(qvel[0] < 0)  # the arm starts to fall
+      ((2,), True)
+    """
     model = robot.mjx_model
     blank = mjx.make_data(model)
 
@@ -201,6 +261,21 @@ def native_physics(robot, n_sub: int):
     ``vmap_method="broadcast_all"`` but ~10x cheaper per call): under ``vmap`` the whole
     batch (targets x seeds) is stepped in one host call per control step. Time, warm start
     and actuator state start at the model defaults on every call.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot` (its ``mj_model``).
+      n_sub: physics steps per call (:func:`substeps`).
+
+    Returns:
+      ``physics(qpos, qvel, ctrl) -> (qpos, qvel, sensordata (n_sub, nsensordata))``, usable
+      inside ``jit``, ``vmap`` and ``scan`` (no gradient).
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> qpos, qvel, _ = jax.jit(native_physics(arm, 5))(arm.home, np.zeros(2), np.zeros(2))
+      >>> bool(qvel[0] < 0)  # the arm starts to fall
+      True
     """
     cache_key = (id(robot.mj_model), n_sub)
     if cache_key not in _STEPPERS:
@@ -214,7 +289,29 @@ def native_physics(robot, n_sub: int):
 
 
 def controller_policy(controller, params, normaliser):
-    """The learned controller ``tau = g(s_t, s*_t)``."""
+    """The learned controller ``tau = g(s_t, s*_t)`` as a policy.
+
+    Args:
+      controller: the controller :class:`cfm_jax.networks.Model`.
+      params: its parameters (one seed's).
+      normaliser: the :class:`cfm_jax.networks.Normaliser` it was trained with.
+
+    Returns:
+      ``policy(step, key) -> tau (action_dim,)``.
+
+    Examples:
+      >>> import jax, numpy as np
+      >>> from cfm_jax import robots, tasks
+      >>> robot = robots.load("two_link_arm")
+      >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
+      >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
+      >>> from cfm_jax import networks
+      >>> g = networks.controller(hidden=(8,), nv=2)
+      >>> norm = networks.Normaliser.identity(4, 2, robot.torque_limit)
+      >>> policy = controller_policy(g, g.init(jax.random.key(0), 4), norm)
+      >>> run(task, policy, jax.random.key(1)).transitions.action.shape
+      (1, 20, 2)
+    """
 
     def policy(step, key):
         del key
@@ -236,6 +333,22 @@ def oracle_policy(robot, simulator="native"):
     ``simulator="native"`` computes it with MuJoCo C (``mj_fwdPosition``,
     ``mj_fwdVelocity``, ``mj_mulM``) through ``jax.pure_callback``; ``"mjx"`` with the
     corresponding MJX functions.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot` with a fixed base.
+      simulator: ``"native"`` or ``"mjx"``.
+
+    Returns:
+      ``policy(step, key) -> tau (nv,)``.
+
+    Examples:
+      >>> import jax, numpy as np
+      >>> from cfm_jax import robots, tasks
+      >>> robot = robots.load("two_link_arm")
+      >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
+      >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
+      >>> float(tracking_mse(run(task, oracle_policy(robot), jax.random.key(0)))[0]) < 1e-5
+      True
     """
     mj = robot.mj_model
     damping = implicit_damping(mj)
@@ -270,7 +383,20 @@ def oracle_policy(robot, simulator="native"):
 def implicit_damping(mj_model) -> np.ndarray:
     """``h D`` per dof when MuJoCo's Euler integrator treats joint damping implicitly
     (``h`` the timestep, ``D`` the damping), else zeros: the extra inertia-like term that
-    one Euler step adds to ``M qdd``."""
+    one Euler step adds to ``M qdd``.
+
+    Args:
+      mj_model: a ``mujoco.MjModel``.
+
+    Returns:
+      ``(nv,)``: ``timestep * dof_damping`` with the Euler integrator and implicit damping
+      enabled, else zeros.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> implicit_damping(robots.load("two_link_arm").mj_model).tolist()
+      [0.0002, 0.0002]
+    """
     import mujoco
 
     eulerdamp = int(mj_model.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_EULER) and not int(
@@ -311,6 +437,22 @@ def pd_gains(robot, kp: float, kd: float, home) -> tuple[np.ndarray, np.ndarray]
     ``K_p = kp * diag(M(q_home))`` and ``K_d = kd * diag(M(q_home))``: the gains that give each
     joint, taken alone at the home pose, the same closed-loop stiffness and damping as the
     PD correction of the desired acceleration. No gravity compensation, no feed-forward.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      kp: acceleration stiffness (1/s^2).
+      kd: acceleration damping (1/s).
+      home: ``(nq,)`` the pose at which the mass matrix is taken.
+
+    Returns:
+      ``(K_p, K_d)``, each ``(nv,)``.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> k_p, k_d = pd_gains(arm, 100.0, 20.0, arm.home)
+      >>> bool(np.allclose(k_p / k_d, 5.0))
+      True
     """
     inertia = robot.mass_matrix_diagonal(home)
     return kp * inertia, kd * inertia
@@ -325,9 +467,22 @@ class MixedPolicy(NamedTuple):
     PD-only feedback on the reference (for example ``K_p (q_ref - q) + K_d (qd_ref - qd)``).
 
     Attributes:
-      controller_params, normaliser: the learned controller and its statistics.
-      controller_weight, oracle_weight, feedback_weight: scalars (0 or 1).
-      noise_std: ``(action_dim,)``.
+      controller_params: the learned controller's parameters.
+      normaliser: its :class:`cfm_jax.networks.Normaliser`.
+      controller_weight: scalar (0 or 1).
+      oracle_weight: scalar (0 or 1).
+      feedback_weight: scalar (0 or 1).
+      noise_std: ``(action_dim,)`` standard deviation of the added torque noise.
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> from cfm_jax import networks
+      >>> g = networks.controller(hidden=(8,), nv=2)
+      >>> norm = networks.Normaliser.identity(4, 2, jnp.ones(2))
+      >>> babbling = MixedPolicy.of(g.init(jax.random.key(0), 4), norm, 2, feedback=1.0,
+      ...                           noise_std=0.1 * jnp.ones(2))
+      >>> float(babbling.feedback_weight), float(babbling.controller_weight)
+      (1.0, 0.0)
     """
 
     controller_params: Any
@@ -360,8 +515,34 @@ class MixedPolicy(NamedTuple):
 
 
 def mixed_policy(task, controller, parameters: MixedPolicy, simulator="native"):
-    """The policy of :class:`MixedPolicy` parameters for a task (the oracle term is computed
-    only when ``oracle_weight`` is non-zero, by ``lax.cond``)."""
+    """The policy of :class:`MixedPolicy` parameters for a task.
+
+    The oracle term is computed only when ``oracle_weight`` is non-zero (``lax.cond``), so
+    babbling, the baselines and the learned controller share one compiled rollout.
+
+    Args:
+      task: the task (its ``feedback`` and ``oracle_policy``).
+      controller: the controller :class:`cfm_jax.networks.Model`.
+      parameters: the :class:`MixedPolicy` weights and parameters (may be traced).
+      simulator: ``"native"`` or ``"mjx"`` (for the oracle).
+
+    Returns:
+      ``policy(step, key) -> tau (action_dim,)``.
+
+    Examples:
+      >>> import jax, numpy as np
+      >>> from cfm_jax import robots, tasks
+      >>> robot = robots.load("two_link_arm")
+      >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
+      >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
+      >>> from cfm_jax import networks
+      >>> g = networks.controller(hidden=(8,), nv=2)
+      >>> norm = networks.Normaliser.identity(4, 2, robot.torque_limit)
+      >>> oracle = MixedPolicy.of(g.init(jax.random.key(0), 4), norm, 2, oracle=1.0)
+      >>> out = run(task, mixed_policy(task, g, oracle), jax.random.key(1))
+      >>> bool(tracking_mse(out)[0] < 1e-5)
+      True
+    """
     learned = controller_policy(controller, parameters.controller_params, parameters.normaliser)
     oracle = task.oracle_policy(simulator)
 
@@ -380,6 +561,21 @@ def mixed_policy(task, controller, parameters: MixedPolicy, simulator="native"):
 
 
 def tracking_mse(result: Rollout) -> jax.Array:
-    """Tracking MSE per target: mean over steps and components of the task's tracking
-    error, ``(targets,)``."""
+    """Tracking MSE per target: mean over steps and components of the task's tracking error.
+
+    Args:
+      result: a :class:`Rollout`.
+
+    Returns:
+      ``(targets,)``.
+
+    Examples:
+      >>> import jax, numpy as np
+      >>> from cfm_jax import robots, tasks
+      >>> robot = robots.load("two_link_arm")
+      >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
+      >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
+      >>> tracking_mse(run(task, oracle_policy(robot), jax.random.key(0))).shape
+      (1,)
+    """
     return jnp.mean(jnp.square(result.tracking_error), axis=(-2, -1))

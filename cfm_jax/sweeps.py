@@ -25,12 +25,12 @@ Backends:
   workers need no shared filesystem (see ``checkpoints``). Needs ``pip install
   'cfm_jax[ray]'``.
 
-Example:
+Examples:
   >>> import cfm_jax
   >>> config = cfm_jax.Config(robot="two_link_arm")
-  >>> result = cfm_jax.sweep(config, seeds=3, losses=["joint", "task"],
-  ...                        overrides={"task.kp": [50.0, 100.0]}, out_dir="results/s")
-  ... # doctest: +SKIP
+  >>> result = cfm_jax.sweep(
+  ...     config, seeds=3, losses=["joint", "task"], overrides={"task.kp": [50.0, 100.0]},
+  ...     out_dir="results/s")  # doctest: +SKIP
   >>> result.curves()  # mean and std over seeds per iteration  # doctest: +SKIP
 """
 
@@ -69,9 +69,17 @@ class SweepError(RuntimeError):
     """Some cells failed. The other cells' results are kept (on disk when the sweep has an
     ``out_dir``; a re-run runs only the missing cells).
 
-    Attributes:
-      failures: ``{cell id: error text}``.
-      result: a :class:`SweepResult` of the cells that finished.
+    Args:
+      failures: ``{cell id: error text}`` (kept as the attribute ``failures``).
+      result: a :class:`SweepResult` of the cells that finished (attribute ``result``).
+      total: the number of cells of the grid (for the message).
+
+    Examples:
+      >>> try:  # doctest: +SKIP
+      ...     result = cfm_jax.sweep(config, losses="all", out_dir="results/s")
+      ... except cfm_jax.SweepError as error:
+      ...     print(list(error.failures))  # the failed cells' ids
+      ...     result = error.result  # the cells that finished
     """
 
     def __init__(self, failures: dict[str, str], result: SweepResult, total: int):
@@ -91,14 +99,26 @@ class SweepError(RuntimeError):
 
 @dataclasses.dataclass(frozen=True)
 class Cell:
-    """One cell of the grid: a full config (its loss, seeds and override values)."""
+    """One cell of the grid: a full config (its loss, seeds and override values).
+
+    Attributes:
+      id: the cell id (:func:`cell_id`), also its folder name under ``out_dir/cells``.
+      config: the cell's whole config.
+      overrides: ``{dotted path: value}`` of the override values of this cell.
+
+    Examples:
+      >>> cell = grid(config_lib.Config(), losses="task", overrides={"task.kp": [50.0]})[0]
+      >>> cell.loss, cell.overrides, cell.config.task.kp
+      ('task', {'task.kp': 50.0}, 50.0)
+    """
 
     id: str
     config: config_lib.Config
-    overrides: dict[str, Any]  # dotted path -> value of this cell
+    overrides: dict[str, Any]
 
     @property
     def loss(self) -> str:
+        """The cell's controller loss."""
         return self.config.loss
 
 
@@ -110,8 +130,17 @@ class CellOutput:
       metrics: :attr:`cfm_jax.TrainResult.metrics` of the cell.
       baselines: :attr:`cfm_jax.TrainResult.baselines` of the cell.
       seconds: wall time of the cell.
-      pid, host: the process and machine that ran it.
+      pid: the process that ran it.
+      host: the machine that ran it.
       labels: axis labels of the task for figures (``tracking_label``, ``output_unit``).
+
+    Examples:
+      A custom runner does extra work around :func:`run_cell` and returns its output:
+
+      >>> def runner(config, run_dir):  # doctest: +SKIP
+      ...     output = run_cell(config, run_dir)
+      ...     print(config.loss, output.seconds)
+      ...     return output
     """
 
     metrics: pd.DataFrame
@@ -139,6 +168,12 @@ class SweepResult:
       override_columns: the override paths, in the order given.
       out_dir: where the files are, or None.
       seconds: wall time of the sweep.
+
+    Examples:
+      >>> result = cfm_jax.sweep(config, losses="all", out_dir="results/s")  # doctest: +SKIP
+      >>> result.metrics.groupby(["loss", "iteration"]).tracking_mse.mean()  # doctest: +SKIP
+      >>> print(result.markdown())  # the curves at the last iteration  # doctest: +SKIP
+      >>> result.plot("curves.png", title="my sweep")  # doctest: +SKIP
     """
 
     metrics: pd.DataFrame
@@ -193,8 +228,17 @@ def grid(
         base value is a float is taken as that float (so ``100`` and ``100.0`` name the
         same cell).
 
+    Returns:
+      The list of :class:`Cell`.
+
     Raises:
       ConfigError: naming the argument or path, the bad value and what is allowed.
+
+    Examples:
+      >>> cells = grid(config_lib.Config(), seeds=3, losses=["joint", "task"],
+      ...              overrides={"task.kp": [50, 100.0]})
+      >>> [(c.loss, c.config.task.kp, c.config.loop.seeds) for c in cells]
+      [('joint', 50.0, 3), ('task', 50.0, 3), ('joint', 100.0, 3), ('task', 100.0, 3)]
     """
     if not isinstance(base_config, config_lib.Config):
         config_lib._fail("base_config", base_config, "a cfm_jax.Config")
@@ -217,7 +261,18 @@ def grid(
 
 
 def cell_id(config: config_lib.Config) -> str:
-    """``<loss>-<first 12 hex digits of the SHA-256 of the config's JSON>``."""
+    """The id of the cell of ``config``: ``<loss>-<first 12 hex digits of the SHA-256 of
+    the config's JSON>``, so equal configs have equal ids.
+
+    Args:
+      config: a cell's whole config.
+
+    Examples:
+      >>> cell_id(config_lib.Config(loss="task")).startswith("task-")
+      True
+      >>> cell_id(config_lib.Config()) == cell_id(config_lib.Config(seed=0))
+      True
+    """
     text = json.dumps(config_lib.to_dict(config), sort_keys=True)
     return f"{config.loss}-{hashlib.sha256(text.encode()).hexdigest()[:12]}"
 
@@ -355,7 +410,16 @@ _EXPERIMENTS: collections.OrderedDict = collections.OrderedDict()
 def experiment_for(config: config_lib.Config):
     """A :class:`cfm_jax.training.Experiment` for ``config``, reused (with its compiled
     functions and babbling data) for configs that differ only in the loss. The last
-    :data:`EXPERIMENT_CACHE_SIZE` are kept per process."""
+    :data:`EXPERIMENT_CACHE_SIZE` are kept per process.
+
+    Args:
+      config: the config of a cell.
+
+    Examples:
+      >>> config = config_lib.Config(robot="two_link_arm")
+      >>> experiment_for(config) is experiment_for(config.replace(loss="task"))  # doctest: +SKIP
+      True
+    """
     from cfm_jax import training
 
     key = json.dumps(config_lib.to_dict(config.replace(loss="joint")), sort_keys=True)
@@ -378,6 +442,18 @@ def run_cell(
     when ``run_dir`` already holds checkpoints of an interrupted attempt of this cell, the
     cell resumes from the newest valid one (bit for bit the uninterrupted run), and starts
     afresh when none is usable. This is the default ``runner`` of :func:`sweep`.
+
+    Args:
+      config: the cell's config (its seeds are the vmap axis).
+      run_dir: train's output directory for this cell, or None (nothing written).
+      progress: show train's progress bar.
+
+    Returns:
+      A :class:`CellOutput`.
+
+    Examples:
+      >>> output = run_cell(config_lib.Config(robot="two_link_arm"))  # doctest: +SKIP
+      >>> output.metrics.tracking_mse.mean()  # doctest: +SKIP
     """
     import warnings
 
@@ -444,7 +520,11 @@ def sweep(
     the seeds as one vmapped :func:`cfm_jax.train` call, and gather one tidy table.
 
     Args:
-      base_config, seeds, losses, overrides: the grid (see :func:`grid`).
+      base_config: the config every cell starts from (see :func:`grid`).
+      seeds: the number of seeds, or consecutive seeds (see :func:`grid`).
+      losses: a loss, a list of losses or ``"all"`` (see :func:`grid`).
+      overrides: ``{dotted config path: [values]}``, the further grid axes (see
+        :func:`grid`).
       out_dir: where results go (created). Each finished cell is written to
         ``out_dir/cells/<cell id>/`` as it finishes; a re-run skips finished cells. When
         all cells are done: ``metrics.csv`` and ``metrics.parquet`` (the tidy table),
@@ -473,6 +553,13 @@ def sweep(
     Raises:
       ConfigError: a bad argument (named, with what is allowed).
       SweepError: some cells failed; the others are kept (``error.result``).
+
+    Examples:
+      >>> config = cfm_jax.for_task("inverse_dynamics", robot="iiwa14")
+      >>> result = cfm_jax.sweep(  # doctest: +SKIP
+      ...     config, seeds=3, losses="all", overrides={"task.kp": [50.0, 100.0]},
+      ...     out_dir="results/kp", backend="ray")
+      >>> result.curves()  # doctest: +SKIP
     """
     start = time.perf_counter()
     cells = grid(base_config, seeds, losses, overrides)

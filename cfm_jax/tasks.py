@@ -8,10 +8,10 @@ control step the desired next-step joint acceleration is
 
 (``kp = kd = 0`` is pure feed-forward of the reference acceleration).
 
-Example:
+Examples:
   >>> import numpy as np
   >>> ref = quintic(np.zeros(1), np.ones(1), duration=1.0, control_dt=0.5)
-  >>> ref.q[:, 0].tolist()
+  >>> ref.q[0, :, 0].tolist()
   [0.0, 0.5, 1.0]
 """
 
@@ -181,7 +181,8 @@ class JointSpaceTask:
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       reference: a :class:`Reference` (NumPy, ``(targets, steps + 1, nq)``).
-      kp, kd: gains of the PD correction in the desired acceleration.
+      kp: proportional gain (1/s^2) of the PD correction in the desired acceleration.
+      kd: derivative gain (1/s) of the same correction.
       control_dt: control period (a multiple of the robot's timestep).
     """
 
@@ -424,6 +425,9 @@ class LeggedTask(JointSpaceTask):
 
     * State ``s_t = [base pose and joint positions (qpos), foot forces f_t (world frame,
       mean over the previous control period), base and joint velocities (qvel)]``.
+    * A step where the robot fell is terminal (``extras["terminal"]``): the rest of that
+      rollout does not become data (the model has foot-floor contacts only, so a fallen
+      body sinks through the floor).
     * The forward model predicts ``y = [qacc dt, f_{t+1}]``: the base and joint
       accelerations over the control period times ``dt`` (``qvel' - qvel``) and the mean
       foot forces over the period; the desired quantity is the same
@@ -567,6 +571,7 @@ class LeggedTask(JointSpaceTask):
             "active": step.reference.active > 0,
             "force_error": features_next - step.reference.force,
             "fell": fell,
+            "terminal": fell,  # no data from a fallen robot (see training._before_terminal)
         }
 
     def metrics(self, result) -> dict:

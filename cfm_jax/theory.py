@@ -39,7 +39,7 @@ Closed forms (linear system ``c = 0``, one desired state ``s_d``; ``e = s_a - s_
 For the nonlinear system replace ``a`` by the local slope ``h'(tau*)``; fixed points are then
 found with Newton's method (:func:`consistent_rest_action`).
 
-Example:
+Examples:
   >>> system = TrueSystem(gain=1.0, offset=0.0)
   >>> model = LinearModel(gain=1.0, offset=0.2)        # offset bias 0.2
   >>> fp = fixed_point("joint", system, model, desired=1.0)
@@ -150,7 +150,7 @@ class DataMoments(NamedTuple):
 def true_response(system: TrueSystem, action):
     """``s_a = a tau + b + c tau^3``. Args: action of any shape. Returns: same shape.
 
-    Example:
+    Examples:
       >>> float(true_response(TrueSystem(2.0, 1.0, 0.5), 2.0))
       9.0
     """
@@ -183,7 +183,7 @@ def biased_model(system: TrueSystem, gain_ratio=1.0, offset_error=0.0) -> Linear
     The model ignores ``system.cubic``; with ``gain_ratio=1, offset_error=0`` it is exact for
     a linear system.
 
-    Example:
+    Examples:
       >>> biased_model(TrueSystem(2.0, 1.0), gain_ratio=0.5, offset_error=0.1)
       LinearModel(gain=1.0, offset=1.1)
     """
@@ -201,12 +201,15 @@ def controller_loss(name: str, controller: AffineController, model: LinearModel,
 
     Args:
       name: ``"task"``, ``"joint"`` or ``"distal"``.
-      controller, model: parameters (scalars, or arrays broadcasting with the data).
-      desired: ``s_d``, shape ``(...)``; observed: ``s_a``, shape ``(...)``, held fixed.
+      controller: an :class:`AffineController` (scalars, or arrays broadcasting with the
+        data).
+      model: a :class:`LinearModel` (likewise).
+      desired: ``s_d``, shape ``(...)``.
+      observed: ``s_a``, shape ``(...)``, held fixed.
     Returns:
       loss of shape ``(...)``.
 
-    Example:
+    Examples:
       >>> float(controller_loss("joint", AffineController(1.0, 0.0), LinearModel(1.0, 0.0),
       ...                       3.0, 0.0))
       5.0
@@ -255,11 +258,15 @@ def controller_gradient(
 
     Args:
       name: one of :data:`THEORY_LOSSES`.
-      controller, model: scalar parameters; desired, observed, executed_action: scalars.
+      controller: an :class:`AffineController` of scalars.
+      model: a :class:`LinearModel` of scalars.
+      desired: ``s_d`` (scalar).
+      observed: ``s_a`` (scalar), held fixed.
+      executed_action: ``tau_run`` (scalar), used by the supervised loss.
     Returns:
       an :class:`AffineController` holding ``(dL/dbeta_0, dL/dbeta_1)``.
 
-    Example:
+    Examples:
       >>> g = controller_gradient("task", AffineController(1.0, 0.0), LinearModel(2.0, 0.0),
       ...                         desired=1.0, observed=0.0)
       >>> float(g.offset), float(g.gain)      # 2 * 2 * (2 - 1) * (1, s_d)
@@ -304,7 +311,7 @@ def rest_action(name: str, model: LinearModel, desired, observed):
 
     Args: scalars or broadcasting arrays. Returns: ``tau``, broadcast shape.
 
-    Example:
+    Examples:
       >>> float(rest_action("joint", LinearModel(2.0, 0.0), desired=1.0, observed=0.0))
       0.25
     """
@@ -360,7 +367,7 @@ def consistent_rest_action(
     Returns:
       ``tau*`` (scalar; NaN where no root, e.g. ``2 a_hat = a`` for the joint loss).
 
-    Example:
+    Examples:
       >>> float(consistent_rest_action("joint", TrueSystem(1.0, 0.0), LinearModel(1.0, 0.5),
       ...                              desired=1.0))
       0.0
@@ -424,7 +431,8 @@ def fixed_point(
 
     Args:
       name: one of :data:`THEORY_LOSSES`.
-      system, model: scalar parameters (``vmap`` for arrays).
+      system: a :class:`TrueSystem` of scalars (``vmap`` for arrays).
+      model: a :class:`LinearModel` of scalars.
       desired: ``s_d``.
       refit: one of :data:`REFIT_MODES`.
       inner_steps: ``None`` trains to rest (not possible for ``distal``, which needs steps).
@@ -575,11 +583,15 @@ def iterate(
 
     Args:
       name: one of :data:`THEORY_LOSSES`.
-      system, model, controller: initial parameters (scalars).
+      system: the :class:`TrueSystem` (scalars).
+      model: the initial :class:`LinearModel` (scalars).
+      controller: the initial :class:`AffineController` (scalars).
       desired: ``s_d`` (scalar).
       num_iters: number of rollouts ``K``.
       refit: one of :data:`REFIT_MODES`.
-      inner_steps, learning_rate: inner controller training (see above).
+      inner_steps: gradient steps of the controller update per iteration (``None``: to
+        rest, see above).
+      learning_rate: step size of those gradient steps.
       babble_actions: actions of the motor-babbling data set (shape ``(n,)``), used by
         ``refit="all"``; with ``None`` the only data are the rollouts.
       prior_weight: ridge weight pulling ``refit="all"`` fits towards the initial model and
@@ -587,7 +599,7 @@ def iterate(
     Returns:
       :class:`IterationTrace` with fields of shape ``(num_iters,)``.
 
-    Example:
+    Examples:
       >>> tr = iterate("joint", TrueSystem(), LinearModel(1.0, 0.2), AffineController(),
       ...              1.0, num_iters=30)
       >>> round(float(tr.errors[-1]), 4)

@@ -12,7 +12,7 @@ Pure core (jit + vmap over seeds):
 
 Impure shell: :func:`train` (progress display, result files, tables); it says so below.
 
-Example:
+Examples:
   >>> from cfm_jax import config as cfg
   >>> small = cfg.Config(robot="two_link_arm", loop=cfg.LoopConfig(iterations=1))
   >>> result = train(small, progress=False)  # doctest: +SKIP
@@ -52,13 +52,31 @@ METRIC_COLUMNS = (
     "forward_loss",
     "controller_loss",
 )
+"""Columns of every metrics table, in order: the run's ``loss``, ``seed``, ``iteration`` and
+``target``, then the metrics of every task (see :meth:`Experiment.metrics_one`); a task
+adds its own after them (``Experiment.metric_columns``)."""
 
 
 @struct.dataclass
 class TrainState:
     """Everything one run carries from iteration to iteration (a pytree).
 
-    With several seeds every leaf has a leading seed axis.
+    With several seeds every leaf has a leading seed axis ``(seeds, ...)``.
+
+    Attributes:
+      forward_params: the forward ensemble's parameters (leaves ``(ensemble_size, ...)``).
+      forward_opt_state: its Adam state.
+      controller_params: the controller's parameters.
+      controller_opt_state: its Adam state.
+      normaliser: the :class:`cfm_jax.networks.Normaliser` of the babbling data.
+      data: the :class:`cfm_jax.dataset.Dataset` collected so far.
+      key: the PRNG key of the next iteration.
+      iteration: completed iterations of Algorithm 1 (int32 scalar).
+
+    Examples:
+      >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
+      >>> int(result.state.iteration[0]), result.state.data.size  # doctest: +SKIP
+      (10, Array([3000], dtype=int32))
     """
 
     forward_params: Any
@@ -78,6 +96,17 @@ class Experiment:
     iteration compiles once.
 
     ``config.loss`` is only the default; every method takes the loss to use.
+
+    Args:
+      config: the :class:`cfm_jax.config.Config` to build for.
+
+    Examples:
+      >>> from cfm_jax import config as cfg
+      >>> exp = Experiment(cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3)))
+      >>> exp.task.targets, exp.task.steps, exp.state_dim
+      (5, 30, 4)
+      >>> exp.metric_columns[:5]
+      ('loss', 'seed', 'iteration', 'target', 'tracking_mse')
     """
 
     def __init__(self, config: config_lib.Config):
@@ -261,7 +290,9 @@ class Experiment:
           target's horizon for tasks with horizons of different lengths).
         * the task's own metrics (``task.metric_names``).
 
-        Means are over the steps inside each target's horizon (all steps for the arms).
+        Means are over the steps inside each target's horizon (all steps for the arms);
+        ``prediction_error`` and ``predicted_task_error`` only over the steps before the
+        first terminal step (a legged robot's fall), the steps that become data.
         """
         t = result.transitions
         norm = state.normaliser
@@ -274,7 +305,7 @@ class Experiment:
                 networks.ensemble_mean(self.forward, state.forward_params, norm, t.state, tau)
             )
         )
-        step_mean = _step_mean(result)
+        step_mean = _step_mean(result, before_terminal=True)
         return {
             "prediction_error": step_mean(predicted - t.observed),
             "predicted_task_error": step_mean(predicted_task - t.desired),
@@ -425,12 +456,18 @@ class Experiment:
         return self._compiled["baselines"]
 
 
-def _step_mean(result: rollout.Rollout):
+def _step_mean(result: rollout.Rollout, before_terminal: bool = False):
     """``x (targets, steps, k) -> (targets,)``: mean of ``x^2`` over components and over the
-    steps inside each target's horizon (every step when the task has no horizons)."""
+    steps inside each target's horizon (every step when the task has no horizons); with
+    ``before_terminal``, only over the steps before the first terminal one (a fall)."""
     active = _active(result)
-    if active is None:
+    alive = _before_terminal(result) if before_terminal else None
+    if active is None and alive is None:
         return lambda x: jnp.mean(jnp.square(x), axis=(-2, -1))
+    if active is None:
+        active = alive
+    elif alive is not None:
+        active = active & alive
     weights = active.astype(jnp.float32)
     count = jnp.maximum(jnp.sum(weights, axis=-1), 1.0)
     return lambda x: jnp.sum(jnp.mean(jnp.square(x), axis=-1) * weights, axis=-1) / count
@@ -442,10 +479,28 @@ def _active(result: rollout.Rollout):
     return extras.get("active") if isinstance(extras, dict) else None
 
 
+def _before_terminal(result: rollout.Rollout):
+    """``(targets, steps)`` mask of the steps before the first terminal step, or None.
+
+    A task marks a step terminal (``extras["terminal"]``, for example a legged robot that
+    fell) when what follows it is not the dynamics the models should learn: the legged
+    models have foot-floor contacts only, so a fallen body sinks through the floor.
+    """
+    extras = result.extras
+    if not isinstance(extras, dict) or "terminal" not in extras:
+        return None
+    return jnp.cumsum(extras["terminal"].astype(jnp.int32), axis=-1) == 0
+
+
 def _valid(result: rollout.Rollout):
-    """Steps that become data: finite, and inside the horizon when the task has one."""
+    """Steps that become data: finite, inside the horizon when the task has one, and before
+    the first terminal step when the task has those."""
+    valid = result.finite
     active = _active(result)
-    return result.finite if active is None else result.finite & active
+    if active is not None:
+        valid = valid & active
+    alive = _before_terminal(result)
+    return valid if alive is None else valid & alive
 
 
 def _broadcast(tree, n: int):
@@ -468,6 +523,11 @@ class TrainResult:
         leaves with a leading seed axis.
       rms_reach: RMS reaching distance of the targets (rad), the scale for tracking errors.
       seconds: wall time of the run, and ``compile_seconds`` of its first iteration.
+
+    Examples:
+      >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
+      >>> result.final().tracking_mse.mean()  # doctest: +SKIP
+      >>> result.baselines.groupby("baseline").tracking_mse.mean()  # doctest: +SKIP
     """
 
     config: config_lib.Config
@@ -503,12 +563,36 @@ def _rows(loss, seeds, iteration, metrics, columns=METRIC_COLUMNS) -> list[dict]
 
 
 class DivergenceError(RuntimeError):
-    """Training produced a non-finite quantity (the message names iteration, quantity, seed
-    and where the last good checkpoint is)."""
+    """Training produced a non-finite quantity.
+
+    The message names the iteration, the quantity (simulator state, a loss, parameters), the
+    seed, for the simulator the targets, and where the last good checkpoint is.
+
+    Examples:
+      >>> try:
+      ...     result = cfm_jax.train(config, out_dir="results/run")  # doctest: +SKIP
+      ... except DivergenceError as error:
+      ...     print(error)  # doctest: +SKIP
+      iteration 3, seed 1: controller_loss became non-finite (NaN or Inf). The last good ...
+    """
 
 
 def config_differences(old: dict, new: dict, prefix: str = "") -> list[str]:
-    """Dotted names of the fields that differ between two config dicts, with both values."""
+    """Dotted names of the fields that differ between two config dicts, with both values.
+
+    Args:
+      old: a config dict (:func:`cfm_jax.config.to_dict`), for example a run's.
+      new: another one.
+      prefix: prefix of the dotted names (used by the recursion).
+
+    Returns:
+      One string per differing field, sorted by name.
+
+    Examples:
+      >>> config_differences({"loss": "task", "loop": {"seeds": 1}},
+      ...                    {"loss": "task", "loop": {"seeds": 3}})
+      ['loop.seeds (1 in the run, 3 now)']
+    """
     out = []
     for key in sorted(set(old) | set(new)):
         a, b = old.get(key), new.get(key)
@@ -599,6 +683,13 @@ def train(
       ConfigError: ``resume`` names a run of a different config (the fields are listed).
       CheckpointError: the newest checkpoint is corrupt (the previous valid one is offered).
       DivergenceError: a non-finite simulator state, loss or parameter.
+
+    Examples:
+      >>> import cfm_jax
+      >>> config = cfm_jax.Config(robot="iiwa14", loss="joint")
+      >>> result = cfm_jax.train(config, out_dir="results/run")  # doctest: +SKIP
+      >>> result.metrics.groupby("iteration").tracking_mse.agg(["mean", "std"])  # doctest: +SKIP
+      >>> result = cfm_jax.train(config, resume="results/run")  # doctest: +SKIP
     """
     from cfm_jax import checkpoint as ckpt_lib
 

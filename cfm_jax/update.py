@@ -23,10 +23,30 @@ LOG_VARIANCE_BOUND_PENALTY = 0.01
 
 
 def forward_objective(forward_params, forward, normaliser, batch: dataset.Transitions):
-    """Mean Gaussian NLL of the observed acceleration over members and minibatch rows.
+    """Mean Gaussian NLL of the observed quantity over members and minibatch rows.
 
-    ``batch`` fields have a leading member axis ``(ensemble, batch, ...)``: member ``e`` is
-    scored on ``batch[e]`` only.
+    Plus ``LOG_VARIANCE_BOUND_PENALTY`` times the learned log-variance bounds (PETS).
+
+    Args:
+      forward_params: the ensemble's parameters (leaves ``(ensemble, ...)``).
+      forward: the forward :class:`cfm_jax.networks.Model`.
+      normaliser: the :class:`cfm_jax.networks.Normaliser`.
+      batch: :class:`cfm_jax.dataset.Transitions` with a leading member axis
+        ``(ensemble, batch, ...)``: member ``e`` is scored on ``batch[e]`` only.
+
+    Returns:
+      The scalar loss.
+
+    Examples:
+      >>> import jax, jax.numpy as jnp, optax
+      >>> from cfm_jax import dataset, networks
+      >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
+      >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
+      >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))
+      >>> data = dataset.add(dataset.empty(16, state_dim=4, nv=2), rows)
+      >>> batch = jax.tree.map(lambda x: jnp.stack([x[:4], x[4:8]]), rows)  # 2 members x 4 rows
+      >>> forward_objective(fm.init(jax.random.key(0), 4), fm, norm, batch).shape
+      ()
     """
 
     mean, log_var = forward.apply(
@@ -50,6 +70,34 @@ def controller_objective(
       ``s*``; see :func:`cfm_jax.losses.controller_loss`).
     * ``supervised``: ``|g(s, P s_a) - tau_run|^2`` with torques divided by their limits
       (``P s_a`` the observed values of the desired entries).
+
+    ``jax.grad`` of this function in its first argument is the controller's gradient: the
+    forward model's parameters are an argument it is not differentiated in.
+
+    Args:
+      controller_params: the controller's parameters (differentiated).
+      forward_params: the forward ensemble's parameters (held fixed).
+      loss: one of ``losses.CONTROLLER_LOSSES``.
+      forward: the forward :class:`cfm_jax.networks.Model`.
+      controller: the controller :class:`cfm_jax.networks.Model`.
+      normaliser: the :class:`cfm_jax.networks.Normaliser`.
+      batch: :class:`cfm_jax.dataset.Transitions` ``(batch, ...)``.
+
+    Returns:
+      The scalar loss.
+
+    Examples:
+      >>> import jax, jax.numpy as jnp, optax
+      >>> from cfm_jax import dataset, networks
+      >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
+      >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
+      >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))
+      >>> data = dataset.add(dataset.empty(16, state_dim=4, nv=2), rows)
+      >>> g = networks.controller(hidden=(8,), nv=2)
+      >>> theta, beta = fm.init(jax.random.key(0), 4), g.init(jax.random.key(1), 4)
+      >>> grads = jax.grad(controller_objective)(beta, theta, "joint", fm, g, norm, rows)
+      >>> jax.tree.structure(grads) == jax.tree.structure(beta)
+      True
     """
     if loss == "supervised":
         achieved = normaliser.select(batch.observed)
@@ -69,7 +117,40 @@ def controller_objective(
 
 
 def fit_forward(forward, optimizer, params, opt_state, normaliser, data, key, steps, batch_size):
-    """``steps`` Adam steps of :func:`forward_objective`; returns params, state, mean loss."""
+    """``steps`` Adam steps of :func:`forward_objective` under ``lax.scan``.
+
+    Every member draws its own minibatch of ``batch_size`` rows per step.
+
+    Args:
+      forward: the forward :class:`cfm_jax.networks.Model`.
+      optimizer: an ``optax`` optimiser.
+      params: the ensemble's parameters.
+      opt_state: ``optimizer``'s state for them.
+      normaliser: the :class:`cfm_jax.networks.Normaliser`.
+      data: the :class:`cfm_jax.dataset.Dataset` to sample from.
+      key: PRNG key.
+      steps: number of steps (static; 0 returns the inputs and a NaN loss).
+      batch_size: rows per member and step (static).
+
+    Returns:
+      ``(params, opt_state, mean loss over the steps)``.
+
+    Examples:
+      >>> import jax, jax.numpy as jnp, optax
+      >>> from cfm_jax import dataset, networks
+      >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
+      >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
+      >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))
+      >>> data = dataset.add(dataset.empty(16, state_dim=4, nv=2), rows)
+      >>> params = fm.init(jax.random.key(0), 4)
+      >>> opt = optax.adam(1e-2)
+      >>> params, state, first = fit_forward(fm, opt, params, opt.init(params), norm, data,
+      ...                                    jax.random.key(1), steps=20, batch_size=4)
+      >>> _, _, later = fit_forward(fm, opt, params, state, norm, data, jax.random.key(2),
+      ...                           steps=20, batch_size=4)
+      >>> bool(later < first)
+      True
+    """
     members = jax.tree.leaves(params["members"])[0].shape[0]
 
     def one_step(carry, step_key):
@@ -100,7 +181,40 @@ def fit_controller(
     steps,
     batch_size,
 ):
-    """``steps`` Adam steps of :func:`controller_objective` in the controller parameters."""
+    """``steps`` Adam steps of :func:`controller_objective` in the controller's parameters.
+
+    Args:
+      loss: one of ``losses.CONTROLLER_LOSSES`` (static).
+      forward: the forward :class:`cfm_jax.networks.Model`.
+      controller: the controller :class:`cfm_jax.networks.Model`.
+      optimizer: an ``optax`` optimiser.
+      params: the controller's parameters.
+      opt_state: ``optimizer``'s state for them.
+      forward_params: the forward ensemble's parameters (not changed).
+      normaliser: the :class:`cfm_jax.networks.Normaliser`.
+      data: the :class:`cfm_jax.dataset.Dataset` to sample from.
+      key: PRNG key.
+      steps: number of steps (static; 0 returns the inputs and a NaN loss).
+      batch_size: rows per step (static).
+
+    Returns:
+      ``(params, opt_state, mean loss over the steps)``.
+
+    Examples:
+      >>> import jax, jax.numpy as jnp, optax
+      >>> from cfm_jax import dataset, networks
+      >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
+      >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
+      >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))
+      >>> data = dataset.add(dataset.empty(16, state_dim=4, nv=2), rows)
+      >>> g = networks.controller(hidden=(8,), nv=2)
+      >>> beta, opt = g.init(jax.random.key(1), 4), optax.adam(1e-3)
+      >>> beta, state, loss = fit_controller("task", fm, g, opt, beta, opt.init(beta),
+      ...                                    fm.init(jax.random.key(0), 4), norm, data,
+      ...                                    jax.random.key(2), steps=5, batch_size=4)
+      >>> loss.shape
+      ()
+    """
 
     def one_step(carry, step_key):
         params, opt_state = carry

@@ -1,5 +1,5 @@
-"""Shared pieces of the sweep-based study scripts (iiwa_inverse_dynamics.py,
-solo_locomotion.py): their flags, the --quick config and the run through cfm_jax.sweep."""
+"""Shared pieces of the study scripts: the flags and the run through cfm_jax.sweep
+(iiwa_inverse_dynamics.py), and the --quick config (also opspace_study.py)."""
 
 from __future__ import annotations
 

@@ -9,20 +9,21 @@ Parts (``--only`` takes a comma-separated list of these names):
                          prediction error / predicted task error during learning (Fig. 4)
   opspace                opspace_study.py: operational-space control (Fig. 3b; Fig. 4)
   swap                   swap_study.py: the data-set swap (Fig. 3c)
-  solo_walk              solo_locomotion.py --task walk: Solo12 walking (IV-B)
-  solo_jump              solo_locomotion.py --task jump: Solo12 jumping (IV-B, Table I)
+  solo_walk              solo_study.py --task walk: Solo12 walking (IV-B, Table I, Fig. 5, 6)
+  solo_jump              solo_study.py --task jump: Solo12 jumping (IV-B, Table I)
 
 Each part writes into ``OUT/<part>/`` (its log in ``log.txt``). Interrupted parts resume
 when started again (finished sweep cells, swap runs and op-space checkpoints are reused;
 the 1-D theory is recomputed, it takes seconds). A failing part does not stop the others;
-the exit status is 1 if any failed. ``--quick`` runs every part tiny (networks of 16 units,
-a few dozen fit steps, 2 seeds, 1 iteration, 2 losses; the arm tasks with 0.3 s
-references): a test that the whole pipeline runs, not a result.
+the exit status is 1 if any failed. ``--quick`` runs every part small (the arm studies:
+networks of 16 units, a few dozen fit steps, 0.3 s references, 2 seeds, 1 iteration, 2
+losses; the Solo12 study: 1 seed and 1 iteration of the real networks): a test that the
+whole pipeline runs, not a result.
 
 Usage:
   python experiments/reproduce_all.py --out results                 # full size, hours
   python experiments/reproduce_all.py --quick --out /tmp/quick      # smoke test
-  python experiments/reproduce_all.py --only iiwa_inverse_dynamics,solo_walk --backend ray
+  python experiments/reproduce_all.py --only iiwa_inverse_dynamics --backend ray
 """
 
 from __future__ import annotations
@@ -67,19 +68,19 @@ PARTS = {
         ["swap_study.png"],
     ),
     "solo_walk": (
-        ["solo_locomotion.py", "--task", "walk"],
-        "Solo12 walking (section IV-B)",
-        ["table.md"],
-        ["curves.png"],
+        ["solo_study.py", "--task", "walk", "--resume"],
+        "Solo12 walking (section IV-B: Table I, Fig. 5 and 6)",
+        ["table_1.md", "summary.md"],
+        ["learning_curves.png", "falls.png", "frames_joint.png", "force_joint.png"],
     ),
     "solo_jump": (
-        ["solo_locomotion.py", "--task", "jump"],
-        "Solo12 jumping (section IV-B, Table I)",
-        ["table.md"],
-        ["curves.png"],
+        ["solo_study.py", "--task", "jump", "--resume"],
+        "Solo12 jumping (section IV-B: Table I)",
+        ["table_1.md", "summary.md"],
+        ["learning_curves.png", "falls.png", "frames_joint.png", "force_joint.png"],
     ),
 }
-SWEEP_PARTS = ("iiwa_inverse_dynamics", "solo_walk", "solo_jump")  # take --backend/--address
+SWEEP_PARTS = ("iiwa_inverse_dynamics",)  # the parts that take --backend and --address
 
 
 def command(name: str, out: str, args) -> list[str]:

@@ -67,6 +67,16 @@ def test_falls_are_flagged_when_the_robot_goes_down(walk):
     )()
     assert np.all(np.any(np.asarray(out.extras["fell"]), axis=1))
     assert float(np.max(np.abs(np.asarray(out.tracking_error[..., 2])))) > 0.1
+    # A fallen robot gives no more data (its body has no floor contact and sinks): the
+    # steps that become data end before the first fallen step of each target (plain loop).
+    valid = np.asarray(training._valid(out))
+    fell, active = np.asarray(out.extras["fell"]), np.asarray(out.extras["active"])
+    for k in range(walk.targets):
+        first_fall = next(i for i in range(walk.steps) if fell[k, i])
+        expected = np.zeros(walk.steps, bool)
+        expected[:first_fall] = True
+        np.testing.assert_array_equal(valid[k], expected & active[k])
+    assert 0 < valid.sum() < active.sum()
 
 
 def test_legged_tasks_refuse_arms_and_slow_control(solo):
@@ -87,8 +97,11 @@ def test_jump_trains_end_to_end_with_masked_metrics():
     result = cfm_jax.train(config, progress=False, experiment=experiment)
     frame = result.metrics
     horizons = [r.horizon for r in experiment.task.references]
-    added = frame[frame.iteration == 0].transitions_added.to_numpy()
-    np.testing.assert_array_equal(added, horizons)  # no falls to NaN: every step is data
+    first = frame[frame.iteration == 0]
+    added, fell = first.transitions_added.to_numpy(), first.fell.to_numpy()
+    # Every step of a horizon is data, up to a fall (a tiny controller may fall).
+    np.testing.assert_array_equal(added[fell == 0], np.asarray(horizons)[fell == 0])
+    assert np.all(added[fell == 1] < np.asarray(horizons)[fell == 1])
     for column in ("force_mse", "fell", "base_position_mse", "tracking_mse"):
         assert np.all(np.isfinite(frame[column]))
     base = result.baselines.set_index(["baseline", "target"])

@@ -1,0 +1,191 @@
+"""The Solo12 study (paper section IV-B, Fig. 5, Fig. 6, Table I): learn to walk or jump
+with each controller loss.
+
+Runs ``cfm-jax train --robot solo12 --task {walk,jump} --loss all --seeds 3
+--iterations 10`` (the four losses one after another, sharing babbling data and the
+initial forward fit; an interrupted run resumes with ``--resume``; a finished run is only
+re-evaluated) and writes, into ``--out``, besides the CLI's files (``metrics.csv``,
+``baselines.csv``, ``summary.md``, ``learning_curves.png``):
+
+* ``table_1.md``: the paper's Table I for this task: at the last iteration, the
+  foot-force tracking MSE (N^2) per loss, mean and std over seeds x targets; the falls
+  (fallen runs out of seeds x targets, and the seeds whose every horizon finished without
+  a fall); the base position (m^2) and orientation (rad^2) tracking MSE. The oracle
+  (reference controller) and the joint PD alone are given for scale.
+* ``falls.png``: the share of fallen rollouts per iteration and loss.
+* ``frames_<loss>.png``: frames of the first seed's learned controller on the longest
+  target (the paper's walking image sequence; needs offscreen GL, ``MUJOCO_GL=egl``).
+* ``force_<loss>.png``: desired, observed and forward-model-predicted force of the front
+  right foot over that rollout (the paper's Fig. 6).
+
+Usage:
+  python experiments/solo_study.py --task walk --out results/solo_walk
+  python experiments/solo_study.py --task jump --out results/solo_jump
+  python experiments/solo_study.py --task jump --out /tmp/q --quick   # 1 seed, 1 iteration
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+import numpy as np
+import pandas as pd
+
+FOOT = "FR"  # the paper's Fig. 6 shows the front right foot
+
+
+def table_1(metrics: pd.DataFrame, baselines: pd.DataFrame) -> pd.DataFrame:
+    """Last-iteration force MSE, falls and base tracking per loss (and the baselines)."""
+    from cfm_jax import losses
+
+    final = metrics[metrics.iteration == metrics.iteration.max()]
+    rows = {}
+    for loss in [name for name in losses.CONTROLLER_LOSSES if name in set(final["loss"])]:
+        frame = final[final["loss"] == loss]
+        per_seed = frame.groupby("seed").fell.max()
+        rows[loss] = {
+            "force MSE mean (N^2)": frame.force_mse.mean(),
+            "force MSE std": frame.force_mse.std(ddof=0),
+            "falls (runs)": f"{int(frame.fell.sum())} / {len(frame)}",
+            "seeds without a fall": f"{int((per_seed == 0).sum())} / {len(per_seed)}",
+            "base position MSE (m^2)": frame.base_position_mse.mean(),
+            "base orientation MSE (rad^2)": frame.base_orientation_mse.mean(),
+        }
+    for name, frame in baselines.groupby("baseline", sort=False):
+        rows[name] = {
+            "force MSE mean (N^2)": frame.force_mse.mean(),
+            "force MSE std": frame.force_mse.std(ddof=0),
+            "falls (runs)": f"{int(frame.fell.sum())} / {len(frame)}",
+            "seeds without a fall": "-",
+            "base position MSE (m^2)": frame.base_position_mse.mean(),
+            "base orientation MSE (rad^2)": frame.base_orientation_mse.mean(),
+        }
+    return pd.DataFrame.from_dict(rows, orient="index")
+
+
+def plot_falls(metrics: pd.DataFrame, path: str, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.2))
+    for loss, frame in metrics.groupby("loss", sort=False):
+        share = frame.groupby("iteration").fell.mean()
+        ax.plot(share.index, share.to_numpy(), marker="o", label=loss)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("fallen rollouts (share)")
+    ax.set_ylim(-0.05, 1.05)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def pictures(out: str, config, loss: str) -> dict:
+    """Roll out the first seed's final controller of ``loss`` on the longest target; write
+    its frame strip and the force plot of the front right foot. Returns what was drawn."""
+    import jax
+
+    from cfm_jax import locomotion, render, training
+
+    run_dir = os.path.join(out, loss)
+    experiment = training.Experiment(config.replace(loss=loss))
+    result = training.train(
+        config.replace(loss=loss), progress=False, experiment=experiment, resume=run_dir
+    )
+    state = jax.tree.map(lambda x: x[0], result.state)  # first seed
+    task = experiment.task
+    rollout_ = experiment.rollout_one(experiment.learned_policy(state), jax.random.key(0))
+    target = int(np.argmax([r.horizon for r in task.references]))
+    ref = task.references[target]
+    n = ref.horizon
+    t = rollout_.transitions
+    norm = state.normaliser
+    from cfm_jax import networks
+
+    predicted = norm.output_inverse(
+        networks.ensemble_mean(
+            experiment.forward, state.forward_params, norm, t.state[target], t.action[target]
+        )
+    )
+    feet = task.feet
+    observed = np.asarray(t.observed[target, :n, -3 * feet :]).reshape(n, feet, 3)
+    predicted = np.asarray(predicted[:n, -3 * feet :]).reshape(n, feet, 3)
+    fell = np.asarray(rollout_.extras["fell"][target, :n])
+    first_fall = int(np.argmax(fell)) if fell.any() else None
+    locomotion.plot_foot_force(
+        ref,
+        os.path.join(out, f"force_{loss}.png"),
+        observed=observed,
+        predicted=predicted,
+        foot=FOOT,
+        title=f"{config.task.name}, {loss} loss, seed {config.seed}: {FOOT} foot force"
+        + ("" if first_fall is None else f" (fell at {first_fall * ref.control_dt:.2f} s)"),
+    )
+    drawn = {"loss": loss, "target": target, "fell_at_step": first_fall}
+    qpos = np.asarray(t.state[target, :n, : task.robot.nq])  # s = [qpos, forces, qvel]
+    ok, why = render.render_available()
+    if ok:
+        render.frame_strip(
+            task.robot.mj_model, qpos, os.path.join(out, f"frames_{loss}.png"), n_frames=8
+        )
+    else:
+        drawn["frames"] = f"not rendered: {why}"
+    return drawn
+
+
+def main() -> None:
+    from cfm_jax import cli, report
+    from cfm_jax import config as config_lib
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--task", choices=("walk", "jump"), required=True)
+    parser.add_argument("--out", default=None)
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--iterations", type=int, default=10)
+    parser.add_argument("--loss", default="all")
+    parser.add_argument("--resume", action="store_true")
+    parser.add_argument("--quiet", action="store_true")
+    parser.add_argument("--quick", action="store_true", help="1 seed, 1 iteration (CI)")
+    parser.add_argument(
+        "--pictures", default="joint,task", help="losses whose rollouts are drawn ('' none)"
+    )
+    args = parser.parse_args()
+    if args.quick:
+        args.seeds, args.iterations = 1, 1
+    out = args.out or f"results/solo_{args.task}"
+    cli.train(
+        task=args.task,
+        loss=args.loss,
+        seeds=args.seeds,
+        iterations=args.iterations,
+        out=out,
+        resume=args.resume,
+        quiet=args.quiet,
+    )
+    metrics = pd.read_csv(os.path.join(out, "metrics.csv"))
+    baselines = pd.read_csv(os.path.join(out, "baselines.csv"))
+    table = table_1(metrics, baselines)
+    with open(os.path.join(out, "table_1.md"), "w") as f:
+        f.write(report.markdown(table) + "\n")
+    print(table.to_string())
+    plot_falls(metrics, os.path.join(out, "falls.png"), f"solo12 {args.task}")
+    with open(os.path.join(out, "config.json")) as f:
+        config = config_lib.from_dict(json.load(f))
+    drawn = [
+        pictures(out, config, loss)
+        for loss in [s for s in args.pictures.split(",") if s]
+        if os.path.isdir(os.path.join(out, loss))
+    ]
+    with open(os.path.join(out, "pictures.json"), "w") as f:
+        json.dump(drawn, f, indent=2)
+    print(json.dumps(drawn))
+
+
+if __name__ == "__main__":
+    main()
