@@ -40,7 +40,6 @@ bench.run
 bench.table
 bench.main
 bench.bench
-config.for_task
 locomotion.model_path
 locomotion.load_model
 locomotion.foot_forces
@@ -72,7 +71,6 @@ locomotion.plot_foot_force
 locomotion.summary
 native.Stepper
 native.host_step
-networks.Normaliser
 opspace.site_names
 opspace.ee_site
 opspace.Kinematics
@@ -97,7 +95,6 @@ opspace.pd_policy
 opspace.tracking_mse
 opspace.HostRollout
 opspace.host_rollout
-report.plot_learning_curves
 tasks.Reference
 tasks.quintic
 tasks.check_duration
@@ -115,7 +112,6 @@ tasks.LeggedTask
 tasks.as_jax_legged
 torch_reference.ForwardUpdate
 torch_reference.ControllerUpdate
-training.TrainResult
 """.split()
 )
 
