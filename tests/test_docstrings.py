@@ -40,35 +40,6 @@ bench.run
 bench.table
 bench.main
 bench.bench
-locomotion.model_path
-locomotion.load_model
-locomotion.foot_forces
-locomotion.foot_contact
-locomotion.leg_fk
-locomotion.knee_fk
-locomotion.leg_ik
-locomotion.quat_to_mat
-locomotion.FallLimits
-locomotion.fell
-locomotion.LocomotionReference
-locomotion.PhysicsRecording
-locomotion.WalkParams
-locomotion.JumpParams
-locomotion.hip_positions
-locomotion.simulate_walk
-locomotion.jump_clearance
-locomotion.simulate_jump
-locomotion.inverse_dynamics_residual
-locomotion.Replay
-locomotion.replay
-locomotion.cache_dir
-locomotion.walk_reference
-locomotion.jump_reference
-locomotion.default_walks
-locomotion.default_jumps
-locomotion.commanded_distance
-locomotion.plot_foot_force
-locomotion.summary
 native.Stepper
 native.host_step
 torch_reference.ForwardUpdate
@@ -81,6 +52,7 @@ torch_reference.ControllerUpdate
 DOCTEST_MODULES = (
     "config",
     "dataset",
+    "locomotion",
     "losses",
     "networks",
     "opspace",
