@@ -6,9 +6,6 @@ each, the Google-style docstring (parsed by griffe, as the API pages are) must e
 name every argument in ``Args:`` (classes: the constructor's arguments, in ``Args:`` or
 ``Attributes:``) and must have an ``Example:`` section. The examples of the modules whose
 examples are cheap run as doctests.
-
-``KNOWN_GAPS`` lists the objects that still miss something; it may only shrink: an entry
-that is no longer a gap fails the test until it is removed.
 """
 
 from __future__ import annotations
@@ -25,12 +22,6 @@ import pytest
 import cfm_jax
 
 ROOT = Path(__file__).resolve().parent.parent
-
-# Objects whose docstrings are not complete yet (the test says what each one misses).
-KNOWN_GAPS: frozenset[str] = frozenset(
-    """
-""".split()
-)
 
 # Modules whose docstring examples run here; lines that would be slow (training, benchmark
 # timings, the five jump bisections) are marked ``doctest: +SKIP``. Not run: checkpoint and
@@ -138,10 +129,7 @@ def test_every_public_function_and_class_is_documented(package):
         found = problems_of(obj)
         if found:
             gaps[path] = "; ".join(found)
-    new = {k: v for k, v in gaps.items() if k not in KNOWN_GAPS}
-    assert not new, "undocumented public API:\n" + "\n".join(f"{k}: {v}" for k, v in new.items())
-    closed = sorted(set(KNOWN_GAPS) - set(gaps))
-    assert not closed, f"documented now, remove from KNOWN_GAPS: {closed}"
+    assert not gaps, "undocumented public API:\n" + "\n".join(f"{k}: {v}" for k, v in gaps.items())
 
 
 def test_the_checker_finds_gaps():
