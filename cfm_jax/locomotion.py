@@ -737,8 +737,8 @@ def jump_clearance(ref_or_rec) -> float:
         with ``qpos (T, 19)``).
 
     Returns:
-      The clearance (m); negative values mean a foot was always in the floor's contact
-      margin.
+      The clearance (m); negative if at every instant some foot bottom was below the floor
+      plane (MuJoCo's soft contacts let a loaded foot sink slightly).
 
     Examples:
       >>> ref, rec = simulate_jump(JumpParams(duration=0.8, push_force=30.0))
