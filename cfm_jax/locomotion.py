@@ -433,7 +433,7 @@ class PhysicsRecording(NamedTuple):
     qvel: np.ndarray  # (K+1, 18)
     qacc: np.ndarray  # (K, 18)
     tau: np.ndarray  # (K, 12)
-    sensordata: np.ndarray  # (K, nsensordata)
+    sensordata: np.ndarray  # (K+1, nsensordata), like qpos
 
 
 @dataclasses.dataclass(frozen=True)
