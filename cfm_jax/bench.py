@@ -61,7 +61,26 @@ def _best(fn, repeats: int) -> float:
 
 @dataclasses.dataclass
 class Bench:
-    """The robot, its stepping and a policy for the benchmark (fixed or floating base)."""
+    """The robot, its stepping and a policy for the benchmark (fixed or floating base).
+
+    Built by ``Bench.load(robot)`` from the MJCF alone (no :class:`cfm_jax.robots.Robot`), so
+    any joint-actuated model works; ``nu`` actuators.
+
+    Attributes:
+      mj_model: the ``mujoco.MjModel``.
+      n_sub: physics steps per control step of :data:`CONTROL_DT`.
+      q_home: ``(nq,)`` the keyframe ``home``, else ``qpos0``.
+      act_qpos: ``(nu,)`` qpos address of each actuator's joint.
+      act_dof: ``(nu,)`` dof (qvel) address of each actuator's joint.
+      gear: ``(nu,)`` actuator gears (``tau = ctrl * gear``).
+      ctrl_low: ``(nu,)`` lower control limits (``-inf`` where not limited).
+      ctrl_high: ``(nu,)`` upper control limits (``inf`` where not limited).
+
+    Examples:
+      >>> bench = Bench.load("solo12")  # floating base: 7 qpos, 6 dofs before the joints
+      >>> bench.n_sub, bench.nu, bench.act_qpos[:3].tolist(), bench.act_dof[:3].tolist()
+      (5, 12, [7, 8, 9], [6, 7, 8])
+    """
 
     mj_model: object
     n_sub: int
@@ -200,7 +219,24 @@ class Bench:
 
 
 def measure_rollout(bench: Bench, batch: int, steps: int, repeats: int) -> dict:
-    """Our closed loop and ``mujoco.rollout`` on the same batch, timed alternately."""
+    """Our closed loop and ``mujoco.rollout`` on the same batch, timed alternately.
+
+    Args:
+      bench: the :class:`Bench`.
+      batch: rollouts stepped together.
+      steps: control steps per rollout.
+      repeats: timed runs of each (the best counts).
+
+    Returns:
+      A dict: ``batch``, ``rollout_steps_per_s`` and ``native_steps_per_s`` (physics steps
+      per second), their ``ratio``, ``rollout_compile_s`` (first call minus the best) and
+      ``finite_fraction`` (of the closed loop's steps).
+
+    Examples:
+      >>> result = measure_rollout(Bench.load("two_link_arm"), 2, 5, 1)  # doctest: +SKIP
+      >>> result["batch"], result["ratio"] > 0, result["finite_fraction"]  # doctest: +SKIP
+      (2, True, 1.0)
+    """
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -232,7 +268,30 @@ def measure_rollout(bench: Bench, batch: int, steps: int, repeats: int) -> dict:
 
 def measure_training(bench: Bench, targets: int, steps: int, fit_steps: int, repeats: int):
     """One iteration of Algorithm 1 (rollout, add, refit f, refit g with the joint loss) as
-    one compiled function, and each part compiled alone."""
+    one compiled function, and each part compiled alone.
+
+    Args:
+      bench: the :class:`Bench`.
+      targets: rollouts per iteration.
+      steps: control steps per rollout.
+      fit_steps: Adam steps of each refit (batch 256).
+      repeats: timed runs of each part and of the iteration (the best counts; the
+        iteration runs at least twice after its first call).
+
+    Returns:
+      ``(times, (flat, normaliser))``: ``times`` is a dict with ``rollout_s``,
+      ``forward_update_s``, ``controller_update_s``, ``iteration_s``,
+      ``iteration_compile_s``, ``recompiled_after_first``, ``forward_updates_per_s`` and
+      ``controller_updates_per_s``; ``flat`` the first rollout's
+      :class:`cfm_jax.dataset.Transitions` ``(targets * steps, ...)`` and ``normaliser``
+      their :class:`cfm_jax.networks.Normaliser` (for :func:`measure_torch`).
+
+    Examples:
+      >>> bench = Bench.load("two_link_arm")
+      >>> times, (flat, _) = measure_training(bench, 2, 5, 2, 1)  # doctest: +SKIP
+      >>> times["iteration_s"] > 0, flat.state.shape  # doctest: +SKIP
+      (True, (10, 4))
+    """
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -307,7 +366,30 @@ def measure_training(bench: Bench, targets: int, steps: int, fit_steps: int, rep
 
 
 def measure_torch(bench: Bench, flat, repeats: int, updates: int = 50) -> dict:
-    """PyTorch reference updates/s with 1 and 2 threads (best thread count reported too)."""
+    """PyTorch reference updates/s with 1 and 2 threads (best thread count reported too).
+
+    Args:
+      bench: the :class:`Bench` (for the torque limits).
+      flat: :class:`cfm_jax.dataset.Transitions` ``(n, ...)`` to train on (from
+        :func:`measure_training`).
+      repeats: timed runs per model and thread count (the best counts).
+      updates: updates per timed run (after 5 warm-up updates).
+
+    Returns:
+      A dict: ``torch_forward_updates_per_s_1t``, ``..._2t`` and the same for
+      ``controller``, the better of the two as ``torch_forward_updates_per_s`` and
+      ``torch_controller_updates_per_s``, and ``torch_version``.
+
+    Raises:
+      ImportError: torch is not installed.
+
+    Examples:
+      >>> bench = Bench.load("two_link_arm")
+      >>> _, (flat, _) = measure_training(bench, 2, 5, 2, 1)  # doctest: +SKIP
+      >>> result = measure_torch(bench, flat, 1, updates=2)  # doctest: +SKIP
+      >>> result["torch_forward_updates_per_s"] > 0  # doctest: +SKIP
+      True
+    """
     import numpy as np
 
     from cfm_jax import torch_reference
@@ -344,17 +426,44 @@ def measure_torch(bench: Bench, flat, repeats: int, updates: int = 50) -> dict:
 
 
 def peak_memory_mib() -> float:
-    """Peak resident set size of this process (MiB)."""
+    """Peak resident set size of this process (MiB).
+
+    Returns:
+      ``ru_maxrss`` in MiB (the unit of ``ru_maxrss`` is KiB on Linux, bytes on macOS).
+
+    Examples:
+      >>> peak_memory_mib() > 0
+      True
+    """
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return rss / 1024 if sys.platform != "darwin" else rss / 2**20
 
 
 def versions() -> str:
+    """Versions of the packages the benchmark depends on, for the record.
+
+    Returns:
+      ``"jax X, jaxlib X, mujoco X, mujoco-mjx X, flax X, optax X"``.
+
+    Examples:
+      >>> versions()  # doctest: +ELLIPSIS
+      'jax ..., jaxlib ..., mujoco ..., mujoco-mjx ..., flax ..., optax ...'
+    """
     names = ["jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax"]
     return ", ".join(f"{n} {metadata.version(n)}" for n in names)
 
 
 def machine() -> str:
+    """The machine the benchmark ran on, for the record.
+
+    Returns:
+      Processor, core count, memory (from ``/proc/meminfo``, ``?`` elsewhere), operating
+      system, Python version and ``XLA_FLAGS``, comma-separated.
+
+    Examples:
+      >>> "cores" in machine() and "XLA_FLAGS=" in machine()
+      True
+    """
     try:
         with open("/proc/meminfo") as f:
             memory = f"{int(f.readline().split()[1]) / 2**20:.0f} GiB"
@@ -377,7 +486,30 @@ def run(
     targets: int = 5,
     fit_steps: int = 200,
 ) -> dict:
-    """Every measurement of one benchmark run, as a flat dict (see the module docstring)."""
+    """Every measurement of one benchmark run, as a flat dict (see the module docstring).
+
+    Args:
+      robot: registered robot name or path to an MJCF file.
+      batch: rollouts stepped together in the rollout measurement.
+      steps: control steps per rollout.
+      repeats: best of this many timed runs.
+      train: also time a training iteration (:func:`measure_training`).
+      torch: also time the PyTorch reference (:func:`measure_torch`; skipped with
+        ``torch_version`` None if torch is missing).
+      targets: rollouts per training iteration.
+      fit_steps: Adam steps per refit in the timed iteration.
+
+    Returns:
+      The dict of :func:`measure_rollout` (and :func:`measure_training`,
+      :func:`measure_torch` with the speed-ups over torch), plus ``robot``, ``n_sub``,
+      ``control_dt``, ``steps``, ``fast_callback``, ``peak_memory_mib``, ``machine`` and
+      ``versions``.
+
+    Examples:
+      >>> result = run("two_link_arm", batch=2, steps=5, repeats=1, train=False)  # doctest: +SKIP
+      >>> result["robot"], result["n_sub"], result["batch"]  # doctest: +SKIP
+      ('two_link_arm', 5, 2)
+    """
     from cfm_jax import native
 
     bench = Bench.load(robot)
@@ -404,7 +536,23 @@ def run(
 
 
 def table(result: dict) -> str:
-    """The result as an aligned two-column table."""
+    """The result as an aligned two-column table.
+
+    Floats of at least 100 are printed as integers with thousands separators, smaller ones
+    to 4 significant digits.
+
+    Args:
+      result: a dict, as :func:`run` returns.
+
+    Returns:
+      One line per key.
+
+    Examples:
+      >>> print(table({"robot": "iiwa14", "rollout_steps_per_s": 123456.7, "ratio": 0.81234}))
+      robot                iiwa14
+      rollout_steps_per_s  123,457
+      ratio                0.8123
+    """
     rows = []
     for key, value in result.items():
         if isinstance(value, float):
@@ -417,7 +565,13 @@ def table(result: dict) -> str:
 
 
 def main() -> None:
-    """``python -m cfm_jax.bench``: the same flags as ``cfm-jax bench`` (tyro)."""
+    """``python -m cfm_jax.bench``: the same flags as ``cfm-jax bench`` (tyro).
+
+    Examples:
+      >>> import sys
+      >>> sys.argv = ["cfm_jax.bench", "--robot", "two_link_arm", "--no-train"]  # doctest: +SKIP
+      >>> main()  # doctest: +SKIP
+    """
     import tyro
 
     tyro.cli(bench)
@@ -446,6 +600,9 @@ def bench(
       torch: also time the PyTorch reference (needs the bench extra).
       fit_steps: Adam steps per refit in the timed iteration.
       json: print one JSON line instead of a table.
+
+    Examples:
+      >>> bench("two_link_arm", batch=2, steps=5, repeats=1, train=False)  # doctest: +SKIP
     """
     result = run(
         robot=robot,

@@ -410,7 +410,8 @@ def for_task(task: str, **changes) -> Config:
 
     Args:
       task: one of :data:`TASKS`.
-      **changes: top-level fields to replace afterwards (``robot``, ``loss``, ``loop``, ...).
+      changes: keyword arguments, top-level fields to replace afterwards (``robot``,
+        ``loss``, ``loop``, ...).
 
     Returns:
       A :class:`Config`.

@@ -60,7 +60,15 @@ _FORMAT_VERSION = 1
 
 
 def model_path() -> str:
-    """Path of the shipped ``solo12.xml`` (package data, or ``robots/`` of a checkout)."""
+    """Path of the shipped ``solo12.xml`` (package data, or ``robots/`` of a checkout).
+
+    Returns:
+      The file's path (str).
+
+    Examples:
+      >>> model_path().endswith("solo12.xml")
+      True
+    """
     try:
         import importlib.resources
 
@@ -73,7 +81,19 @@ def model_path() -> str:
 
 
 def load_model(path: str | None = None):
-    """``mujoco.MjModel`` of Solo12 (``cfm_jax.robots.load`` rejects floating bases)."""
+    """``mujoco.MjModel`` of Solo12 (the C model alone, no :class:`cfm_jax.robots.Robot`).
+
+    Args:
+      path: an MJCF file, or None for :func:`model_path`.
+
+    Returns:
+      The ``mujoco.MjModel``.
+
+    Examples:
+      >>> model = load_model()
+      >>> model.nq, model.nv, model.nu, model.nsensordata, model.opt.timestep
+      (19, 18, 12, 40, 0.002)
+    """
     import mujoco
 
     return mujoco.MjModel.from_xml_path(path or model_path())
@@ -91,6 +111,24 @@ def foot_forces(sensordata, xp=np):
     geom2 = floor) together with the frame's normal and tangent in the world frame; this
     rotates it to the world frame and flips the sign so it is the floor's force on the foot.
     Slots with no contact are all zero, giving zero force.
+
+    Args:
+      sensordata: ``(..., nsensordata)`` whose first 40 entries are the four feet's contact
+        sensors (10 each: found, force, normal, tangent), as in ``solo12.xml``.
+      xp: the array module, ``numpy`` or ``jax.numpy``.
+
+    Returns:
+      ``(..., 4, 3)`` forces (N), feet in the order FL, FR, HL, HR.
+
+    Examples:
+      >>> import mujoco
+      >>> model = load_model()
+      >>> data = mujoco.MjData(model)
+      >>> mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
+      >>> mujoco.mj_forward(model, data)
+      >>> force = foot_forces(data.sensordata)
+      >>> force.shape, np.round(force[:, 2], 1).tolist()  # the floor pushes each foot up
+      ((4, 3), [6.6, 6.6, 6.6, 6.6])
     """
     s = xp.reshape(sensordata[..., : 4 * SENSOR_SLOT], sensordata.shape[:-1] + (4, SENSOR_SLOT))
     f, n, t = s[..., 1:4], s[..., 4:7], s[..., 7:10]
@@ -100,7 +138,19 @@ def foot_forces(sensordata, xp=np):
 
 
 def foot_contact(sensordata, xp=np):
-    """Whether each foot touches the floor, ``(..., 4)`` bool, from the sensors' found count."""
+    """Whether each foot touches the floor, ``(..., 4)`` bool, from the sensors' found count.
+
+    Args:
+      sensordata: ``(..., nsensordata)`` as for :func:`foot_forces`.
+      xp: the array module, ``numpy`` or ``jax.numpy``.
+
+    Returns:
+      ``(..., 4)`` bool, feet in the order FL, FR, HL, HR.
+
+    Examples:
+      >>> foot_contact(np.zeros(40)).tolist()  # no sensor found a contact
+      [False, False, False, False]
+    """
     s = xp.reshape(sensordata[..., : 4 * SENSOR_SLOT], sensordata.shape[:-1] + (4, SENSOR_SLOT))
     return s[..., 0] > 0.5
 
@@ -115,7 +165,19 @@ def _rot_x(a):
 
 def leg_fk(q_leg, leg: int) -> np.ndarray:
     """Foot centre of leg ``leg`` (0..3 = FL, FR, HL, HR) in the base frame for joints
-    ``(HAA, HFE, KFE)``; closed form of the chain in solo12.xml ([2.2])."""
+    ``(HAA, HFE, KFE)``; closed form of the chain in solo12.xml ([2.2]).
+
+    Args:
+      q_leg: the leg's joint angles ``(HAA, HFE, KFE)``, ``(3,)`` (rad).
+      leg: 0, 1, 2 or 3 (FL, FR, HL, HR).
+
+    Returns:
+      ``(3,)`` foot centre position (m).
+
+    Examples:
+      >>> np.round(leg_fk([0.0, 0.8, -1.6], 0), 4).tolist()  # FL at the home pose
+      [0.1946, 0.148, -0.2229]
+    """
     sx, sy = LEG_SIGNS[leg]
     q0, q1, q2 = q_leg
     x = -sx * HFE_DX - L_UPPER * np.sin(q1) - L_LOWER * np.sin(q1 + q2)
@@ -124,7 +186,20 @@ def leg_fk(q_leg, leg: int) -> np.ndarray:
 
 
 def knee_fk(q_leg, leg: int) -> np.ndarray:
-    """Knee (KFE axis) of leg ``leg`` in the base frame."""
+    """Knee (KFE axis) of leg ``leg`` in the base frame.
+
+    Args:
+      q_leg: the leg's joint angles ``(HAA, HFE, KFE)``, ``(3,)`` (rad); KFE does not move
+        the knee.
+      leg: 0, 1, 2 or 3 (FL, FR, HL, HR).
+
+    Returns:
+      ``(3,)`` knee position (m).
+
+    Examples:
+      >>> np.round(knee_fk([0.0, 0.8, -1.6], 0), 4).tolist()  # FL at home: knee behind the hip
+      [0.0798, 0.139, -0.1115]
+    """
     sx, sy = LEG_SIGNS[leg]
     q0, q1, _ = q_leg
     local = [-sx * HFE_DX - L_UPPER * np.sin(q1), sy * (0.014 + 0.03745), -L_UPPER * np.cos(q1)]
@@ -134,7 +209,20 @@ def knee_fk(q_leg, leg: int) -> np.ndarray:
 def leg_ik(foot, leg: int) -> np.ndarray:
     """Joints ``(HAA, HFE, KFE)`` that put the foot centre of leg ``leg`` at ``foot`` (base
     frame). Knee branch of the ODRI demos: front legs KFE < 0, hind legs KFE > 0 (knees point
-    to the body centre). Unreachable targets are clipped to the workspace boundary."""
+    to the body centre). Unreachable targets are clipped to the workspace boundary.
+
+    Args:
+      foot: ``(3,)`` target of the foot centre in the base frame (m).
+      leg: 0, 1, 2 or 3 (FL, FR, HL, HR).
+
+    Returns:
+      ``(3,)`` joint angles ``(HAA, HFE, KFE)`` (rad).
+
+    Examples:
+      >>> q = leg_ik(leg_fk([0.0, 0.8, -1.6], 0), 0)  # inverse of leg_fk on this branch
+      >>> np.round(q, 6).tolist()
+      [0.0, 0.8, -1.6]
+    """
     sx, sy = LEG_SIGNS[leg]
     r = np.asarray(foot, float) - [sx * HAA_X, sy * HAA_Y, 0.0]
     ys = sy * LEG_Y
@@ -151,7 +239,22 @@ def leg_ik(foot, leg: int) -> np.ndarray:
 
 
 def quat_to_mat(quat, xp=np):
-    """Rotation matrices ``(..., 3, 3)`` of unit quaternions ``(..., 4)`` (w, x, y, z)."""
+    """Rotation matrices ``(..., 3, 3)`` of unit quaternions ``(..., 4)`` (w, x, y, z).
+
+    Args:
+      quat: unit quaternions ``(..., 4)``, scalar first (MuJoCo's convention).
+      xp: the array module, ``numpy`` or ``jax.numpy``.
+
+    Returns:
+      ``(..., 3, 3)`` rotation matrices.
+
+    Examples:
+      >>> quarter_turn = np.array([np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)])  # about z
+      >>> np.round(quat_to_mat(quarter_turn), 6) + 0.0  # + 0.0: no negative zeros
+      array([[ 0., -1.,  0.],
+             [ 1.,  0.,  0.],
+             [ 0.,  0.,  1.]])
+    """
     w, x, y, z = (quat[..., i] for i in range(4))
     rows = [
         [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
@@ -166,11 +269,21 @@ def quat_to_mat(quat, xp=np):
 
 @dataclasses.dataclass(frozen=True)
 class FallLimits:
-    """Thresholds of :func:`fell`. ``min_base_height``: base origin height (standing is
-    0.239 m, the deepest crouch of the jumps ~0.16 m); ``max_tilt``: angle between the base z
-    axis and the world z axis (rad); ``body_clearance``: the lowest base-box corner or knee
-    must stay this far above the floor (the model has no body-floor contacts, so touching the
-    floor is detected geometrically)."""
+    """Thresholds of :func:`fell`.
+
+    Attributes:
+      min_base_height: lowest allowed base origin height (m; standing is 0.239 m, the
+        deepest crouch of the jumps ~0.16 m).
+      max_tilt: largest allowed angle between the base z axis and the world z axis (rad).
+      body_clearance: the lowest base-box corner or knee must stay this far above the floor
+        (m; the model has no body-floor contacts, so touching the floor is detected
+        geometrically).
+
+    Examples:
+      >>> qpos = load_model().key("home").qpos  # standing
+      >>> bool(fell(qpos)), bool(fell(qpos, limits=FallLimits(min_base_height=0.3)))
+      (False, True)
+    """
 
     min_base_height: float = 0.10
     max_tilt: float = 0.8
@@ -184,6 +297,21 @@ def fell(qpos, foot_force=None, limits: FallLimits = FallLimits()) -> np.ndarray
     normal force beyond 1e-6 N) also counts, which only happens for non-physical states.
 
     Knees are computed in closed form (:func:`knee_fk`), the base corners from the base pose.
+
+    Args:
+      qpos: ``(..., 19)`` positions (base pose, 12 joints).
+      foot_force: ``(..., 4, 3)`` floor forces on the feet (world frame), or None.
+      limits: the :class:`FallLimits`.
+
+    Returns:
+      ``(...)`` bool array.
+
+    Examples:
+      >>> standing = load_model().key("home").qpos
+      >>> low = standing.copy()
+      >>> low[2] = 0.05  # base origin 5 cm above the floor
+      >>> fell(np.stack([standing, low])).tolist()
+      [False, True]
     """
     qpos = np.asarray(qpos, float)
     batch = qpos.shape[:-1]
@@ -216,24 +344,38 @@ class LocomotionReference(NamedTuple):
     """A reference motion at the control rate, recorded from MuJoCo on ``solo12.xml``.
 
     ``T`` control steps of ``control_dt``; index ``t`` is the state at time ``t * control_dt``.
+    ``horizon`` is ``T``, ``duration`` is ``T * control_dt``.
 
-    * ``qpos (T+1, 19)``, ``qvel (T+1, 18)``: states at the control instants.
-    * ``qacc (T, 18)``: mean acceleration over control period ``t``,
-      ``(qvel[t+1] - qvel[t]) / control_dt`` (exact: Euler integration, torque held).
-    * ``tau (T, 12)``: the joint torque applied (held) during period ``t``: this is the
-      feed-forward torque of the reference.
-    * ``foot_force (T+1, 4, 3)``: floor force on each foot (world frame) at the state ``t``
-      with the torque ``tau[t]`` applied (``tau[T-1]`` for the last state), as the contact
-      sensors report it in the ``mj_forward`` of that state: the first of the ``n_sub``
-      sensordata entries the native stepper returns for period ``t``. MuJoCo's contact
-      forces depend on the applied torque, not only on the state.
-    * ``foot_force_mean (T, 4, 3)``: mean over the physics steps of period ``t`` of the
-      sensor force (the average of the ``n_sub`` sensordata entries the native stepper
-      returns for that period): the force consistent with ``qacc[t]``.
-    * ``contact (T+1, 4)``: foot touches the floor at state ``t``.
-    * ``kp``, ``kd``: joint feedback gains to use around the reference,
-      ``tau_t = tau[t] + kp (q_ref - q) + kd (qd_ref - qd)`` on the 12 joints.
-    * ``kind``: "walk" or "jump"; ``params``: the generating parameters (JSON text).
+    Attributes:
+      control_dt: the control period (s).
+      qpos: ``(T+1, 19)`` positions at the control instants.
+      qvel: ``(T+1, 18)`` velocities at the control instants.
+      qacc: ``(T, 18)`` mean acceleration over control period ``t``,
+        ``(qvel[t+1] - qvel[t]) / control_dt`` (exact: Euler integration, torque held).
+      tau: ``(T, 12)`` the joint torque applied (held) during period ``t``: this is the
+        feed-forward torque of the reference.
+      foot_force: ``(T+1, 4, 3)`` floor force on each foot (world frame, N) at the state
+        ``t`` with the torque ``tau[t]`` applied (``tau[T-1]`` for the last state), as the
+        contact sensors report it in the ``mj_forward`` of that state: the first of the
+        ``n_sub`` sensordata entries the native stepper returns for period ``t``. MuJoCo's
+        contact forces depend on the applied torque, not only on the state.
+      foot_force_mean: ``(T, 4, 3)`` mean over the physics steps of period ``t`` of the
+        sensor force (the average of the ``n_sub`` sensordata entries the native stepper
+        returns for that period): the force consistent with ``qacc[t]``.
+      contact: ``(T+1, 4)`` bool, the foot touches the floor at state ``t``.
+      kp: joint feedback gain (N m/rad) to use around the reference,
+        ``tau_t = tau[t] + kp (q_ref - q) + kd (qd_ref - qd)`` on the 12 joints.
+      kd: the derivative gain of the same feedback (N m s/rad).
+      kind: ``"walk"`` or ``"jump"``.
+      params: the generating parameters (:class:`WalkParams` or :class:`JumpParams`), JSON
+        text.
+
+    Examples:
+      >>> ref = walk_reference(0.2, use_cache=False)  # 50 control steps of 0.004 s
+      >>> ref.horizon, ref.qpos.shape, ref.tau.shape, ref.foot_force_mean.shape
+      (50, (51, 19), (50, 12), (50, 4, 3))
+      >>> ref.kind, ref.contact[0].tolist()
+      ('walk', [True, True, True, True])
     """
 
     control_dt: float
@@ -268,13 +410,30 @@ class LocomotionReference(NamedTuple):
 
 class PhysicsRecording(NamedTuple):
     """Every physics step of a reference run: state before the step, the acceleration
-    MuJoCo integrated, the torque held and the sensordata of that step."""
+    MuJoCo integrated, the torque held and the sensordata of that step.
+
+    ``K`` physics steps; entry ``K`` of ``qpos``, ``qvel`` and ``sensordata`` is the final
+    state's.
+
+    Attributes:
+      qpos: ``(K+1, 19)`` positions before each step (and the final ones).
+      qvel: ``(K+1, 18)`` velocities before each step (and the final ones).
+      qacc: ``(K, 18)`` the acceleration MuJoCo computed and integrated in step ``k``.
+      tau: ``(K, 12)`` the joint torque held during step ``k``.
+      sensordata: ``(K+1, nsensordata)`` the sensors of the state before step ``k`` with
+        ``tau[k]`` applied (entry ``K``: the final state with the last torque).
+
+    Examples:
+      >>> ref, rec = simulate_walk(WalkParams(duration=0.2))
+      >>> rec.qpos.shape, rec.qacc.shape, rec.sensordata.shape  # 2 physics steps per control step
+      ((101, 19), (100, 18), (101, 40))
+    """
 
     qpos: np.ndarray  # (K+1, 19)
     qvel: np.ndarray  # (K+1, 18)
     qacc: np.ndarray  # (K, 18)
     tau: np.ndarray  # (K, 12)
-    sensordata: np.ndarray  # (K, nsensordata)
+    sensordata: np.ndarray  # (K+1, nsensordata), like qpos
 
 
 @dataclasses.dataclass(frozen=True)
@@ -282,7 +441,22 @@ class WalkParams:
     """Trot: diagonal pairs (FL+HR, FR+HL) alternate, ``period`` s per gait cycle (each pair
     swings for half of it), swing apex ``swing_height``; forward speed ramps linearly from 0
     to ``speed`` over ``ramp`` s. The base is commanded at ``height`` and level; every foot
-    target is converted to joint targets by :func:`leg_ik`."""
+    target is converted to joint targets by :func:`leg_ik`.
+
+    Attributes:
+      duration: length of the reference (s), standing included.
+      speed: cruise forward speed (m/s).
+      period: gait cycle (s).
+      swing_height: apex of a swinging foot above its stance height (m).
+      height: commanded base height (m).
+      ramp: time (s) over which the speed ramps from 0 to ``speed``.
+      stand: time (s) of standing before the first step.
+
+    Examples:
+      >>> params = WalkParams(duration=1.0)
+      >>> params.speed, round(commanded_distance(params), 3)
+      (0.3, 0.18)
+    """
 
     duration: float = 2.0
     speed: float = 0.3
@@ -302,6 +476,21 @@ class JumpParams:
 
     ``height`` is the requested foot clearance (lowest foot bottom above the floor at the
     apex, m); ``push_force`` is found by bisection to reach it (see :func:`jump_reference`).
+
+    Attributes:
+      height: requested foot clearance at the apex (m).
+      duration: length of the reference (s).
+      settle: time (s) of standing before the crouch.
+      crouch: time (s) of the crouch.
+      crouch_height: base origin height at the bottom of the crouch (m).
+      extension: foot-to-hip depth (m) at which the push ends.
+      push_force: vertical ground force per foot during the push (N); None: found by
+        bisection so that the jump reaches ``height``.
+
+    Examples:
+      >>> ref, _ = simulate_jump(JumpParams(duration=0.8, push_force=30.0))  # a fixed push
+      >>> round(jump_clearance(ref), 2)
+      0.19
     """
 
     height: float = 0.1
@@ -418,12 +607,44 @@ def _stance_feedforward(sim: _Sim, stance: np.ndarray, weight: float) -> np.ndar
 
 
 def hip_positions() -> np.ndarray:
-    """Nominal foot positions under the hips at the home pose, base frame ``(4, 3)``."""
+    """Nominal foot positions under the hips at the home pose, base frame ``(4, 3)``.
+
+    Returns:
+      ``(4, 3)`` foot centres (m), legs FL, FR, HL, HR (:func:`leg_fk` of the home joints).
+
+    Examples:
+      >>> np.round(hip_positions(), 4)
+      array([[ 0.1946,  0.148 , -0.2229],
+             [ 0.1946, -0.148 , -0.2229],
+             [-0.1946,  0.148 , -0.2229],
+             [-0.1946, -0.148 , -0.2229]])
+    """
     return np.array([leg_fk(HOME_JOINTS[3 * i : 3 * i + 3], i) for i in range(4)])
 
 
 def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT):
-    """Run the trot controller; returns ``(LocomotionReference, PhysicsRecording)``."""
+    """Run the trot controller; returns ``(LocomotionReference, PhysicsRecording)``.
+
+    Starts from the keyframe ``home``; the torque is held for ``control_dt / timestep``
+    physics steps.
+
+    Args:
+      params: the :class:`WalkParams`.
+      model: the ``mujoco.MjModel`` (None: :func:`load_model`).
+      control_dt: control period (s), a whole number of physics steps.
+
+    Returns:
+      ``(reference, recording)``: the :class:`LocomotionReference` at the control rate and
+      the :class:`PhysicsRecording` of every physics step.
+
+    Raises:
+      ValueError: ``control_dt`` is not a whole number of physics steps.
+
+    Examples:
+      >>> ref, rec = simulate_walk(WalkParams(duration=0.2))
+      >>> ref.horizon, len(rec.tau)
+      (50, 100)
+    """
     model = model if model is not None else load_model()
     sim = _Sim(model, control_dt)
     weight = _total_mass(model) * -model.opt.gravity[2]
@@ -509,7 +730,21 @@ def _jump_run(params: JumpParams, push_force: float, model, control_dt):
 
 def jump_clearance(ref_or_rec) -> float:
     """Largest foot clearance reached: max over time of the lowest foot bottom above the
-    floor (m), from the recorded qpos (closed-form leg kinematics)."""
+    floor (m), from the recorded qpos (closed-form leg kinematics).
+
+    Args:
+      ref_or_rec: a :class:`LocomotionReference` or :class:`PhysicsRecording` (anything
+        with ``qpos (T, 19)``).
+
+    Returns:
+      The clearance (m); negative if at every instant some foot bottom was below the floor
+      plane (MuJoCo's soft contacts let a loaded foot sink slightly).
+
+    Examples:
+      >>> ref, rec = simulate_jump(JumpParams(duration=0.8, push_force=30.0))
+      >>> round(jump_clearance(ref), 2), round(jump_clearance(rec), 2)
+      (0.19, 0.19)
+    """
     qpos = ref_or_rec.qpos
     rot = quat_to_mat(qpos[:, 3:7])
     lowest = np.full(len(qpos), np.inf)
@@ -522,8 +757,23 @@ def jump_clearance(ref_or_rec) -> float:
 
 def simulate_jump(params: JumpParams, model=None, control_dt: float = CONTROL_DT):
     """Run the jump controller; with ``params.push_force`` None the push force is found by
-    bisection so that :func:`jump_clearance` equals ``params.height`` to 2 %. Returns
-    ``(LocomotionReference, PhysicsRecording)``."""
+    bisection so that :func:`jump_clearance` equals ``params.height`` to 2 %.
+
+    Args:
+      params: the :class:`JumpParams`.
+      model: the ``mujoco.MjModel`` (None: :func:`load_model`).
+      control_dt: control period (s), a whole number of physics steps.
+
+    Returns:
+      ``(reference, recording)``: the :class:`LocomotionReference` (its ``params`` hold
+      the push force used) and the :class:`PhysicsRecording`.
+
+    Examples:
+      >>> import json
+      >>> ref, _ = simulate_jump(JumpParams(height=0.1, duration=0.8))  # bisection
+      >>> abs(jump_clearance(ref) - 0.1) <= 0.002, json.loads(ref.params)["push_force"] > 0
+      (True, True)
+    """
     model = model if model is not None else load_model()
     weight = _total_mass(model) * -model.opt.gravity[2]
     if params.push_force is not None:
@@ -552,7 +802,21 @@ def inverse_dynamics_residual(rec: PhysicsRecording, model=None) -> np.ndarray:
     """Per physics step, ``mj_inverse(qpos, qvel, qacc)`` minus the generalized force the
     recording applied (the torques on the 12 joints, zero on the 6 base dofs), ``(K, 18)``.
     Zero up to the forward solver's tolerance when the recording is consistent with the
-    model (MuJoCo's soft contacts make the inverse well defined)."""
+    model (MuJoCo's soft contacts make the inverse well defined).
+
+    Args:
+      rec: a :class:`PhysicsRecording` of ``K`` physics steps.
+      model: the ``mujoco.MjModel`` it was recorded on (None: :func:`load_model`).
+
+    Returns:
+      ``(K, 18)`` residual generalized forces.
+
+    Examples:
+      >>> _, rec = simulate_walk(WalkParams(duration=0.2))
+      >>> residual = inverse_dynamics_residual(rec)
+      >>> residual.shape, bool(np.abs(residual).max() < 1e-8)
+      ((100, 18), True)
+    """
     import mujoco
 
     model = model if model is not None else load_model()
@@ -567,7 +831,21 @@ def inverse_dynamics_residual(rec: PhysicsRecording, model=None) -> np.ndarray:
 
 
 class Replay(NamedTuple):
-    """A closed-loop replay of a reference (control rate)."""
+    """A closed-loop replay of a reference (control rate), ``T`` control steps.
+
+    Attributes:
+      qpos: ``(T+1, 19)`` positions at the control instants.
+      qvel: ``(T+1, 18)`` velocities at the control instants.
+      tau: ``(T, 12)`` applied (clipped) torques.
+      foot_force: ``(T+1, 4, 3)`` floor forces on the feet (world frame), as
+        :attr:`LocomotionReference.foot_force`.
+      fell: whether :func:`fell` is true at any control instant.
+
+    Examples:
+      >>> run = replay(walk_reference(0.2, use_cache=False))
+      >>> run.qpos.shape, run.fell
+      ((51, 19), False)
+    """
 
     qpos: np.ndarray  # (T+1, 19)
     qvel: np.ndarray  # (T+1, 18)
@@ -579,7 +857,23 @@ class Replay(NamedTuple):
 def replay(ref: LocomotionReference, model=None, qpos0=None, qvel0=None) -> Replay:
     """Simulate ``tau = ref.tau[t] + kp (q_ref - q) + kd (qd_ref - qd)`` (clipped to the
     torque limit) from ``(qpos0, qvel0)`` (default: the reference's first state), with the
-    control held for each ``control_dt`` like :class:`cfm_jax.native.Stepper`."""
+    control held for each ``control_dt`` like :class:`cfm_jax.native.Stepper`.
+
+    Args:
+      ref: the :class:`LocomotionReference`.
+      model: the ``mujoco.MjModel`` (None: :func:`load_model`).
+      qpos0: ``(19,)`` initial positions, or None for ``ref.qpos[0]``.
+      qvel0: ``(18,)`` initial velocities, or None for ``ref.qvel[0]``.
+
+    Returns:
+      A :class:`Replay`.
+
+    Examples:
+      >>> ref = walk_reference(0.2, use_cache=False)
+      >>> run = replay(ref)  # from the reference's own start: the recording again
+      >>> float(np.abs(run.qpos - ref.qpos).max())
+      0.0
+    """
     import mujoco
 
     model = model if model is not None else load_model()
@@ -615,7 +909,18 @@ JUMP_HEIGHTS = (0.05, 0.08, 0.11, 0.14, 0.17)  # m of foot clearance, the 5 jump
 
 def cache_dir(path: str | os.PathLike | None = None) -> Path:
     """Reference cache folder: ``path``, else ``$CFM_JAX_REFERENCE_CACHE``, else
-    ``~/.cache/cfm_jax/references``."""
+    ``~/.cache/cfm_jax/references``.
+
+    Args:
+      path: a folder, or None for the environment variable or the default.
+
+    Returns:
+      The folder as a ``Path`` (not created here).
+
+    Examples:
+      >>> cache_dir("/tmp/references").as_posix()
+      '/tmp/references'
+    """
     if path is not None:
         return Path(path)
     if os.environ.get(CACHE_ENV):
@@ -671,7 +976,27 @@ def walk_reference(
 ) -> LocomotionReference:
     """Trot reference of ``duration`` s (other :class:`WalkParams` fields as keywords),
     loaded from the cache when present (:func:`cache_dir`; key: parameters, control_dt and
-    the model file's bytes)."""
+    the model file's bytes).
+
+    Args:
+      duration: length of the reference (s).
+      control_dt: control period (s).
+      model_file: the MJCF file, or None for :func:`model_path`.
+      cache: the cache folder, or None for :func:`cache_dir`'s default.
+      use_cache: read and write the cache; False simulates every time and writes nothing.
+      params: further :class:`WalkParams` fields as keywords (``speed``, ``period``, ...).
+
+    Returns:
+      The :class:`LocomotionReference`.
+
+    Examples:
+      >>> import os, tempfile
+      >>> with tempfile.TemporaryDirectory() as folder:
+      ...     ref = walk_reference(0.2, cache=folder, speed=0.2)  # simulated, then saved
+      ...     again = walk_reference(0.2, cache=folder, speed=0.2)  # read from the cache
+      ...     len(os.listdir(folder)), bool(np.all(again.qpos == ref.qpos))
+      (1, True)
+    """
     p = WalkParams(duration=duration, **params)
     return _cached("walk", p, control_dt, model_file, cache, use_cache, simulate_walk)
 
@@ -686,23 +1011,75 @@ def jump_reference(
     **params,
 ) -> LocomotionReference:
     """Vertical jump reference reaching ``height`` m of foot clearance (other
-    :class:`JumpParams` fields as keywords), cached like :func:`walk_reference`."""
+    :class:`JumpParams` fields as keywords), cached like :func:`walk_reference`.
+
+    Args:
+      height: requested foot clearance (m); the push force is found by bisection unless
+        ``push_force`` is given.
+      control_dt: control period (s).
+      model_file: the MJCF file, or None for :func:`model_path`.
+      cache: the cache folder, or None for :func:`cache_dir`'s default.
+      use_cache: read and write the cache; False simulates every time and writes nothing.
+      params: further :class:`JumpParams` fields as keywords (``duration``, ...).
+
+    Returns:
+      The :class:`LocomotionReference`.
+
+    Examples:
+      >>> ref = jump_reference(0.1, use_cache=False, duration=0.8)
+      >>> ref.kind, ref.horizon, abs(jump_clearance(ref) - 0.1) <= 0.002
+      ('jump', 200, True)
+    """
     p = JumpParams(height=height, **params)
     return _cached("jump", p, control_dt, model_file, cache, use_cache, simulate_jump)
 
 
 def default_walks(**kwargs) -> list[LocomotionReference]:
-    """The 5 walking horizons (:data:`WALK_DURATIONS`, 0.3 m/s trot)."""
+    """The 5 walking horizons (:data:`WALK_DURATIONS`, 0.3 m/s trot).
+
+    Args:
+      kwargs: keyword arguments of :func:`walk_reference` (``control_dt``, ``cache``, ...).
+
+    Returns:
+      A list of 5 :class:`LocomotionReference`.
+
+    Examples:
+      >>> [ref.horizon for ref in default_walks(use_cache=False)]  # 250 Hz
+      [250, 375, 500, 625, 750]
+    """
     return [walk_reference(t, **kwargs) for t in WALK_DURATIONS]
 
 
 def default_jumps(**kwargs) -> list[LocomotionReference]:
-    """The 5 jumps (:data:`JUMP_HEIGHTS` of foot clearance)."""
+    """The 5 jumps (:data:`JUMP_HEIGHTS` of foot clearance).
+
+    Args:
+      kwargs: keyword arguments of :func:`jump_reference` (``control_dt``, ``cache``, ...).
+
+    Returns:
+      A list of 5 :class:`LocomotionReference`.
+
+    Examples:
+      >>> jumps = default_jumps()  # doctest: +SKIP
+      >>> [round(jump_clearance(ref), 2) for ref in jumps]  # doctest: +SKIP
+      [0.05, 0.08, 0.11, 0.14, 0.17]
+    """
     return [jump_reference(h, **kwargs) for h in JUMP_HEIGHTS]
 
 
 def commanded_distance(params: WalkParams) -> float:
-    """Forward distance of the commanded base motion: stand, linear speed ramp, cruise."""
+    """Forward distance of the commanded base motion: stand, linear speed ramp, cruise.
+
+    Args:
+      params: the :class:`WalkParams`.
+
+    Returns:
+      The distance (m).
+
+    Examples:
+      >>> round(commanded_distance(WalkParams(duration=2.0)), 3)  # 0.09 m ramp + 1.3 s cruise
+      0.48
+    """
     walk = max(params.duration - params.stand, 0.0)
     ramp = min(walk, params.ramp)
     return params.speed * (ramp * ramp / (2 * params.ramp) + (walk - ramp))
@@ -719,7 +1096,25 @@ def plot_foot_force(
 ):
     """Plot desired (``ref.foot_force``) vs observed (and optionally predicted) force of one
     foot over time, one panel per world axis, like the paper's Fig. 6; saves a PNG. The
-    force arrays are ``(T+1, 4, 3)`` (or ``(T, 4, 3)`` for the states after each step)."""
+    force arrays are ``(T+1, 4, 3)`` (or ``(T, 4, 3)`` for the states after each step).
+
+    Args:
+      ref: the :class:`LocomotionReference` (its ``foot_force`` is the desired force).
+      path: the image file to write (its folder is created).
+      observed: ``(T+1, 4, 3)`` or ``(T, 4, 3)`` observed forces, or None.
+      predicted: forces of the same shape predicted by a model, or None.
+      foot: ``"FL"``, ``"FR"``, ``"HL"`` or ``"HR"``.
+      title: the figure's title (None: the kind and foot).
+
+    Examples:
+      >>> import os, tempfile
+      >>> ref = walk_reference(0.2, use_cache=False)
+      >>> with tempfile.TemporaryDirectory() as folder:
+      ...     path = os.path.join(folder, "force.png")
+      ...     plot_foot_force(ref, path, observed=replay(ref).foot_force)
+      ...     os.path.getsize(path) > 0
+      True
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -748,7 +1143,22 @@ def plot_foot_force(
 
 
 def summary(ref: LocomotionReference, model=None) -> dict:
-    """Key numbers of a reference: distance, cruise speed, clearance, peak torque, forces."""
+    """Key numbers of a reference: distance, cruise speed, clearance, peak torque, forces.
+
+    Args:
+      ref: the :class:`LocomotionReference`.
+      model: not used.
+
+    Returns:
+      A dict: ``kind``, ``duration_s``, ``distance_m``, ``peak_torque_Nm``,
+      ``peak_normal_force_N``, ``max_tilt_deg``, and for a jump ``clearance_m``,
+      ``base_apex_gain_m``, ``push_force_N``, for a walk ``speed_last_1s_mps``.
+
+    Examples:
+      >>> row = summary(walk_reference(0.2, use_cache=False))
+      >>> row["kind"], row["duration_s"], sorted(row)[:3]
+      ('walk', 0.2, ['distance_m', 'duration_s', 'kind'])
+    """
     out = {
         "kind": ref.kind,
         "duration_s": ref.duration,

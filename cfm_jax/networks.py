@@ -35,11 +35,13 @@ class Normaliser:
     """Data statistics for inputs and outputs (fixed after motor babbling).
 
     Attributes:
-      state_mean, state_std: ``(state_dim,)``.
-      output_mean, output_std: ``(output_dim,)`` statistics of the observed quantity the
-        forward model predicts (joint accelerations for the joint-space task); the forward
-        model's outputs, the observed quantity and (by ``desired_index``) the desired
-        quantity are normalised with them.
+      state_mean: ``(state_dim,)`` mean of the learning state.
+      state_std: ``(state_dim,)`` standard deviation of the learning state.
+      output_mean: ``(output_dim,)`` mean of the observed quantity the forward model
+        predicts (joint accelerations for the joint-space task); the forward model's
+        outputs, the observed quantity and (by ``desired_index``) the desired quantity are
+        normalised with it and ``output_std``.
+      output_std: ``(output_dim,)`` standard deviation of the same quantity.
       torque_limit: ``(action_dim,)`` scale of the torques.
       desired_index: static tuple, the entries of the output the desired quantity specifies
         (``None``: all of them, in order).

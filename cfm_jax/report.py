@@ -162,9 +162,35 @@ def plot_learning_curves(
     """Tracking MSE, prediction error and predicted task error per iteration, per loss.
 
     Mean and standard deviation over seeds and targets (the paper's Fig. 3 and 4 style);
-    oracle and PD-only tracking MSE as horizontal lines. Log scale. ``tracking_label`` and
-    ``output_unit`` label the task's tracking error and predicted quantity. Returns
-    ``path``.
+    oracle and PD-only tracking MSE as horizontal lines. Log scale. Saves a PNG.
+
+    Args:
+      metrics: a metrics table (``TrainResult.metrics``, or several concatenated) with
+        columns ``loss``, ``iteration``, ``tracking_mse``, ``prediction_error`` and
+        ``predicted_task_error``; one curve per loss.
+      path: the image file to write (its folder must exist).
+      baselines: ``TrainResult.baselines`` (columns ``baseline``, ``tracking_mse``); their
+        mean tracking MSE is drawn as horizontal lines (None: no lines).
+      title: the figure's title ("": none).
+      tracking_label: y label of the tracking panel (the task's tracking error and unit).
+      output_unit: squared unit of the forward model's predicted quantity, for the labels
+        of the two prediction panels.
+
+    Returns:
+      ``path``.
+
+    Examples:
+      >>> import os, tempfile
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["joint"] * 4, "seed": [0, 0, 1, 1],
+      ...                         "iteration": [0, 1, 0, 1], "target": [0] * 4,
+      ...                         "tracking_mse": [1.0, 0.1, 2.0, 0.2],
+      ...                         "prediction_error": [1.0, 0.5, 1.0, 0.5],
+      ...                         "predicted_task_error": [0.5, 0.1, 0.5, 0.1]})
+      >>> with tempfile.TemporaryDirectory() as folder:
+      ...     path = plot_learning_curves(metrics, os.path.join(folder, "curves.png"))
+      ...     os.path.getsize(path) > 0
+      True
     """
     series = []
     for loss in [n for n in losses.CONTROLLER_LOSSES if n in set(metrics["loss"])]:

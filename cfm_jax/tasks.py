@@ -35,9 +35,20 @@ RANGE_MARGIN = 0.1
 class Reference(NamedTuple):
     """Reference trajectories, one per target.
 
+    Arrays are NumPy float64 (:func:`as_jax` makes float32 JAX copies).
+
     Attributes:
-      q, qd, qdd: ``(targets, steps + 1, nq)`` position, velocity and acceleration at the
-        control times ``0, dt, ..., duration``.
+      q: ``(targets, steps + 1, nq)`` joint positions at the control times
+        ``0, dt, ..., duration``.
+      qd: ``(targets, steps + 1, nq)`` joint velocities at the same times.
+      qdd: ``(targets, steps + 1, nq)`` joint accelerations at the same times.
+
+    Examples:
+      >>> ref = quintic([0.0, 0.0], [1.0, 0.5], duration=1.0, control_dt=0.1)
+      >>> ref.q.shape, ref.steps
+      ((1, 11, 2), 10)
+      >>> ref.q[0, -1].tolist(), ref.qd[0, -1].tolist()  # at the goal, at rest
+      ([1.0, 0.5], [0.0, 0.0])
     """
 
     q: np.ndarray
@@ -56,8 +67,21 @@ def quintic(start, goal, duration: float, control_dt: float) -> Reference:
     ``q(t) = start + (goal - start) (10 u^3 - 15 u^4 + 6 u^5)``, ``u = t / duration``; zero
     velocity and acceleration at both ends.
 
+    Args:
+      start: ``(nq,)`` positions at ``t = 0``.
+      goal: ``(nq,)`` positions at ``t = duration``.
+      duration: seconds from start to goal (a whole number of control periods, see
+        :func:`check_duration`; not checked here).
+      control_dt: sampling period (s).
+
     Returns:
-      A :class:`Reference` with a leading target axis of size 1.
+      A :class:`Reference` with a leading target axis of size 1,
+      ``(1, round(duration / control_dt) + 1, nq)``.
+
+    Examples:
+      >>> ref = quintic([0.0], [2.0], duration=1.0, control_dt=0.5)
+      >>> ref.q[0, :, 0].tolist(), ref.qd[0, :, 0].tolist()  # half way at mid-time
+      ([0.0, 1.0, 2.0], [0.0, 3.75, 0.0])
     """
     start = np.asarray(start, dtype=np.float64)
     goal = np.asarray(goal, dtype=np.float64)
@@ -73,7 +97,23 @@ def quintic(start, goal, duration: float, control_dt: float) -> Reference:
 
 def check_duration(duration: float, control_dt: float) -> None:
     """``duration`` must be a whole number (>= 1) of control periods, so that the sampled
-    path ends exactly at the goal with zero velocity."""
+    path ends exactly at the goal with zero velocity.
+
+    Args:
+      duration: seconds per reach.
+      control_dt: control period (s).
+
+    Raises:
+      ConfigError: ``duration / control_dt`` is not a whole number >= 1 (relative tolerance
+        1e-6).
+
+    Examples:
+      >>> check_duration(2.0, 0.01)
+      >>> check_duration(0.015, 0.01)
+      Traceback (most recent call last):
+      ...
+      cfm_jax.config.ConfigError: task.duration=0.015 is not allowed: a whole multiple (>= 1) ...
+    """
     ratio = duration / control_dt
     if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-6 * max(ratio, 1.0):
         raise ConfigError(
@@ -90,8 +130,20 @@ def default_targets(joint_range: np.ndarray, home: np.ndarray) -> np.ndarray:
     joint, and the result is clipped to the joint range shrunk by 10% at each end. Works for
     any number of joints.
 
+    Args:
+      joint_range: ``(nq, 2)`` lower and upper joint limits (``-inf, inf`` for unlimited
+        joints), as :attr:`cfm_jax.robots.Robot.joint_range`.
+      home: ``(nq,)`` start pose the targets are placed around.
+
     Returns:
       ``(5, nq)`` target joint positions.
+
+    Examples:
+      >>> import numpy as np
+      >>> joint_range = np.array([[-2.5, 2.5], [-2.5, 2.5]])
+      >>> targets = default_targets(joint_range, home=np.zeros(2))
+      >>> targets.shape, bool(np.all(np.abs(targets) <= 0.6))
+      ((5, 2), True)
     """
     nq = home.shape[0]
     directions = np.random.default_rng(0).uniform(-1.0, 1.0, size=(DEFAULT_TARGET_COUNT, nq))
@@ -107,9 +159,27 @@ def default_targets(joint_range: np.ndarray, home: np.ndarray) -> np.ndarray:
 def reaching(robot, task: TaskConfig, control_dt: float) -> Reference:
     """Reference trajectories of the configured targets for a robot.
 
+    One :func:`quintic` per target, from ``task.home`` (None: ``robot.home``) to each of
+    ``task.targets`` (None: :func:`default_targets`) in ``task.duration`` seconds.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      task: a :class:`cfm_jax.config.TaskConfig` (its ``targets`` are joint positions).
+      control_dt: control period (s).
+
+    Returns:
+      A :class:`Reference`, ``(targets, steps + 1, nq)``.
+
     Raises:
       ConfigError: targets or home of the wrong length or outside the joint limits, or a
         duration that is not a whole number of control periods.
+
+    Examples:
+      >>> from cfm_jax import config, robots
+      >>> arm = robots.load("two_link_arm")
+      >>> ref = reaching(arm, config.TaskConfig(duration=1.0), control_dt=0.01)
+      >>> ref.q.shape  # the 5 default targets, 100 control steps
+      (5, 101, 2)
     """
     check_duration(task.duration, control_dt)
     home = robot.home if task.home is None else np.asarray(task.home)
@@ -125,7 +195,28 @@ def reaching(robot, task: TaskConfig, control_dt: float) -> Reference:
 
 
 def check_positions(field: str, positions: np.ndarray, robot) -> None:
-    """Raise ConfigError if joint positions ``(k, nq)`` have the wrong size or break limits."""
+    """Raise ConfigError if joint positions ``(k, nq)`` have the wrong size or break limits.
+
+    Args:
+      field: the configuration field the positions come from, for the message (for example
+        ``"task.targets"``).
+      positions: ``(k, nq)`` joint positions.
+      robot: the :class:`cfm_jax.robots.Robot` whose joint count and limits apply.
+
+    Raises:
+      ConfigError: the last axis is not ``robot.nq`` long, or a position is outside its
+        joint's range (the message names the first such entry and joint).
+
+    Examples:
+      >>> import numpy as np
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> check_positions("task.targets", np.array([[0.0, 1.0]]), arm)
+      >>> check_positions("task.targets", np.array([[0.0, 9.0]]), arm)
+      Traceback (most recent call last):
+      ...
+      cfm_jax.config.ConfigError: task.targets[0][1]=9 (joint 'elbow') is outside the joint ...
+    """
     if positions.shape[-1] != robot.nq:
         raise ConfigError(
             f"{field} has {positions.shape[-1]} joint positions per entry; robot "
@@ -142,18 +233,61 @@ def check_positions(field: str, positions: np.ndarray, robot) -> None:
 
 
 def desired_acceleration(ref_q, ref_qd, ref_qdd, q, qd, kp: float, kd: float):
-    """``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``; all arrays ``(..., nv)``."""
+    """``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``; all arrays ``(..., nv)``.
+
+    Args:
+      ref_q: reference positions ``q_ref``, ``(..., nv)``.
+      ref_qd: reference velocities ``qd_ref``, ``(..., nv)``.
+      ref_qdd: reference accelerations ``qdd_ref``, ``(..., nv)``.
+      q: current positions, ``(..., nv)``.
+      qd: current velocities, ``(..., nv)``.
+      kp: proportional gain (1/s^2).
+      kd: derivative gain (1/s).
+
+    Returns:
+      ``qdd*``, ``(..., nv)`` (NumPy or JAX, as the inputs).
+
+    Examples:
+      >>> import numpy as np
+      >>> desired_acceleration(np.array([1.0]), np.array([0.0]), np.array([0.5]),
+      ...                      q=np.array([0.9]), qd=np.array([0.2]), kp=100.0, kd=20.0)
+      array([6.5])
+    """
     return ref_qdd + kp * (ref_q - q) + kd * (ref_qd - qd)
 
 
 def rms_reach(reference: Reference) -> float:
-    """RMS reaching distance: ``sqrt(mean over targets and joints of (q_goal - q_home)^2)``."""
+    """RMS reaching distance: ``sqrt(mean over targets and joints of (q_goal - q_home)^2)``.
+
+    Args:
+      reference: a :class:`Reference` ``(targets, steps + 1, nq)``; its first and last
+        positions are taken as home and goal.
+
+    Returns:
+      The distance (rad, or m for slide joints), a float.
+
+    Examples:
+      >>> rms_reach(quintic([0.0, 0.0], [0.3, -0.4], duration=1.0, control_dt=0.5))
+      0.3535533905932738
+    """
     delta = reference.q[:, -1] - reference.q[:, 0]
     return float(np.sqrt(np.mean(np.square(delta))))
 
 
 def as_jax(reference: Reference) -> Reference:
-    """The same reference as float32 JAX arrays."""
+    """The same reference as float32 JAX arrays.
+
+    Args:
+      reference: a :class:`Reference` of NumPy arrays.
+
+    Returns:
+      A :class:`Reference` of ``jax.Array`` float32, same shapes.
+
+    Examples:
+      >>> ref = as_jax(quintic([0.0], [1.0], duration=1.0, control_dt=0.5))
+      >>> ref.q.dtype, ref.q.shape
+      (dtype('float32'), (1, 3, 1))
+    """
     return Reference(*(jnp.asarray(x, jnp.float32) for x in reference))
 
 
@@ -184,6 +318,14 @@ class JointSpaceTask:
       kp: proportional gain (1/s^2) of the PD correction in the desired acceleration.
       kd: derivative gain (1/s) of the same correction.
       control_dt: control period (a multiple of the robot's timestep).
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> ref = quintic(arm.home, arm.home + 0.1, duration=0.5, control_dt=0.01)
+      >>> task = JointSpaceTask(arm, ref, kp=100.0, kd=20.0, control_dt=0.01)
+      >>> task.targets, task.steps, task.state_dim, task.desired_dim, task.output_dim
+      (1, 50, 4, 2, 2)
     """
 
     name = "inverse_dynamics"
@@ -282,6 +424,16 @@ class OperationalSpaceTask(JointSpaceTask):
       task: the :class:`cfm_jax.config.TaskConfig` (``site``, ``targets`` as ``(k, 3)``
         positions or None for the defaults, ``home``, ``duration``, ``kp``, ``kd``).
       control_dt: control period.
+
+    Examples:
+      >>> from cfm_jax import config, robots
+      >>> arm = robots.load("two_link_arm")
+      >>> task = OperationalSpaceTask(
+      ...     arm, config.TaskConfig(name="opspace", duration=1.0, site="tip"), 0.01)
+      >>> task.reference.x.shape  # the 5 default targets, site positions
+      (5, 101, 3)
+      >>> task.desired_dim, task.output_dim, task.desired_index  # y = [qdd (2), xdd (3)]
+      (3, 5, (2, 3, 4))
     """
 
     name = "opspace"
@@ -370,8 +522,25 @@ class OperationalSpaceTask(JointSpaceTask):
 def make(robot, task: TaskConfig, control_dt: float):
     """The task object of a :class:`cfm_jax.config.TaskConfig` for a robot.
 
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      task: the :class:`cfm_jax.config.TaskConfig`; its ``name`` chooses the class:
+        :class:`JointSpaceTask` (``inverse_dynamics``), :class:`OperationalSpaceTask`
+        (``opspace``) or :class:`LeggedTask` (``walk``, ``jump``).
+      control_dt: control period (s), a multiple of the robot's timestep.
+
+    Returns:
+      The task object.
+
     Raises:
       ConfigError: the task does not fit the robot (the message says why).
+
+    Examples:
+      >>> from cfm_jax import config, robots
+      >>> arm = robots.load("two_link_arm")
+      >>> task = make(arm, config.TaskConfig(duration=1.0), control_dt=0.01)
+      >>> type(task).__name__, task.targets, task.steps
+      ('JointSpaceTask', 5, 100)
     """
     if task.name in ("inverse_dynamics", "opspace") and robot.floating_base:
         raise ConfigError(
@@ -391,10 +560,26 @@ def make(robot, task: TaskConfig, control_dt: float):
 
 
 class LeggedReference(NamedTuple):
-    """Locomotion references of several targets padded to one length (JAX arrays, leading
-    axes ``(targets, steps + 1)``): ``qpos``, ``qvel``, ``qacc``, ``tau`` (feed-forward),
-    ``force`` (the mean floor force on each foot over control period ``t``, flattened
-    ``(4 * 3,)``, world frame), ``active`` (1 while ``t`` is inside the target's horizon)."""
+    """Locomotion references of several targets padded to one length (float32 JAX arrays,
+    leading axes ``(targets, steps + 1)``; built by :func:`as_jax_legged`).
+
+    Attributes:
+      qpos: ``(targets, steps + 1, nq)`` positions (base pose and joints).
+      qvel: ``(targets, steps + 1, nv)`` velocities.
+      qacc: ``(targets, steps + 1, nv)`` mean acceleration over control period ``t`` (zero
+        beyond the target's horizon).
+      tau: ``(targets, steps + 1, action_dim)`` feed-forward joint torques.
+      force: ``(targets, steps + 1, 4 * 3)`` the mean floor force on each foot over control
+        period ``t``, flattened, world frame (N).
+      active: ``(targets, steps + 1)`` 1 while ``t`` is inside the target's horizon, else 0.
+
+    Examples:
+      >>> from cfm_jax import locomotion
+      >>> walks = [locomotion.walk_reference(d, use_cache=False) for d in (0.1, 0.2)]
+      >>> ref = as_jax_legged(walks)
+      >>> ref.qpos.shape, ref.force.shape, ref.active.sum(axis=1).tolist()
+      ((2, 51, 19), (2, 51, 12), [25.0, 50.0])
+    """
 
     qpos: jax.Array
     qvel: jax.Array
@@ -445,6 +630,25 @@ class LeggedTask(JointSpaceTask):
     * Baselines: the reference's own controller (its feed-forward torque plus its joint
       PD) as ``oracle``, the joint PD alone as ``pd_only``. Babbling runs the reference
       controller plus torque noise (PD alone falls).
+
+    Args:
+      robot: a floating-base :class:`cfm_jax.robots.Robot` with one contact sensor per foot
+        (``solo12``).
+      task: the :class:`cfm_jax.config.TaskConfig`; ``name`` (``walk`` or ``jump``), ``kp``
+        and ``kd`` are used (the targets are the 5 references of :mod:`cfm_jax.locomotion`).
+      control_dt: control period (s), at most :attr:`MAX_CONTROL_DT`.
+
+    Raises:
+      ConfigError: the robot has no floating base or no foot contact sensors, or
+        ``control_dt`` is too long.
+
+    Examples:
+      >>> from cfm_jax import config, robots
+      >>> solo = robots.load("solo12")
+      >>> walk = config.for_task("walk")  # control_dt 0.004
+      >>> task = LeggedTask(solo, walk.task, walk.task.control_dt)  # doctest: +SKIP
+      >>> task.targets, task.steps, task.state_dim, task.desired_dim  # doctest: +SKIP
+      (5, 750, 49, 30)
     """
 
     tracking_name = "base pose tracking MSE"
@@ -611,7 +815,22 @@ class LeggedTask(JointSpaceTask):
 def as_jax_legged(references) -> LeggedReference:
     """Pad :class:`cfm_jax.locomotion.LocomotionReference` s to the longest horizon
     (holding the last state, zero acceleration and the last torque and force) and stack
-    them as float32 JAX arrays ``(targets, steps + 1, ...)``."""
+    them as float32 JAX arrays ``(targets, steps + 1, ...)``.
+
+    Args:
+      references: a sequence of :class:`cfm_jax.locomotion.LocomotionReference`, one per
+        target (``steps`` is the longest horizon).
+
+    Returns:
+      A :class:`LeggedReference`; ``force`` is the references' ``foot_force_mean``.
+
+    Examples:
+      >>> from cfm_jax import locomotion
+      >>> walks = [locomotion.walk_reference(d, use_cache=False) for d in (0.1, 0.2)]
+      >>> ref = as_jax_legged(walks)
+      >>> ref.tau.shape, ref.qacc[0, 25:].tolist() == [[0.0] * 18] * 26
+      ((2, 51, 12), True)
+    """
     steps = max(r.horizon for r in references)
 
     def pad(x, length):

@@ -79,6 +79,16 @@ class TrueSystem(NamedTuple):
 
     ``cubic != 0`` makes the linear :class:`LinearModel` a misspecified model class.
     Fields may be scalars or arrays (for ``vmap``).
+
+    Attributes:
+      gain: ``a``, the linear gain.
+      offset: ``b``, the response to ``tau = 0``.
+      cubic: ``c``, the cubic coefficient (0: a linear system).
+
+    Examples:
+      >>> system = TrueSystem(gain=2.0, offset=1.0, cubic=0.5)
+      >>> float(true_response(system, 2.0))  # 2 * 2 + 1 + 0.5 * 8
+      9.0
     """
 
     gain: jax.Array | float = 1.0
@@ -87,14 +97,32 @@ class TrueSystem(NamedTuple):
 
 
 class LinearModel(NamedTuple):
-    """Forward model ``s_p = gain * tau + offset`` (``a_hat``, ``b_hat``)."""
+    """Forward model ``s_p = gain * tau + offset`` (``a_hat``, ``b_hat``).
+
+    Attributes:
+      gain: ``a_hat``, the model's gain.
+      offset: ``b_hat``, the model's offset.
+
+    Examples:
+      >>> float(model_prediction(LinearModel(gain=2.0, offset=0.5), 1.0))
+      2.5
+    """
 
     gain: jax.Array | float = 1.0
     offset: jax.Array | float = 0.0
 
 
 class AffineController(NamedTuple):
-    """Controller ``tau = offset + gain * s_target`` (``beta_0``, ``beta_1``)."""
+    """Controller ``tau = offset + gain * s_target`` (``beta_0``, ``beta_1``).
+
+    Attributes:
+      offset: ``beta_0``, the action for ``s_target = 0``.
+      gain: ``beta_1``, the action's slope in the target.
+
+    Examples:
+      >>> float(controller_action(AffineController(offset=0.5, gain=2.0), 1.0))
+      2.5
+    """
 
     offset: jax.Array | float = 0.0
     gain: jax.Array | float = 0.0
@@ -109,6 +137,11 @@ class FixedPoint(NamedTuple):
       contraction: derivative of the error map ``e_{k+1}(e_k)`` at the fixed point; the
         iteration converges locally iff ``|contraction| < 1``, geometrically with this rate.
         NaN where the map has no such factor (``refit="all"``).
+
+    Examples:
+      >>> fp = fixed_point("task", TrueSystem(), LinearModel(1.0, 0.2), desired=1.0)
+      >>> round(float(fp.action), 3), round(float(fp.error), 3), float(fp.contraction)
+      (0.8, -0.2, 0.0)
     """
 
     action: jax.Array
@@ -122,6 +155,23 @@ class IterationTrace(NamedTuple):
     ``actions[k]`` is ``tau_k`` executed in rollout ``k``, ``observed[k] = h(tau_k)``,
     ``errors[k] = observed[k] - s_d``; ``model_*`` is the model after the refit that follows
     rollout ``k``; ``controller_*`` is the controller after the update that follows it.
+
+    Attributes:
+      actions: ``tau_k``, the action executed in rollout ``k``.
+      observed: ``s_a_k = h(tau_k)``.
+      errors: ``s_a_k - s_d``.
+      model_gains: ``a_hat`` after the refit that follows rollout ``k``.
+      model_offsets: ``b_hat`` after that refit.
+      controller_offsets: ``beta_0`` after the controller update that follows rollout ``k``.
+      controller_gains: ``beta_1`` after that update.
+
+    Examples:
+      >>> tr = iterate("task", TrueSystem(), LinearModel(1.0, 0.2), AffineController(),
+      ...              1.0, num_iters=3)
+      >>> tr.actions.shape
+      (3,)
+      >>> [round(float(e), 3) for e in tr.errors]  # tau_0 = 0, then the task loss's rest
+      [-1.0, -0.2, -0.2]
     """
 
     actions: jax.Array
@@ -134,7 +184,23 @@ class IterationTrace(NamedTuple):
 
 
 class DataMoments(NamedTuple):
-    """Sufficient statistics of pairs ``(x, y)`` = ``(tau, s_a)`` for least-squares lines."""
+    """Sufficient statistics of pairs ``(x, y)`` = ``(tau, s_a)`` for least-squares lines.
+
+    Every field is a scalar (float, so that it can be a ``scan`` carry).
+
+    Attributes:
+      count: the number of pairs ``n``.
+      sum_x: ``sum_i x_i``.
+      sum_xx: ``sum_i x_i^2``.
+      sum_y: ``sum_i y_i``.
+      sum_yy: ``sum_i y_i^2``.
+      sum_xy: ``sum_i x_i y_i``.
+
+    Examples:
+      >>> m = data_moments([0.0, 1.0, 2.0], [1.0, 3.0, 5.0])
+      >>> float(m.count), float(m.sum_x), float(m.sum_xy)
+      (3.0, 3.0, 13.0)
+    """
 
     count: jax.Array
     sum_x: jax.Array
@@ -148,7 +214,14 @@ class DataMoments(NamedTuple):
 
 
 def true_response(system: TrueSystem, action):
-    """``s_a = a tau + b + c tau^3``. Args: action of any shape. Returns: same shape.
+    """``s_a = a tau + b + c tau^3``, the true system's response.
+
+    Args:
+      system: a :class:`TrueSystem` (scalars, or arrays broadcasting with ``action``).
+      action: ``tau``, any shape.
+
+    Returns:
+      ``s_a``, the broadcast shape of ``action`` and the system's fields.
 
     Examples:
       >>> float(true_response(TrueSystem(2.0, 1.0, 0.5), 2.0))
@@ -158,22 +231,73 @@ def true_response(system: TrueSystem, action):
 
 
 def true_slope(system: TrueSystem, action):
-    """``h'(tau) = a + 3 c tau^2``, the true system's local gain."""
+    """``h'(tau) = a + 3 c tau^2``, the true system's local gain.
+
+    Args:
+      system: a :class:`TrueSystem` (scalars, or arrays broadcasting with ``action``).
+      action: ``tau``, any shape.
+
+    Returns:
+      ``h'(tau)``, the broadcast shape.
+
+    Examples:
+      >>> float(true_slope(TrueSystem(gain=1.0, cubic=0.5), 2.0))  # 1 + 3 * 0.5 * 4
+      7.0
+    """
     return system.gain + 3.0 * system.cubic * jnp.square(action)
 
 
 def model_prediction(model: LinearModel, action):
-    """``s_p = a_hat tau + b_hat``. Args: action of any shape. Returns: same shape."""
+    """``s_p = a_hat tau + b_hat``, the forward model's prediction.
+
+    Args:
+      model: a :class:`LinearModel` (scalars, or arrays broadcasting with ``action``).
+      action: ``tau``, any shape.
+
+    Returns:
+      ``s_p``, the broadcast shape.
+
+    Examples:
+      >>> float(model_prediction(LinearModel(gain=2.0, offset=0.5), 1.0))
+      2.5
+    """
     return model.gain * action + model.offset
 
 
 def controller_action(controller: AffineController, target):
-    """``tau = beta_0 + beta_1 s_target``. Args: target of any shape. Returns: same shape."""
+    """``tau = beta_0 + beta_1 s_target``, the controller's action.
+
+    Args:
+      controller: an :class:`AffineController` (scalars, or arrays broadcasting with
+        ``target``).
+      target: ``s_target``, any shape.
+
+    Returns:
+      ``tau``, the broadcast shape.
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> controller_action(AffineController(offset=0.5, gain=2.0), jnp.array([0.0, 1.0]))
+      Array([0.5, 2.5], dtype=float32)
+    """
     return controller.offset + controller.gain * target
 
 
 def model_error(system: TrueSystem, model: LinearModel, action):
-    """Forward-model prediction error ``m(tau) = f(tau) - h(tau)`` (positive: over-predicts)."""
+    """Forward-model prediction error ``m(tau) = f(tau) - h(tau)`` (positive: over-predicts).
+
+    Args:
+      system: the :class:`TrueSystem` ``h``.
+      model: the :class:`LinearModel` ``f``.
+      action: ``tau``, any shape (the fields may broadcast with it).
+
+    Returns:
+      ``f(tau) - h(tau)``, the broadcast shape.
+
+    Examples:
+      >>> round(float(model_error(TrueSystem(1.0, 0.0), LinearModel(1.0, 0.2), 3.0)), 6)
+      0.2
+    """
     return model_prediction(model, action) - true_response(system, action)
 
 
@@ -182,6 +306,14 @@ def biased_model(system: TrueSystem, gain_ratio=1.0, offset_error=0.0) -> Linear
 
     The model ignores ``system.cubic``; with ``gain_ratio=1, offset_error=0`` it is exact for
     a linear system.
+
+    Args:
+      system: the :class:`TrueSystem` whose gain and offset are biased.
+      gain_ratio: ``a_hat / a`` (scalar or array).
+      offset_error: ``b_hat - b`` (scalar or array).
+
+    Returns:
+      the biased :class:`LinearModel` (fields broadcast as the arguments do).
 
     Examples:
       >>> biased_model(TrueSystem(2.0, 1.0), gain_ratio=0.5, offset_error=0.1)
@@ -229,10 +361,17 @@ def supervised_loss(controller: AffineController, observed, executed_action):
     The controller is fed the observed next state ``s_a`` in place of the desired one.
 
     Args:
-      controller: parameters; observed: ``s_a``, shape ``(...)``; executed_action:
-        ``tau_run``, shape ``(...)``.
+      controller: an :class:`AffineController` (scalars, or arrays broadcasting with the
+        data).
+      observed: ``s_a``, shape ``(...)``.
+      executed_action: ``tau_run``, the action that produced ``s_a``, shape ``(...)``.
+
     Returns:
       loss of shape ``(...)``.
+
+    Examples:
+      >>> float(supervised_loss(AffineController(0.0, 1.0), observed=2.0, executed_action=1.5))
+      0.25
     """
     predicted_action = controller_action(controller, observed)
     return losses.supervised(
@@ -286,10 +425,21 @@ def loss_landscape(name: str, model: LinearModel, desired, observed, actions):
     """Model-based loss as a function of the action ``tau`` (controller ``beta_0 = tau``).
 
     Args:
-      name: ``"task"``, ``"joint"`` or ``"distal"``; desired, observed: scalars (``s_a`` held);
-      actions: shape ``(n,)``.
+      name: ``"task"``, ``"joint"`` or ``"distal"``.
+      model: a :class:`LinearModel` of scalars.
+      desired: ``s_d`` (scalar).
+      observed: ``s_a`` (scalar), held fixed.
+      actions: the actions ``tau`` to evaluate, shape ``(n,)``.
+
     Returns:
       ``(loss, dloss/dtau)``, each of shape ``(n,)``; the gradient is ``jax.grad``'s.
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> loss, grad = loss_landscape("task", LinearModel(1.0, 0.0), 1.0, 0.0,
+      ...                             jnp.array([0.0, 1.0, 2.0]))
+      >>> loss.tolist(), grad.tolist()  # (tau - 1)^2 and 2 (tau - 1)
+      ([1.0, 0.0, 1.0], [-2.0, 0.0, 2.0])
     """
 
     def loss_of_action(action):
@@ -309,7 +459,17 @@ def rest_action(name: str, model: LinearModel, desired, observed):
     ``distal``: the gradient ``2 a_hat (s_a - s_d)`` does not depend on ``tau``: no rest
     unless ``s_a = s_d`` (returns NaN).
 
-    Args: scalars or broadcasting arrays. Returns: ``tau``, broadcast shape.
+    Args:
+      name: ``"task"``, ``"joint"`` or ``"distal"``.
+      model: a :class:`LinearModel` (scalars or broadcasting arrays).
+      desired: ``s_d`` (scalar or array).
+      observed: ``s_a`` (scalar or array), held fixed.
+
+    Returns:
+      ``tau``, the broadcast shape.
+
+    Raises:
+      ValueError: ``name`` is not a model-based loss.
 
     Examples:
       >>> float(rest_action("joint", LinearModel(2.0, 0.0), desired=1.0, observed=0.0))
@@ -363,9 +523,16 @@ def consistent_rest_action(
     three roots; Newton returns the one it reaches from the start.
 
     Args:
-      name: one of :data:`THEORY_LOSSES`; scalar parameters and ``desired``.
+      name: one of :data:`THEORY_LOSSES`.
+      system: a :class:`TrueSystem` of scalars.
+      model: a :class:`LinearModel` of scalars.
+      desired: ``s_d`` (scalar).
+      initial_action: Newton's starting point (scalar); ``None``: the closed form above.
+      newton_iterations: Newton steps taken when ``system.cubic != 0``.
+
     Returns:
-      ``tau*`` (scalar; NaN where no root, e.g. ``2 a_hat = a`` for the joint loss).
+      ``tau*`` (scalar; NaN or inf where there is no root, e.g. ``2 a_hat = a`` for the joint
+      loss).
 
     Examples:
       >>> float(consistent_rest_action("joint", TrueSystem(1.0, 0.0), LinearModel(1.0, 0.5),
@@ -441,6 +608,12 @@ def fixed_point(
         refit and its gain ``beta_1`` with ``refit="latest"``).
     Returns:
       :class:`FixedPoint`.
+
+    Examples:
+      >>> fp = fixed_point("joint", TrueSystem(), LinearModel(1.0, 0.2), desired=1.0,
+      ...                  refit="latest")
+      >>> round(float(fp.error), 6), float(fp.contraction)  # 1 - a / (2 a_hat)
+      (0.0, 0.5)
     """
     if refit not in REFIT_MODES:
         raise ValueError(f"refit={refit!r} not in {REFIT_MODES}")
@@ -479,7 +652,20 @@ def fixed_point(
 
 
 def data_moments(actions, observed) -> DataMoments:
-    """Sufficient statistics of the pairs ``(tau_i, s_a_i)``; shapes ``(n,)``."""
+    """Sufficient statistics of the pairs ``(tau_i, s_a_i)``.
+
+    Args:
+      actions: ``tau_i``, shape ``(n,)``.
+      observed: ``s_a_i``, shape ``(n,)``.
+
+    Returns:
+      :class:`DataMoments` of scalars.
+
+    Examples:
+      >>> m = data_moments([0.0, 1.0], [1.0, 3.0])
+      >>> float(m.count), float(m.sum_y), float(m.sum_yy)
+      (2.0, 4.0, 10.0)
+    """
     actions = jnp.asarray(actions, dtype=jnp.result_type(float))
     observed = jnp.asarray(observed, dtype=jnp.result_type(float))
     return DataMoments(
@@ -509,8 +695,25 @@ def fit_line(count, sum_x, sum_xx, sum_y, sum_xy, prior_slope, prior_intercept, 
     Solves the 2x2 normal equations
     ``[[Sxx + w, Sx], [Sx, n + w]] [k, m] = [Sxy + w k0, Sy + w m0]``.
 
+    Args:
+      count: ``n``, the number of pairs.
+      sum_x: ``Sx = sum_i x_i``.
+      sum_xx: ``Sxx = sum_i x_i^2``.
+      sum_y: ``Sy = sum_i y_i``.
+      sum_xy: ``Sxy = sum_i x_i y_i``.
+      prior_slope: ``k0``, the slope the ridge term pulls towards.
+      prior_intercept: ``m0``, the intercept it pulls towards.
+      prior_weight: ``w >= 0``; with ``w = 0`` plain least squares (which needs two distinct
+        ``x``).
+
     Returns:
-      ``(slope k, intercept m)``.
+      ``(slope k, intercept m)``, scalars (or arrays, broadcast as the arguments).
+
+    Examples:
+      >>> m = data_moments([0.0, 1.0, 2.0], [1.0, 3.0, 5.0])  # y = 2 x + 1
+      >>> k, b = fit_line(m.count, m.sum_x, m.sum_xx, m.sum_y, m.sum_xy, 0.0, 0.0, 0.0)
+      >>> round(float(k), 4), round(float(b), 4)
+      (2.0, 1.0)
     """
     a11, a12, a22 = sum_xx + prior_weight, sum_x, count + prior_weight
     r1, r2 = sum_xy + prior_weight * prior_slope, sum_y + prior_weight * prior_intercept
@@ -519,7 +722,22 @@ def fit_line(count, sum_x, sum_xx, sum_y, sum_xy, prior_slope, prior_intercept, 
 
 
 def fit_model(moments: DataMoments, prior: LinearModel, prior_weight=0.0) -> LinearModel:
-    """Least-squares forward model ``s_a ~ a_hat tau + b_hat`` (ridge towards ``prior``)."""
+    """Least-squares forward model ``s_a ~ a_hat tau + b_hat`` (ridge towards ``prior``).
+
+    Args:
+      moments: :class:`DataMoments` of the pairs ``(tau_i, s_a_i)``.
+      prior: the :class:`LinearModel` the ridge term pulls towards.
+      prior_weight: ridge weight ``w`` (:func:`fit_line`); 0: plain least squares.
+
+    Returns:
+      the fitted :class:`LinearModel`.
+
+    Examples:
+      >>> m = data_moments([0.0, 1.0, 2.0], [1.0, 3.0, 5.0])
+      >>> fit = fit_model(m, LinearModel())
+      >>> round(float(fit.gain), 4), round(float(fit.offset), 4)
+      (2.0, 1.0)
+    """
     gain, offset = fit_line(
         moments.count,
         moments.sum_x,
@@ -537,7 +755,22 @@ def fit_inverse(
     moments: DataMoments, prior: AffineController, prior_weight=0.0
 ) -> AffineController:
     """Supervised inverse model: least squares ``tau ~ beta_0 + beta_1 s_a`` (closed form of
-    minimising :func:`cfm_jax.losses.supervised` over the data, ridge towards ``prior``)."""
+    minimising :func:`cfm_jax.losses.supervised` over the data, ridge towards ``prior``).
+
+    Args:
+      moments: :class:`DataMoments` of the pairs ``(tau_i, s_a_i)``.
+      prior: the :class:`AffineController` the ridge term pulls towards.
+      prior_weight: ridge weight ``w`` (:func:`fit_line`); 0: plain least squares.
+
+    Returns:
+      the fitted :class:`AffineController`.
+
+    Examples:
+      >>> m = data_moments([0.0, 1.0, 2.0], [1.0, 3.0, 5.0])  # tau = (s_a - 1) / 2
+      >>> inv = fit_inverse(m, AffineController())
+      >>> round(float(inv.offset), 4), round(float(inv.gain), 4)
+      (-0.5, 0.5)
+    """
     gain, offset = fit_line(
         moments.count,
         moments.sum_y,
@@ -688,8 +921,28 @@ def iterated_action_map(
 ):
     """One iteration ``tau_{k+1} = T(tau_k)`` with a fixed model (``refit="none"``).
 
-    Runs :func:`iterate` for one rollout from each ``tau_k`` in ``actions`` (shape ``(n,)``);
-    its fixed point is :func:`fixed_point`'s ``action``. Returns shape ``(n,)``.
+    Runs :func:`iterate` for one rollout from each ``tau_k`` in ``actions``; its fixed point
+    is :func:`fixed_point`'s ``action``.
+
+    Args:
+      name: one of :data:`THEORY_LOSSES` (``"supervised"`` keeps its action: the controller
+        is not updated without a refit).
+      system: a :class:`TrueSystem` of scalars.
+      model: the fixed :class:`LinearModel` (scalars).
+      desired: ``s_d`` (scalar).
+      actions: ``tau_k``, shape ``(n,)``.
+      inner_steps: gradient steps of the controller update (``None``: to rest).
+      learning_rate: step size of those gradient steps.
+
+    Returns:
+      ``tau_{k+1}``, shape ``(n,)``.
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> nxt = iterated_action_map("joint", TrueSystem(), LinearModel(1.0, 0.2), 1.0,
+      ...                           jnp.array([0.0, 0.6]))
+      >>> [round(float(a), 4) for a in nxt]  # ((s_d + h(tau)) / 2 - b_hat) / a_hat
+      [0.3, 0.6]
     """
 
     def next_action(action):
@@ -733,14 +986,32 @@ def sweep_model_bias(
     the others ``inner_steps`` (``None``: to rest).
 
     Args:
-      system: scalar :class:`TrueSystem`; desired: ``s_d``.
-      gain_ratios: shape ``(G,)``; offset_errors: shape ``(O,)``.
+      system: a :class:`TrueSystem` of scalars.
+      desired: ``s_d`` (scalar).
+      gain_ratios: ``a_hat / a`` of the grid, shape ``(G,)``.
+      offset_errors: ``b_hat - b`` of the grid, shape ``(O,)``.
       refit: ``"none"`` or ``"latest"`` (``"all"`` forgets the initial model's bias).
       num_iters: rollouts run to measure the iterated error.
+      inner_steps: gradient steps per controller update of the task, joint and supervised
+        losses (``None``: to rest).
+      distal_steps: gradient steps per controller update of the distal-teacher loss.
+      learning_rate: step size of those gradient steps.
+
     Returns:
       dict of arrays of shape ``(G * O,)``: ``gain_ratio``, ``offset_error`` and for each loss
       ``L``: ``L_action`` (``tau*``), ``L_error`` (``h(tau*) - s_d``), ``L_contraction``,
       ``L_iterated_error`` (error of the last rollout of :func:`iterate`).
+
+    Raises:
+      ValueError: ``refit="all"``.
+
+    Examples:
+      >>> table = sweep_model_bias(TrueSystem(), 1.0, gain_ratios=[1.0, 2.0],
+      ...                          offset_errors=[0.0, 0.2], num_iters=20)
+      >>> table["joint_error"].shape
+      (4,)
+      >>> [round(float(e), 3) for e in table["task_error"]]  # (1 - b_hat) / a_hat - 1
+      [0.0, -0.2, -0.5, -0.6]
     """
     if refit == "all":
         raise ValueError("refit='all' does not depend on the initial model's bias")

@@ -41,7 +41,30 @@ def _linear_stack(torch, sizes, members, generator):
 
 
 class ForwardUpdate:
-    """One Adam step of the forward ensemble on ``(state, action, observed)`` rows."""
+    """One Adam step of the forward ensemble on ``(state, action, observed)`` rows.
+
+    Inputs are normalised with the data's statistics (standard deviations floored at 1e-3),
+    torques by ``torque_limit``.
+
+    Args:
+      data: a dict of NumPy arrays: ``state (n, state_dim)``, ``action (n, nv)``,
+        ``observed (n, nv)`` and ``torque_limit (nv,)``.
+      hidden: hidden layer sizes of each member.
+      members: ensemble size ``E``.
+      batch_size: rows per member per step.
+      threads: ``torch.set_num_threads`` (process-wide); None: leave it.
+      seed: seed of the initial weights and the minibatches.
+
+    Examples:
+      >>> import numpy as np
+      >>> rng = np.random.default_rng(0)
+      >>> data = dict(state=rng.normal(size=(64, 4)), action=rng.normal(size=(64, 2)),
+      ...             observed=rng.normal(size=(64, 2)), desired=rng.normal(size=(64, 2)),
+      ...             torque_limit=np.array([20.0, 10.0]))
+      >>> forward = ForwardUpdate(data, hidden=(32, 32), members=2, batch_size=16)
+      >>> isinstance(forward.step(), float)  # the step's loss
+      True
+    """
 
     def __init__(
         self,
@@ -101,7 +124,29 @@ class ForwardUpdate:
 
 
 class ControllerUpdate:
-    """One Adam step of the controller with the joint loss through a frozen ensemble."""
+    """One Adam step of the controller with the joint loss through a frozen ensemble.
+
+    Building it freezes ``forward``'s parameters (``requires_grad_(False)``).
+
+    Args:
+      forward: the :class:`ForwardUpdate` whose ensemble mean is the model (and whose data,
+        statistics and torch module are used).
+      data: a dict with ``desired (n, nv)``, the desired accelerations of ``forward``'s rows.
+      hidden: hidden layer sizes of the controller.
+      batch_size: rows per step.
+      seed: seed of the initial weights and the minibatches.
+
+    Examples:
+      >>> import numpy as np
+      >>> rng = np.random.default_rng(0)
+      >>> data = dict(state=rng.normal(size=(64, 4)), action=rng.normal(size=(64, 2)),
+      ...             observed=rng.normal(size=(64, 2)), desired=rng.normal(size=(64, 2)),
+      ...             torque_limit=np.array([20.0, 10.0]))
+      >>> forward = ForwardUpdate(data, hidden=(32, 32), members=2, batch_size=16)
+      >>> controller = ControllerUpdate(forward, data, hidden=(32,), batch_size=16)
+      >>> controller.step() > 0  # the joint loss, a sum of squares
+      True
+    """
 
     def __init__(
         self,

@@ -522,7 +522,9 @@ class TrainResult:
       state: the final :class:`TrainState` (parameters, optimiser states, data set, key),
         leaves with a leading seed axis.
       rms_reach: RMS reaching distance of the targets (rad), the scale for tracking errors.
-      seconds: wall time of the run, and ``compile_seconds`` of its first iteration.
+      seconds: wall time of the run (s).
+      compile_seconds: wall time of the first iteration this call ran (s), which includes
+        compiling it; NaN when the run had no iteration to run.
 
     Examples:
       >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
