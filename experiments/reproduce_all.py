@@ -96,7 +96,7 @@ def command(name: str, out: str, args) -> list[str]:
 
 
 def index(out: str, runs: dict, quick: bool, total: float) -> str:
-    mode = "--quick: tiny, a pipeline test, not a result" if quick else "full size"
+    mode = "--quick: small, a pipeline test, not a result" if quick else "full size"
     lines = [
         "# Results",
         "",
