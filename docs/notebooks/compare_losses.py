@@ -20,7 +20,7 @@
 # starts from the same babbling data and the same initial forward model, because they share
 # one `Experiment`; each loss compiles its iteration once.
 #
-# About four minutes on two CPU cores at the default size; `CFM_JAX_DOCS_QUICK=1` runs a
+# About a minute on two CPU cores at the default size (51 s measured); `CFM_JAX_DOCS_QUICK=1` runs a
 # reduced size (the tests do).
 #
 # Small runs are noisy: the full-size study (3 seeds x 10 iterations, paper-size
