@@ -23,6 +23,7 @@ Examples:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
 import time
@@ -458,49 +459,36 @@ class Experiment:
 
 def _step_mean(result: rollout.Rollout, before_terminal: bool = False):
     """``x (targets, steps, k) -> (targets,)``: mean of ``x^2`` over components and over the
-    steps inside each target's horizon (every step when the task has no horizons); with
-    ``before_terminal``, only over the steps before the first terminal one (a fall)."""
-    active = _active(result)
-    alive = _before_terminal(result) if before_terminal else None
-    if active is None and alive is None:
+    steps of :func:`_steps` (every step when the task masks none)."""
+    steps = _steps(result, before_terminal)
+    if steps is None:
         return lambda x: jnp.mean(jnp.square(x), axis=(-2, -1))
-    if active is None:
-        active = alive
-    elif alive is not None:
-        active = active & alive
-    weights = active.astype(jnp.float32)
+    weights = steps.astype(jnp.float32)
     count = jnp.maximum(jnp.sum(weights, axis=-1), 1.0)
     return lambda x: jnp.sum(jnp.mean(jnp.square(x), axis=-1) * weights, axis=-1) / count
 
 
-def _active(result: rollout.Rollout):
-    """The task's mask of steps inside each target's horizon, or None (every step)."""
-    extras = result.extras
-    return extras.get("active") if isinstance(extras, dict) else None
-
-
-def _before_terminal(result: rollout.Rollout):
-    """``(targets, steps)`` mask of the steps before the first terminal step, or None.
+def _steps(result: rollout.Rollout, before_terminal: bool):
+    """``(targets, steps)`` mask of the steps inside each target's horizon
+    (``extras["active"]``) and, with ``before_terminal``, before the first terminal step;
+    None when the task marks neither (every step counts).
 
     A task marks a step terminal (``extras["terminal"]``, for example a legged robot that
     fell) when what follows it is not the dynamics the models should learn: the legged
     models have foot-floor contacts only, so a fallen body sinks through the floor.
     """
-    extras = result.extras
-    if not isinstance(extras, dict) or "terminal" not in extras:
-        return None
-    return jnp.cumsum(extras["terminal"].astype(jnp.int32), axis=-1) == 0
+    extras = result.extras if isinstance(result.extras, dict) else {}
+    masks = [extras["active"]] if "active" in extras else []
+    if before_terminal and "terminal" in extras:
+        masks.append(jnp.cumsum(extras["terminal"].astype(jnp.int32), axis=-1) == 0)
+    return functools.reduce(jnp.logical_and, masks) if masks else None
 
 
 def _valid(result: rollout.Rollout):
     """Steps that become data: finite, inside the horizon when the task has one, and before
     the first terminal step when the task has those."""
-    valid = result.finite
-    active = _active(result)
-    if active is not None:
-        valid = valid & active
-    alive = _before_terminal(result)
-    return valid if alive is None else valid & alive
+    steps = _steps(result, before_terminal=True)
+    return result.finite if steps is None else result.finite & steps
 
 
 def _broadcast(tree, n: int):

@@ -40,28 +40,24 @@ def table_1(metrics: pd.DataFrame, baselines: pd.DataFrame) -> pd.DataFrame:
     """Last-iteration force MSE, falls and base tracking per loss (and the baselines)."""
     from cfm_jax import losses
 
+    def row(frame: pd.DataFrame, seeds: str) -> dict:
+        return {
+            "force MSE mean (N^2)": frame.force_mse.mean(),
+            "force MSE std": frame.force_mse.std(ddof=0),
+            "falls (runs)": f"{int(frame.fell.sum())} / {len(frame)}",
+            "seeds without a fall": seeds,
+            "base position MSE (m^2)": frame.base_position_mse.mean(),
+            "base orientation MSE (rad^2)": frame.base_orientation_mse.mean(),
+        }
+
     final = metrics[metrics.iteration == metrics.iteration.max()]
     rows = {}
     for loss in [name for name in losses.CONTROLLER_LOSSES if name in set(final["loss"])]:
         frame = final[final["loss"] == loss]
         per_seed = frame.groupby("seed").fell.max()
-        rows[loss] = {
-            "force MSE mean (N^2)": frame.force_mse.mean(),
-            "force MSE std": frame.force_mse.std(ddof=0),
-            "falls (runs)": f"{int(frame.fell.sum())} / {len(frame)}",
-            "seeds without a fall": f"{int((per_seed == 0).sum())} / {len(per_seed)}",
-            "base position MSE (m^2)": frame.base_position_mse.mean(),
-            "base orientation MSE (rad^2)": frame.base_orientation_mse.mean(),
-        }
+        rows[loss] = row(frame, f"{int((per_seed == 0).sum())} / {len(per_seed)}")
     for name, frame in baselines.groupby("baseline", sort=False):
-        rows[name] = {
-            "force MSE mean (N^2)": frame.force_mse.mean(),
-            "force MSE std": frame.force_mse.std(ddof=0),
-            "falls (runs)": f"{int(frame.fell.sum())} / {len(frame)}",
-            "seeds without a fall": "-",
-            "base position MSE (m^2)": frame.base_position_mse.mean(),
-            "base orientation MSE (rad^2)": frame.base_orientation_mse.mean(),
-        }
+        rows[name] = row(frame, "-")
     return pd.DataFrame.from_dict(rows, orient="index")
 
 

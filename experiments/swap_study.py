@@ -31,6 +31,7 @@ import numpy as np
 import pandas as pd
 
 matplotlib.use("Agg")
+import _study  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 
 import cfm_jax  # noqa: E402
@@ -41,25 +42,10 @@ LOSSES = ("task", "joint")
 
 
 def base_config(seeds: int, iterations: int, quick: bool) -> config_lib.Config:
-    if quick:
-        return config_lib.Config(
-            robot="two_link_arm",
-            task=config_lib.TaskConfig(duration=0.3),
-            forward=config_lib.ForwardModelConfig(
-                hidden=(16,),
-                ensemble_size=2,
-                initial_steps=20,
-                steps_per_iteration=10,
-                batch_size=32,
-            ),  # fmt: skip
-            controller=config_lib.ControllerConfig(
-                hidden=(16,), initial_steps=20, steps_per_iteration=10, batch_size=32
-            ),
-            loop=config_lib.LoopConfig(iterations=iterations, seeds=seeds, babbling_rollouts=1),
-        )
-    return config_lib.Config(
-        robot="iiwa14", loop=config_lib.LoopConfig(iterations=iterations, seeds=seeds)
-    )
+    loop = config_lib.LoopConfig(iterations=iterations, seeds=seeds)
+    if quick:  # the two-link arm with the studies' quick networks and fit steps
+        return _study.quick_config(config_lib.Config(robot="two_link_arm", loop=loop))
+    return config_lib.Config(robot="iiwa14", loop=loop)
 
 
 def done(run_dir: str, config: config_lib.Config) -> bool:
