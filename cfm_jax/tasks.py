@@ -618,7 +618,9 @@ class LeggedTask(JointSpaceTask):
       foot forces over the period; the desired quantity is the same
       ``s* = [qacc* dt, f*]`` with ``qacc* = qacc_ref + kp e + kd (qvel_ref - qvel)`` (``e``:
       base position error, base orientation error as a rotation vector in the base frame,
-      joint position errors) and ``f*`` the reference's foot forces.
+      joint position errors; gains ``task.kp``, ``task.kd`` on the 6 base coordinates and
+      ``task.joint_kp``, ``task.joint_kd`` on the joints) and ``f*`` the reference's foot
+      forces.
     * References: :mod:`cfm_jax.locomotion` (a trot for 5 horizons, a vertical jump for 5
       heights), recorded from a whole-body controller on this model at ``control_dt``;
       padded to the longest horizon, steps beyond a target's horizon are masked out of the
@@ -634,8 +636,8 @@ class LeggedTask(JointSpaceTask):
     Args:
       robot: a floating-base :class:`cfm_jax.robots.Robot` with one contact sensor per foot
         (``solo12``).
-      task: the :class:`cfm_jax.config.TaskConfig`; ``name`` (``walk`` or ``jump``), ``kp``
-        and ``kd`` are used (the targets are the 5 references of :mod:`cfm_jax.locomotion`).
+      task: the :class:`cfm_jax.config.TaskConfig`; ``name`` (``walk`` or ``jump``), ``kp``,
+        ``kd``, ``joint_kp`` and ``joint_kd`` are used (the targets are the 5 references of :mod:`cfm_jax.locomotion`).
       control_dt: control period (s), at most :attr:`MAX_CONTROL_DT`.
 
     Raises:
@@ -700,6 +702,11 @@ class LeggedTask(JointSpaceTask):
         self.references = refs  # the NumPy recordings (the other tasks' reference_np)
         self.reference = as_jax_legged(refs)
         self.kp, self.kd, self.control_dt = float(task.kp), float(task.kd), float(control_dt)
+        joint_kp = self.kp if task.joint_kp is None else float(task.joint_kp)
+        joint_kd = self.kd if task.joint_kd is None else float(task.joint_kd)
+        joints = robot.nv - 6
+        self.gains_p = jnp.asarray([self.kp] * 6 + [joint_kp] * joints, jnp.float32)
+        self.gains_d = jnp.asarray([self.kd] * 6 + [joint_kd] * joints, jnp.float32)
         self.gain_p = jnp.float32(refs[0].kp)
         self.gain_d = jnp.float32(refs[0].kd)
         nq, nv, na = robot.nq, robot.nv, robot.action_dim
@@ -739,8 +746,8 @@ class LeggedTask(JointSpaceTask):
         del features
         qacc = (
             ref_t.qacc
-            + self.kp * self._pose_error(ref_t.qpos, qpos)
-            + self.kd * (ref_t.qvel - qvel)
+            + self.gains_p * self._pose_error(ref_t.qpos, qpos)
+            + self.gains_d * (ref_t.qvel - qvel)
         )
         return jnp.concatenate([qacc * self.control_dt, ref_t.force])
 

@@ -261,3 +261,19 @@ def test_for_task_defaults():
     assert arm.forward == config_lib.ForwardModelConfig()  # the arm defaults
     with pytest.raises(config_lib.ConfigError, match="task.name='swim' is not allowed"):
         config_lib.for_task("swim")
+    # Legged tasks: joint gains of the recording's joint PD (see for_task); arms: None.
+    assert (walk.task.joint_kp, walk.task.joint_kd) == (2000.0, 50.0)
+    assert (walk.task.kp, walk.task.kd) == (100.0, 20.0)  # on the base
+    assert (arm.task.joint_kp, arm.task.joint_kd) == (None, None)
+
+
+@pytest.mark.parametrize("field", ["joint_kp", "joint_kd"])
+def test_joint_gains_are_for_the_legged_tasks_only(field):
+    with pytest.raises(ConfigError) as info:
+        TaskConfig(**{field: 500.0})  # inverse_dynamics
+    message = str(info.value)
+    assert message.startswith(f"task.{field}=500.0 is not allowed"), message
+    assert "'walk' and 'jump'" in message and "task.kp and task.kd" in message
+    with pytest.raises(ConfigError, match=rf"task.{field}=-1.0 .* >= 0"):
+        TaskConfig(name="jump", control_dt=0.004, **{field: -1.0})
+    assert getattr(TaskConfig(name="jump", control_dt=0.004, **{field: 0}), field) == 0

@@ -60,6 +60,42 @@ def test_reference_controller_reproduces_the_recording(walk):
     assert walk.references[-1].qpos[-1, 0] - walk.references[-1].qpos[0, 0] > 0.5
 
 
+def test_desired_acceleration_has_base_gains_on_the_base_and_joint_gains_on_the_joints(solo):
+    # Oracle: the PD correction written out by hand, with MuJoCo's mju_subQuat for the base
+    # orientation error (a rotation vector in the base frame, the frame of the free joint's
+    # angular velocity).
+    import mujoco
+
+    cfg = config_lib.TaskConfig(
+        name="walk", control_dt=0.004, kp=100.0, kd=20.0, joint_kp=2000.0, joint_kd=50.0
+    )
+    task = tasks.make(solo, cfg, 0.004)
+    k, t = 2, 40
+    ref = jax.tree.map(lambda x: np.asarray(x[k, t], np.float64), task.reference)
+    rng = np.random.default_rng(0)
+    qpos = ref.qpos.copy()
+    qpos[:3] += [0.01, -0.02, 0.005]
+    turn = np.zeros(4)
+    mujoco.mju_axisAngle2Quat(turn, np.array([0.3, -0.2, 1.0]) / np.sqrt(1.13), 0.05)
+    mujoco.mju_mulQuat(qpos[3:7], ref.qpos[3:7], turn)
+    qpos[7:] += rng.normal(0.0, 0.03, 12)
+    qvel = ref.qvel + rng.normal(0.0, 0.2, 18)
+    rotation = np.zeros(3)
+    mujoco.mju_subQuat(rotation, ref.qpos[3:7], qpos[3:7])
+    error = np.concatenate([ref.qpos[:3] - qpos[:3], rotation, ref.qpos[7:] - qpos[7:]])
+    gains_p = np.array([100.0] * 6 + [2000.0] * 12)
+    gains_d = np.array([20.0] * 6 + [50.0] * 12)
+    expected = (ref.qacc + gains_p * error + gains_d * (ref.qvel - qvel)) * 0.004
+    ref_t = jax.tree.map(lambda x: x[k, t], task.reference)
+    desired = np.asarray(task.desired(ref_t, qpos.astype(np.float32), qvel.astype(np.float32), None))
+    np.testing.assert_allclose(desired[:18], expected, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(desired[18:], ref.force, atol=1e-6)
+    # joint_kp / joint_kd None: the base gains on the joints too.
+    same = tasks.make(solo, config_lib.TaskConfig(name="walk", control_dt=0.004), 0.004)
+    np.testing.assert_allclose(np.asarray(same.gains_p), 100.0)
+    np.testing.assert_allclose(np.asarray(same.gains_d), 20.0)
+
+
 def test_falls_are_flagged_when_the_robot_goes_down(walk):
     # Zero torque: the robot collapses; the fall flag and the base error see it.
     out = jax.jit(

@@ -405,6 +405,35 @@ def test_a_lost_ray_cell_is_reported_and_the_others_are_kept(ray_cluster, tmp_pa
     assert not (tmp_path / "out" / "cells" / task_id / "metrics.csv").exists()
 
 
+def test_ray_backend_without_address_starts_a_local_cluster_and_stops_it(local, tmp_path):
+    # A fresh Python process (no Ray running in it) calls sweep(backend="ray") with no
+    # address, as a user in a notebook would: Ray starts a local cluster on demand, the
+    # cells run in its worker processes, and the cluster is shut down afterwards.
+    # Oracle: the local backend's table.
+    if not HAVE_RAY:
+        pytest.skip("Ray is not installed: pip install 'cfm_jax[ray]' to test the ray backend")
+    out = tmp_path / "out"
+    script = (
+        "import json, os, sys, ray, cfm_jax\n"
+        "from tiny import tiny_config\n"
+        f"result = cfm_jax.sweep(tiny_config(iterations=1), seeds=2, losses={LOSSES!r},\n"
+        f"    overrides={OVERRIDES!r}, out_dir={str(out)!r}, progress=False, backend='ray')\n"
+        "print(json.dumps({'pid': os.getpid(), 'cells': [int(p) for p in result.cells.pid],\n"
+        "    'connected_after': ray.is_initialized()}))\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([os.path.dirname(__file__), *sys.path])}
+    env.pop("RAY_ADDRESS", None)  # an address in the environment would join that cluster
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          env=env, timeout=600)  # fmt: skip
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-3000:]
+    report_line = json.loads(done.stdout.strip().splitlines()[-1])
+    assert report_line["connected_after"] is False  # the on-demand cluster was shut down
+    assert report_line["pid"] not in report_line["cells"]  # the cells ran in Ray workers
+    pd.testing.assert_frame_equal(
+        pd.read_csv(out / "metrics.csv"), local[0].metrics, check_exact=True
+    )
+
+
 # ----- reproduce_all --quick ----------------------------------------------------------
 
 
