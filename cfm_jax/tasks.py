@@ -637,12 +637,14 @@ class LeggedTask(JointSpaceTask):
       robot: a floating-base :class:`cfm_jax.robots.Robot` with one contact sensor per foot
         (``solo12``).
       task: the :class:`cfm_jax.config.TaskConfig`; ``name`` (``walk`` or ``jump``), ``kp``,
-        ``kd``, ``joint_kp`` and ``joint_kd`` are used (the targets are the 5 references of :mod:`cfm_jax.locomotion`).
+        ``kd``, ``joint_kp`` and ``joint_kd`` are used. The targets and horizons are the 5
+        references of :mod:`cfm_jax.locomotion`: ``duration`` is not used, and ``targets``
+        and ``home`` must be None.
       control_dt: control period (s), at most :attr:`MAX_CONTROL_DT`.
 
     Raises:
-      ConfigError: the robot has no floating base or no foot contact sensors, or
-        ``control_dt`` is too long.
+      ConfigError: the robot has no floating base or no foot contact sensors,
+        ``control_dt`` is too long, or ``task.targets`` / ``task.home`` is given.
 
     Examples:
       >>> from cfm_jax import config, robots
@@ -691,6 +693,13 @@ class LeggedTask(JointSpaceTask):
                 '<contact> sensor per foot with data="found force normal tangent" (see '
                 "robots/solo12.xml)"
             )
+        for field in ("targets", "home"):
+            if getattr(task, field) is not None:
+                raise ConfigError(
+                    f"task.{field}={getattr(task, field)!r} is not allowed for task "
+                    f"{task.name!r}: None (the legged tasks start from and follow their 5 "
+                    "recorded references, cfm_jax.locomotion.WALK_DURATIONS / JUMP_HEIGHTS)"
+                )
         self.robot, self.locomotion = robot, locomotion
         self.sensor_rows = np.concatenate([np.arange(a, a + 10) for a in feet])
         self.feet = len(feet)

@@ -121,6 +121,14 @@ def test_legged_tasks_refuse_arms_and_slow_control(solo):
         tasks.make(arm, config_lib.TaskConfig(name="walk"), 0.01)
     with pytest.raises(config_lib.ConfigError, match=r"task.control_dt=0.01 .* 0.004"):
         tasks.make(solo, config_lib.TaskConfig(name="jump"), 0.01)
+    # Targets and start pose come from the recorded references: given ones are refused,
+    # not silently ignored.
+    targets = config_lib.TaskConfig(name="walk", control_dt=0.004, targets=((0.1,) * 19,))
+    with pytest.raises(config_lib.ConfigError, match=r"task.targets=.* not allowed .* 'walk'"):
+        tasks.make(solo, targets, 0.004)
+    home = config_lib.TaskConfig(name="jump", control_dt=0.004, home=(0.0,) * 19)
+    with pytest.raises(config_lib.ConfigError, match=r"task.home=.* not allowed .* 'jump'"):
+        tasks.make(solo, home, 0.004)
 
 
 def test_jump_trains_end_to_end_with_masked_metrics():
