@@ -125,3 +125,36 @@ def jax_leaves(tree):
     import jax
 
     return [np.asarray(x) for x in jax.tree.leaves(tree)]
+
+
+def test_an_interrupted_replay_resumes_to_the_same_run(
+    recorded_run, experiment, tmp_path, monkeypatch
+):
+    # A replay that stopped after its first iteration (its last checkpoint removed, as a
+    # kill before that save would leave it) resumes from the checkpoint of iteration 1 and
+    # replays the rest of the recorded data. Oracle: the recording run itself (a replay of
+    # a run's own data reproduces it bit for bit, tested above).
+    import shutil
+
+    result, path = recorded_run
+    out = tmp_path / "replay"
+    cfm_jax.train(TINY, progress=False, data=str(path), experiment=experiment, out_dir=str(out))
+    last = out / "checkpoints" / str(TINY.loop.iterations)
+    assert last.is_dir()
+    shutil.rmtree(last)
+    calls = []
+    replay_iteration = experiment.replay_iteration
+    monkeypatch.setattr(
+        experiment, "replay_iteration", lambda *a: calls.append(1) or replay_iteration(*a)
+    )
+    resumed = cfm_jax.train(
+        TINY, progress=False, data=str(path), experiment=experiment, resume=str(out)
+    )
+    assert len(calls) == TINY.loop.iterations - 1  # it resumed: only the last iteration ran
+    pd.testing.assert_frame_equal(resumed.metrics, result.metrics, check_exact=True)
+    # The data set it ends with is the recorded one: the resumed replay added no rows twice.
+    ended = dataset.load(str(out / "dataset.npz"))
+    recorded = dataset.load(str(path))
+    np.testing.assert_array_equal(ended.size, recorded.size)
+    np.testing.assert_array_equal(ended.segments, recorded.segments)
+    np.testing.assert_array_equal(ended.transitions.observed, recorded.transitions.observed)
