@@ -713,9 +713,11 @@ class LeggedTask(JointSpaceTask):
         self.kp, self.kd, self.control_dt = float(task.kp), float(task.kd), float(control_dt)
         joint_kp = self.kp if task.joint_kp is None else float(task.joint_kp)
         joint_kd = self.kd if task.joint_kd is None else float(task.joint_kd)
-        joints = robot.nv - 6
-        self.gains_p = jnp.asarray([self.kp] * 6 + [joint_kp] * joints, jnp.float32)
-        self.gains_d = jnp.asarray([self.kd] * 6 + [joint_kd] * joints, jnp.float32)
+        # Gains of the PD correction in s* (base pose, then joints), not the references'
+        # joint PD torque gains gain_p / gain_d below.
+        joints = robot.action_dim
+        self.desired_kp = jnp.asarray([self.kp] * 6 + [joint_kp] * joints, jnp.float32)
+        self.desired_kd = jnp.asarray([self.kd] * 6 + [joint_kd] * joints, jnp.float32)
         self.gain_p = jnp.float32(refs[0].kp)
         self.gain_d = jnp.float32(refs[0].kd)
         nq, nv, na = robot.nq, robot.nv, robot.action_dim
@@ -755,8 +757,8 @@ class LeggedTask(JointSpaceTask):
         del features
         qacc = (
             ref_t.qacc
-            + self.gains_p * self._pose_error(ref_t.qpos, qpos)
-            + self.gains_d * (ref_t.qvel - qvel)
+            + self.desired_kp * self._pose_error(ref_t.qpos, qpos)
+            + self.desired_kd * (ref_t.qvel - qvel)
         )
         return jnp.concatenate([qacc * self.control_dt, ref_t.force])
 

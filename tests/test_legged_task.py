@@ -92,8 +92,8 @@ def test_desired_acceleration_has_base_gains_on_the_base_and_joint_gains_on_the_
     np.testing.assert_allclose(desired[18:], ref.force, atol=1e-6)
     # joint_kp / joint_kd None: the base gains on the joints too.
     same = tasks.make(solo, config_lib.TaskConfig(name="walk", control_dt=0.004), 0.004)
-    np.testing.assert_allclose(np.asarray(same.gains_p), 100.0)
-    np.testing.assert_allclose(np.asarray(same.gains_d), 20.0)
+    np.testing.assert_allclose(np.asarray(same.desired_kp), 100.0)
+    np.testing.assert_allclose(np.asarray(same.desired_kd), 20.0)
 
 
 def test_falls_are_flagged_when_the_robot_goes_down(walk):
