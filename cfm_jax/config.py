@@ -528,6 +528,56 @@ def from_dict(data: dict) -> Config:
     return Config(**kwargs)
 
 
+RUNTIME_FIELDS = (
+    "seed",
+    "task.kp",
+    "task.kd",
+    "task.joint_kp",
+    "task.joint_kd",
+    "forward.learning_rate",
+    "controller.learning_rate",
+    "loop.babbling_noise",
+    "loop.checkpoint_every",
+    "loop.checkpoint_keep",
+)
+"""Fields whose values do not change the compiled program: the seed and the checkpoint
+settings are not part of it, the learning rates, the babbling noise and the task gains are
+arguments of it (:class:`cfm_jax.training.Knobs`). Configs that differ only in these and in
+``loss`` share one :class:`cfm_jax.training.Experiment` and its compilations (a sweep over
+them compiles once per loss); every other field (robot, simulator, task name, duration,
+control period, targets, home pose, site, network sizes, step counts, batch sizes,
+iterations, seeds, babbling rollouts, log-variance bounds) builds its own."""
+
+
+def structure(config: Config) -> dict:
+    """The fields of ``config`` that shape its compiled program: :func:`to_dict` without
+    ``loss`` and :data:`RUNTIME_FIELDS`. Two configs with equal structures can share an
+    :class:`cfm_jax.training.Experiment`.
+
+    Args:
+      config: a :class:`Config`.
+
+    Returns:
+      A nested dict, JSON-serialisable.
+
+    Examples:
+      >>> a = Config(seed=1, task=TaskConfig(kp=50.0))
+      >>> structure(a) == structure(Config(loss="task"))
+      True
+      >>> structure(a) == structure(Config(task=TaskConfig(duration=1.0)))
+      False
+    """
+    tree = to_dict(config)
+    del tree["loss"]
+    for path in RUNTIME_FIELDS:
+        *parents, name = path.split(".")
+        node = tree
+        for parent in parents:
+            node = node[parent]
+        del node[name]
+    return tree
+
+
 def seeds_of(config: Config) -> Sequence[int]:
     """The seeds of the runs in this config: ``seed, seed + 1, ..., seed + seeds - 1``.
 

@@ -405,7 +405,7 @@ def rollout_qpos(result, *, seed: int = 0, experiment=None) -> np.ndarray:
     state = jax.tree.map(lambda x: x[seed : seed + 1], result.state)
     policy = jax.vmap(exp.learned_policy)(state)
     keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(state.key)  # as Experiment.evaluate
-    out = exp.rollout(policy, keys)
+    out = exp.rollout(policy, keys, exp.knobs_for(result.config))
     # The state at the start of every control step begins with qpos for every task
     # ([q, qdot] for the arms, [qpos, foot forces, qvel] for the legged robots).
     return np.asarray(out.transitions.state[0, :, :, : exp.robot.nq])

@@ -409,20 +409,22 @@ _EXPERIMENTS: collections.OrderedDict = collections.OrderedDict()
 
 def experiment_for(config: config_lib.Config):
     """A :class:`cfm_jax.training.Experiment` for ``config``, reused (with its compiled
-    functions and babbling data) for configs that differ only in the loss. The last
-    :data:`EXPERIMENT_CACHE_SIZE` are kept per process.
+    functions and babbling data) for configs that differ only in the loss and in
+    :data:`cfm_jax.config.RUNTIME_FIELDS` (seed, learning rates, babbling noise, task
+    gains, checkpointing): a sweep compiles once per loss and per override that changes
+    the program's structure. The last :data:`EXPERIMENT_CACHE_SIZE` are kept per process.
 
     Args:
       config: the config of a cell.
 
     Examples:
       >>> config = config_lib.Config(robot="two_link_arm")
-      >>> experiment_for(config) is experiment_for(config.replace(loss="task"))  # doctest: +SKIP
+      >>> experiment_for(config) is experiment_for(config.replace(loss="task", seed=3))  # doctest: +SKIP
       True
     """
     from cfm_jax import training
 
-    key = json.dumps(config_lib.to_dict(config.replace(loss="joint")), sort_keys=True)
+    key = json.dumps(config_lib.structure(config), sort_keys=True)
     if key in _EXPERIMENTS:
         _EXPERIMENTS.move_to_end(key)
         return _EXPERIMENTS[key]

@@ -311,6 +311,11 @@ class JointSpaceTask:
     * ``start(reference) -> (qpos0, qvel0, features0)``: initial state of a rollout.
     * ``feedback(step) -> tau``: the PD-only baseline (and babbling) feedback;
       ``oracle_policy(simulator)``: the model-based oracle.
+    * ``gains(task_config) -> dict``: the task's values that come from the config's gains
+      (``task.kp``, ``task.kd``, ...), as float32 arrays of fixed shapes, and
+      ``with_gains(gains)``: a copy of the task that uses the given ones. The compiled
+      functions of :class:`cfm_jax.training.Experiment` take these as arguments, so a sweep
+      over the gains compiles once.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
@@ -345,10 +350,8 @@ class JointSpaceTask:
         self.robot = robot
         self.reference_np = reference
         self.reference = as_jax(reference)
-        self.kp, self.kd, self.control_dt = float(kp), float(kd), float(control_dt)
-        gain_p, gain_d = rollout.pd_gains(robot, kp, kd, reference.q[0, 0])
-        self.gain_p = jnp.asarray(gain_p, jnp.float32)
-        self.gain_d = jnp.asarray(gain_d, jnp.float32)
+        self.control_dt = float(control_dt)
+        self._set_gains(self._gains(float(kp), float(kd)))
         nv = robot.nv
         self.targets, self.steps = reference.q.shape[0], reference.steps
         self.state_dim, self.desired_dim, self.output_dim = robot.nq + nv, nv, nv
@@ -359,6 +362,67 @@ class JointSpaceTask:
     def tracking_scale(self) -> float:
         """RMS reaching distance (rad), the scale of the tracking error."""
         return rms_reach(self.reference_np)
+
+    def _gains(self, kp: float, kd: float) -> dict:
+        from cfm_jax import rollout
+
+        gain_p, gain_d = rollout.pd_gains(self.robot, kp, kd, self.reference_np.q[0, 0])
+        return {
+            "kp": jnp.asarray(kp, jnp.float32),
+            "kd": jnp.asarray(kd, jnp.float32),
+            "gain_p": jnp.asarray(gain_p, jnp.float32),
+            "gain_d": jnp.asarray(gain_d, jnp.float32),
+        }
+
+    def gains(self, task: TaskConfig) -> dict:
+        """The gains of ``task`` (a :class:`cfm_jax.config.TaskConfig` of the same task) as
+        this task uses them: ``kp``, ``kd`` of the desired acceleration and the PD torque
+        gains ``gain_p``, ``gain_d`` of :meth:`feedback`, float32 arrays.
+
+        Args:
+          task: the task config whose ``kp``, ``kd`` (and, legged, ``joint_kp``,
+            ``joint_kd``) are taken; its other fields are not read.
+
+        Returns:
+          A dict of float32 arrays, the same keys and shapes for every config.
+
+        Examples:
+          >>> from cfm_jax import config, robots
+          >>> arm = robots.load("two_link_arm")
+          >>> task = make(arm, config.TaskConfig(duration=0.5), control_dt=0.01)
+          >>> softer = task.with_gains(task.gains(config.TaskConfig(kp=25.0, kd=10.0)))
+          >>> float(softer.kp), float(task.kp)
+          (25.0, 100.0)
+        """
+        return self._gains(float(task.kp), float(task.kd))
+
+    def _set_gains(self, gains: dict) -> None:
+        for name, value in gains.items():
+            setattr(self, name, value)
+
+    def with_gains(self, gains: dict):
+        """A shallow copy of this task that uses ``gains`` (from :meth:`gains`; the values may
+        be traced arrays).
+
+        Args:
+          gains: a dict with the keys of :meth:`gains`.
+
+        Returns:
+          The copy; this task is unchanged.
+        """
+        import copy
+
+        expected = set(self.gains_names)
+        if set(gains) != expected:
+            raise ValueError(f"gains has keys {sorted(gains)}, this task takes {sorted(expected)}")
+        task = copy.copy(self)
+        task._set_gains(gains)
+        return task
+
+    @property
+    def gains_names(self) -> tuple[str, ...]:
+        """The keys of :meth:`gains`."""
+        return ("kp", "kd", "gain_p", "gain_d")
 
     def start(self, reference):
         return (
@@ -459,10 +523,9 @@ class OperationalSpaceTask(JointSpaceTask):
         )
         self.reference = opspace.as_jax(self.reference_np)
         self.home = jnp.asarray(home, jnp.float32)
-        self.kp, self.kd, self.control_dt = float(task.kp), float(task.kd), float(control_dt)
-        gain_p, gain_d = opspace.pd_gains(robot, task.kp, task.kd, self.site, home)
-        self._pd = opspace.pd_policy(robot, gain_p, gain_d, self.site)
+        self.control_dt = float(control_dt)
         self._home_np = home
+        self._set_gains(self.gains(task))
         nv = robot.nv
         self.targets, self.steps = self.reference_np.x.shape[0], self.reference_np.steps
         self.state_dim, self.desired_dim, self.output_dim = robot.nq + nv, 3, nv + 3
@@ -474,6 +537,15 @@ class OperationalSpaceTask(JointSpaceTask):
         """RMS end-effector reaching distance (m): ``sqrt(mean((x_goal - x_home)^2))``."""
         delta = self.reference_np.x[:, -1] - self.reference_np.x[:, 0]
         return float(np.sqrt(np.mean(np.square(delta))))
+
+    def _gains(self, kp: float, kd: float) -> dict:
+        gain_p, gain_d = self.opspace.pd_gains(self.robot, kp, kd, self.site, self._home_np)
+        return {
+            "kp": jnp.asarray(kp, jnp.float32),
+            "kd": jnp.asarray(kd, jnp.float32),
+            "gain_p": jnp.asarray(gain_p, jnp.float32),
+            "gain_d": jnp.asarray(gain_d, jnp.float32),
+        }
 
     def _site(self, qpos, qvel):
         kin = self.opspace.kinematics(self.robot, qpos, qvel, self.site)
@@ -504,7 +576,8 @@ class OperationalSpaceTask(JointSpaceTask):
     def feedback(self, step):
         """Task-space PD ``J^T (K_p (x_ref - x) + K_d (xd_ref - xd))``
         (:func:`cfm_jax.opspace.pd_policy`)."""
-        return self._pd(step.qpos, step.qvel, step.reference.x, step.reference.xd)
+        torque = self.opspace.pd_policy(self.robot, self.gain_p, self.gain_d, self.site)
+        return torque(step.qpos, step.qvel, step.reference.x, step.reference.xd)
 
     def oracle_policy(self, simulator: str):
         """The analytic operational-space controller (:func:`cfm_jax.opspace.oracle_policy`;
@@ -710,14 +783,8 @@ class LeggedTask(JointSpaceTask):
             refs = [locomotion.jump_reference(h, **kwargs) for h in locomotion.JUMP_HEIGHTS]
         self.references = refs  # the NumPy recordings (the other tasks' reference_np)
         self.reference = as_jax_legged(refs)
-        self.kp, self.kd, self.control_dt = float(task.kp), float(task.kd), float(control_dt)
-        joint_kp = self.kp if task.joint_kp is None else float(task.joint_kp)
-        joint_kd = self.kd if task.joint_kd is None else float(task.joint_kd)
-        # Gains of the PD correction in s* (base pose, then joints), not the references'
-        # joint PD torque gains gain_p / gain_d below.
-        joints = robot.action_dim
-        self.desired_kp = jnp.asarray([self.kp] * 6 + [joint_kp] * joints, jnp.float32)
-        self.desired_kd = jnp.asarray([self.kd] * 6 + [joint_kd] * joints, jnp.float32)
+        self.control_dt = float(control_dt)
+        self._set_gains(self.gains(task))
         self.gain_p = jnp.float32(refs[0].kp)
         self.gain_d = jnp.float32(refs[0].kd)
         nq, nv, na = robot.nq, robot.nv, robot.action_dim
@@ -728,6 +795,25 @@ class LeggedTask(JointSpaceTask):
         self.desired_index = None
         self.joint_dofs = jnp.asarray(robot.actuated_dofs)
         self.joint_qpos = jnp.asarray(robot.actuated_dofs + (nq - nv))
+
+    def gains(self, task: TaskConfig) -> dict:
+        """The gains of the PD correction in ``s*``: ``desired_kp`` and ``desired_kd``,
+        ``(6 + joints,)`` float32 (``task.kp``, ``task.kd`` on the 6 base coordinates, then
+        ``task.joint_kp``, ``task.joint_kd`` on the actuated joints; None there: ``kp``,
+        ``kd``). Not the references' joint PD torque gains ``gain_p``, ``gain_d``, which
+        come with the recordings."""
+        kp, kd = float(task.kp), float(task.kd)
+        joint_kp = kp if task.joint_kp is None else float(task.joint_kp)
+        joint_kd = kd if task.joint_kd is None else float(task.joint_kd)
+        joints = self.robot.action_dim
+        return {
+            "desired_kp": jnp.asarray([kp] * 6 + [joint_kp] * joints, jnp.float32),
+            "desired_kd": jnp.asarray([kd] * 6 + [joint_kd] * joints, jnp.float32),
+        }
+
+    @property
+    def gains_names(self) -> tuple[str, ...]:
+        return ("desired_kp", "desired_kd")
 
     @property
     def tracking_scale(self) -> float:

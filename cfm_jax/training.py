@@ -90,13 +90,43 @@ class TrainState:
     iteration: jax.Array  # int32: completed iterations of Algorithm 1
 
 
-class Experiment:
-    """The static pieces of one config (robot, reference, models, optimisers) and its
-    compiled functions. Build once and reuse, also across losses: the rollout used for
-    babbling, evaluation and the baselines compiles once per experiment, and each loss's
-    iteration compiles once.
+@struct.dataclass
+class Knobs:
+    """The values of a config that the compiled functions take as arguments (a pytree of
+    float32 arrays; see :data:`cfm_jax.config.RUNTIME_FIELDS`). Configs that differ only
+    in these share an :class:`Experiment` and its compilations.
 
-    ``config.loss`` is only the default; every method takes the loss to use.
+    Attributes:
+      forward_learning_rate: ``forward.learning_rate``.
+      controller_learning_rate: ``controller.learning_rate``.
+      babbling_noise_std: ``loop.babbling_noise`` times each torque limit, ``(action_dim,)``.
+      task: the task's gains, ``task.gains(config.task)`` (``task.kp``, ``task.kd`` and
+        what the task derives from them).
+
+    Examples:
+      >>> exp = Experiment(cfg.Config(robot="two_link_arm"))  # doctest: +SKIP
+      >>> knobs = exp.knobs_for(exp.config.replace(task=cfg.TaskConfig(kp=25.0)))  # doctest: +SKIP
+      >>> float(knobs.task["kp"])  # doctest: +SKIP
+      25.0
+    """
+
+    forward_learning_rate: jax.Array
+    controller_learning_rate: jax.Array
+    babbling_noise_std: jax.Array
+    task: dict
+
+
+class Experiment:
+    """The static pieces of one config (robot, reference, models) and its compiled
+    functions. Build once and reuse, also across losses and across the values of
+    :data:`cfm_jax.config.RUNTIME_FIELDS` (seed, learning rates, babbling noise, task
+    gains, checkpointing): those are arguments of the compiled functions (:class:`Knobs`),
+    so the rollout used for babbling, evaluation and the baselines compiles once per
+    experiment, and each loss's iteration compiles once.
+
+    ``config.loss`` and the runtime fields of ``config`` are only the defaults: every
+    method takes the loss to use and, optionally, the :class:`Knobs` of another config
+    (:meth:`knobs_for`).
 
     Args:
       config: the :class:`cfm_jax.config.Config` to build for.
@@ -131,14 +161,13 @@ class Experiment:
         self.controller = networks.controller(
             config.controller.hidden, self.task.action_dim, self.task.desired_dim
         )
-        self.forward_optimizer = optax.adam(fm.learning_rate)
-        self.controller_optimizer = optax.adam(config.controller.learning_rate)
         self.state_dim = self.task.state_dim
         self.transitions_per_rollout = self.task.targets * self.task.steps
         self.capacity = self.transitions_per_rollout * (
             config.loop.babbling_rollouts + config.loop.iterations
         )
         self._compiled: dict = {}
+        self.knobs = self.knobs_for(config)
 
     @property
     def metric_columns(self) -> tuple[str, ...]:
@@ -146,10 +175,67 @@ class Experiment:
         return METRIC_COLUMNS + tuple(self.task.metric_names)
 
     def compatible(self, config: config_lib.Config) -> bool:
-        """True when ``config`` differs from this experiment's at most in ``loss``."""
-        return config_lib.to_dict(config.replace(loss=self.config.loss)) == config_lib.to_dict(
-            self.config
+        """True when ``config`` differs from this experiment's at most in ``loss`` and
+        :data:`cfm_jax.config.RUNTIME_FIELDS` (it can then run on this experiment's
+        compilations)."""
+        return not self.differences(config)
+
+    def differences(self, config: config_lib.Config) -> list[str]:
+        """The fields outside ``loss`` and :data:`cfm_jax.config.RUNTIME_FIELDS` in which
+        ``config`` differs from this experiment's, with both values (empty: compatible)."""
+        return [
+            d.replace(" in the run,", " in the experiment,")
+            for d in config_differences(
+                config_lib.structure(self.config), config_lib.structure(config)
+            )
+        ]
+
+    def knobs_for(self, config: config_lib.Config) -> Knobs:
+        """The :class:`Knobs` of ``config``, a config :meth:`compatible` with this one.
+
+        Args:
+          config: the config to run on this experiment's compilations.
+
+        Returns:
+          Its :class:`Knobs`.
+
+        Raises:
+          ValueError: ``config`` differs in a field that changes the compiled program (the
+            fields are listed).
+        """
+        diff = self.differences(config)
+        if diff:
+            raise ValueError(
+                "the experiment was built for a config that differs in more than the loss "
+                "and the runtime fields (cfm_jax.config.RUNTIME_FIELDS): "
+                + "; ".join(diff)
+                + "; build an Experiment for this config"
+            )
+        limit = np.asarray(self.robot.torque_limit, np.float64)
+        return Knobs(
+            forward_learning_rate=jnp.asarray(config.forward.learning_rate, jnp.float32),
+            controller_learning_rate=jnp.asarray(config.controller.learning_rate, jnp.float32),
+            babbling_noise_std=jnp.asarray(config.loop.babbling_noise * limit, jnp.float32),
+            task=self.task.gains(config.task),
         )
+
+    def _knobs(self, knobs: Knobs | None) -> Knobs:
+        return self.knobs if knobs is None else knobs
+
+    def _task(self, knobs: Knobs):
+        """The task with the gains of ``knobs`` (traced inside the compiled functions)."""
+        return self.task.with_gains(knobs.task)
+
+    @staticmethod
+    def forward_optimizer(knobs: Knobs):
+        """Adam at ``knobs.forward_learning_rate`` (the optimiser state does not hold the
+        rate, so states of configs that differ in it are interchangeable)."""
+        return optax.adam(knobs.forward_learning_rate)
+
+    @staticmethod
+    def controller_optimizer(knobs: Knobs):
+        """Adam at ``knobs.controller_learning_rate``."""
+        return optax.adam(knobs.controller_learning_rate)
 
     # ----- pure functions of one seed ---------------------------------------------------
 
@@ -164,22 +250,25 @@ class Experiment:
         norm = self._normaliser_identity()
         return rollout.MixedPolicy.of(dummy, norm, self.task.action_dim, **weights)
 
-    def rollout_one(self, policy: rollout.MixedPolicy, key) -> rollout.Rollout:
-        """Roll a :class:`cfm_jax.rollout.MixedPolicy` out on every target (one seed)."""
+    def rollout_one(
+        self, policy: rollout.MixedPolicy, key, knobs: Knobs | None = None
+    ) -> rollout.Rollout:
+        """Roll a :class:`cfm_jax.rollout.MixedPolicy` out on every target (one seed), with
+        the task gains of ``knobs`` (None: this experiment's)."""
         simulator = self.config.simulator
+        task = self._task(self._knobs(knobs))
         return rollout.run(
-            self.task,
-            rollout.mixed_policy(self.task, self.controller, policy, simulator),
+            task,
+            rollout.mixed_policy(task, self.controller, policy, simulator),
             key,
             simulator=simulator,
         )
 
-    def babbling_policy(self) -> rollout.MixedPolicy:
+    def babbling_policy(self, knobs: Knobs | None = None) -> rollout.MixedPolicy:
         """The task's babbling controller (``task.babbling_weights``: PD-only feedback for
         the arms) plus Gaussian torque noise (``loop.babbling_noise`` of each limit)."""
         return self._policy(
-            **self.task.babbling_weights,
-            noise_std=self.config.loop.babbling_noise * self.robot.torque_limit,
+            **self.task.babbling_weights, noise_std=self._knobs(knobs).babbling_noise_std
         )
 
     def learned_policy(self, state: TrainState) -> rollout.MixedPolicy:
@@ -187,7 +276,9 @@ class Experiment:
             state.controller_params, state.normaliser, self.task.action_dim, controller=1.0
         )
 
-    def prepare_one(self, babbling: rollout.Rollout, key) -> tuple[TrainState, jax.Array]:
+    def prepare_one(
+        self, babbling: rollout.Rollout, key, knobs: Knobs | None = None
+    ) -> tuple[TrainState, jax.Array]:
         """The loss-independent start of a run (one seed): normaliser from the babbling data,
         the data set, fresh parameters and the initial fit of the forward model.
 
@@ -196,14 +287,14 @@ class Experiment:
         state, so losses are compared on the same data and the same initial forward model.
         """
         flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[3:]), babbling.transitions)
-        return self.prepare_from_data_one(flat, _valid(babbling).reshape(-1), key)
+        return self.prepare_from_data_one(flat, _valid(babbling).reshape(-1), key, knobs)
 
     def prepare_from_data_one(
-        self, flat: dataset.Transitions, valid, key
+        self, flat: dataset.Transitions, valid, key, knobs: Knobs | None = None
     ) -> tuple[TrainState, jax.Array]:
         """:meth:`prepare_one` from given transitions ``(n, ...)`` and their ``valid`` mask
         instead of babbling rollouts (the start of :meth:`replay`)."""
-        cfg = self.config
+        cfg, knobs = self.config, self._knobs(knobs)
         key, key_fm, key_ctrl, key_fit_fm, key_fit_ctrl = jax.random.split(key, 5)
         normaliser = networks.Normaliser.from_data(
             flat.state,
@@ -215,8 +306,8 @@ class Experiment:
         data = dataset.add(self.empty_dataset(), flat, valid)
         forward_params = self.forward.init(key_fm, self.state_dim)
         controller_params = self.controller.init(key_ctrl, self.state_dim)
-        forward_opt_state = self.forward_optimizer.init(forward_params)
-        controller_opt_state = self.controller_optimizer.init(controller_params)
+        forward_opt_state = self.forward_optimizer(knobs).init(forward_params)
+        controller_opt_state = self.controller_optimizer(knobs).init(controller_params)
         state = TrainState(
             forward_params,
             forward_opt_state,
@@ -227,7 +318,7 @@ class Experiment:
             key,
             jnp.int32(0),
         )
-        state, _ = self._fit_forward(state, key_fit_fm, cfg.forward.initial_steps)
+        state, _ = self._fit_forward(state, key_fit_fm, cfg.forward.initial_steps, knobs)
         return state, key_fit_ctrl
 
     def empty_dataset(self) -> dataset.Dataset:
@@ -237,16 +328,21 @@ class Experiment:
             self.capacity, task.state_dim, task.desired_dim, task.action_dim, task.output_dim
         )
 
-    def fit_initial_controller_one(self, loss: str, state: TrainState, key) -> TrainState:
+    def fit_initial_controller_one(
+        self, loss: str, state: TrainState, key, knobs: Knobs | None = None
+    ) -> TrainState:
         """The controller's initial fit with ``loss`` on the babbling data (one seed)."""
-        state, _ = self._fit_controller(loss, state, key, self.config.controller.initial_steps)
+        steps = self.config.controller.initial_steps
+        state, _ = self._fit_controller(loss, state, key, steps, self._knobs(knobs))
         return state
 
-    def _fit_forward(self, state: TrainState, key, steps: int) -> tuple[TrainState, jax.Array]:
+    def _fit_forward(
+        self, state: TrainState, key, steps: int, knobs: Knobs
+    ) -> tuple[TrainState, jax.Array]:
         """``steps`` forward-model updates on ``state.data``; returns the state and mean loss."""
         params, opt_state, loss = update.fit_forward(
             self.forward,
-            self.forward_optimizer,
+            self.forward_optimizer(knobs),
             state.forward_params,
             state.forward_opt_state,
             state.normaliser,
@@ -258,14 +354,14 @@ class Experiment:
         return state.replace(forward_params=params, forward_opt_state=opt_state), loss
 
     def _fit_controller(
-        self, loss: str, state: TrainState, key, steps: int
+        self, loss: str, state: TrainState, key, steps: int, knobs: Knobs
     ) -> tuple[TrainState, jax.Array]:
         """``steps`` controller updates with ``loss`` through ``state``'s forward model."""
         params, opt_state, mean_loss = update.fit_controller(
             loss,
             self.forward,
             self.controller,
-            self.controller_optimizer,
+            self.controller_optimizer(knobs),
             state.controller_params,
             state.controller_opt_state,
             state.forward_params,
@@ -323,18 +419,22 @@ class Experiment:
             **self.task.metrics(result),
         }
 
-    def iteration_one(self, loss: str, state: TrainState) -> tuple[TrainState, dict]:
+    def iteration_one(
+        self, loss: str, state: TrainState, knobs: Knobs | None = None
+    ) -> tuple[TrainState, dict]:
         """One iteration of Algorithm 1 for one seed: rollout, metrics, add, refit f, g."""
-        cfg = self.config
+        cfg, knobs = self.config, self._knobs(knobs)
         key, key_rollout, key_fit_fm, key_fit_ctrl = jax.random.split(state.key, 4)
-        result = self.rollout_one(self.learned_policy(state), key_rollout)
+        result = self.rollout_one(self.learned_policy(state), key_rollout, knobs)
         metrics = self.metrics_one(state, result)
         flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), result.transitions)
         data = dataset.add(state.data, flat, _valid(result).reshape(-1))
         state = state.replace(data=data)
-        state, forward_loss = self._fit_forward(state, key_fit_fm, cfg.forward.steps_per_iteration)
+        state, forward_loss = self._fit_forward(
+            state, key_fit_fm, cfg.forward.steps_per_iteration, knobs
+        )
         state, controller_loss = self._fit_controller(
-            loss, state, key_fit_ctrl, cfg.controller.steps_per_iteration
+            loss, state, key_fit_ctrl, cfg.controller.steps_per_iteration, knobs
         )
         metrics["forward_loss"] = forward_loss
         metrics["controller_loss"] = controller_loss
@@ -342,20 +442,27 @@ class Experiment:
         return new_state, metrics
 
     def replay_iteration_one(
-        self, loss: str, state: TrainState, chunk: dataset.Transitions, valid
+        self,
+        loss: str,
+        state: TrainState,
+        chunk: dataset.Transitions,
+        valid,
+        knobs: Knobs | None = None,
     ) -> tuple[TrainState, dict]:
         """:meth:`iteration_one` with the data given instead of collected: roll the current
         controller out (for the metrics only), add ``chunk`` (rows with ``valid``), refit f
         and g. Given the chunk a run collected in this iteration, with the same seed and
         loss, this is that run's iteration exactly (the rollout is the same rollout)."""
-        cfg = self.config
+        cfg, knobs = self.config, self._knobs(knobs)
         key, key_rollout, key_fit_fm, key_fit_ctrl = jax.random.split(state.key, 4)
-        result = self.rollout_one(self.learned_policy(state), key_rollout)
+        result = self.rollout_one(self.learned_policy(state), key_rollout, knobs)
         metrics = self.metrics_one(state, result)
         state = state.replace(data=dataset.add(state.data, chunk, valid))
-        state, forward_loss = self._fit_forward(state, key_fit_fm, cfg.forward.steps_per_iteration)
+        state, forward_loss = self._fit_forward(
+            state, key_fit_fm, cfg.forward.steps_per_iteration, knobs
+        )
         state, controller_loss = self._fit_controller(
-            loss, state, key_fit_ctrl, cfg.controller.steps_per_iteration
+            loss, state, key_fit_ctrl, cfg.controller.steps_per_iteration, knobs
         )
         metrics["forward_loss"] = forward_loss
         metrics["controller_loss"] = controller_loss
@@ -374,87 +481,134 @@ class Experiment:
             self._compiled[name] = jax.jit(fn, **kwargs)
         return self._compiled[name]
 
-    def rollout(self, policy: rollout.MixedPolicy, keys) -> rollout.Rollout:
+    def compilations(self) -> dict[str, int]:
+        """How many programs each compiled function of this experiment holds (one per
+        distinct argument shape; values of :class:`Knobs` do not add any).
+
+        Returns:
+          ``{name: count}``, e.g. ``{"rollout": 1, "prepare": 1, "init/joint": 1,
+          "iteration/joint": 1}``.
+        """
+        return {
+            name: fn._cache_size()
+            for name, fn in self._compiled.items()
+            if hasattr(fn, "_cache_size")
+        }
+
+    def rollout(
+        self, policy: rollout.MixedPolicy, keys, knobs: Knobs | None = None
+    ) -> rollout.Rollout:
         """Rollouts for a seed axis: ``policy`` leaves and ``keys`` have a leading seed axis.
         Compiled once per experiment (babbling, evaluation and baselines share it)."""
-        return self._jit("rollout", jax.vmap(self.rollout_one))(policy, keys)
+        fn = self._jit("rollout", jax.vmap(self.rollout_one, in_axes=(0, 0, None)))
+        return fn(policy, keys, self._knobs(knobs))
 
-    def init(self, loss: str, keys) -> TrainState:
+    def init(self, loss: str, keys, knobs: Knobs | None = None) -> TrainState:
         """Babbling, normaliser and initial fits for every seed of ``keys``.
 
         The loss-independent part (:meth:`prepare_one`) is computed once per set of keys
-        and shared by every loss of this experiment."""
-        prepared, key_fit = self.prepare(keys)
-        fit = self._jit(f"init/{loss}", jax.vmap(partial(self.fit_initial_controller_one, loss)))
-        return fit(prepared, key_fit)
+        and knobs and shared by every loss of this experiment."""
+        knobs = self._knobs(knobs)
+        prepared, key_fit = self.prepare(keys, knobs)
+        return self._fit_initial(loss, prepared, key_fit, knobs)
 
-    def prepare(self, keys) -> tuple[TrainState, jax.Array]:
-        """:meth:`prepare_one` for every seed of ``keys`` (cached for the last keys)."""
-        cache_key = np.asarray(jax.random.key_data(keys)).tobytes()
+    def _fit_initial(self, loss: str, prepared, key_fit, knobs: Knobs) -> TrainState:
+        fn = jax.vmap(partial(self.fit_initial_controller_one, loss), in_axes=(0, 0, None))
+        return self._jit(f"init/{loss}", fn)(prepared, key_fit, knobs)
+
+    def prepare(self, keys, knobs: Knobs | None = None) -> tuple[TrainState, jax.Array]:
+        """:meth:`prepare_one` for every seed of ``keys`` (cached for the last keys and
+        knobs)."""
+        knobs = self._knobs(knobs)
+        cache_key = _fingerprint((jax.random.key_data(keys), knobs))
         cached = self._compiled.get("prepared")
         if cached is None or cached[0] != cache_key:
             key_babble, key_fit = jax.vmap(lambda k: jax.random.split(k, 2))(keys).swapaxes(0, 1)
-            rollouts = self.babbling_rollouts(key_babble)
-            prepared = self._jit("prepare", jax.vmap(self.prepare_one))(rollouts, key_fit)
+            rollouts = self.babbling_rollouts(key_babble, knobs)
+            fn = jax.vmap(self.prepare_one, in_axes=(0, 0, None))
+            prepared = self._jit("prepare", fn)(rollouts, key_fit, knobs)
             self._compiled["prepared"] = (cache_key, prepared)
         return self._compiled["prepared"][1]
 
-    def babbling_rollouts(self, keys) -> rollout.Rollout:
+    def babbling_rollouts(self, keys, knobs: Knobs | None = None) -> rollout.Rollout:
         """``loop.babbling_rollouts`` babbling rollouts per seed, ``(seeds, rollouts, ...)``."""
+        knobs = self._knobs(knobs)
         count = self.config.loop.babbling_rollouts
         seeds = keys.shape[0]
-        policy = _broadcast(self.babbling_policy(), seeds * count)
+        policy = _broadcast(self.babbling_policy(knobs), seeds * count)
         flat_keys = jax.vmap(lambda k: jax.random.split(k, count))(keys).reshape(-1)
-        result = self.rollout(policy, flat_keys)
+        result = self.rollout(policy, flat_keys, knobs)
         return jax.tree.map(lambda x: x.reshape((seeds, count) + x.shape[1:]), result)
 
-    def init_from_data(self, loss: str, keys, chunk: dataset.Transitions, valid) -> TrainState:
+    def init_from_data(
+        self, loss: str, keys, chunk: dataset.Transitions, valid, knobs: Knobs | None = None
+    ) -> TrainState:
         """:meth:`init` with the babbling data given (``chunk`` and ``valid`` with a leading
         seed axis) instead of collected; the keys are used exactly as :meth:`init` uses
         them, so the same data and seed give the same state."""
+        knobs = self._knobs(knobs)
         key_fit = jax.vmap(lambda k: jax.random.split(k, 2)[1])(keys)
-        prepare = self._jit("prepare_from_data", jax.vmap(self.prepare_from_data_one))
-        prepared, key_ctrl = prepare(chunk, valid, key_fit)
-        fit = self._jit(f"init/{loss}", jax.vmap(partial(self.fit_initial_controller_one, loss)))
-        return fit(prepared, key_ctrl)
+        fn = jax.vmap(self.prepare_from_data_one, in_axes=(0, 0, 0, None))
+        prepared, key_ctrl = self._jit("prepare_from_data", fn)(chunk, valid, key_fit, knobs)
+        return self._fit_initial(loss, prepared, key_ctrl, knobs)
 
-    def replay_iteration(self, loss: str, state: TrainState, chunk, valid):
+    def replay_iteration(
+        self, loss: str, state: TrainState, chunk, valid, knobs: Knobs | None = None
+    ):
         """:meth:`replay_iteration_one` for every seed (leading seed axes)."""
-        fn = jax.vmap(partial(self.replay_iteration_one, loss))
-        return self._jit(f"replay/{loss}", fn)(state, chunk, valid)
+        fn = jax.vmap(partial(self.replay_iteration_one, loss), in_axes=(0, 0, 0, None))
+        return self._jit(f"replay/{loss}", fn)(state, chunk, valid, self._knobs(knobs))
 
-    def iteration(self, loss: str, state: TrainState):
+    def iteration(self, loss: str, state: TrainState, knobs: Knobs | None = None):
         """``(state, metrics)`` after one iteration of Algorithm 1 for every seed."""
-        return self._jit(f"iteration/{loss}", jax.vmap(partial(self.iteration_one, loss)))(state)
+        fn = jax.vmap(partial(self.iteration_one, loss), in_axes=(0, None))
+        return self._jit(f"iteration/{loss}", fn)(state, self._knobs(knobs))
 
-    def evaluate(self, state: TrainState) -> dict:
+    def evaluate(self, state: TrainState, knobs: Knobs | None = None) -> dict:
         """Metrics of a rollout of the current controllers (no update), every seed.
 
         The rollout key is derived from the state's key without consuming it."""
         keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(state.key)
         policy = jax.vmap(self.learned_policy)(state)
-        result = self.rollout(policy, keys)
+        result = self.rollout(policy, keys, knobs)
         return self._jit("evaluate", jax.vmap(self.evaluate_one))(state, result)
 
-    def baselines(self) -> pd.DataFrame:
-        """Tracking MSE per target of the oracle (MuJoCo inverse dynamics) and PD-only."""
-        if "baselines" in self._compiled:
-            return self._compiled["baselines"]
+    def baselines(self, knobs: Knobs | None = None) -> pd.DataFrame:
+        """Tracking MSE per target of the oracle (MuJoCo inverse dynamics) and PD-only
+        (with the task gains of ``knobs``; cached per knobs)."""
+        knobs = self._knobs(knobs)
+        cache = self._compiled.setdefault("baselines", {})
+        cache_key = _fingerprint(knobs.task)
+        if cache_key in cache:
+            return cache[cache_key].copy()
         policies = {
             "oracle": self._policy(oracle=1.0),
             "pd_only": self._policy(feedback=1.0),
         }
         rows = []
         for name, policy in policies.items():
-            result = self.rollout(_broadcast(policy, 1), jax.random.split(jax.random.key(0), 1))
+            keys = jax.random.split(jax.random.key(0), 1)
+            result = self.rollout(_broadcast(policy, 1), keys, knobs)
             metrics = jax.device_get(jax.vmap(self.rollout_metrics)(result))
             names = ["tracking_mse", *self.task.metric_names]
             for k in range(self.task.targets):
                 row = {"baseline": name, "target": k}
                 row.update({m: float(np.asarray(metrics[m])[0, k]) for m in names})
                 rows.append(row)
-        self._compiled["baselines"] = pd.DataFrame(rows)
-        return self._compiled["baselines"]
+        cache[cache_key] = pd.DataFrame(rows)
+        return cache[cache_key].copy()
+
+
+def _fingerprint(tree) -> bytes:
+    """Bytes that identify the values, shapes and dtypes of a pytree of arrays."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for leaf in jax.tree.leaves(tree):
+        leaf = np.asarray(leaf)
+        digest.update(f"{leaf.dtype}{leaf.shape}".encode())
+        digest.update(leaf.tobytes())
+    return digest.digest()
 
 
 def _step_mean(result: rollout.Rollout, before_terminal: bool = False):
@@ -653,8 +807,10 @@ def train(
       config: a :class:`cfm_jax.config.Config`.
       progress: show a progress bar (rich).
       out_dir: directory for result files (created), or None.
-      experiment: a prebuilt :class:`Experiment` for this config, to reuse its compiled
-        functions (optional).
+      experiment: a prebuilt :class:`Experiment` to reuse its compiled functions
+        (optional): one built for a config that differs from ``config`` at most in the loss
+        and :data:`cfm_jax.config.RUNTIME_FIELDS` (seed, learning rates, babbling noise,
+        task gains, checkpointing); another raises ``ValueError`` naming the fields.
       resume: the ``out_dir`` of an interrupted run of the same config: continue from its
         newest valid checkpoint (results go to ``out_dir``, default ``resume``). The
         metrics equal those of an uninterrupted run bit for bit.
@@ -670,6 +826,7 @@ def train(
       A :class:`TrainResult`.
 
     Raises:
+      ValueError: ``experiment`` was built for a config of another structure.
       ConfigError: ``resume`` names a run of a different config (the fields are listed).
       CheckpointError: the newest checkpoint is corrupt (the previous valid one is offered).
       DivergenceError: a non-finite simulator state, loss or parameter.
@@ -684,8 +841,8 @@ def train(
     from cfm_jax import checkpoint as ckpt_lib
 
     start = time.perf_counter()
-    if experiment is not None and not experiment.compatible(config):
-        raise ValueError("experiment was built for a config that differs in more than the loss")
+    if experiment is not None:
+        knobs = experiment.knobs_for(config)  # refuses a config of another structure
     if resume is not None:
         out_dir = out_dir or resume
         saved_path = os.path.join(resume, "config.json")
@@ -702,8 +859,10 @@ def train(
                 + "; ".join(diff)
             )
     exp = experiment if experiment is not None else Experiment(config)
+    if experiment is None:
+        knobs = exp.knobs
     seeds = config_lib.seeds_of(config)
-    recorded = None if data is None else _recorded_for(exp, data)
+    recorded = None if data is None else _recorded_for(exp, config, data)
     checkpointer = None
     if out_dir:
         os.makedirs(out_dir, exist_ok=True)
@@ -747,10 +906,11 @@ def train(
         task = bar.add_task(f"{config.robot} {config.loss}: babbling + initial fit", total=total)
         keys = jax.vmap(jax.random.key)(jnp.asarray(seeds, jnp.uint32))
         if recorded is None:
-            state = exp.init(config.loss, keys)
+            state = exp.init(config.loss, keys, knobs)
         else:
             babbling_rows = config.loop.babbling_rollouts * exp.transitions_per_rollout
-            state = exp.init_from_data(config.loss, keys, *recorded.chunk(0, babbling_rows))
+            chunk = recorded.chunk(0, babbling_rows)
+            state = exp.init_from_data(config.loss, keys, *chunk, knobs=knobs)
         jax.block_until_ready(state)
         first = 0
         if resume is not None and checkpointer is not None:
@@ -765,10 +925,10 @@ def train(
             bar.update(task, description=f"{config.robot} {config.loss}: iteration {i + 1}")
             t0 = time.perf_counter()
             if recorded is None:
-                state, metrics = exp.iteration(config.loss, state)
+                state, metrics = exp.iteration(config.loss, state, knobs)
             else:
                 chunk = recorded.chunk(i + 1, exp.transitions_per_rollout)
-                state, metrics = exp.replay_iteration(config.loss, state, *chunk)
+                state, metrics = exp.replay_iteration(config.loss, state, *chunk, knobs=knobs)
             metrics = jax.device_get(metrics)
             if i == first:
                 compile_seconds = time.perf_counter() - t0
@@ -777,10 +937,10 @@ def train(
             save(state, i + 1, final=i + 1 == config.loop.iterations)
             bar.advance(task)
         bar.update(task, description=f"{config.robot} {config.loss}: final evaluation")
-        final_metrics = jax.device_get(exp.evaluate(state))
+        final_metrics = jax.device_get(exp.evaluate(state, knobs))
         _check_finite(state, final_metrics, config.loop.iterations, seeds, where(), losses=False)
         record(config.loop.iterations, final_metrics)
-        baselines = exp.baselines()
+        baselines = exp.baselines(knobs)
         bar.advance(task)
     if checkpointer is not None:
         checkpointer.close()
@@ -789,7 +949,7 @@ def train(
         dataset.save(
             os.path.join(out_dir, "dataset.npz"),
             state.data,
-            _segments(exp, state, rows, recorded),
+            _segments(config, state, rows, recorded),
             seeds,
             _jsonable(config),
         )
@@ -804,11 +964,11 @@ def train(
     )
 
 
-def _segments(exp: Experiment, state: TrainState, rows: list[dict], recorded) -> np.ndarray:
+def _segments(config: config_lib.Config, state: TrainState, rows: list[dict], recorded) -> np.ndarray:
     """Rows added to each seed's data set by babbling and by each iteration,
     ``(seeds, 1 + iterations)``: an iteration adds its rollout's ``transitions_added``, in
     a replay the recorded segment; babbling the rest."""
-    iterations = exp.config.loop.iterations
+    iterations = config.loop.iterations
     size = np.asarray(state.data.size)
     if recorded is not None:
         added = np.asarray(recorded.segments[:, 1 : iterations + 1])
@@ -822,8 +982,8 @@ def _segments(exp: Experiment, state: TrainState, rows: list[dict], recorded) ->
     return np.concatenate([(size - added.sum(1))[:, None], added], axis=1)
 
 
-def _recorded_for(exp: Experiment, data) -> dataset.Recorded:
-    """Load ``data`` and check that it can be replayed by this experiment's config."""
+def _recorded_for(exp: Experiment, config: config_lib.Config, data) -> dataset.Recorded:
+    """Load ``data`` and check that ``config`` (on ``exp``) can replay it."""
     if isinstance(data, str | os.PathLike):
         try:
             recorded = dataset.load(str(data))
@@ -831,7 +991,6 @@ def _recorded_for(exp: Experiment, data) -> dataset.Recorded:
             raise config_lib.ConfigError(str(error)) from error
     else:
         recorded = data
-    config = exp.config
     seeds = len(recorded.seeds)
     where = f"data={data!r}" if isinstance(data, str | os.PathLike) else "data"
     if seeds != config.loop.seeds:
