@@ -419,7 +419,8 @@ def experiment_for(config: config_lib.Config):
 
     Examples:
       >>> config = config_lib.Config(robot="two_link_arm")
-      >>> experiment_for(config) is experiment_for(config.replace(loss="task", seed=3))  # doctest: +SKIP
+      >>> same = experiment_for(config.replace(loss="task", seed=3))  # doctest: +SKIP
+      >>> experiment_for(config) is same  # doctest: +SKIP
       True
     """
     from cfm_jax import training

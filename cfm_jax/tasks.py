@@ -345,7 +345,6 @@ class JointSpaceTask:
     babbling_weights = {"feedback": 1.0}
 
     def __init__(self, robot, reference: Reference, kp: float, kd: float, control_dt: float):
-        from cfm_jax import rollout
 
         self.robot = robot
         self.reference_np = reference

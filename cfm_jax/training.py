@@ -964,7 +964,9 @@ def train(
     )
 
 
-def _segments(config: config_lib.Config, state: TrainState, rows: list[dict], recorded) -> np.ndarray:
+def _segments(
+    config: config_lib.Config, state: TrainState, rows: list[dict], recorded
+) -> np.ndarray:
     """Rows added to each seed's data set by babbling and by each iteration,
     ``(seeds, 1 + iterations)``: an iteration adds its rollout's ``transitions_added``, in
     a replay the recorded segment; babbling the rest."""

@@ -169,8 +169,8 @@ def test_nan_in_parameters_stops_with_named_error(tmp_path, monkeypatch):
     original = training.Experiment.iteration
     calls = {"n": 0}
 
-    def poisoned(self, loss, state):
-        state, metrics = original(self, loss, state)
+    def poisoned(self, loss, state, knobs=None):
+        state, metrics = original(self, loss, state, knobs)
         calls["n"] += 1
         if calls["n"] == 3:  # iteration index 2, seed 1
             params = jax.tree.map(lambda x: x.at[1].set(jnp.nan), state.controller_params)

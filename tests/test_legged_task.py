@@ -87,13 +87,20 @@ def test_desired_acceleration_has_base_gains_on_the_base_and_joint_gains_on_the_
     gains_d = np.array([20.0] * 6 + [50.0] * 12)
     expected = (ref.qacc + gains_p * error + gains_d * (ref.qvel - qvel)) * 0.004
     ref_t = jax.tree.map(lambda x: x[k, t], task.reference)
-    desired = np.asarray(task.desired(ref_t, qpos.astype(np.float32), qvel.astype(np.float32), None))
+    qpos32, qvel32 = qpos.astype(np.float32), qvel.astype(np.float32)
+    desired = np.asarray(task.desired(ref_t, qpos32, qvel32, None))
     np.testing.assert_allclose(desired[:18], expected, rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(desired[18:], ref.force, atol=1e-6)
     # joint_kp / joint_kd None: the base gains on the joints too.
     same = tasks.make(solo, config_lib.TaskConfig(name="walk", control_dt=0.004), 0.004)
     np.testing.assert_allclose(np.asarray(same.desired_kp), 100.0)
     np.testing.assert_allclose(np.asarray(same.desired_kd), 20.0)
+    # The gains of cfg given to that task as values (as the compiled functions get them,
+    # cfm_jax.training.Knobs) give the s* of the task built for cfg, bit for bit, and leave
+    # the task itself as it was.
+    moved = same.with_gains(same.gains(cfg))
+    np.testing.assert_array_equal(np.asarray(moved.desired(ref_t, qpos32, qvel32, None)), desired)
+    np.testing.assert_allclose(np.asarray(same.desired_kp), 100.0)
 
 
 def test_falls_are_flagged_when_the_robot_goes_down(walk):

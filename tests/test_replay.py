@@ -145,7 +145,9 @@ def test_an_interrupted_replay_resumes_to_the_same_run(
     calls = []
     replay_iteration = experiment.replay_iteration
     monkeypatch.setattr(
-        experiment, "replay_iteration", lambda *a: calls.append(1) or replay_iteration(*a)
+        experiment,
+        "replay_iteration",
+        lambda *a, **k: calls.append(1) or replay_iteration(*a, **k),
     )
     resumed = cfm_jax.train(
         TINY, progress=False, data=str(path), experiment=experiment, resume=str(out)

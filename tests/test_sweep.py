@@ -173,6 +173,45 @@ def test_vmapped_seeds_equal_separate_single_seed_runs(local):
             )
 
 
+def test_value_overrides_compile_once_per_loss_and_equal_separate_runs(tmp_path):
+    # Overrides of runtime fields (config.RUNTIME_FIELDS), a learning rate and a gain: 2 x 2
+    # cells per loss, one Experiment, each function compiled once. Oracle: a cell's config
+    # trained alone on an Experiment built for it (its values baked in as before); the
+    # sweep's rows of that cell must equal it bit for bit. The two cells checked differ from
+    # the base in one field each, so each field is seen to reach the compiled program.
+    sweeps._EXPERIMENTS.clear()
+    overrides = {"controller.learning_rate": [1e-3, 3e-3], "task.kp": [50.0, 100.0]}
+    result = cfm_jax.sweep(
+        TINY, seeds=2, losses=LOSSES, overrides=overrides, out_dir=str(tmp_path), progress=False
+    )
+    assert len(sweeps._EXPERIMENTS) == 1
+    counts = next(iter(sweeps._EXPERIMENTS.values())).compilations()
+    for name in ("prepare", "init/joint", "init/task", "iteration/joint", "iteration/task"):
+        assert counts[name] == 1, counts
+    assert counts["evaluate"] == 1, counts
+    frame = result.metrics
+    assert frame.cell.nunique() == 8
+    finals = frame[frame.iteration == TINY.loop.iterations].groupby("cell").tracking_mse.sum()
+    assert finals.nunique() == 8  # every value changes the run
+    for lr, kp in ((3e-3, 100.0), (1e-3, 50.0)):
+        config = TINY.replace(
+            task=config_lib.TaskConfig(**{**config_lib.to_dict(TINY)["task"], "kp": kp}),
+            controller=config_lib.ControllerConfig(
+                **{**config_lib.to_dict(TINY)["controller"], "learning_rate": lr}
+            ),
+        )
+        alone = cfm_jax.train(config, progress=False)
+        mine = frame[
+            (frame.loss == "joint")
+            & (frame["controller.learning_rate"] == lr)
+            & (frame["task.kp"] == kp)
+        ]
+        columns = list(alone.metrics.columns)
+        pd.testing.assert_frame_equal(
+            mine[columns].reset_index(drop=True), alone.metrics, check_exact=True
+        )
+
+
 def test_interrupted_sweep_resumes_and_gives_the_same_table(local, tmp_path, monkeypatch):
     calls = []
 

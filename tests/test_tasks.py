@@ -157,3 +157,31 @@ def test_desired_acceleration_formula():
     # kp = kd = 0: pure feed-forward, exactly the reference acceleration
     ff = tasks.desired_acceleration(ref_q, ref_qd, ref_qdd, q, qd, 0.0, 0.0)
     np.testing.assert_array_equal(np.asarray(ff), np.asarray(ref_qdd))
+
+
+@pytest.mark.parametrize("name", ["inverse_dynamics", "opspace"])
+def test_gains_given_as_values_equal_a_task_built_with_them(arm, name):
+    # Oracle: the task built from the config with the other gains. A PD-only rollout uses
+    # the gains twice, in s* (kp, kd) and in the feedback torque (gain_p, gain_d); with the
+    # gains swapped in as values (what cfm_jax.training.Knobs carries into the compiled
+    # functions) it must be the same rollout bit for bit, and differ from the original one.
+    from cfm_jax import rollout
+
+    site = "tip" if name == "opspace" else None
+    config = TaskConfig(name=name, duration=0.2, site=site)
+    other = TaskConfig(name=name, duration=0.2, site=site, kp=30.0, kd=4.0)
+    task, built = tasks.make(arm, config, 0.01), tasks.make(arm, other, 0.01)
+    moved = task.with_gains(task.gains(other))
+
+    def run(t):
+        return jax.jit(
+            lambda: rollout.run(t, lambda step, key: t.feedback(step), jax.random.key(0))
+        )()
+
+    original, expected, got = run(task), run(built), run(moved)
+    for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(expected), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert not np.allclose(original.tracking_error, got.tracking_error)
+    assert float(task.kp) == 100.0  # the task itself keeps its gains
+    with pytest.raises(ValueError, match="gain_p"):
+        task.with_gains({"kp": 1.0, "kd": 1.0})

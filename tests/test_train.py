@@ -9,6 +9,7 @@ README, and ``test_joint_loss_learns_two_link_arm`` under the ``slow`` marker).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -124,10 +125,41 @@ def test_one_compiled_function_per_loss_iteration(experiment, two_seeds):
     assert compiled["iteration/joint"]._cache_size() == 1
 
 
-def test_experiment_reuse_is_refused_for_a_different_config(experiment):
-    other = TINY.replace(seed=3)
-    with pytest.raises(ValueError, match="differs"):
+def test_experiment_reuse_is_refused_for_a_different_structure(experiment):
+    other = TINY.replace(forward=dataclasses.replace(TINY.forward, hidden=(8,)))
+    with pytest.raises(
+        ValueError, match=r"forward.hidden \(\(16,\) in the experiment, \(8,\) now\)"
+    ):
         cfm_jax.train(other, progress=False, experiment=experiment)
+
+
+def test_runtime_fields_reuse_the_compilations_and_equal_a_fresh_experiment(experiment, two_seeds):
+    # Every field of config.RUNTIME_FIELDS changed at once. Oracle: the same config on an
+    # Experiment built for it (its own values, as before the values became arguments).
+    # On the shared experiment it must give the same numbers bit for bit, without a
+    # single new compilation, and numbers that differ from the original config's.
+    other = TINY.replace(
+        seed=3,
+        task=dataclasses.replace(TINY.task, kp=40.0, kd=6.0),
+        forward=dataclasses.replace(TINY.forward, learning_rate=3e-3),
+        controller=dataclasses.replace(TINY.controller, learning_rate=3e-4),
+        loop=dataclasses.replace(TINY.loop, babbling_noise=0.25, checkpoint_keep=1),
+    )
+    assert config_lib.structure(other) == config_lib.structure(TINY)
+    before = experiment.compilations()
+    shared = cfm_jax.train(other, progress=False, experiment=experiment)
+    assert experiment.compilations() == before
+    # One program per compiled function (the rollout has one more for the baselines' seed
+    # axis of 1).
+    for name in ("prepare", "init/joint", "iteration/joint", "evaluate"):
+        assert before[name] == 1, before
+    fresh = cfm_jax.train(other, progress=False)
+    pd.testing.assert_frame_equal(shared.metrics, fresh.metrics, check_exact=True)
+    pd.testing.assert_frame_equal(shared.baselines, fresh.baselines, check_exact=True)
+    assert not np.allclose(shared.metrics.tracking_mse, two_seeds.metrics.tracking_mse)
+    pd_only = shared.baselines[shared.baselines.baseline == "pd_only"]
+    original = two_seeds.baselines[two_seeds.baselines.baseline == "pd_only"]
+    assert not np.allclose(pd_only.tracking_mse, original.tracking_mse)  # the gains count
 
 
 def test_train_writes_results_per_iteration(tmp_path, experiment):
