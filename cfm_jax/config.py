@@ -534,25 +534,33 @@ RUNTIME_FIELDS = (
     "task.kd",
     "task.joint_kp",
     "task.joint_kd",
+    "task.targets",
+    "task.home",
     "forward.learning_rate",
     "controller.learning_rate",
+    "forward.min_log_variance",
+    "forward.max_log_variance",
     "loop.babbling_noise",
     "loop.checkpoint_every",
     "loop.checkpoint_keep",
 )
 """Fields whose values do not change the compiled program: the seed and the checkpoint
-settings are not part of it, the learning rates, the babbling noise and the task gains are
-arguments of it (:class:`cfm_jax.training.Knobs`). Configs that differ only in these and in
-``loss`` share one :class:`cfm_jax.training.Experiment` and its compilations (a sweep over
-them compiles once per loss); every other field (robot, simulator, task name, duration,
-control period, targets, home pose, site, network sizes, step counts, batch sizes,
-iterations, seeds, babbling rollouts, log-variance bounds) builds its own."""
+settings are not part of it; the learning rates, the initial log-variance bounds, the
+babbling noise, the task gains and the reference trajectories are arguments of it
+(:class:`cfm_jax.training.Knobs`). Configs that differ only in these and in ``loss`` share
+one :class:`cfm_jax.training.Experiment` and its compilations (a sweep over them compiles
+once per loss). Two of them are partly structure (see :func:`structure`): the *number* of
+``task.targets`` (None: the default set) and, for ``opspace``, ``task.home`` (the
+oracle's null-space posture lives in its host callback). Every other field (robot,
+simulator, task name, duration, control period, site, network sizes, ensemble size, step
+counts, batch sizes, iterations, seeds, babbling rollouts) builds its own."""
 
 
 def structure(config: Config) -> dict:
-    """The fields of ``config`` that shape its compiled program: :func:`to_dict` without
-    ``loss`` and :data:`RUNTIME_FIELDS`. Two configs with equal structures can share an
-    :class:`cfm_jax.training.Experiment`.
+    """The part of ``config`` that shapes its compiled program: :func:`to_dict` without
+    ``loss`` and :data:`RUNTIME_FIELDS`, but with the number of ``task.targets`` (None when
+    the default targets are used) and, for ``opspace``, ``task.home``. Two configs with
+    equal structures can share an :class:`cfm_jax.training.Experiment`.
 
     Args:
       config: a :class:`Config`.
@@ -561,9 +569,12 @@ def structure(config: Config) -> dict:
       A nested dict, JSON-serialisable.
 
     Examples:
-      >>> a = Config(seed=1, task=TaskConfig(kp=50.0))
-      >>> structure(a) == structure(Config(loss="task"))
+      >>> a = Config(seed=1, task=TaskConfig(kp=50.0, targets=((0.1,) * 7, (0.2,) * 7)))
+      >>> b = Config(loss="task", task=TaskConfig(targets=((0.3,) * 7, (0.4,) * 7)))
+      >>> structure(a) == structure(b)
       True
+      >>> structure(a)["task"]["targets"]
+      2
       >>> structure(a) == structure(Config(task=TaskConfig(duration=1.0)))
       False
     """
@@ -575,6 +586,10 @@ def structure(config: Config) -> dict:
         for parent in parents:
             node = node[parent]
         del node[name]
+    task = config.task
+    tree["task"]["targets"] = None if task.targets is None else len(task.targets)
+    if task.name == "opspace":
+        tree["task"]["home"] = task.home
     return tree
 
 

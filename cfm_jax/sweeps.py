@@ -411,7 +411,7 @@ def experiment_for(config: config_lib.Config):
     """A :class:`cfm_jax.training.Experiment` for ``config``, reused (with its compiled
     functions and babbling data) for configs that differ only in the loss and in
     :data:`cfm_jax.config.RUNTIME_FIELDS` (seed, learning rates, babbling noise, task
-    gains, checkpointing): a sweep compiles once per loss and per override that changes
+    gains, target sets, checkpointing): a sweep compiles once per loss and per override that changes
     the program's structure. The last :data:`EXPERIMENT_CACHE_SIZE` are kept per process.
 
     Args:

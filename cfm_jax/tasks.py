@@ -311,11 +311,12 @@ class JointSpaceTask:
     * ``start(reference) -> (qpos0, qvel0, features0)``: initial state of a rollout.
     * ``feedback(step) -> tau``: the PD-only baseline (and babbling) feedback;
       ``oracle_policy(simulator)``: the model-based oracle.
-    * ``gains(task_config) -> dict``: the task's values that come from the config's gains
-      (``task.kp``, ``task.kd``, ...), as float32 arrays of fixed shapes, and
-      ``with_gains(gains)``: a copy of the task that uses the given ones. The compiled
-      functions of :class:`cfm_jax.training.Experiment` take these as arguments, so a sweep
-      over the gains compiles once.
+    * ``value_names``, ``values() -> dict`` and ``with_values(values)``: the attributes
+      that hold values of the config rather than its structure (here the reference and the
+      gains), and a copy of the task that uses other values of the same shapes (traced
+      ones, inside compiled code). :class:`cfm_jax.training.Experiment` passes them as
+      arguments of its compiled functions, so a sweep over the gains or over targets
+      compiles once.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
@@ -350,7 +351,7 @@ class JointSpaceTask:
         self.reference_np = reference
         self.reference = as_jax(reference)
         self.control_dt = float(control_dt)
-        self._set_gains(self._gains(float(kp), float(kd)))
+        self.__dict__.update(self._gains(float(kp), float(kd)))
         nv = robot.nv
         self.targets, self.steps = reference.q.shape[0], reference.steps
         self.state_dim, self.desired_dim, self.output_dim = robot.nq + nv, nv, nv
@@ -373,55 +374,60 @@ class JointSpaceTask:
             "gain_d": jnp.asarray(gain_d, jnp.float32),
         }
 
-    def gains(self, task: TaskConfig) -> dict:
-        """The gains of ``task`` (a :class:`cfm_jax.config.TaskConfig` of the same task) as
-        this task uses them: ``kp``, ``kd`` of the desired acceleration and the PD torque
-        gains ``gain_p``, ``gain_d`` of :meth:`feedback`, float32 arrays.
+    # The attributes that hold values of the config (reference and gains), not structure.
+    value_names: tuple[str, ...] = ("reference", "kp", "kd", "gain_p", "gain_d")
 
-        Args:
-          task: the task config whose ``kp``, ``kd`` (and, legged, ``joint_kp``,
-            ``joint_kd``) are taken; its other fields are not read.
+    def values(self) -> dict:
+        """The attributes :attr:`value_names`: the reference (float32 JAX arrays) and the
+        gains (``kp``, ``kd`` of the desired acceleration, ``gain_p``, ``gain_d`` of
+        :meth:`feedback`), as a dict (a pytree).
 
         Returns:
-          A dict of float32 arrays, the same keys and shapes for every config.
+          ``{name: value}``; tasks built from configs of the same structure (same task,
+          robot, number of targets, duration, control period) have the same keys and shapes.
 
         Examples:
           >>> from cfm_jax import config, robots
           >>> arm = robots.load("two_link_arm")
           >>> task = make(arm, config.TaskConfig(duration=0.5), control_dt=0.01)
-          >>> softer = task.with_gains(task.gains(config.TaskConfig(kp=25.0, kd=10.0)))
-          >>> float(softer.kp), float(task.kp)
+          >>> softer = make(arm, config.TaskConfig(duration=0.5, kp=25.0), control_dt=0.01)
+          >>> moved = task.with_values(softer.values())
+          >>> float(moved.kp), float(task.kp)
           (25.0, 100.0)
         """
-        return self._gains(float(task.kp), float(task.kd))
+        return {name: getattr(self, name) for name in self.value_names}
 
-    def _set_gains(self, gains: dict) -> None:
-        for name, value in gains.items():
-            setattr(self, name, value)
-
-    def with_gains(self, gains: dict):
-        """A shallow copy of this task that uses ``gains`` (from :meth:`gains`; the values may
-        be traced arrays).
+    def with_values(self, values: dict):
+        """A shallow copy of this task that uses ``values`` (from :meth:`values` of a task of
+        the same structure; inside compiled code they may be traced).
 
         Args:
-          gains: a dict with the keys of :meth:`gains`.
+          values: a dict with the keys :attr:`value_names`, each of the shape of this
+            task's.
 
         Returns:
           The copy; this task is unchanged.
+
+        Raises:
+          ValueError: other keys or another shape (the name and both shapes are given).
         """
         import copy
 
-        expected = set(self.gains_names)
-        if set(gains) != expected:
-            raise ValueError(f"gains has keys {sorted(gains)}, this task takes {sorted(expected)}")
+        if set(values) != set(self.value_names):
+            raise ValueError(
+                f"values has keys {sorted(values)}, this task takes {sorted(self.value_names)}"
+            )
+        for name in self.value_names:
+            mine = [np.shape(x) for x in jax.tree.leaves(getattr(self, name))]
+            theirs = [np.shape(x) for x in jax.tree.leaves(values[name])]
+            if mine != theirs:
+                raise ValueError(
+                    f"values[{name!r}] has shapes {theirs}, this task's {mine}: a task of "
+                    "another structure (targets, duration, control period)"
+                )
         task = copy.copy(self)
-        task._set_gains(gains)
+        task.__dict__.update(values)
         return task
-
-    @property
-    def gains_names(self) -> tuple[str, ...]:
-        """The keys of :meth:`gains`."""
-        return ("kp", "kd", "gain_p", "gain_d")
 
     def start(self, reference):
         return (
@@ -524,7 +530,7 @@ class OperationalSpaceTask(JointSpaceTask):
         self.home = jnp.asarray(home, jnp.float32)
         self.control_dt = float(control_dt)
         self._home_np = home
-        self._set_gains(self.gains(task))
+        self.__dict__.update(self._gains(float(task.kp), float(task.kd)))
         nv = robot.nv
         self.targets, self.steps = self.reference_np.x.shape[0], self.reference_np.steps
         self.state_dim, self.desired_dim, self.output_dim = robot.nq + nv, 3, nv + 3
@@ -783,7 +789,7 @@ class LeggedTask(JointSpaceTask):
         self.references = refs  # the NumPy recordings (the other tasks' reference_np)
         self.reference = as_jax_legged(refs)
         self.control_dt = float(control_dt)
-        self._set_gains(self.gains(task))
+        self.__dict__.update(self._gains(task))
         self.gain_p = jnp.float32(refs[0].kp)
         self.gain_d = jnp.float32(refs[0].kd)
         nq, nv, na = robot.nq, robot.nv, robot.action_dim
@@ -795,7 +801,10 @@ class LeggedTask(JointSpaceTask):
         self.joint_dofs = jnp.asarray(robot.actuated_dofs)
         self.joint_qpos = jnp.asarray(robot.actuated_dofs + (nq - nv))
 
-    def gains(self, task: TaskConfig) -> dict:
+    # The references are recordings of the model, structure; the values are the s* gains.
+    value_names = ("desired_kp", "desired_kd")
+
+    def _gains(self, task: TaskConfig) -> dict:
         """The gains of the PD correction in ``s*``: ``desired_kp`` and ``desired_kd``,
         ``(6 + joints,)`` float32 (``task.kp``, ``task.kd`` on the 6 base coordinates, then
         ``task.joint_kp``, ``task.joint_kd`` on the actuated joints; None there: ``kp``,
@@ -809,10 +818,6 @@ class LeggedTask(JointSpaceTask):
             "desired_kp": jnp.asarray([kp] * 6 + [joint_kp] * joints, jnp.float32),
             "desired_kd": jnp.asarray([kd] * 6 + [joint_kd] * joints, jnp.float32),
         }
-
-    @property
-    def gains_names(self) -> tuple[str, ...]:
-        return ("desired_kp", "desired_kd")
 
     @property
     def tracking_scale(self) -> float:

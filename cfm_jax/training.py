@@ -99,9 +99,13 @@ class Knobs:
     Attributes:
       forward_learning_rate: ``forward.learning_rate``.
       controller_learning_rate: ``controller.learning_rate``.
+      forward_log_variance_bounds: ``(forward.min_log_variance,
+        forward.max_log_variance)``, the initial soft bounds of the forward model.
       babbling_noise_std: ``loop.babbling_noise`` times each torque limit, ``(action_dim,)``.
-      task: the task's gains, ``task.gains(config.task)`` (``task.kp``, ``task.kd`` and
-        what the task derives from them).
+      task: the task's values, ``values()`` of the task built for ``config.task``: the
+        gains (``task.kp``, ``task.kd``, ... and what the task derives from them) and, for
+        the arm tasks, the reference trajectories (``task.targets``; ``task.home`` for
+        ``inverse_dynamics``).
 
     Examples:
       >>> exp = Experiment(cfg.Config(robot="two_link_arm"))  # doctest: +SKIP
@@ -112,6 +116,7 @@ class Knobs:
 
     forward_learning_rate: jax.Array
     controller_learning_rate: jax.Array
+    forward_log_variance_bounds: jax.Array
     babbling_noise_std: jax.Array
     task: dict
 
@@ -120,9 +125,9 @@ class Experiment:
     """The static pieces of one config (robot, reference, models) and its compiled
     functions. Build once and reuse, also across losses and across the values of
     :data:`cfm_jax.config.RUNTIME_FIELDS` (seed, learning rates, babbling noise, task
-    gains, checkpointing): those are arguments of the compiled functions (:class:`Knobs`),
-    so the rollout used for babbling, evaluation and the baselines compiles once per
-    experiment, and each loss's iteration compiles once.
+    gains, target sets, checkpointing): those are arguments of the compiled functions
+    (:class:`Knobs`), so the rollout used for babbling, evaluation and the baselines
+    compiles once per experiment, and each loss's iteration compiles once.
 
     ``config.loss`` and the runtime fields of ``config`` are only the defaults: every
     method takes the loss to use and, optionally, the :class:`Knobs` of another config
@@ -215,16 +220,37 @@ class Experiment:
         return Knobs(
             forward_learning_rate=jnp.asarray(config.forward.learning_rate, jnp.float32),
             controller_learning_rate=jnp.asarray(config.controller.learning_rate, jnp.float32),
+            forward_log_variance_bounds=jnp.asarray(
+                [config.forward.min_log_variance, config.forward.max_log_variance], jnp.float32
+            ),
             babbling_noise_std=jnp.asarray(config.loop.babbling_noise * limit, jnp.float32),
-            task=self.task.gains(config.task),
+            task=self.task_for(config).values(),
         )
+
+    def task_for(self, config: config_lib.Config):
+        """The task object of ``config`` (a config :meth:`compatible` with this one): this
+        experiment's task when ``config.task`` is its own, else one built for it (on the
+        host; kept for the last few task configs). Its :meth:`values` are what the compiled
+        functions get; its host attributes (``tracking_scale``, the NumPy references)
+        describe ``config``."""
+        if config.task == self.config.task:
+            return self.task
+        key = json.dumps(dataclasses.asdict(config.task), sort_keys=True)
+        cache = self._compiled.setdefault("tasks", {})
+        if key not in cache:
+            task = tasks.make(self.robot, config.task, self.control_dt)
+            self.task.with_values(task.values())  # the same shapes, or a named error
+            cache[key] = task
+            while len(cache) > 8:
+                cache.pop(next(iter(cache)))
+        return cache[key]
 
     def _knobs(self, knobs: Knobs | None) -> Knobs:
         return self.knobs if knobs is None else knobs
 
     def _task(self, knobs: Knobs):
-        """The task with the gains of ``knobs`` (traced inside the compiled functions)."""
-        return self.task.with_gains(knobs.task)
+        """The task with the values of ``knobs`` (traced inside the compiled functions)."""
+        return self.task.with_values(knobs.task)
 
     @staticmethod
     def forward_optimizer(knobs: Knobs):
@@ -254,7 +280,7 @@ class Experiment:
         self, policy: rollout.MixedPolicy, key, knobs: Knobs | None = None
     ) -> rollout.Rollout:
         """Roll a :class:`cfm_jax.rollout.MixedPolicy` out on every target (one seed), with
-        the task gains of ``knobs`` (None: this experiment's)."""
+        the task values of ``knobs`` (None: this experiment's)."""
         simulator = self.config.simulator
         task = self._task(self._knobs(knobs))
         return rollout.run(
@@ -305,6 +331,12 @@ class Experiment:
         )
         data = dataset.add(self.empty_dataset(), flat, valid)
         forward_params = self.forward.init(key_fm, self.state_dim)
+        lower, upper = knobs.forward_log_variance_bounds
+        forward_params = {
+            **forward_params,
+            "min_log_variance": jnp.full_like(forward_params["min_log_variance"], lower),
+            "max_log_variance": jnp.full_like(forward_params["max_log_variance"], upper),
+        }
         controller_params = self.controller.init(key_ctrl, self.state_dim)
         forward_opt_state = self.forward_optimizer(knobs).init(forward_params)
         controller_opt_state = self.controller_optimizer(knobs).init(controller_params)
@@ -575,7 +607,7 @@ class Experiment:
 
     def baselines(self, knobs: Knobs | None = None) -> pd.DataFrame:
         """Tracking MSE per target of the oracle (MuJoCo inverse dynamics) and PD-only
-        (with the task gains of ``knobs``; cached per knobs)."""
+        (with the task values of ``knobs``: gains and references; cached per knobs)."""
         knobs = self._knobs(knobs)
         cache = self._compiled.setdefault("baselines", {})
         cache_key = _fingerprint(knobs.task)
@@ -810,7 +842,8 @@ def train(
       experiment: a prebuilt :class:`Experiment` to reuse its compiled functions
         (optional): one built for a config that differs from ``config`` at most in the loss
         and :data:`cfm_jax.config.RUNTIME_FIELDS` (seed, learning rates, babbling noise,
-        task gains, checkpointing); another raises ``ValueError`` naming the fields.
+        task gains, reference trajectories, checkpointing); another raises ``ValueError``
+        naming the fields.
       resume: the ``out_dir`` of an interrupted run of the same config: continue from its
         newest valid checkpoint (results go to ``out_dir``, default ``resume``). The
         metrics equal those of an uninterrupted run bit for bit.
@@ -958,7 +991,7 @@ def train(
         metrics=pd.DataFrame(rows, columns=list(exp.metric_columns)),
         baselines=baselines,
         state=state,
-        rms_reach=exp.task.tracking_scale,
+        rms_reach=exp.task_for(config).tracking_scale,
         seconds=time.perf_counter() - start,
         compile_seconds=compile_seconds,
     )

@@ -95,10 +95,10 @@ def test_desired_acceleration_has_base_gains_on_the_base_and_joint_gains_on_the_
     same = tasks.make(solo, config_lib.TaskConfig(name="walk", control_dt=0.004), 0.004)
     np.testing.assert_allclose(np.asarray(same.desired_kp), 100.0)
     np.testing.assert_allclose(np.asarray(same.desired_kd), 20.0)
-    # The gains of cfg given to that task as values (as the compiled functions get them,
-    # cfm_jax.training.Knobs) give the s* of the task built for cfg, bit for bit, and leave
-    # the task itself as it was.
-    moved = same.with_gains(same.gains(cfg))
+    # The values of the task built for cfg given to that task (as the compiled functions
+    # get them, cfm_jax.training.Knobs) give its s* bit for bit and leave it as it was.
+    assert same.value_names == ("desired_kp", "desired_kd")
+    moved = same.with_values(task.values())
     np.testing.assert_array_equal(np.asarray(moved.desired(ref_t, qpos32, qvel32, None)), desired)
     np.testing.assert_allclose(np.asarray(same.desired_kp), 100.0)
 

@@ -174,13 +174,20 @@ def test_vmapped_seeds_equal_separate_single_seed_runs(local):
 
 
 def test_value_overrides_compile_once_per_loss_and_equal_separate_runs(tmp_path):
-    # Overrides of runtime fields (config.RUNTIME_FIELDS), a learning rate and a gain: 2 x 2
-    # cells per loss, one Experiment, each function compiled once. Oracle: a cell's config
-    # trained alone on an Experiment built for it (its values baked in as before); the
-    # sweep's rows of that cell must equal it bit for bit. The two cells checked differ from
-    # the base in one field each, so each field is seen to reach the compiled program.
+    # Overrides of runtime fields (config.RUNTIME_FIELDS): a learning rate, a gain and the
+    # target set (5 targets each), 2 x 2 x 2 cells per loss, one Experiment, each function
+    # compiled once. Oracle: a cell's config trained alone on an Experiment built for it
+    # (its values baked in, as before they became arguments); the sweep's rows of that cell
+    # must equal it bit for bit. The cells checked differ from the first cell in one field
+    # each, so each field is seen to reach the compiled program.
     sweeps._EXPERIMENTS.clear()
-    overrides = {"controller.learning_rate": [1e-3, 3e-3], "task.kp": [50.0, 100.0]}
+    near, far = (0.3, 0.6), (-0.4, 1.2)
+    targets = [tuple([near] * 5), tuple([near, far, near, far, near])]
+    overrides = {
+        "controller.learning_rate": [1e-3, 3e-3],
+        "task.kp": [50.0, 100.0],
+        "task.targets": targets,
+    }
     result = cfm_jax.sweep(
         TINY, seeds=2, losses=LOSSES, overrides=overrides, out_dir=str(tmp_path), progress=False
     )
@@ -190,21 +197,23 @@ def test_value_overrides_compile_once_per_loss_and_equal_separate_runs(tmp_path)
         assert counts[name] == 1, counts
     assert counts["evaluate"] == 1, counts
     frame = result.metrics
-    assert frame.cell.nunique() == 8
+    assert frame.cell.nunique() == 16
     finals = frame[frame.iteration == TINY.loop.iterations].groupby("cell").tracking_mse.sum()
-    assert finals.nunique() == 8  # every value changes the run
-    for lr, kp in ((3e-3, 100.0), (1e-3, 50.0)):
+    assert finals.nunique() == 16  # every value changes the run
+    base = config_lib.to_dict(TINY)
+    for lr, kp, target_set in ((1e-3, 100.0, 0), (3e-3, 50.0, 0), (1e-3, 50.0, 1)):
         config = TINY.replace(
-            task=config_lib.TaskConfig(**{**config_lib.to_dict(TINY)["task"], "kp": kp}),
-            controller=config_lib.ControllerConfig(
-                **{**config_lib.to_dict(TINY)["controller"], "learning_rate": lr}
+            task=config_lib.TaskConfig(
+                **{**base["task"], "kp": kp, "targets": targets[target_set]}
             ),
+            controller=config_lib.ControllerConfig(**{**base["controller"], "learning_rate": lr}),
         )
         alone = cfm_jax.train(config, progress=False)
         mine = frame[
             (frame.loss == "joint")
             & (frame["controller.learning_rate"] == lr)
             & (frame["task.kp"] == kp)
+            & (frame["task.targets"] == json.dumps(targets[target_set]))
         ]
         columns = list(alone.metrics.columns)
         pd.testing.assert_frame_equal(

@@ -7,6 +7,8 @@ PD formula qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd) evaluated by hand.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -160,28 +162,38 @@ def test_desired_acceleration_formula():
 
 
 @pytest.mark.parametrize("name", ["inverse_dynamics", "opspace"])
-def test_gains_given_as_values_equal_a_task_built_with_them(arm, name):
-    # Oracle: the task built from the config with the other gains. A PD-only rollout uses
-    # the gains twice, in s* (kp, kd) and in the feedback torque (gain_p, gain_d); with the
-    # gains swapped in as values (what cfm_jax.training.Knobs carries into the compiled
-    # functions) it must be the same rollout bit for bit, and differ from the original one.
+def test_values_of_another_config_equal_a_task_built_for_it(arm, name):
+    # Oracle: the task built from the config with other gains and other targets (the same
+    # number). A PD-only rollout uses the reference and the gains twice, in s* (kp, kd) and
+    # in the feedback torque (gain_p, gain_d); with that task's values swapped in (what
+    # cfm_jax.training.Knobs carries into the compiled functions) it must be the same
+    # rollout bit for bit, and differ from the original one.
     from cfm_jax import rollout
 
-    site = "tip" if name == "opspace" else None
-    config = TaskConfig(name=name, duration=0.2, site=site)
-    other = TaskConfig(name=name, duration=0.2, site=site, kp=30.0, kd=4.0)
+    if name == "opspace":
+        config = TaskConfig(name=name, duration=0.2, site="tip")
+        # The default goals pulled 10 % towards the shoulder (at (0, 0, 1)): in reach.
+        goals = tasks.make(arm, config, 0.01).reference_np.x[:, -1]
+        targets = tuple(map(tuple, 0.9 * goals + 0.1 * np.array([0.0, 0.0, 1.0])))
+        other = dataclasses.replace(config, kp=30.0, kd=4.0, targets=targets)
+    else:
+        config = TaskConfig(name=name, duration=0.2)
+        other = TaskConfig(name=name, duration=0.2, kp=30.0, kd=4.0, home=(0.2, 0.6))
     task, built = tasks.make(arm, config, 0.01), tasks.make(arm, other, 0.01)
-    moved = task.with_gains(task.gains(other))
+    moved = task.with_values(built.values())
 
     def run(t):
-        return jax.jit(
-            lambda: rollout.run(t, lambda step, key: t.feedback(step), jax.random.key(0))
-        )()
+        policy = lambda step, key: t.feedback(step)  # noqa: E731
+        return jax.jit(lambda: rollout.run(t, policy, jax.random.key(0)))()
 
     original, expected, got = run(task), run(built), run(moved)
     for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(expected), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert not np.allclose(original.tracking_error, got.tracking_error)
-    assert float(task.kp) == 100.0  # the task itself keeps its gains
+    assert float(task.kp) == 100.0  # the task itself keeps its values
     with pytest.raises(ValueError, match="gain_p"):
-        task.with_gains({"kp": 1.0, "kd": 1.0})
+        task.with_values({"kp": 1.0, "kd": 1.0})
+    two = other.targets[:2] if name == "opspace" else ((0.1, 0.2), (0.3, 0.4))
+    fewer = tasks.make(arm, dataclasses.replace(config, targets=two), 0.01)
+    with pytest.raises(ValueError, match=r"values\['reference'\] has shapes \[\(2, 21"):
+        task.with_values(fewer.values())

@@ -134,14 +134,17 @@ def test_experiment_reuse_is_refused_for_a_different_structure(experiment):
 
 
 def test_runtime_fields_reuse_the_compilations_and_equal_a_fresh_experiment(experiment, two_seeds):
-    # Every field of config.RUNTIME_FIELDS changed at once. Oracle: the same config on an
+    # Every field of config.RUNTIME_FIELDS changed at once (home moves the default targets
+    # with it; explicit targets are in test_sweep.py). Oracle: the same config on an
     # Experiment built for it (its own values, as before the values became arguments).
     # On the shared experiment it must give the same numbers bit for bit, without a
     # single new compilation, and numbers that differ from the original config's.
     other = TINY.replace(
         seed=3,
-        task=dataclasses.replace(TINY.task, kp=40.0, kd=6.0),
-        forward=dataclasses.replace(TINY.forward, learning_rate=3e-3),
+        task=dataclasses.replace(TINY.task, kp=40.0, kd=6.0, home=(0.2, 0.6)),
+        forward=dataclasses.replace(
+            TINY.forward, learning_rate=3e-3, min_log_variance=-8.0, max_log_variance=0.0
+        ),
         controller=dataclasses.replace(TINY.controller, learning_rate=3e-4),
         loop=dataclasses.replace(TINY.loop, babbling_noise=0.25, checkpoint_keep=1),
     )
@@ -156,6 +159,7 @@ def test_runtime_fields_reuse_the_compilations_and_equal_a_fresh_experiment(expe
     fresh = cfm_jax.train(other, progress=False)
     pd.testing.assert_frame_equal(shared.metrics, fresh.metrics, check_exact=True)
     pd.testing.assert_frame_equal(shared.baselines, fresh.baselines, check_exact=True)
+    assert shared.rms_reach == fresh.rms_reach != two_seeds.rms_reach  # the moved targets
     assert not np.allclose(shared.metrics.tracking_mse, two_seeds.metrics.tracking_mse)
     pd_only = shared.baselines[shared.baselines.baseline == "pd_only"]
     original = two_seeds.baselines[two_seeds.baselines.baseline == "pd_only"]
