@@ -145,6 +145,12 @@ def main() -> None:
     ]
     with open(os.path.join(ROOT, "docs", "benchmarks_notes.md")) as f:
         notes = f.read()
+    sweep_path = os.path.join(ROOT, "docs", "benchmarks_sweep.md")  # sweep_benchmark.py
+    if os.path.isfile(sweep_path):
+        with open(sweep_path) as f:
+            notes = (
+                "<!-- sweep-benchmark -->\n" + f.read() + "<!-- /sweep-benchmark -->\n\n" + notes
+            )
     text = (
         "# Benchmarks\n\n"
         f"Written by `python experiments/benchmark.py`, {datetime.date.today().isoformat()}.\n\n"
