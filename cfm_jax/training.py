@@ -108,10 +108,15 @@ class Knobs:
         ``inverse_dynamics``).
 
     Examples:
-      >>> exp = Experiment(cfg.Config(robot="two_link_arm"))  # doctest: +SKIP
-      >>> knobs = exp.knobs_for(exp.config.replace(task=cfg.TaskConfig(kp=25.0)))  # doctest: +SKIP
-      >>> float(knobs.task["kp"])  # doctest: +SKIP
-      25.0
+      >>> from cfm_jax import config as cfg
+      >>> exp = Experiment(cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3)))
+      >>> other = exp.config.replace(seed=4, task=cfg.TaskConfig(duration=0.3, kp=25.0))
+      >>> float(exp.knobs_for(other).task["kp"]), float(exp.knobs.task["kp"])
+      (25.0, 100.0)
+      >>> exp.knobs_for(other.replace(task=cfg.TaskConfig(duration=0.5)))
+      Traceback (most recent call last):
+      ...
+      ValueError: the experiment was built for a config that differs in more than the loss ...
     """
 
     forward_learning_rate: jax.Array
