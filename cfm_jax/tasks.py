@@ -346,7 +346,6 @@ class JointSpaceTask:
     babbling_weights = {"feedback": 1.0}
 
     def __init__(self, robot, reference: Reference, kp: float, kd: float, control_dt: float):
-
         self.robot = robot
         self.reference_np = reference
         self.reference = as_jax(reference)
