@@ -362,10 +362,14 @@ class JointSpaceTask:
         """RMS reaching distance (rad), the scale of the tracking error."""
         return rms_reach(self.reference_np)
 
-    def _gains(self, kp: float, kd: float) -> dict:
+    def _pd_gains(self, kp: float, kd: float):
+        """The torque gains of :meth:`feedback` for the acceleration gains ``kp``, ``kd``."""
         from cfm_jax import rollout
 
-        gain_p, gain_d = rollout.pd_gains(self.robot, kp, kd, self.reference_np.q[0, 0])
+        return rollout.pd_gains(self.robot, kp, kd, self.reference_np.q[0, 0])
+
+    def _gains(self, kp: float, kd: float) -> dict:
+        gain_p, gain_d = self._pd_gains(kp, kd)
         return {
             "kp": jnp.asarray(kp, jnp.float32),
             "kd": jnp.asarray(kd, jnp.float32),
@@ -542,14 +546,9 @@ class OperationalSpaceTask(JointSpaceTask):
         delta = self.reference_np.x[:, -1] - self.reference_np.x[:, 0]
         return float(np.sqrt(np.mean(np.square(delta))))
 
-    def _gains(self, kp: float, kd: float) -> dict:
-        gain_p, gain_d = self.opspace.pd_gains(self.robot, kp, kd, self.site, self._home_np)
-        return {
-            "kp": jnp.asarray(kp, jnp.float32),
-            "kd": jnp.asarray(kd, jnp.float32),
-            "gain_p": jnp.asarray(gain_p, jnp.float32),
-            "gain_d": jnp.asarray(gain_d, jnp.float32),
-        }
+    def _pd_gains(self, kp: float, kd: float):
+        """Task-space torque gains at home (:func:`cfm_jax.opspace.pd_gains`)."""
+        return self.opspace.pd_gains(self.robot, kp, kd, self.site, self._home_np)
 
     def _site(self, qpos, qvel):
         kin = self.opspace.kinematics(self.robot, qpos, qvel, self.site)
@@ -788,7 +787,7 @@ class LeggedTask(JointSpaceTask):
         self.references = refs  # the NumPy recordings (the other tasks' reference_np)
         self.reference = as_jax_legged(refs)
         self.control_dt = float(control_dt)
-        self.__dict__.update(self._gains(task))
+        self.__dict__.update(self._desired_gains(task))
         self.gain_p = jnp.float32(refs[0].kp)
         self.gain_d = jnp.float32(refs[0].kd)
         nq, nv, na = robot.nq, robot.nv, robot.action_dim
@@ -803,7 +802,7 @@ class LeggedTask(JointSpaceTask):
     # The references are recordings of the model, structure; the values are the s* gains.
     value_names = ("desired_kp", "desired_kd")
 
-    def _gains(self, task: TaskConfig) -> dict:
+    def _desired_gains(self, task: TaskConfig) -> dict:
         """The gains of the PD correction in ``s*``: ``desired_kp`` and ``desired_kd``,
         ``(6 + joints,)`` float32 (``task.kp``, ``task.kd`` on the 6 base coordinates, then
         ``task.joint_kp``, ``task.joint_kd`` on the actuated joints; None there: ``kp``,

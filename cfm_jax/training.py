@@ -176,7 +176,8 @@ class Experiment:
         self.capacity = self.transitions_per_rollout * (
             config.loop.babbling_rollouts + config.loop.iterations
         )
-        self._compiled: dict = {}
+        self._compiled: dict = {}  # name -> jitted function
+        self._cache: dict = {}  # host-side results: prepared states, baselines, tasks
         self.knobs = self.knobs_for(config)
 
     @property
@@ -241,7 +242,7 @@ class Experiment:
         if config.task == self.config.task:
             return self.task
         key = json.dumps(dataclasses.asdict(config.task), sort_keys=True)
-        cache = self._compiled.setdefault("tasks", {})
+        cache = self._cache.setdefault("tasks", {})
         if key not in cache:
             task = tasks.make(self.robot, config.task, self.control_dt)
             self.task.with_values(task.values())  # the same shapes, or a named error
@@ -526,11 +527,7 @@ class Experiment:
           ``{name: count}``, e.g. ``{"rollout": 1, "prepare": 1, "init/joint": 1,
           "iteration/joint": 1}``.
         """
-        return {
-            name: fn._cache_size()
-            for name, fn in self._compiled.items()
-            if hasattr(fn, "_cache_size")
-        }
+        return {name: fn._cache_size() for name, fn in self._compiled.items()}
 
     def rollout(
         self, policy: rollout.MixedPolicy, keys, knobs: Knobs | None = None
@@ -558,14 +555,14 @@ class Experiment:
         knobs)."""
         knobs = self._knobs(knobs)
         cache_key = _fingerprint((jax.random.key_data(keys), knobs))
-        cached = self._compiled.get("prepared")
+        cached = self._cache.get("prepared")
         if cached is None or cached[0] != cache_key:
             key_babble, key_fit = jax.vmap(lambda k: jax.random.split(k, 2))(keys).swapaxes(0, 1)
             rollouts = self.babbling_rollouts(key_babble, knobs)
             fn = jax.vmap(self.prepare_one, in_axes=(0, 0, None))
             prepared = self._jit("prepare", fn)(rollouts, key_fit, knobs)
-            self._compiled["prepared"] = (cache_key, prepared)
-        return self._compiled["prepared"][1]
+            self._cache["prepared"] = (cache_key, prepared)
+        return self._cache["prepared"][1]
 
     def babbling_rollouts(self, keys, knobs: Knobs | None = None) -> rollout.Rollout:
         """``loop.babbling_rollouts`` babbling rollouts per seed, ``(seeds, rollouts, ...)``."""
@@ -614,7 +611,7 @@ class Experiment:
         """Tracking MSE per target of the oracle (MuJoCo inverse dynamics) and PD-only
         (with the task values of ``knobs``: gains and references; cached per knobs)."""
         knobs = self._knobs(knobs)
-        cache = self._compiled.setdefault("baselines", {})
+        cache = self._cache.setdefault("baselines", {})
         cache_key = _fingerprint(knobs.task)
         if cache_key in cache:
             return cache[cache_key].copy()
