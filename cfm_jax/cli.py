@@ -99,14 +99,19 @@ def train(
         frames.append(result.metrics)
         _write_outputs(out, frames, result, base, experiment.task)
     wall = time.perf_counter() - start
-    table = report.summary(_concat(frames), result.baselines, result.rms_reach)
+    metrics = _concat(frames)
+    table = report.summary(metrics, result.baselines, result.rms_reach)
     label, unit = experiment.task.tracking_name, experiment.task.tracking_unit
     report.print_summary(
         table,
         title=f"{base.robot} {task}: final tracking MSE ({unit}^2), mean/std over "
-        f"{seeds} seed(s) x targets; wall time {wall:.0f} s",
+        f"{seeds} seed(s) x targets, 95% CI over seeds; wall time {wall:.0f} s\n"
+        + report.protocol(base).replace("`", ""),
         tracking=f"{label} ({unit}^2)",
     )
+    if metrics["loss"].nunique() > 1:
+        paired = report.paired_table(metrics, reference=None)  # joint (else the first loss)
+        report.print_paired(paired, title=f"{base.robot} {task}: tracking MSE, paired by seed")
     print(
         f"RMS reaching distance {result.rms_reach:.4f} {unit}. Results in {out}/ "
         f"(metrics.csv, summary.md, learning_curves.png)"
@@ -260,7 +265,7 @@ def _scalar(text: str):
 
 def _losses(spec: str, flag: str = "--loss") -> list[str]:
     if spec == "all":
-        return list(losses.CONTROLLER_LOSSES)
+        return list(losses.PAPER_LOSSES)
     names = [s.strip() for s in spec.split(",") if s.strip()]
     bad = [n for n in names if n not in losses.CONTROLLER_LOSSES]
     if not names or bad:
@@ -285,8 +290,11 @@ def _write_outputs(out, frames, result, base, task) -> None:
     with open(os.path.join(out, "config.json"), "w") as f:
         json.dump(config_lib.to_dict(base), f, indent=2)  # per-loss configs: OUT/<loss>/
     table = report.summary(metrics, result.baselines, result.rms_reach)
+    text = report.protocol(base) + "\n\n" + report.markdown(table)
+    if metrics["loss"].nunique() > 1:  # the joint loss (else the first) against the others
+        text += "\n\n" + report.paired_markdown(report.paired_table(metrics, reference=None))
     with open(os.path.join(out, "summary.md"), "w") as f:
-        f.write(report.markdown(table) + "\n")
+        f.write(text + "\n")
     report.plot_learning_curves(
         metrics,
         os.path.join(out, "learning_curves.png"),

@@ -27,6 +27,12 @@ TASKS = ("inverse_dynamics", "opspace", "walk", "jump")
 SIMULATORS = ("native", "mjx")
 """Physics back ends for ``Config.simulator`` (see :mod:`cfm_jax.rollout`)."""
 
+BABBLING = ("home", "reaching", "reference_pd", "oracle")
+"""Strategies of the initial (motor-babbling) data for ``Config.loop.babbling``
+(see :mod:`cfm_jax.babbling`). ``home`` and ``reaching`` know neither the test references
+nor the reference controller; ``reference_pd`` and ``oracle`` use them and exist only to
+study their effect."""
+
 
 class ConfigError(ValueError):
     """A configuration field has a value that is not allowed.
@@ -305,8 +311,14 @@ class LoopConfig:
       iterations: iterations of Algorithm 1 (each: roll out g on every target, add the data,
         refit f, refit g).
       seeds: number of independent runs (seeds ``Config.seed + k``), a ``vmap`` axis.
-      babbling_rollouts: motor-babbling rollouts per target (PD-only tracking plus Gaussian
-        torque noise).
+      babbling: the strategy of the initial data, one of :data:`BABBLING`
+        (:mod:`cfm_jax.babbling`): ``home`` (default; the task's PD feedback holding the
+        start pose), ``reaching`` (the same PD tracking reaches from the start pose to random
+        poses inside the joint limits, drawn from the seed), ``reference_pd`` (PD tracking of
+        the test references) or ``oracle`` (the task's oracle on the test references); each
+        plus Gaussian torque noise.
+      babbling_rollouts: motor-babbling rollouts per target (each as wide as one rollout of
+        the task: ``targets x steps`` transitions).
       babbling_noise: standard deviation of the babbling torque noise, as a fraction of each
         torque limit.
       checkpoint_every: save a checkpoint every this many iterations (and after the initial
@@ -322,7 +334,11 @@ class LoopConfig:
     iterations: int = 10
     # Number of independent runs (seeds 0..seeds-1 offset by Config.seed), a vmap axis.
     seeds: int = 1
-    # Motor-babbling rollouts per target: PD-only tracking plus Gaussian torque noise.
+    # Strategy of the initial data; one of BABBLING. "home": the task's PD feedback holding
+    # the start pose; "reaching": PD tracking of reaches to random poses inside the joint
+    # limits; "reference_pd" / "oracle": PD / the oracle on the test references (studies).
+    babbling: str = "home"
+    # Motor-babbling rollouts per target, each with Gaussian torque noise.
     babbling_rollouts: int = 2
     # Standard deviation of the babbling torque noise, as a fraction of each torque limit.
     babbling_noise: float = 0.1
@@ -335,6 +351,8 @@ class LoopConfig:
     def __post_init__(self):
         _nonnegative_int("loop.iterations", self.iterations)
         _positive_int("loop.seeds", self.seeds)
+        if self.babbling not in BABBLING:
+            _fail("loop.babbling", self.babbling, f"one of {BABBLING}")
         _positive_int("loop.babbling_rollouts", self.babbling_rollouts)
         _nonnegative_float("loop.babbling_noise", self.babbling_noise)
         _nonnegative_int("loop.checkpoint_every", self.checkpoint_every)
@@ -421,18 +439,21 @@ class Config:
 def for_task(task: str, **changes) -> Config:
     """The default :class:`Config` of a task, with top-level ``changes``.
 
+    Every task's initial data is ``loop.babbling="home"``: the task's PD feedback holding
+    the start pose plus torque noise, as the authors' Solo12 code collects it; it knows
+    neither the test references nor the reference controller.
+
     The arm tasks (``inverse_dynamics``, ``opspace``) use the defaults of the dataclasses
-    (the paper's arm networks, 100 Hz control). The legged tasks (``walk``, ``jump``) use
-    the paper's quadruped networks (forward model 1000-500-500, a single member; controller
-    3 x 300), the Solo12, 250 Hz control (``task.control_dt = 0.004``) and wider motor
-    babbling (4 rollouts per target at torque noise 0.3 of the limit: with the arms' 2
-    rollouts at 0.1, the data stayed so close to the references that every first learned
-    walk fell) and joint gains ``task.joint_kp = 2000``, ``task.joint_kd = 50`` in the
-    desired acceleration: the stiffness of the joint PD the references were recorded with
-    (5 N m/rad and 0.1 N m s/rad over the hip and thigh inertias of 0.0019-0.0025 kg m^2
-    give 2000-2600 /s^2 and 40-52 /s). With the base's ``kp = 100``, ``kd = 20`` on the
-    joints too, 20-90 times softer than that PD, the learned walks drifted and fell on the
-    longer horizons.
+    (the paper's arm networks, 100 Hz control, ``kp = 100``, ``kd = 20`` in ``s*``, set
+    before any loss was run). The legged tasks (``walk``, ``jump``) use the paper's quadruped
+    networks (forward model 1000-500-500, a single member; controller 3 x 300), the Solo12,
+    250 Hz control (``task.control_dt = 0.004``), 4 babbling rollouts per target at torque
+    noise 0.3 of the limit, and no feedback in ``s*`` (``task.kp = task.kd = 0``, the joints
+    too): the paper's ``s*`` is the planned accelerations and contact forces of the
+    reference, and the authors' Solo12 code puts no PD term into it. The earlier legged
+    gains (``kp = 100``, ``kd = 20`` on the base, ``joint_kp = 2000``, ``joint_kd = 50``)
+    were chosen on pilot runs of the joint loss alone; they remain a cell of
+    ``experiments/robustness_study.py``.
 
     Args:
       task: one of :data:`TASKS`.
@@ -446,8 +467,9 @@ def for_task(task: str, **changes) -> Config:
       ConfigError: an unknown task or a bad value in ``changes``.
 
     Examples:
-      >>> for_task("walk", robot="solo12").task.control_dt
-      0.004
+      >>> walk = for_task("walk", robot="solo12")
+      >>> walk.task.control_dt, walk.task.kp, walk.loop.babbling
+      (0.004, 0.0, 'home')
     """
     if task not in TASKS:
         _fail("task.name", task, f"one of {TASKS}")
@@ -456,7 +478,7 @@ def for_task(task: str, **changes) -> Config:
         config = dataclasses.replace(
             config,
             robot="solo12",
-            task=TaskConfig(name=task, control_dt=0.004, joint_kp=2000.0, joint_kd=50.0),
+            task=TaskConfig(name=task, control_dt=0.004, kp=0.0, kd=0.0),
             forward=ForwardModelConfig(hidden=(1000, 500, 500), ensemble_size=1),
             controller=ControllerConfig(hidden=(300, 300, 300)),
             loop=LoopConfig(babbling_rollouts=4, babbling_noise=0.3),
@@ -540,13 +562,14 @@ RUNTIME_FIELDS = (
     "controller.learning_rate",
     "forward.min_log_variance",
     "forward.max_log_variance",
+    "loop.babbling",
     "loop.babbling_noise",
     "loop.checkpoint_every",
     "loop.checkpoint_keep",
 )
 """Fields whose values do not change the compiled program: the seed and the checkpoint
 settings are not part of it; the learning rates, the initial log-variance bounds, the
-babbling noise, the task gains and the reference trajectories are arguments of it
+babbling strategy and noise, the task gains and the reference trajectories are arguments of it
 (:class:`cfm_jax.training.Knobs`). Configs that differ only in these and in ``loss`` share
 one :class:`cfm_jax.training.Experiment` and its compilations (a sweep over them compiles
 once per loss). Two of them are partly structure (see :func:`structure`): the *number* of

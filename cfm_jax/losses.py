@@ -17,8 +17,14 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-CONTROLLER_LOSSES = ("joint", "task", "distal", "supervised")
-"""Names of the controller losses, in the order results are reported."""
+PAPER_LOSSES = ("joint", "task", "distal", "supervised")
+"""The paper's four controller losses, in the order results are reported (``"all"`` in
+sweeps and the CLI)."""
+
+CONTROLLER_LOSSES = PAPER_LOSSES + ("distal_literal",)
+"""Every controller loss name: :data:`PAPER_LOSSES` and ``distal_literal`` (the distal
+teacher written literally as a loss over the whole data set, :func:`distal_literal`; for
+studies of it)."""
 
 
 def task(predicted_next, desired_next):
@@ -60,12 +66,43 @@ def joint(predicted_next, desired_next, observed_next):
     return task(predicted_next, desired_next) + task(predicted_next, observed_next)
 
 
-def distal(predicted_next, desired_next, observed_next):
-    """Distal-teacher loss ``L = |s_p - s_d|^2 - |s_p - s_a|^2`` (Jordan & Rumelhart 1992).
+def distal(predicted_next, predicted_run, desired_next, observed_next):
+    """Distal-teacher loss (Jordan & Rumelhart 1992) in a bounded form:
+    ``L = |s_p - s_p,run + s_a - s_d|^2``, with ``s_p,run = f(s, tau_run)`` the model's
+    prediction for the action that was run (held fixed: it does not depend on the
+    controller's parameters).
 
-    1-D gradient: ``dL/dbeta = 2 p' (s_a - s_d)``, the distal teacher's update (paper
-    section III-D) up to its sign convention and a factor. It is linear in ``s_p``, so it has
-    no rest point for a held ``s_a`` and is unbounded below.
+    1-D gradient: ``dL/dbeta = 2 p' (s_p - s_p,run + s_a - s_d)``; at ``g = tau_run``
+    (``s_p = s_p,run``) it is ``2 p' (s_a - s_d)``, the distal teacher's update (paper
+    section III-D, up to its sign convention and a factor): the outcome error of the
+    action that was run, carried back through the model. ``L >= 0``, so unlike
+    :func:`distal_literal` it is bounded below; it is at rest where the model predicts the
+    run outcome corrected by the observed error, ``s_p = s_p,run - (s_a - s_d)``.
+
+    Args:
+      predicted_next: ``f(s, g(s, s*))``, shape ``(..., d)``.
+      predicted_run: ``f(s, tau_run)``, shape ``(..., d)``.
+      desired_next: ``s*``, shape ``(..., d)``.
+      observed_next: next state observed on the robot, shape ``(..., d)``.
+
+    Returns:
+      shape ``(...)``.
+
+    Examples:
+      >>> float(distal(jnp.array([1.0]), jnp.array([1.0]), jnp.array([3.0]), jnp.array([0.0])))
+      9.0
+    """
+    return task(predicted_next - predicted_run + observed_next, desired_next)
+
+
+def distal_literal(predicted_next, desired_next, observed_next):
+    """The distal teacher written literally as a loss, ``L = |s_p - s_d|^2 - |s_p - s_a|^2``,
+    over the whole data set (``loss="distal_literal"``; for studies of it).
+
+    1-D gradient: ``dL/dbeta = 2 p' (s_a - s_d)`` for every sample, at any ``g``. It is
+    linear in ``s_p``, so it has no rest point for a held ``s_a`` and is unbounded below:
+    trained for many steps on observed outcomes of earlier controllers it diverges. The
+    bounded :func:`distal` has the same gradient at the action that was run.
 
     Args:
       predicted_next: ``f(s, g(s, s*))``, shape ``(..., d)``.
@@ -76,7 +113,7 @@ def distal(predicted_next, desired_next, observed_next):
       shape ``(...)``.
 
     Examples:
-      >>> float(distal(jnp.array([1.0]), jnp.array([3.0]), jnp.array([0.0])))
+      >>> float(distal_literal(jnp.array([1.0]), jnp.array([3.0]), jnp.array([0.0])))
       3.0
     """
     return task(predicted_next, desired_next) - task(predicted_next, observed_next)
@@ -102,16 +139,20 @@ def supervised(predicted_action, executed_action):
     return jnp.sum(jnp.square(predicted_action - executed_action), axis=-1)
 
 
-def controller_loss(name, predicted_next, desired_next, observed_next, select=None):
-    """Dispatch the model-based controller losses by name (``task``, ``joint``, ``distal``).
+def controller_loss(
+    name, predicted_next, desired_next, observed_next, select=None, predicted_run=None
+):
+    """Dispatch the model-based controller losses by name (``task``, ``joint``, ``distal``,
+    ``distal_literal``).
 
     With ``P`` the selection ``select``: ``task = |P s_p - s_d|^2``, ``joint = |P s_p - s_d|^2
-    + |s_p - s_a|^2`` (the whole prediction error), ``distal = |P s_p - s_d|^2 -
-    |P s_p - P s_a|^2`` (error signal ``P s_a - s_d``). ``supervised`` does not go through
-    the forward model; call :func:`supervised`.
+    + |s_p - s_a|^2`` (the whole prediction error), ``distal = |P (s_p - s_p,run) + P s_a -
+    s_d|^2`` and ``distal_literal = |P s_p - s_d|^2 - |P s_p - P s_a|^2`` (error signal
+    ``P s_a - s_d`` for both). ``supervised`` does not go through the forward model; call
+    :func:`supervised`.
 
     Args:
-      name: ``"task"``, ``"joint"`` or ``"distal"``.
+      name: ``"task"``, ``"joint"``, ``"distal"`` or ``"distal_literal"``.
       predicted_next: ``s_p = f(s, g(s, s*))``, shape ``(..., d_out)``: everything the
         forward model predicts.
       desired_next: ``s_d = s*``, shape ``(..., d)``.
@@ -120,35 +161,38 @@ def controller_loss(name, predicted_next, desired_next, observed_next, select=No
         ``(..., d_out)`` that the desired state specifies (``None``: all, ``d = d_out``; for
         example the end-effector acceleration among the joint and end-effector accelerations
         the forward model predicts).
+      predicted_run: ``s_p,run = f(s, tau_run)``, shape ``(..., d_out)``; needed by
+        ``distal`` only.
 
     Returns:
       shape ``(...)``.
 
     Raises:
-      ValueError: an unknown ``name`` (or ``supervised``).
+      ValueError: an unknown ``name`` (or ``supervised``), or ``distal`` without
+        ``predicted_run``.
 
     Examples:
       >>> p, d, o = jnp.array([1.0, 2.0]), jnp.array([3.0]), jnp.array([0.0, 2.0])
       >>> float(controller_loss("joint", p, d, o, select=lambda y: y[..., :1]))
       5.0
     """
-    if select is not None:
-        selected = select(predicted_next)
-        if name == "task":
-            return task(selected, desired_next)
-        if name == "joint":
-            return task(selected, desired_next) + task(predicted_next, observed_next)
-        if name == "distal":
-            return distal(selected, desired_next, select(observed_next))
+    if select is None:
+        select = lambda y: y  # noqa: E731
     if name == "task":
-        return task(predicted_next, desired_next)
+        return task(select(predicted_next), desired_next)
     if name == "joint":
-        return joint(predicted_next, desired_next, observed_next)
+        return task(select(predicted_next), desired_next) + task(predicted_next, observed_next)
     if name == "distal":
-        return distal(predicted_next, desired_next, observed_next)
+        if predicted_run is None:
+            raise ValueError("loss='distal' needs predicted_run = f(s, tau_run)")
+        return distal(
+            select(predicted_next), select(predicted_run), desired_next, select(observed_next)
+        )
+    if name == "distal_literal":
+        return distal_literal(select(predicted_next), desired_next, select(observed_next))
     raise ValueError(
         f"loss={name!r} is not a model-based controller loss; allowed: 'task', 'joint', "
-        "'distal' ('supervised' is computed by losses.supervised)"
+        "'distal', 'distal_literal' ('supervised' is computed by losses.supervised)"
     )
 
 

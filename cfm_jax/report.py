@@ -1,5 +1,13 @@
 """Summaries, tables and figures of training results (pandas, rich, matplotlib).
 
+Statistics: the unit of every uncertainty here is the *seed*, each seed averaged over its
+targets (:func:`seed_means`): the targets of one seed share its networks and data, so they
+are not independent runs. :func:`summary` gives each loss's mean with a percentile
+bootstrap confidence interval over seeds (:func:`bootstrap_ci`), :func:`paired_table` the
+paired difference between a reference loss and each other loss over the seeds both have
+(:func:`paired_difference`), and the learning-curve figures draw the same interval as a
+band. The bootstrap uses a fixed seed, so the same metrics give the same report.
+
 Examples:
   >>> import pandas as pd
   >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [1, 1],
@@ -10,31 +18,264 @@ Examples:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 import pandas as pd
 
 from cfm_jax import losses
 
+CONFIDENCE = 0.95
+"""Confidence level of the intervals of the tables and figures."""
+
+RESAMPLES = 10_000
+"""Bootstrap resamples of :func:`bootstrap_ci` and of every table and figure here."""
+
+BOOTSTRAP_SEED = 0
+"""Seed of the bootstrap's random numbers (fixed: the same data give the same report)."""
+
+
+def protocol(config) -> str:
+    """One line that says how a run's initial data and ``s*`` were made, for every summary
+    table: ``loop.babbling`` (:mod:`cfm_jax.babbling`), its rollouts and noise, and the
+    ``s*`` gains.
+
+    Args:
+      config: a :class:`cfm_jax.config.Config`.
+
+    Returns:
+      A line of text (markdown).
+
+    Examples:
+      >>> from cfm_jax import config
+      >>> print(protocol(config.Config()))
+      initial data: `loop.babbling='home'` (2 rollouts per target, torque noise 0.1 of the limit); s* gains kp 100, kd 20
+    """  # noqa: E501
+    loop, task = config.loop, config.task
+    gains = f"kp {task.kp:g}, kd {task.kd:g}"
+    if task.joint_kp is not None or task.joint_kd is not None:
+        joint_kp = task.kp if task.joint_kp is None else task.joint_kp
+        joint_kd = task.kd if task.joint_kd is None else task.joint_kd
+        gains += f" (base), joint_kp {joint_kp:g}, joint_kd {joint_kd:g}"
+    return (
+        f"initial data: `loop.babbling={loop.babbling!r}` ({loop.babbling_rollouts} rollouts "
+        f"per target, torque noise {loop.babbling_noise:g} of the limit); s* gains {gains}"
+    )
+
+
+# ----- statistics over seeds ----------------------------------------------------------
+
+
+def bootstrap_ci(
+    values, confidence: float = CONFIDENCE, resamples: int = RESAMPLES, seed: int = BOOTSTRAP_SEED
+) -> tuple[float, float]:
+    """Percentile bootstrap confidence interval of the mean of a 1-D sample.
+
+    For ``x`` of length ``n``, ``B = resamples`` and ``c = confidence``: the index matrix
+    ``I = rng.integers(0, n, size=(B, n))`` with ``rng = np.random.default_rng(seed)``
+    gives the resample means ``m_b = (1/n) sum_j x[I[b, j]]`` (``b = 0 .. B-1``); the
+    interval is their ``100 (1 - c)/2``-th and ``100 (1 + c)/2``-th percentiles
+    (``np.percentile``, linear: with ``m`` sorted and ``h = (B - 1) p / 100``, the
+    ``p``-th percentile is ``m[floor(h)] + (h - floor(h)) (m[floor(h) + 1] - m[floor(h)])``).
+
+    The interval describes how much the mean moves when the sample is redrawn from
+    itself; with few values it is too narrow for a ``c`` interval of the true mean (for
+    normal data, a simulation gives a coverage of about 50% with 2 values, 75% with 3,
+    85% with 5 and 90% with 10), so read a 3-seed interval as a lower bound on the
+    uncertainty. The order of ``values`` matters only through the fixed random indices:
+    callers here pass seed means ordered by seed.
+
+    Args:
+      values: the sample, shape ``(n,)`` (a list, array or Series). NaN values are not
+        dropped: they make the interval NaN (callers here drop them first).
+      confidence: the level ``c``, in (0, 1).
+      resamples: the number ``B`` of resamples (memory: ``B x n`` integer indices; meant
+        for small samples such as seeds).
+      seed: seed of ``np.random.default_rng``.
+
+    Returns:
+      ``(low, high)`` as floats. ``n == 1``: ``(x[0], x[0])``: every resample is that
+      value, so no spread can be estimated (the interval says nothing about the
+      uncertainty). ``n == 0``: ``(nan, nan)``.
+
+    Raises:
+      ValueError: ``values`` is not 1-D, ``confidence`` is not in (0, 1) or
+        ``resamples`` is not a positive integer.
+
+    Examples:
+      >>> bootstrap_ci([1.0, 2.0, 3.0, 4.0])
+      (1.5, 3.5)
+      >>> bootstrap_ci([2.0]), bootstrap_ci([])
+      ((2.0, 2.0), (nan, nan))
+    """
+    x = np.asarray(values, dtype=float)
+    if x.ndim != 1:
+        raise ValueError(f"values must be 1-D, got shape {x.shape}")
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence={confidence!r} is not allowed: a number in (0, 1)")
+    if isinstance(resamples, bool) or int(resamples) != resamples or resamples < 1:
+        raise ValueError(f"resamples={resamples!r} is not allowed: a positive integer")
+    n = len(x)
+    if n == 0:
+        return float("nan"), float("nan")
+    if n == 1:
+        return float(x[0]), float(x[0])
+    rng = np.random.default_rng(seed)
+    index = rng.integers(0, n, size=(int(resamples), n))
+    means = x[index].mean(axis=1)
+    low, high = np.percentile(means, [100 * (1 - confidence) / 2, 100 * (1 + confidence) / 2])
+    return float(low), float(high)
+
+
+def seed_means(
+    metrics: pd.DataFrame,
+    column: str = "tracking_mse",
+    iteration: int | None = None,
+    by: Sequence[str] = ("loss",),
+) -> pd.DataFrame:
+    """Each seed's ``column`` averaged over its targets at one iteration: the unit of the
+    statistics of this module.
+
+    ``m[g, s] = (1/K) sum_k x[g, s, k]`` for each group ``g`` (a loss), seed ``s`` and the
+    ``K`` targets (rows) of that seed at the iteration; NaN values are skipped (pandas).
+
+    Args:
+      metrics: a metrics table (``TrainResult.metrics``, several concatenated, a sweep's
+        table) with the ``by`` columns, ``iteration``, ``column`` and ``seed`` (a table
+        without ``seed`` is one seed, seed 0).
+      column: the metric to average.
+      iteration: the iteration; None: each group's last iteration.
+      by: the columns that tell one group from another.
+
+    Returns:
+      One row per group and seed, groups in order of first appearance, seeds ascending:
+      the ``by`` columns, ``seed``, ``iteration``, ``column`` (the seed mean) and
+      ``targets`` (the number of values averaged). Groups without ``iteration`` are left
+      out.
+
+    Raises:
+      ValueError: a column named in ``by`` or ``column`` is not in ``metrics``.
+
+    Examples:
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["joint"] * 4, "seed": [1, 1, 0, 0],
+      ...                         "iteration": [2] * 4, "target": [0, 1, 0, 1],
+      ...                         "tracking_mse": [5.0, 7.0, 1.0, 3.0]})
+      >>> seed_means(metrics)
+          loss  seed  iteration  tracking_mse  targets
+      0  joint     0          2           2.0        2
+      1  joint     1          2           6.0        2
+    """
+    by = list(by)
+    _require(metrics, [*by, "iteration", column])
+    frame = metrics if "seed" in metrics.columns else metrics.assign(seed=0)
+    if iteration is None:
+        last = frame.groupby(by, sort=False, dropna=False)["iteration"].transform("max")
+        frame = frame[frame["iteration"] == last]
+    else:
+        frame = frame[frame["iteration"] == iteration]
+    grouped = frame.groupby([*by, "seed", "iteration"], sort=False, dropna=False)[column]
+    out = pd.DataFrame({column: grouped.mean(), "targets": grouped.count()}).reset_index()
+    rank = {key: i for i, key in enumerate(dict.fromkeys(_group_keys(out, by)))}
+    out["_rank"] = [rank[key] for key in _group_keys(out, by)]
+    out = out.sort_values(["_rank", "seed"], kind="stable").drop(columns="_rank")
+    return out.reset_index(drop=True)
+
+
+def paired_difference(
+    a,
+    b,
+    confidence: float = CONFIDENCE,
+    resamples: int = RESAMPLES,
+    seed: int = BOOTSTRAP_SEED,
+) -> dict:
+    """Paired comparison over seeds: the mean of ``d_s = a_s - b_s`` and its bootstrap
+    confidence interval (:func:`bootstrap_ci`).
+
+    Only the seeds that both ``a`` and ``b`` have (with finite values) enter; ``d`` is
+    ordered by seed before the bootstrap, so the result does not depend on the order of
+    the inputs. Pairing removes what two losses share within a seed (its babbling data,
+    the initial forward model), so the interval of the difference is usually narrower
+    than the two losses' own intervals suggest.
+
+    Args:
+      a: values per seed: a ``pd.Series`` indexed by seed or a ``{seed: value}`` dict
+        (e.g. a column of :func:`seed_means` indexed by ``seed``).
+      b: the same for the other loss.
+      confidence: the confidence level, in (0, 1).
+      resamples: bootstrap resamples.
+      seed: seed of the bootstrap's random numbers.
+
+    Returns:
+      ``{"mean": mean of d, "low": ..., "high": ..., "n": number of paired seeds}``
+      (floats, ``n`` an int; ``n == 1``: ``low == high == mean``, no spread can be
+      estimated; ``n == 0``: NaN).
+
+    Raises:
+      ValueError: a seed appears twice in ``a`` or in ``b``.
+
+    Examples:
+      >>> paired_difference({0: 1.0, 1: 2.0, 2: 4.0}, {2: 3.0, 0: 2.0})  # d = -1, 1
+      {'mean': 0.0, 'low': -1.0, 'high': 1.0, 'n': 2}
+    """
+    a, b = _per_seed(a, "a"), _per_seed(b, "b")
+    seeds = sorted(set(a.index) & set(b.index))
+    d = (a.loc[seeds] - b.loc[seeds]).to_numpy(dtype=float) if seeds else np.zeros(0)
+    low, high = bootstrap_ci(d, confidence, resamples, seed)
+    mean = float(d.mean()) if len(d) else float("nan")
+    return {"mean": mean, "low": low, "high": high, "n": len(d)}
+
+
+def _per_seed(values, name: str) -> pd.Series:
+    series = pd.Series(values, dtype=float)  # a dict's keys or a Series' index: the seeds
+    if series.index.has_duplicates:
+        seeds = sorted(set(series.index[series.index.duplicated()]))
+        raise ValueError(f"{name} has seeds {seeds} more than once: one value per seed")
+    return series[np.isfinite(series.to_numpy())]
+
 
 def summary(
-    metrics: pd.DataFrame, baselines: pd.DataFrame | None = None, rms_reach: float | None = None
+    metrics: pd.DataFrame,
+    baselines: pd.DataFrame | None = None,
+    rms_reach: float | None = None,
+    column: str = "tracking_mse",
+    iteration: int | None = None,
+    confidence: float = CONFIDENCE,
 ) -> pd.DataFrame:
-    """Final-iteration tracking MSE per loss: mean and std over seeds and targets.
+    """Final-iteration error per loss: mean and std over seeds and targets, and the mean's
+    bootstrap confidence interval over seeds.
+
+    For loss ``l`` with seeds ``s = 1..S`` and seed means ``m_s`` (:func:`seed_means`:
+    each seed averaged over its targets): ``seeds = S``, ``seed_std = sqrt(sum_s (m_s -
+    mean(m))^2 / (S - 1))`` (the sample std, ``ddof=1``; NaN for one seed) and
+    ``[ci_low, ci_high]`` = :func:`bootstrap_ci` of ``m`` (ordered by seed): the
+    percentile bootstrap interval of the mean over seeds. ``mean(m)`` equals
+    ``<column>_mean`` when every seed has the same number of targets (always, for the
+    library's runs).
 
     Args:
       metrics: a metrics table (``TrainResult.metrics``, or several concatenated), with
-        columns ``loss``, ``iteration``, ``tracking_mse`` and optionally
-        ``prediction_error``, ``predicted_task_error``.
-      baselines: ``TrainResult.baselines``; adds rows ``oracle`` and ``pd_only`` (std over
-        targets).
+        columns ``loss``, ``iteration``, ``column``, ``seed`` (without it: one seed) and
+        optionally ``prediction_error``, ``predicted_task_error``.
+      baselines: ``TrainResult.baselines``; adds rows ``oracle`` and ``pd_only`` (mean and
+        std over targets; no seed columns) when it has ``column``.
       rms_reach: the RMS reaching distance; adds the column ``rmse_over_reach`` (the square
-        root of the mean MSE over this distance).
+        root of ``<column>_mean`` over this distance; meant for ``tracking_mse``).
+      column: the metric, e.g. ``tracking_mse`` or the legged tasks' ``force_mse``.
+      iteration: the iteration to summarise; None: each loss's last.
+      confidence: the level of the interval.
 
     Returns:
-      One row per loss (in ``losses.CONTROLLER_LOSSES`` order) and baseline, columns
-      ``iteration``, ``tracking_mse_mean``, ``tracking_mse_std``, ``runs`` and the others.
+      One row per loss (``losses.CONTROLLER_LOSSES`` order, then other names in order of
+      appearance) and baseline. Columns: ``iteration``; ``<column>_mean`` and
+      ``<column>_std`` (mean and population std, ``ddof=0``, over seeds x targets);
+      ``runs`` (seeds x targets); ``seeds``, ``seed_std``, ``ci_low``, ``ci_high`` (over
+      the seed means, as above; NaN for the baselines); ``prediction_error_mean``,
+      ``predicted_task_error_mean`` (when in ``metrics``); ``rmse_over_reach``. The
+      frame's ``attrs`` hold ``column``, ``confidence`` and ``resamples``.
+
+    Raises:
+      ValueError: ``loss``, ``iteration`` or ``column`` is not in ``metrics``.
 
     Examples:
       >>> import pandas as pd
@@ -42,42 +283,181 @@ def summary(
       ...                         "target": [0, 0], "tracking_mse": [1.0, 3.0]})
       >>> summary(metrics).loc["joint", "tracking_mse_mean"]
       np.float64(2.0)
+      >>> summary(metrics).loc["joint", ["seeds", "seed_std", "ci_low", "ci_high"]].round(3)
+      seeds       2.000
+      seed_std    1.414
+      ci_low      1.000
+      ci_high     3.000
+      Name: joint, dtype: float64
     """
+    _require(metrics, ["loss", "iteration", column])
+    means = seed_means(metrics, column, iteration)
     rows = {}
-    order = [name for name in losses.CONTROLLER_LOSSES if name in set(metrics["loss"])]
-    for loss in order:
-        frame = metrics[metrics["loss"] == loss]
-        final = frame[frame["iteration"] == frame["iteration"].max()]
+    for loss in _loss_order(means["loss"]):
+        per_seed = means[means["loss"] == loss]
+        at = int(per_seed["iteration"].iloc[0])
+        final = metrics[(metrics["loss"] == loss) & (metrics["iteration"] == at)]
+        values = per_seed[column].to_numpy(dtype=float)
+        values = values[np.isfinite(values)]
+        low, high = bootstrap_ci(values, confidence)
         rows[loss] = {
-            "iteration": int(final["iteration"].iloc[0]),
-            "tracking_mse_mean": final["tracking_mse"].mean(),
-            "tracking_mse_std": final["tracking_mse"].std(ddof=0),
+            "iteration": at,
+            f"{column}_mean": final[column].mean(),
+            f"{column}_std": final[column].std(ddof=0),
             "runs": len(final),
+            "seeds": len(values),
+            "seed_std": float(np.std(values, ddof=1)) if len(values) > 1 else float("nan"),
+            "ci_low": low,
+            "ci_high": high,
         }
-        for column in ("prediction_error", "predicted_task_error"):
-            if column in final:
-                rows[loss][f"{column}_mean"] = final[column].mean()
-    if baselines is not None:
+        for extra in ("prediction_error", "predicted_task_error"):
+            if extra in final and extra != column:
+                rows[loss][f"{extra}_mean"] = final[extra].mean()
+    if baselines is not None and column in baselines:
         for name, frame in baselines.groupby("baseline", sort=False):
             rows[name] = {
-                "tracking_mse_mean": frame["tracking_mse"].mean(),
-                "tracking_mse_std": frame["tracking_mse"].std(ddof=0),
+                f"{column}_mean": frame[column].mean(),
+                f"{column}_std": frame[column].std(ddof=0),
                 "runs": len(frame),
             }
     table = pd.DataFrame.from_dict(rows, orient="index")
-    if rms_reach is not None:
-        table["rmse_over_reach"] = np.sqrt(table["tracking_mse_mean"]) / rms_reach
+    if rms_reach is not None and len(table):
+        table["rmse_over_reach"] = np.sqrt(table[f"{column}_mean"]) / rms_reach
+    table.attrs.update(column=column, confidence=confidence, resamples=RESAMPLES)
     return table
+
+
+def paired_table(
+    metrics: pd.DataFrame,
+    reference: str | None = "joint",
+    column: str = "tracking_mse",
+    iteration: int | None = None,
+    confidence: float = CONFIDENCE,
+) -> pd.DataFrame:
+    """Paired comparison of a reference loss with every other loss, over seeds.
+
+    For each other loss ``l``: ``d_s = m_s(reference) - m_s(l)`` over the seeds both
+    have, ``m`` the seed means of ``column`` (:func:`seed_means`, each seed averaged over
+    its targets), then :func:`paired_difference`. For an error metric (``tracking_mse``,
+    ``force_mse``) a negative difference means the reference is better (lower); a ``c``
+    interval that excludes 0 means the sign holds in at least ``(1 + c)/2`` of the
+    bootstrap resamples of the seeds.
+
+    Args:
+      metrics: a metrics table with ``loss``, ``seed``, ``iteration`` and ``column``.
+      reference: the loss every other one is compared with; None: ``joint`` when present,
+        else the first loss in ``losses.CONTROLLER_LOSSES`` order.
+      column: the metric.
+      iteration: the iteration; None: each loss's last.
+      confidence: the level of the interval.
+
+    Returns:
+      One row per other loss (index ``loss``, library order), columns
+      ``mean_difference`` (reference minus loss), ``ci_low``, ``ci_high`` and ``seeds``
+      (the number of paired seeds); ``attrs`` hold ``reference``, ``column``,
+      ``confidence`` and ``resamples``. No other loss: no rows.
+
+    Raises:
+      ValueError: ``reference`` is not in ``metrics`` or a needed column is missing.
+
+    Examples:
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["joint"] * 2 + ["task"] * 2, "seed": [0, 1] * 2,
+      ...                         "iteration": [1] * 4, "tracking_mse": [1.0, 2.0, 3.0, 3.0]})
+      >>> paired_table(metrics).reset_index()  # joint - task: -2 (seed 0), -1 (seed 1)
+         loss  mean_difference  ci_low  ci_high  seeds
+      0  task             -1.5    -2.0     -1.0      2
+    """
+    means = seed_means(metrics, column, iteration)
+    present = _loss_order(means["loss"])
+    if reference is None:
+        reference = "joint" if "joint" in present else (present[0] if present else "joint")
+    if reference not in present:
+        raise ValueError(f"reference loss {reference!r} is not in the metrics (losses: {present})")
+
+    def per_seed(loss):
+        return means[means["loss"] == loss].set_index("seed")[column]
+
+    rows, index = [], []
+    for loss in present:
+        if loss == reference:
+            continue
+        result = paired_difference(per_seed(reference), per_seed(loss), confidence)
+        index.append(loss)
+        rows.append([result["mean"], result["low"], result["high"], result["n"]])
+    table = pd.DataFrame(
+        rows, index=pd.Index(index, name="loss", dtype=object),
+        columns=["mean_difference", "ci_low", "ci_high", "seeds"],
+    )  # fmt: skip
+    table["seeds"] = table["seeds"].astype(int)
+    table.attrs.update(
+        reference=reference, column=column, confidence=confidence, resamples=RESAMPLES
+    )
+    return table
+
+
+def _require(frame: pd.DataFrame, columns: Iterable[str]) -> None:
+    missing = [c for c in dict.fromkeys(columns) if c not in frame.columns]
+    if missing:
+        raise ValueError(f"columns {missing} are not in the metrics table")
+
+
+def _loss_order(names) -> list[str]:
+    """The library's losses in ``CONTROLLER_LOSSES`` order, then other names as they come."""
+    present = list(dict.fromkeys(names))
+    known = [name for name in losses.CONTROLLER_LOSSES if name in present]
+    return known + [name for name in present if name not in losses.CONTROLLER_LOSSES]
+
+
+# ----- tables -------------------------------------------------------------------------
 
 
 SHORT_HEADERS = {
     "tracking_mse_mean": "MSE mean",
     "tracking_mse_std": "MSE std",
     "runs": "runs",
+    "seeds": "seeds",
+    "seed_std": "seed std",
     "prediction_error_mean": "pred. err",
     "predicted_task_error_mean": "pred. task err",
     "rmse_over_reach": "RMSE/reach",
 }
+
+
+def _ci_header(table: pd.DataFrame) -> str:
+    return f"{100 * table.attrs.get('confidence', CONFIDENCE):g}% CI"
+
+
+def _ci_cell(row) -> str:
+    """``[low, high]``; ``-`` with fewer than two seeds (no spread) or no seeds at all."""
+    seeds = row.get("seeds", np.nan)
+    if not (isinstance(seeds, int | float | np.integer | np.floating) and seeds >= 2):
+        return "-"
+    return f"[{_format(row['ci_low'])}, {_format(row['ci_high'])}]"
+
+
+def _ci_note(table: pd.DataFrame) -> str:
+    column = table.attrs.get("column", "the metric")
+    resamples = table.attrs.get("resamples", RESAMPLES)
+    return (
+        f"{_ci_header(table)}: percentile bootstrap ({resamples} resamples) of the mean over "
+        f"seeds of {column}, each seed averaged over its targets; seed_std: sample std "
+        "(ddof=1) of those seed means; -: fewer than two seeds (no spread can be estimated) "
+        "or a baseline."
+    )
+
+
+def _table_columns(table: pd.DataFrame) -> list[str]:
+    """The columns to show: ``iteration`` left out, ``ci_low``/``ci_high`` as one column
+    (named ``"ci"``) in the place of ``ci_low``."""
+    columns = [c for c in table.columns if c not in ("iteration", "ci_high")]
+    if "ci_high" not in table.columns:
+        columns = [c for c in columns if c != "ci_low"]
+    return ["ci" if c == "ci_low" else c for c in columns]
+
+
+def _cell(row, column: str) -> str:
+    return _ci_cell(row) if column == "ci" else _format(row[column])
 
 
 def print_summary(
@@ -85,38 +465,87 @@ def print_summary(
     title: str = "Final tracking error",
     tracking: str = "joint-position tracking MSE (rad^2)",
 ) -> None:
-    """Print a :func:`summary` table with rich (short column headers, explained below it).
+    """Print a :func:`summary` table with rich (short column headers, explained below it):
+    ``ci_low`` and ``ci_high`` as one column ``95% CI`` (``[low, high]``), the caption says
+    what the interval is (percentile bootstrap of the mean over seeds, each seed averaged
+    over its targets).
 
     Args:
       table: the output of :func:`summary`.
       title: the table's title.
-      tracking: what the tracking error is and its unit (for the caption).
+      tracking: what the table's metric (``summary(column=...)``) is and its unit, for
+        the caption.
 
     Examples:
       >>> import pandas as pd
       >>> metrics = pd.DataFrame({"loss": ["task"], "iteration": [0], "tracking_mse": [0.5]})
       >>> print_summary(summary(metrics))  # doctest: +SKIP
     """
-    from rich.console import Console
     from rich.table import Table
 
+    column = table.attrs.get("column", "tracking_mse")
+    short = "MSE" if column.endswith("mse") else column
+    headers = {
+        **SHORT_HEADERS,
+        f"{column}_mean": f"{short} mean",
+        f"{column}_std": f"{short} std",
+        "ci": _ci_header(table),
+    }
     out = Table(
         title=title,
-        caption=f"MSE: {tracking}, mean/std over seeds x targets; "
-        "pred. err / pred. task err: forward-model prediction error and predicted task "
-        "error (squared units of the predicted quantities); RMSE/reach: sqrt(MSE mean) / "
-        "RMS reaching distance",
+        caption=f"{short}: {tracking}, mean/std over seeds x targets; seed std: sample std over "
+        f"seeds of each seed's mean over its targets; {_ci_header(table)}: percentile "
+        f"bootstrap ({table.attrs.get('resamples', RESAMPLES)} resamples) of the mean over "
+        "seeds, each seed averaged over its targets (-: fewer than two seeds, or a "
+        "baseline); pred. err / pred. task err: forward-model prediction error and "
+        "predicted task error (squared units of the predicted quantities); RMSE/reach: "
+        "sqrt(MSE mean) / RMS reaching distance",
     )
     out.add_column("controller")
-    columns = [c for c in table.columns if c != "iteration"]
-    for column in columns:
-        out.add_column(SHORT_HEADERS.get(column, column), justify="right")
+    columns = _table_columns(table)
+    for name in columns:
+        out.add_column(headers.get(name, name), justify="right", no_wrap=name == "ci")
     for name, row in table.iterrows():
-        out.add_row(str(name), *(_format(row[c]) for c in columns))
+        out.add_row(str(name), *(_cell(row, c) for c in columns))
+    _console().print(out)
+
+
+def print_paired(table: pd.DataFrame, title: str | None = None) -> None:
+    """Print a :func:`paired_table` with rich, and below it what the numbers are.
+
+    Args:
+      table: the output of :func:`paired_table`.
+      title: the table's title (None: says the reference and the metric).
+
+    Examples:
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["joint", "task"], "seed": [0, 0],
+      ...                         "iteration": [0, 0], "tracking_mse": [0.5, 1.0]})
+      >>> print_paired(paired_table(metrics))  # doctest: +SKIP
+    """
+    from rich.table import Table
+
+    reference = table.attrs.get("reference", "reference")
+    out = Table(title=title or f"Paired over seeds: {reference} minus each loss")
+    out.add_column("loss")
+    out.add_column(f"{reference} - loss", justify="right")
+    out.add_column(_ci_header(table), justify="right", no_wrap=True)
+    out.add_column("seeds", justify="right")
+    for name, row in table.iterrows():
+        cells = [_format(row["mean_difference"]), _ci_cell(row), str(int(row["seeds"]))]
+        out.add_row(str(name), *cells)
+    console = _console()
+    console.print(out)
+    console.print(_paired_note(table))  # below, at the console's width (a caption wraps narrow)
+
+
+def _console():
+    from rich.console import Console
+
     console = Console()
     if not console.is_terminal:  # files and pipes: do not squeeze the table into 80 columns
-        console = Console(width=110)
-    console.print(out)
+        console = Console(width=130)
+    return console
 
 
 def _format(value) -> str:
@@ -130,6 +559,10 @@ def _format(value) -> str:
 def markdown(table: pd.DataFrame) -> str:
     """The table as GitHub markdown (numbers to 3 significant digits).
 
+    A :func:`summary` table's ``ci_low`` and ``ci_high`` become one column ``95% CI``
+    (``[low, high]``; ``-`` with fewer than two seeds and for the baselines), and a line
+    below the table says what the interval is.
+
     Args:
       table: the output of :func:`summary` (any frame with an index of row names).
 
@@ -138,16 +571,69 @@ def markdown(table: pd.DataFrame) -> str:
 
     Examples:
       >>> import pandas as pd
-      >>> metrics = pd.DataFrame({"loss": ["task"], "iteration": [0], "tracking_mse": [0.5]})
-      >>> print(markdown(summary(metrics)))
-      | controller | tracking_mse_mean | tracking_mse_std | runs |
-      |---|---:|---:|---:|
-      | task | 0.5 | 0 | 1 |
+      >>> metrics = pd.DataFrame({"loss": ["task"] * 2, "seed": [0, 1], "iteration": [0, 0],
+      ...                         "tracking_mse": [0.5, 1.5]})
+      >>> print(markdown(summary(metrics)))  # doctest: +ELLIPSIS
+      | controller | tracking_mse_mean | tracking_mse_std | runs | seeds | seed_std | 95% CI |
+      |---|---:|---:|---:|---:|---:|---:|
+      | task | 1 | 0.5 | 2 | 2 | 0.707 | [0.5, 1.5] |
+      <BLANKLINE>
+      95% CI: percentile bootstrap (10000 resamples) of the mean over seeds of tracking_mse, ...
     """
-    columns = [c for c in table.columns if c != "iteration"]
-    lines = ["| controller | " + " | ".join(columns) + " |", "|---|" + "---:|" * len(columns)]
+    columns = _table_columns(table)
+    headers = [_ci_header(table) if c == "ci" else c for c in columns]
+    lines = ["| controller | " + " | ".join(headers) + " |", "|---|" + "---:|" * len(columns)]
     for name, row in table.iterrows():
-        lines.append(f"| {name} | " + " | ".join(_format(row[c]) for c in columns) + " |")
+        lines.append(f"| {name} | " + " | ".join(_cell(row, c) for c in columns) + " |")
+    if "ci" in columns:
+        lines += ["", _ci_note(table)]
+    return "\n".join(lines)
+
+
+def _paired_note(table: pd.DataFrame) -> str:
+    reference = table.attrs.get("reference", "the reference")
+    column = table.attrs.get("column", "the metric")
+    return (
+        f"{reference} - loss: mean over the seeds both have of the difference of their "
+        f"{column} (each seed averaged over its targets; for an error, negative: {reference} "
+        f"lower, better); {_ci_header(table)}: percentile bootstrap "
+        f"({table.attrs.get('resamples', RESAMPLES)} resamples) of that mean; -: fewer than "
+        "two paired seeds."
+    )
+
+
+def paired_markdown(table: pd.DataFrame) -> str:
+    """A :func:`paired_table` as GitHub markdown, with a line that says what it is.
+
+    Args:
+      table: the output of :func:`paired_table`.
+
+    Returns:
+      Markdown text: the explanation, a blank line, then one table row per loss
+      (``loss``, ``<reference> - loss``, ``95% CI``, ``seeds``).
+
+    Examples:
+      >>> import pandas as pd
+      >>> metrics = pd.DataFrame({"loss": ["joint"] * 2 + ["task"] * 2, "seed": [0, 1] * 2,
+      ...                         "iteration": [1] * 4, "tracking_mse": [1.0, 2.0, 3.0, 3.0]})
+      >>> print(paired_markdown(paired_table(metrics)))  # doctest: +ELLIPSIS
+      joint - loss: mean over the seeds both have of the difference of their tracking_mse ...
+      <BLANKLINE>
+      | loss | joint - loss | 95% CI | seeds |
+      |---|---:|---:|---:|
+      | task | -1.5 | [-2, -1] | 2 |
+    """
+    reference = table.attrs.get("reference", "reference")
+    lines = [
+        _paired_note(table),
+        "",
+        f"| loss | {reference} - loss | {_ci_header(table)} | seeds |",
+        "|---|---:|---:|---:|",
+    ]
+    for name, row in table.iterrows():
+        cells = [str(name), _format(row["mean_difference"]), _ci_cell(row)]
+        cells.append(str(int(row["seeds"])))
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -161,13 +647,16 @@ def plot_learning_curves(
 ) -> str:
     """Tracking MSE, prediction error and predicted task error per iteration, per loss.
 
-    Mean and standard deviation over seeds and targets (the paper's Fig. 3 and 4 style);
-    oracle and PD-only tracking MSE as horizontal lines. Log scale. Saves a PNG.
+    Each seed is averaged over its targets; the line is the mean over seeds and the shaded
+    band its 95% percentile bootstrap confidence interval over seeds (:func:`seed_curves`,
+    :func:`bootstrap_ci`; one seed: no band), as the legend says (the paper's Fig. 3 and 4
+    style). Oracle and PD-only tracking MSE as horizontal lines. Log scale. Saves a PNG.
 
     Args:
       metrics: a metrics table (``TrainResult.metrics``, or several concatenated) with
-        columns ``loss``, ``iteration``, ``tracking_mse``, ``prediction_error`` and
-        ``predicted_task_error``; one curve per loss.
+        columns ``loss``, ``iteration``, ``tracking_mse``, ``seed`` (without it: one
+        seed) and optionally ``prediction_error`` and ``predicted_task_error``; one curve
+        per loss.
       path: the image file to write (its folder must exist).
       baselines: ``TrainResult.baselines`` (columns ``baseline``, ``tracking_mse``); their
         mean tracking MSE is drawn as horizontal lines (None: no lines).
@@ -192,15 +681,15 @@ def plot_learning_curves(
       ...     os.path.getsize(path) > 0
       True
     """
+    frame = metrics if "seed" in metrics.columns else metrics.assign(seed=0)
+    columns = [c for c, _ in _panels(tracking_label, output_unit) if c in frame.columns]
+    curves = seed_curves(frame, by=["loss"], columns=columns)
     series = []
-    for loss in [n for n in losses.CONTROLLER_LOSSES if n in set(metrics["loss"])]:
-        grouped = metrics[metrics["loss"] == loss].groupby("iteration")
-        stats = {}
-        for column, _ in _panels(tracking_label, output_unit):
-            frame = grouped[column]
-            stats[column] = (frame.mean(), frame.std(ddof=0).fillna(0.0))
-        series.append((loss, stats))
-    return _plot_series(series, path, baselines, title, tracking_label, output_unit)
+    for loss in _loss_order(curves["loss"]):
+        series.append((loss, _bands(curves[curves["loss"] == loss].set_index("iteration"))))
+    return _plot_series(
+        series, path, baselines, title, tracking_label, output_unit, _band_label(curves)
+    )
 
 
 CURVE_ID_COLUMNS = ("seed", "iteration", "target")
@@ -208,14 +697,19 @@ CURVE_ID_COLUMNS = ("seed", "iteration", "target")
 
 
 def seed_curves(
-    metrics: pd.DataFrame, by: Sequence[str] = ("loss",), columns: Sequence[str] | None = None
+    metrics: pd.DataFrame,
+    by: Sequence[str] = ("loss",),
+    columns: Sequence[str] | None = None,
+    confidence: float | None = CONFIDENCE,
 ) -> pd.DataFrame:
-    """Mean and standard deviation over seeds, per iteration, for each group ``by`` (each
-    loss, or each loss and override combination of a sweep): the paper's learning curves.
+    """Mean, standard deviation and bootstrap confidence interval over seeds, per
+    iteration, for each group ``by`` (each loss, or each loss and override combination of
+    a sweep): the paper's learning curves.
 
-    Each seed's value at an iteration is first averaged over the targets; the mean and the
-    population standard deviation (``ddof=0``, as in :func:`summary`) are then taken over
-    the seeds.
+    Each seed's value at an iteration is first averaged over the targets (``m_s``, as in
+    :func:`seed_means`); the mean and the population standard deviation (``ddof=0``) are
+    then taken over the seeds, and the interval is :func:`bootstrap_ci` of the ``m_s``
+    (ordered by seed; NaN seed means left out).
 
     Args:
       metrics: a metrics table with ``seed``, ``iteration``, ``target``, the ``by`` columns
@@ -223,11 +717,13 @@ def seed_curves(
       by: the columns that tell one curve from another.
       columns: the metrics to summarise (default: every numeric column that is not an id,
         a group column, ``finite_fraction``, ``transitions_added`` or a training loss).
+      confidence: the level of the interval; None: no interval columns.
 
     Returns:
       One row per group and iteration, groups in order of first appearance, iterations
       ascending: the ``by`` columns, ``iteration``, ``seeds`` and ``<column>_mean``,
-      ``<column>_std`` for each column.
+      ``<column>_std``, ``<column>_ci_low``, ``<column>_ci_high`` for each column;
+      ``attrs["confidence"]`` the level.
 
     Raises:
       ValueError: a column named in ``by`` or ``columns`` is not in ``metrics``.
@@ -241,6 +737,9 @@ def seed_curves(
       >>> curves[["loss", "iteration", "seeds", "tracking_mse_mean", "tracking_mse_std"]]
           loss  iteration  seeds  tracking_mse_mean  tracking_mse_std
       0  joint          0      2                4.0               2.0
+      >>> curves[["tracking_mse_ci_low", "tracking_mse_ci_high"]]
+         tracking_mse_ci_low  tracking_mse_ci_high
+      0                  2.0                   6.0
     """
     by = list(by)
     if columns is None:
@@ -250,9 +749,7 @@ def seed_curves(
         numeric = pd.api.types.is_numeric_dtype
         columns = [c for c in metrics.columns if c not in skip and numeric(metrics[c])]
     columns = list(columns)
-    missing = [c for c in by + columns + ["seed", "iteration"] if c not in metrics.columns]
-    if missing:
-        raise ValueError(f"columns {missing} are not in the metrics table")
+    _require(metrics, by + columns + ["seed", "iteration"])
     per_seed = (
         metrics.groupby(by + ["seed", "iteration"], sort=False, dropna=False)[columns]
         .mean()
@@ -264,11 +761,21 @@ def seed_curves(
     for column in columns:
         out[f"{column}_mean"] = mean[column]
         out[f"{column}_std"] = std[column]
+        if confidence is not None:
+            bounds = grouped[["seed", column]].apply(
+                lambda g, c=column: bootstrap_ci(
+                    g.sort_values("seed", kind="stable")[c].dropna(), confidence
+                )
+            )
+            out[f"{column}_ci_low"] = [low for low, _ in bounds]
+            out[f"{column}_ci_high"] = [high for _, high in bounds]
     out = out.reset_index()
     rank = {key: i for i, key in enumerate(dict.fromkeys(_group_keys(out, by)))}
     out["_rank"] = [rank[key] for key in _group_keys(out, by)]
     out = out.sort_values(["_rank", "iteration"], kind="stable").drop(columns="_rank")
-    return out.reset_index(drop=True)
+    out = out.reset_index(drop=True)
+    out.attrs["confidence"] = confidence
+    return out
 
 
 def _group_keys(frame: pd.DataFrame, by: Sequence[str]) -> list[tuple]:
@@ -334,7 +841,9 @@ def plot_curves(
     output_unit: str = "(rad/s$^2$)$^2$",
 ) -> str:
     """The figure of :func:`plot_learning_curves` from a :func:`seed_curves` table: one
-    line per group (mean over seeds, band of one std), log scale.
+    line per group (mean over seeds, each seed averaged over its targets) with its
+    confidence interval over seeds as a shaded band (a table without ``_ci_low`` /
+    ``_ci_high`` columns: mean ± one std), log scale; the legend says which.
 
     Args:
       curves: the output of :func:`seed_curves` (with ``tracking_mse``, and
@@ -366,13 +875,10 @@ def plot_curves(
         key = key if isinstance(key, tuple) else (key,)
         pairs = zip(by[1:], key[1:], strict=True)
         label = str(key[0]) + "".join(f", {name}={value}" for name, value in pairs)
-        frame = frame.set_index("iteration")
-        stats = {}
-        for column, _ in _panels(tracking_label, output_unit):
-            if f"{column}_mean" in frame:
-                stats[column] = (frame[f"{column}_mean"], frame[f"{column}_std"].fillna(0.0))
-        series.append((label, stats))
-    return _plot_series(series, path, baselines, title, tracking_label, output_unit)
+        series.append((label, _bands(frame.set_index("iteration"))))
+    return _plot_series(
+        series, path, baselines, title, tracking_label, output_unit, _band_label(curves)
+    )
 
 
 def _panels(tracking_label: str, output_unit: str) -> list[tuple[str, str]]:
@@ -383,13 +889,41 @@ def _panels(tracking_label: str, output_unit: str) -> list[tuple[str, str]]:
     ]
 
 
-def _plot_series(series, path, baselines, title, tracking_label, output_unit) -> str:
-    """Three log-scale panels; ``series``: ``[(label, {column: (mean, std)})]`` with
-    iteration-indexed mean and std."""
+def _bands(frame: pd.DataFrame) -> dict:
+    """``{column: (mean, low, high)}`` of an iteration-indexed :func:`seed_curves` group:
+    its confidence interval, or mean ± std for a table without one."""
+    bands = {}
+    for column, _ in _panels("", ""):
+        if f"{column}_mean" not in frame:
+            continue
+        mean = frame[f"{column}_mean"]
+        if f"{column}_ci_low" in frame:
+            low, high = frame[f"{column}_ci_low"], frame[f"{column}_ci_high"]
+        else:
+            std = frame[f"{column}_std"].fillna(0.0)
+            low, high = mean - std, mean + std
+        bands[column] = (mean, low.fillna(mean), high.fillna(mean))
+    return bands
+
+
+def _band_label(curves: pd.DataFrame) -> str:
+    if any(c.endswith("_ci_low") for c in curves.columns):
+        confidence = curves.attrs.get("confidence") or CONFIDENCE
+        return f"band: {100 * confidence:g}% bootstrap CI of the mean over seeds"
+    return "band: ± 1 std over seeds"
+
+
+def _plot_series(
+    series, path, baselines, title, tracking_label, output_unit, band_label=None
+) -> str:
+    """Three log-scale panels; ``series``: ``[(label, {column: (mean, low, high)})]`` with
+    iteration-indexed mean and band (:func:`_bands`); ``band_label`` names the band in the
+    legend."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
     from matplotlib.ticker import MaxNLocator
 
     panels = _panels(tracking_label, output_unit)
@@ -398,12 +932,10 @@ def _plot_series(series, path, baselines, title, tracking_label, output_unit) ->
         for name, stats in series:
             if column not in stats:
                 continue
-            mean, std = stats[column]
+            mean, low, high = stats[column]
             (line,) = ax.plot(mean.index, mean.values, marker="o", ms=3, label=name)
-            lower = np.maximum(mean.values - std.values, mean.values * 1e-2)
-            ax.fill_between(
-                mean.index, lower, mean.values + std.values, alpha=0.2, color=line.get_color()
-            )
+            lower = np.maximum(low.values, mean.values * 1e-2)  # log scale: keep it positive
+            ax.fill_between(mean.index, lower, high.values, alpha=0.2, color=line.get_color())
         if column == "tracking_mse" and baselines is not None:
             styles = {"oracle": ":", "pd_only": "--"}
             for name, frame in baselines.groupby("baseline", sort=False):
@@ -419,7 +951,18 @@ def _plot_series(series, path, baselines, title, tracking_label, output_unit) ->
         ax.set_xlabel("iteration")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize="small", framealpha=0.8)
+    handles, labels = axes[0].get_legend_handles_labels()
+    if band_label:
+        handles.append(Patch(facecolor="0.5", alpha=0.3, label=band_label))
+        labels.append(band_label)
+    axes[0].legend(
+        handles,
+        labels,
+        fontsize="small",
+        framealpha=0.8,
+        title="line: mean over seeds,\neach seed averaged over its targets",
+        title_fontsize="small",
+    )
     if title:
         fig.suptitle(title)
     fig.tight_layout()

@@ -194,8 +194,21 @@ class SweepResult:
         return report.seed_curves(self.metrics, by=self.group_columns, columns=columns)
 
     def markdown(self, iteration: int | None = None) -> str:
-        """The curves at ``iteration`` (default: the last) as a markdown table."""
-        return report.curves_markdown(self.curves(), self.group_columns, iteration)
+        """The summary of ``summary.md``, at ``iteration`` (default: the last), as markdown.
+
+        First the curves at that iteration (:func:`cfm_jax.report.curves_markdown`: mean ±
+        std over seeds of every metric, each seed averaged over its targets); then, for
+        each combination of override values, the per-loss ``tracking_mse`` table with its
+        95% percentile bootstrap CI over seeds and the oracle and PD-only baselines
+        (:func:`cfm_jax.report.summary`, :func:`cfm_jax.report.markdown`) and, when more
+        than one loss ran, the paired differences of the joint loss (else the first loss)
+        minus each other loss over seeds (:func:`cfm_jax.report.paired_table`,
+        :func:`cfm_jax.report.paired_markdown`)."""
+        parts = [report.curves_markdown(self.curves(), self.group_columns, iteration)]
+        parts += _summary_sections(
+            self.metrics, self.baselines, list(self.override_columns), iteration
+        )
+        return "\n\n".join(parts)
 
     def plot(self, path: str, title: str = "", **labels) -> str:
         """The paper-style figure of the curves (:func:`cfm_jax.report.plot_curves`); the
@@ -307,7 +320,7 @@ def _losses(base: config_lib.Config, losses) -> list[str]:
     if losses is None:
         return [base.loss]
     if losses == "all":
-        return list(losses_lib.CONTROLLER_LOSSES)
+        return list(losses_lib.PAPER_LOSSES)
     names = [losses] if isinstance(losses, str) else list(losses)
     bad = [n for n in names if n not in losses_lib.CONTROLLER_LOSSES]
     if not names or bad or len(set(names)) != len(names):
@@ -799,6 +812,38 @@ def _collect(cells, outputs, done_before, paths, out_dir, seconds) -> SweepResul
     )
 
 
+def _summary_sections(metrics, baselines, paths, iteration) -> list[str]:
+    """Markdown sections of :meth:`SweepResult.markdown` after the curves: per combination
+    of override values (``paths``), the :func:`cfm_jax.report.summary` table of
+    ``tracking_mse`` (with that combination's baselines) and, with several losses, the
+    :func:`cfm_jax.report.paired_table`."""
+    if metrics.empty or "tracking_mse" not in metrics or "loss" not in metrics:
+        return []
+    groups = metrics.groupby(paths, sort=False, dropna=False) if paths else [((), metrics)]
+    sections = []
+    for _, frame in groups:
+        values = {path: frame[path].iloc[0] for path in paths}
+        where = "".join(f", {path}={value}" for path, value in values.items())
+        base = None
+        if "baseline" in baselines and "tracking_mse" in baselines:
+            keep = pd.Series(True, index=baselines.index)
+            for path, value in values.items():  # text keys: NaN, None and tuples compare
+                keep &= baselines[path].map(str) == str(value) if path in baselines else False
+            base = baselines[keep] if keep.any() else None
+        if iteration is not None and not (frame["iteration"] == iteration).any():
+            continue
+        table = report.summary(frame, base, iteration=iteration)
+        at = "the last iteration" if iteration is None else f"iteration {iteration}"
+        sections.append(
+            f"tracking_mse per loss at {at}{where}: mean and std over seeds x targets, "
+            "and the mean's confidence interval over seeds\n\n" + report.markdown(table)
+        )
+        if frame["loss"].nunique() > 1:
+            paired = report.paired_table(frame, reference=None, iteration=iteration)
+            sections.append(report.paired_markdown(paired))
+    return sections
+
+
 def _write_tables(out_dir: str, result: SweepResult, base_config, cells, labels) -> None:
     """The tidy table as CSV and Parquet (pyarrow), the baselines, the cells, the grid, the
     summary table and the figure; each file written whole and renamed into place."""
@@ -819,7 +864,10 @@ def _write_tables(out_dir: str, result: SweepResult, base_config, cells, labels)
         "cells": [{"cell": c.id, "loss": c.loss, "overrides": _plain(c.overrides)} for c in cells],
     }
     _write_text(os.path.join(out_dir, "sweep.json"), json.dumps(description, indent=2))
-    _write_text(os.path.join(out_dir, "summary.md"), result.markdown() + "\n")
+    protocol = report.protocol(base_config)
+    if any(path.startswith("loop.babbling") for path in result.override_columns):
+        protocol += " (the base; the cells override it, see the columns)"
+    _write_text(os.path.join(out_dir, "summary.md"), protocol + "\n\n" + result.markdown() + "\n")
     config = cells[0].config
     result.plot(
         os.path.join(out_dir, "curves.png"),

@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from cfm_jax import babbling
 from cfm_jax.config import ConfigError, TaskConfig
 
 DEFAULT_TARGET_COUNT = 5
@@ -309,6 +310,9 @@ class JointSpaceTask:
       taken over (here ``q' - q_ref(t+1)``, rad), ``record(...)`` further per-step
       records, ``metrics(rollout)`` further per-target metrics.
     * ``start(reference) -> (qpos0, qvel0, features0)``: initial state of a rollout.
+    * ``babbling_reference(strategy, key)``: the reference the initial data's controller
+      follows (:mod:`cfm_jax.babbling`), of the shapes of ``reference``, and
+      ``with_reference(reference)``: a copy that follows another reference.
     * ``feedback(step) -> tau``: the PD-only baseline (and babbling) feedback;
       ``oracle_policy(simulator)``: the model-based oracle.
     * ``value_names``, ``values() -> dict`` and ``with_values(values)``: the attributes
@@ -341,9 +345,6 @@ class JointSpaceTask:
     tracking_unit = "rad"
     output_unit = "(rad/s$^2$)$^2$"
     metric_names: tuple[str, ...] = ()
-    # The weights of cfm_jax.rollout.MixedPolicy that collect the motor-babbling data
-    # (plus torque noise): here the PD-only feedback.
-    babbling_weights = {"feedback": 1.0}
 
     def __init__(self, robot, reference: Reference, kp: float, kd: float, control_dt: float):
         self.robot = robot
@@ -431,6 +432,28 @@ class JointSpaceTask:
         task = copy.copy(self)
         task.__dict__.update(values)
         return task
+
+    def with_reference(self, reference):
+        """A shallow copy of this task that follows ``reference`` (a pytree of the shapes of
+        :attr:`reference`, traced inside compiled code), for example a babbling reference
+        (:meth:`babbling_reference`). Host attributes (``reference_np``,
+        ``tracking_scale``) still describe this task's own references."""
+        import copy
+
+        task = copy.copy(self)
+        task.reference = reference
+        return task
+
+    def babbling_reference(self, strategy: str, key):
+        """The reference the babbling controller follows (:mod:`cfm_jax.babbling`), of the
+        shapes of :attr:`reference`: this task's own for ``reference_pd`` and ``oracle``,
+        else minimum-jerk paths from the start pose, held (``home``) or to random poses drawn
+        with ``key`` (``reaching``). Neither of these depends on the targets."""
+        if babbling.uses_reference(strategy):
+            return self.reference
+        start = self.reference.q[:, 0]  # (targets, nq): every reach starts at home
+        goal = start if strategy == "home" else babbling.random_poses(key, self.robot, start)
+        return Reference(*babbling.quintic(start, goal, self.steps, self.control_dt))
 
     def start(self, reference):
         return (
@@ -558,6 +581,23 @@ class OperationalSpaceTask(JointSpaceTask):
         del reference
         qvel = jnp.zeros(self.robot.nv, jnp.float32)
         return self.home, qvel, self._site(self.home, qvel)
+
+    def babbling_reference(self, strategy: str, key):
+        """As :meth:`JointSpaceTask.babbling_reference`, in Cartesian space: straight
+        minimum-jerk paths of the site from its home position, held (``home``) or to where
+        random joint poses put it (``reaching``)."""
+        if babbling.uses_reference(strategy):
+            return self.reference
+        start = self.reference.x[:, 0]  # (targets, 3): the site at home
+        if strategy == "home":
+            goal = start
+        else:
+            poses = jnp.broadcast_to(self.home, (self.targets, self.robot.nq))
+            poses = babbling.random_poses(key, self.robot, poses)
+            goal = self.opspace.kinematics(self.robot, poses, jnp.zeros_like(poses), self.site)
+            goal = goal.position
+        x, xd, xdd = babbling.quintic(start, goal, self.steps, self.control_dt)
+        return type(self.reference)(x, xd, xdd)
 
     def desired(self, ref_t, qpos, qvel, features):
         return self.opspace.desired_acceleration(
@@ -706,8 +746,7 @@ class LeggedTask(JointSpaceTask):
       fell within the horizon: base below 0.1 m, tilted more than 0.8 rad, or a base-box
       corner at the floor), ``base_position_mse``, ``base_orientation_mse``.
     * Baselines: the reference's own controller (its feed-forward torque plus its joint
-      PD) as ``oracle``, the joint PD alone as ``pd_only``. Babbling runs the reference
-      controller plus torque noise (PD alone falls).
+      PD) as ``oracle``, the joint PD alone as ``pd_only``.
 
     Args:
       robot: a floating-base :class:`cfm_jax.robots.Robot` with one contact sensor per foot
@@ -735,7 +774,6 @@ class LeggedTask(JointSpaceTask):
     tracking_unit = "m | rad"
     output_unit = "(m/s, rad/s)$^2$ and N$^2$"
     metric_names = ("force_mse", "fell", "base_position_mse", "base_orientation_mse")
-    babbling_weights = {"oracle": 1.0}
     MAX_CONTROL_DT = 0.004
     FALL_HEIGHT, FALL_TILT = 0.10, 0.8
 
@@ -828,6 +866,31 @@ class LeggedTask(JointSpaceTask):
 
     def start(self, reference):
         return reference.qpos[0], reference.qvel[0], reference.force[0]
+
+    def babbling_reference(self, strategy: str, key):
+        """As :meth:`JointSpaceTask.babbling_reference` from the robot's standing pose (its
+        keyframe ``home``): the joints held (``home``) or moved to random poses
+        (``reaching``), the base at rest, no feed-forward torque, the static standing
+        forces (:func:`cfm_jax.babbling.standing_forces`) as desired forces, every step
+        active. Neither depends on the recorded references."""
+        if babbling.uses_reference(strategy):
+            return self.reference
+        robot, steps = self.robot, self.steps
+        start = jnp.broadcast_to(jnp.asarray(robot.home, jnp.float32), (self.targets, robot.nq))
+        goal = start if strategy == "home" else babbling.random_poses(key, robot, start)
+        qpos, qd, qdd = babbling.quintic(start, goal, steps, self.control_dt)
+        shape = (self.targets, steps + 1)
+        qvel = jnp.zeros(shape + (robot.nv,), jnp.float32).at[..., self.joint_dofs]
+        qacc = jnp.zeros(shape + (robot.nv,), jnp.float32).at[..., self.joint_dofs]
+        force = babbling.standing_forces(robot, self.feet)
+        return LeggedReference(
+            qpos=qpos,
+            qvel=qvel.set(qd[..., self.joint_qpos]),
+            qacc=qacc.set(qdd[..., self.joint_qpos]),
+            tau=jnp.zeros(shape + (self.action_dim,), jnp.float32),
+            force=jnp.broadcast_to(jnp.asarray(force), shape + force.shape),
+            active=jnp.ones(shape, jnp.float32),
+        )
 
     def state(self, qpos, qvel, features):
         return jnp.concatenate([qpos, features, qvel])

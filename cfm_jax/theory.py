@@ -329,7 +329,10 @@ def controller_loss(name: str, controller: AffineController, model: LinearModel,
     """A model-based controller loss of :mod:`cfm_jax.losses` on ``s_p = f(g(s_d))``.
 
     ``task``: ``(s_p - s_d)^2``; ``joint``: ``(s_p - s_d)^2 + (s_p - s_a)^2``;
-    ``distal``: ``(s_p - s_d)^2 - (s_p - s_a)^2``.
+    ``distal``: ``(s_p - s_d)^2 - (s_p - s_a)^2`` (:func:`cfm_jax.losses.distal_literal`:
+    with ``s_a`` held, its gradient is the distal teacher's ``2 f' g' (s_a - s_d)`` at every
+    step, the paper's 1-D argument; the bounded :func:`cfm_jax.losses.distal` of the
+    learning loop has that gradient at the action that was run).
 
     Args:
       name: ``"task"``, ``"joint"`` or ``"distal"``.
@@ -348,7 +351,7 @@ def controller_loss(name: str, controller: AffineController, model: LinearModel,
     """
     predicted = model_prediction(model, controller_action(controller, desired))
     return losses.controller_loss(
-        name,
+        "distal_literal" if name == "distal" else name,
         jnp.asarray(predicted)[..., None],
         jnp.asarray(desired, dtype=jnp.result_type(float))[..., None],
         jnp.asarray(observed, dtype=jnp.result_type(float))[..., None],

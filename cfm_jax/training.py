@@ -2,9 +2,10 @@
 
 Pure core (jit + vmap over seeds):
 
-* :meth:`Experiment.init` -- motor babbling (PD-only tracking of the references plus
-  Gaussian torque noise), normalisation statistics from the babbling data, initial fits of
-  the forward model and then the controller (with the chosen loss).
+* :meth:`Experiment.init` -- motor babbling (``loop.babbling``, :mod:`cfm_jax.babbling`:
+  by default PD holding the start pose plus Gaussian torque noise), normalisation
+  statistics from the babbling data, initial fits of the forward model and then the
+  controller (with the chosen loss).
 * :meth:`Experiment.iteration` -- one iteration: roll the controller out on every target,
   measure the metrics on the new data (before any refit), add the data, refit the forward
   model, refit the controller. One compiled function of one :class:`TrainState`.
@@ -37,7 +38,7 @@ import optax
 import pandas as pd
 from flax import struct
 
-from cfm_jax import _xla, dataset, networks, robots, rollout, tasks, update
+from cfm_jax import _xla, babbling, dataset, networks, robots, rollout, tasks, update
 from cfm_jax import config as config_lib
 
 METRIC_COLUMNS = (
@@ -102,6 +103,7 @@ class Knobs:
       forward_log_variance_bounds: ``(forward.min_log_variance,
         forward.max_log_variance)``, the initial soft bounds of the forward model.
       babbling_noise_std: ``loop.babbling_noise`` times each torque limit, ``(action_dim,)``.
+      babbling: ``loop.babbling`` as its index in :data:`cfm_jax.config.BABBLING` (int32).
       task: the task's values, ``values()`` of the task built for ``config.task``: the
         gains (``task.kp``, ``task.kd``, ... and what the task derives from them) and, for
         the arm tasks, the reference trajectories (``task.targets``; ``task.home`` for
@@ -123,6 +125,7 @@ class Knobs:
     controller_learning_rate: jax.Array
     forward_log_variance_bounds: jax.Array
     babbling_noise_std: jax.Array
+    babbling: jax.Array
     task: dict
 
 
@@ -230,6 +233,7 @@ class Experiment:
                 [config.forward.min_log_variance, config.forward.max_log_variance], jnp.float32
             ),
             babbling_noise_std=jnp.asarray(config.loop.babbling_noise * limit, jnp.float32),
+            babbling=jnp.asarray(config_lib.BABBLING.index(config.loop.babbling), jnp.int32),
             task=self.task_for(config).values(),
         )
 
@@ -297,10 +301,34 @@ class Experiment:
         )
 
     def babbling_policy(self, knobs: Knobs | None = None) -> rollout.MixedPolicy:
-        """The task's babbling controller (``task.babbling_weights``: PD-only feedback for
-        the arms) plus Gaussian torque noise (``loop.babbling_noise`` of each limit)."""
-        return self._policy(
-            **self.task.babbling_weights, noise_std=self._knobs(knobs).babbling_noise_std
+        """The babbling controller of ``loop.babbling`` (the task's PD feedback, or its
+        oracle for ``oracle``; :mod:`cfm_jax.babbling`) plus Gaussian torque noise
+        (``loop.babbling_noise`` of each limit)."""
+        knobs = self._knobs(knobs)
+        weights = babbling.policy_weights(config_lib.BABBLING[int(knobs.babbling)])
+        return self._policy(**weights, noise_std=knobs.babbling_noise_std)
+
+    def babble_one(
+        self, policy: rollout.MixedPolicy, key, knobs: Knobs | None = None
+    ) -> rollout.Rollout:
+        """One babbling rollout (one rollout's targets): ``policy`` following the task's
+        babbling reference of the strategy ``knobs.babbling`` (a runtime value: one
+        compilation serves every strategy; ``reaching`` draws its goals from a key folded
+        out of ``key``, the torque noise uses ``key`` itself)."""
+        simulator = self.config.simulator
+        knobs = self._knobs(knobs)
+        task = self._task(knobs)
+        key_goals = jax.random.fold_in(key, babbling.GOAL_STREAM)
+        references = [
+            functools.partial(task.babbling_reference, strategy, key_goals)
+            for strategy in config_lib.BABBLING
+        ]
+        task = task.with_reference(jax.lax.switch(knobs.babbling, references))
+        return rollout.run(
+            task,
+            rollout.mixed_policy(task, self.controller, policy, simulator),
+            key,
+            simulator=simulator,
         )
 
     def learned_policy(self, state: TrainState) -> rollout.MixedPolicy:
@@ -571,7 +599,8 @@ class Experiment:
         seeds = keys.shape[0]
         policy = _broadcast(self.babbling_policy(knobs), seeds * count)
         flat_keys = jax.vmap(lambda k: jax.random.split(k, count))(keys).reshape(-1)
-        result = self.rollout(policy, flat_keys, knobs)
+        fn = self._jit("babble", jax.vmap(self.babble_one, in_axes=(0, 0, None)))
+        result = fn(policy, flat_keys, knobs)
         return jax.tree.map(lambda x: x.reshape((seeds, count) + x.shape[1:]), result)
 
     def init_from_data(

@@ -64,7 +64,9 @@ def controller_objective(
 ):
     """Mean controller loss over a minibatch (normalised acceleration / torque units).
 
-    * ``task``, ``joint``, ``distal``: through ``s_p = f(s, g(s, s*))`` (ensemble mean),
+    * ``task``, ``joint``, ``distal``, ``distal_literal``: through ``s_p = f(s, g(s, s*))``
+      (ensemble mean; ``distal`` also through ``f(s, tau_run)``, the prediction for the
+      action that was run),
       with ``s*`` the desired and ``s_a`` the observed quantity of each transition (only
       the entries ``normaliser.desired_index`` of ``s_p`` and ``s_a`` are compared with
       ``s*``; see :func:`cfm_jax.losses.controller_loss`).
@@ -106,12 +108,18 @@ def controller_objective(
         return jnp.mean(losses.supervised(predicted / scale, batch.action / scale))
     tau = controller.apply(controller_params, normaliser, batch.state, batch.desired)
     predicted = networks.ensemble_mean(forward, forward_params, normaliser, batch.state, tau)
+    predicted_run = None
+    if loss == "distal":  # f(s, tau_run): no controller parameter in it
+        predicted_run = networks.ensemble_mean(
+            forward, forward_params, normaliser, batch.state, batch.action
+        )
     per_sample = losses.controller_loss(
         loss,
         predicted,
         normaliser.desired(batch.desired),
         normaliser.output(batch.observed),
         select=None if normaliser.desired_index is None else normaliser.select,
+        predicted_run=predicted_run,
     )
     return jnp.mean(per_sample)
 

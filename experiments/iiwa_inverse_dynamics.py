@@ -37,7 +37,9 @@ def main() -> None:
         f"Final joint-position tracking MSE (rad^2) at iteration "
         f"{int(result.metrics.iteration.max())}, mean and std over {seeds} seed(s) x targets; "
         f"RMSE/reach: sqrt(mean) over the RMS reaching distance {rms_reach:.4f} rad. "
-        f"Wall time {seconds:.0f} s.\n\n" + report.markdown(table) + "\n"
+        f"Wall time {seconds:.0f} s.\n\n{report.protocol(config)}.\n\n"
+        + report.markdown(table)
+        + "\n"
     )
     with open(os.path.join(args.out, "table.md"), "w") as f:
         f.write(text)

@@ -177,12 +177,12 @@ def main() -> None:
     metrics = pd.read_csv(os.path.join(out, "metrics.csv"))
     baselines = pd.read_csv(os.path.join(out, "baselines.csv"))
     table = table_1(metrics, baselines)
-    with open(os.path.join(out, "table_1.md"), "w") as f:
-        f.write(report.markdown(table) + "\n")
-    print(table.to_string())
-    plot_falls(metrics, os.path.join(out, "falls.png"), f"solo12 {args.task}")
     with open(os.path.join(out, "config.json")) as f:
         config = config_lib.from_dict(json.load(f))
+    with open(os.path.join(out, "table_1.md"), "w") as f:
+        f.write(report.protocol(config) + "\n\n" + report.markdown(table) + "\n")
+    print(table.to_string())
+    plot_falls(metrics, os.path.join(out, "falls.png"), f"solo12 {args.task}")
     drawn = [
         pictures(out, config, loss)
         for loss in [s for s in args.pictures.split(",") if s]

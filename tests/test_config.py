@@ -88,7 +88,7 @@ BAD = [
     (LoopConfig, "checkpoint_keep", 0, "loop.checkpoint_keep", POSITIVE_INT),
     (Config, "robot", "", "robot", "registered robot name"),
     (Config, "robot", None, "robot", "registered robot name"),
-    (Config, "loss", "mse", "loss", "one of ('joint', 'task', 'distal', 'supervised')"),
+    (Config, "loss", "mse", "loss", "'distal', 'supervised', 'distal_literal')"),
     (Config, "seed", -1, "seed", NONNEG_INT),
     (Config, "seed", 1.0, "seed", NONNEG_INT),
     (Config, "task", {"duration": 1.0}, "task", "a TaskConfig"),
@@ -261,10 +261,15 @@ def test_for_task_defaults():
     assert arm.forward == config_lib.ForwardModelConfig()  # the arm defaults
     with pytest.raises(config_lib.ConfigError, match="task.name='swim' is not allowed"):
         config_lib.for_task("swim")
-    # Legged tasks: joint gains of the recording's joint PD (see for_task); arms: None.
-    assert (walk.task.joint_kp, walk.task.joint_kd) == (2000.0, 50.0)
-    assert (walk.task.kp, walk.task.kd) == (100.0, 20.0)  # on the base
-    assert (arm.task.joint_kp, arm.task.joint_kd) == (None, None)
+    # Legged tasks: no feedback in s* (the paper's planned accelerations and forces; the
+    # joints take the base's 0 through joint_kp = None); arms: kp 100, kd 20.
+    assert (walk.task.kp, walk.task.kd, walk.task.joint_kp, walk.task.joint_kd) == (
+        0.0, 0.0, None, None)  # fmt: skip
+    assert (arm.task.kp, arm.task.kd, arm.task.joint_kp, arm.task.joint_kd) == (
+        100.0, 20.0, None, None)  # fmt: skip
+    # Every task's initial data knows nothing of the test references.
+    for name in config_lib.TASKS:
+        assert config_lib.for_task(name).loop.babbling == "home"
 
 
 @pytest.mark.parametrize("field", ["joint_kp", "joint_kd"])

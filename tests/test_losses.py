@@ -5,7 +5,8 @@ formulas of paper section III-B for the composition ``s_p = f(g(beta))`` with ``
 (``g' = 1``) and ``f = w g`` (``f' = w``), i.e. ``s_p = w beta``:
   task   dL/dbeta = 2 f' g' (s_p - s_d)
   joint  dL/dbeta = 2 f' g' (2 s_p - s_d - s_a)
-  distal dL/dbeta = 2 f' g' (s_a - s_d)
+  distal dL/dbeta = 2 f' g' (s_a - s_d)   (the bounded form at g = tau_run; the literal form
+                                         everywhere)
 """
 
 from __future__ import annotations
@@ -38,10 +39,20 @@ def test_joint_loss_values():
     np.testing.assert_array_equal(np.asarray(out), [9.0, 8.0])
 
 
-def test_distal_loss_values():
+R = jnp.array([[0.5, 2.0], [1.0, 0.0]])  # predicted for the action that was run
+
+
+def test_distal_literal_loss_values():
     # |p-d|^2 - |p-a|^2 = [8 - 1, 4 - 4] = [7, 0]
-    out = jax.jit(losses.distal)(P, D, A)
+    out = jax.jit(losses.distal_literal)(P, D, A)
     np.testing.assert_array_equal(np.asarray(out), [7.0, 0.0])
+
+
+def test_distal_loss_values():
+    # |p - r + a - d|^2: sample 0: p - r = (0.5, 0), + a - d = (-3, 2) -> (-2.5, 2): 6.25 + 4
+    # = 10.25 ; sample 1: p - r = (-0.5, -1), + a - d = (-2, -2) -> (-2.5, -3): 6.25 + 9 = 15.25
+    out = jax.jit(losses.distal)(P, R, D, A)
+    np.testing.assert_array_equal(np.asarray(out), [10.25, 15.25])
 
 
 def test_supervised_loss_values():
@@ -94,10 +105,13 @@ CASES = [
 ]
 
 
-def _grad_1d(loss_name, w, beta, s_d, s_a):
+def _grad_1d(loss_name, w, beta, s_d, s_a, tau_run=None):
     def loss(b):
         s_p = jnp.array([w * b])  # f(g(beta)) with g(beta) = beta, f(g) = w g
-        return losses.controller_loss(loss_name, s_p, jnp.array([s_d]), jnp.array([s_a]))
+        run = None if tau_run is None else jnp.array([w * tau_run])  # f(tau_run)
+        return losses.controller_loss(
+            loss_name, s_p, jnp.array([s_d]), jnp.array([s_a]), predicted_run=run
+        )
 
     return float(jax.jit(jax.grad(loss))(jnp.float32(beta)))
 
@@ -109,13 +123,65 @@ def test_1d_gradients_match_paper_formulas(w, beta, s_d, s_a):
     expected = {
         "task": 2 * f_prime * g_prime * (s_p - s_d),
         "joint": 2 * f_prime * g_prime * (2 * s_p - s_d - s_a),
-        "distal": 2 * f_prime * g_prime * (s_a - s_d),
+        "distal_literal": 2 * f_prime * g_prime * (s_a - s_d),
     }
     for name, value in expected.items():
         # Inputs are binary fractions: the products are exact in float32 up to 1 rounding.
         np.testing.assert_allclose(
             _grad_1d(name, w, beta, s_d, s_a), value, rtol=1e-6, err_msg=name
         )
+    # The bounded distal teacher at g = tau_run (tau_run = beta here, as g = beta): the
+    # paper's distal gradient.
+    np.testing.assert_allclose(
+        _grad_1d("distal", w, beta, s_d, s_a, tau_run=beta),
+        2 * f_prime * g_prime * (s_a - s_d),
+        rtol=1e-6,
+    )
+
+
+def test_distal_gradient_at_the_run_action_nonlinear_1d():
+    """The bounded distal loss through a nonlinear model and controller: at g = tau_run its
+    gradient is 2 (df/dg)(dg/dbeta)(s_a - s_d), derived by hand:
+
+    g(beta) = beta^2 x (x = 1.5 the controller input), f(s, tau) = s + 0.5 tau^3 (s = 0.25).
+    dg/dbeta = 2 beta x; df/dg = 1.5 g^2. At beta = 0.5: g = 0.375, dg/dbeta = 1.5,
+    df/dg = 1.5 * 0.140625 = 0.2109375; with s_a = 2, s_d = 1: 2 * 0.2109375 * 1.5 * 1
+    = 0.6328125. Away from tau_run the gradient differs (the loss is not linear in s_p).
+    """
+    x, s, s_d, s_a = 1.5, 0.25, 1.0, 2.0
+    f = lambda tau: s + 0.5 * tau**3  # noqa: E731
+    g = lambda beta: beta**2 * x  # noqa: E731
+
+    def grad(beta, tau_run):
+        def loss(b):
+            return losses.distal(
+                jnp.array([f(g(b))]), jnp.array([f(tau_run)]), jnp.array([s_d]), jnp.array([s_a])
+            )
+
+        return float(jax.jit(jax.grad(loss))(jnp.float32(beta)))
+
+    np.testing.assert_allclose(grad(0.5, tau_run=0.375), 0.6328125, rtol=1e-6)
+    # Literal and bounded forms agree there; elsewhere only the literal stays at it.
+    literal = jax.grad(
+        lambda b: losses.distal_literal(jnp.array([f(g(b))]), jnp.array([s_d]), jnp.array([s_a]))
+    )(jnp.float32(0.5))
+    np.testing.assert_allclose(float(literal), 0.6328125, rtol=1e-6)
+    assert abs(grad(0.9, tau_run=0.375) - 2 * 1.5 * (0.9**2 * x) ** 2 * 2 * 0.9 * x) > 0.1
+
+
+def test_distal_loss_is_bounded_below_and_literal_is_not():
+    """For a held (r, a, d) the bounded loss is >= 0 with minimum 0 at s_p = r - (a - d); the
+    literal loss is linear in s_p, |p-d|^2 - |p-a|^2 = 2 p (a - d) + d^2 - a^2, and decreases
+    without bound as p -> -inf (here a > d)."""
+    r, a, d = jnp.array([0.5]), jnp.array([2.0]), jnp.array([1.0])
+    grid = jnp.linspace(-1e3, 1e3, 20001)[:, None]
+    bounded = losses.distal(grid, r, d, a)
+    assert float(bounded.min()) >= 0.0
+    np.testing.assert_allclose(float(losses.distal(r - (a - d), r, d, a)), 0.0)
+    literal = losses.distal_literal(grid, d, a)
+    # 2 p (a - d) + d^2 - a^2 at p = -1000: -2000 - 3 = -2003, and lower for lower p.
+    np.testing.assert_allclose(float(literal.min()), -2003.0)
+    assert float(losses.distal_literal(jnp.array([-1e6]), d, a)) < -1e6
 
 
 def test_1d_supervised_gradient():
@@ -128,7 +194,7 @@ def test_1d_supervised_gradient():
 
 
 def test_distal_gradient_independent_of_model_bias():
-    # With a biased model s_p = w beta + bias, the distal gradient does not depend on the
+    # With a biased model s_p = w beta + bias, the (literal) distal gradient does not depend on the
     # bias, the task gradient does (it rests where the *model* hits s_d).
     def grad(name, bias):
         def loss(b):
@@ -137,7 +203,7 @@ def test_distal_gradient_independent_of_model_bias():
 
         return float(jax.grad(loss)(jnp.float32(0.5)))
 
-    assert grad("distal", 0.0) == grad("distal", 7.0) == 2 * 2.0 * (3.0 - 1.0)
+    assert grad("distal_literal", 0.0) == grad("distal_literal", 7.0) == 2 * 2.0 * (3.0 - 1.0)
     assert grad("task", 0.0) != grad("task", 7.0)
 
 
@@ -152,9 +218,15 @@ def test_controller_loss_dispatch():
         np.asarray(losses.controller_loss("joint", P, D, A)), np.asarray(losses.joint(P, D, A))
     )
     np.testing.assert_array_equal(
-        np.asarray(losses.controller_loss("distal", P, D, A)),
-        np.asarray(losses.distal(P, D, A)),
+        np.asarray(losses.controller_loss("distal_literal", P, D, A)),
+        np.asarray(losses.distal_literal(P, D, A)),
     )
+    np.testing.assert_array_equal(
+        np.asarray(losses.controller_loss("distal", P, D, A, predicted_run=R)),
+        np.asarray(losses.distal(P, R, D, A)),
+    )
+    with pytest.raises(ValueError, match="predicted_run"):
+        losses.controller_loss("distal", P, D, A)
 
 
 @pytest.mark.parametrize("name", ["supervised", "Joint", "mse", ""])
@@ -163,5 +235,5 @@ def test_controller_loss_unknown_name(name):
         losses.controller_loss(name, P, D, A)
     message = str(info.value)
     assert repr(name) in message
-    for allowed in ("'task'", "'joint'", "'distal'"):
+    for allowed in ("'task'", "'joint'", "'distal'", "'distal_literal'"):
         assert allowed in message

@@ -76,17 +76,22 @@ def test_baselines_bracket_the_problem(two_seeds):
     assert two_seeds.rms_reach > 0.05
 
 
-def test_vmapped_seeds_equal_a_loop_over_seeds(two_seeds):
-    # Oracle: the same seeds run one at a time (seed axis of size 1).
-    frame = two_seeds.metrics.set_index(["seed", "iteration", "target"]).sort_index()
+def test_vmapped_seeds_equal_a_loop_over_seeds():
+    # Oracle: the same seeds run one at a time (seed axis of size 1). With the reference_pd
+    # babbling data: the tiny models fitted on the default data held at home amplify the
+    # rounding differences of batched kernels (below) to 5e-4 in one prediction error; the
+    # seed axis is the same mechanism for every strategy.
+    base = TINY.replace(loop=dataclasses.replace(TINY.loop, babbling="reference_pd"))
+    together = cfm_jax.train(base, progress=False)
+    frame = together.metrics.set_index(["seed", "iteration", "target"]).sort_index()
     for seed in (0, 1):
         alone = (
             cfm_jax.train(
-                TINY.replace(
+                base.replace(
                     seed=seed,
                     loop=config_lib.LoopConfig(
                         **{
-                            **config_lib.to_dict(TINY)["loop"],
+                            **config_lib.to_dict(base)["loop"],
                             "seeds": 1,
                         }
                     ),

@@ -67,7 +67,7 @@ def tree_allclose(a, b, rtol, atol):
 # ---- controller gradient ---------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("loss", ["task", "joint", "distal"])
+@pytest.mark.parametrize("loss", ["task", "joint", "distal_literal", "distal"])
 def test_controller_gradient_matches_hand_built_chain_rule(setup, loss):
     fm, ctrl, norm, batch = setup["fm"], setup["ctrl"], setup["norm"], setup["batch"]
     fp, cp = setup["fp"], setup["cp"]
@@ -82,10 +82,12 @@ def test_controller_gradient_matches_hand_built_chain_rule(setup, loss):
 
     s_p, vjp = jax.vjp(predicted, cp)
     s_d, s_a = norm.desired(batch.desired), norm.output(batch.observed)
+    s_run = jnp.mean(fm.apply(fp, norm, batch.state, batch.action)[0], axis=0)  # f(s, tau_run)
     dl_dsp = {
         "task": 2 * (s_p - s_d),
         "joint": 2 * (2 * s_p - s_d - s_a),
-        "distal": 2 * (s_a - s_d),
+        "distal_literal": 2 * (s_a - s_d),
+        "distal": 2 * (s_p - s_run + s_a - s_d),  # 2 (s_a - s_d) where g = tau_run
     }[loss]
     (expected,) = vjp(dl_dsp / ROWS)  # the objective is a mean over rows
     # Both are float32 sums over 256 rows of the same products in a different order:
@@ -115,21 +117,34 @@ def test_supervised_gradient_matches_hand_built_chain_rule(setup):
 
 
 def test_distal_objective_value(setup):
-    # Per row joint = task + |s_p - s_a|^2 and distal = task - |s_p - s_a|^2, so the means
-    # satisfy joint + distal = 2 task whatever the networks.
+    # Per row joint = task + |s_p - s_a|^2 and distal_literal = task - |s_p - s_a|^2, so the
+    # means satisfy joint + distal_literal = 2 task whatever the networks.
     args = (setup["fp"],)
-    rest = (setup["fm"], setup["ctrl"], setup["norm"], setup["batch"])
+    fm, ctrl, norm, batch = rest = (setup["fm"], setup["ctrl"], setup["norm"], setup["batch"])
     values = {
         name: float(update.controller_objective(setup["cp"], *args, name, *rest))
-        for name in ("task", "joint", "distal")
+        for name in ("task", "joint", "distal_literal", "distal")
     }
     # float32 means of ~256 terms of size ~1-10: rtol 1e-5
-    np.testing.assert_allclose(values["joint"] + values["distal"], 2 * values["task"], rtol=1e-5)
+    np.testing.assert_allclose(
+        values["joint"] + values["distal_literal"], 2 * values["task"], rtol=1e-5
+    )
+    # The bounded distal loss by hand: mean over rows of |s_p - f(s, tau_run) + s_a - s_d|^2.
+    tau = ctrl.apply(setup["cp"], norm, batch.state, batch.desired)
+    s_p = np.mean(np.asarray(fm.apply(setup["fp"], norm, batch.state, tau)[0]), axis=0)
+    s_run = np.mean(np.asarray(fm.apply(setup["fp"], norm, batch.state, batch.action)[0]), 0)
+    residual = (
+        s_p
+        - s_run
+        + np.asarray(norm.output(batch.observed))
+        - np.asarray(norm.desired(batch.desired))
+    )
+    np.testing.assert_allclose(values["distal"], np.mean(np.sum(residual**2, axis=-1)), rtol=1e-5)
 
 
 def test_unknown_loss_name_raises(setup):
     rest = (setup["fm"], setup["ctrl"], setup["norm"], setup["batch"])
-    with pytest.raises(ValueError, match="allowed: 'task', 'joint', 'distal'"):
+    with pytest.raises(ValueError, match="allowed: 'task', 'joint', 'distal', 'distal_literal'"):
         update.controller_objective(setup["cp"], setup["fp"], "mse", *rest)
 
 
@@ -240,13 +255,14 @@ def test_fit_forward_learns_linear_map(setup):
     assert np.all(np.asarray(params["min_log_variance"] < params["max_log_variance"]))
 
 
-@pytest.mark.parametrize("loss", ["task", "joint", "distal", "supervised"])
+@pytest.mark.parametrize("loss", ["task", "joint", "distal_literal", "distal", "supervised"])
 def test_selected_output_gradient_matches_hand_built_chain_rule(loss):
     # The forward model predicts y = [y_0, y_1, y_2] (3 outputs, e.g. joint and end-effector
     # accelerations); the desired quantity specifies y_2 only (desired_index = (2,)), as in
     # the opspace task. By hand, with P the selection: task dL/ds_p = 2 P^T (P s_p - s_d);
-    # joint adds 2 (s_p - s_a) on every output; distal 2 P^T (P s_a - s_d); supervised
-    # feeds g the observed P s_a.
+    # joint adds 2 (s_p - s_a) on every output; distal_literal 2 P^T (P s_a - s_d); distal
+    # 2 P^T (P s_p - P s_run + P s_a - s_d), s_run = f(s, tau_run); supervised feeds g the
+    # observed P s_a.
     rng = np.random.default_rng(7)
     out_dim, index = 3, (2,)
     states = rng.normal(size=(ROWS, S))
@@ -289,8 +305,11 @@ def test_selected_output_gradient_matches_hand_built_chain_rule(loss):
             dl[:, 2:] += 2 * (s_p[:, 2:] - s_d)
         if loss == "joint":
             dl += 2 * (s_p - s_a)
-        if loss == "distal":
+        if loss == "distal_literal":
             dl[:, 2:] += 2 * (s_a[:, 2:] - s_d)
+        if loss == "distal":
+            s_run = np.mean(np.asarray(fm.apply(fp, norm, batch.state, batch.action)[0]), 0)
+            dl[:, 2:] += 2 * (s_p[:, 2:] - s_run[:, 2:] + s_a[:, 2:] - s_d)
         (expected,) = vjp(jnp.asarray(dl / ROWS, jnp.float32))
     scale = max(float(jnp.max(jnp.abs(x))) for x in jax.tree.leaves(expected))
     tree_allclose(got, expected, rtol=1e-4, atol=1e-5 * scale)  # as in the tests above

@@ -1,0 +1,357 @@
+"""Which controller loss wins where: the paper's four losses under the faithful protocol and
+under the choices the library made before it, with confidence intervals over seeds.
+
+The grid (``CELLS``): for each (robot, task) the initial data ``loop.babbling`` x the ``s*``
+gains, each cell one :func:`cfm_jax.sweep` of the four losses (``joint``, ``task``,
+``distal``, ``supervised``) with the same seeds, 10 iterations:
+
+* iiwa14 ``inverse_dynamics``: babbling ``home`` (the default, 5 seeds) and
+  ``reference_pd`` (the arm's babbling before, 3 seeds); the arm's gains did not change.
+* Solo12 ``walk`` and ``jump``: babbling ``home`` (default) or ``oracle`` (before) x gains
+  ``default`` (no feedback in ``s*``) or ``pilot_tuned`` (``kp = 100``, ``kd = 20`` on the
+  base, ``joint_kp = 2000``, ``joint_kd = 50``: chosen on pilots of the joint loss alone
+  before); 5 seeds in the default cell, 3 in the others.
+* iiwa14 ``opspace``: its default cell, 5 seeds.
+
+Outputs: the runs in ``--runs`` (``<task>/<babbling>-<gains>/``: what the sweep writes, one
+folder per loss, checkpoints; an interrupted study resumes where it stopped, so run it in
+pieces with ``--budget``), and in ``--out``:
+
+* ``summary.csv``: one row per (robot, task, babbling, gains, loss) of the finished cells:
+  ``seeds``, ``final_mean``, ``final_std`` (over the seed means), ``ci_low``, ``ci_high``
+  (95% percentile bootstrap over seeds, each seed averaged over its targets) of the task's
+  tracking MSE at the last iteration; ``joint_minus``, ``joint_minus_low``,
+  ``joint_minus_high`` (the paired comparison over seeds: joint minus this loss, negative =
+  joint better); for walk and jump also ``force_mean``, ``force_ci_low``,
+  ``force_ci_high`` (foot-force MSE, N^2), ``falls`` and ``runs`` (seed x target runs that
+  fell at the last iteration, of all); ``seconds`` (the cell's wall time).
+* ``who_wins.md``: per task and cell, each loss's mean and CI and which loss is lowest,
+  with the paired interval of that loss against each other one (``clear``: every interval
+  excludes 0).
+* ``<task>.png``: each cell's final error per loss, mean and 95% CI (log scale).
+
+Usage:
+  python experiments/robustness_study.py                       # full size, hours
+  python experiments/robustness_study.py --budget 3000         # a resumable piece
+  python experiments/robustness_study.py --only walk --budget 0  # tables of finished cells
+  python experiments/robustness_study.py --quick --runs /tmp/r --out /tmp/r  # smoke test
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import time
+
+import numpy as np
+import pandas as pd
+
+import cfm_jax
+from cfm_jax import config as config_lib
+from cfm_jax import losses, report
+
+GAINS = {
+    "default": None,  # the task's for_task gains
+    "pilot_tuned": {"kp": 100.0, "kd": 20.0, "joint_kp": 2000.0, "joint_kd": 50.0},
+}
+"""The ``s*`` gains of the cells: the defaults, and the legged gains chosen before on pilots
+of the joint loss alone."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    """One cell of the grid: a robot and task, the initial data, the ``s*`` gains, seeds."""
+
+    robot: str
+    task: str
+    babbling: str
+    gains: str
+    seeds: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.task}/{self.babbling}-{self.gains}"
+
+    @property
+    def default(self) -> bool:
+        return self.babbling == config_lib.for_task(self.task).loop.babbling and (
+            self.gains == "default"
+        )
+
+    def config(self, iterations: int) -> config_lib.Config:
+        config = config_lib.for_task(self.task, robot=self.robot)
+        task = config.task
+        if GAINS[self.gains] is not None:
+            task = dataclasses.replace(task, **GAINS[self.gains])
+        loop = dataclasses.replace(config.loop, babbling=self.babbling, iterations=iterations)
+        return config.replace(task=task, loop=loop)
+
+
+CELLS = (
+    # The default cells first (the headline results), then the choices made before.
+    Cell("iiwa14", "inverse_dynamics", "home", "default", 5),
+    Cell("iiwa14", "opspace", "home", "default", 5),
+    Cell("solo12", "walk", "home", "default", 5),
+    Cell("solo12", "jump", "home", "default", 5),
+    Cell("iiwa14", "inverse_dynamics", "reference_pd", "default", 3),
+    Cell("solo12", "walk", "oracle", "pilot_tuned", 3),
+    Cell("solo12", "jump", "oracle", "pilot_tuned", 3),
+    Cell("solo12", "walk", "home", "pilot_tuned", 3),
+    Cell("solo12", "jump", "home", "pilot_tuned", 3),
+    Cell("solo12", "walk", "oracle", "default", 3),
+    Cell("solo12", "jump", "oracle", "default", 3),
+)
+TASK_ORDER = ("inverse_dynamics", "opspace", "walk", "jump")
+UNITS = {
+    "inverse_dynamics": "rad^2",
+    "opspace": "m^2",
+    "walk": "m^2 | rad^2",
+    "jump": "m^2 | rad^2",
+}
+
+
+def run_dir(runs: str, cell: Cell) -> str:
+    return os.path.join(runs, cell.task, f"{cell.babbling}-{cell.gains}")
+
+
+def finished(runs: str, cell: Cell) -> bool:
+    """A cell is finished when its sweep wrote the tables of all its losses."""
+    return os.path.isfile(os.path.join(run_dir(runs, cell), "metrics.csv"))
+
+
+def run_cell(cell: Cell, args) -> float:
+    """Run (or resume) one cell; returns its wall time in seconds."""
+    config = cell.config(args.iterations)
+    seeds, losses_ = cell.seeds, "all"
+    if args.quick:
+        from _study import quick_config
+
+        config = quick_config(config).replace(
+            loop=dataclasses.replace(quick_config(config).loop, iterations=1)
+        )
+        seeds = 2
+    start = time.perf_counter()
+    cfm_jax.sweep(
+        config, seeds=seeds, losses=losses_, out_dir=run_dir(args.runs, cell),
+        progress=not args.quiet,
+    )  # fmt: skip
+    seconds = time.perf_counter() - start
+    with open(os.path.join(run_dir(args.runs, cell), "seconds.txt"), "a") as f:
+        f.write(f"{seconds:.1f}\n")
+    return seconds
+
+
+def _seconds(runs: str, cell: Cell) -> float:
+    path = os.path.join(run_dir(runs, cell), "seconds.txt")
+    if not os.path.isfile(path):
+        return float("nan")
+    with open(path) as f:
+        return float(sum(float(line) for line in f if line.strip()))
+
+
+def cell_rows(runs: str, cell: Cell) -> list[dict]:
+    """The rows of ``summary.csv`` of a finished cell."""
+    metrics = pd.read_csv(os.path.join(run_dir(runs, cell), "metrics.csv"))
+    table = report.summary(metrics)
+    paired = report.paired_table(metrics, "joint") if "joint" in set(metrics["loss"]) else None
+    legged = cell.task in ("walk", "jump")
+    forces = report.summary(metrics, column="force_mse") if legged else None
+    final = metrics[metrics["iteration"] == metrics["iteration"].max()]
+    rows = []
+    for loss in [n for n in losses.CONTROLLER_LOSSES if n in table.index]:
+        row = {
+            "robot": cell.robot,
+            "task": cell.task,
+            "babbling": cell.babbling,
+            "gains": cell.gains,
+            "loss": loss,
+            "seeds": int(table.loc[loss, "seeds"]),
+            "final_mean": float(table.loc[loss, "tracking_mse_mean"]),
+            "final_std": float(table.loc[loss, "seed_std"]),
+            "ci_low": float(table.loc[loss, "ci_low"]),
+            "ci_high": float(table.loc[loss, "ci_high"]),
+        }
+        if paired is not None and loss in paired.index:
+            row.update(
+                joint_minus=float(paired.loc[loss, "mean_difference"]),
+                joint_minus_low=float(paired.loc[loss, "ci_low"]),
+                joint_minus_high=float(paired.loc[loss, "ci_high"]),
+            )
+        if legged:
+            fell = final[final["loss"] == loss]["fell"]
+            row.update(
+                force_mean=float(forces.loc[loss, "force_mse_mean"]),
+                force_ci_low=float(forces.loc[loss, "ci_low"]),
+                force_ci_high=float(forces.loc[loss, "ci_high"]),
+                falls=int(round(fell.sum())),
+                runs=len(fell),
+            )
+        row["seconds"] = _seconds(runs, cell)
+        rows.append(row)
+    return rows
+
+
+def _ci(mean, low, high) -> str:
+    f = report._format
+    return f"{f(mean)} [{f(low)}, {f(high)}]"
+
+
+def who_wins(runs: str, cells, summary: pd.DataFrame) -> str:
+    """The markdown "who wins where" tables, one per task."""
+    lines = [
+        "# Who wins where",
+        "",
+        "Final tracking MSE (last iteration) per loss: mean over seeds [95% percentile "
+        "bootstrap CI over seeds, each seed averaged over its targets]. *Lowest*: the loss "
+        "with the lowest mean; *paired*: that loss minus each other one over the same seeds, "
+        "mean [95% CI] (negative: the lowest is better); *clear* when every paired interval "
+        "excludes 0. Written by `experiments/robustness_study.py`.",
+    ]
+    for task in TASK_ORDER:
+        task_cells = [c for c in cells if c.task == task]
+        if not task_cells:
+            continue
+        names = list(losses.PAPER_LOSSES)
+        lines += ["", f"## {task} ({task_cells[0].robot}; tracking MSE in {UNITS[task]})", ""]
+        header = "| babbling | gains | seeds | " + " | ".join(names) + " | lowest | paired |"
+        lines += [header, "|---|---|---:|" + "---|" * len(names) + "---|---|"]
+        for cell in task_cells:
+            rows = summary[
+                (summary.task == task)
+                & (summary.babbling == cell.babbling)
+                & (summary.gains == cell.gains)
+            ]
+            default = " (default)" if cell.default else ""
+            if rows.empty:
+                lines.append(
+                    f"| {cell.babbling}{default} | {cell.gains} | {cell.seeds} | "
+                    + " | ".join("not run yet" for _ in names)
+                    + " | | |"
+                )
+                continue
+            rows = rows.set_index("loss")
+            cells_text = []
+            for name in names:
+                if name not in rows.index:
+                    cells_text.append("-")
+                    continue
+                r = rows.loc[name]
+                text = _ci(r.final_mean, r.ci_low, r.ci_high)
+                if "falls" in r and not pd.isna(r.falls):
+                    text += f"; falls {int(r.falls)}/{int(r.runs)}"
+                cells_text.append(text)
+            best = rows.final_mean.idxmin()
+            metrics = pd.read_csv(os.path.join(run_dir(runs, cell), "metrics.csv"))
+            paired = report.paired_table(metrics, best)
+            clear = bool(np.all(paired.ci_high < 0)) if len(paired) else False
+            paired_text = "; ".join(
+                f"vs {loss}: {_ci(p.mean_difference, p.ci_low, p.ci_high)}"
+                for loss, p in paired.iterrows()
+            )
+            lines.append(
+                f"| {cell.babbling}{default} | {cell.gains} | {int(rows.seeds.iloc[0])} | "
+                + " | ".join(cells_text)
+                + f" | **{best}**{' (clear)' if clear else ''} | {paired_text} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def plot(summary: pd.DataFrame, task: str, path: str) -> str | None:
+    """Each finished cell's final error per loss, mean and 95% CI, log scale."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    frame = summary[summary.task == task]
+    if frame.empty:
+        return None
+    groups = list(dict.fromkeys(zip(frame.babbling, frame.gains, strict=True)))
+    names = list(losses.PAPER_LOSSES)
+    fig, ax = plt.subplots(figsize=(1.8 + 1.9 * len(groups), 3.6))
+    width = 0.8 / len(names)
+    for k, name in enumerate(names):
+        rows = frame[frame.loss == name].set_index(["babbling", "gains"])
+        xs, ys, err = [], [], []
+        for g, group in enumerate(groups):
+            if group not in rows.index:
+                continue
+            r = rows.loc[group]
+            xs.append(g + (k - (len(names) - 1) / 2) * width)
+            ys.append(r.final_mean)
+            err.append([r.final_mean - r.ci_low, r.ci_high - r.final_mean])
+        if xs:
+            ax.errorbar(
+                xs, ys, yerr=np.asarray(err).T, fmt="o", capsize=3, label=name, markersize=4
+            )
+    ax.set_xticks(range(len(groups)), [f"{b}\n{g}" for b, g in groups])
+    ax.set_yscale("log")
+    ax.set_ylabel(f"final tracking MSE ({UNITS[task]})")
+    ax.set_title(f"{task}: mean and 95% bootstrap CI over seeds")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def write_outputs(runs: str, out: str, cells) -> pd.DataFrame:
+    """``summary.csv``, ``who_wins.md`` and the figures of the finished cells."""
+    os.makedirs(out, exist_ok=True)
+    rows = [row for cell in cells if finished(runs, cell) for row in cell_rows(runs, cell)]
+    summary = pd.DataFrame(rows)
+    columns = ["robot", "task", "babbling", "gains", "loss", "seeds", "final_mean", "final_std",
+               "ci_low", "ci_high"]  # fmt: skip
+    if summary.empty:
+        summary = pd.DataFrame(columns=columns)
+    summary.to_csv(os.path.join(out, "summary.csv"), index=False)
+    with open(os.path.join(out, "who_wins.md"), "w") as f:
+        f.write(who_wins(runs, cells, summary))
+    for task in TASK_ORDER:
+        plot(summary, task, os.path.join(out, f"{task}.png"))
+    return summary
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--runs", default="results/robustness", help="the runs (large)")
+    parser.add_argument("--out", default="docs/results/robustness", help="tables, figures")
+    parser.add_argument("--only", default=",".join(TASK_ORDER), help="comma-separated tasks")
+    parser.add_argument("--iterations", type=int, default=10)
+    parser.add_argument(
+        "--budget", type=float, default=float("inf"),
+        help="seconds: start no further cell after this (a cell in flight finishes); the "
+        "study resumes where it stopped when started again",
+    )  # fmt: skip
+    parser.add_argument(
+        "--quick", action="store_true",
+        help="tiny networks, 2 seeds, 1 iteration: a smoke test of the pipeline, no result",
+    )  # fmt: skip
+    parser.add_argument("--quiet", action="store_true")
+    args = parser.parse_args()
+    tasks = [t.strip() for t in args.only.split(",") if t.strip()]
+    bad = [t for t in tasks if t not in TASK_ORDER]
+    if bad or not tasks:
+        parser.error(f"--only={args.only!r} is not allowed: names from {', '.join(TASK_ORDER)}")
+    cells = [c for c in CELLS if c.task in tasks]
+    start = time.perf_counter()
+    for cell in cells:
+        if finished(args.runs, cell):
+            continue
+        if time.perf_counter() - start >= args.budget:
+            print(f"robustness_study: budget of {args.budget:.0f} s used; stopping", flush=True)
+            break
+        print(f"robustness_study: {cell.name} ({cell.seeds} seeds)", flush=True)
+        seconds = run_cell(cell, args)
+        print(f"robustness_study: {cell.name} done in {seconds:.0f} s", flush=True)
+        write_outputs(args.runs, args.out, CELLS)
+    summary = write_outputs(args.runs, args.out, CELLS)
+    done = sum(finished(args.runs, c) for c in cells)
+    print(f"robustness_study: {done} of {len(cells)} cells finished; tables in {args.out}")
+    if not summary.empty:
+        print(open(os.path.join(args.out, "who_wins.md")).read())
+
+
+if __name__ == "__main__":
+    main()
