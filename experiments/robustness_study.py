@@ -7,10 +7,12 @@ gains, each cell one :func:`cfm_jax.sweep` of the four losses (``joint``, ``task
 
 * iiwa14 ``inverse_dynamics``: babbling ``home`` (the default, 5 seeds) and
   ``reference_pd`` (the arm's babbling before, 3 seeds); the arm's gains did not change.
-* Solo12 ``walk`` and ``jump``: babbling ``home`` (default) or ``oracle`` (before) x gains
-  ``default`` (no feedback in ``s*``) or ``pilot_tuned`` (``kp = 100``, ``kd = 20`` on the
-  base, ``joint_kp = 2000``, ``joint_kd = 50``: chosen on pilots of the joint loss alone
-  before); 5 seeds in the default cell, 3 in the others.
+* Solo12 ``walk`` and ``jump``: babbling ``home`` (default: 2 rollouts per target at
+  torque noise 0.1) or ``oracle`` (before: the reference controller, 4 rollouts at 0.3) x
+  gains ``default`` (no feedback in ``s*``) or ``pilot_tuned`` (``kp = 100``, ``kd = 20``
+  on the base, ``joint_kp = 2000``, ``joint_kd = 50``). The earlier babbling size and noise
+  and gains were chosen on pilots of the joint loss alone; 5 seeds in the default cell, 3
+  in the others.
 * iiwa14 ``opspace``: its default cell, 5 seeds.
 
 Outputs: the runs in ``--runs`` (``<task>/<babbling>-<gains>/``: what the sweep writes, one
@@ -51,6 +53,10 @@ import cfm_jax
 from cfm_jax import config as config_lib
 from cfm_jax import losses, report
 
+BABBLING_BEFORE = {"oracle": {"babbling_rollouts": 4, "babbling_noise": 0.3}}
+"""The legged tasks' babbling before the faithful protocol: the reference controller, 4
+rollouts per target at torque noise 0.3 (chosen on pilots of the joint loss)."""
+
 GAINS = {
     "default": None,  # the task's for_task gains
     "pilot_tuned": {"kp": 100.0, "kd": 20.0, "joint_kp": 2000.0, "joint_kd": 50.0},
@@ -85,6 +91,8 @@ class Cell:
         if GAINS[self.gains] is not None:
             task = dataclasses.replace(task, **GAINS[self.gains])
         loop = dataclasses.replace(config.loop, babbling=self.babbling, iterations=iterations)
+        if config.task.name in ("walk", "jump"):
+            loop = dataclasses.replace(loop, **BABBLING_BEFORE.get(self.babbling, {}))
         return config.replace(task=task, loop=loop)
 
 
