@@ -9,6 +9,7 @@ Examples:
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import time
@@ -32,6 +33,7 @@ def train(
     data: str | None = None,
     control_dt: float | None = None,
     site: str | None = None,
+    babbling: str | None = None,
     quiet: bool = False,
 ) -> None:
     """Learn a tracking controller with Algorithm 1 and compare controller losses.
@@ -65,6 +67,8 @@ def train(
         robot every iteration. --seeds must equal the recorded run's.
       control_dt: control period in seconds (default: the config's or the task's).
       site: opspace: the end-effector site of the MJCF (default: "ee", else "flange").
+      babbling: the initial data, loop.babbling (home, reaching, reference_pd, oracle; see
+        cfm_jax.babbling); default: the config's (home).
       quiet: no progress bar.
 
     Examples:
@@ -81,6 +85,8 @@ def train(
     base = _base_config(
         robot, task, names[0], seed, seeds, iterations, config, simulator, control_dt, site
     )
+    if babbling is not None:
+        base = base.replace(loop=dataclasses.replace(base.loop, babbling=babbling))
     os.makedirs(out, exist_ok=True)
     start = time.perf_counter()
     experiment = train_lib.Experiment(base)

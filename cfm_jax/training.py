@@ -291,8 +291,10 @@ class Experiment:
     ) -> rollout.Rollout:
         """Roll a :class:`cfm_jax.rollout.MixedPolicy` out on every target (one seed), with
         the task values of ``knobs`` (None: this experiment's)."""
+        return self._run(self._task(self._knobs(knobs)), policy, key)
+
+    def _run(self, task, policy: rollout.MixedPolicy, key) -> rollout.Rollout:
         simulator = self.config.simulator
-        task = self._task(self._knobs(knobs))
         return rollout.run(
             task,
             rollout.mixed_policy(task, self.controller, policy, simulator),
@@ -315,7 +317,6 @@ class Experiment:
         babbling reference of the strategy ``knobs.babbling`` (a runtime value: one
         compilation serves every strategy; ``reaching`` draws its goals from a key folded
         out of ``key``, the torque noise uses ``key`` itself)."""
-        simulator = self.config.simulator
         knobs = self._knobs(knobs)
         task = self._task(knobs)
         key_goals = jax.random.fold_in(key, babbling.GOAL_STREAM)
@@ -323,12 +324,8 @@ class Experiment:
             functools.partial(task.babbling_reference, strategy, key_goals)
             for strategy in config_lib.BABBLING
         ]
-        task = task.with_reference(jax.lax.switch(knobs.babbling, references))
-        return rollout.run(
-            task,
-            rollout.mixed_policy(task, self.controller, policy, simulator),
-            key,
-            simulator=simulator,
+        return self._run(
+            task.with_reference(jax.lax.switch(knobs.babbling, references)), policy, key
         )
 
     def learned_policy(self, state: TrainState) -> rollout.MixedPolicy:
@@ -561,7 +558,8 @@ class Experiment:
         self, policy: rollout.MixedPolicy, keys, knobs: Knobs | None = None
     ) -> rollout.Rollout:
         """Rollouts for a seed axis: ``policy`` leaves and ``keys`` have a leading seed axis.
-        Compiled once per experiment (babbling, evaluation and baselines share it)."""
+        Compiled once per experiment and batch shape (evaluation and baselines share it;
+        babbling has its own, :meth:`babbling_rollouts`)."""
         fn = self._jit("rollout", jax.vmap(self.rollout_one, in_axes=(0, 0, None)))
         return fn(policy, keys, self._knobs(knobs))
 
@@ -593,7 +591,9 @@ class Experiment:
         return self._cache["prepared"][1]
 
     def babbling_rollouts(self, keys, knobs: Knobs | None = None) -> rollout.Rollout:
-        """``loop.babbling_rollouts`` babbling rollouts per seed, ``(seeds, rollouts, ...)``."""
+        """``loop.babbling_rollouts`` babbling rollouts per seed, ``(seeds, rollouts, ...)``,
+        of the strategy ``knobs.babbling`` (:meth:`babble_one`; compiled once for every
+        strategy)."""
         knobs = self._knobs(knobs)
         count = self.config.loop.babbling_rollouts
         seeds = keys.shape[0]
