@@ -348,7 +348,11 @@ def test_cli_summary_file_has_the_interval_and_the_paired_table(tmp_path):
     task = SimpleNamespace(tracking_name="joint", tracking_unit="rad", output_unit="rad")
     cli._write_outputs(str(tmp_path), [metrics], result, config_lib.Config(), task)
     text = (tmp_path / "summary.md").read_text()
-    assert text.startswith(report.markdown(report.summary(metrics, result.baselines, 1.0)))
+    # The protocol line (initial data and s* gains), then the table.
+    protocol = "initial data: `loop.babbling='home'` (2 rollouts per target, torque noise 0.1"
+    assert text.startswith(protocol)
+    table = report.markdown(report.summary(metrics, result.baselines, 1.0))
+    assert text.startswith(report.protocol(config_lib.Config()) + "\n\n" + table)
     assert report.paired_markdown(report.paired_table(metrics)) in text
     cli._write_outputs(str(tmp_path), [metrics.query("loss == 'task'")], result,
                        config_lib.Config(), task)  # fmt: skip

@@ -1,0 +1,110 @@
+"""experiments/robustness_study.py: the grid and its tables, on hand-made sweep outputs.
+
+Oracle: the numbers written into the fake runs (seed means, paired differences and falls
+computed by hand below) and :func:`cfm_jax.report.bootstrap_ci` (tested on its own in
+test_report.py). No training runs here; the study's cells are the library's sweeps.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cfm_jax import config as config_lib
+from cfm_jax import report
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
+import robustness_study as study  # noqa: E402
+
+LOSSES = ("joint", "task", "distal", "supervised")
+
+
+def _fake_run(runs, cell, scale, legged):
+    """metrics.csv of a finished cell: 3 seeds x 2 targets at iterations 0 and 10; seed s,
+    target k of loss i has final tracking MSE scale[i] * (1 + s) + k (seed mean
+    scale[i] (1 + s) + 0.5); a legged cell's joint loss fell on seed 2 target 1."""
+    rows = []
+    for i, loss in enumerate(LOSSES):
+        for seed in range(3):
+            for iteration in (0, 10):
+                for target in range(2):
+                    row = dict(
+                        loss=loss,
+                        seed=seed,
+                        iteration=iteration,
+                        target=target,
+                        tracking_mse=scale[i] * (1 + seed) + target + (iteration == 0),
+                    )
+                    if legged:
+                        row["force_mse"] = 10.0 * row["tracking_mse"]
+                        row["fell"] = float(loss == "joint" and seed == 2 and target == 1)
+                    rows.append(row)  # fmt: skip
+    path = study.run_dir(runs, cell)
+    os.makedirs(path, exist_ok=True)
+    pd.DataFrame(rows).to_csv(os.path.join(path, "metrics.csv"), index=False)
+    with open(os.path.join(path, "seconds.txt"), "w") as f:
+        f.write("100.0\n20.5\n")
+
+
+def test_summary_and_who_wins_from_finished_cells(tmp_path):
+    runs, out = str(tmp_path / "runs"), str(tmp_path / "out")
+    walk = next(c for c in study.CELLS if c.task == "walk" and c.default)
+    arm = next(c for c in study.CELLS if c.task == "inverse_dynamics" and not c.default)
+    _fake_run(runs, walk, scale=(1.0, 2.0, 4.0, 0.5), legged=True)
+    _fake_run(runs, arm, scale=(3.0, 1.0, 2.0, 5.0), legged=False)
+    summary = study.write_outputs(runs, out, study.CELLS)
+    assert set(os.listdir(out)) >= {"summary.csv", "who_wins.md", "walk.png"}
+    written = pd.read_csv(os.path.join(out, "summary.csv"))
+    assert len(written) == 8 and list(written.columns[:10]) == [
+        "robot", "task", "babbling", "gains", "loss", "seeds", "final_mean", "final_std",
+        "ci_low", "ci_high",
+    ]  # fmt: skip
+    row = summary[(summary.task == "walk") & (summary.loss == "task")].iloc[0]
+    # task on walk: seed means 2 (1 + s) + 0.5 = 2.5, 4.5, 6.5: mean 4.5, sample std 2.
+    assert (row.robot, row.babbling, row.gains, row.seeds) == ("solo12", "home", "default", 3)
+    np.testing.assert_allclose([row.final_mean, row.final_std], [4.5, 2.0])
+    np.testing.assert_allclose([row.ci_low, row.ci_high], report.bootstrap_ci([2.5, 4.5, 6.5]))
+    # joint minus task per seed: (1 (1 + s) + 0.5) - (2 (1 + s) + 0.5) = -1, -2, -3.
+    np.testing.assert_allclose(row.joint_minus, -2.0)
+    np.testing.assert_allclose(
+        [row.joint_minus_low, row.joint_minus_high], report.bootstrap_ci([-1.0, -2.0, -3.0])
+    )
+    np.testing.assert_allclose(row.force_mean, 45.0)
+    joint = summary[(summary.task == "walk") & (summary.loss == "joint")].iloc[0]
+    assert (joint.falls, joint.runs) == (1, 6)
+    assert row.seconds == pytest.approx(120.5)  # the pieces of an interrupted cell add up
+    text = open(os.path.join(out, "who_wins.md")).read()
+    # walk: supervised lowest (0.5 (1 + s) + 0.5), below every other loss in every seed.
+    walk_line = next(line for line in text.splitlines() if line.startswith("| home (default)")
+                     and "falls" in line)  # fmt: skip
+    assert "**supervised** (clear)" in walk_line and "falls 1/6" in walk_line
+    # the arm's reference_pd cell: task lowest; the default arm cell was not run.
+    arm_line = next(line for line in text.splitlines() if line.startswith("| reference_pd"))
+    assert "**task** (clear)" in arm_line
+    assert "| home (default) | default | 5 | not run yet" in text
+    assert not study.finished(runs, study.CELLS[0]) and study.finished(runs, walk)
+
+
+def test_cells_configs_follow_the_protocol():
+    cells = {(c.task, c.babbling, c.gains): c for c in study.CELLS}
+    default_walk = cells[("walk", "home", "default")].config(10)
+    assert default_walk == config_lib.for_task("walk").replace(
+        loop=config_lib.for_task("walk").loop.__class__(iterations=10)
+    )
+    assert cells[("walk", "home", "default")].seeds == 5
+    before = cells[("jump", "oracle", "pilot_tuned")].config(10)
+    assert (before.loop.babbling, before.loop.babbling_rollouts, before.loop.babbling_noise) == (
+        "oracle", 4, 0.3)  # fmt: skip
+    assert (before.task.kp, before.task.kd, before.task.joint_kp, before.task.joint_kd) == (
+        100.0, 20.0, 2000.0, 50.0)  # fmt: skip
+    arm_before = cells[("inverse_dynamics", "reference_pd", "default")].config(10)
+    assert arm_before.task == config_lib.for_task("inverse_dynamics").task
+    assert arm_before.loop.babbling_noise == 0.1 and arm_before.loop.babbling_rollouts == 2
+    # Every task has its default cell with at least 5 seeds, the others at least 3.
+    for task in study.TASK_ORDER:
+        assert any(c.task == task and c.default and c.seeds >= 5 for c in study.CELLS)
+    assert all(c.seeds >= 3 for c in study.CELLS)
