@@ -16,7 +16,7 @@ QUICK_LOSSES = "joint,task"
 def parser(description: str, default_out: str) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--out", default=default_out)
-    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--iterations", type=int, default=10)
     parser.add_argument("--losses", default="all", help="'all' or a comma-separated list")
     parser.add_argument(

@@ -11,7 +11,7 @@ error per iteration, mean and std: the paper's Fig. 3b and 4 style). Interrupted
 resume with ``--resume``.
 
 Usage:
-  python experiments/opspace_study.py --out results/opspace      # 3 seeds x 10 iterations
+  python experiments/opspace_study.py --out results/opspace      # 5 seeds x 10 iterations
   python experiments/opspace_study.py --quick --out /tmp/opspace  # pipeline smoke test
 """
 
@@ -30,7 +30,7 @@ from cfm_jax import config as config_lib
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", default="results/opspace")
-    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--iterations", type=int, default=10)
     parser.add_argument("--robot", default="iiwa14")
     parser.add_argument("--resume", action="store_true")

@@ -1,7 +1,7 @@
 """The Solo12 study (paper section IV-B, Fig. 5, Fig. 6, Table I): learn to walk or jump
 with each controller loss.
 
-Runs ``cfm-jax train --robot solo12 --task {walk,jump} --loss all --seeds 3
+Runs ``cfm-jax train --robot solo12 --task {walk,jump} --loss all --seeds 5
 --iterations 10`` (the four losses one after another, sharing babbling data and the
 initial forward fit; an interrupted run resumes with ``--resume``; a finished run is only
 re-evaluated) and writes, into ``--out``, besides the CLI's files (``metrics.csv``,
@@ -148,7 +148,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--task", choices=("walk", "jump"), required=True)
     parser.add_argument("--out", default=None)
-    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--iterations", type=int, default=10)
     parser.add_argument("--loss", default="all")
     parser.add_argument("--resume", action="store_true")

@@ -15,7 +15,7 @@ Finished runs are skipped when the script is started again (each run's ``metrics
 and ``dataset.npz`` mark it done), so an interrupted study resumes.
 
 Usage:
-  python experiments/swap_study.py --out results/swap            # 3 seeds x 10 iterations
+  python experiments/swap_study.py --out results/swap            # 5 seeds x 10 iterations
   python experiments/swap_study.py --out /tmp/swap --quick       # tiny, for a smoke test
 """
 
@@ -134,7 +134,7 @@ def figure(metrics: pd.DataFrame, path: str) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", default="results/swap")
-    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--iterations", type=int, default=10)
     parser.add_argument("--quick", action="store_true", help="two-link arm, tiny networks")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
