@@ -96,36 +96,6 @@ def _check(strategy: str) -> None:
         )
 
 
-def quintic(start, goal, steps: int, control_dt: float):
-    """Minimum-jerk paths ``start -> goal`` in ``steps`` control periods (JAX, traceable).
-
-    ``x(t) = start + (goal - start) (10 u^3 - 15 u^4 + 6 u^5)``, ``u = t / (steps dt)``, as
-    :func:`cfm_jax.tasks.quintic`; with ``goal == start`` exactly ``start`` and zeros.
-
-    Args:
-      start: ``(..., n)`` positions at ``t = 0``.
-      goal: ``(..., n)`` positions at the end.
-      steps: control periods (static).
-      control_dt: control period (s).
-
-    Returns:
-      ``(x, xd, xdd)``, each ``(..., steps + 1, n)`` float32.
-
-    Examples:
-      >>> x, xd, xdd = quintic(jnp.zeros(1), jnp.full(1, 2.0), steps=2, control_dt=0.5)
-      >>> x[:, 0].tolist(), xd[:, 0].tolist()
-      ([0.0, 1.0, 2.0], [0.0, 3.75, 0.0])
-    """
-    start = jnp.asarray(start, jnp.float32)[..., None, :]
-    delta = jnp.asarray(goal, jnp.float32)[..., None, :] - start
-    duration = steps * control_dt
-    u = (jnp.arange(steps + 1, dtype=jnp.float32) / steps)[:, None]
-    x = start + delta * (10 * u**3 - 15 * u**4 + 6 * u**5)
-    xd = delta * ((30 * u**2 - 60 * u**3 + 30 * u**4) / duration)
-    xdd = delta * ((60 * u - 180 * u**2 + 120 * u**3) / duration**2)
-    return x, xd, xdd
-
-
 def actuated_joints(robot) -> tuple[np.ndarray, np.ndarray]:
     """The ``qpos`` index and the ``(low, high)`` range of each actuated joint.
 

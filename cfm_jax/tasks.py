@@ -86,14 +86,44 @@ def quintic(start, goal, duration: float, control_dt: float) -> Reference:
     """
     start = np.asarray(start, dtype=np.float64)
     goal = np.asarray(goal, dtype=np.float64)
-    steps = int(round(duration / control_dt))
-    t = np.arange(steps + 1) * control_dt
-    u = np.clip(t / duration, 0.0, 1.0)[:, None]
-    delta = (goal - start)[None, :]
-    q = start + delta * (10 * u**3 - 15 * u**4 + 6 * u**5)
-    qd = delta * (30 * u**2 - 60 * u**3 + 30 * u**4) / duration
-    qdd = delta * (60 * u - 180 * u**2 + 120 * u**3) / duration**2
+    q, qd, qdd = minimum_jerk(start, goal, duration, control_dt, xp=np)
     return Reference(q[None], qd[None], qdd[None])
+
+
+def minimum_jerk(start, goal, duration: float, control_dt: float, xp=jnp):
+    """Minimum-jerk paths ``start -> goal`` sampled every ``control_dt``, for any leading
+    shape, in NumPy (``xp=np``, :func:`quintic`'s references) or JAX (traceable; the
+    babbling references of :meth:`JointSpaceTask.babbling_reference`).
+
+    ``x(t) = start + (goal - start) (10 u^3 - 15 u^4 + 6 u^5)``, ``u = t / duration``;
+    with ``goal == start`` exactly ``start`` and zeros.
+
+    Args:
+      start: ``(..., n)`` positions at ``t = 0``.
+      goal: ``(..., n)`` positions at ``t = duration``.
+      duration: seconds (a whole number of control periods).
+      control_dt: sampling period (s).
+      xp: ``numpy`` or ``jax.numpy``.
+
+    Returns:
+      ``(x, xd, xdd)``, each ``(..., steps + 1, n)``, in the dtype of ``start``.
+
+    Examples:
+      >>> x, xd, _ = minimum_jerk(np.zeros(1), np.full(1, 2.0), 1.0, 0.5, xp=np)
+      >>> x[:, 0].tolist(), xd[:, 0].tolist()
+      ([0.0, 1.0, 2.0], [0.0, 3.75, 0.0])
+    """
+    start = xp.asarray(start)
+    dtype = start.dtype
+    start = start[..., None, :]
+    delta = xp.asarray(goal, dtype)[..., None, :] - start
+    steps = int(round(duration / control_dt))
+    t = xp.arange(steps + 1, dtype=dtype) * control_dt
+    u = xp.clip(t / duration, 0.0, 1.0)[:, None]
+    x = start + delta * (10 * u**3 - 15 * u**4 + 6 * u**5)
+    xd = delta * (30 * u**2 - 60 * u**3 + 30 * u**4) / duration
+    xdd = delta * (60 * u - 180 * u**2 + 120 * u**3) / duration**2
+    return x, xd, xdd
 
 
 def check_duration(duration: float, control_dt: float) -> None:
@@ -453,7 +483,7 @@ class JointSpaceTask:
             return self.reference
         start = self.reference.q[:, 0]  # (targets, nq): every reach starts at home
         goal = start if strategy == "home" else babbling.random_poses(key, self.robot, start)
-        return Reference(*babbling.quintic(start, goal, self.steps, self.control_dt))
+        return Reference(*minimum_jerk(start, goal, self.steps * self.control_dt, self.control_dt))
 
     def start(self, reference):
         return (
@@ -596,7 +626,7 @@ class OperationalSpaceTask(JointSpaceTask):
             poses = babbling.random_poses(key, self.robot, poses)
             goal = self.opspace.kinematics(self.robot, poses, jnp.zeros_like(poses), self.site)
             goal = goal.position
-        x, xd, xdd = babbling.quintic(start, goal, self.steps, self.control_dt)
+        x, xd, xdd = minimum_jerk(start, goal, self.steps * self.control_dt, self.control_dt)
         return type(self.reference)(x, xd, xdd)
 
     def desired(self, ref_t, qpos, qvel, features):
@@ -878,7 +908,7 @@ class LeggedTask(JointSpaceTask):
         robot, steps = self.robot, self.steps
         start = jnp.broadcast_to(jnp.asarray(robot.home, jnp.float32), (self.targets, robot.nq))
         goal = start if strategy == "home" else babbling.random_poses(key, robot, start)
-        qpos, qd, qdd = babbling.quintic(start, goal, steps, self.control_dt)
+        qpos, qd, qdd = minimum_jerk(start, goal, steps * self.control_dt, self.control_dt)
         shape = (self.targets, steps + 1)
         qvel = jnp.zeros(shape + (robot.nv,), jnp.float32).at[..., self.joint_dofs]
         qacc = jnp.zeros(shape + (robot.nv,), jnp.float32).at[..., self.joint_dofs]
