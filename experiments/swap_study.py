@@ -36,7 +36,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 import cfm_jax  # noqa: E402
 from cfm_jax import config as config_lib  # noqa: E402
-from cfm_jax import training  # noqa: E402
+from cfm_jax import report, training  # noqa: E402
 
 LOSSES = ("task", "joint")
 
@@ -144,8 +144,9 @@ def main() -> None:
     metrics, walls = run(args.out, args.seeds, args.iterations, args.quick, not args.quiet)
     summary = table(metrics)
     markdown = summary.to_markdown() if _has_tabulate() else summary.to_string()
+    protocol = report.protocol(base_config(args.seeds, args.iterations, args.quick))
     with open(os.path.join(args.out, "swap_table.md"), "w") as f:
-        f.write(markdown + "\n")
+        f.write(protocol + "\n\n" + markdown + "\n")
     figure(metrics, os.path.join(args.out, "swap_study.png"))
     print(markdown)
     for name, seconds in walls.items():
