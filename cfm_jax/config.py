@@ -27,6 +27,15 @@ TASKS = ("inverse_dynamics", "opspace", "walk", "jump")
 SIMULATORS = ("native", "mjx")
 """Physics back ends for ``Config.simulator`` (see :mod:`cfm_jax.rollout`)."""
 
+BABBLING_BEFORE = {
+    "inverse_dynamics": "reference_pd",
+    "opspace": "reference_pd",
+    "walk": "oracle",
+    "jump": "oracle",
+}
+"""How each task babbled before ``loop.babbling`` existed (what :func:`from_dict` reads
+for a config that has a ``loop`` without it)."""
+
 BABBLING = ("home", "reaching", "reference_pd", "oracle")
 """Strategies of the initial (motor-babbling) data for ``Config.loop.babbling``
 (see :mod:`cfm_jax.babbling`). ``home`` and ``reaching`` know neither the test references
@@ -505,6 +514,10 @@ def to_dict(config: Config) -> dict:
 def from_dict(data: dict) -> Config:
     """Inverse of :func:`to_dict`; unknown keys raise :class:`ConfigError` naming them.
 
+    Missing fields take their defaults, except ``loop.babbling`` in a config written
+    before that field existed: those runs babbled as :data:`BABBLING_BEFORE` says, so the
+    config reads as what ran.
+
     Args:
       data: a dict as written by :func:`to_dict` (for example a run's ``config.json``);
         lists where tuples are expected are accepted.
@@ -544,6 +557,10 @@ def from_dict(data: dict) -> Config:
             for tuple_field in ("hidden", "home"):
                 if isinstance(value.get(tuple_field), list):
                     value[tuple_field] = tuple(value[tuple_field])
+            if key == "loop" and "babbling" not in value:
+                # Written before loop.babbling existed: it babbled as BABBLING_BEFORE says.
+                task = data.get("task", {}).get("name", TaskConfig.name)
+                value["babbling"] = BABBLING_BEFORE[task]
             kwargs[key] = cls(**value)
         else:
             kwargs[key] = value

@@ -58,7 +58,8 @@ def protocol(config) -> str:
         joint_kd = task.kd if task.joint_kd is None else task.joint_kd
         gains += f" (base), joint_kp {joint_kp:g}, joint_kd {joint_kd:g}"
     return (
-        f"initial data: `loop.babbling={loop.babbling!r}` ({loop.babbling_rollouts} rollouts "
+        f"initial data: `loop.babbling={loop.babbling!r}` ({loop.babbling_rollouts} rollout"
+        f"{'s' if loop.babbling_rollouts != 1 else ''} "
         f"per target, torque noise {loop.babbling_noise:g} of the limit); s* gains {gains}"
     )
 

@@ -282,3 +282,16 @@ def test_joint_gains_are_for_the_legged_tasks_only(field):
     with pytest.raises(ConfigError, match=rf"task.{field}=-1.0 .* >= 0"):
         TaskConfig(name="jump", control_dt=0.004, **{field: -1.0})
     assert getattr(TaskConfig(name="jump", control_dt=0.004, **{field: 0}), field) == 0
+
+
+def test_a_config_written_before_loop_babbling_reads_as_what_ran():
+    from cfm_jax import config as config_lib
+
+    for task, before in (("inverse_dynamics", "reference_pd"), ("walk", "oracle")):
+        data = config_lib.to_dict(config_lib.for_task(task))
+        del data["loop"]["babbling"]
+        assert config_lib.from_dict(data).loop.babbling == before
+    # A config that names its strategy keeps it; one without a loop section: the default.
+    data = config_lib.to_dict(config_lib.for_task("walk"))
+    assert config_lib.from_dict(data).loop.babbling == "home"
+    assert config_lib.from_dict({"robot": "iiwa14"}).loop.babbling == "home"
