@@ -277,7 +277,7 @@ def plot(summary: pd.DataFrame, task: str, path: str) -> str | None:
         return None
     groups = list(dict.fromkeys(zip(frame.babbling, frame.gains, strict=True)))
     names = list(losses.PAPER_LOSSES)
-    fig, ax = plt.subplots(figsize=(1.8 + 1.9 * len(groups), 3.6))
+    fig, ax = plt.subplots(figsize=(3.0 + 1.9 * len(groups), 3.8))
     width = 0.8 / len(names)
     for k, name in enumerate(names):
         rows = frame[frame.loss == name].set_index(["babbling", "gains"])
@@ -296,7 +296,7 @@ def plot(summary: pd.DataFrame, task: str, path: str) -> str | None:
     ax.set_xticks(range(len(groups)), [f"{b}\n{g}" for b, g in groups])
     ax.set_yscale("log")
     ax.set_ylabel(f"final tracking MSE ({UNITS[task]})")
-    ax.set_title(f"{task}: mean and 95% bootstrap CI over seeds")
+    ax.set_title(f"{task}\nmean and 95% bootstrap CI over seeds", fontsize=10)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
