@@ -16,8 +16,13 @@ gains, each cell one :func:`cfm_jax.sweep` of the four losses (``joint``, ``task
 * iiwa14 ``opspace``: its default cell, 5 seeds.
 
 Outputs: the runs in ``--runs`` (``<task>/<babbling>-<gains>/``: what the sweep writes, one
-folder per loss, checkpoints; an interrupted study resumes where it stopped, so run it in
-pieces with ``--budget``), and in ``--out``:
+folder per loss, checkpoints; an interrupted cell resumes from its checkpoints, so run the
+study in pieces with ``--budget``), and in ``--out``:
+
+* ``cells/<task>/<babbling>-<gains>/``: the record of each finished cell (its sweep's
+  ``metrics.csv``, ``baselines.csv``, ``summary.md``, ``curves.png`` and ``seconds.txt``,
+  the wall time of each piece it ran in). The tables are made from these; a cell with a
+  record is not run again, also from a fresh clone without the runs.
 
 * ``summary.csv``: one row per (robot, task, babbling, gains, loss) of the finished cells:
   ``seeds``, ``final_mean``, ``final_std`` (over the seed means), ``ci_low``, ``ci_high``
@@ -44,6 +49,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import shutil
 import time
 
 import numpy as np
@@ -120,12 +126,40 @@ UNITS = {
 
 
 def run_dir(runs: str, cell: Cell) -> str:
+    """Where a cell runs: the sweep's folder (large: checkpoints and data sets)."""
     return os.path.join(runs, cell.task, f"{cell.babbling}-{cell.gains}")
 
 
-def finished(runs: str, cell: Cell) -> bool:
-    """A cell is finished when its sweep wrote the tables of all its losses."""
-    return os.path.isfile(os.path.join(run_dir(runs, cell), "metrics.csv"))
+def record_dir(out: str, cell: Cell) -> str:
+    """The small record of a finished cell next to the tables (``RECORD_FILES``): what the
+    tables are made of, kept with them so that a fresh clone skips the cell."""
+    return os.path.join(out, "cells", cell.task, f"{cell.babbling}-{cell.gains}")
+
+
+RECORD_FILES = ("metrics.csv", "baselines.csv", "seconds.txt", "summary.md", "curves.png")
+
+
+def keep_record(runs: str, out: str, cell: Cell) -> None:
+    """Copy a finished run's ``RECORD_FILES`` to :func:`record_dir` (when it has them)."""
+    source = run_dir(runs, cell)
+    if not os.path.isfile(os.path.join(source, "metrics.csv")):
+        return
+    os.makedirs(record_dir(out, cell), exist_ok=True)
+    for name in RECORD_FILES:
+        if os.path.isfile(os.path.join(source, name)):
+            shutil.copyfile(os.path.join(source, name), os.path.join(record_dir(out, cell), name))
+
+
+def finished(runs: str, out: str, cell: Cell) -> bool:
+    """A cell is finished when its record exists, or its sweep wrote the tables of all its
+    losses (then the record is made)."""
+    if not _recorded(out, cell):
+        keep_record(runs, out, cell)
+    return _recorded(out, cell)
+
+
+def _recorded(out: str, cell: Cell) -> bool:
+    return os.path.isfile(os.path.join(record_dir(out, cell), "metrics.csv"))
 
 
 def run_cell(cell: Cell, args) -> float:
@@ -147,20 +181,21 @@ def run_cell(cell: Cell, args) -> float:
     seconds = time.perf_counter() - start
     with open(os.path.join(run_dir(args.runs, cell), "seconds.txt"), "a") as f:
         f.write(f"{seconds:.1f}\n")
+    keep_record(args.runs, args.out, cell)
     return seconds
 
 
-def _seconds(runs: str, cell: Cell) -> float:
-    path = os.path.join(run_dir(runs, cell), "seconds.txt")
+def _seconds(out: str, cell: Cell) -> float:
+    path = os.path.join(record_dir(out, cell), "seconds.txt")
     if not os.path.isfile(path):
         return float("nan")
     with open(path) as f:
         return float(sum(float(line) for line in f if line.strip()))
 
 
-def cell_rows(runs: str, cell: Cell) -> list[dict]:
-    """The rows of ``summary.csv`` of a finished cell."""
-    metrics = pd.read_csv(os.path.join(run_dir(runs, cell), "metrics.csv"))
+def cell_rows(out: str, cell: Cell) -> list[dict]:
+    """The rows of ``summary.csv`` of a finished cell (from its record)."""
+    metrics = pd.read_csv(os.path.join(record_dir(out, cell), "metrics.csv"))
     table = report.summary(metrics)
     paired = report.paired_table(metrics, "joint") if "joint" in set(metrics["loss"]) else None
     legged = cell.task in ("walk", "jump")
@@ -195,7 +230,7 @@ def cell_rows(runs: str, cell: Cell) -> list[dict]:
                 falls=int(round(fell.sum())),
                 runs=len(fell),
             )
-        row["seconds"] = _seconds(runs, cell)
+        row["seconds"] = _seconds(out, cell)
         rows.append(row)
     return rows
 
@@ -205,7 +240,7 @@ def _ci(mean, low, high) -> str:
     return f"{f(mean)} [{f(low)}, {f(high)}]"
 
 
-def who_wins(runs: str, cells, summary: pd.DataFrame) -> str:
+def who_wins(out: str, cells, summary: pd.DataFrame) -> str:
     """The markdown "who wins where" tables, one per task."""
     lines = [
         "# Who wins where",
@@ -250,7 +285,7 @@ def who_wins(runs: str, cells, summary: pd.DataFrame) -> str:
                     text += f"; falls {int(r.falls)}/{int(r.runs)}"
                 cells_text.append(text)
             best = rows.final_mean.idxmin()
-            metrics = pd.read_csv(os.path.join(run_dir(runs, cell), "metrics.csv"))
+            metrics = pd.read_csv(os.path.join(record_dir(out, cell), "metrics.csv"))
             paired = report.paired_table(metrics, best)
             clear = bool(np.all(paired.ci_high < 0)) if len(paired) else False
             paired_text = "; ".join(
@@ -307,7 +342,7 @@ def plot(summary: pd.DataFrame, task: str, path: str) -> str | None:
 def write_outputs(runs: str, out: str, cells) -> pd.DataFrame:
     """``summary.csv``, ``who_wins.md`` and the figures of the finished cells."""
     os.makedirs(out, exist_ok=True)
-    rows = [row for cell in cells if finished(runs, cell) for row in cell_rows(runs, cell)]
+    rows = [row for cell in cells if finished(runs, out, cell) for row in cell_rows(out, cell)]
     summary = pd.DataFrame(rows)
     columns = ["robot", "task", "babbling", "gains", "loss", "seeds", "final_mean", "final_std",
                "ci_low", "ci_high"]  # fmt: skip
@@ -315,7 +350,7 @@ def write_outputs(runs: str, out: str, cells) -> pd.DataFrame:
         summary = pd.DataFrame(columns=columns)
     summary.to_csv(os.path.join(out, "summary.csv"), index=False)
     with open(os.path.join(out, "who_wins.md"), "w") as f:
-        f.write(who_wins(runs, cells, summary))
+        f.write(who_wins(out, cells, summary))
     for task in TASK_ORDER:
         plot(summary, task, os.path.join(out, f"{task}.png"))
     return summary
@@ -345,7 +380,7 @@ def main() -> None:
     cells = [c for c in CELLS if c.task in tasks]
     start = time.perf_counter()
     for cell in cells:
-        if finished(args.runs, cell):
+        if finished(args.runs, args.out, cell):
             continue
         if time.perf_counter() - start >= args.budget:
             print(f"robustness_study: budget of {args.budget:.0f} s used; stopping", flush=True)
@@ -355,7 +390,7 @@ def main() -> None:
         print(f"robustness_study: {cell.name} done in {seconds:.0f} s", flush=True)
         write_outputs(args.runs, args.out, CELLS)
     summary = write_outputs(args.runs, args.out, CELLS)
-    done = sum(finished(args.runs, c) for c in cells)
+    done = sum(finished(args.runs, args.out, c) for c in cells)
     print(f"robustness_study: {done} of {len(cells)} cells finished; tables in {args.out}")
     if not summary.empty:
         print(open(os.path.join(args.out, "who_wins.md")).read())

@@ -8,6 +8,7 @@ test_report.py). No training runs here; the study's cells are the library's swee
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 
 import numpy as np
@@ -86,7 +87,12 @@ def test_summary_and_who_wins_from_finished_cells(tmp_path):
     arm_line = next(line for line in text.splitlines() if line.startswith("| reference_pd"))
     assert "**task** (clear)" in arm_line
     assert "| home (default) | default | 5 | not run yet" in text
-    assert not study.finished(runs, study.CELLS[0]) and study.finished(runs, walk)
+    assert not study.finished(runs, out, study.CELLS[0]) and study.finished(runs, out, walk)
+    # From a fresh clone (no runs, only the records next to the tables): the same tables.
+    shutil.rmtree(runs)
+    again = study.write_outputs(runs, out, study.CELLS)
+    pd.testing.assert_frame_equal(again, summary)
+    assert open(os.path.join(out, "who_wins.md")).read() == text
 
 
 def test_cells_configs_follow_the_protocol():
