@@ -47,8 +47,8 @@ def train(
         file (default: the task's robot, iiwa14 for the arm tasks and solo12 for walk and
         jump).
       task: task name (inverse_dynamics, opspace, walk, jump).
-      loss: a controller loss (joint, task, distal, supervised), a comma-separated list of
-        them, or "all".
+      loss: a controller loss (joint, task, distal, supervised, distal_literal), a
+        comma-separated list of them, or "all" (the paper's four).
       seeds: number of seeds (run together as a vmap axis).
       iterations: iterations of Algorithm 1.
       out: output directory.
@@ -175,7 +175,9 @@ def sweep(
     Writes OUT/cells/<cell>/ as each cell finishes (a re-run skips finished cells), then
     OUT/metrics.csv and OUT/metrics.parquet (one row per cell, seed, iteration, target,
     with a column per override), OUT/baselines.csv, OUT/cells.csv, OUT/sweep.json,
-    OUT/summary.md (mean and std over seeds at the last iteration) and OUT/curves.png,
+    OUT/summary.md (the protocol line; mean and std over seeds at the last iteration, the
+    95% bootstrap CI over seeds and the paired comparison of the joint loss) and
+    OUT/curves.png,
     and prints the summary table.
 
     Args:
@@ -183,8 +185,8 @@ def sweep(
         file (default: the task's robot, iiwa14 for the arm tasks and solo12 for walk and
         jump).
       task: task name (inverse_dynamics, opspace, walk, jump).
-      losses: "all", or a comma-separated list of controller losses (joint, task, distal,
-        supervised).
+      losses: "all" (the paper's four: joint, task, distal, supervised), or a
+        comma-separated list of controller losses (those and distal_literal).
       seeds: number of seeds (a vmap axis inside every cell).
       iterations: iterations of Algorithm 1.
       out: output directory.

@@ -399,7 +399,8 @@ class Config:
     # Robot: a registered name ("iiwa14", "two_link_arm") or a path to a fixed-base MJCF
     # with one torque motor per joint.
     robot: str = "iiwa14"
-    # Controller loss; one of losses.CONTROLLER_LOSSES: joint, task, distal, supervised.
+    # Controller loss; one of losses.CONTROLLER_LOSSES: joint, task, distal, supervised
+    # (the paper's four) and distal_literal (the distal teacher written literally).
     loss: str = "joint"
     # Base seed; run k of loop.seeds uses seed + k.
     seed: int = 0

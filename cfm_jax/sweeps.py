@@ -545,7 +545,9 @@ def sweep(
         ``out_dir/cells/<cell id>/`` as it finishes; a re-run skips finished cells. When
         all cells are done: ``metrics.csv`` and ``metrics.parquet`` (the tidy table),
         ``baselines.csv``, ``cells.csv``, ``sweep.json`` (the grid), ``summary.md`` (the
-        curves at the last iteration) and ``curves.png``. None: nothing is written.
+        protocol line, :func:`cfm_jax.report.protocol`; the curves at the last iteration;
+        per override combination the per-loss table with the 95% bootstrap CI over seeds
+        and the paired comparison of the joint loss) and ``curves.png``. None: nothing is written.
       backend: ``"local"`` (this process, one cell after another) or ``"ray"``.
       address: ray only: the address of an existing cluster (``"host:port"`` or
         ``"auto"``); None: use the Ray instance this process is already connected to,
