@@ -8,15 +8,23 @@ because it collects better data?
    (``cfm_jax.train(config, data=...)``: the recorded data is revealed iteration by
    iteration as it was collected, no new data enters; the controller is evaluated on the
    robot every iteration). Seed ``k`` of a retrain uses the data of seed ``k``.
-3. Report: the 2 x 2 table of final tracking MSE (mean and std over seeds x targets) and a
-   figure of the tracking MSE per iteration (mean and std), one panel per data set.
+3. Report: the 2 x 2 table of final tracking MSE (mean over seeds, each seed averaged over
+   its targets, with a 95% bootstrap CI over seeds), the paired difference between the
+   two data sets for each retraining loss, and a figure of the tracking MSE per iteration
+   (mean and std over seeds x targets), one panel per data set.
 
 Finished runs are skipped when the script is started again (each run's ``metrics.csv``
-and ``dataset.npz`` mark it done), so an interrupted study resumes.
+and ``dataset.npz`` mark it done), so an interrupted study resumes. Step 1's runs are
+Algorithm 1 of the default config, as a sweep of the losses runs it: ``--collected DIR``
+(repeatable) names sweep folders (``cfm_jax.sweep``'s ``out_dir``, for example the
+robustness study's ``results/robustness/inverse_dynamics/home-default``) whose finished
+cell of the very same config (``cells/<cell id>/run``, found by ``sweeps.cell_id``) is
+used instead of running it again; the table says where each data set came from.
 
 Usage:
   python experiments/swap_study.py --out results/swap            # 5 seeds x 10 iterations
   python experiments/swap_study.py --out /tmp/swap --quick       # tiny, for a smoke test
+  python experiments/swap_study.py --collected results/robustness/inverse_dynamics/home-default
 """
 
 from __future__ import annotations
@@ -36,7 +44,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 import cfm_jax  # noqa: E402
 from cfm_jax import config as config_lib  # noqa: E402
-from cfm_jax import report, training  # noqa: E402
+from cfm_jax import report, sweeps, training  # noqa: E402
 
 LOSSES = ("task", "joint")
 
@@ -65,13 +73,29 @@ def done(run_dir: str, config: config_lib.Config) -> bool:
     )
 
 
-def run(out: str, seeds: int, iterations: int, quick: bool, progress: bool) -> pd.DataFrame:
+def collect_dir(out: str, config: config_lib.Config, sweep_dirs=()) -> str:
+    """Where the data set of ``config`` comes from: the first finished run of this very
+    config among the sweep folders ``sweep_dirs`` (``cells/<cell id>/run``), else
+    ``out/collect/<loss>`` (run there if it is not finished)."""
+    for sweep_dir in sweep_dirs:
+        run_dir = os.path.join(sweep_dir, "cells", sweeps.cell_id(config), "run")
+        if done(run_dir, config):
+            return run_dir
+    return os.path.join(out, "collect", config.loss)
+
+
+def run(
+    out: str, seeds: int, iterations: int, quick: bool, progress: bool, sweep_dirs=()
+) -> tuple[pd.DataFrame, dict, dict]:
+    """Steps 1 and 2; returns the retrains' metrics (a ``data`` column says which data set),
+    the wall times and where each data set came from."""
     base = base_config(seeds, iterations, quick)
     experiment = training.Experiment(base)
-    frames, walls = [], {}
+    frames, walls, sources = [], {}, {}
     for collected in LOSSES:
         config = base.replace(loss=collected)
-        run_dir = os.path.join(out, "collect", collected)
+        run_dir = collect_dir(out, config, sweep_dirs)
+        sources[collected] = run_dir
         start = time.perf_counter()
         if not done(run_dir, config):
             cfm_jax.train(config, progress=progress, out_dir=run_dir, experiment=experiment)
@@ -91,22 +115,44 @@ def run(out: str, seeds: int, iterations: int, quick: bool, progress: bool) -> p
     metrics = pd.concat(frames, ignore_index=True)
     metrics.to_csv(os.path.join(out, "swap_metrics.csv"), index=False)
     with open(os.path.join(out, "wall_times.json"), "w") as f:
-        json.dump(walls, f, indent=2)
-    return metrics, walls
+        json.dump({"seconds": walls, "data_sets": sources}, f, indent=2)
+    return metrics, walls, sources
 
 
 def table(metrics: pd.DataFrame) -> pd.DataFrame:
     """Rows: the data set (collected with loss ...); columns: the retraining loss; cells:
-    final tracking MSE mean and std over seeds x targets."""
-    final = metrics[metrics.iteration == metrics.iteration.max()]
-    cells = final.groupby(["data", "loss"]).tracking_mse.agg(["mean", "std"])
+    the final tracking MSE, mean over seeds (each seed averaged over its targets) [95%
+    bootstrap CI over seeds]; a last row: joint-loss data minus task-loss data, paired by
+    seed (seed ``k`` of both retrains saw the data of seed ``k``), negative = the joint
+    loss's data is better."""
+    means = report.seed_means(metrics, by=("data", "loss"))
+    per_seed = {
+        (collected, loss): frame.set_index("seed").tracking_mse
+        for (collected, loss), frame in means.groupby(["data", "loss"])
+    }
     rows = {}
     for collected in LOSSES:
         rows[f"data collected with the {collected} loss"] = {
-            f"retrained with {loss}": "{:.3g} ({:.2g})".format(*cells.loc[(collected, loss)])
+            f"retrained with {loss}": _ci_text(_mean_ci(per_seed[(collected, loss)]))
             for loss in LOSSES
         }
+    rows["joint-loss data minus task-loss data (paired by seed)"] = {
+        f"retrained with {loss}": _ci_text(
+            report.paired_difference(per_seed[("joint", loss)], per_seed[("task", loss)])
+        )
+        for loss in LOSSES
+    }
     return pd.DataFrame.from_dict(rows, orient="index")
+
+
+def _mean_ci(values: pd.Series) -> dict:
+    low, high = report.bootstrap_ci(values.to_numpy())
+    return {"mean": float(values.mean()), "low": low, "high": high}
+
+
+def _ci_text(stats: dict) -> str:
+    f = report._format
+    return f"{f(stats['mean'])} [{f(stats['low'])}, {f(stats['high'])}]"
 
 
 def figure(metrics: pd.DataFrame, path: str) -> None:
@@ -138,15 +184,23 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=10)
     parser.add_argument("--quick", action="store_true", help="two-link arm, tiny networks")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument(
+        "--collected", action="append", default=[], metavar="SWEEP_DIR",
+        help="a sweep folder whose finished cells of the same config give step 1's data "
+        "sets (repeatable)",
+    )  # fmt: skip
     args = parser.parse_args()
     os.makedirs(args.out, exist_ok=True)
     start = time.perf_counter()
-    metrics, walls = run(args.out, args.seeds, args.iterations, args.quick, not args.quiet)
+    metrics, walls, sources = run(
+        args.out, args.seeds, args.iterations, args.quick, not args.quiet, args.collected
+    )
     summary = table(metrics)
-    markdown = summary.to_markdown() if _has_tabulate() else summary.to_string()
+    markdown = _markdown(summary)
     protocol = report.protocol(base_config(args.seeds, args.iterations, args.quick))
+    origin = "; ".join(f"{loss}-loss data from `{path}`" for loss, path in sources.items())
     with open(os.path.join(args.out, "swap_table.md"), "w") as f:
-        f.write(protocol + "\n\n" + markdown + "\n")
+        f.write(protocol + "\n\n" + markdown + "\n\nData sets: " + origin + ".\n")
     figure(metrics, os.path.join(args.out, "swap_study.png"))
     print(markdown)
     for name, seconds in walls.items():
@@ -154,12 +208,12 @@ def main() -> None:
     print(f"total {time.perf_counter() - start:.0f} s; results in {args.out}/")
 
 
-def _has_tabulate() -> bool:
-    try:
-        import tabulate  # noqa: F401
-    except ImportError:
-        return False
-    return True
+def _markdown(frame: pd.DataFrame) -> str:
+    lines = ["| data set | " + " | ".join(frame.columns) + " |"]
+    lines.append("|---|" + "---:|" * len(frame.columns))
+    for name, row in frame.iterrows():
+        lines.append(f"| {name} | " + " | ".join(str(v) for v in row) + " |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ one iteration): these tests check the wiring, not learning quality.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import os
@@ -470,6 +471,31 @@ def test_ray_backend_without_address_starts_a_local_cluster_and_stops_it(local, 
     assert report_line["pid"] not in report_line["cells"]  # the cells ran in Ray workers
     pd.testing.assert_frame_equal(
         pd.read_csv(out / "metrics.csv"), local[0].metrics, check_exact=True
+    )
+
+
+# ----- the swap study reuses a sweep's runs ------------------------------------------
+
+
+def test_swap_study_takes_its_data_sets_from_a_sweep_cell_of_the_same_config(local, tmp_path):
+    """``swap_study.py --collected SWEEP_DIR`` uses the run that the sweep wrote for the very
+    same config (the folder the sweep itself lists in cells.csv), and runs afresh in its own
+    folder for any other config."""
+    sys.path.insert(0, os.path.join(ROOT, "experiments"))
+    try:
+        import swap_study
+    finally:
+        sys.path.pop(0)
+    _, out = local
+    cells = pd.read_csv(out / "cells.csv").set_index("loss")
+    for loss in LOSSES:
+        config = TINY.replace(loss=loss, loop=dataclasses.replace(TINY.loop, seeds=2))
+        found = swap_study.collect_dir(str(tmp_path), config, [str(tmp_path / "none"), str(out)])
+        assert found == os.path.join(str(out), "cells", cells.loc[loss, "cell"], "run")
+        assert os.path.isfile(os.path.join(found, "dataset.npz"))
+    other = TINY.replace(loss="joint", seed=7)
+    assert swap_study.collect_dir(str(tmp_path), other, [str(out)]) == os.path.join(
+        str(tmp_path), "collect", "joint"
     )
 
 
