@@ -8,7 +8,8 @@ re-evaluated) and writes, into ``--out``, besides the CLI's files (``metrics.csv
 ``baselines.csv``, ``summary.md``, ``learning_curves.png``):
 
 * ``table_1.md``: the paper's Table I for this task: at the last iteration, the
-  foot-force tracking MSE (N^2) per loss, mean and std over seeds x targets; the falls
+  foot-force tracking MSE (N^2) per loss, mean and std over seeds x targets, and the 95%
+  bootstrap CI over seeds (each seed averaged over its targets); the falls
   (fallen runs out of seeds x targets, and the seeds whose every horizon finished without
   a fall); the base position (m^2) and orientation (rad^2) tracking MSE. The oracle
   (reference controller) and the joint PD alone are given for scale.
@@ -22,6 +23,14 @@ Usage:
   python experiments/solo_study.py --task walk --out results/solo_walk
   python experiments/solo_study.py --task jump --out results/solo_jump
   python experiments/solo_study.py --task jump --out /tmp/q --quick   # 1 seed, 1 iteration
+  python experiments/solo_study.py --task walk --out results/solo_walk \
+      --sweep results/robustness/walk/home-default   # the tables and pictures of a sweep
+
+With ``--sweep SWEEP_DIR`` nothing is trained: the table, the falls and the pictures are
+drawn from a finished ``cfm_jax.sweep`` of the losses on this task (its ``metrics.csv``,
+``baselines.csv`` and each cell's run, ``cells/<cell id>/run``), for example the
+robustness study's default cell, which runs the same config as this script (the same
+numbers: a sweep cell is ``cfm_jax.train`` of its config).
 """
 
 from __future__ import annotations
@@ -38,12 +47,17 @@ FOOT = "FR"  # the paper's Fig. 6 shows the front right foot
 
 def table_1(metrics: pd.DataFrame, baselines: pd.DataFrame) -> pd.DataFrame:
     """Last-iteration force MSE, falls and base tracking per loss (and the baselines)."""
-    from cfm_jax import losses
+    from cfm_jax import losses, report
 
     def row(frame: pd.DataFrame, seeds: str) -> dict:
+        per_seed = frame.groupby("seed").force_mse.mean() if "seed" in frame else frame.force_mse
+        low, high = report.bootstrap_ci(per_seed.to_numpy()) if "seed" in frame else (None,) * 2
         return {
             "force MSE mean (N^2)": frame.force_mse.mean(),
             "force MSE std": frame.force_mse.std(ddof=0),
+            "95% CI over seeds": ""
+            if low is None
+            else f"[{report._format(low)}, {report._format(high)}]",
             "falls (runs)": f"{int(frame.fell.sum())} / {len(frame)}",
             "seeds without a fall": seeds,
             "base position MSE (m^2)": frame.base_position_mse.mean(),
@@ -82,14 +96,15 @@ def plot_falls(metrics: pd.DataFrame, path: str, title: str) -> None:
     plt.close(fig)
 
 
-def pictures(out: str, config, loss: str) -> dict:
-    """Roll out the first seed's final controller of ``loss`` on the longest target; write
-    its frame strip and the force plot of the front right foot. Returns what was drawn."""
+def pictures(out: str, config, loss: str, run_dir: str | None = None) -> dict:
+    """Roll out the first seed's final controller of ``loss`` (its finished run in
+    ``run_dir``, default ``out/<loss>``) on the longest target; write its frame strip and
+    the force plot of the front right foot into ``out``. Returns what was drawn."""
     import jax
 
     from cfm_jax import locomotion, render, training
 
-    run_dir = os.path.join(out, loss)
+    run_dir = run_dir or os.path.join(out, loss)
     experiment = training.Experiment(config.replace(loss=loss))
     result = training.train(
         config.replace(loss=loss), progress=False, experiment=experiment, resume=run_dir
@@ -141,6 +156,29 @@ def pictures(out: str, config, loss: str) -> dict:
     return drawn
 
 
+def _from_sweep(sweep_dir: str, task: str):
+    """A finished sweep's folder, its base config (the first cell's, any loss) and each
+    loss's run folder; names what is missing or of another task."""
+    from cfm_jax import config as config_lib
+
+    path = os.path.join(sweep_dir, "cells.csv")
+    if not os.path.isfile(os.path.join(sweep_dir, "metrics.csv")) or not os.path.isfile(path):
+        raise SystemExit(
+            f"--sweep={sweep_dir!r}: not a finished cfm_jax.sweep folder (it needs "
+            "metrics.csv and cells.csv)"
+        )
+    cells = pd.read_csv(path)
+    run_dirs = {row.loss: os.path.join(sweep_dir, "cells", row.cell, "run")
+                for row in cells.itertuples()}  # fmt: skip
+    with open(os.path.join(sweep_dir, "cells", cells.cell.iloc[0], "config.json")) as f:
+        config = config_lib.from_dict(json.load(f))
+    if config.task.name != task:
+        raise SystemExit(
+            f"--sweep={sweep_dir!r} holds task {config.task.name!r}, not --task={task!r}"
+        )
+    return sweep_dir, config, run_dirs
+
+
 def main() -> None:
     from cfm_jax import cli, report
     from cfm_jax import config as config_lib
@@ -160,33 +198,47 @@ def main() -> None:
     parser.add_argument(
         "--pictures", default="joint,task", help="losses whose rollouts are drawn ('' none)"
     )
+    parser.add_argument(
+        "--sweep", default=None, metavar="SWEEP_DIR",
+        help="draw from a finished cfm_jax.sweep of this task instead of training",
+    )  # fmt: skip
     args = parser.parse_args()
     if args.quick:
         args.seeds, args.iterations = 1, 1
     out = args.out or f"results/solo_{args.task}"
-    if not args.figures_only:
-        cli.train(
-            task=args.task,
-            loss=args.loss,
-            seeds=args.seeds,
-            iterations=args.iterations,
-            out=out,
-            resume=args.resume,
-            quiet=args.quiet,
-        )
-    metrics = pd.read_csv(os.path.join(out, "metrics.csv"))
-    baselines = pd.read_csv(os.path.join(out, "baselines.csv"))
+    if args.sweep:
+        source, config, run_dirs = _from_sweep(args.sweep, args.task)
+        os.makedirs(out, exist_ok=True)
+    else:
+        if not args.figures_only:
+            cli.train(
+                task=args.task,
+                loss=args.loss,
+                seeds=args.seeds,
+                iterations=args.iterations,
+                out=out,
+                resume=args.resume,
+                quiet=args.quiet,
+            )
+        source = out
+        with open(os.path.join(out, "config.json")) as f:
+            config = config_lib.from_dict(json.load(f))
+        run_dirs = {
+            name: os.path.join(out, name)
+            for name in os.listdir(out)
+            if os.path.isdir(os.path.join(out, name, "checkpoints"))
+        }
+    metrics = pd.read_csv(os.path.join(source, "metrics.csv"))
+    baselines = pd.read_csv(os.path.join(source, "baselines.csv"))
     table = table_1(metrics, baselines)
-    with open(os.path.join(out, "config.json")) as f:
-        config = config_lib.from_dict(json.load(f))
     with open(os.path.join(out, "table_1.md"), "w") as f:
         f.write(report.protocol(config) + "\n\n" + report.markdown(table) + "\n")
     print(table.to_string())
     plot_falls(metrics, os.path.join(out, "falls.png"), f"solo12 {args.task}")
     drawn = [
-        pictures(out, config, loss)
+        pictures(out, config, loss, run_dirs[loss])
         for loss in [s for s in args.pictures.split(",") if s]
-        if os.path.isdir(os.path.join(out, loss))
+        if loss in run_dirs
     ]
     with open(os.path.join(out, "pictures.json"), "w") as f:
         json.dump(drawn, f, indent=2)
