@@ -114,3 +114,50 @@ def test_cells_configs_follow_the_protocol():
     for task in study.TASK_ORDER:
         assert any(c.task == task and c.default and c.seeds >= 5 for c in study.CELLS)
     assert all(c.seeds >= 3 for c in study.CELLS)
+
+
+def test_claims_verdicts_follow_the_rule_on_hand_made_seeds():
+    """experiments/claims.py: per-seed values built so that each answer is plain: joint
+    below task by 10 on every seed (CI [-10, -10]), no difference to distal on average
+    (+1, -1, +1, -1, 0), supervised below joint by 5 on every seed."""
+    import claims
+
+    seeds = pd.Index(range(5), name="seed")
+    joint = pd.Series([1.0, 2.0, 3.0, 4.0, 5.0], index=seeds)
+    values = {
+        "joint": joint,
+        "task": joint + 10.0,
+        "distal": joint - pd.Series([1.0, -1.0, 1.0, -1.0, 0.0], index=seeds),
+        "supervised": joint - 5.0,
+    }
+    assert claims.beats(values, "joint", ["task"])[0] == "reproduces"
+    assert claims.beats(values, "joint", ["distal"])[0] == "not resolved"
+    assert claims.beats(values, "joint", ["task", "distal"])[0] == "not resolved"
+    assert claims.beats(values, "joint", ["task", "distal", "supervised"])[0] == (
+        "does not reproduce"
+    )
+    assert claims.same(values, "joint", "distal")[0] == "reproduces"
+    assert claims.same(values, "joint", "task")[0] == "does not reproduce"
+    verdict, parts = claims.beats(values, "joint", ["task"])
+    assert parts == ["joint - task: -10 [-10, -10]"]
+
+
+def test_claims_success_counts_the_falls_of_the_last_iteration():
+    """Fig. 5's "only the joint loss succeeds" on a fake default walk cell: the joint loss
+    never falls at the last iteration, every other loss does once, and the joint loss's
+    fall at iteration 0 does not count."""
+    import claims
+
+    walk = next(c for c in study.CELLS if c.task == "walk" and c.default)
+    rows = [
+        dict(loss=loss, seed=0, iteration=it, target=0,
+             fell=float((loss != "joint" and it == 10) or (loss == "joint" and it == 0)))
+        for loss in LOSSES for it in (0, 10)
+    ]  # fmt: skip
+    cells = {walk: (pd.DataFrame(rows), pd.DataFrame())}
+    claim, _, verdict, text, _ = claims.success_claim(cells, "walk")
+    assert verdict == "reproduces" and "joint 0/1, task 1/1" in text
+    rows = [dict(r, fell=1.0) for r in rows]
+    assert claims.success_claim({walk: (pd.DataFrame(rows), None)}, "walk")[2] == (
+        "does not reproduce"
+    )
