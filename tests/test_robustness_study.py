@@ -7,6 +7,7 @@ test_report.py). No training runs here; the study's cells are the library's swee
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import sys
@@ -161,3 +162,32 @@ def test_claims_success_counts_the_falls_of_the_last_iteration():
     assert claims.success_claim({walk: (pd.DataFrame(rows), None)}, "walk")[2] == (
         "does not reproduce"
     )
+
+
+def test_the_default_cells_run_the_configs_of_reproduce_all():
+    """The headline results are the robustness study's default cells; reproduce_all.py's
+    parts (through their scripts) run the very same configs, so either reproduces the
+    other's numbers (a sweep cell is cfm_jax.train of its config, test_sweep.py)."""
+    import _study
+    import swap_study
+
+    from cfm_jax import cli
+
+    def plain(config):
+        tree = config_lib.to_dict(config.replace(loss="joint"))
+        tree["loop"]["seeds"] = 5
+        return tree
+
+    cells = {c.task: c for c in study.CELLS if c.default}
+    assert set(cells) == {"inverse_dynamics", "opspace", "walk", "jump"}
+    args = _study.parser("", "").parse_args([])
+    assert (args.seeds, args.iterations, args.losses) == (5, 10, "all")
+    iiwa = config_lib.for_task("inverse_dynamics", robot="iiwa14")
+    iiwa = iiwa.replace(loop=dataclasses.replace(iiwa.loop, iterations=args.iterations))
+    assert plain(iiwa) == plain(cells["inverse_dynamics"].config(10))
+    assert plain(swap_study.base_config(5, 10, quick=False)) == plain(iiwa)
+    # opspace_study.py and solo_study.py call cli.train with these flags (their defaults).
+    for task, robot in (("opspace", "iiwa14"), ("walk", None), ("jump", None)):
+        flags = cli._base_config(robot, task, "joint", 0, 5, 10, None, None, None, None)
+        assert plain(flags) == plain(cells[task].config(10)), task
+        assert cells[task].seeds == 5
