@@ -189,6 +189,12 @@ def success_claim(cells, task):
     return (*claim, v, text, "; ".join(depends) or "no other cell differs")
 
 
+def _combined(verdicts) -> str:
+    """One verdict of a claim with several parts: theirs when they agree, else "mixed"
+    (the numbers column gives each part's)."""
+    return verdicts[0] if len(set(verdicts)) == 1 else "mixed: " + ", ".join(verdicts)
+
+
 def swap_claims(path):
     if not os.path.isfile(path):
         return None
@@ -278,7 +284,7 @@ def write(records_dir: str, swap_path: str, out: str) -> str:
             tvalues = per_seed(cells[default][0], "predicted_task_error", "all")
             v2, p2 = beats(tvalues, "task", ("joint",))
             lines = [f"prediction error {p1[0]}: {v1}", f"predicted task error {p2[0]}: {v2}"]
-            verdict = v1 if v1 == v2 else f"{v1} / {v2}"
+            verdict = _combined([v1, v2])
             rows.append((f"Fig. 4 ({task})", f"Solo12 {task}: during learning the joint "
                          "loss's forward-model prediction error is lower than the task "
                          "loss's, whose predicted task error is lower", verdict,
@@ -292,10 +298,10 @@ def write(records_dir: str, swap_path: str, out: str) -> str:
         verdicts, lines, seeds = swap
         both = verdicts[:2]
         rows.append(("Fig. 3c", "data-set swap: both losses do better on the data the joint "
-                     "loss collected", both[0] if both[0] == both[1] else " / ".join(both),
+                     "loss collected", _combined(both),
                      "<br>".join(lines[:2]), f"{seeds} seeds"))  # fmt: skip
         rows.append(("Fig. 3c", "on the same data the task and joint losses perform "
-                     "similarly", " / ".join(dict.fromkeys(verdicts[2:])),
+                     "similarly", _combined(verdicts[2:]),
                      "<br>".join(lines[2:]), f"{seeds} seeds"))  # fmt: skip
     verdict, theory = theory_claim()
     rows.append(("III-B (1-D)", "the joint loss rests at s_p = (s_d + s_a)/2, which drives "
