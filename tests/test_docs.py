@@ -59,8 +59,10 @@ def test_site_builds_strict(tmp_path):
         assert "CFM_JAX_DOCS_QUICK" in (site / "notebooks" / name / "index.html").read_text()
     results = (site / "results" / "index.html").read_text()
     assert "Operational-space control (paper Fig. 3b)" in results  # from README.md
-    assert '../figures/iiwa_opspace.png"' in results
-    assert (site / "figures" / "iiwa_opspace.png").is_file()
+    # The page results/ and the data folder results/ are one folder of the site.
+    curves = "robustness/cells/opspace/home-default/curves.png"
+    assert f'src="{curves}"' in results
+    assert (site / "results" / curves).is_file()
     losses = (site / "concepts" / "losses" / "index.html").read_text()
     assert "\\mathcal{L}_{joint}" in losses  # the equations are there for MathJax
 
