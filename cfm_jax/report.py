@@ -183,6 +183,45 @@ def seed_means(
     return out.reset_index(drop=True)
 
 
+def mean_ci(values, confidence: float = CONFIDENCE) -> dict:
+    """The mean of a sample and its bootstrap confidence interval (:func:`bootstrap_ci`).
+
+    Args:
+      values: the sample, shape ``(n,)``: e.g. one loss's seed means (a list, array or
+        Series ordered by seed).
+      confidence: the confidence level, in (0, 1).
+
+    Returns:
+      ``{"mean": ..., "low": ..., "high": ...}`` (floats; ``n == 0``: NaN), the keys
+      of :func:`paired_difference` less ``n``, so :func:`ci_text` formats either.
+
+    Examples:
+      >>> mean_ci([1.0, 2.0, 3.0, 4.0])
+      {'mean': 2.5, 'low': 1.5, 'high': 3.5}
+    """
+    x = np.asarray(values, dtype=float)
+    low, high = bootstrap_ci(x, confidence)
+    return {"mean": float(x.mean()) if x.size else float("nan"), "low": low, "high": high}
+
+
+def ci_text(stats: dict) -> str:
+    """``"mean [low, high]"`` of a :func:`mean_ci` or :func:`paired_difference` result,
+    each number to 3 significant digits (the tables' format).
+
+    Args:
+      stats: a mapping with the keys ``"mean"``, ``"low"`` and ``"high"``.
+
+    Returns:
+      The text, for example ``"0.154 [0.0420, 0.270]"``.
+
+    Examples:
+      >>> ci_text({"mean": 2.0e-5, "low": 1.2e-5, "high": 0.2718})
+      '2.00e-05 [1.20e-05, 0.272]'
+    """
+    f = _format
+    return f"{f(stats['mean'])} [{f(stats['low'])}, {f(stats['high'])}]"
+
+
 def paired_difference(
     a,
     b,

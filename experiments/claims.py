@@ -49,10 +49,6 @@ def _f(value) -> str:
     return report._format(value)
 
 
-def _ci(stats: dict) -> str:
-    return f"{_f(stats['mean'])} [{_f(stats['low'])}, {_f(stats['high'])}]"
-
-
 def per_seed(metrics: pd.DataFrame, column: str, over: str = "last") -> dict[str, pd.Series]:
     """Each loss's values per seed: the mean over targets at the last iteration
     (``over="last"``) or over targets and all iterations (``"all"``: the area under the
@@ -64,11 +60,6 @@ def per_seed(metrics: pd.DataFrame, column: str, over: str = "last") -> dict[str
     return {loss: f.set_index("seed")[column] for loss, f in frame.groupby("loss")}
 
 
-def mean_ci(values: pd.Series) -> dict:
-    low, high = report.bootstrap_ci(values.to_numpy())
-    return {"mean": float(values.mean()), "low": low, "high": high}
-
-
 def beats(values: dict[str, pd.Series], winner: str, losers) -> tuple[str, list[str]]:
     """The rule's verdict on "``winner`` is lower than each of ``losers``" and the paired
     intervals it rests on."""
@@ -77,7 +68,7 @@ def beats(values: dict[str, pd.Series], winner: str, losers) -> tuple[str, list[
         if loser not in values or winner not in values:
             continue
         d = report.paired_difference(values[winner], values[loser])
-        parts.append(f"{winner} - {loser}: {_ci(d)}")
+        parts.append(f"{winner} - {loser}: {report.ci_text(d)}")
         if d["low"] > 0:
             verdict = "does not reproduce"
         elif d["high"] >= 0 and verdict == "reproduces":
@@ -88,7 +79,7 @@ def beats(values: dict[str, pd.Series], winner: str, losers) -> tuple[str, list[
 def same(values: dict[str, pd.Series], a: str, b: str) -> tuple[str, list[str]]:
     d = report.paired_difference(values[a], values[b])
     verdict = "reproduces" if d["low"] <= 0 <= d["high"] else "does not reproduce"
-    return verdict, [f"{a} - {b}: {_ci(d)}"]
+    return verdict, [f"{a} - {b}: {report.ci_text(d)}"]
 
 
 def records(out: str):
@@ -106,7 +97,9 @@ def records(out: str):
 
 def _means_text(values: dict[str, pd.Series], unit: str) -> str:
     names = [n for n in ("joint", *OTHERS) if n in values]
-    return "; ".join(f"{n} {_ci(mean_ci(values[n]))}" for n in names) + f" ({unit})"
+    return (
+        "; ".join(f"{n} {report.ci_text(report.mean_ci(values[n]))}" for n in names) + f" ({unit})"
+    )
 
 
 def _cell_name(cell) -> str:
@@ -130,8 +123,9 @@ def ranking_claim(cells, task, column, unit, over="last", extra=None):
     for cell in task_cells:
         if cell.default:
             continue
-        v, _ = beats(per_seed(cells[cell][0], column, over), "joint", OTHERS)
-        lowest = min(per_seed(cells[cell][0], column, over).items(), key=lambda kv: kv[1].mean())[0]
+        cell_values = per_seed(cells[cell][0], column, over)
+        v, _ = beats(cell_values, "joint", OTHERS)
+        lowest = min(cell_values.items(), key=lambda kv: kv[1].mean())[0]
         others.append((cell, v, lowest))
     depends = [f"{_cell_name(c)}: {v} (lowest: {low})" for c, v, low in others if v != verdict]
     same_ = [f"{_cell_name(c)}" for c, v, _ in others if v == verdict]
@@ -210,12 +204,14 @@ def swap_claims(path):
         v = "reproduces" if d["high"] < 0 else ("does not reproduce" if d["low"] > 0
                                                  else "not resolved")  # fmt: skip
         verdicts.append(v)
-        lines.append(f"retrained with {loss}: joint-loss data - task-loss data {_ci(d)}: {v}")
+        lines.append(
+            f"retrained with {loss}: joint-loss data - task-loss data {report.ci_text(d)}: {v}"
+        )
     for data in ("task", "joint"):
         d = report.paired_difference(values[(data, "joint")], values[(data, "task")])
         v = "reproduces" if d["low"] <= 0 <= d["high"] else "does not reproduce"
         verdicts.append(v)
-        lines.append(f"on the {data}-loss data: joint - task retrain {_ci(d)}: "
+        lines.append(f"on the {data}-loss data: joint - task retrain {report.ci_text(d)}: "
                      f"similar {v}")  # fmt: skip
     seeds = int(metrics.seed.nunique())
     return verdicts, lines, seeds

@@ -235,11 +235,6 @@ def cell_rows(out: str, cell: Cell) -> list[dict]:
     return rows
 
 
-def _ci(mean, low, high) -> str:
-    f = report._format
-    return f"{f(mean)} [{f(low)}, {f(high)}]"
-
-
 def who_wins(out: str, cells, summary: pd.DataFrame) -> str:
     """The markdown "who wins where" tables, one per task."""
     lines = [
@@ -280,7 +275,7 @@ def who_wins(out: str, cells, summary: pd.DataFrame) -> str:
                     cells_text.append("-")
                     continue
                 r = rows.loc[name]
-                text = _ci(r.final_mean, r.ci_low, r.ci_high)
+                text = report.ci_text({"mean": r.final_mean, "low": r.ci_low, "high": r.ci_high})
                 if "falls" in r and not pd.isna(r.falls):
                     text += f"; falls {int(r.falls)}/{int(r.runs)}"
                 cells_text.append(text)
@@ -289,7 +284,10 @@ def who_wins(out: str, cells, summary: pd.DataFrame) -> str:
             paired = report.paired_table(metrics, best)
             clear = bool(np.all(paired.ci_high < 0)) if len(paired) else False
             paired_text = "; ".join(
-                f"vs {loss}: {_ci(p.mean_difference, p.ci_low, p.ci_high)}"
+                "vs {}: {}".format(
+                    loss,
+                    report.ci_text({"mean": p.mean_difference, "low": p.ci_low, "high": p.ci_high}),
+                )
                 for loss, p in paired.iterrows()
             )
             lines.append(

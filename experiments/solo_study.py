@@ -50,14 +50,14 @@ def table_1(metrics: pd.DataFrame, baselines: pd.DataFrame) -> pd.DataFrame:
     from cfm_jax import losses, report
 
     def row(frame: pd.DataFrame, seeds: str) -> dict:
-        per_seed = frame.groupby("seed").force_mse.mean() if "seed" in frame else frame.force_mse
-        low, high = report.bootstrap_ci(per_seed.to_numpy()) if "seed" in frame else (None,) * 2
+        ci = ""
+        if "seed" in frame:  # the baselines have no seeds
+            stats = report.mean_ci(frame.groupby("seed").force_mse.mean())
+            ci = f"[{report._format(stats['low'])}, {report._format(stats['high'])}]"
         return {
             "force MSE mean (N^2)": frame.force_mse.mean(),
             "force MSE std": frame.force_mse.std(ddof=0),
-            "95% CI over seeds": ""
-            if low is None
-            else f"[{report._format(low)}, {report._format(high)}]",
+            "95% CI over seeds": ci,
             "falls (runs)": f"{int(frame.fell.sum())} / {len(frame)}",
             "seeds without a fall": seeds,
             "base position MSE (m^2)": frame.base_position_mse.mean(),

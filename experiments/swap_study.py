@@ -133,26 +133,16 @@ def table(metrics: pd.DataFrame) -> pd.DataFrame:
     rows = {}
     for collected in LOSSES:
         rows[f"data collected with the {collected} loss"] = {
-            f"retrained with {loss}": _ci_text(_mean_ci(per_seed[(collected, loss)]))
+            f"retrained with {loss}": report.ci_text(report.mean_ci(per_seed[(collected, loss)]))
             for loss in LOSSES
         }
     rows["joint-loss data minus task-loss data (paired by seed)"] = {
-        f"retrained with {loss}": _ci_text(
+        f"retrained with {loss}": report.ci_text(
             report.paired_difference(per_seed[("joint", loss)], per_seed[("task", loss)])
         )
         for loss in LOSSES
     }
     return pd.DataFrame.from_dict(rows, orient="index")
-
-
-def _mean_ci(values: pd.Series) -> dict:
-    low, high = report.bootstrap_ci(values.to_numpy())
-    return {"mean": float(values.mean()), "low": low, "high": high}
-
-
-def _ci_text(stats: dict) -> str:
-    f = report._format
-    return f"{f(stats['mean'])} [{f(stats['low'])}, {f(stats['high'])}]"
 
 
 def figure(metrics: pd.DataFrame, path: str) -> None:

@@ -108,6 +108,33 @@ def test_bootstrap_ci_equals_a_plain_loop(values, confidence, resamples, seed):
     assert not np.allclose(got, other, rtol=1e-9, atol=0.0)
 
 
+def test_mean_ci_is_the_plain_mean_and_the_plain_loop_interval():
+    values = [0.3, 1.7, 0.9, 2.4, 1.1]
+    seed_means = pd.Series(values, index=[4, 0, 2, 1, 3])  # order of seeds kept as given
+    expected_low, expected_high = _bootstrap_by_hand(values, 0.95, 10_000, 0)
+    for sample in (values, np.array(values), seed_means):
+        got = report.mean_ci(sample)
+        assert set(got) == {"mean", "low", "high"}
+        assert got["mean"] == pytest.approx(sum(values) / 5, rel=1e-15)
+        np.testing.assert_allclose(
+            (got["low"], got["high"]), (expected_low, expected_high), rtol=1e-12
+        )
+    narrow = report.mean_ci(values, confidence=0.5)
+    assert expected_low < narrow["low"] < narrow["high"] < expected_high
+    empty = report.mean_ci([])
+    assert all(math.isnan(v) for v in empty.values())
+
+
+def test_ci_text_formats_means_and_paired_differences_alike():
+    assert report.ci_text({"mean": 0.1543, "low": 0.04213, "high": 0.2718}) == (
+        "0.154 [0.0421, 0.272]"
+    )
+    # small numbers in exponent form, NaN as "-", the extra "n" of paired_difference ignored
+    assert report.ci_text({"mean": 2.0e-5, "low": float("nan"), "high": 1.0, "n": 3}) == (
+        "2.00e-05 [-, 1]"
+    )
+
+
 def test_bootstrap_ci_agrees_with_scipy_within_monte_carlo_error():
     x = np.random.default_rng(42).lognormal(0.0, 0.5, size=20)
     low, high = report.bootstrap_ci(x, confidence=0.95, resamples=10_000)
