@@ -138,11 +138,13 @@ def test_legged_tasks_refuse_arms_and_slow_control(solo):
         tasks.make(solo, home, 0.004)
 
 
-def test_jump_trains_end_to_end_with_masked_metrics():
+@pytest.mark.parametrize("name", ["jump", "walk"])
+def test_legged_task_trains_end_to_end_with_masked_metrics(name):
+    from golden import assert_bit_identical
     from tiny import tiny_config
 
     config = tiny_config(iterations=1, seeds=1).replace(
-        robot="solo12", task=config_lib.TaskConfig(name="jump", control_dt=0.004)
+        robot="solo12", task=config_lib.TaskConfig(name=name, control_dt=0.004)
     )
     experiment = training.Experiment(config)
     result = cfm_jax.train(config, progress=False, experiment=experiment)
@@ -158,3 +160,4 @@ def test_jump_trains_end_to_end_with_masked_metrics():
     base = result.baselines.set_index(["baseline", "target"])
     assert base.loc["oracle"].fell.max() == 0.0
     assert base.loc["oracle"].tracking_mse.max() < 1e-8
+    assert_bit_identical(name, result)

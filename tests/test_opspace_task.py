@@ -104,6 +104,7 @@ def test_oracle_realises_desired_site_acceleration(iiwa):
 
 
 def test_opspace_trains_end_to_end_and_oracle_beats_pd(tmp_path):
+    from golden import assert_bit_identical
     from tiny import tiny_config
 
     config = tiny_config(iterations=1).replace(
@@ -121,3 +122,4 @@ def test_opspace_trains_end_to_end_and_oracle_beats_pd(tmp_path):
     assert base["oracle"] < base["pd_only"]
     assert (tmp_path / "dataset.npz").is_file()
     assert result.rms_reach == pytest.approx(experiment.task.tracking_scale)
+    assert_bit_identical("opspace", result)

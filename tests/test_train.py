@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
+from golden import assert_bit_identical
 from tiny import cli_command, tiny_config
 
 import cfm_jax
@@ -115,6 +116,10 @@ def test_vmapped_seeds_equal_a_loop_over_seeds():
 def test_same_config_twice_gives_identical_metrics(two_seeds, experiment):
     again = cfm_jax.train(TINY, progress=False, experiment=experiment)
     pd.testing.assert_frame_equal(again.metrics, two_seeds.metrics, check_exact=True)
+
+
+def test_inverse_dynamics_numbers_bit_identical_to_the_recorded_ones(two_seeds):
+    assert_bit_identical("inverse_dynamics", two_seeds)
 
 
 def test_one_compiled_function_per_loss_iteration(experiment, two_seeds):
