@@ -1,12 +1,17 @@
 """The documentation site builds with warnings as errors (``mkdocs build --strict``): a
 broken link, a missing page or a docstring that names a parameter the signature lacks fails
 here, and so does a public module without an API page. Needs the ``docs`` extra
-(``pip install ".[test]"`` pulls it in)."""
+(``pip install ".[test]"`` pulls it in).
+
+The built site loads nothing from another host: no script, stylesheet, font or icon from
+a CDN (the equations are MathML, typeset at build time by docs/_hooks.py)."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import pkgutil
+import re
 import shutil
 import subprocess
 import sys
@@ -15,6 +20,37 @@ from pathlib import Path
 import cfm_jax
 
 ROOT = Path(__file__).resolve().parent.parent
+
+
+# An element that makes the browser fetch something: its tag and the attribute holding the URL.
+LOADS = re.compile(
+    r"<(script|link|img|iframe|source|embed|object)\b[^>]*?\b(src|href|data)\s*=\s*"
+    r"[\"']?([^\"'\s>]+)",
+    re.IGNORECASE,
+)
+# Links that only navigate (the browser fetches nothing until one is followed).
+NAVIGATION = re.compile(r"\brel\s*=\s*[\"']?(prev|next|canonical|alternate)\b", re.IGNORECASE)
+# Material's bundle fetches mermaid from unpkg when a page has a mermaid element.
+FETCHES = re.compile(
+    r"import\(\s*[\"'](?:https?:)?//|@import\s+(?:url\()?[\"']?(?:https?:)?//"
+    r"|url\(\s*[\"']?(?:https?:)?//|class=\"[^\"]*\bmermaid\b",
+    re.IGNORECASE,
+)
+
+
+def external_loads(html: str) -> list[str]:
+    """What a page would fetch from another host: absolute or protocol-relative URLs in
+    elements that load (scripts, stylesheets, icons, images, frames), module imports, CSS
+    imports and ``url()``s, and mermaid diagrams."""
+    found = []
+    for element in re.finditer(r"<[a-zA-Z][^>]*>", html):
+        tag = element.group(0)
+        load = LOADS.match(tag)
+        if load and re.match(r"(?:[a-z][a-z0-9+.-]*:)?//", load.group(3), re.IGNORECASE):
+            if not (load.group(1).lower() == "link" and NAVIGATION.search(tag)):
+                found.append(tag)
+    found += [m.group(0) for m in FETCHES.finditer(html)]
+    return found
 
 
 def public_modules() -> list[str]:
@@ -63,8 +99,69 @@ def test_site_builds_strict(tmp_path):
     curves = "robustness/cells/opspace/home-default/curves.png"
     assert f'src="{curves}"' in results
     assert (site / "results" / curves).is_file()
+    # Every equation is MathML, none is left as LaTeX for a script to typeset.
     losses = (site / "concepts" / "losses" / "index.html").read_text()
-    assert "\\mathcal{L}_{joint}" in losses  # the equations are there for MathJax
+    assert "<math" in losses and "<mi>&#x02112;</mi>" in losses  # \mathcal{L}
+    theory = (site / "notebooks" / "theory_1d" / "index.html").read_text()
+    assert "<math" in theory  # the notebook's $..$ formulas
+    offline = {}
+    for page in site.rglob("*.html"):
+        text = page.read_text()
+        assert 'class="arithmatex">\\(' not in text and 'class="arithmatex">\\[' not in text
+        if external_loads(text):
+            offline[str(page.relative_to(site))] = external_loads(text)
+    assert not offline, f"pages that load from another host: {offline}"
+
+
+def test_external_loads_finds_what_a_browser_would_fetch_from_another_host():
+    """The checker against hand-written pages: every kind of remote load is found, local
+    files and plain links are not."""
+    remote = [
+        '<script src="https://cdn.jsdelivr.net/npm/mathjax@3/es5/tex-mml-chtml.js"></script>',
+        "<script src='//unpkg.com/mermaid'></script>",
+        '<link rel="stylesheet" href="https://fonts.googleapis.com/css?family=Roboto">',
+        '<link href="https://fonts.gstatic.com" rel="preconnect">',
+        '<link rel="icon" href=http://example.org/favicon.png>',
+        '<img alt="" src="https://example.org/plot.png">',
+        '<script type="module">import("https://cdnjs.cloudflare.com/x.js")</script>',
+        '<style>@import url("https://fonts.googleapis.com/css2?family=Inter");</style>',
+        '<div class="mermaid">graph LR; a-->b</div>',
+    ]
+    for html in remote:
+        assert external_loads(html), html
+    local = [
+        '<script src="../assets/javascripts/bundle.js"></script>',
+        '<link rel="stylesheet" href="/assets/stylesheets/main.css">',
+        '<a href="https://arxiv.org/abs/2011.03859">the paper</a>',
+        '<link rel="canonical" href="https://example.org/cfm_jax/">',
+        '<img src="robustness/jump.png">',
+        "<p>a price of $5 and //comments</p>",
+    ]
+    for html in local:
+        assert not external_loads(html), html
+
+
+def _hooks():
+    spec = importlib.util.spec_from_file_location("docs_hooks", ROOT / "docs" / "_hooks.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_equations_become_mathml_and_a_bad_one_fails_the_build():
+    from mkdocs.exceptions import PluginError
+
+    hooks = _hooks()
+    out = hooks.mathml(r"\frac{\partial \mathcal{L}}{\partial \theta}", True, "page.md")
+    assert out.startswith("<math") and 'display="block"' in out
+    assert "<mfrac>" in out and "<mi>&#x003B8;</mi>" in out and "\\" not in out  # theta
+    for bad in (r"\frac{a", "x}", "x^", r"\left( x", r"\nosuchcommand{x}"):
+        try:
+            hooks.mathml(bad, False, "page.md")
+        except PluginError as error:
+            assert "page.md" in str(error)
+        else:
+            raise AssertionError(f"{bad!r} converted without an error")
 
 
 def test_a_broken_link_fails_the_build(tmp_path):
