@@ -19,13 +19,38 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-from cfm_jax import losses
-
 TASKS = ("inverse_dynamics", "opspace", "walk", "jump")
-"""Tasks available for ``Config.task.name``."""
+"""Tasks available for ``Config.task.name``: the library's four, then those added by
+:func:`cfm_jax.tasks.register` (:func:`add_task_name`)."""
+
+
+def add_task_name(name: str) -> None:
+    """Let ``Config.task.name`` take ``name`` (:func:`cfm_jax.tasks.register` calls this; the
+    config knows the names only, the task modules know what they mean).
+
+    Args:
+      name: the new task's name; a name already in :data:`TASKS` changes nothing.
+
+    Examples:
+      >>> add_task_name("walk"); TASKS
+      ('inverse_dynamics', 'opspace', 'walk', 'jump')
+    """
+    global TASKS
+    if name not in TASKS:
+        TASKS = TASKS + (name,)
+
 
 SIMULATORS = ("native", "mjx")
 """Physics back ends for ``Config.simulator`` (see :mod:`cfm_jax.rollout`)."""
+
+PAPER_LOSSES = ("joint", "task", "distal", "supervised")
+"""The paper's four controller losses, in the order results are reported (``"all"`` in
+sweeps and the CLI); the functions are in :mod:`cfm_jax.losses`."""
+
+CONTROLLER_LOSSES = PAPER_LOSSES + ("distal_literal",)
+"""Every controller loss name (``Config.loss``): :data:`PAPER_LOSSES` and ``distal_literal``
+(the distal teacher written literally as a loss over the whole data set,
+:func:`cfm_jax.losses.distal_literal`; for studies of it)."""
 
 BABBLING_BEFORE = {
     "inverse_dynamics": "reference_pd",
@@ -100,6 +125,33 @@ def _layer_sizes(field: str, value: Any) -> None:
         _fail(field, value, "a non-empty tuple of positive integers, e.g. (400, 400, 400)")
 
 
+def check_duration(duration: float, control_dt: float) -> None:
+    """``duration`` must be a whole number (>= 1) of control periods, so that the sampled
+    path ends exactly at the goal with zero velocity.
+
+    Args:
+      duration: seconds per reach.
+      control_dt: control period (s).
+
+    Raises:
+      ConfigError: ``duration / control_dt`` is not a whole number >= 1 (relative tolerance
+        1e-6).
+
+    Examples:
+      >>> check_duration(2.0, 0.01)
+      >>> check_duration(0.015, 0.01)
+      Traceback (most recent call last):
+      ...
+      cfm_jax.config.ConfigError: task.duration=0.015 is not allowed: a whole multiple (>= 1) ...
+    """
+    ratio = duration / control_dt
+    if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-6 * max(ratio, 1.0):
+        raise ConfigError(
+            f"task.duration={duration!r} is not allowed: a whole multiple (>= 1) of the "
+            f"control period {control_dt!r} s"
+        )
+
+
 @dataclasses.dataclass(frozen=True)
 class TaskConfig:
     """The tracking task: reaching trajectories and desired accelerations.
@@ -168,8 +220,6 @@ class TaskConfig:
         _positive_float("task.duration", self.duration)
         if self.control_dt is not None:
             _positive_float("task.control_dt", self.control_dt)
-            from cfm_jax.tasks import check_duration
-
             check_duration(self.duration, self.control_dt)
         _nonnegative_float("task.kp", self.kp)
         _nonnegative_float("task.kd", self.kd)
@@ -375,7 +425,7 @@ class Config:
     Attributes:
       robot: a registered robot name (``"iiwa14"``, ``"two_link_arm"``, ``"solo12"``) or a
         path to an MJCF file (see :func:`cfm_jax.robots.load`).
-      loss: the controller loss, one of ``losses.CONTROLLER_LOSSES``: ``joint``, ``task``,
+      loss: the controller loss, one of ``CONTROLLER_LOSSES``: ``joint``, ``task``,
         ``distal``, ``supervised``.
       seed: base seed; run ``k`` of ``loop.seeds`` uses ``seed + k``.
       simulator: physics back end of the rollouts, one of :data:`SIMULATORS`: ``native``
@@ -399,7 +449,7 @@ class Config:
     # Robot: a registered name ("iiwa14", "two_link_arm") or a path to a fixed-base MJCF
     # with one torque motor per joint.
     robot: str = "iiwa14"
-    # Controller loss; one of losses.CONTROLLER_LOSSES: joint, task, distal, supervised
+    # Controller loss; one of CONTROLLER_LOSSES: joint, task, distal, supervised
     # (the paper's four) and distal_literal (the distal teacher written literally).
     loss: str = "joint"
     # Base seed; run k of loop.seeds uses seed + k.
@@ -415,8 +465,8 @@ class Config:
     def __post_init__(self):
         if not isinstance(self.robot, str) or not self.robot:
             _fail("robot", self.robot, "a registered robot name or a path to an MJCF file")
-        if self.loss not in losses.CONTROLLER_LOSSES:
-            _fail("loss", self.loss, f"one of {losses.CONTROLLER_LOSSES}")
+        if self.loss not in CONTROLLER_LOSSES:
+            _fail("loss", self.loss, f"one of {CONTROLLER_LOSSES}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             _fail("seed", self.seed, "an integer >= 0")
         if self.simulator not in SIMULATORS:

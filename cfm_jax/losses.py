@@ -17,14 +17,9 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-PAPER_LOSSES = ("joint", "task", "distal", "supervised")
-"""The paper's four controller losses, in the order results are reported (``"all"`` in
-sweeps and the CLI)."""
-
-CONTROLLER_LOSSES = PAPER_LOSSES + ("distal_literal",)
-"""Every controller loss name: :data:`PAPER_LOSSES` and ``distal_literal`` (the distal
-teacher written literally as a loss over the whole data set, :func:`distal_literal`; for
-studies of it)."""
+# The loss names live with the other names of choices in the config, the bottom of the
+# import graph; re-exported here, next to the functions they name.
+from cfm_jax.config import CONTROLLER_LOSSES, PAPER_LOSSES  # noqa: F401
 
 
 def task(predicted_next, desired_next):

@@ -22,9 +22,9 @@ controller, the task's oracle, its PD feedback and noise in one compiled rollout
 
 Examples:
   >>> import jax, numpy as np
-  >>> from cfm_jax import robots, tasks
+  >>> from cfm_jax import references, robots, tasks
   >>> robot = robots.load("two_link_arm")
-  >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.1, control_dt=0.01)
+  >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.1, control_dt=0.01)
   >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
   >>> out = run(task, oracle_policy(robot), key=jax.random.key(0))
   >>> out.transitions.state.shape
@@ -41,6 +41,7 @@ import numpy as np
 from mujoco import mjx
 
 from cfm_jax import dataset, native
+from cfm_jax.config import ConfigError
 
 SIMULATORS = ("native", "mjx")
 """Physics back ends for :func:`run`."""
@@ -58,7 +59,7 @@ class Step(NamedTuple):
       state: the learning state ``s_t`` of the task, ``(task.state_dim,)``.
       desired: the task's desired quantity ``s*`` for this step, ``(task.desired_dim,)``.
       reference: the task's reference at ``t`` (a pytree, for example a
-        :class:`cfm_jax.tasks.Reference` of one time step).
+        :class:`cfm_jax.references.Reference` of one time step).
 
     Examples:
       >>> def gravity_free_pd(step, key):  # a policy: Step and PRNG key -> torques
@@ -87,9 +88,9 @@ class Rollout(NamedTuple):
 
     Examples:
       >>> import jax, numpy as np
-      >>> from cfm_jax import robots, tasks
+      >>> from cfm_jax import references, robots, tasks
       >>> robot = robots.load("two_link_arm")
-      >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
+      >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
       >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
       >>> out = run(task, oracle_policy(robot), key=jax.random.key(0))
       >>> out.tracking_error.shape, out.finite.shape, out.transitions.action.shape
@@ -123,8 +124,6 @@ def substeps(robot, control_dt: float) -> int:
     ratio = control_dt / robot.timestep
     count = int(round(ratio))
     if count < 1 or abs(ratio - count) > 1e-6 * max(ratio, 1.0):
-        from cfm_jax.config import ConfigError
-
         raise ConfigError(
             f"task.control_dt={control_dt!r} is not allowed: a positive multiple of robot "
             f"{robot.name!r}'s timestep {robot.timestep}"
@@ -149,9 +148,9 @@ def run(task, policy, key, simulator="native") -> Rollout:
 
     Examples:
       >>> import jax, numpy as np
-      >>> from cfm_jax import robots, tasks
+      >>> from cfm_jax import references, robots, tasks
       >>> robot = robots.load("two_link_arm")
-      >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
+      >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
       >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
       >>> out = run(task, oracle_policy(robot), key=jax.random.key(0))
       >>> out.transitions.state.shape  # (targets, steps, state_dim)
@@ -160,8 +159,6 @@ def run(task, policy, key, simulator="native") -> Rollout:
       True
     """
     if simulator not in SIMULATORS:
-        from cfm_jax.config import ConfigError
-
         raise ConfigError(f"simulator={simulator!r} is not allowed: one of {SIMULATORS}")
     robot = task.robot
     n_sub = substeps(robot, task.control_dt)
@@ -301,9 +298,9 @@ def controller_policy(controller, params, normaliser):
 
     Examples:
       >>> import jax, numpy as np
-      >>> from cfm_jax import robots, tasks
+      >>> from cfm_jax import references, robots, tasks
       >>> robot = robots.load("two_link_arm")
-      >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
+      >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
       >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
       >>> from cfm_jax import networks
       >>> g = networks.controller(hidden=(8,), nv=2)
@@ -343,9 +340,9 @@ def oracle_policy(robot, simulator="native"):
 
     Examples:
       >>> import jax, numpy as np
-      >>> from cfm_jax import robots, tasks
+      >>> from cfm_jax import references, robots, tasks
       >>> robot = robots.load("two_link_arm")
-      >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
+      >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
       >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
       >>> float(tracking_mse(run(task, oracle_policy(robot), jax.random.key(0)))[0]) < 1e-5
       True
@@ -531,9 +528,9 @@ def mixed_policy(task, controller, parameters: MixedPolicy, simulator="native"):
 
     Examples:
       >>> import jax, numpy as np
-      >>> from cfm_jax import robots, tasks
+      >>> from cfm_jax import references, robots, tasks
       >>> robot = robots.load("two_link_arm")
-      >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
+      >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
       >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
       >>> from cfm_jax import networks
       >>> g = networks.controller(hidden=(8,), nv=2)
@@ -571,9 +568,9 @@ def tracking_mse(result: Rollout) -> jax.Array:
 
     Examples:
       >>> import jax, numpy as np
-      >>> from cfm_jax import robots, tasks
+      >>> from cfm_jax import references, robots, tasks
       >>> robot = robots.load("two_link_arm")
-      >>> ref = tasks.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
+      >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
       >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
       >>> tracking_mse(run(task, oracle_policy(robot), jax.random.key(0))).shape
       (1,)
