@@ -1028,6 +1028,46 @@ def train(
     )
 
 
+def rollout_qpos(result, *, seed: int = 0, experiment=None) -> np.ndarray:
+    """Joint positions of the learned controller of a training run, rolled out again.
+
+    Rolls the final controller of one seed of ``result`` out on every target of its task
+    (the rollout of the run's final evaluation, compiled as :func:`cfm_jax.train` compiles
+    it) and returns the positions at the
+    start of each control step, ready for :func:`cfm_jax.render.video` or
+    :func:`cfm_jax.render.frame_strip` (rendering takes trajectories, not training runs).
+
+    Args:
+      result: a :class:`TrainResult`.
+      seed: index into the run's seeds (``0 <= seed < config.loop.seeds``).
+      experiment: the :class:`Experiment` of ``result.config`` to reuse its
+        compiled rollout (built when None).
+
+    Returns:
+      ``(targets, steps, nq)`` positions, ``control_dt`` apart (the first ``nq`` entries of
+      the task's state, which starts with ``qpos`` for every task).
+
+    Raises:
+      ValueError: ``seed`` out of range.
+
+    Examples:
+      >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
+      >>> qpos = rollout_qpos(result)  # doctest: +SKIP
+      >>> render.video(robots.load(config.robot), qpos[0], "t0.mp4", fps=100)  # doctest: +SKIP
+    """
+    seeds = result.config.loop.seeds
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < seeds:
+        raise ValueError(f"seed={seed!r} is not allowed: an index in [0, {seeds})")
+    exp = experiment if experiment is not None else Experiment(result.config)
+    state = jax.tree.map(lambda x: x[seed : seed + 1], result.state)
+    policy = jax.vmap(exp.learned_policy)(state)
+    keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(state.key)  # as Experiment.evaluate
+    out = exp.rollout(policy, keys, exp.knobs_for(result.config))
+    # The state at the start of every control step begins with qpos for every task
+    # ([q, qdot] for the arms, [qpos, foot forces, qvel] for the legged robots).
+    return np.asarray(out.transitions.state[0, :, :, : exp.robot.nq])
+
+
 def _segments(
     config: config_lib.Config, state: TrainState, rows: list[dict], recorded
 ) -> np.ndarray:

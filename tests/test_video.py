@@ -1,5 +1,5 @@
-"""Videos of rollouts (cfm_jax.render.write_video, video, rollout_qpos) from real offscreen
-frames. Skipped with the reason when no OpenGL context can be created."""
+"""Videos of rollouts (cfm_jax.render.write_video, video; cfm_jax.training.rollout_qpos)
+from real offscreen frames. Skipped with the reason when no OpenGL context can be created."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from tiny import tiny_config
 
-from cfm_jax import render, robots
+from cfm_jax import render, robots, training
 
 OK, WHY = render.render_available()
 needs_gl = pytest.mark.skipif(not OK, reason=f"no offscreen OpenGL: {WHY}")
@@ -86,7 +86,7 @@ def test_rollout_qpos_is_the_final_evaluation_rollout():
     config = tiny_config(iterations=1, seeds=2)
     experiment = cfm_jax.Experiment(config)
     result = cfm_jax.train(config, progress=False, experiment=experiment)
-    qpos = render.rollout_qpos(result, seed=1, experiment=experiment)
+    qpos = training.rollout_qpos(result, seed=1, experiment=experiment)
     task = experiment.task
     assert qpos.shape == (task.targets, task.steps, experiment.robot.nq)
     reference = task.reference_np.q
@@ -102,7 +102,7 @@ def test_rollout_qpos_is_the_final_evaluation_rollout():
     )
     assert np.all(partial <= full * (1 + 1e-4) + 1e-9)
     assert np.all(partial >= 0.5 * full - 1e-9) or np.all(full < 1e-6)
-    other = render.rollout_qpos(result, seed=0, experiment=experiment)
+    other = training.rollout_qpos(result, seed=0, experiment=experiment)
     assert np.abs(other - qpos).max() > 1e-6  # each seed has its own controller
     with pytest.raises(ValueError, match="seed"):
-        render.rollout_qpos(result, seed=2, experiment=experiment)
+        training.rollout_qpos(result, seed=2, experiment=experiment)

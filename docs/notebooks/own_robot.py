@@ -33,10 +33,11 @@ from cfm_jax import (
     ForwardModelConfig,
     LoopConfig,
     TaskConfig,
+    references,
     render,
     report,
     robots,
-    tasks,
+    training,
 )
 
 QUICK = os.environ.get("CFM_JAX_DOCS_QUICK") == "1"
@@ -109,7 +110,7 @@ except robots.RobotError as error:
 
 # %%
 task = TaskConfig(duration=0.5 if QUICK else 1.5)
-reference = tasks.reaching(robot, task, control_dt=task.control_dt)
+reference = references.reaching(robot, task, control_dt=task.control_dt)
 print("reference q:", reference.q.shape, "(targets, steps + 1, nq)")
 top_view = {"distance": 1.6, "azimuth": 90.0, "elevation": -89.0, "lookat": [0.2, 0.0, 0.1]}
 available, why = render.render_available()
@@ -159,7 +160,7 @@ result.metrics.groupby("iteration").tracking_mse.agg(["mean", "std"])
 
 # %%
 if available:
-    qpos = render.rollout_qpos(result, seed=0, experiment=experiment)[0]
+    qpos = training.rollout_qpos(result, seed=0, experiment=experiment)[0]
     steps = len(qpos)
     frames = np.concatenate(
         [

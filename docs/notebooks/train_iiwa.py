@@ -40,6 +40,7 @@ from cfm_jax import (
     render,
     report,
     robots,
+    training,
 )
 
 QUICK = os.environ.get("CFM_JAX_DOCS_QUICK") == "1"
@@ -141,14 +142,14 @@ display(Image(filename=path))
 # %% [markdown]
 # ## A video of the learned controller
 #
-# `render.rollout_qpos` rolls the final controller of one seed out again (the rollout of
+# `training.rollout_qpos` rolls the final controller of one seed out again (the rollout of
 # the final evaluation) and returns the joint positions, `(targets, steps, nq)`;
 # `render.video` renders them offscreen (EGL on a headless machine) into a GIF or an MP4.
 
 # %%
 available, why = render.render_available()
 if available:
-    qpos = render.rollout_qpos(result, seed=0, experiment=experiment)
+    qpos = training.rollout_qpos(result, seed=0, experiment=experiment)
     gif = os.path.join(OUT, "iiwa_target0.gif")
     every = 4 if QUICK else 2
     render.video(
