@@ -45,7 +45,7 @@ STRATEGIES = config_lib.BABBLING
 """The strategies, as :data:`cfm_jax.config.BABBLING`."""
 
 # Fraction of each joint's range kept free at both ends when drawing reaching goals (the
-# same margin as the default test targets, cfm_jax.tasks.RANGE_MARGIN).
+# same margin as the default test targets, cfm_jax.references.RANGE_MARGIN).
 RANGE_MARGIN = 0.1
 # The key stream of the reaching goals, folded into each babbling rollout's key (the
 # rollout's torque noise keeps the rollout's key itself).

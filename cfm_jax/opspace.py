@@ -44,8 +44,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from cfm_jax import native, rollout, tasks
-from cfm_jax.config import ConfigError
+from cfm_jax import native, references, rollout
+from cfm_jax.config import ConfigError, check_duration
 
 DEFAULT_SITES = ("ee", "flange")
 """Site names tried in order when no site is configured."""
@@ -508,7 +508,7 @@ def reach(robot, site: int | str | None = None) -> tuple[float, np.ndarray, str]
 
 def default_cartesian_targets(robot, site: int | str | None = None, home=None) -> np.ndarray:
     """Five reachable end-effector targets: the site positions at the five default
-    joint-space targets :func:`cfm_jax.tasks.default_targets` (inside the joint limits, so
+    joint-space targets :func:`cfm_jax.references.default_targets` (inside the joint limits, so
     reachable by construction, and deterministic; the same reaching motions as the
     joint-space task, seen at the end effector).
 
@@ -532,7 +532,7 @@ def default_cartesian_targets(robot, site: int | str | None = None, home=None) -
       ((5, 3), True)
     """
     home = robot.home if home is None else np.asarray(home, np.float64)
-    joint_targets = tasks.default_targets(robot.joint_range, home)
+    joint_targets = references.default_targets(robot.joint_range, home)
     return HostKinematics(robot, site)(joint_targets, np.zeros_like(joint_targets)).position
 
 
@@ -599,7 +599,7 @@ def cartesian_reaching(
 
     ``x(t) = x_home + (x_goal - x_home) s(t / duration)``, ``s(u) = 10 u^3 - 15 u^4 + 6 u^5``
     (minimum jerk; zero velocity and acceleration at both ends), sampled every
-    ``control_dt`` (:func:`cfm_jax.tasks.quintic` per target).
+    ``control_dt`` (:func:`cfm_jax.references.quintic` per target).
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
@@ -623,20 +623,20 @@ def cartesian_reaching(
       >>> np.round(ref.x[0, 0], 3).tolist()  # the tip at the home pose
       [0.636, 0.0, 0.929]
     """
-    tasks.check_duration(duration, control_dt)
+    check_duration(duration, control_dt)
     home = robot.home if home is None else np.asarray(home, np.float64)
-    tasks.check_positions("task.home", home[None], robot)
+    references.check_positions("task.home", home[None], robot)
     if targets is None:
         targets = default_cartesian_targets(robot, site, home)
     targets = check_targets(robot, targets, site)
     start = HostKinematics(robot, site)(home, np.zeros(robot.nv)).position
-    parts = [tasks.quintic(start, goal, duration, control_dt) for goal in targets]
+    parts = [references.quintic(start, goal, duration, control_dt) for goal in targets]
     return CartesianReference(*(np.concatenate(arrays) for arrays in zip(*parts, strict=True)))
 
 
 def desired_acceleration(ref_x, ref_xd, ref_xdd, x, xd, kp: float, kd: float):
     """``xdd* = xdd_ref + kp (x_ref - x) + kd (xd_ref - xd)``; all arrays ``(..., 3)``
-    (the same formula as :func:`cfm_jax.tasks.desired_acceleration`).
+    (the same formula as :func:`cfm_jax.references.desired_acceleration`).
 
     Args:
       ref_x: reference site positions ``x_ref``, ``(..., 3)``.
@@ -656,7 +656,7 @@ def desired_acceleration(ref_x, ref_xd, ref_xdd, x, xd, kp: float, kd: float):
       ...                      kp=100.0, kd=20.0)
       array([8., 0., 0.])
     """
-    return tasks.desired_acceleration(ref_x, ref_xd, ref_xdd, x, xd, kp, kd)
+    return references.desired_acceleration(ref_x, ref_xd, ref_xdd, x, xd, kp, kd)
 
 
 def as_jax(reference: CartesianReference) -> CartesianReference:
@@ -997,8 +997,6 @@ def host_rollout(
       >>> bool(tracking_mse(out.position, ref.x)[0] < 1e-5)  # the oracle tracks the line
       True
     """
-    from cfm_jax import rollout
-
     n_sub = rollout.substeps(robot, control_dt)
     stepper = native.Stepper(robot.mj_model, n_sub)
     kin = HostKinematics(robot, site)

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from tiny import tiny_config
 
-from cfm_jax import babbling, tasks, training
+from cfm_jax import babbling, references, training
 from cfm_jax import config as config_lib
 
 
@@ -129,14 +129,14 @@ def test_reaching_goals_lie_inside_the_shrunk_ranges_and_hold_is_at_rest():
     np.testing.assert_array_equal(goal[:7], solo.home[:7].astype(np.float32))
     assert np.all(goal[7:] != solo.home[7:].astype(np.float32))
     # The held reference: the start pose, zero velocity and acceleration, exactly.
-    x, xd, xdd = tasks.minimum_jerk(starts[:3], starts[:3], duration=0.04, control_dt=0.01)
+    x, xd, xdd = references.minimum_jerk(starts[:3], starts[:3], duration=0.04, control_dt=0.01)
     np.testing.assert_array_equal(np.asarray(x), np.broadcast_to(starts[:3, None], (3, 5, 7)))
     assert not np.any(np.asarray(xd)) and not np.any(np.asarray(xdd))
 
 
 def test_traced_minimum_jerk_matches_the_host_reference():
-    host = tasks.quintic([0.1, -0.2], [0.7, 0.4], duration=0.5, control_dt=0.01)
-    x, xd, xdd = jax.jit(lambda a, b: tasks.minimum_jerk(a, b, 0.5, 0.01))(
+    host = references.quintic([0.1, -0.2], [0.7, 0.4], duration=0.5, control_dt=0.01)
+    x, xd, xdd = jax.jit(lambda a, b: references.minimum_jerk(a, b, 0.5, 0.01))(
         jnp.array([0.1, -0.2]), jnp.array([0.7, 0.4])
     )
     assert x.dtype == jnp.float32 and x.shape == (51, 2)

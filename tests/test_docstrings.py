@@ -36,11 +36,15 @@ DOCTEST_MODULES = (
     "native",
     "networks",
     "opspace",
+    "references",
     "render",
     "report",
     "robots",
     "rollout",
     "tasks",
+    "tasks.inverse_dynamics",
+    "tasks.legged",
+    "tasks.operational_space",
     "theory",
     "training",
     "update",
@@ -48,7 +52,13 @@ DOCTEST_MODULES = (
 
 
 def public_modules() -> list[str]:
-    return sorted(m.name for m in pkgutil.iter_modules(cfm_jax.__path__) if m.name[0] != "_")
+    """Public modules and the public modules of public packages (``tasks.legged``)."""
+    found = []
+    for info in pkgutil.walk_packages(cfm_jax.__path__, prefix="cfm_jax."):
+        name = info.name.removeprefix("cfm_jax.")
+        if not any(part.startswith("_") for part in name.split(".")):
+            found.append(name)
+    return sorted(found)
 
 
 def _parameters(function) -> list[str]:
@@ -107,7 +117,7 @@ def package():
 
 def public_objects(package):
     for module_name in public_modules():
-        module = package.modules[module_name]
+        module = package[module_name]
         for name, obj in module.members.items():
             if name.startswith("_") or obj.is_alias:
                 continue

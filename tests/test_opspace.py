@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import opspace, robots, rollout, tasks
+from cfm_jax import opspace, references, robots, rollout
 from cfm_jax.config import ConfigError
 
 L1, L2, SHOULDER_Z = 0.5, 0.4, 1.0  # two-link arm geometry (robots/two_link_arm.xml)
@@ -303,7 +303,7 @@ def test_cartesian_reaching_quintic_straight_lines(iiwa):
 
 
 def test_default_targets_are_the_tip_at_the_default_joint_targets(arm):
-    joint_targets = tasks.default_targets(arm.joint_range, arm.home)
+    joint_targets = references.default_targets(arm.joint_range, arm.home)
     expected = np.array([site_kinematics_closed_form(q, np.zeros(2))[0] for q in joint_targets])
     targets = opspace.default_cartesian_targets(arm, "tip")
     np.testing.assert_allclose(targets, expected, atol=1e-13)
@@ -318,7 +318,9 @@ def test_default_targets_iiwa_deterministic_distinct_within_reach(iiwa):
     targets = opspace.default_cartesian_targets(iiwa)
     assert targets.shape == (5, 3)
     model, data = iiwa.mj_model, mujoco.MjData(iiwa.mj_model)
-    for target, q in zip(targets, tasks.default_targets(iiwa.joint_range, iiwa.home), strict=True):
+    for target, q in zip(
+        targets, references.default_targets(iiwa.joint_range, iiwa.home), strict=True
+    ):
         data.qpos[:] = q
         mujoco.mj_kinematics(model, data)
         np.testing.assert_allclose(target, data.site_xpos[opspace.ee_site(iiwa)], atol=1e-15)

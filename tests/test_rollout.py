@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from cfm_jax import native, robots, rollout, tasks
+from cfm_jax import native, references, robots, rollout, tasks
 from cfm_jax.config import ConfigError
 
 CONTROL_DT = 0.01  # 5 physics steps of 0.002 s per control step
@@ -70,7 +70,9 @@ def arm():
 @pytest.mark.parametrize("simulator", rollout.SIMULATORS)
 def test_iiwa_rollout_matches_mujoco_c(iiwa, simulator):
     steps = 50
-    ref = tasks.quintic(iiwa.home, iiwa.home, duration=steps * CONTROL_DT, control_dt=CONTROL_DT)
+    ref = references.quintic(
+        iiwa.home, iiwa.home, duration=steps * CONTROL_DT, control_dt=CONTROL_DT
+    )
     # Gravity compensation at home plus sinusoids of 5 % of each torque limit: the arm moves
     # by a few tenths of a radian without touching a joint limit (checked below), so there
     # are no constraints and both engines integrate the same smooth ODE.
@@ -125,7 +127,7 @@ ARM_STEPS = 10  # duration 0.1 s at control_dt 0.01
 
 @pytest.fixture(scope="module", params=rollout.SIMULATORS)
 def arm_case(arm, request):
-    ref = tasks.quintic(
+    ref = references.quintic(
         arm.home, arm.home + np.array([0.1, -0.1]), duration=0.1, control_dt=CONTROL_DT
     )
     gain_p, gain_d = rollout.pd_gains(arm, 100.0, 20.0, arm.home)
@@ -251,7 +253,9 @@ def test_oracle_policy_realises_desired_acceleration(arm, simulator):
     # torque M qdd* + h D qdd* + bias - passive makes MuJoCo's Euler step (implicit joint
     # damping) produce exactly qdd* = qdd_ref(t).
     dt = arm.timestep
-    ref = tasks.quintic(arm.home, arm.home + np.array([0.05, -0.05]), duration=0.1, control_dt=dt)
+    ref = references.quintic(
+        arm.home, arm.home + np.array([0.05, -0.05]), duration=0.1, control_dt=dt
+    )
     out = jax.jit(
         lambda: rollout.run(
             tasks.JointSpaceTask(arm, ref, kp=0.0, kd=0.0, control_dt=dt),

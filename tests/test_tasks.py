@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cfm_jax import robots, tasks
+from cfm_jax import references, robots, tasks
 from cfm_jax.config import ConfigError, TaskConfig
 
 START = np.array([0.2, -1.0, 0.5])
@@ -32,7 +32,7 @@ def arm():
 
 
 def test_quintic_boundary_conditions():
-    ref = tasks.quintic(START, GOAL, duration=2.0, control_dt=0.01)
+    ref = references.quintic(START, GOAL, duration=2.0, control_dt=0.01)
     assert ref.q.shape == ref.qd.shape == ref.qdd.shape == (1, 201, 3)
     assert ref.steps == 200
     # Polynomial 10u^3 - 15u^4 + 6u^5 is 0 at u=0 and 1 at u=1: positions exact up to one
@@ -52,7 +52,7 @@ def test_quintic_boundary_conditions():
 def test_quintic_midpoint_closed_form():
     # u = 1/2: s = 10/8 - 15/16 + 6/32 = 1/2; s' = 30/4 - 60/8 + 30/16 = 15/8; s'' = 0.
     duration = 2.0
-    ref = tasks.quintic(START, GOAL, duration=duration, control_dt=0.5)
+    ref = references.quintic(START, GOAL, duration=duration, control_dt=0.5)
     mid = 2  # t = 1.0 s
     np.testing.assert_allclose(ref.q[0, mid], (START + GOAL) / 2, rtol=1e-14)
     np.testing.assert_allclose(ref.qd[0, mid], 15 / 8 * (GOAL - START) / duration, rtol=1e-14)
@@ -64,7 +64,7 @@ def test_quintic_midpoint_closed_form():
 
 def test_quintic_derivatives_by_finite_differences():
     h, duration = 1e-4, 1.0
-    ref = tasks.quintic(START, GOAL, duration=duration, control_dt=h)
+    ref = references.quintic(START, GOAL, duration=duration, control_dt=h)
     q, qd, qdd = ref.q[0], ref.qd[0], ref.qdd[0]
     # Central differences: truncation error h^2/6 * max|q'''| = 1e-8/6 * 60 * 1.5 = 1.5e-7
     # for velocity, h^2/6 * max|q''''| = 1e-8/6 * 360 * 1.5 = 9e-7 for acceleration;
@@ -74,7 +74,7 @@ def test_quintic_derivatives_by_finite_differences():
 
 
 def test_quintic_as_jax_is_float32():
-    ref = tasks.as_jax(tasks.quintic(START, GOAL, duration=1.0, control_dt=0.1))
+    ref = references.as_jax(references.quintic(START, GOAL, duration=1.0, control_dt=0.1))
     assert all(isinstance(x, jax.Array) and x.dtype == jnp.float32 for x in ref)
     assert ref.q.shape == (1, 11, 3)
 
@@ -82,7 +82,7 @@ def test_quintic_as_jax_is_float32():
 @pytest.mark.parametrize("name", ["iiwa14", "two_link_arm"])
 def test_default_targets_inside_limits_five_deterministic(name):
     robot = robots.load(name)
-    targets = tasks.default_targets(robot.joint_range, robot.home)
+    targets = references.default_targets(robot.joint_range, robot.home)
     assert targets.shape == (5, robot.nq)
     low, high = robot.joint_range[:, 0], robot.joint_range[:, 1]
     width = high - low
@@ -97,40 +97,42 @@ def test_default_targets_inside_limits_five_deterministic(name):
     assert np.all(np.max(np.abs(targets - robot.home), axis=1) > 0.1)
     # Deterministic: same inputs, same targets (no global RNG state involved).
     np.random.seed(123)
-    np.testing.assert_array_equal(tasks.default_targets(robot.joint_range, robot.home), targets)
+    np.testing.assert_array_equal(
+        references.default_targets(robot.joint_range, robot.home), targets
+    )
 
 
 def test_default_targets_unlimited_joint():
     # An unlimited joint gets reach 0.6 and no clipping; each direction has |d| >= 1/3.
     joint_range = np.array([[-np.inf, np.inf]])
-    targets = tasks.default_targets(joint_range, np.array([10.0]))
+    targets = references.default_targets(joint_range, np.array([10.0]))
     assert np.all(np.abs(targets - 10.0) <= 0.6 + 1e-12)
     assert np.all(np.abs(targets - 10.0) >= 0.2 - 1e-12)
 
 
 def test_reaching_default_targets(arm):
-    ref = tasks.reaching(arm, TaskConfig(duration=0.5), control_dt=0.01)
+    ref = references.reaching(arm, TaskConfig(duration=0.5), control_dt=0.01)
     assert ref.q.shape == (5, 51, 2)
     np.testing.assert_allclose(ref.q[:, 0], np.broadcast_to(arm.home, (5, 2)), atol=1e-15)
     np.testing.assert_allclose(
-        ref.q[:, -1], tasks.default_targets(arm.joint_range, arm.home), atol=1e-15
+        ref.q[:, -1], references.default_targets(arm.joint_range, arm.home), atol=1e-15
     )
 
 
 def test_reaching_explicit_targets_and_home(arm):
     task = TaskConfig(duration=0.2, targets=((0.1, 0.2), (-0.3, 0.4)), home=(0.0, 1.0))
-    ref = tasks.reaching(arm, task, control_dt=0.05)
+    ref = references.reaching(arm, task, control_dt=0.05)
     assert ref.q.shape == (2, 5, 2)
     np.testing.assert_allclose(ref.q[:, 0], [[0.0, 1.0], [0.0, 1.0]], atol=1e-15)
     np.testing.assert_allclose(ref.q[:, -1], [[0.1, 0.2], [-0.3, 0.4]], atol=1e-15)
     # RMS reach: sqrt(mean(0.1^2, 0.8^2, 0.3^2, 0.6^2)) = sqrt(1.1 / 4)
-    np.testing.assert_allclose(tasks.rms_reach(ref), np.sqrt(1.1 / 4), rtol=1e-12)
+    np.testing.assert_allclose(references.rms_reach(ref), np.sqrt(1.1 / 4), rtol=1e-12)
 
 
 def test_reaching_target_out_of_range(iiwa):
     targets = (tuple(iiwa.home), tuple(iiwa.home[:3]) + (-2.5,) + tuple(iiwa.home[4:]))
     with pytest.raises(ConfigError) as info:
-        tasks.reaching(iiwa, TaskConfig(targets=targets), control_dt=0.01)
+        references.reaching(iiwa, TaskConfig(targets=targets), control_dt=0.01)
     message = str(info.value)
     # second target, fourth joint (range +-2.0944 rad)
     assert message.startswith("task.targets[1][3]=-2.5 (joint 'joint4')"), message
@@ -139,7 +141,7 @@ def test_reaching_target_out_of_range(iiwa):
 
 def test_reaching_target_wrong_length(arm):
     with pytest.raises(ConfigError) as info:
-        tasks.reaching(arm, TaskConfig(targets=((0.1, 0.2, 0.3),)), control_dt=0.01)
+        references.reaching(arm, TaskConfig(targets=((0.1, 0.2, 0.3),)), control_dt=0.01)
     message = str(info.value)
     assert message.startswith("task.targets has 3 joint positions per entry"), message
     assert "nq=2" in message and "'shoulder'" in message and "'elbow'" in message
@@ -147,17 +149,17 @@ def test_reaching_target_wrong_length(arm):
 
 def test_reaching_home_out_of_range(arm):
     with pytest.raises(ConfigError, match=r"^task\.home\[0\]\[1\]=3 \(joint 'elbow'\)"):
-        tasks.reaching(arm, TaskConfig(home=(0.0, 3.0)), control_dt=0.01)
+        references.reaching(arm, TaskConfig(home=(0.0, 3.0)), control_dt=0.01)
 
 
 def test_desired_acceleration_formula():
     ref_q, ref_qd, ref_qdd = jnp.array([1.0, -2.0]), jnp.array([0.5, 0.0]), jnp.array([3.0, 1.0])
     q, qd = jnp.array([0.75, -2.5]), jnp.array([0.25, 1.0])
-    out = jax.jit(tasks.desired_acceleration)(ref_q, ref_qd, ref_qdd, q, qd, 100.0, 20.0)
+    out = jax.jit(references.desired_acceleration)(ref_q, ref_qd, ref_qdd, q, qd, 100.0, 20.0)
     # joint 0: 3 + 100 * 0.25 + 20 * 0.25 = 33 ; joint 1: 1 + 100 * 0.5 + 20 * (-1) = 31
     np.testing.assert_allclose(np.asarray(out), [33.0, 31.0], rtol=1e-6)  # float32 rounding
     # kp = kd = 0: pure feed-forward, exactly the reference acceleration
-    ff = tasks.desired_acceleration(ref_q, ref_qd, ref_qdd, q, qd, 0.0, 0.0)
+    ff = references.desired_acceleration(ref_q, ref_qd, ref_qdd, q, qd, 0.0, 0.0)
     np.testing.assert_array_equal(np.asarray(ff), np.asarray(ref_qdd))
 
 

@@ -66,7 +66,7 @@ else:
 # %%
 experiment = cfm_jax.Experiment(base)
 results = {}
-for loss in losses.CONTROLLER_LOSSES:
+for loss in losses.PAPER_LOSSES:
     results[loss] = cfm_jax.train(base.replace(loss=loss), progress=False, experiment=experiment)
     print(f"{loss:>10}: {results[loss].seconds:5.1f} s")
 metrics = pd.concat([r.metrics for r in results.values()], ignore_index=True)
@@ -94,7 +94,7 @@ columns = ["tracking_mse", "prediction_error", "predicted_task_error"]
 curves = metrics.groupby(["loss", "iteration"])[columns].mean()
 fig, axes = plt.subplots(1, 3, figsize=(14, 3.8))
 for ax, column in zip(axes, columns, strict=True):
-    for loss in losses.CONTROLLER_LOSSES:
+    for loss in losses.PAPER_LOSSES:
         series = curves.loc[loss, column]
         ax.plot(series.index, series.to_numpy(), marker="o", label=loss)
     ax.set(yscale="log", xlabel="iteration", title=column)

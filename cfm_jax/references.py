@@ -1,0 +1,374 @@
+"""Reference trajectories: joint-space reaching, and the legged recordings padded to one
+length.
+
+Joint-space reaching (the inverse-dynamics task, paper section IV-A-1): the robot reaches
+from its home pose to each target along a quintic (minimum-jerk) joint-space path of
+``duration`` seconds. At each control step the desired next-step joint acceleration is
+
+    qdd*_t = qdd_ref(t) + kp (q_ref(t) - q_t) + kd (qd_ref(t) - qd_t)
+
+(``kp = kd = 0`` is pure feed-forward of the reference acceleration;
+:func:`desired_acceleration`). The Cartesian references of the operational-space task are
+in :mod:`cfm_jax.opspace`; the Solo12 recordings themselves in :mod:`cfm_jax.locomotion`
+(:func:`as_jax_legged` pads them for the legged tasks).
+
+Examples:
+  >>> import numpy as np
+  >>> ref = quintic(np.zeros(1), np.ones(1), duration=1.0, control_dt=0.5)
+  >>> ref.q[0, :, 0].tolist()
+  [0.0, 0.5, 1.0]
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cfm_jax.config import ConfigError, TaskConfig, check_duration
+
+DEFAULT_TARGET_COUNT = 5
+# Largest default reaching distance per joint (rad or m), and the fraction of each joint's
+# range kept free at both ends when placing default targets.
+DEFAULT_REACH = 0.6
+RANGE_MARGIN = 0.1
+
+
+class Reference(NamedTuple):
+    """Reference trajectories, one per target.
+
+    Arrays are NumPy float64 (:func:`as_jax` makes float32 JAX copies).
+
+    Attributes:
+      q: ``(targets, steps + 1, nq)`` joint positions at the control times
+        ``0, dt, ..., duration``.
+      qd: ``(targets, steps + 1, nq)`` joint velocities at the same times.
+      qdd: ``(targets, steps + 1, nq)`` joint accelerations at the same times.
+
+    Examples:
+      >>> ref = quintic([0.0, 0.0], [1.0, 0.5], duration=1.0, control_dt=0.1)
+      >>> ref.q.shape, ref.steps
+      ((1, 11, 2), 10)
+      >>> ref.q[0, -1].tolist(), ref.qd[0, -1].tolist()  # at the goal, at rest
+      ([1.0, 0.5], [0.0, 0.0])
+    """
+
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+
+    @property
+    def steps(self) -> int:
+        """Number of control steps per rollout."""
+        return self.q.shape[1] - 1
+
+
+def quintic(start, goal, duration: float, control_dt: float) -> Reference:
+    """Minimum-jerk path ``start -> goal`` sampled every ``control_dt``: one target.
+
+    ``q(t) = start + (goal - start) (10 u^3 - 15 u^4 + 6 u^5)``, ``u = t / duration``; zero
+    velocity and acceleration at both ends.
+
+    Args:
+      start: ``(nq,)`` positions at ``t = 0``.
+      goal: ``(nq,)`` positions at ``t = duration``.
+      duration: seconds from start to goal (a whole number of control periods, see
+        :func:`check_duration`; not checked here).
+      control_dt: sampling period (s).
+
+    Returns:
+      A :class:`Reference` with a leading target axis of size 1,
+      ``(1, round(duration / control_dt) + 1, nq)``.
+
+    Examples:
+      >>> ref = quintic([0.0], [2.0], duration=1.0, control_dt=0.5)
+      >>> ref.q[0, :, 0].tolist(), ref.qd[0, :, 0].tolist()  # half way at mid-time
+      ([0.0, 1.0, 2.0], [0.0, 3.75, 0.0])
+    """
+    start = np.asarray(start, dtype=np.float64)
+    goal = np.asarray(goal, dtype=np.float64)
+    q, qd, qdd = minimum_jerk(start, goal, duration, control_dt, xp=np)
+    return Reference(q[None], qd[None], qdd[None])
+
+
+def minimum_jerk(start, goal, duration: float, control_dt: float, xp=jnp):
+    """Minimum-jerk paths ``start -> goal`` sampled every ``control_dt``, for any leading
+    shape, in NumPy (``xp=np``, :func:`quintic`'s references) or JAX (traceable; the
+    babbling references of :meth:`JointSpaceTask.babbling_reference`).
+
+    ``x(t) = start + (goal - start) (10 u^3 - 15 u^4 + 6 u^5)``, ``u = t / duration``;
+    with ``goal == start`` exactly ``start`` and zeros.
+
+    Args:
+      start: ``(..., n)`` positions at ``t = 0``.
+      goal: ``(..., n)`` positions at ``t = duration``.
+      duration: seconds (a whole number of control periods).
+      control_dt: sampling period (s).
+      xp: ``numpy`` or ``jax.numpy``.
+
+    Returns:
+      ``(x, xd, xdd)``, each ``(..., steps + 1, n)``, in the dtype of ``start``.
+
+    Examples:
+      >>> x, xd, _ = minimum_jerk(np.zeros(1), np.full(1, 2.0), 1.0, 0.5, xp=np)
+      >>> x[:, 0].tolist(), xd[:, 0].tolist()
+      ([0.0, 1.0, 2.0], [0.0, 3.75, 0.0])
+    """
+    start = xp.asarray(start)
+    dtype = start.dtype
+    start = start[..., None, :]
+    delta = xp.asarray(goal, dtype)[..., None, :] - start
+    steps = int(round(duration / control_dt))
+    t = xp.arange(steps + 1, dtype=dtype) * control_dt
+    u = xp.clip(t / duration, 0.0, 1.0)[:, None]
+    x = start + delta * (10 * u**3 - 15 * u**4 + 6 * u**5)
+    xd = delta * (30 * u**2 - 60 * u**3 + 30 * u**4) / duration
+    xdd = delta * (60 * u - 180 * u**2 + 120 * u**3) / duration**2
+    return x, xd, xdd
+
+
+def default_targets(joint_range: np.ndarray, home: np.ndarray) -> np.ndarray:
+    """Five reaching targets inside the joint limits, the same for every call.
+
+    Target ``i`` is ``home + reach * d_i``, where ``d_i`` are fixed directions with entries in
+    ``[-1, 1]`` (drawn once from a seeded generator), ``reach = min(0.6, range / 4)`` per
+    joint, and the result is clipped to the joint range shrunk by 10% at each end. Works for
+    any number of joints.
+
+    Args:
+      joint_range: ``(nq, 2)`` lower and upper joint limits (``-inf, inf`` for unlimited
+        joints), as :attr:`cfm_jax.robots.Robot.joint_range`.
+      home: ``(nq,)`` start pose the targets are placed around.
+
+    Returns:
+      ``(5, nq)`` target joint positions.
+
+    Examples:
+      >>> import numpy as np
+      >>> joint_range = np.array([[-2.5, 2.5], [-2.5, 2.5]])
+      >>> targets = default_targets(joint_range, home=np.zeros(2))
+      >>> targets.shape, bool(np.all(np.abs(targets) <= 0.6))
+      ((5, 2), True)
+    """
+    nq = home.shape[0]
+    directions = np.random.default_rng(0).uniform(-1.0, 1.0, size=(DEFAULT_TARGET_COUNT, nq))
+    # Make every target move every joint by at least a third of the reach.
+    directions = np.sign(directions) * np.maximum(np.abs(directions), 1 / 3)
+    width = joint_range[:, 1] - joint_range[:, 0]
+    reach = np.where(np.isfinite(width), np.minimum(DEFAULT_REACH, width / 4), DEFAULT_REACH)
+    lower = joint_range[:, 0] + RANGE_MARGIN * np.where(np.isfinite(width), width, 0.0)
+    upper = joint_range[:, 1] - RANGE_MARGIN * np.where(np.isfinite(width), width, 0.0)
+    return np.clip(home + reach * directions, lower, upper)
+
+
+def reaching(robot, task: TaskConfig, control_dt: float) -> Reference:
+    """Reference trajectories of the configured targets for a robot.
+
+    One :func:`quintic` per target, from ``task.home`` (None: ``robot.home``) to each of
+    ``task.targets`` (None: :func:`default_targets`) in ``task.duration`` seconds.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      task: a :class:`cfm_jax.config.TaskConfig` (its ``targets`` are joint positions).
+      control_dt: control period (s).
+
+    Returns:
+      A :class:`Reference`, ``(targets, steps + 1, nq)``.
+
+    Raises:
+      ConfigError: targets or home of the wrong length or outside the joint limits, or a
+        duration that is not a whole number of control periods.
+
+    Examples:
+      >>> from cfm_jax import config, robots
+      >>> arm = robots.load("two_link_arm")
+      >>> ref = reaching(arm, config.TaskConfig(duration=1.0), control_dt=0.01)
+      >>> ref.q.shape  # the 5 default targets, 100 control steps
+      (5, 101, 2)
+    """
+    check_duration(task.duration, control_dt)
+    home = robot.home if task.home is None else np.asarray(task.home)
+    check_positions("task.home", home[None], robot)
+    targets = (
+        default_targets(robot.joint_range, home)
+        if task.targets is None
+        else np.asarray(task.targets, dtype=np.float64)
+    )
+    check_positions("task.targets", targets, robot)
+    parts = [quintic(home, target, task.duration, control_dt) for target in targets]
+    return Reference(*(np.concatenate(arrays) for arrays in zip(*parts, strict=True)))
+
+
+def check_positions(field: str, positions: np.ndarray, robot) -> None:
+    """Raise ConfigError if joint positions ``(k, nq)`` have the wrong size or break limits.
+
+    Args:
+      field: the configuration field the positions come from, for the message (for example
+        ``"task.targets"``).
+      positions: ``(k, nq)`` joint positions.
+      robot: the :class:`cfm_jax.robots.Robot` whose joint count and limits apply.
+
+    Raises:
+      ConfigError: the last axis is not ``robot.nq`` long, or a position is outside its
+        joint's range (the message names the first such entry and joint).
+
+    Examples:
+      >>> import numpy as np
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> check_positions("task.targets", np.array([[0.0, 1.0]]), arm)
+      >>> check_positions("task.targets", np.array([[0.0, 9.0]]), arm)
+      Traceback (most recent call last):
+      ...
+      cfm_jax.config.ConfigError: task.targets[0][1]=9 (joint 'elbow') is outside the joint ...
+    """
+    if positions.shape[-1] != robot.nq:
+        raise ConfigError(
+            f"{field} has {positions.shape[-1]} joint positions per entry; robot "
+            f"{robot.name!r} has nq={robot.nq} joints {robot.joint_names}"
+        )
+    low, high = robot.joint_range[:, 0], robot.joint_range[:, 1]
+    bad = (positions < low) | (positions > high)
+    if np.any(bad):
+        k, j = np.argwhere(bad)[0]
+        raise ConfigError(
+            f"{field}[{k}][{j}]={positions[k, j]:.4g} (joint {robot.joint_names[j]!r}) is "
+            f"outside the joint range [{low[j]:.4g}, {high[j]:.4g}]"
+        )
+
+
+def desired_acceleration(ref_q, ref_qd, ref_qdd, q, qd, kp: float, kd: float):
+    """``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``; all arrays ``(..., nv)``.
+
+    Args:
+      ref_q: reference positions ``q_ref``, ``(..., nv)``.
+      ref_qd: reference velocities ``qd_ref``, ``(..., nv)``.
+      ref_qdd: reference accelerations ``qdd_ref``, ``(..., nv)``.
+      q: current positions, ``(..., nv)``.
+      qd: current velocities, ``(..., nv)``.
+      kp: proportional gain (1/s^2).
+      kd: derivative gain (1/s).
+
+    Returns:
+      ``qdd*``, ``(..., nv)`` (NumPy or JAX, as the inputs).
+
+    Examples:
+      >>> import numpy as np
+      >>> desired_acceleration(np.array([1.0]), np.array([0.0]), np.array([0.5]),
+      ...                      q=np.array([0.9]), qd=np.array([0.2]), kp=100.0, kd=20.0)
+      array([6.5])
+    """
+    return ref_qdd + kp * (ref_q - q) + kd * (ref_qd - qd)
+
+
+def rms_reach(reference: Reference) -> float:
+    """RMS reaching distance: ``sqrt(mean over targets and joints of (q_goal - q_home)^2)``.
+
+    Args:
+      reference: a :class:`Reference` ``(targets, steps + 1, nq)``; its first and last
+        positions are taken as home and goal.
+
+    Returns:
+      The distance (rad, or m for slide joints), a float.
+
+    Examples:
+      >>> rms_reach(quintic([0.0, 0.0], [0.3, -0.4], duration=1.0, control_dt=0.5))
+      0.3535533905932738
+    """
+    delta = reference.q[:, -1] - reference.q[:, 0]
+    return float(np.sqrt(np.mean(np.square(delta))))
+
+
+def as_jax(reference: Reference) -> Reference:
+    """The same reference as float32 JAX arrays.
+
+    Args:
+      reference: a :class:`Reference` of NumPy arrays.
+
+    Returns:
+      A :class:`Reference` of ``jax.Array`` float32, same shapes.
+
+    Examples:
+      >>> ref = as_jax(quintic([0.0], [1.0], duration=1.0, control_dt=0.5))
+      >>> ref.q.dtype, ref.q.shape
+      (dtype('float32'), (1, 3, 1))
+    """
+    return Reference(*(jnp.asarray(x, jnp.float32) for x in reference))
+
+
+class LeggedReference(NamedTuple):
+    """Locomotion references of several targets padded to one length (float32 JAX arrays,
+    leading axes ``(targets, steps + 1)``; built by :func:`as_jax_legged`).
+
+    Attributes:
+      qpos: ``(targets, steps + 1, nq)`` positions (base pose and joints).
+      qvel: ``(targets, steps + 1, nv)`` velocities.
+      qacc: ``(targets, steps + 1, nv)`` mean acceleration over control period ``t`` (zero
+        beyond the target's horizon).
+      tau: ``(targets, steps + 1, action_dim)`` feed-forward joint torques.
+      force: ``(targets, steps + 1, 4 * 3)`` the mean floor force on each foot over control
+        period ``t``, flattened, world frame (N).
+      active: ``(targets, steps + 1)`` 1 while ``t`` is inside the target's horizon, else 0.
+
+    Examples:
+      >>> from cfm_jax import locomotion
+      >>> walks = [locomotion.walk_reference(d, use_cache=False) for d in (0.1, 0.2)]
+      >>> ref = as_jax_legged(walks)
+      >>> ref.qpos.shape, ref.force.shape, ref.active.sum(axis=1).tolist()
+      ((2, 51, 19), (2, 51, 12), [25.0, 50.0])
+    """
+
+    qpos: jax.Array
+    qvel: jax.Array
+    qacc: jax.Array
+    tau: jax.Array
+    force: jax.Array
+    active: jax.Array
+
+
+def as_jax_legged(references) -> LeggedReference:
+    """Pad :class:`cfm_jax.locomotion.LocomotionReference` s to the longest horizon
+    (holding the last state, zero acceleration and the last torque and force) and stack
+    them as float32 JAX arrays ``(targets, steps + 1, ...)``.
+
+    Args:
+      references: a sequence of :class:`cfm_jax.locomotion.LocomotionReference`, one per
+        target (``steps`` is the longest horizon).
+
+    Returns:
+      A :class:`LeggedReference`; ``force`` is the references' ``foot_force_mean``.
+
+    Examples:
+      >>> from cfm_jax import locomotion
+      >>> walks = [locomotion.walk_reference(d, use_cache=False) for d in (0.1, 0.2)]
+      >>> ref = as_jax_legged(walks)
+      >>> ref.tau.shape, ref.qacc[0, 25:].tolist() == [[0.0] * 18] * 26
+      ((2, 51, 12), True)
+    """
+    steps = max(r.horizon for r in references)
+
+    def pad(x, length):
+        x = np.asarray(x, np.float64)
+        extra = length - x.shape[0]
+        return np.concatenate([x, np.repeat(x[-1:], extra, axis=0)]) if extra > 0 else x
+
+    parts = []
+    for r in references:
+        force = r.foot_force_mean.reshape(r.horizon, -1)
+        qacc = np.concatenate([r.qacc, np.zeros((steps + 1 - r.horizon, r.qacc.shape[1]))])
+        active = (np.arange(steps + 1) < r.horizon).astype(np.float64)
+        parts.append(
+            (
+                pad(r.qpos, steps + 1),
+                pad(r.qvel, steps + 1),
+                qacc,
+                pad(r.tau, steps + 1),
+                pad(force, steps + 1),
+                active,
+            )
+        )
+    return LeggedReference(
+        *(jnp.asarray(np.stack(arrays), jnp.float32) for arrays in zip(*parts, strict=True))
+    )

@@ -1,0 +1,273 @@
+"""The inverse-dynamics task (``inverse_dynamics``, paper section IV-A-1): joint-space
+reaching, the controller gets a desired joint acceleration. Its class,
+:class:`JointSpaceTask`, also documents the interface every task has."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cfm_jax import babbling, rollout
+from cfm_jax.config import ConfigError, TaskConfig
+from cfm_jax.references import (
+    Reference,
+    as_jax,
+    desired_acceleration,
+    minimum_jerk,
+    reaching,
+    rms_reach,
+)
+
+
+class JointSpaceTask:
+    """The joint-space tracking task (``inverse_dynamics``) as the learning loop sees it.
+
+    A *task* tells :func:`cfm_jax.rollout.run` and :mod:`cfm_jax.training` what the learning
+    problem is; every task has the same attributes and methods (this class documents them):
+
+    * ``state(qpos, qvel, features) -> s``: the learning state (here ``[q, qdot]``).
+    * ``desired(ref_t, qpos, qvel, features) -> s*``: the desired quantity the controller is
+      given (here ``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``).
+    * ``observed(step, qpos', qvel', features') -> y``: what the forward model predicts,
+      measured after the control step (here ``(qdot' - qdot) / control_dt``).
+      ``desired_index`` says which entries of ``y`` the desired quantity specifies (all here).
+    * ``features(qpos, qvel, sensordata) -> features``: further measurements carried in the
+      state (contact forces for legged robots; none here).
+    * ``tracking_error(ref_{t+1}, qpos', qvel', features')``: what the tracking MSE is
+      taken over (here ``q' - q_ref(t+1)``, rad), ``record(...)`` further per-step
+      records, ``metrics(rollout)`` further per-target metrics.
+    * ``start(reference) -> (qpos0, qvel0, features0)``: initial state of a rollout.
+    * ``babbling_reference(strategy, key)``: the reference the initial data's controller
+      follows (:mod:`cfm_jax.babbling`), of the shapes of ``reference``, and
+      ``with_reference(reference)``: a copy that follows another reference.
+    * ``feedback(step) -> tau``: the PD-only baseline (and babbling) feedback;
+      ``oracle_policy(simulator)``: the model-based oracle.
+    * ``value_names``, ``values() -> dict`` and ``with_values(values)``: the attributes
+      that hold values of the config rather than its structure (here the reference and the
+      gains), and a copy of the task that uses other values of the same shapes (traced
+      ones, inside compiled code). :class:`cfm_jax.training.Experiment` passes them as
+      arguments of its compiled functions, so a sweep over the gains or over targets
+      compiles once.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      reference: a :class:`Reference` (NumPy, ``(targets, steps + 1, nq)``).
+      kp: proportional gain (1/s^2) of the PD correction in the desired acceleration.
+      kd: derivative gain (1/s) of the same correction.
+      control_dt: control period (a multiple of the robot's timestep).
+
+    Examples:
+      >>> from cfm_jax import references, robots
+      >>> arm = robots.load("two_link_arm")
+      >>> ref = references.quintic(arm.home, arm.home + 0.1, duration=0.5, control_dt=0.01)
+      >>> task = JointSpaceTask(arm, ref, kp=100.0, kd=20.0, control_dt=0.01)
+      >>> task.targets, task.steps, task.state_dim, task.desired_dim, task.output_dim
+      (1, 50, 4, 2, 2)
+    """
+
+    name = "inverse_dynamics"
+    # What the tracking MSE measures and its unit, and the squared unit of the forward
+    # model's output (for tables and figures).
+    tracking_name = "joint-position tracking MSE"
+    tracking_unit = "rad"
+    output_unit = "(rad/s$^2$)$^2$"
+    metric_names: tuple[str, ...] = ()
+
+    def __init__(self, robot, reference: Reference, kp: float, kd: float, control_dt: float):
+        self.robot = robot
+        self.reference_np = reference
+        self.reference = as_jax(reference)
+        self.control_dt = float(control_dt)
+        self.__dict__.update(self._gains(float(kp), float(kd)))
+        nv = robot.nv
+        self.targets, self.steps = reference.q.shape[0], reference.steps
+        self.state_dim, self.desired_dim, self.output_dim = robot.nq + nv, nv, nv
+        self.action_dim, self.feature_dim = nv, 0
+        self.desired_index = tuple(range(nv))
+
+    @property
+    def tracking_scale(self) -> float:
+        """RMS reaching distance (rad), the scale of the tracking error."""
+        return rms_reach(self.reference_np)
+
+    def _pd_gains(self, kp: float, kd: float):
+        """The torque gains of :meth:`feedback` for the acceleration gains ``kp``, ``kd``."""
+        return rollout.pd_gains(self.robot, kp, kd, self.reference_np.q[0, 0])
+
+    def _gains(self, kp: float, kd: float) -> dict:
+        gain_p, gain_d = self._pd_gains(kp, kd)
+        return {
+            "kp": jnp.asarray(kp, jnp.float32),
+            "kd": jnp.asarray(kd, jnp.float32),
+            "gain_p": jnp.asarray(gain_p, jnp.float32),
+            "gain_d": jnp.asarray(gain_d, jnp.float32),
+        }
+
+    # The attributes that hold values of the config (reference and gains), not structure.
+    value_names: tuple[str, ...] = ("reference", "kp", "kd", "gain_p", "gain_d")
+
+    def values(self) -> dict:
+        """The attributes :attr:`value_names`: the reference (float32 JAX arrays) and the
+        gains (``kp``, ``kd`` of the desired acceleration, ``gain_p``, ``gain_d`` of
+        :meth:`feedback`), as a dict (a pytree).
+
+        Returns:
+          ``{name: value}``; tasks built from configs of the same structure (same task,
+          robot, number of targets, duration, control period) have the same keys and shapes.
+
+        Examples:
+          >>> from cfm_jax import config, robots
+          >>> arm = robots.load("two_link_arm")
+          >>> task = make(arm, config.TaskConfig(duration=0.5), control_dt=0.01)
+          >>> softer = make(arm, config.TaskConfig(duration=0.5, kp=25.0), control_dt=0.01)
+          >>> moved = task.with_values(softer.values())
+          >>> float(moved.kp), float(task.kp)
+          (25.0, 100.0)
+        """
+        return {name: getattr(self, name) for name in self.value_names}
+
+    def with_values(self, values: dict):
+        """A shallow copy of this task that uses ``values`` (from :meth:`values` of a task of
+        the same structure; inside compiled code they may be traced).
+
+        Args:
+          values: a dict with the keys :attr:`value_names`, each of the shape of this
+            task's.
+
+        Returns:
+          The copy; this task is unchanged.
+
+        Raises:
+          ValueError: other keys or another shape (the name and both shapes are given).
+        """
+        import copy
+
+        if set(values) != set(self.value_names):
+            raise ValueError(
+                f"values has keys {sorted(values)}, this task takes {sorted(self.value_names)}"
+            )
+        for name in self.value_names:
+            mine = [np.shape(x) for x in jax.tree.leaves(getattr(self, name))]
+            theirs = [np.shape(x) for x in jax.tree.leaves(values[name])]
+            if mine != theirs:
+                raise ValueError(
+                    f"values[{name!r}] has shapes {theirs}, this task's {mine}: a task of "
+                    "another structure (targets, duration, control period)"
+                )
+        task = copy.copy(self)
+        task.__dict__.update(values)
+        return task
+
+    def with_reference(self, reference):
+        """A shallow copy of this task that follows ``reference`` (a pytree of the shapes of
+        :attr:`reference`, traced inside compiled code), for example a babbling reference
+        (:meth:`babbling_reference`). Host attributes (``reference_np``,
+        ``tracking_scale``) still describe this task's own references."""
+        import copy
+
+        task = copy.copy(self)
+        task.reference = reference
+        return task
+
+    def babbling_reference(self, strategy: str, key):
+        """The reference the babbling controller follows (:mod:`cfm_jax.babbling`), of the
+        shapes of :attr:`reference`: this task's own for ``reference_pd`` and ``oracle``,
+        else minimum-jerk paths from the start pose, held (``home``) or to random poses drawn
+        with ``key`` (``reaching``). Neither of these depends on the targets."""
+        if babbling.uses_reference(strategy):
+            return self.reference
+        start = self.reference.q[:, 0]  # (targets, nq): every reach starts at home
+        goal = start if strategy == "home" else babbling.random_poses(key, self.robot, start)
+        return Reference(*minimum_jerk(start, goal, self.steps * self.control_dt, self.control_dt))
+
+    def start(self, reference):
+        return (
+            reference.q[0],
+            jnp.zeros(self.robot.nv, jnp.float32),
+            jnp.zeros(0, jnp.float32),
+        )
+
+    def state(self, qpos, qvel, features):
+        del features
+        return jnp.concatenate([qpos, qvel])
+
+    def desired(self, ref_t, qpos, qvel, features):
+        del features
+        return desired_acceleration(ref_t.q, ref_t.qd, ref_t.qdd, qpos, qvel, self.kp, self.kd)
+
+    def features(self, qpos, qvel, sensors):
+        del qpos, qvel, sensors
+        return jnp.zeros(0, jnp.float32)
+
+    def observed(self, step, qpos_next, qvel_next, features_next):
+        del qpos_next, features_next
+        return (qvel_next - step.qvel) / self.control_dt
+
+    def tracking_error(self, ref_next, qpos_next, qvel_next, features_next):
+        del qvel_next, features_next
+        return qpos_next - ref_next.q
+
+    def record(self, step, tau, qpos_next, qvel_next, features_next):
+        return {}
+
+    def metrics(self, result) -> dict:
+        return {}
+
+    def feedback(self, step):
+        """``K_p (q_ref - q) + K_d (qd_ref - qd)`` with :func:`cfm_jax.rollout.pd_gains`."""
+        ref = step.reference
+        return self.gain_p * (ref.q - step.qpos) + self.gain_d * (ref.qd - step.qvel)
+
+    def oracle_policy(self, simulator: str):
+        """MuJoCo's inverse dynamics of the desired acceleration
+        (:func:`cfm_jax.rollout.oracle_policy`)."""
+        return rollout.oracle_policy(self.robot, simulator)
+
+
+def require_fixed_base(robot, name: str) -> None:
+    """The arm tasks need a fixed-base arm with every joint actuated.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      name: the task's name, for the message.
+
+    Raises:
+      ConfigError: ``robot`` has a floating base (a free joint).
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> require_fixed_base(robots.load("two_link_arm"), "opspace")  # passes
+    """
+    if robot.floating_base:
+        raise ConfigError(
+            f"task.name={name!r} is not allowed for robot {robot.name!r}: it has a "
+            "floating base (a free joint), and this task needs a fixed-base arm with every "
+            "joint actuated"
+        )
+
+
+def make(robot, task: TaskConfig, control_dt: float) -> JointSpaceTask:
+    """The ``inverse_dynamics`` task of a config: joint-space reaching
+    (:func:`cfm_jax.references.reaching`) with the config's gains.
+
+    Args:
+      robot: a fixed-base :class:`cfm_jax.robots.Robot`.
+      task: the :class:`cfm_jax.config.TaskConfig`.
+      control_dt: control period (s).
+
+    Returns:
+      A :class:`JointSpaceTask`.
+
+    Raises:
+      ConfigError: the robot has a floating base, or a target or the home pose is outside
+        its joint limits.
+
+    Examples:
+      >>> from cfm_jax import config, robots
+      >>> task = make(robots.load("two_link_arm"), config.TaskConfig(duration=0.5), 0.01)
+      >>> task.targets, task.steps
+      (5, 50)
+    """
+    require_fixed_base(robot, task.name)
+    return JointSpaceTask(robot, reaching(robot, task, control_dt), task.kp, task.kd, control_dt)

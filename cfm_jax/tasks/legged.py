@@ -1,0 +1,310 @@
+"""The legged tasks (``walk``, ``jump``; paper section IV-B): a floating-base robot tracks
+recorded reference motions, with foot contact forces in its state."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from cfm_jax import babbling, locomotion
+from cfm_jax.config import ConfigError, TaskConfig
+from cfm_jax.references import LeggedReference, as_jax_legged, minimum_jerk
+from cfm_jax.tasks.inverse_dynamics import JointSpaceTask
+
+
+def _quat_error(target, quat):
+    """Rotation vector ``log(quat^-1 target)`` (MuJoCo's ``mju_subQuat(target, quat)``): the
+    angular displacement from ``quat`` to ``target`` in ``quat``'s local frame, which is the
+    frame of a free joint's angular velocity. Quaternions ``(w, x, y, z)``."""
+    w1, v1 = quat[0], -quat[1:]  # conjugate of quat
+    w2, v2 = target[0], target[1:]
+    w = w1 * w2 - jnp.dot(v1, v2)
+    v = w1 * v2 + w2 * v1 + jnp.cross(v1, v2)
+    sign = jnp.where(w < 0, -1.0, 1.0)  # the shorter way round
+    w, v = sign * w, sign * v
+    norm = jnp.sqrt(jnp.sum(v * v) + 1e-24)
+    return v * (2.0 * jnp.arctan2(norm, w) / norm)
+
+
+class LeggedTask(JointSpaceTask):
+    """Legged locomotion (``walk``, ``jump``; paper section IV-B) for a floating-base robot
+    with one MuJoCo contact sensor per foot (data ``found force normal tangent``, as in
+    ``robots/solo12.xml``; :func:`cfm_jax.locomotion.foot_forces`).
+
+    * State ``s_t = [base pose and joint positions (qpos), foot forces f_t (world frame,
+      mean over the previous control period), base and joint velocities (qvel)]``.
+    * A step where the robot fell is terminal (``extras["terminal"]``): the rest of that
+      rollout does not become data (the model has foot-floor contacts only, so a fallen
+      body sinks through the floor).
+    * The forward model predicts ``y = [qacc dt, f_{t+1}]``: the base and joint
+      accelerations over the control period times ``dt`` (``qvel' - qvel``) and the mean
+      foot forces over the period; the desired quantity is the same
+      ``s* = [qacc* dt, f*]`` with ``qacc* = qacc_ref + kp e + kd (qvel_ref - qvel)`` (``e``:
+      base position error, base orientation error as a rotation vector in the base frame,
+      joint position errors; gains ``task.kp``, ``task.kd`` on the 6 base coordinates and
+      ``task.joint_kp``, ``task.joint_kd`` on the joints) and ``f*`` the reference's foot
+      forces.
+    * References: :mod:`cfm_jax.locomotion` (a trot for 5 horizons, a vertical jump for 5
+      heights), recorded from a whole-body controller on this model at ``control_dt``;
+      padded to the longest horizon, steps beyond a target's horizon are masked out of the
+      data and the metrics.
+    * Tracking error: base position (m) and orientation (rad) error. Further metrics:
+      ``force_mse`` (N^2, foot forces against the reference), ``fell`` (1 if the robot
+      fell within the horizon: base below 0.1 m, tilted more than 0.8 rad, or a base-box
+      corner at the floor), ``base_position_mse``, ``base_orientation_mse``.
+    * Baselines: the reference's own controller (its feed-forward torque plus its joint
+      PD) as ``oracle``, the joint PD alone as ``pd_only``.
+
+    Args:
+      robot: a floating-base :class:`cfm_jax.robots.Robot` with one contact sensor per foot
+        (``solo12``).
+      task: the :class:`cfm_jax.config.TaskConfig`; ``name`` (``walk`` or ``jump``), ``kp``,
+        ``kd``, ``joint_kp`` and ``joint_kd`` are used. The targets and horizons are the 5
+        references of :mod:`cfm_jax.locomotion`: ``duration`` is not used, and ``targets``
+        and ``home`` must be None.
+      control_dt: control period (s), at most :attr:`MAX_CONTROL_DT`.
+
+    Raises:
+      ConfigError: the robot has no floating base or no foot contact sensors,
+        ``control_dt`` is too long, or ``task.targets`` / ``task.home`` is given.
+
+    Examples:
+      >>> from cfm_jax import config, robots
+      >>> solo = robots.load("solo12")
+      >>> walk = config.for_task("walk")  # control_dt 0.004
+      >>> task = LeggedTask(solo, walk.task, walk.task.control_dt)  # doctest: +SKIP
+      >>> task.targets, task.steps, task.state_dim, task.desired_dim  # doctest: +SKIP
+      (5, 750, 49, 30)
+    """
+
+    tracking_name = "base pose tracking MSE"
+    tracking_unit = "m | rad"
+    output_unit = "(m/s, rad/s)$^2$ and N$^2$"
+    metric_names = ("force_mse", "fell", "base_position_mse", "base_orientation_mse")
+    MAX_CONTROL_DT = 0.004
+    FALL_HEIGHT, FALL_TILT = 0.10, 0.8
+
+    def __init__(self, robot, task: TaskConfig, control_dt: float):
+        import mujoco
+
+        self.name = task.name
+        if not robot.floating_base:
+            raise ConfigError(
+                f"task.name={task.name!r} is not allowed for robot {robot.name!r}: it needs a "
+                "legged robot with a floating base (for example robot='solo12')"
+            )
+        if control_dt > self.MAX_CONTROL_DT + 1e-12:
+            raise ConfigError(
+                f"task.control_dt={control_dt!r} is not allowed for task {task.name!r}: the "
+                f"legged references need {self.MAX_CONTROL_DT} s (250 Hz, the paper's rate) or "
+                "a smaller multiple of the robot's timestep"
+            )
+        model = robot.mj_model
+        contact = int(mujoco.mjtSensor.mjSENS_CONTACT)
+        feet = [
+            int(model.sensor_adr[i])
+            for i in range(model.nsensor)
+            if int(model.sensor_type[i]) == contact and int(model.sensor_dim[i]) == 10
+        ]
+        if len(feet) == 0:
+            raise ConfigError(
+                f"task.name={task.name!r} is not allowed for robot {robot.name!r}: it needs one "
+                '<contact> sensor per foot with data="found force normal tangent" (see '
+                "robots/solo12.xml)"
+            )
+        for field in ("targets", "home"):
+            if getattr(task, field) is not None:
+                raise ConfigError(
+                    f"task.{field}={getattr(task, field)!r} is not allowed for task "
+                    f"{task.name!r}: None (the legged tasks start from and follow their 5 "
+                    "recorded references, cfm_jax.locomotion.WALK_DURATIONS / JUMP_HEIGHTS)"
+                )
+        self.robot, self.locomotion = robot, locomotion
+        self.sensor_rows = np.concatenate([np.arange(a, a + 10) for a in feet])
+        self.feet = len(feet)
+        kwargs = dict(control_dt=control_dt, model_file=robot.path)
+        if task.name == "walk":
+            refs = [locomotion.walk_reference(d, **kwargs) for d in locomotion.WALK_DURATIONS]
+        else:
+            refs = [locomotion.jump_reference(h, **kwargs) for h in locomotion.JUMP_HEIGHTS]
+        self.references = refs  # the NumPy recordings (the other tasks' reference_np)
+        self.reference = as_jax_legged(refs)
+        self.control_dt = float(control_dt)
+        self.__dict__.update(self._desired_gains(task))
+        self.gain_p = jnp.float32(refs[0].kp)
+        self.gain_d = jnp.float32(refs[0].kd)
+        nq, nv, na = robot.nq, robot.nv, robot.action_dim
+        self.targets, self.steps = len(refs), max(r.horizon for r in refs)
+        forces = 3 * self.feet
+        self.state_dim, self.desired_dim = nq + forces + nv, nv + forces
+        self.output_dim, self.action_dim, self.feature_dim = nv + forces, na, forces
+        self.desired_index = None
+        self.joint_dofs = jnp.asarray(robot.actuated_dofs)
+        self.joint_qpos = jnp.asarray(robot.actuated_dofs + (nq - nv))
+
+    # The references are recordings of the model, structure; the values are the s* gains.
+    value_names = ("desired_kp", "desired_kd")
+
+    def _desired_gains(self, task: TaskConfig) -> dict:
+        """The gains of the PD correction in ``s*``: ``desired_kp`` and ``desired_kd``,
+        ``(6 + joints,)`` float32 (``task.kp``, ``task.kd`` on the 6 base coordinates, then
+        ``task.joint_kp``, ``task.joint_kd`` on the actuated joints; None there: ``kp``,
+        ``kd``). Not the references' joint PD torque gains ``gain_p``, ``gain_d``, which
+        come with the recordings."""
+        kp, kd = float(task.kp), float(task.kd)
+        joint_kp = kp if task.joint_kp is None else float(task.joint_kp)
+        joint_kd = kd if task.joint_kd is None else float(task.joint_kd)
+        joints = self.robot.action_dim
+        return {
+            "desired_kp": jnp.asarray([kp] * 6 + [joint_kp] * joints, jnp.float32),
+            "desired_kd": jnp.asarray([kd] * 6 + [joint_kd] * joints, jnp.float32),
+        }
+
+    @property
+    def tracking_scale(self) -> float:
+        """RMS base displacement of the references over their horizons (m)."""
+        moves = [r.qpos[-1, :3] - r.qpos[0, :3] for r in self.references]
+        peaks = [np.max(r.qpos[:, 2]) - r.qpos[0, 2] for r in self.references]
+        return float(
+            np.sqrt(np.mean([max(np.sum(m**2), p**2) for m, p in zip(moves, peaks, strict=True)]))
+        )
+
+    def start(self, reference):
+        return reference.qpos[0], reference.qvel[0], reference.force[0]
+
+    def babbling_reference(self, strategy: str, key):
+        """As :meth:`JointSpaceTask.babbling_reference` from the robot's standing pose (its
+        keyframe ``home``): the joints held (``home``) or moved to random poses
+        (``reaching``), the base at rest, no feed-forward torque, the static standing
+        forces (:func:`cfm_jax.babbling.standing_forces`) as desired forces, every step
+        active. Neither depends on the recorded references."""
+        if babbling.uses_reference(strategy):
+            return self.reference
+        robot, steps = self.robot, self.steps
+        start = jnp.broadcast_to(jnp.asarray(robot.home, jnp.float32), (self.targets, robot.nq))
+        goal = start if strategy == "home" else babbling.random_poses(key, robot, start)
+        qpos, qd, qdd = minimum_jerk(start, goal, steps * self.control_dt, self.control_dt)
+        shape = (self.targets, steps + 1)
+        qvel = jnp.zeros(shape + (robot.nv,), jnp.float32).at[..., self.joint_dofs]
+        qacc = jnp.zeros(shape + (robot.nv,), jnp.float32).at[..., self.joint_dofs]
+        force = babbling.standing_forces(robot, self.feet)
+        return LeggedReference(
+            qpos=qpos,
+            qvel=qvel.set(qd[..., self.joint_qpos]),
+            qacc=qacc.set(qdd[..., self.joint_qpos]),
+            tau=jnp.zeros(shape + (self.action_dim,), jnp.float32),
+            force=jnp.broadcast_to(jnp.asarray(force), shape + force.shape),
+            active=jnp.ones(shape, jnp.float32),
+        )
+
+    def state(self, qpos, qvel, features):
+        return jnp.concatenate([qpos, features, qvel])
+
+    def _pose_error(self, ref_qpos, qpos):
+        return jnp.concatenate(
+            [
+                ref_qpos[:3] - qpos[:3],
+                _quat_error(ref_qpos[3:7], qpos[3:7]),
+                ref_qpos[self.joint_qpos] - qpos[self.joint_qpos],
+            ]
+        )
+
+    def desired(self, ref_t, qpos, qvel, features):
+        del features
+        qacc = (
+            ref_t.qacc
+            + self.desired_kp * self._pose_error(ref_t.qpos, qpos)
+            + self.desired_kd * (ref_t.qvel - qvel)
+        )
+        return jnp.concatenate([qacc * self.control_dt, ref_t.force])
+
+    def features(self, qpos, qvel, sensors):
+        del qpos, qvel
+        rows = sensors[:, self.sensor_rows]
+        forces = self.locomotion.foot_forces(rows, xp=jnp)  # (n_sub, feet, 3)
+        return jnp.mean(forces, axis=0).reshape(-1)
+
+    def observed(self, step, qpos_next, qvel_next, features_next):
+        return jnp.concatenate([qvel_next - step.qvel, features_next])
+
+    def tracking_error(self, ref_next, qpos_next, qvel_next, features_next):
+        error = self._pose_error(ref_next.qpos, qpos_next)[:6]
+        return error * ref_next.active  # beyond the horizon: no error
+
+    def record(self, step, tau, qpos_next, qvel_next, features_next):
+        quat = qpos_next[3:7] / jnp.linalg.norm(qpos_next[3:7])
+        rotation = self.locomotion.quat_to_mat(quat, xp=jnp)
+        up = rotation[2, 2]  # world z component of the base z axis
+        half = jnp.asarray(self.locomotion.BASE_HALF, jnp.float32)
+        signs = jnp.asarray(
+            [[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], jnp.float32
+        )
+        lowest = jnp.min(qpos_next[2] + (signs * half) @ rotation[2])
+        fell = (
+            (qpos_next[2] < self.FALL_HEIGHT)
+            | (jnp.arccos(jnp.clip(up, -1.0, 1.0)) > self.FALL_TILT)
+            | (lowest < 0.0)
+        )
+        return {
+            "active": step.reference.active > 0,
+            "force_error": features_next - step.reference.force,
+            "fell": fell,
+            "terminal": fell,  # no data from a fallen robot (see training._before_terminal)
+        }
+
+    def metrics(self, result) -> dict:
+        extras = result.extras
+        active = extras["active"].astype(jnp.float32)  # (targets, steps)
+        count = jnp.maximum(jnp.sum(active, axis=-1), 1.0)
+
+        def masked_mean(x):  # (targets, steps, k) -> (targets,)
+            per_step = jnp.mean(jnp.square(x), axis=-1)
+            return jnp.sum(per_step * active, axis=-1) / count
+
+        return {
+            "force_mse": masked_mean(extras["force_error"]),
+            "fell": jnp.any(extras["fell"] & extras["active"], axis=-1).astype(jnp.float32),
+            "base_position_mse": masked_mean(result.tracking_error[..., :3]),
+            "base_orientation_mse": masked_mean(result.tracking_error[..., 3:6]),
+        }
+
+    def feedback(self, step):
+        """The references' joint PD ``kp (q_ref - q) + kd (qd_ref - qd)`` on the actuated
+        joints."""
+        ref = step.reference
+        joints = self.gain_p * (ref.qpos[self.joint_qpos] - step.qpos[self.joint_qpos])
+        return joints + self.gain_d * (ref.qvel[self.joint_dofs] - step.qvel[self.joint_dofs])
+
+    def oracle_policy(self, simulator: str):
+        """The reference's own controller: its feed-forward torque plus its joint PD."""
+        del simulator
+
+        def policy(step, key):
+            del key
+            return step.reference.tau + self.feedback(step)
+
+        return policy
+
+
+def make(robot, task: TaskConfig, control_dt: float) -> LeggedTask:
+    """The ``walk`` or ``jump`` task of a config.
+
+    Args:
+      robot: a floating-base :class:`cfm_jax.robots.Robot` with the Solo12's feet.
+      task: the :class:`cfm_jax.config.TaskConfig` (``name`` ``walk`` or ``jump``).
+      control_dt: control period (s).
+
+    Returns:
+      A :class:`LeggedTask`.
+
+    Raises:
+      ConfigError: the task does not fit the robot (the message says why).
+
+    Examples:
+      >>> from cfm_jax import config, robots
+      >>> walk = config.for_task("walk")
+      >>> task = make(robots.load("solo12"), walk.task, walk.task.control_dt)  # doctest: +SKIP
+      >>> task.targets  # doctest: +SKIP
+      5
+    """
+    return LeggedTask(robot, task, control_dt)

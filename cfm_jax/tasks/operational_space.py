@@ -1,0 +1,169 @@
+"""The operational-space task (``opspace``, paper section IV-A-2): Cartesian reaching of an
+end-effector site, the controller gets a desired site acceleration."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from cfm_jax import babbling, opspace
+from cfm_jax.config import TaskConfig, check_duration
+from cfm_jax.references import check_positions, minimum_jerk
+from cfm_jax.tasks.inverse_dynamics import JointSpaceTask, require_fixed_base
+
+
+class OperationalSpaceTask(JointSpaceTask):
+    """Operational-space control (``opspace``, paper section IV-A-2): the controller gets
+    ``s = [q, qdot]`` and a desired end-effector acceleration
+    ``xdd* = xdd_ref + kp (x_ref - x) + kd (xd_ref - xd)`` (3-D, world frame, of the
+    configured site) and outputs joint torques; the forward model predicts the joint *and*
+    end-effector accelerations ``y = [qdd, xdd]`` (observed over the control period as
+    ``(qdot' - qdot) / dt`` and ``(xd' - xd) / dt``), of which the desired quantity specifies
+    the last three (``desired_index``). Redundant arms make ``tau`` for a given ``xdd*``
+    non-unique. The tracking error is the site position error ``x' - x_ref(t+1)`` (m).
+    Site kinematics come from MuJoCo C (:mod:`cfm_jax.opspace`); the features carried in
+    the rollout are ``[x, xd]`` of the site. Baselines: the analytic operational-space
+    controller (Khatib) as oracle and task-space PD (``J^T (K_p e + K_d ed)``).
+
+    Args:
+      robot: a fixed-base arm with the end-effector site.
+      task: the :class:`cfm_jax.config.TaskConfig` (``site``, ``targets`` as ``(k, 3)``
+        positions or None for the defaults, ``home``, ``duration``, ``kp``, ``kd``).
+      control_dt: control period.
+
+    Examples:
+      >>> from cfm_jax import config, robots
+      >>> arm = robots.load("two_link_arm")
+      >>> task = OperationalSpaceTask(
+      ...     arm, config.TaskConfig(name="opspace", duration=1.0, site="tip"), 0.01)
+      >>> task.reference.x.shape  # the 5 default targets, site positions
+      (5, 101, 3)
+      >>> task.desired_dim, task.output_dim, task.desired_index  # y = [qdd (2), xdd (3)]
+      (3, 5, (2, 3, 4))
+    """
+
+    name = "opspace"
+    tracking_name = "end-effector position tracking MSE"
+    tracking_unit = "m"
+    output_unit = "(rad/s$^2$)$^2$ and (m/s$^2$)$^2$"
+
+    def __init__(self, robot, task: TaskConfig, control_dt: float):
+        check_duration(task.duration, control_dt)
+        home = robot.home if task.home is None else np.asarray(task.home, np.float64)
+        check_positions("task.home", home[None], robot)
+        self.robot, self.opspace = robot, opspace
+        self.site = opspace.ee_site(robot, task.site)
+        targets = (
+            opspace.default_cartesian_targets(robot, self.site, home)
+            if task.targets is None
+            else opspace.check_targets(robot, task.targets, self.site)
+        )
+        self.reference_np = opspace.cartesian_reaching(
+            robot, self.site, targets, task.duration, control_dt, home
+        )
+        self.reference = opspace.as_jax(self.reference_np)
+        self.home = jnp.asarray(home, jnp.float32)
+        self.control_dt = float(control_dt)
+        self._home_np = home
+        self.__dict__.update(self._gains(float(task.kp), float(task.kd)))
+        nv = robot.nv
+        self.targets, self.steps = self.reference_np.x.shape[0], self.reference_np.steps
+        self.state_dim, self.desired_dim, self.output_dim = robot.nq + nv, 3, nv + 3
+        self.action_dim, self.feature_dim = nv, 6
+        self.desired_index = (nv, nv + 1, nv + 2)
+
+    @property
+    def tracking_scale(self) -> float:
+        """RMS end-effector reaching distance (m): ``sqrt(mean((x_goal - x_home)^2))``."""
+        delta = self.reference_np.x[:, -1] - self.reference_np.x[:, 0]
+        return float(np.sqrt(np.mean(np.square(delta))))
+
+    def _pd_gains(self, kp: float, kd: float):
+        """Task-space torque gains at home (:func:`cfm_jax.opspace.pd_gains`)."""
+        return self.opspace.pd_gains(self.robot, kp, kd, self.site, self._home_np)
+
+    def _site(self, qpos, qvel):
+        kin = self.opspace.kinematics(self.robot, qpos, qvel, self.site)
+        return jnp.concatenate([kin.position, kin.velocity], -1)
+
+    def start(self, reference):
+        del reference
+        qvel = jnp.zeros(self.robot.nv, jnp.float32)
+        return self.home, qvel, self._site(self.home, qvel)
+
+    def babbling_reference(self, strategy: str, key):
+        """As :meth:`JointSpaceTask.babbling_reference`, in Cartesian space: straight
+        minimum-jerk paths of the site from its home position, held (``home``) or to where
+        random joint poses put it (``reaching``)."""
+        if babbling.uses_reference(strategy):
+            return self.reference
+        start = self.reference.x[:, 0]  # (targets, 3): the site at home
+        if strategy == "home":
+            goal = start
+        else:
+            poses = jnp.broadcast_to(self.home, (self.targets, self.robot.nq))
+            poses = babbling.random_poses(key, self.robot, poses)
+            goal = self.opspace.kinematics(self.robot, poses, jnp.zeros_like(poses), self.site)
+            goal = goal.position
+        x, xd, xdd = minimum_jerk(start, goal, self.steps * self.control_dt, self.control_dt)
+        return type(self.reference)(x, xd, xdd)
+
+    def desired(self, ref_t, qpos, qvel, features):
+        return self.opspace.desired_acceleration(
+            ref_t.x, ref_t.xd, ref_t.xdd, features[:3], features[3:], self.kp, self.kd
+        )
+
+    def features(self, qpos, qvel, sensors):
+        del sensors
+        return self._site(qpos, qvel)
+
+    def observed(self, step, qpos_next, qvel_next, features_next):
+        joint = (qvel_next - step.qvel) / self.control_dt
+        site = (features_next[3:] - step.features[3:]) / self.control_dt
+        return jnp.concatenate([joint, site])
+
+    def tracking_error(self, ref_next, qpos_next, qvel_next, features_next):
+        return features_next[:3] - ref_next.x
+
+    def feedback(self, step):
+        """Task-space PD ``J^T (K_p (x_ref - x) + K_d (xd_ref - xd))``
+        (:func:`cfm_jax.opspace.pd_policy`)."""
+        torque = self.opspace.pd_policy(self.robot, self.gain_p, self.gain_d, self.site)
+        return torque(step.qpos, step.qvel, step.reference.x, step.reference.xd)
+
+    def oracle_policy(self, simulator: str):
+        """The analytic operational-space controller (:func:`cfm_jax.opspace.oracle_policy`;
+        MuJoCo C on the host for either simulator)."""
+        del simulator
+        torque = self.opspace.oracle_policy(self.robot, self.site, self._home_np)
+
+        def policy(step, key):
+            del key
+            return torque(step.qpos, step.qvel, step.desired)
+
+        return policy
+
+
+def make(robot, task: TaskConfig, control_dt: float) -> OperationalSpaceTask:
+    """The ``opspace`` task of a config.
+
+    Args:
+      robot: a fixed-base :class:`cfm_jax.robots.Robot`.
+      task: the :class:`cfm_jax.config.TaskConfig`.
+      control_dt: control period (s).
+
+    Returns:
+      An :class:`OperationalSpaceTask`.
+
+    Raises:
+      ConfigError: the robot has a floating base, or the site or a target does not fit it.
+
+    Examples:
+      >>> from cfm_jax import config, robots
+      >>> arm = robots.load("two_link_arm")
+      >>> task = make(arm, config.TaskConfig(name="opspace", duration=0.5, site="tip"), 0.01)
+      >>> task.desired_dim, task.steps
+      (3, 50)
+    """
+    require_fixed_base(robot, task.name)
+    return OperationalSpaceTask(robot, task, control_dt)
