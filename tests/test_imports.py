@@ -123,3 +123,20 @@ def test_the_checker_finds_cycles_through_function_level_and_relative_imports(tm
     (package / "sub" / "b.py").write_text("import cfm_jax.config\n")
     assert cycles(graph(package)) == []
     assert graph(package)["sub.b"] == {"config"}
+
+
+def test_every_subpackage_ships_in_the_wheel():
+    """pyproject lists packages by hand; a new subpackage missing there would import from a
+    checkout but not from ``pip install .`` (what CI and users run)."""
+    import tomllib
+
+    listed = set(
+        tomllib.loads((PACKAGE.parent / "pyproject.toml").read_text())["tool"]["setuptools"][
+            "packages"
+        ]
+    )
+    found = {
+        ".".join(("cfm_jax", *init.parent.relative_to(PACKAGE).parts))
+        for init in PACKAGE.rglob("__init__.py")
+    }
+    assert found <= listed, f"packages missing from pyproject.toml: {sorted(found - listed)}"
