@@ -24,6 +24,8 @@ import os
 import jax
 import numpy as np
 
+from cfm_jax._files import write_text
+
 MANIFEST = "cfm_manifest.json"
 
 
@@ -111,12 +113,7 @@ class Checkpointer:
         manifest = {
             os.path.relpath(p, step_dir): [os.path.getsize(p), _digest(p)] for p in _files(step_dir)
         }
-        tmp = os.path.join(step_dir, MANIFEST + ".tmp")
-        with open(tmp, "w") as f:
-            json.dump(manifest, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, os.path.join(step_dir, MANIFEST))
+        write_text(os.path.join(step_dir, MANIFEST), json.dumps(manifest), durable=True)
 
     def problem(self, step: int) -> str | None:
         """Why ``step`` cannot be restored (missing manifest, missing/truncated/changed

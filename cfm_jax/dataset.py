@@ -25,6 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from cfm_jax._files import atomic_path
+
 
 class Transitions(NamedTuple):
     """A batch of transitions ``(n, ...)``.
@@ -264,16 +266,15 @@ def save(path: str, data: Dataset, segments, seeds, config: dict) -> None:
         raise ValueError(f"segments {np.asarray(segments).tolist()} do not add up to {size}")
     rows = int(size.max())
     arrays = {name: np.asarray(x)[:, :rows] for name, x in data.data._asdict().items()}
-    tmp = path + ".tmp.npz"
-    np.savez_compressed(
-        tmp,
-        size=size,
-        segments=np.asarray(segments, np.int64),
-        seeds=np.asarray(seeds, np.int64),
-        config=np.frombuffer(json.dumps(config).encode(), np.uint8),
-        **arrays,
-    )
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez_compressed(
+            f,
+            size=size,
+            segments=np.asarray(segments, np.int64),
+            seeds=np.asarray(seeds, np.int64),
+            config=np.frombuffer(json.dumps(config).encode(), np.uint8),
+            **arrays,
+        )
 
 
 def load(path: str) -> Recorded:

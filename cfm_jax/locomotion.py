@@ -37,6 +37,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from cfm_jax._files import atomic_path
+
 LEGS = ("FL", "FR", "HL", "HR")
 JOINTS = tuple(f"{leg}_{j}" for leg in LEGS for j in ("HAA", "HFE", "KFE"))
 # (front +1 / hind -1, left +1 / right -1) for each leg, [2.1] of the facts sheet.
@@ -939,9 +941,8 @@ def _cache_key(kind: str, params, control_dt: float, model_file: str) -> str:
 
 def _save(ref: LocomotionReference, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
-    np.savez(tmp, **{k: np.asarray(v) for k, v in ref._asdict().items()})
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, **{k: np.asarray(v) for k, v in ref._asdict().items()})
 
 
 def _load(path: Path) -> LocomotionReference:

@@ -54,6 +54,7 @@ import pandas as pd
 from cfm_jax import config as config_lib
 from cfm_jax import losses as losses_lib
 from cfm_jax import report
+from cfm_jax._files import write_atomic, write_text
 
 BACKENDS = ("local", "ray")
 """Backends of :func:`sweep`."""
@@ -707,20 +708,6 @@ def _reporter(progress: bool, total: int, done_before: int):
 # ----- files --------------------------------------------------------------------------
 
 
-def _atomic(path: str, write: Callable[[str], None]) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    write(tmp)
-    os.replace(tmp, path)
-
-
-def _write_text(path: str, text: str) -> None:
-    def write(tmp):
-        with open(tmp, "w") as f:
-            f.write(text)
-
-    _atomic(path, write)
-
-
 def _jsonable(config: config_lib.Config) -> dict:
     return json.loads(json.dumps(config_lib.to_dict(config)))
 
@@ -731,7 +718,7 @@ def _write_cell(out_dir: str, cell: Cell, output: CellOutput) -> None:
     directory = os.path.join(out_dir, "cells", cell.id)
     os.makedirs(directory, exist_ok=True)
     config_text = json.dumps(_jsonable(cell.config), indent=2)
-    _write_text(os.path.join(directory, "config.json"), config_text)
+    write_text(os.path.join(directory, "config.json"), config_text)
     info = {
         "cell": cell.id,
         "loss": cell.loss,
@@ -741,12 +728,12 @@ def _write_cell(out_dir: str, cell: Cell, output: CellOutput) -> None:
         "host": output.host,
         "labels": output.labels,
     }
-    _write_text(os.path.join(directory, "cell.json"), json.dumps(info, indent=2))
-    _atomic(
+    write_text(os.path.join(directory, "cell.json"), json.dumps(info, indent=2))
+    write_atomic(
         os.path.join(directory, "baselines.csv"),
         lambda tmp: output.baselines.to_csv(tmp, index=False),
     )
-    _atomic(
+    write_atomic(
         os.path.join(directory, "metrics.csv"), lambda tmp: output.metrics.to_csv(tmp, index=False)
     )
 
@@ -849,27 +836,29 @@ def _summary_sections(metrics, baselines, paths, iteration) -> list[str]:
 def _write_tables(out_dir: str, result: SweepResult, base_config, cells, labels) -> None:
     """The tidy table as CSV and Parquet (pyarrow), the baselines, the cells, the grid, the
     summary table and the figure; each file written whole and renamed into place."""
-    _atomic(
+    write_atomic(
         os.path.join(out_dir, "metrics.csv"), lambda tmp: result.metrics.to_csv(tmp, index=False)
     )
-    _atomic(
+    write_atomic(
         os.path.join(out_dir, "metrics.parquet"),
         lambda tmp: result.metrics.to_parquet(tmp, index=False, engine="pyarrow"),
     )
-    _atomic(
+    write_atomic(
         os.path.join(out_dir, "baselines.csv"),
         lambda tmp: result.baselines.to_csv(tmp, index=False),
     )
-    _atomic(os.path.join(out_dir, "cells.csv"), lambda tmp: result.cells.to_csv(tmp, index=False))
+    write_atomic(
+        os.path.join(out_dir, "cells.csv"), lambda tmp: result.cells.to_csv(tmp, index=False)
+    )
     description = {
         "base_config": _jsonable(base_config),
         "cells": [{"cell": c.id, "loss": c.loss, "overrides": _plain(c.overrides)} for c in cells],
     }
-    _write_text(os.path.join(out_dir, "sweep.json"), json.dumps(description, indent=2))
+    write_text(os.path.join(out_dir, "sweep.json"), json.dumps(description, indent=2))
     protocol = report.protocol(base_config)
     if any(path.startswith("loop.babbling") for path in result.override_columns):
         protocol += " (the base; the cells override it, see the columns)"
-    _write_text(os.path.join(out_dir, "summary.md"), protocol + "\n\n" + result.markdown() + "\n")
+    write_text(os.path.join(out_dir, "summary.md"), protocol + "\n\n" + result.markdown() + "\n")
     config = cells[0].config
     result.plot(
         os.path.join(out_dir, "curves.png"),

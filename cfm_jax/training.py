@@ -40,6 +40,7 @@ from flax import struct
 
 from cfm_jax import _xla, babbling, dataset, networks, robots, rollout, tasks, update
 from cfm_jax import config as config_lib
+from cfm_jax._files import write_atomic
 
 METRIC_COLUMNS = (
     "loss",
@@ -941,9 +942,9 @@ def train(
     def write_metrics():
         if out_dir:
             frame = pd.DataFrame(rows, columns=list(exp.metric_columns))
-            tmp = os.path.join(out_dir, "metrics.csv.tmp")
-            frame.to_csv(tmp, index=False)
-            os.replace(tmp, os.path.join(out_dir, "metrics.csv"))
+            write_atomic(
+                os.path.join(out_dir, "metrics.csv"), lambda tmp: frame.to_csv(tmp, index=False)
+            )
 
     def record(iteration, metrics):
         rows.extend(_rows(config.loss, seeds, iteration, metrics, exp.metric_columns))
