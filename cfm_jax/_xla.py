@@ -13,6 +13,8 @@ from __future__ import annotations
 import os
 import warnings
 
+from cfm_jax import _jax_private
+
 FAST_FLAG = "--xla_cpu_use_fusion_emitters=false"
 
 
@@ -69,9 +71,7 @@ def backend_started() -> bool:
 
     if "jax" not in sys.modules:
         return False
-    from jax._src import xla_bridge
-
-    return bool(xla_bridge.backends_are_initialized())
+    return bool(_jax_private.backends_are_initialized())  # None (not known): False
 
 
 def fast_path_active() -> bool:

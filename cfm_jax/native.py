@@ -10,9 +10,9 @@ host callback directly, which costs ~7 us per call on CPU instead of the ~95 us 
 every operand into a ``jax.Array`` with ``device_put`` before calling the function and
 back with ``np.asarray``; measured with a no-op callback inside a compiled
 ``vmap(scan(...))``, jax 0.10). It uses one private JAX function
-(``jax._src.callback.emit_python_callback``); if that is missing in another JAX version
-it falls back to ``jax.pure_callback`` (:data:`FAST_CALLBACK` says which is in use), with
-the same results.
+(``jax._src.callback.emit_python_callback``, through ``cfm_jax._jax_private``); if that
+is missing in another JAX version it falls back to ``jax.pure_callback``
+(:data:`FAST_CALLBACK` says which is in use), with the same results.
 
 Examples:
   >>> import numpy as np
@@ -31,6 +31,8 @@ import os
 import threading
 
 import numpy as np
+
+from cfm_jax import _jax_private
 
 
 class _Buffers:
@@ -176,15 +178,11 @@ def _primitive():
     global _PRIMITIVE, FAST_CALLBACK
     if FAST_CALLBACK is not None:
         return _PRIMITIVE
-    try:
-        from jax._src import callback as jax_callback
-        from jax._src import dispatch
-
-        emit = jax_callback.emit_python_callback
-        op_sharding = jax_callback._callback_op_sharding
-    except (ImportError, AttributeError):
+    private = _jax_private.host_callback_lowering()
+    if private is None:
         FAST_CALLBACK = False
         return None
+    emit, op_sharding = private.emit, private.op_sharding
     import jax
     import jax.numpy as jnp
     from jax.extend.core import Primitive
@@ -192,7 +190,7 @@ def _primitive():
 
     prim = Primitive("cfm_native_step")
     prim.multiple_results = True
-    dispatch.prim_requires_devices_during_lowering.add(prim)
+    private.requires_devices(prim)
 
     def abstract_eval(qpos, qvel, ctrl, *, stepper):
         del ctrl
