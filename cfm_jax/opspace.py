@@ -43,6 +43,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from mujoco import mjx
 
 from cfm_jax import native, references, rollout
 from cfm_jax.config import ConfigError, check_duration
@@ -284,17 +285,22 @@ def _float32(function):
     return host
 
 
-def kinematics(robot, qpos, qvel, site: int | str | None = None) -> Kinematics:
+def kinematics(
+    robot, qpos, qvel, site: int | str | None = None, simulator: str = "native"
+) -> Kinematics:
     """:class:`Kinematics` of the site as float32 JAX arrays, any leading batch shape.
 
-    One ``jax.pure_callback`` into :class:`HostKinematics` (under ``vmap``, one host call
-    for the whole batch). Treated as a constant of ``(qpos, qvel)`` by ``jax.grad``.
+    ``simulator="native"``: one ``jax.pure_callback`` into :class:`HostKinematics` (under
+    ``vmap``, one host call for the whole batch), MuJoCo C in float64. ``"mjx"``:
+    :func:`mjx_kinematics`, in JAX on the device, no host callback. Either way treated as
+    a constant of ``(qpos, qvel)`` by ``jax.grad``.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       qpos: joint positions, ``(..., nq)``.
       qvel: joint velocities, ``(..., nv)`` (broadcast to ``qpos``'s batch shape).
       site: the site's id or name, or None for :func:`ee_site`'s default.
+      simulator: ``"native"`` or ``"mjx"``.
 
     Returns:
       :class:`Kinematics` of float32 ``jax.Array`` with leading axes ``...``.
@@ -306,6 +312,11 @@ def kinematics(robot, qpos, qvel, site: int | str | None = None) -> Kinematics:
       >>> kin.jacobian.shape, kin.position.dtype
       ((3, 7), dtype('float32'))
     """
+    if simulator == "mjx":
+        qpos = jax.lax.stop_gradient(jnp.asarray(qpos, jnp.float32))
+        qvel = jax.lax.stop_gradient(jnp.asarray(qvel, jnp.float32))
+        return mjx_kinematics(robot, qpos, qvel, site)
+    _check_simulator(simulator)
     host = _cached(HostKinematics, robot, _site_id(robot, site))
     nv = robot.nv
     qpos = jax.lax.stop_gradient(jnp.asarray(qpos, jnp.float32))
@@ -315,6 +326,78 @@ def kinematics(robot, qpos, qvel, site: int | str | None = None) -> Kinematics:
         *(jax.ShapeDtypeStruct(batch + shape, jnp.float32) for shape in ((3,), (3,), (3, nv), (3,)))
     )
     return jax.pure_callback(_float32(host), shapes, qpos, qvel, vmap_method="broadcast_all")
+
+
+def _check_simulator(simulator: str) -> None:
+    if simulator not in rollout.SIMULATORS:
+        raise ConfigError(f"simulator={simulator!r} is not allowed: one of {rollout.SIMULATORS}")
+
+
+def _mjx_site(robot, site):
+    """``(mjx model, site id, body id, blank data)``; MJX kinematics here need nq == nv."""
+    if robot.nq != robot.nv:
+        raise ValueError(
+            f"robot {robot.name!r} has nq={robot.nq} != nv={robot.nv} (a ball or free joint); "
+            "the MJX site kinematics take hinge and slide joints only"
+        )
+    sid = _site_id(robot, site)
+    model = robot.mjx_model
+    return model, sid, int(robot.mj_model.site_bodyid[sid]), mjx.make_data(model)
+
+
+def _over_batch(one, *arrays):
+    """``one`` of unbatched arrays, mapped over the common leading axes of ``arrays``."""
+    batch = jnp.broadcast_shapes(*(a.shape[:-1] for a in arrays))
+    flat = [jnp.broadcast_to(a, batch + a.shape[-1:]).reshape(-1, a.shape[-1]) for a in arrays]
+    out = jax.vmap(one)(*flat)
+    return jax.tree.map(lambda x: x.reshape(batch + x.shape[1:]), out)
+
+
+def mjx_kinematics(robot, qpos, qvel, site: int | str | None = None) -> Kinematics:
+    """:class:`Kinematics` of the site computed by MJX, in JAX: no host callback.
+
+    ``x`` is MJX's ``site_xpos`` after ``mjx.kinematics`` and ``mjx.com_pos``, ``J`` the
+    translational part of ``mjx.jac`` at the site (MuJoCo's ``mj_jacSite``), ``xd = J qd``,
+    and ``Jdot qd`` the derivative of ``J(q) qd`` along ``qd`` (forward-mode
+    differentiation through MJX; MuJoCo C's ``mj_jacDot`` is the host counterpart).
+    float32, any leading batch shape, jit/vmap-able and differentiable.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot` with hinge and slide joints (``nq == nv``).
+      qpos: joint positions, ``(..., nq)``.
+      qvel: joint velocities, ``(..., nv)``.
+      site: the site's id or name, or None for :func:`ee_site`'s default.
+
+    Returns:
+      :class:`Kinematics` of float32 ``jax.Array``.
+
+    Raises:
+      ValueError: the robot has a ball or free joint.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")  # stretched out along x at q = 0, 0.9 m long
+      >>> kin = mjx_kinematics(arm, np.zeros(2), np.array([1.0, 0.0]), "tip")  # doctest: +SKIP
+      >>> np.round(np.asarray(kin.velocity, np.float64), 3).tolist()  # doctest: +SKIP
+      [0.0, 0.0, 0.9]
+      >>> np.round(np.asarray(kin.bias_acceleration, np.float64), 3).tolist()  # doctest: +SKIP
+      [-0.9, 0.0, 0.0]
+    """
+    model, sid, bid, blank = _mjx_site(robot, site)
+
+    def position_and_jacobian(q):
+        data = mjx.com_pos(model, mjx.kinematics(model, blank.replace(qpos=q)))
+        x = data.site_xpos[sid]
+        jacp, _ = mjx.jac(model, data, x, bid)  # (nv, 3)
+        return x, jacp.T
+
+    def one(q, qd):
+        x, jac = position_and_jacobian(q)
+        velocity, bias = jax.jvp(lambda p: position_and_jacobian(p)[1] @ qd, (q,), (qd,))
+        return Kinematics(x, velocity, jac, bias)
+
+    qpos, qvel = (jnp.asarray(a, jnp.float32) for a in (qpos, qvel))
+    return _over_batch(one, qpos, qvel)
 
 
 def ee_position(robot, qpos, site: int | str | None = None):
@@ -788,11 +871,13 @@ def oracle_policy(
     home=None,
     null_kp: float = NULL_KP,
     null_kd: float = NULL_KD,
+    simulator: str = "native",
 ):
     """The operational-space oracle as a JAX function
     ``torque(qpos (..., nq), qvel (..., nv), xdd_desired (..., 3)) -> tau (..., nv)``
-    (float32; one ``jax.pure_callback`` into :class:`HostOracle`, one host call per batch
-    under ``vmap``). Torques are not clipped.
+    (float32). ``simulator="native"``: one ``jax.pure_callback`` into :class:`HostOracle`
+    (one host call per batch under ``vmap``); ``"mjx"``: the same controller computed by
+    MJX in JAX (:func:`mjx_oracle_policy`). Torques are not clipped.
 
     Args:
       robot: a fixed-base :class:`cfm_jax.robots.Robot`.
@@ -800,6 +885,7 @@ def oracle_policy(
       home: ``(nq,)`` posture of the null-space term, or None for ``robot.home``.
       null_kp: null-space proportional gain (1/s^2).
       null_kd: null-space derivative gain (1/s).
+      simulator: ``"native"`` or ``"mjx"``.
 
     Returns:
       The function ``torque``; one :class:`HostOracle` per (model, site, home, gains) is
@@ -812,6 +898,9 @@ def oracle_policy(
       >>> jax.jit(torque)(iiwa.home, np.zeros(7), np.zeros(3)).shape
       (7,)
     """
+    if simulator == "mjx":
+        return mjx_oracle_policy(robot, site, home, null_kp, null_kd)
+    _check_simulator(simulator)
     home = tuple(np.asarray(robot.home if home is None else home, np.float64).tolist())
     host = _cached(HostOracle, robot, _site_id(robot, site), home, float(null_kp), float(null_kd))
 
@@ -820,6 +909,65 @@ def oracle_policy(
         desired = jax.lax.stop_gradient(jnp.asarray(xdd_desired, jnp.float32))
         shape = jax.ShapeDtypeStruct(desired.shape[:-1] + (robot.nv,), jnp.float32)
         return jax.pure_callback(_float32(host), shape, *args, desired, vmap_method="broadcast_all")
+
+    return torque
+
+
+def mjx_oracle_policy(
+    robot,
+    site: int | str | None = None,
+    home=None,
+    null_kp: float = NULL_KP,
+    null_kd: float = NULL_KD,
+):
+    """:class:`HostOracle`'s controller computed by MJX, in JAX (no host callback), as
+    ``torque(qpos (..., nq), qvel (..., nv), xdd_desired (..., 3)) -> tau (..., nv)``.
+
+    The same formula: ``J``, ``Jdot qd`` from :func:`mjx_kinematics`, ``M`` from
+    ``mjx.full_m``, ``qfrc_bias`` and ``qfrc_passive`` from ``mjx.fwd_position`` and
+    ``mjx.fwd_velocity``, ``Lambda`` with ``jnp.linalg.pinv`` at the same relative cut-off
+    :data:`RCOND`; float32 instead of float64.
+
+    Args:
+      robot: a fixed-base :class:`cfm_jax.robots.Robot` with hinge and slide joints.
+      site: the site's id or name, or None for :func:`ee_site`'s default.
+      home: ``(nq,)`` posture of the null-space term, or None for ``robot.home``.
+      null_kp: null-space proportional gain (1/s^2).
+      null_kd: null-space derivative gain (1/s).
+
+    Returns:
+      The function ``torque`` (float32, jit/vmap-able).
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> iiwa = robots.load("iiwa14")
+      >>> torque = mjx_oracle_policy(iiwa)  # compiles for ~40 s on a CPU:
+      >>> tau = jax.jit(torque)(iiwa.home, np.zeros(7), np.zeros(3))  # doctest: +SKIP
+      >>> tau.shape  # doctest: +SKIP
+      (7,)
+    """
+    model, sid, bid, blank = _mjx_site(robot, site)
+    del sid, bid
+    home = jnp.asarray(robot.home if home is None else home, jnp.float32)
+    damping = jnp.asarray(rollout.implicit_damping(robot.mj_model), jnp.float32)
+    null_kp, null_kd = float(null_kp), float(null_kd)
+
+    def one(q, qd, desired):
+        kin = mjx_kinematics(robot, q, qd, site)
+        data = mjx.fwd_velocity(model, mjx.fwd_position(model, blank.replace(qpos=q, qvel=qd)))
+        inertia = mjx.full_m(model, data) + jnp.diag(damping)
+        jac = kin.jacobian
+        inverse_jt = jnp.linalg.solve(inertia, jac.T)  # Mt^-1 J^T, (nv, 3)
+        task_inertia = jnp.linalg.pinv(jac @ inverse_jt, rtol=RCOND, hermitian=True)
+        force = task_inertia @ (desired - kin.bias_acceleration)
+        tau_null = inertia @ (null_kp * (home - q) - null_kd * qd)
+        projected = tau_null - jac.T @ (task_inertia @ (inverse_jt.T @ tau_null))
+        return jac.T @ force + projected + data.qfrc_bias - data.qfrc_passive
+
+    def torque(qpos, qvel, xdd_desired):
+        args = [jax.lax.stop_gradient(jnp.asarray(a, jnp.float32)) for a in (qpos, qvel)]
+        desired = jax.lax.stop_gradient(jnp.asarray(xdd_desired, jnp.float32))
+        return _over_batch(one, *args, desired)
 
     return torque
 
@@ -859,20 +1007,22 @@ def pd_gains(
     return kp * task_inertia, kd * task_inertia
 
 
-def pd_policy(robot, gain_p, gain_d, site: int | str | None = None):
+def pd_policy(robot, gain_p, gain_d, site: int | str | None = None, simulator: str = "native"):
     """PD-only feedback in task space as a JAX function
     ``torque(qpos, qvel, ref_x (..., 3), ref_xd (..., 3)) -> tau (..., nv)``:
 
         tau = J(q)^T (K_p (x_ref - x) + K_d (xd_ref - xd))
 
-    with ``x, xd, J`` from :func:`kinematics`. No gravity compensation, no feed-forward, no
-    null-space term (the joint damping of the model is the only null-space damping).
+    with ``x, xd, J`` from :func:`kinematics` (of ``simulator``). No gravity compensation,
+    no feed-forward, no null-space term (the joint damping of the model is the only
+    null-space damping).
 
     Args:
       robot: a fixed-base :class:`cfm_jax.robots.Robot`.
       gain_p: ``K_p``, ``(3, 3)`` (for example from :func:`pd_gains`).
       gain_d: ``K_d``, ``(3, 3)``.
       site: the site's id or name, or None for :func:`ee_site`'s default.
+      simulator: ``"native"`` (site kinematics from MuJoCo C on the host) or ``"mjx"``.
 
     Returns:
       The function ``torque`` (float32, jit/vmap-able).
@@ -889,7 +1039,7 @@ def pd_policy(robot, gain_p, gain_d, site: int | str | None = None):
     gain_d = jnp.asarray(gain_d, jnp.float32)
 
     def torque(qpos, qvel, ref_x, ref_xd):
-        kin = kinematics(robot, qpos, qvel, site)
+        kin = kinematics(robot, qpos, qvel, site, simulator)
         force = jnp.einsum("ij,...j->...i", gain_p, ref_x - kin.position) + jnp.einsum(
             "ij,...j->...i", gain_d, ref_xd - kin.velocity
         )

@@ -28,6 +28,7 @@ import functools
 import json
 import os
 import time
+from collections.abc import Callable
 from functools import partial
 from typing import Any
 
@@ -40,7 +41,7 @@ from flax import struct
 
 from cfm_jax import _xla, babbling, dataset, networks, robots, rollout, tasks, update
 from cfm_jax import config as config_lib
-from cfm_jax._files import write_atomic
+from cfm_jax._files import write_atomic, write_text
 
 METRIC_COLUMNS = (
     "loss",
@@ -162,7 +163,7 @@ class Experiment:
         task = config.task
         self.control_dt = task.control_dt if task.control_dt is not None else self.robot.timestep
         rollout.substeps(self.robot, self.control_dt)  # validates control_dt
-        self.task = tasks.make(self.robot, task, self.control_dt)
+        self.task = tasks.make(self.robot, task, self.control_dt, config.simulator)
         fm = config.forward
         self.forward = networks.forward_model(
             fm.hidden,
@@ -249,7 +250,7 @@ class Experiment:
         key = json.dumps(dataclasses.asdict(config.task), sort_keys=True)
         cache = self._cache.setdefault("tasks", {})
         if key not in cache:
-            task = tasks.make(self.robot, config.task, self.control_dt)
+            task = tasks.make(self.robot, config.task, self.control_dt, config.simulator)
             self.task.with_values(task.values())  # the same shapes, or a named error
             cache[key] = task
             while len(cache) > 8:
@@ -856,6 +857,7 @@ def train(
     experiment: Experiment | None = None,
     resume: str | None = None,
     data: str | dataset.Recorded | None = None,
+    progress_fn: Callable[[int, pd.DataFrame], object] | None = None,
 ) -> TrainResult:
     """Run Algorithm 1 for every seed of ``config`` (seeds as a vmap axis).
 
@@ -886,6 +888,12 @@ def train(
         ``k`` for run ``k``) and refits f and g. The controller is still rolled out on
         the robot every iteration, for the metrics only. With the run's own data, seed
         and loss this reproduces the run exactly.
+      progress_fn: called as ``progress_fn(iteration, metrics)`` after each iteration
+        (``0 .. loop.iterations - 1``) and after the final evaluation
+        (``loop.iterations``), with that iteration's rows of :attr:`TrainResult.metrics`
+        (a DataFrame, one row per seed and target), as brax's ``train`` calls its
+        ``progress_fn``: for live plots or logging to a tracker. Iterations restored from
+        a checkpoint (``resume``) are not passed again.
 
     Returns:
       A :class:`TrainResult`.
@@ -931,8 +939,9 @@ def train(
     checkpointer = None
     if out_dir:
         os.makedirs(out_dir, exist_ok=True)
-        with open(os.path.join(out_dir, "config.json"), "w") as f:
-            json.dump(config_lib.to_dict(config), f, indent=2)
+        write_text(
+            os.path.join(out_dir, "config.json"), json.dumps(config_lib.to_dict(config), indent=2)
+        )
         if config.loop.checkpoint_every > 0:
             checkpointer = ckpt_lib.Checkpointer(
                 os.path.join(resume or out_dir, "checkpoints"), keep=config.loop.checkpoint_keep
@@ -947,8 +956,11 @@ def train(
             )
 
     def record(iteration, metrics):
-        rows.extend(_rows(config.loss, seeds, iteration, metrics, exp.metric_columns))
+        new = _rows(config.loss, seeds, iteration, metrics, exp.metric_columns)
+        rows.extend(new)
         write_metrics()
+        if progress_fn is not None:
+            progress_fn(iteration, pd.DataFrame(new, columns=list(exp.metric_columns)))
 
     last_saved = [None]
 
@@ -1010,7 +1022,9 @@ def train(
     if checkpointer is not None:
         checkpointer.close()
     if out_dir:
-        baselines.to_csv(os.path.join(out_dir, "baselines.csv"), index=False)
+        write_atomic(
+            os.path.join(out_dir, "baselines.csv"), lambda tmp: baselines.to_csv(tmp, index=False)
+        )
         dataset.save(
             os.path.join(out_dir, "dataset.npz"),
             state.data,

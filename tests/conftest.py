@@ -4,6 +4,10 @@
 ``XLA_FLAGS=--xla_cpu_use_fusion_emitters=false`` (see cfm_jax/_xla.py), without which MJX on
 the iiwa compiles and runs about 1000x slower.
 
+The suite runs in two pytest-xdist workers, a test file at a time each
+(``-n 2 --dist loadfile`` in pyproject.toml). :data:`LONGEST_FIRST` puts the longest files
+at the front of the queue, so that neither worker is left with a long file at the end.
+
 JAX's persistent compilation cache is on for the test session, in a fresh temporary folder
 (removed at exit; a ``JAX_COMPILATION_CACHE_DIR`` set by the caller is used as it is). Many
 tests build their own ``Experiment`` of the same small config, so the same XLA programs are
@@ -40,3 +44,22 @@ jax.config.update(
     "jax_persistent_cache_min_entry_size_bytes",
     int(os.environ.get("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")),
 )
+
+
+# The longest test files (``pytest --durations``), started first; the rest follow in
+# collection order. Only the order changes, never which tests run.
+LONGEST_FIRST = (
+    "test_sweep.py",
+    "test_notebooks.py",
+    "test_checkpoint.py",
+    "test_train.py",
+    "test_legged_task.py",
+    "test_mjx_tasks.py",
+    "test_replay.py",
+    "test_opspace_task.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(LONGEST_FIRST)))  # stable

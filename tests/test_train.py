@@ -113,9 +113,18 @@ def test_vmapped_seeds_equal_a_loop_over_seeds():
             )
 
 
-def test_same_config_twice_gives_identical_metrics(two_seeds, experiment):
-    again = cfm_jax.train(TINY, progress=False, experiment=experiment)
+def test_same_config_twice_gives_identical_metrics_and_progress_fn_sees_them(two_seeds, experiment):
+    seen = []
+    again = cfm_jax.train(
+        TINY, progress=False, experiment=experiment, progress_fn=lambda i, m: seen.append((i, m))
+    )
     pd.testing.assert_frame_equal(again.metrics, two_seeds.metrics, check_exact=True)
+    # progress_fn: each iteration once, in order, then the final evaluation; its rows are
+    # the result's rows of that iteration.
+    assert [i for i, _ in seen] == list(range(TINY.loop.iterations + 1))
+    for i, rows in seen:
+        expected = again.metrics[again.metrics.iteration == i].reset_index(drop=True)
+        pd.testing.assert_frame_equal(rows, expected, check_exact=True)
 
 
 def test_inverse_dynamics_numbers_bit_identical_to_the_recorded_ones(two_seeds):

@@ -13,8 +13,9 @@ The references they follow are in :mod:`cfm_jax.references` (joint-space reachin
 legged recordings padded), :mod:`cfm_jax.opspace` (Cartesian reaching) and
 :mod:`cfm_jax.locomotion` (the Solo12 recordings).
 
-A new task is one new module with a ``make(robot, task_config, control_dt)`` and one call
-of :func:`register`; :func:`make` then builds it for any config that names it.
+A new task is one new module with a ``make(robot, task_config, control_dt, simulator)``
+and one call of :func:`register`; :func:`make` then builds it for any config that names
+it.
 
 Examples:
   >>> from cfm_jax import config, robots, tasks
@@ -55,7 +56,7 @@ class TaskSpec:
 
     Attributes:
       name: the name ``Config.task.name`` takes.
-      make: ``make(robot, task_config, control_dt) -> task``; raises
+      make: ``make(robot, task_config, control_dt, simulator) -> task``; raises
         :class:`cfm_jax.config.ConfigError` when the task does not fit the robot.
       default_config: ``default_config() -> Config``, the task's defaults (with
         ``task.name`` set to ``name``).
@@ -80,7 +81,7 @@ def register(name: str, make: Callable, default_config: Callable | None = None) 
 
     Args:
       name: the task's name; it also becomes a name ``Config.task.name`` accepts.
-      make: ``make(robot, task_config, control_dt) -> task``.
+      make: ``make(robot, task_config, control_dt, simulator) -> task``.
       default_config: ``default_config() -> Config``; None:
         ``Config(task=TaskConfig(name=name))``.
 
@@ -91,7 +92,7 @@ def register(name: str, make: Callable, default_config: Callable | None = None) 
       ValueError: ``name`` is not a non-empty string, or is registered already.
 
     Examples:
-      >>> spec = register("my_task", lambda robot, task, dt: None)  # doctest: +SKIP
+      >>> spec = register("my_task", lambda robot, task, dt, sim: None)  # doctest: +SKIP
     """
     if not isinstance(name, str) or not name:
         raise ValueError(f"name={name!r} is not allowed: a non-empty string")
@@ -128,7 +129,7 @@ def load(name: str) -> TaskSpec:
     return REGISTRY[name]
 
 
-def make(robot, task: TaskConfig, control_dt: float):
+def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native"):
     """The task object of a :class:`cfm_jax.config.TaskConfig` for a robot.
 
     Args:
@@ -137,6 +138,8 @@ def make(robot, task: TaskConfig, control_dt: float):
         task: :class:`JointSpaceTask` (``inverse_dynamics``), :class:`OperationalSpaceTask`
         (``opspace``) or :class:`LeggedTask` (``walk``, ``jump``).
       control_dt: control period (s), a multiple of the robot's timestep.
+      simulator: ``Config.simulator``: ``"native"`` or ``"mjx"`` (with ``mjx`` every part of
+        the task that runs inside a rollout is JAX, no host callback).
 
     Returns:
       The task object.
@@ -152,7 +155,7 @@ def make(robot, task: TaskConfig, control_dt: float):
       >>> type(task).__name__, task.targets, task.steps
       ('JointSpaceTask', 5, 100)
     """
-    return load(task.name).make(robot, task, control_dt)
+    return load(task.name).make(robot, task, control_dt, simulator)
 
 
 for _name, _module in (

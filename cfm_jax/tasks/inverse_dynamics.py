@@ -247,7 +247,7 @@ def require_fixed_base(robot, name: str) -> None:
         )
 
 
-def make(robot, task: TaskConfig, control_dt: float) -> JointSpaceTask:
+def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") -> JointSpaceTask:
     """The ``inverse_dynamics`` task of a config: joint-space reaching
     (:func:`cfm_jax.references.reaching`) with the config's gains.
 
@@ -255,6 +255,8 @@ def make(robot, task: TaskConfig, control_dt: float) -> JointSpaceTask:
       robot: a fixed-base :class:`cfm_jax.robots.Robot`.
       task: the :class:`cfm_jax.config.TaskConfig`.
       control_dt: control period (s).
+      simulator: ``"native"`` or ``"mjx"`` (the same task for both: its simulator-specific
+        parts, the oracle, are chosen when a rollout asks for them).
 
     Returns:
       A :class:`JointSpaceTask`.

@@ -286,13 +286,15 @@ class LeggedTask(JointSpaceTask):
         return policy
 
 
-def make(robot, task: TaskConfig, control_dt: float) -> LeggedTask:
+def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") -> LeggedTask:
     """The ``walk`` or ``jump`` task of a config.
 
     Args:
       robot: a floating-base :class:`cfm_jax.robots.Robot` with the Solo12's feet.
       task: the :class:`cfm_jax.config.TaskConfig` (``name`` ``walk`` or ``jump``).
       control_dt: control period (s).
+      simulator: ``"native"`` or ``"mjx"`` (the same task for both: its simulator-specific
+        parts, the oracle, are chosen when a rollout asks for them).
 
     Returns:
       A :class:`LeggedTask`.

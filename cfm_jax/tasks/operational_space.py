@@ -21,7 +21,8 @@ class OperationalSpaceTask(JointSpaceTask):
     ``(qdot' - qdot) / dt`` and ``(xd' - xd) / dt``), of which the desired quantity specifies
     the last three (``desired_index``). Redundant arms make ``tau`` for a given ``xdd*``
     non-unique. The tracking error is the site position error ``x' - x_ref(t+1)`` (m).
-    Site kinematics come from MuJoCo C (:mod:`cfm_jax.opspace`); the features carried in
+    Site kinematics come from MuJoCo C through a host callback with the native simulator
+    and from MJX with ``mjx`` (:mod:`cfm_jax.opspace`); the features carried in
     the rollout are ``[x, xd]`` of the site. Baselines: the analytic operational-space
     controller (Khatib) as oracle and task-space PD (``J^T (K_p e + K_d ed)``).
 
@@ -30,6 +31,7 @@ class OperationalSpaceTask(JointSpaceTask):
       task: the :class:`cfm_jax.config.TaskConfig` (``site``, ``targets`` as ``(k, 3)``
         positions or None for the defaults, ``home``, ``duration``, ``kp``, ``kd``).
       control_dt: control period.
+      simulator: ``"native"`` or ``"mjx"`` (where the site kinematics come from).
 
     Examples:
       >>> from cfm_jax import config, robots
@@ -47,11 +49,11 @@ class OperationalSpaceTask(JointSpaceTask):
     tracking_unit = "m"
     output_unit = "(rad/s$^2$)$^2$ and (m/s$^2$)$^2$"
 
-    def __init__(self, robot, task: TaskConfig, control_dt: float):
+    def __init__(self, robot, task: TaskConfig, control_dt: float, simulator: str = "native"):
         check_duration(task.duration, control_dt)
         home = robot.home if task.home is None else np.asarray(task.home, np.float64)
         check_positions("task.home", home[None], robot)
-        self.robot, self.opspace = robot, opspace
+        self.robot, self.opspace, self.simulator = robot, opspace, simulator
         self.site = opspace.ee_site(robot, task.site)
         targets = (
             opspace.default_cartesian_targets(robot, self.site, home)
@@ -83,7 +85,7 @@ class OperationalSpaceTask(JointSpaceTask):
         return self.opspace.pd_gains(self.robot, kp, kd, self.site, self._home_np)
 
     def _site(self, qpos, qvel):
-        kin = self.opspace.kinematics(self.robot, qpos, qvel, self.site)
+        kin = self.opspace.kinematics(self.robot, qpos, qvel, self.site, self.simulator)
         return jnp.concatenate([kin.position, kin.velocity], -1)
 
     def start(self, reference):
@@ -103,7 +105,9 @@ class OperationalSpaceTask(JointSpaceTask):
         else:
             poses = jnp.broadcast_to(self.home, (self.targets, self.robot.nq))
             poses = babbling.random_poses(key, self.robot, poses)
-            goal = self.opspace.kinematics(self.robot, poses, jnp.zeros_like(poses), self.site)
+            goal = self.opspace.kinematics(
+                self.robot, poses, jnp.zeros_like(poses), self.site, self.simulator
+            )
             goal = goal.position
         x, xd, xdd = minimum_jerk(start, goal, self.steps * self.control_dt, self.control_dt)
         return type(self.reference)(x, xd, xdd)
@@ -128,14 +132,17 @@ class OperationalSpaceTask(JointSpaceTask):
     def feedback(self, step):
         """Task-space PD ``J^T (K_p (x_ref - x) + K_d (xd_ref - xd))``
         (:func:`cfm_jax.opspace.pd_policy`)."""
-        torque = self.opspace.pd_policy(self.robot, self.gain_p, self.gain_d, self.site)
+        torque = self.opspace.pd_policy(
+            self.robot, self.gain_p, self.gain_d, self.site, self.simulator
+        )
         return torque(step.qpos, step.qvel, step.reference.x, step.reference.xd)
 
     def oracle_policy(self, simulator: str):
-        """The analytic operational-space controller (:func:`cfm_jax.opspace.oracle_policy`;
-        MuJoCo C on the host for either simulator)."""
-        del simulator
-        torque = self.opspace.oracle_policy(self.robot, self.site, self._home_np)
+        """The analytic operational-space controller (:func:`cfm_jax.opspace.oracle_policy`:
+        MuJoCo C on the host for ``native``, MJX in JAX for ``mjx``)."""
+        torque = self.opspace.oracle_policy(
+            self.robot, self.site, self._home_np, simulator=simulator
+        )
 
         def policy(step, key):
             del key
@@ -144,13 +151,17 @@ class OperationalSpaceTask(JointSpaceTask):
         return policy
 
 
-def make(robot, task: TaskConfig, control_dt: float) -> OperationalSpaceTask:
+def make(
+    robot, task: TaskConfig, control_dt: float, simulator: str = "native"
+) -> OperationalSpaceTask:
     """The ``opspace`` task of a config.
 
     Args:
       robot: a fixed-base :class:`cfm_jax.robots.Robot`.
       task: the :class:`cfm_jax.config.TaskConfig`.
       control_dt: control period (s).
+      simulator: ``"native"`` (site kinematics from MuJoCo C through a host callback) or
+        ``"mjx"`` (from MJX, in JAX: the rollout has no host callback).
 
     Returns:
       An :class:`OperationalSpaceTask`.
@@ -166,4 +177,4 @@ def make(robot, task: TaskConfig, control_dt: float) -> OperationalSpaceTask:
       (3, 50)
     """
     require_fixed_base(robot, task.name)
-    return OperationalSpaceTask(robot, task, control_dt)
+    return OperationalSpaceTask(robot, task, control_dt, simulator)
