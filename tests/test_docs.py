@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import importlib.util
 import os
-import pkgutil
 import re
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
-import cfm_jax
+from tiny import public_modules
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -51,16 +50,6 @@ def external_loads(html: str) -> list[str]:
                 found.append(tag)
     found += [m.group(0) for m in FETCHES.finditer(html)]
     return found
-
-
-def public_modules() -> list[str]:
-    """Public modules, and those of public packages as ``tasks.legged``."""
-    found = []
-    for info in pkgutil.walk_packages(cfm_jax.__path__, prefix="cfm_jax."):
-        name = info.name.removeprefix("cfm_jax.")
-        if not any(part.startswith("_") for part in name.split(".")):
-            found.append(name)
-    return sorted(found)
 
 
 def build(root: Path, site: Path) -> subprocess.CompletedProcess:

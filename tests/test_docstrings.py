@@ -13,11 +13,11 @@ from __future__ import annotations
 import doctest
 import importlib
 import os
-import pkgutil
 from pathlib import Path
 
 import griffe
 import pytest
+from tiny import public_modules
 
 import cfm_jax
 
@@ -49,16 +49,6 @@ DOCTEST_MODULES = (
     "training",
     "update",
 )
-
-
-def public_modules() -> list[str]:
-    """Public modules and the public modules of public packages (``tasks.legged``)."""
-    found = []
-    for info in pkgutil.walk_packages(cfm_jax.__path__, prefix="cfm_jax."):
-        name = info.name.removeprefix("cfm_jax.")
-        if not any(part.startswith("_") for part in name.split(".")):
-            found.append(name)
-    return sorted(found)
 
 
 def _parameters(function) -> list[str]:

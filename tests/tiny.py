@@ -1,10 +1,13 @@
-"""Shared tiny configs and CLI helpers for the end-to-end tests (fast, wiring only)."""
+"""Shared test helpers: tiny configs and CLI helpers for the end-to-end tests (fast, wiring
+only), and the list of public modules."""
 
 from __future__ import annotations
 
 import json
+import pkgutil
 import sys
 
+import cfm_jax
 from cfm_jax import config as config_lib
 
 
@@ -37,3 +40,13 @@ def cli_command(config: config_lib.Config, tmp_path, out, losses: str, seeds: in
         "--loss", losses, "--seeds", str(seeds), "--iterations", str(iterations),
         "--config", str(config_file), "--out", str(out), "--quiet",
     ]  # fmt: skip
+
+
+def public_modules() -> list[str]:
+    """Public modules of cfm_jax, and those of public packages as ``tasks.legged``."""
+    found = []
+    for info in pkgutil.walk_packages(cfm_jax.__path__, prefix="cfm_jax."):
+        name = info.name.removeprefix("cfm_jax.")
+        if not any(part.startswith("_") for part in name.split(".")):
+            found.append(name)
+    return sorted(found)
