@@ -145,12 +145,15 @@ def main() -> None:
     ]
     with open(os.path.join(ROOT, "docs", "benchmarks_notes.md")) as f:
         notes = f.read()
-    sweep_path = os.path.join(ROOT, "docs", "benchmarks_sweep.md")  # sweep_benchmark.py
-    if os.path.isfile(sweep_path):
-        with open(sweep_path) as f:
-            notes = (
-                "<!-- sweep-benchmark -->\n" + f.read() + "<!-- /sweep-benchmark -->\n\n" + notes
-            )
+    # The sections of sweep_benchmark.py and mjx_benchmark.py, kept as they are.
+    for name, marker in (
+        ("benchmarks_mjx.md", "mjx-benchmark"),
+        ("benchmarks_sweep.md", "sweep-benchmark"),
+    ):
+        path = os.path.join(ROOT, "docs", name)
+        if os.path.isfile(path):
+            with open(path) as f:
+                notes = f"<!-- {marker} -->\n" + f.read() + f"<!-- /{marker} -->\n\n" + notes
     text = (
         "# Benchmarks\n\n"
         f"Written by `python experiments/benchmark.py`, {datetime.date.today().isoformat()}.\n\n"
