@@ -1,10 +1,13 @@
 """Shared pieces of the study scripts: the flags and the run through cfm_jax.sweep
-(iiwa_inverse_dynamics.py), and the --quick config (also opspace_study.py)."""
+(iiwa_inverse_dynamics.py), the --quick config (also opspace_study.py), and the section a
+benchmark script writes into docs/benchmarks.md (sweep_benchmark.py, mjx_benchmark.py)."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
+import re
 import time
 
 import cfm_jax
@@ -78,3 +81,25 @@ def run(config: config_lib.Config, args) -> tuple[cfm_jax.SweepResult, float, co
         progress=not args.quiet,
     )
     return result, time.perf_counter() - start, config
+
+
+def write_benchmark_section(out: str, marker: str, section: str) -> None:
+    """Write ``section`` to ``out`` and between ``<!-- marker -->`` and ``<!-- /marker -->``
+    in docs/benchmarks.md (before "How the numbers are made" the first time), which
+    experiments/benchmark.py keeps when it rewrites the page."""
+    with open(out, "w") as f:
+        f.write(section)
+    doc = os.path.join(
+        os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "docs", "benchmarks.md"
+    )
+    with open(doc) as f:
+        text = f.read()
+    begin, end = f"<!-- {marker} -->\n", f"<!-- /{marker} -->\n"
+    block = begin + section + end
+    if begin in text:
+        text = re.sub(re.escape(begin) + ".*?" + re.escape(end), lambda m: block, text, flags=re.S)
+    else:
+        text = text.replace("## How the numbers are made", block + "\n## How the numbers are made")
+    with open(doc, "w") as f:
+        f.write(text)
+    print(f"wrote {out} and its section of {doc}")

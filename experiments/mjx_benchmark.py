@@ -28,9 +28,10 @@ import argparse
 import datetime
 import json
 import os
-import re
 import statistics
 import time
+
+import _study
 
 import cfm_jax  # noqa: F401  (first: it sets the XLA flag before JAX starts)
 
@@ -148,20 +149,7 @@ def main() -> None:
     lines.append("")
     section = "\n".join(lines)
     print(section)
-    with open(args.out, "w") as f:
-        f.write(section)
-    doc = os.path.join(ROOT, "docs", "benchmarks.md")
-    with open(doc) as f:
-        text = f.read()
-    begin, end = "<!-- mjx-benchmark -->\n", "<!-- /mjx-benchmark -->\n"
-    block = begin + section + end
-    if begin in text:
-        text = re.sub(re.escape(begin) + ".*?" + re.escape(end), lambda m: block, text, flags=re.S)
-    else:
-        text = text.replace("## How the numbers are made", block + "\n## How the numbers are made")
-    with open(doc, "w") as f:
-        f.write(text)
-    print(f"wrote {args.out} and its section of {doc}")
+    _study.write_benchmark_section(args.out, "mjx-benchmark", section)
 
 
 if __name__ == "__main__":

@@ -16,9 +16,10 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import re
 import sys
 import time
+
+import _study
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -109,20 +110,7 @@ def main() -> None:
     ]
     section = "\n".join(lines)
     print(section)
-    with open(args.out, "w") as f:
-        f.write(section)
-    doc = os.path.join(ROOT, "docs", "benchmarks.md")
-    with open(doc) as f:
-        text = f.read()
-    begin, end = "<!-- sweep-benchmark -->\n", "<!-- /sweep-benchmark -->\n"
-    block = begin + section + end
-    if begin in text:
-        text = re.sub(re.escape(begin) + ".*?" + re.escape(end), lambda m: block, text, flags=re.S)
-    else:
-        text = text.replace("## How the numbers are made", block + "\n## How the numbers are made")
-    with open(doc, "w") as f:
-        f.write(text)
-    print(f"wrote {args.out} and its section of {doc}")
+    _study.write_benchmark_section(args.out, "sweep-benchmark", section)
 
 
 if __name__ == "__main__":
