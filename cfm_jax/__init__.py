@@ -15,9 +15,9 @@ flag before JAX's backend starts): :func:`train`, :class:`TrainResult`,
 :class:`ForwardModelConfig`, :class:`ControllerConfig`, :class:`LoopConfig`,
 :class:`ConfigError`, :func:`for_task` (from :mod:`cfm_jax.config`); :func:`sweep`,
 :class:`SweepResult`, :class:`SweepError` (from :mod:`cfm_jax.sweeps`). Submodules:
-``robots``, ``tasks``, ``opspace``, ``locomotion``, ``networks``, ``losses``, ``dataset``,
-``native``, ``rollout``, ``update``, ``training``, ``checkpoint``, ``report``, ``render``,
-``bench``, ``theory``, ``sweeps``.
+``robots``, ``tasks``, ``opspace``, ``solo12``, ``locomotion``, ``networks``, ``losses``,
+``dataset``, ``native``, ``rollout``, ``update``, ``training``, ``checkpoint``, ``report``,
+``plots``, ``render``, ``bench``, ``theory``, ``sweeps``.
 """
 
 from cfm_jax import _xla

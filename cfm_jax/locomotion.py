@@ -1,5 +1,5 @@
-"""Solo12 locomotion helpers: foot forces from sensordata, leg kinematics, fall detection, and
-dynamically consistent walk / jump references recorded from a whole-body controller.
+"""Dynamically consistent walk and jump references for the Solo12, recorded from a
+whole-body controller, their on-disk cache, and the checks that replay them.
 
 The references stand in for the paper's kino-dynamic planner (Ponton et al. 2018). Instead of
 planning, a simple whole-body controller (joint PD on analytic leg inverse kinematics plus a
@@ -8,16 +8,11 @@ every physics step is recorded. The recording is therefore exactly consistent wi
 model: replaying its torques reproduces it, and ``mj_inverse`` on the recorded
 ``(qpos, qvel, qacc)`` returns the recorded torques (see :func:`inverse_dynamics_residual`).
 
-Conventions (see docs/locomotion.md):
-
-* ``qpos`` (19) = base position (3), base quaternion w x y z (4), 12 joints in the order
-  FL, FR, HL, HR, each (HAA, HFE, KFE); ``qvel`` (18) = base linear velocity (world frame),
-  base angular velocity (base frame, MuJoCo's free-joint convention), 12 joint velocities.
-* ``foot_force (..., 4, 3)``: force the floor exerts on each foot, world frame, in newtons
-  (z > 0 when standing).
-* Physics timestep 0.002 s (from the XML); references are given at ``control_dt`` 0.004 s
-  (250 Hz, the paper's rate), so each control step holds the torque for 2 physics steps,
-  like :class:`cfm_jax.native.Stepper`.
+The robot itself (model file, foot forces, kinematics, falls) is :mod:`cfm_jax.solo12`, whose
+conventions for ``qpos``, ``qvel`` and ``foot_force`` hold here (see docs/locomotion.md).
+Physics timestep 0.002 s (from the XML); references are given at ``control_dt`` 0.004 s
+(250 Hz, the paper's rate), so each control step holds the torque for 2 physics steps, like
+:class:`cfm_jax.native.Stepper`.
 
 Examples:
   >>> from cfm_jax import locomotion
@@ -37,307 +32,13 @@ from typing import NamedTuple
 
 import numpy as np
 
+from cfm_jax import solo12
 from cfm_jax._files import atomic_path
 
-LEGS = ("FL", "FR", "HL", "HR")
-JOINTS = tuple(f"{leg}_{j}" for leg in LEGS for j in ("HAA", "HFE", "KFE"))
-# (front +1 / hind -1, left +1 / right -1) for each leg, [2.1] of the facts sheet.
-LEG_SIGNS = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], dtype=float)
-
-# Kinematic constants of robots/solo12.xml (facts sheet [2.2], [2.4]).
-HAA_X, HAA_Y = 0.2141, 0.0875
-HFE_DX = 0.0195  # HFE sits 19.5 mm inboard of HAA
-LEG_Y = 0.014 + 0.03745 + 0.009  # lateral offset of the foot from the HAA axis (shoulder frame)
-L_UPPER = L_LOWER = 0.16
-FOOT_RADIUS = 0.017
-BASE_HALF = np.array([0.196, 0.05, 0.025])  # visual base box half-extents
-
-SENSOR_SLOT = 10  # per foot: found (1), force in contact frame (3), normal (3), tangent (3)
-HOME_JOINTS = np.array([0, 0.8, -1.6, 0, 0.8, -1.6, 0, -0.8, 1.6, 0, -0.8, 1.6])
-KP, KD = 5.0, 0.1  # robot_properties_solo default joint PD [2.5]
 CONTROL_DT = 0.004  # 250 Hz, the paper's authors' control rate
 
 CACHE_ENV = "CFM_JAX_REFERENCE_CACHE"
 _FORMAT_VERSION = 1
-
-
-def model_path() -> str:
-    """Path of the shipped ``solo12.xml`` (package data, or ``robots/`` of a checkout).
-
-    Returns:
-      The file's path (str).
-
-    Examples:
-      >>> model_path().endswith("solo12.xml")
-      True
-    """
-    try:
-        import importlib.resources
-
-        path = importlib.resources.files("cfm_jax._robot_files") / "solo12.xml"
-        if path.is_file():
-            return str(path)
-    except ModuleNotFoundError:
-        pass
-    return str(Path(__file__).resolve().parent.parent / "robots" / "solo12.xml")
-
-
-def load_model(path: str | None = None):
-    """``mujoco.MjModel`` of Solo12 (the C model alone, no :class:`cfm_jax.robots.Robot`).
-
-    Args:
-      path: an MJCF file, or None for :func:`model_path`.
-
-    Returns:
-      The ``mujoco.MjModel``.
-
-    Examples:
-      >>> model = load_model()
-      >>> model.nq, model.nv, model.nu, model.nsensordata, model.opt.timestep
-      (19, 18, 12, 40, 0.002)
-    """
-    import mujoco
-
-    return mujoco.MjModel.from_xml_path(path or model_path())
-
-
-# ---- contact forces --------------------------------------------------------------------------
-
-
-def foot_forces(sensordata, xp=np):
-    """World-frame force of the floor on each foot, ``(..., 4, 3)``, from ``sensordata``.
-
-    Works on ``(..., 40)`` arrays (the four contact sensors of ``solo12.xml``), with NumPy or
-    ``jax.numpy`` (pass ``xp=jnp``). The contact sensors report the force in the contact frame
-    (normal, tangent, bitangent = normal x tangent, the force that geom1 = foot exerts on
-    geom2 = floor) together with the frame's normal and tangent in the world frame; this
-    rotates it to the world frame and flips the sign so it is the floor's force on the foot.
-    Slots with no contact are all zero, giving zero force.
-
-    Args:
-      sensordata: ``(..., nsensordata)`` whose first 40 entries are the four feet's contact
-        sensors (10 each: found, force, normal, tangent), as in ``solo12.xml``.
-      xp: the array module, ``numpy`` or ``jax.numpy``.
-
-    Returns:
-      ``(..., 4, 3)`` forces (N), feet in the order FL, FR, HL, HR.
-
-    Examples:
-      >>> import mujoco
-      >>> model = load_model()
-      >>> data = mujoco.MjData(model)
-      >>> mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
-      >>> mujoco.mj_forward(model, data)
-      >>> force = foot_forces(data.sensordata)
-      >>> force.shape, np.round(force[:, 2], 1).tolist()  # the floor pushes each foot up
-      ((4, 3), [6.6, 6.6, 6.6, 6.6])
-    """
-    s = xp.reshape(sensordata[..., : 4 * SENSOR_SLOT], sensordata.shape[:-1] + (4, SENSOR_SLOT))
-    f, n, t = s[..., 1:4], s[..., 4:7], s[..., 7:10]
-    b = xp.cross(n, t)
-    world = f[..., 0:1] * n + f[..., 1:2] * t + f[..., 2:3] * b
-    return -world
-
-
-def foot_contact(sensordata, xp=np):
-    """Whether each foot touches the floor, ``(..., 4)`` bool, from the sensors' found count.
-
-    Args:
-      sensordata: ``(..., nsensordata)`` as for :func:`foot_forces`.
-      xp: the array module, ``numpy`` or ``jax.numpy``.
-
-    Returns:
-      ``(..., 4)`` bool, feet in the order FL, FR, HL, HR.
-
-    Examples:
-      >>> foot_contact(np.zeros(40)).tolist()  # no sensor found a contact
-      [False, False, False, False]
-    """
-    s = xp.reshape(sensordata[..., : 4 * SENSOR_SLOT], sensordata.shape[:-1] + (4, SENSOR_SLOT))
-    return s[..., 0] > 0.5
-
-
-# ---- leg kinematics (base frame) ------------------------------------------------------------
-
-
-def _rot_x(a):
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def leg_fk(q_leg, leg: int) -> np.ndarray:
-    """Foot centre of leg ``leg`` (0..3 = FL, FR, HL, HR) in the base frame for joints
-    ``(HAA, HFE, KFE)``; closed form of the chain in solo12.xml ([2.2]).
-
-    Args:
-      q_leg: the leg's joint angles ``(HAA, HFE, KFE)``, ``(3,)`` (rad).
-      leg: 0, 1, 2 or 3 (FL, FR, HL, HR).
-
-    Returns:
-      ``(3,)`` foot centre position (m).
-
-    Examples:
-      >>> np.round(leg_fk([0.0, 0.8, -1.6], 0), 4).tolist()  # FL at the home pose
-      [0.1946, 0.148, -0.2229]
-    """
-    sx, sy = LEG_SIGNS[leg]
-    q0, q1, q2 = q_leg
-    x = -sx * HFE_DX - L_UPPER * np.sin(q1) - L_LOWER * np.sin(q1 + q2)
-    z = -L_UPPER * np.cos(q1) - L_LOWER * np.cos(q1 + q2)
-    return np.array([sx * HAA_X, sy * HAA_Y, 0.0]) + _rot_x(q0) @ np.array([x, sy * LEG_Y, z])
-
-
-def knee_fk(q_leg, leg: int) -> np.ndarray:
-    """Knee (KFE axis) of leg ``leg`` in the base frame.
-
-    Args:
-      q_leg: the leg's joint angles ``(HAA, HFE, KFE)``, ``(3,)`` (rad); KFE does not move
-        the knee.
-      leg: 0, 1, 2 or 3 (FL, FR, HL, HR).
-
-    Returns:
-      ``(3,)`` knee position (m).
-
-    Examples:
-      >>> np.round(knee_fk([0.0, 0.8, -1.6], 0), 4).tolist()  # FL at home: knee behind the hip
-      [0.0798, 0.139, -0.1115]
-    """
-    sx, sy = LEG_SIGNS[leg]
-    q0, q1, _ = q_leg
-    local = [-sx * HFE_DX - L_UPPER * np.sin(q1), sy * (0.014 + 0.03745), -L_UPPER * np.cos(q1)]
-    return np.array([sx * HAA_X, sy * HAA_Y, 0.0]) + _rot_x(q0) @ np.array(local)
-
-
-def leg_ik(foot, leg: int) -> np.ndarray:
-    """Joints ``(HAA, HFE, KFE)`` that put the foot centre of leg ``leg`` at ``foot`` (base
-    frame). Knee branch of the ODRI demos: front legs KFE < 0, hind legs KFE > 0 (knees point
-    to the body centre). Unreachable targets are clipped to the workspace boundary.
-
-    Args:
-      foot: ``(3,)`` target of the foot centre in the base frame (m).
-      leg: 0, 1, 2 or 3 (FL, FR, HL, HR).
-
-    Returns:
-      ``(3,)`` joint angles ``(HAA, HFE, KFE)`` (rad).
-
-    Examples:
-      >>> q = leg_ik(leg_fk([0.0, 0.8, -1.6], 0), 0)  # inverse of leg_fk on this branch
-      >>> np.round(q, 6).tolist()
-      [0.0, 0.8, -1.6]
-    """
-    sx, sy = LEG_SIGNS[leg]
-    r = np.asarray(foot, float) - [sx * HAA_X, sy * HAA_Y, 0.0]
-    ys = sy * LEG_Y
-    zs = -np.sqrt(max(r[1] ** 2 + r[2] ** 2 - ys**2, 1e-12))
-    q0 = np.arctan2(r[2], r[1]) - np.arctan2(zs, ys)
-    q0 = (q0 + np.pi) % (2 * np.pi) - np.pi
-    x, z = r[0] + sx * HFE_DX, zs
-    d2 = x * x + z * z
-    c2 = np.clip((d2 - L_UPPER**2 - L_LOWER**2) / (2 * L_UPPER * L_LOWER), -1.0, 1.0)
-    q2 = -sx * np.arccos(c2)
-    phi = np.arctan2(-x, -z)  # angle of the hip->foot line from straight down, + backward
-    q1 = phi - q2 / 2  # equal link lengths
-    return np.array([q0, q1, q2])
-
-
-def quat_to_mat(quat, xp=np):
-    """Rotation matrices ``(..., 3, 3)`` of unit quaternions ``(..., 4)`` (w, x, y, z).
-
-    Args:
-      quat: unit quaternions ``(..., 4)``, scalar first (MuJoCo's convention).
-      xp: the array module, ``numpy`` or ``jax.numpy``.
-
-    Returns:
-      ``(..., 3, 3)`` rotation matrices.
-
-    Examples:
-      >>> quarter_turn = np.array([np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)])  # about z
-      >>> np.round(quat_to_mat(quarter_turn), 6) + 0.0  # + 0.0: no negative zeros
-      array([[ 0., -1.,  0.],
-             [ 1.,  0.,  0.],
-             [ 0.,  0.,  1.]])
-    """
-    w, x, y, z = (quat[..., i] for i in range(4))
-    rows = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
-    return xp.stack([xp.stack(r, axis=-1) for r in rows], axis=-2)
-
-
-# ---- fall detection -------------------------------------------------------------------------
-
-
-@dataclasses.dataclass(frozen=True)
-class FallLimits:
-    """Thresholds of :func:`fell`.
-
-    Attributes:
-      min_base_height: lowest allowed base origin height (m; standing is 0.239 m, the
-        deepest crouch of the jumps ~0.16 m).
-      max_tilt: largest allowed angle between the base z axis and the world z axis (rad).
-      body_clearance: the lowest base-box corner or knee must stay this far above the floor
-        (m; the model has no body-floor contacts, so touching the floor is detected
-        geometrically).
-
-    Examples:
-      >>> qpos = load_model().key("home").qpos  # standing
-      >>> bool(fell(qpos)), bool(fell(qpos, limits=FallLimits(min_base_height=0.3)))
-      (False, True)
-    """
-
-    min_base_height: float = 0.10
-    max_tilt: float = 0.8
-    body_clearance: float = 0.005
-
-
-def fell(qpos, foot_force=None, limits: FallLimits = FallLimits()) -> np.ndarray:
-    """True where the robot has fallen: base too low, body (base box corner or knee) at the
-    floor, or base tilted more than ``limits.max_tilt``. ``qpos (..., 19)``; returns
-    ``(...)`` bool. ``foot_force (..., 4, 3)`` is optional: a foot pulling the floor (negative
-    normal force beyond 1e-6 N) also counts, which only happens for non-physical states.
-
-    Knees are computed in closed form (:func:`knee_fk`), the base corners from the base pose.
-
-    Args:
-      qpos: ``(..., 19)`` positions (base pose, 12 joints).
-      foot_force: ``(..., 4, 3)`` floor forces on the feet (world frame), or None.
-      limits: the :class:`FallLimits`.
-
-    Returns:
-      ``(...)`` bool array.
-
-    Examples:
-      >>> standing = load_model().key("home").qpos
-      >>> low = standing.copy()
-      >>> low[2] = 0.05  # base origin 5 cm above the floor
-      >>> fell(np.stack([standing, low])).tolist()
-      [False, True]
-    """
-    qpos = np.asarray(qpos, float)
-    batch = qpos.shape[:-1]
-    flat = qpos.reshape(-1, qpos.shape[-1])
-    rot = quat_to_mat(flat[:, 3:7] / np.linalg.norm(flat[:, 3:7], axis=-1, keepdims=True))
-    pos = flat[:, :3]
-    tilt = np.arccos(np.clip(rot[:, 2, 2], -1.0, 1.0))
-    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
-    corners = corners * BASE_HALF
-    lowest = (pos[:, None, :] + np.einsum("bij,kj->bki", rot, corners))[..., 2].min(axis=1)
-    for i in range(len(flat)):
-        for leg in range(4):
-            knee = pos[i] + rot[i] @ knee_fk(flat[i, 7 + 3 * leg : 10 + 3 * leg], leg)
-            lowest[i] = min(lowest[i], knee[2])
-    out = (
-        (pos[:, 2] < limits.min_base_height)
-        | (tilt > limits.max_tilt)
-        | (lowest < limits.body_clearance)
-    )
-    if foot_force is not None:
-        fz = np.asarray(foot_force, float).reshape(-1, 4, 3)[..., 2]
-        out |= np.any(fz < -1e-6, axis=-1)
-    return out.reshape(batch)
-
 
 # ---- references ------------------------------------------------------------------------------
 
@@ -443,7 +144,7 @@ class WalkParams:
     """Trot: diagonal pairs (FL+HR, FR+HL) alternate, ``period`` s per gait cycle (each pair
     swings for half of it), swing apex ``swing_height``; forward speed ramps linearly from 0
     to ``speed`` over ``ramp`` s. The base is commanded at ``height`` and level; every foot
-    target is converted to joint targets by :func:`leg_ik`.
+    target is converted to joint targets by :func:`cfm_jax.solo12.leg_ik`.
 
     Attributes:
       duration: length of the reference (s), standing included.
@@ -527,7 +228,7 @@ class _Sim:
         self.control_dt = control_dt
         mujoco.mj_resetDataKeyframe(model, self.d, model.key("home").id)
         mujoco.mj_forward(model, self.d)
-        self.site = [model.site(f"{leg}_foot").id for leg in LEGS]
+        self.site = [model.site(f"{leg}_foot").id for leg in solo12.LEGS]
         self.jac = np.zeros((3, model.nv))
         self.rec = {k: [] for k in ("qpos", "qvel", "qacc", "tau", "sensordata")}
         self.limit = model.actuator_ctrlrange[:, 1].copy()
@@ -541,7 +242,7 @@ class _Sim:
         return self.d.qvel[6:]
 
     def contact(self):
-        return foot_contact(self.d.sensordata)
+        return solo12.foot_contact(self.d.sensordata)
 
     def leg_jacobian(self, leg: int) -> np.ndarray:
         """3x3 world-frame Jacobian of the foot centre w.r.t. the leg's joints."""
@@ -582,7 +283,7 @@ def _to_reference(rec: PhysicsRecording, n_sub, control_dt, kind, params) -> Loc
     k = len(rec.tau)
     steps = k // n_sub
     idx = np.arange(steps + 1) * n_sub
-    force = foot_forces(rec.sensordata)  # (K+1, 4, 3); entry K is the final state's
+    force = solo12.foot_forces(rec.sensordata)  # (K+1, 4, 3); entry K is the final state's
     qvel = rec.qvel[idx]
     return LocomotionReference(
         control_dt=control_dt,
@@ -592,9 +293,9 @@ def _to_reference(rec: PhysicsRecording, n_sub, control_dt, kind, params) -> Loc
         tau=rec.tau[idx[:-1]],
         foot_force=force[idx],
         foot_force_mean=force[:k].reshape(steps, n_sub, 4, 3).mean(axis=1),
-        contact=foot_contact(rec.sensordata)[idx],
-        kp=KP,
-        kd=KD,
+        contact=solo12.foot_contact(rec.sensordata)[idx],
+        kp=solo12.KP,
+        kd=solo12.KD,
         kind=kind,
         params=json.dumps(params, sort_keys=True),
     )
@@ -608,22 +309,6 @@ def _stance_feedforward(sim: _Sim, stance: np.ndarray, weight: float) -> np.ndar
     return sim.ff_force(forces)
 
 
-def hip_positions() -> np.ndarray:
-    """Nominal foot positions under the hips at the home pose, base frame ``(4, 3)``.
-
-    Returns:
-      ``(4, 3)`` foot centres (m), legs FL, FR, HL, HR (:func:`leg_fk` of the home joints).
-
-    Examples:
-      >>> np.round(hip_positions(), 4)
-      array([[ 0.1946,  0.148 , -0.2229],
-             [ 0.1946, -0.148 , -0.2229],
-             [-0.1946,  0.148 , -0.2229],
-             [-0.1946, -0.148 , -0.2229]])
-    """
-    return np.array([leg_fk(HOME_JOINTS[3 * i : 3 * i + 3], i) for i in range(4)])
-
-
 def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT):
     """Run the trot controller; returns ``(LocomotionReference, PhysicsRecording)``.
 
@@ -632,7 +317,7 @@ def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT
 
     Args:
       params: the :class:`WalkParams`.
-      model: the ``mujoco.MjModel`` (None: :func:`load_model`).
+      model: the ``mujoco.MjModel`` (None: :func:`cfm_jax.solo12.load_model`).
       control_dt: control period (s), a whole number of physics steps.
 
     Returns:
@@ -647,10 +332,10 @@ def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT
       >>> ref.horizon, len(rec.tau)
       (50, 100)
     """
-    model = model if model is not None else load_model()
+    model = model if model is not None else solo12.load_model()
     sim = _Sim(model, control_dt)
     weight = _total_mass(model) * -model.opt.gravity[2]
-    nominal = hip_positions()
+    nominal = solo12.hip_positions()
     half = params.period / 2
     steps = int(round(params.duration / control_dt))
     x_base = 0.0
@@ -662,7 +347,7 @@ def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT
         stance = np.ones(4, bool)
         for leg in range(4):
             foot = nominal[leg].copy()
-            foot[2] = -params.height + FOOT_RADIUS  # depth of the foot centre below the base
+            foot[2] = -params.height + solo12.FOOT_RADIUS  # depth of the foot centre below the base
             if tw > 0:
                 pair = 0 if leg in (0, 3) else 1
                 phase = ((tw / half) + pair) % 2.0  # [0, 1): swing, [1, 2): stance
@@ -675,9 +360,9 @@ def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT
                 else:
                     s = phase - 1.0
                     foot[0] += stride * (0.5 - s)
-            targets[3 * leg : 3 * leg + 3] = leg_ik(foot, leg)
+            targets[3 * leg : 3 * leg + 3] = solo12.leg_ik(foot, leg)
         # the first half-cycle: pair 1 (FR+HL) starts in stance, pair 0 swings
-        tau = KP * (targets - sim.q) - KD * sim.qd
+        tau = solo12.KP * (targets - sim.q) - solo12.KD * sim.qd
         tau += _stance_feedforward(sim, stance, weight)
         sim.step(tau)
         x_base += speed * control_dt
@@ -689,9 +374,9 @@ def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT
 def _jump_run(params: JumpParams, push_force: float, model, control_dt):
     sim = _Sim(model, control_dt)
     weight = _total_mass(model) * -model.opt.gravity[2]
-    nominal = hip_positions()
+    nominal = solo12.hip_positions()
     stand_depth = -nominal[0, 2]
-    crouch_depth = params.crouch_height - FOOT_RADIUS
+    crouch_depth = params.crouch_height - solo12.FOOT_RADIUS
     steps = int(round(params.duration / control_dt))
     phase = "settle"
     t_phase = 0.0
@@ -703,7 +388,7 @@ def _jump_run(params: JumpParams, push_force: float, model, control_dt):
         if phase == "crouch" and t - t_phase >= params.crouch:
             phase, t_phase = "push", t
         if phase == "push":
-            depth = np.mean([-leg_fk(sim.q[3 * i : 3 * i + 3], i)[2] for i in range(4)])
+            depth = np.mean([-solo12.leg_fk(sim.q[3 * i : 3 * i + 3], i)[2] for i in range(4)])
             if depth >= params.extension or not contact.any():
                 phase, t_phase = "flight", t
         if phase == "flight" and t - t_phase > 0.02 and contact.any():
@@ -716,11 +401,11 @@ def _jump_run(params: JumpParams, push_force: float, model, control_dt):
         else:  # push: hold the lateral posture, legs extend under the force
             depth = params.extension
         targets = np.concatenate(
-            [leg_ik(nominal[i] * [1, 1, 0] + [0, 0, -depth], i) for i in range(4)]
+            [solo12.leg_ik(nominal[i] * [1, 1, 0] + [0, 0, -depth], i) for i in range(4)]
         )
-        tau = KP * (targets - sim.q) - KD * sim.qd
+        tau = solo12.KP * (targets - sim.q) - solo12.KD * sim.qd
         if phase == "push":
-            tau = KP * (targets - sim.q) * np.tile([1.0, 0.0, 0.0], 4) - KD * sim.qd
+            tau = solo12.KP * (targets - sim.q) * np.tile([1.0, 0.0, 0.0], 4) - solo12.KD * sim.qd
             forces = np.zeros((4, 3))
             forces[:, 2] = push_force
             tau = tau + sim.ff_force(forces)
@@ -748,11 +433,11 @@ def jump_clearance(ref_or_rec) -> float:
       (0.19, 0.19)
     """
     qpos = ref_or_rec.qpos
-    rot = quat_to_mat(qpos[:, 3:7])
+    rot = solo12.quat_to_mat(qpos[:, 3:7])
     lowest = np.full(len(qpos), np.inf)
     for leg in range(4):
-        feet = np.array([leg_fk(q[7 + 3 * leg : 10 + 3 * leg], leg) for q in qpos])
-        z = qpos[:, 2] + np.einsum("tj,tj->t", rot[:, 2, :], feet) - FOOT_RADIUS
+        feet = np.array([solo12.leg_fk(q[7 + 3 * leg : 10 + 3 * leg], leg) for q in qpos])
+        z = qpos[:, 2] + np.einsum("tj,tj->t", rot[:, 2, :], feet) - solo12.FOOT_RADIUS
         lowest = np.minimum(lowest, z)
     return float(lowest.max())
 
@@ -763,7 +448,7 @@ def simulate_jump(params: JumpParams, model=None, control_dt: float = CONTROL_DT
 
     Args:
       params: the :class:`JumpParams`.
-      model: the ``mujoco.MjModel`` (None: :func:`load_model`).
+      model: the ``mujoco.MjModel`` (None: :func:`cfm_jax.solo12.load_model`).
       control_dt: control period (s), a whole number of physics steps.
 
     Returns:
@@ -776,7 +461,7 @@ def simulate_jump(params: JumpParams, model=None, control_dt: float = CONTROL_DT
       >>> abs(jump_clearance(ref) - 0.1) <= 0.002, json.loads(ref.params)["push_force"] > 0
       (True, True)
     """
-    model = model if model is not None else load_model()
+    model = model if model is not None else solo12.load_model()
     weight = _total_mass(model) * -model.opt.gravity[2]
     if params.push_force is not None:
         force = params.push_force
@@ -808,7 +493,7 @@ def inverse_dynamics_residual(rec: PhysicsRecording, model=None) -> np.ndarray:
 
     Args:
       rec: a :class:`PhysicsRecording` of ``K`` physics steps.
-      model: the ``mujoco.MjModel`` it was recorded on (None: :func:`load_model`).
+      model: the ``mujoco.MjModel`` it was recorded on (None: :func:`cfm_jax.solo12.load_model`).
 
     Returns:
       ``(K, 18)`` residual generalized forces.
@@ -821,7 +506,7 @@ def inverse_dynamics_residual(rec: PhysicsRecording, model=None) -> np.ndarray:
     """
     import mujoco
 
-    model = model if model is not None else load_model()
+    model = model if model is not None else solo12.load_model()
     d = mujoco.MjData(model)
     out = np.empty((len(rec.tau), model.nv))
     for k in range(len(rec.tau)):
@@ -841,7 +526,8 @@ class Replay(NamedTuple):
       tau: ``(T, 12)`` applied (clipped) torques.
       foot_force: ``(T+1, 4, 3)`` floor forces on the feet (world frame), as
         :attr:`LocomotionReference.foot_force`.
-      fell: whether :func:`fell` is true at any control instant.
+      fell: whether :func:`cfm_jax.solo12.fell` with :data:`cfm_jax.solo12.REPLAY_FALL`
+        is true at any control instant.
 
     Examples:
       >>> run = replay(walk_reference(0.2, use_cache=False))
@@ -863,7 +549,7 @@ def replay(ref: LocomotionReference, model=None, qpos0=None, qvel0=None) -> Repl
 
     Args:
       ref: the :class:`LocomotionReference`.
-      model: the ``mujoco.MjModel`` (None: :func:`load_model`).
+      model: the ``mujoco.MjModel`` (None: :func:`cfm_jax.solo12.load_model`).
       qpos0: ``(19,)`` initial positions, or None for ``ref.qpos[0]``.
       qvel0: ``(18,)`` initial velocities, or None for ``ref.qvel[0]``.
 
@@ -878,7 +564,7 @@ def replay(ref: LocomotionReference, model=None, qpos0=None, qvel0=None) -> Repl
     """
     import mujoco
 
-    model = model if model is not None else load_model()
+    model = model if model is not None else solo12.load_model()
     d = mujoco.MjData(model)
     n_sub = int(round(ref.control_dt / model.opt.timestep))
     d.qpos[:] = ref.qpos[0] if qpos0 is None else qpos0
@@ -892,15 +578,21 @@ def replay(ref: LocomotionReference, model=None, qpos0=None, qvel0=None) -> Repl
         for k in range(n_sub):
             mujoco.mj_step(model, d)
             if k == 0:  # sensors of the state at t under the torque applied at t
-                forces.append(foot_forces(d.sensordata))
+                forces.append(solo12.foot_forces(d.sensordata))
         qpos.append(d.qpos.copy())
         qvel.append(d.qvel.copy())
         taus.append(tau)
     mujoco.mj_forward(model, d)  # final state, last torque still applied
-    forces.append(foot_forces(d.sensordata))
+    forces.append(solo12.foot_forces(d.sensordata))
     qpos = np.array(qpos)
     forces = np.array(forces)
-    return Replay(qpos, np.array(qvel), np.array(taus), forces, bool(fell(qpos, forces).any()))
+    return Replay(
+        qpos,
+        np.array(qvel),
+        np.array(taus),
+        forces,
+        bool(solo12.fell(qpos, forces, solo12.REPLAY_FALL).any()),
+    )
 
 
 # ---- reference API with on-disk cache ----------------------------------------------------------
@@ -956,11 +648,11 @@ def _load(path: Path) -> LocomotionReference:
 
 
 def _cached(kind, params, control_dt, model_file, cache, use_cache, simulate):
-    model_file = model_file or model_path()
+    model_file = model_file or solo12.model_path()
     path = cache_dir(cache) / f"{kind}-{_cache_key(kind, params, control_dt, model_file)}.npz"
     if use_cache and path.is_file():
         return _load(path)
-    ref, _ = simulate(params, load_model(model_file), control_dt)
+    ref, _ = simulate(params, solo12.load_model(model_file), control_dt)
     if use_cache:
         _save(ref, path)
     return ref
@@ -982,7 +674,7 @@ def walk_reference(
     Args:
       duration: length of the reference (s).
       control_dt: control period (s).
-      model_file: the MJCF file, or None for :func:`model_path`.
+      model_file: the MJCF file, or None for :func:`cfm_jax.solo12.model_path`.
       cache: the cache folder, or None for :func:`cache_dir`'s default.
       use_cache: read and write the cache; False simulates every time and writes nothing.
       params: further :class:`WalkParams` fields as keywords (``speed``, ``period``, ...).
@@ -1018,7 +710,7 @@ def jump_reference(
       height: requested foot clearance (m); the push force is found by bisection unless
         ``push_force`` is given.
       control_dt: control period (s).
-      model_file: the MJCF file, or None for :func:`model_path`.
+      model_file: the MJCF file, or None for :func:`cfm_jax.solo12.model_path`.
       cache: the cache folder, or None for :func:`cache_dir`'s default.
       use_cache: read and write the cache; False simulates every time and writes nothing.
       params: further :class:`JumpParams` fields as keywords (``duration``, ...).
@@ -1086,63 +778,6 @@ def commanded_distance(params: WalkParams) -> float:
     return params.speed * (ramp * ramp / (2 * params.ramp) + (walk - ramp))
 
 
-def plot_foot_force(
-    ref: LocomotionReference,
-    path: str | os.PathLike,
-    *,
-    observed: np.ndarray | None = None,
-    predicted: np.ndarray | None = None,
-    foot: str = "FR",
-    title: str | None = None,
-):
-    """Plot desired (``ref.foot_force``) vs observed (and optionally predicted) force of one
-    foot over time, one panel per world axis, like the paper's Fig. 6; saves a PNG. The
-    force arrays are ``(T+1, 4, 3)`` (or ``(T, 4, 3)`` for the states after each step).
-
-    Args:
-      ref: the :class:`LocomotionReference` (its ``foot_force`` is the desired force).
-      path: the image file to write (its folder is created).
-      observed: ``(T+1, 4, 3)`` or ``(T, 4, 3)`` observed forces, or None.
-      predicted: forces of the same shape predicted by a model, or None.
-      foot: ``"FL"``, ``"FR"``, ``"HL"`` or ``"HR"``.
-      title: the figure's title (None: the kind and foot).
-
-    Examples:
-      >>> import os, tempfile
-      >>> ref = walk_reference(0.2, use_cache=False)
-      >>> with tempfile.TemporaryDirectory() as folder:
-      ...     path = os.path.join(folder, "force.png")
-      ...     plot_foot_force(ref, path, observed=replay(ref).foot_force)
-      ...     os.path.getsize(path) > 0
-      True
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    leg = LEGS.index(foot)
-    t = np.arange(len(ref.foot_force)) * ref.control_dt
-    fig, axes = plt.subplots(3, 1, figsize=(7, 6), sharex=True)
-    curves = [("desired", ref.foot_force, dict(color="k", lw=2.0, alpha=0.6))]
-    if observed is not None:
-        curves.append(("observed", np.asarray(observed), dict(color="C0", lw=1.2)))
-    if predicted is not None:
-        curves.append(("predicted", np.asarray(predicted), dict(color="C3", lw=1.0, ls="--")))
-    for axis, ax in enumerate(axes):
-        for label, force, style in curves:
-            ax.plot(t[-len(force) :], force[:, leg, axis], label=label, **style)
-        ax.set_ylabel(f"f{'xyz'[axis]} [N]")
-        ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=8)
-    axes[-1].set_xlabel("time [s]")
-    fig.suptitle(title or f"{ref.kind}: contact force of the {foot} foot (world frame)")
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def summary(ref: LocomotionReference, model=None) -> dict:
     """Key numbers of a reference: distance, cruise speed, clearance, peak torque, forces.
 
@@ -1166,7 +801,9 @@ def summary(ref: LocomotionReference, model=None) -> dict:
         "distance_m": float(ref.qpos[-1, 0] - ref.qpos[0, 0]),
         "peak_torque_Nm": float(np.abs(ref.tau).max()),
         "peak_normal_force_N": float(ref.foot_force[..., 2].max()),
-        "max_tilt_deg": float(np.degrees(np.arccos(quat_to_mat(ref.qpos[:, 3:7])[:, 2, 2])).max()),
+        "max_tilt_deg": float(
+            np.degrees(np.arccos(solo12.quat_to_mat(ref.qpos[:, 3:7])[:, 2, 2])).max()
+        ),
     }
     if ref.kind == "jump":
         out["clearance_m"] = jump_clearance(ref)

@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 
 import cfm_jax  # noqa: F401  (first: it sets the XLA flag before JAX starts)
-from cfm_jax import locomotion, render
+from cfm_jax import locomotion, plots, render, solo12
 
 
 def main(out_dir: str = "docs/figures") -> None:
     """Print the default references' numbers and write the figures of docs/locomotion.md."""
-    model = locomotion.load_model()
+    model = solo12.load_model()
     start = time.perf_counter()
     walks, jumps = locomotion.default_walks(), locomotion.default_jumps()
     print(f"references: {time.perf_counter() - start:.1f} s (cached after the first run)")
@@ -40,7 +40,7 @@ def main(out_dir: str = "docs/figures") -> None:
     q0[7:] += 0.03 * np.where(np.arange(12) % 2, 1.0, -1.0)
     run = locomotion.replay(walk, model, qpos0=q0)
     sl = slice(0, int(round(1.5 / walk.control_dt)) + 1)
-    locomotion.plot_foot_force(
+    plots.plot_foot_force(
         walk._replace(foot_force=walk.foot_force[sl]),
         out / "solo12_walk_force_FR.png",
         observed=run.foot_force[sl],

@@ -102,7 +102,7 @@ def pictures(out: str, config, loss: str, run_dir: str | None = None) -> dict:
     the force plot of the front right foot into ``out``. Returns what was drawn."""
     import jax
 
-    from cfm_jax import locomotion, render, training
+    from cfm_jax import plots, render, training
 
     run_dir = run_dir or os.path.join(out, loss)
     experiment = training.Experiment(config.replace(loss=loss))
@@ -129,7 +129,7 @@ def pictures(out: str, config, loss: str, run_dir: str | None = None) -> dict:
     predicted = np.asarray(predicted[:n, -3 * feet :]).reshape(n, feet, 3)
     fell = np.asarray(rollout_.extras["fell"][target, :n])
     first_fall = int(np.argmax(fell)) if fell.any() else None
-    locomotion.plot_foot_force(
+    plots.plot_foot_force(
         ref,
         os.path.join(out, f"force_{loss}.png"),
         observed=observed,

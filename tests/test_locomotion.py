@@ -1,8 +1,8 @@
-"""Locomotion references and helpers (cfm_jax/locomotion.py) on robots/solo12.xml.
+"""Locomotion references, their cache and replay (cfm_jax/locomotion.py) on robots/solo12.xml.
 
-Oracles: MuJoCo C (site kinematics for the leg FK/IK, ``mj_inverse`` and re-simulation with
-the library's native stepper for dynamic consistency), closed-form kinematics for the fall
-check, and the requested task quantities (distance, jump height).
+Oracles: MuJoCo C (``mj_inverse`` and re-simulation with the library's native stepper for
+dynamic consistency) and the requested task quantities (distance, jump height). The robot's
+own kinematics, contact forces and fall rule are tested in tests/test_solo12.py.
 """
 
 from __future__ import annotations
@@ -10,17 +10,17 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import mujoco
 import numpy as np
 import pytest
 
 from cfm_jax import locomotion as L
+from cfm_jax import plots, solo12
 from cfm_jax.native import Stepper
 
 
 @pytest.fixture(scope="session")
 def model():
-    return L.load_model()
+    return solo12.load_model()
 
 
 @pytest.fixture(scope="session")
@@ -39,53 +39,7 @@ def jumps(cache):
 
 
 def _tilt(qpos):
-    return np.arccos(np.clip(L.quat_to_mat(qpos[..., 3:7])[..., 2, 2], -1, 1))
-
-
-# ---- kinematics ---------------------------------------------------------------------------------
-def test_leg_fk_ik_match_mujoco(model):
-    d = mujoco.MjData(model)
-    rng = np.random.default_rng(0)
-    for _ in range(20):
-        q = L.HOME_JOINTS + rng.uniform(-0.4, 0.4, 12)
-        d.qpos[:7] = [0, 0, 0, 1, 0, 0, 0]
-        d.qpos[7:] = q
-        mujoco.mj_kinematics(model, d)
-        for leg in range(4):
-            ql = q[3 * leg : 3 * leg + 3]
-            foot = d.site(f"{L.LEGS[leg]}_foot").xpos
-            np.testing.assert_allclose(L.leg_fk(ql, leg), foot, atol=1e-12)
-            knee = d.xpos[model.body(f"{L.LEGS[leg]}_lower_leg").id]
-            np.testing.assert_allclose(L.knee_fk(ql, leg), knee, atol=1e-12)
-            np.testing.assert_allclose(L.leg_ik(foot, leg), ql, atol=1e-9)
-
-
-# ---- fall detection -----------------------------------------------------------------------------
-def test_fell(model):
-    home = model.key("home").qpos.copy()
-    assert not L.fell(home)
-    low = home.copy()
-    low[2] = 0.08
-    assert L.fell(low)
-    tilted = home.copy()
-    tilted[3:7] = [np.cos(0.5), np.sin(0.5), 0, 0]  # 1.0 rad roll
-    assert L.fell(tilted)
-    slight = home.copy()
-    slight[3:7] = [np.cos(0.1), np.sin(0.1), 0, 0]  # 0.2 rad roll: fine
-    assert not L.fell(slight)
-    # base sunk to 0.11 m (above the 0.10 m limit) with the standing joints: knees at the floor
-    kneel = home.copy()
-    kneel[2] = 0.11
-    d = mujoco.MjData(model)
-    d.qpos[:] = kneel
-    mujoco.mj_kinematics(model, d)
-    knee_z = d.xpos[model.body("FL_lower_leg").id][2]
-    assert knee_z < 0.005 and L.fell(kneel)
-    batch = np.stack([home, low, tilted, slight])
-    np.testing.assert_array_equal(L.fell(batch), [False, True, True, False])
-    pulling = np.zeros((4, 3))
-    pulling[0, 2] = -1.0
-    assert L.fell(home, pulling)
+    return np.arccos(np.clip(solo12.quat_to_mat(qpos[..., 3:7])[..., 2, 2], -1, 1))
 
 
 # ---- references -------------------------------------------------------------------------------
@@ -100,7 +54,7 @@ def test_reference_shapes_and_definitions(walks, jumps):
         assert ref.desired_next.shape == (t, 30)
         np.testing.assert_allclose(ref.qacc, np.diff(ref.qvel, axis=0) / ref.control_dt)
         assert np.abs(ref.tau).max() <= 2.7
-        assert not L.fell(ref.qpos, ref.foot_force).any()
+        assert not solo12.fell(ref.qpos, ref.foot_force).any()
     assert [r.duration for r in walks] == pytest.approx(list(L.WALK_DURATIONS))
 
 
@@ -115,11 +69,11 @@ def test_references_are_dynamically_consistent_with_the_native_stepper(model, wa
         qpos, qvel, sensors = stepper(ref.qpos[:-1], ref.qvel[:-1], ref.tau)
         np.testing.assert_allclose(qpos, ref.qpos[1:], atol=1e-6, rtol=0)
         np.testing.assert_allclose(qvel, ref.qvel[1:], atol=1e-5, rtol=0)
-        force = L.foot_forces(sensors.astype(np.float64))
+        force = solo12.foot_forces(sensors.astype(np.float64))
         np.testing.assert_allclose(force.mean(axis=1), ref.foot_force_mean, atol=1e-4, rtol=0)
         np.testing.assert_allclose(force[:, 0], ref.foot_force[:-1], atol=1e-4, rtol=0)
         np.testing.assert_array_equal(
-            L.foot_contact(sensors[:, 0].astype(np.float64)), ref.contact[:-1]
+            solo12.foot_contact(sensors[:, 0].astype(np.float64)), ref.contact[:-1]
         )
 
 
@@ -134,7 +88,7 @@ def test_physics_recording_satisfies_inverse_dynamics(model, kind):
     residual = L.inverse_dynamics_residual(rec, model)
     assert np.abs(residual).max() < 1e-8
     np.testing.assert_allclose(np.diff(rec.qvel, axis=0), rec.qacc * model.opt.timestep)
-    assert L.foot_contact(rec.sensordata).any(axis=1).all() or kind == "jump"
+    assert solo12.foot_contact(rec.sensordata).any(axis=1).all() or kind == "jump"
 
 
 def test_replay_reproduces_each_reference(model, walks, jumps):
@@ -173,7 +127,7 @@ def test_walks_make_forward_progress(walks):
         assert x >= 0.5 * L.commanded_distance(params)
         distances.append(x)
         assert np.abs(ref.qpos[:, 1]).max() < 0.03
-        rot = L.quat_to_mat(ref.qpos[-1, 3:7])
+        rot = solo12.quat_to_mat(ref.qpos[-1, 3:7])
         assert abs(np.degrees(np.arctan2(rot[1, 0], rot[0, 0]))) < 5
         assert np.degrees(_tilt(ref.qpos)).max() < 5
         assert ref.contact.sum(axis=1).min() >= 2  # a trot: always at least a diagonal pair
@@ -219,7 +173,7 @@ def test_determinism_and_cache(tmp_path, model):
     assert len(list(tmp_path.glob("walk-*.npz"))) == 2
     # a different model file gives a different key
     other = tmp_path / "solo12_copy.xml"
-    other.write_text(open(L.model_path()).read().replace('friction="1 1', 'friction="0.9 0.9'))
+    other.write_text(open(solo12.model_path()).read().replace('friction="1 1', 'friction="0.9 0.9'))
     L.walk_reference(0.5, cache=tmp_path, model_file=str(other))
     assert len(list(tmp_path.glob("walk-*.npz"))) == 3
 
@@ -238,5 +192,5 @@ def test_foot_force_plot(tmp_path, jumps, model):
     q0[2] += 0.005
     run = L.replay(ref, model, qpos0=q0)
     path = tmp_path / "force.png"
-    L.plot_foot_force(ref, path, observed=run.foot_force, foot="FR")
+    plots.plot_foot_force(ref, path, observed=run.foot_force, foot="FR")
     assert path.stat().st_size > 10_000

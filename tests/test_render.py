@@ -8,8 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import locomotion as L
-from cfm_jax import render
+from cfm_jax import render, solo12
 
 OK, WHY = render.render_available()
 needs_gl = pytest.mark.skipif(not OK, reason=f"no offscreen OpenGL: {WHY}")
@@ -17,7 +16,7 @@ needs_gl = pytest.mark.skipif(not OK, reason=f"no offscreen OpenGL: {WHY}")
 
 @pytest.fixture(scope="module")
 def model():
-    return L.load_model()
+    return solo12.load_model()
 
 
 @needs_gl

@@ -2,7 +2,8 @@
 
 Oracles: the facts sheet (shared reference robot_facts.md, section 2; "[2.x]" below), whose
 numbers are typed in here rather than read from the XML; closed-form statics; MuJoCo C's own
-contact forces (``mj_contactForce``) for the contact sensors; and MuJoCo C for MJX.
+contact forces (``mj_contactForce``) for the contact sensors; MuJoCo C for MJX; and for
+the fall rule, the former plain-loop check (copied here) and hand-made poses.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import locomotion as L
+from cfm_jax import locomotion, solo12
 
 SOLO = Path(__file__).resolve().parents[1] / "robots" / "solo12.xml"
 G = 9.81
@@ -84,7 +85,7 @@ def test_sizes_names_and_order(solo):
     assert m.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
     names = [m.joint(i).name for i in range(1, m.njnt)]
     assert names == [f"{leg}_{j}" for leg in LEGS for j in ("HAA", "HFE", "KFE")]
-    assert list(L.JOINTS) == names
+    assert list(solo12.JOINTS) == names
     # actuator i drives joint i+1 (qpos 7 + i), gear 1
     np.testing.assert_array_equal(m.actuator_trnid[:, 0], np.arange(1, 13))
     np.testing.assert_array_equal(m.actuator_gear[:, 0], 1.0)
@@ -220,12 +221,186 @@ def test_home_keyframe_standing_geometry(solo):
     assert 0.2379 < key.qpos[2] < 0.2399
 
 
+def test_leg_fk_ik_match_mujoco(solo):
+    """Closed-form foot and knee positions (one leg, and all knees at once with NumPy and
+    jax.numpy) against MuJoCo's site and body positions; the IK inverts the FK."""
+    import jax.numpy as jnp
+
+    m, _ = solo
+    d = mujoco.MjData(m)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        q = solo12.HOME_JOINTS + rng.uniform(-0.4, 0.4, 12)
+        d.qpos[:7] = [0, 0, 0, 1, 0, 0, 0]
+        d.qpos[7:] = q
+        mujoco.mj_kinematics(m, d)
+        knees = [d.xpos[m.body(f"{leg}_lower_leg").id].copy() for leg in LEGS]
+        for leg in range(4):
+            ql = q[3 * leg : 3 * leg + 3]
+            foot = d.site(f"{solo12.LEGS[leg]}_foot").xpos
+            np.testing.assert_allclose(solo12.leg_fk(ql, leg), foot, atol=1e-12)
+            np.testing.assert_allclose(solo12.knee_fk(ql, leg), knees[leg], atol=1e-12)
+            np.testing.assert_allclose(solo12.leg_ik(foot, leg), ql, atol=1e-9)
+        np.testing.assert_allclose(solo12.knee_positions(q), knees, atol=1e-12)
+        got = np.asarray(solo12.knee_positions(jnp.asarray(q, jnp.float32), xp=jnp))
+        np.testing.assert_allclose(got, knees, atol=1e-6)
+
+
+# ---- fall detection ------------------------------------------------------------------------
+def _fell_loop(qpos, foot_force=None, height=0.10, tilt=0.8, clearance=0.005, knees=True):
+    """The former NumPy fall check, copied as the oracle: a plain loop over states and legs,
+    knees from :func:`cfm_jax.solo12.knee_fk` (itself checked against MuJoCo above); a
+    ``knees`` switch added so that it also states the legged tasks' rule."""
+    qpos = np.asarray(qpos, float)
+    batch = qpos.shape[:-1]
+    flat = qpos.reshape(-1, qpos.shape[-1])
+    rot = solo12.quat_to_mat(flat[:, 3:7] / np.linalg.norm(flat[:, 3:7], axis=-1, keepdims=True))
+    pos = flat[:, :3]
+    angle = np.arccos(np.clip(rot[:, 2, 2], -1.0, 1.0))
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    corners = corners * solo12.BASE_HALF
+    lowest = (pos[:, None, :] + np.einsum("bij,kj->bki", rot, corners))[..., 2].min(axis=1)
+    for i in range(len(flat) if knees else 0):
+        for leg in range(4):
+            knee = pos[i] + rot[i] @ solo12.knee_fk(flat[i, 7 + 3 * leg : 10 + 3 * leg], leg)
+            lowest[i] = min(lowest[i], knee[2])
+    out = (pos[:, 2] < height) | (angle > tilt) | (lowest < clearance)
+    if foot_force is not None:
+        fz = np.asarray(foot_force, float).reshape(-1, 4, 3)[..., 2]
+        out |= np.any(fz < -1e-6, axis=-1)
+    return out.reshape(batch)
+
+
+def _training_fell_before(qpos_next):
+    """The legged tasks' fall rule as LeggedTask.record computed it before it called
+    solo12.fell (float32, one state), copied as the oracle of bit-identity."""
+    import jax.numpy as jnp
+
+    quat = qpos_next[3:7] / jnp.linalg.norm(qpos_next[3:7])
+    rotation = solo12.quat_to_mat(quat, xp=jnp)
+    up = rotation[2, 2]
+    half = jnp.asarray(solo12.BASE_HALF, jnp.float32)
+    signs = jnp.asarray(
+        [[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], jnp.float32
+    )
+    lowest = jnp.min(qpos_next[2] + (signs * half) @ rotation[2])
+    return (qpos_next[2] < 0.10) | (jnp.arccos(jnp.clip(up, -1.0, 1.0)) > 0.8) | (lowest < 0.0)
+
+
+def _random_states(n, seed=0):
+    """States around every threshold: base 0-0.35 m, tilts 0-1.3 rad about random axes
+    (quaternions not normalised), joints far from standing (knees down to the floor)."""
+    rng = np.random.default_rng(seed)
+    axis = rng.normal(size=(n, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    angle = rng.uniform(0.0, 1.3, n)
+    quat = np.concatenate([np.cos(angle / 2)[:, None], np.sin(angle / 2)[:, None] * axis], 1)
+    qpos = np.zeros((n, 19))
+    qpos[:, :2] = rng.normal(size=(n, 2))
+    qpos[:, 2] = rng.uniform(0.0, 0.35, n)
+    qpos[:, 3:7] = quat * rng.uniform(0.5, 2.0, (n, 1))
+    qpos[:, 7:] = solo12.HOME_JOINTS + rng.uniform(-1.5, 1.5, (n, 12))
+    return qpos
+
+
+RULES = {  # name: (FallLimits, oracle keywords)
+    "replay": (solo12.REPLAY_FALL, {}),
+    "training": (solo12.TRAINING_FALL, {"clearance": 0.0, "knees": False}),
+    "knees_at_floor": (solo12.FallLimits(body_clearance=0.0), {"clearance": 0.0}),
+}
+
+
+@pytest.mark.parametrize("rule", sorted(RULES))
+def test_fell_matches_the_plain_loop_on_random_states(rule):
+    """NumPy (float64) exactly, jax.numpy (float32, under jit and vmap, and batched) on the
+    same float32 states exactly; every reason occurs in the sample and each rule's answer
+    differs from the others somewhere."""
+    import jax
+    import jax.numpy as jnp
+
+    limits, keywords = RULES[rule]
+    qpos = _random_states(3000)
+    expected = _fell_loop(qpos, **keywords)
+    assert 0.2 < expected.mean() < 0.95
+    np.testing.assert_array_equal(solo12.fell(qpos, limits=limits), expected)
+    np.testing.assert_array_equal(solo12.fell(qpos.reshape(3, 1000, 19), limits=limits),
+                                  expected.reshape(3, 1000))  # fmt: skip
+    q32 = qpos.astype(np.float32)
+    expected32 = _fell_loop(q32.astype(np.float64), **keywords)
+    one = jax.jit(jax.vmap(lambda q: solo12.fell(q, limits=limits, xp=jnp)))
+    np.testing.assert_array_equal(np.asarray(one(jnp.asarray(q32))), expected32)
+    batched = jax.jit(lambda q: solo12.fell(q, limits=limits, xp=jnp))
+    np.testing.assert_array_equal(np.asarray(batched(jnp.asarray(q32))), expected32)
+    others = [_fell_loop(qpos, **k) for name, (_, k) in RULES.items() if name != rule]
+    assert all(np.any(other != expected) for other in others)
+
+
+def test_training_rule_is_bit_identical_to_the_tasks_former_check():
+    import jax
+    import jax.numpy as jnp
+
+    q32 = jnp.asarray(_random_states(3000, seed=1), jnp.float32)
+    new = jax.jit(jax.vmap(lambda q: solo12.fell(q, limits=solo12.TRAINING_FALL, xp=jnp)))
+    before = jax.jit(jax.vmap(_training_fell_before))
+    np.testing.assert_array_equal(np.asarray(new(q32)), np.asarray(before(q32)))
+    from cfm_jax.tasks.legged import LeggedTask
+
+    assert LeggedTask.FALL_LIMITS == solo12.TRAINING_FALL
+    assert solo12.TRAINING_FALL == solo12.FallLimits(0.10, 0.8, 0.0, knees=False)
+
+
+def test_fell_on_hand_made_states(solo):
+    """Each reason alone, and poses where only a knee is at the floor: the rules differ
+    exactly by their knee and clearance limits, with NumPy and jax.numpy alike."""
+    import jax.numpy as jnp
+
+    m, d = solo
+    home = m.key("home").qpos.copy()
+    low = home.copy()
+    low[2] = 0.08
+    tilted = home.copy()
+    tilted[3:7] = [np.cos(0.5), np.sin(0.5), 0, 0]  # 1.0 rad roll
+    slight = home.copy()
+    slight[3:7] = [np.cos(0.1), np.sin(0.1), 0, 0]  # 0.2 rad roll: fine
+    nose = home.copy()  # pitched 0.7 rad (below the tilt limit), base 0.13 m: nose corner under
+    nose[2], nose[3:7] = 0.13, [np.cos(0.35), 0, np.sin(0.35), 0]
+    kneel = home.copy()  # base sunk to 0.11 m (above the 0.10 m limit): knees under the floor
+    kneel[2] = 0.11
+    touch = home.copy()  # knees 3.5 mm above the floor: within the 5 mm clearance only
+    touch[2] = 0.115
+    for state, knee_below in ((kneel, 0.0), (touch, 0.005)):
+        d.qpos[:] = state
+        mujoco.mj_kinematics(m, d)
+        knee_z = min(d.xpos[m.body(f"{leg}_lower_leg").id][2] for leg in LEGS)
+        assert knee_below - 0.005 < knee_z < knee_below  # and the base box is 8 cm up:
+        assert state[2] - solo12.BASE_HALF[2] > 0.08
+    states = np.stack([home, low, tilted, slight, nose, kneel, touch])
+    expected = {
+        "replay": [False, True, True, False, True, True, True],
+        "knees_at_floor": [False, True, True, False, True, True, False],
+        "training": [False, True, True, False, True, False, False],
+    }
+    for rule, (limits, keywords) in RULES.items():
+        np.testing.assert_array_equal(_fell_loop(states, **keywords), expected[rule])
+        np.testing.assert_array_equal(solo12.fell(states, limits=limits), expected[rule])
+        got = solo12.fell(jnp.asarray(states, jnp.float32), limits=limits, xp=jnp)
+        np.testing.assert_array_equal(np.asarray(got), expected[rule])
+    assert not solo12.fell(home) and solo12.fell(home, limits=solo12.FallLimits(0.3))
+    pulling = np.zeros((4, 3))
+    pulling[0, 2] = -1.0
+    assert solo12.fell(home, pulling) and not solo12.fell(home, 0.0 * pulling)
+    assert not solo12.fell(home, pulling, solo12.FallLimits(max_pull=2.0))
+    assert solo12.fell(jnp.asarray(home), jnp.asarray(pulling), xp=jnp)
+
+
 # ---- statics and contact forces --------------------------------------------------------------
 @pytest.fixture(scope="module")
 def standing(solo):
     """Stand 2 s with the library's standing controller (joint PD + -J^T m g / 4)."""
     m, _ = solo
-    ref, rec = L.simulate_walk(L.WalkParams(duration=2.0, speed=0.0, stand=10.0), m)
+    ref, rec = locomotion.simulate_walk(
+        locomotion.WalkParams(duration=2.0, speed=0.0, stand=10.0), m
+    )
     return ref, rec
 
 
@@ -263,7 +438,7 @@ def _contact_force_oracle(m, d) -> np.ndarray:
 
 def test_contact_sensor_matches_mj_contact_force(solo, standing):
     m, d = solo
-    walk, rec = L.simulate_walk(L.WalkParams(duration=1.5), m)
+    walk, rec = locomotion.simulate_walk(locomotion.WalkParams(duration=1.5), m)
     states = [
         (r.qpos[k], r.qvel[k], r.tau[k]) for r in (rec, standing[1]) for k in range(0, 700, 7)
     ]
@@ -271,9 +446,9 @@ def test_contact_sensor_matches_mj_contact_force(solo, standing):
     for qpos, qvel, tau in states:
         d.qpos[:], d.qvel[:], d.ctrl[:] = qpos, qvel, tau
         mujoco.mj_forward(m, d)
-        got = L.foot_forces(d.sensordata)
+        got = solo12.foot_forces(d.sensordata)
         np.testing.assert_allclose(got, _contact_force_oracle(m, d), atol=1e-9, rtol=0)
-        touching = L.foot_contact(d.sensordata)
+        touching = solo12.foot_contact(d.sensordata)
         n_touch += touching.sum()
         n_air += (~touching).sum()
         assert np.all(got[~touching] == 0)
@@ -287,8 +462,8 @@ def test_foot_forces_jax_matches_numpy(standing):
     ref, rec = standing
     s = rec.sensordata[::50]
     np.testing.assert_allclose(
-        np.asarray(L.foot_forces(jnp.asarray(s, jnp.float32), xp=jnp)),
-        L.foot_forces(s),
+        np.asarray(solo12.foot_forces(jnp.asarray(s, jnp.float32), xp=jnp)),
+        solo12.foot_forces(s),
         atol=1e-4,
     )
 
@@ -305,8 +480,8 @@ def test_mjx_matches_mujoco_with_contacts(solo):
     m, _ = solo
     mx = mjx.put_model(m)
     step = jax.jit(mjx.step)
-    _, rec = L.simulate_walk(L.WalkParams(duration=0.8), m)
-    contact = L.foot_contact(rec.sensordata)
+    _, rec = locomotion.simulate_walk(locomotion.WalkParams(duration=0.8), m)
+    contact = solo12.foot_contact(rec.sensordata)
     touchdown = int(np.nonzero(~contact[:-1, 0] & contact[1:, 0])[0][0]) - 10
     for start in (0, touchdown):
         d = mujoco.MjData(m)
@@ -322,6 +497,6 @@ def test_mjx_matches_mujoco_with_contacts(solo):
             np.testing.assert_allclose(np.asarray(dx.qvel), d.qvel, atol=1e-4, rtol=0)
             # sensors of the state before this step, computed by MJX's JAX contact sensor
             np.testing.assert_allclose(np.asarray(dx.sensordata), d.sensordata, atol=1e-3, rtol=0)
-            touched |= start > 0 and bool(L.foot_contact(d.sensordata)[0])
+            touched |= start > 0 and bool(solo12.foot_contact(d.sensordata)[0])
         assert start == 0 or touched  # the touchdown really happened in the window
     assert np.abs(rec.qvel[: 30 * 1]).max() > 1e-3

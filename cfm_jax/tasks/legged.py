@@ -6,7 +6,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from cfm_jax import babbling, locomotion
+from cfm_jax import babbling, locomotion, solo12
 from cfm_jax.config import ConfigError, TaskConfig
 from cfm_jax.references import LeggedReference, as_jax_legged, minimum_jerk
 from cfm_jax.tasks.inverse_dynamics import JointSpaceTask
@@ -29,7 +29,7 @@ def _quat_error(target, quat):
 class LeggedTask(JointSpaceTask):
     """Legged locomotion (``walk``, ``jump``; paper section IV-B) for a floating-base robot
     with one MuJoCo contact sensor per foot (data ``found force normal tangent``, as in
-    ``robots/solo12.xml``; :func:`cfm_jax.locomotion.foot_forces`).
+    ``robots/solo12.xml``; :func:`cfm_jax.solo12.foot_forces`).
 
     * State ``s_t = [base pose and joint positions (qpos), foot forces f_t (world frame,
       mean over the previous control period), base and joint velocities (qvel)]``.
@@ -50,8 +50,9 @@ class LeggedTask(JointSpaceTask):
       data and the metrics.
     * Tracking error: base position (m) and orientation (rad) error. Further metrics:
       ``force_mse`` (N^2, foot forces against the reference), ``fell`` (1 if the robot
-      fell within the horizon: base below 0.1 m, tilted more than 0.8 rad, or a base-box
-      corner at the floor), ``base_position_mse``, ``base_orientation_mse``.
+      fell within the horizon: :func:`cfm_jax.solo12.fell` with :attr:`FALL_LIMITS`, base
+      below 0.1 m, tilted more than 0.8 rad, or a base-box corner below the floor),
+      ``base_position_mse``, ``base_orientation_mse``.
     * Baselines: the reference's own controller (its feed-forward torque plus its joint
       PD) as ``oracle``, the joint PD alone as ``pd_only``.
 
@@ -82,7 +83,7 @@ class LeggedTask(JointSpaceTask):
     output_unit = "(m/s, rad/s)$^2$ and N$^2$"
     metric_names = ("force_mse", "fell", "base_position_mse", "base_orientation_mse")
     MAX_CONTROL_DT = 0.004
-    FALL_HEIGHT, FALL_TILT = 0.10, 0.8
+    FALL_LIMITS = solo12.TRAINING_FALL  # the rule of the metric ``fell`` and of terminal steps
 
     def __init__(self, robot, task: TaskConfig, control_dt: float):
         import mujoco
@@ -119,7 +120,7 @@ class LeggedTask(JointSpaceTask):
                     f"{task.name!r}: None (the legged tasks start from and follow their 5 "
                     "recorded references, cfm_jax.locomotion.WALK_DURATIONS / JUMP_HEIGHTS)"
                 )
-        self.robot, self.locomotion = robot, locomotion
+        self.robot = robot
         self.sensor_rows = np.concatenate([np.arange(a, a + 10) for a in feet])
         self.feet = len(feet)
         kwargs = dict(control_dt=control_dt, model_file=robot.path)
@@ -221,7 +222,7 @@ class LeggedTask(JointSpaceTask):
     def features(self, qpos, qvel, sensors):
         del qpos, qvel
         rows = sensors[:, self.sensor_rows]
-        forces = self.locomotion.foot_forces(rows, xp=jnp)  # (n_sub, feet, 3)
+        forces = solo12.foot_forces(rows, xp=jnp)  # (n_sub, feet, 3)
         return jnp.mean(forces, axis=0).reshape(-1)
 
     def observed(self, step, qpos_next, qvel_next, features_next):
@@ -232,19 +233,7 @@ class LeggedTask(JointSpaceTask):
         return error * ref_next.active  # beyond the horizon: no error
 
     def record(self, step, tau, qpos_next, qvel_next, features_next):
-        quat = qpos_next[3:7] / jnp.linalg.norm(qpos_next[3:7])
-        rotation = self.locomotion.quat_to_mat(quat, xp=jnp)
-        up = rotation[2, 2]  # world z component of the base z axis
-        half = jnp.asarray(self.locomotion.BASE_HALF, jnp.float32)
-        signs = jnp.asarray(
-            [[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], jnp.float32
-        )
-        lowest = jnp.min(qpos_next[2] + (signs * half) @ rotation[2])
-        fell = (
-            (qpos_next[2] < self.FALL_HEIGHT)
-            | (jnp.arccos(jnp.clip(up, -1.0, 1.0)) > self.FALL_TILT)
-            | (lowest < 0.0)
-        )
+        fell = solo12.fell(qpos_next, limits=self.FALL_LIMITS, xp=jnp)
         return {
             "active": step.reference.active > 0,
             "force_error": features_next - step.reference.force,
