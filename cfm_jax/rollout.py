@@ -16,9 +16,10 @@ What is tracked, the learning state, the desired quantity and the observed quant
 the *task*'s (:mod:`cfm_jax.tasks`); this module only steps the physics in a loop.
 A *policy* is a pure function ``policy(step, key) -> tau`` of a :class:`Step` (the
 simulator state, the task's state, desired quantity and reference at the current control
-step) and a PRNG key. This module provides the learned controller's policy, MuJoCo's
-inverse dynamics (the joint-space oracle) and :func:`mixed_policy`, which combines a
-controller, the task's oracle, its PD feedback and noise in one compiled rollout.
+step) and a PRNG key. This module provides the learned controller's policy and
+:func:`mixed_policy`, which combines a controller, the task's oracle, its PD feedback and
+noise in one compiled rollout; the oracles and PD gains themselves are in
+:mod:`cfm_jax.baselines`.
 
 Examples:
   >>> import jax, numpy as np
@@ -26,7 +27,7 @@ Examples:
   >>> robot = robots.load("two_link_arm")
   >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.1, control_dt=0.01)
   >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
-  >>> out = run(task, oracle_policy(robot), key=jax.random.key(0))
+  >>> out = run(task, task.oracle_policy("native"), key=jax.random.key(0))
   >>> out.transitions.state.shape
   (1, 10, 4)
 """
@@ -37,7 +38,6 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from mujoco import mjx
 
 from cfm_jax import dataset, native
@@ -92,7 +92,7 @@ class Rollout(NamedTuple):
       >>> robot = robots.load("two_link_arm")
       >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
       >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
-      >>> out = run(task, oracle_policy(robot), key=jax.random.key(0))
+      >>> out = run(task, task.oracle_policy("native"), key=jax.random.key(0))
       >>> out.tracking_error.shape, out.finite.shape, out.transitions.action.shape
       ((1, 20, 2), (1, 20), (1, 20, 2))
     """
@@ -152,7 +152,7 @@ def run(task, policy, key, simulator="native") -> Rollout:
       >>> robot = robots.load("two_link_arm")
       >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
       >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
-      >>> out = run(task, oracle_policy(robot), key=jax.random.key(0))
+      >>> out = run(task, task.oracle_policy("native"), key=jax.random.key(0))
       >>> out.transitions.state.shape  # (targets, steps, state_dim)
       (1, 20, 4)
       >>> bool(tracking_mse(out)[0] < 1e-5)  # the oracle tracks the reference
@@ -224,6 +224,7 @@ def mjx_physics(robot, n_sub: int):
       and traceable.
 
     Examples:
+      >>> import numpy as np
       >>> from cfm_jax import robots
       >>> arm = robots.load("two_link_arm")
       >>> physics = mjx_physics(arm, n_sub=5)
@@ -268,6 +269,7 @@ def native_physics(robot, n_sub: int):
       inside ``jit``, ``vmap`` and ``scan`` (no gradient).
 
     Examples:
+      >>> import numpy as np
       >>> from cfm_jax import robots
       >>> arm = robots.load("two_link_arm")
       >>> qpos, qvel, _ = jax.jit(native_physics(arm, 5))(arm.home, np.zeros(2), np.zeros(2))
@@ -315,144 +317,6 @@ def controller_policy(controller, params, normaliser):
         return controller.apply(params, normaliser, step.state, step.desired)
 
     return policy
-
-
-def oracle_policy(robot, simulator="native"):
-    """MuJoCo's inverse dynamics at the current state: ``tau = M qdd* + c - passive``,
-    with ``qdd* = step.desired`` (the joint-space task's desired acceleration).
-
-    ``c`` is MuJoCo's bias force (Coriolis, centrifugal, gravity), ``passive`` the joint
-    damping and spring forces. With the Euler integrator and implicit damping, the
-    integrator's extra ``h D qdd`` term (``h`` the timestep, ``D`` the joint damping) is
-    added so that one physics step realises ``qdd*`` exactly (up to torque limits); with
-    several physics steps per control step the torque is held and tracking is approximate.
-
-    ``simulator="native"`` computes it with MuJoCo C (``mj_fwdPosition``,
-    ``mj_fwdVelocity``, ``mj_mulM``) through ``jax.pure_callback``; ``"mjx"`` with the
-    corresponding MJX functions.
-
-    Args:
-      robot: a :class:`cfm_jax.robots.Robot` with a fixed base.
-      simulator: ``"native"`` or ``"mjx"``.
-
-    Returns:
-      ``policy(step, key) -> tau (nv,)``.
-
-    Examples:
-      >>> import jax, numpy as np
-      >>> from cfm_jax import references, robots, tasks
-      >>> robot = robots.load("two_link_arm")
-      >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
-      >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
-      >>> float(tracking_mse(run(task, oracle_policy(robot), jax.random.key(0)))[0]) < 1e-5
-      True
-    """
-    mj = robot.mj_model
-    damping = implicit_damping(mj)
-
-    if simulator == "native":
-        inverse = _native_inverse(mj, damping)
-
-        def policy(step, key):
-            del key
-            shape = jax.ShapeDtypeStruct(jnp.shape(step.desired), jnp.float32)
-            return jax.pure_callback(
-                inverse, shape, step.qpos, step.qvel, step.desired, vmap_method="broadcast_all"
-            )
-
-        return policy
-
-    model = robot.mjx_model
-    blank = mjx.make_data(model)
-    damping = jnp.asarray(damping, jnp.float32)
-
-    def policy(step, key):
-        del key
-        data = blank.replace(qpos=step.qpos, qvel=step.qvel)
-        data = mjx.fwd_position(model, data)
-        data = mjx.fwd_velocity(model, data)
-        inertial = mjx.mul_m(model, data, step.desired) + damping * step.desired
-        return inertial + data.qfrc_bias - data.qfrc_passive
-
-    return policy
-
-
-def implicit_damping(mj_model) -> np.ndarray:
-    """``h D`` per dof when MuJoCo's Euler integrator treats joint damping implicitly
-    (``h`` the timestep, ``D`` the damping), else zeros: the extra inertia-like term that
-    one Euler step adds to ``M qdd``.
-
-    Args:
-      mj_model: a ``mujoco.MjModel``.
-
-    Returns:
-      ``(nv,)``: ``timestep * dof_damping`` with the Euler integrator and implicit damping
-      enabled, else zeros.
-
-    Examples:
-      >>> from cfm_jax import robots
-      >>> implicit_damping(robots.load("two_link_arm").mj_model).tolist()
-      [0.0002, 0.0002]
-    """
-    import mujoco
-
-    eulerdamp = int(mj_model.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_EULER) and not int(
-        mj_model.opt.disableflags
-    ) & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
-    return mj_model.dof_damping * mj_model.opt.timestep if eulerdamp else np.zeros(mj_model.nv)
-
-
-def _native_inverse(mj_model, implicit_damping):
-    """Host function ``(qpos, qvel, qacc) -> M qacc + h D qacc + bias - passive`` (float32),
-    any leading batch shape."""
-    import mujoco
-
-    data = mujoco.MjData(mj_model)
-    nq, nv = mj_model.nq, mj_model.nv
-
-    def inverse(qpos, qvel, qacc):
-        shape = np.shape(qacc)
-        qpos = np.asarray(qpos, np.float64).reshape(-1, nq)
-        qvel = np.asarray(qvel, np.float64).reshape(-1, nv)
-        qacc = np.asarray(qacc, np.float64).reshape(-1, nv)
-        out = np.empty_like(qacc)
-        inertial = np.empty(nv)
-        for i in range(qacc.shape[0]):
-            data.qpos[:], data.qvel[:] = qpos[i], qvel[i]
-            mujoco.mj_fwdPosition(mj_model, data)
-            mujoco.mj_fwdVelocity(mj_model, data)
-            mujoco.mj_mulM(mj_model, data, inertial, qacc[i])
-            out[i] = inertial + implicit_damping * qacc[i] + data.qfrc_bias - data.qfrc_passive
-        return out.astype(np.float32).reshape(shape)
-
-    return inverse
-
-
-def pd_gains(robot, kp: float, kd: float, home) -> tuple[np.ndarray, np.ndarray]:
-    """Torque PD gains equivalent to the acceleration gains ``kp, kd`` at the home pose.
-
-    ``K_p = kp * diag(M(q_home))`` and ``K_d = kd * diag(M(q_home))``: the gains that give each
-    joint, taken alone at the home pose, the same closed-loop stiffness and damping as the
-    PD correction of the desired acceleration. No gravity compensation, no feed-forward.
-
-    Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
-      kp: acceleration stiffness (1/s^2).
-      kd: acceleration damping (1/s).
-      home: ``(nq,)`` the pose at which the mass matrix is taken.
-
-    Returns:
-      ``(K_p, K_d)``, each ``(nv,)``.
-
-    Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> k_p, k_d = pd_gains(arm, 100.0, 20.0, arm.home)
-      >>> bool(np.allclose(k_p / k_d, 5.0))
-      True
-    """
-    inertia = robot.mass_matrix_diagonal(home)
-    return kp * inertia, kd * inertia
 
 
 class MixedPolicy(NamedTuple):
@@ -572,7 +436,7 @@ def tracking_mse(result: Rollout) -> jax.Array:
       >>> robot = robots.load("two_link_arm")
       >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
       >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
-      >>> tracking_mse(run(task, oracle_policy(robot), jax.random.key(0))).shape
+      >>> tracking_mse(run(task, task.oracle_policy("native"), jax.random.key(0))).shape
       (1,)
     """
     return jnp.mean(jnp.square(result.tracking_error), axis=(-2, -1))

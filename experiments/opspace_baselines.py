@@ -6,10 +6,11 @@ tracking quality of the oracle and PD-only baselines. Not a test: prints markdow
   vmapped loop of 200 steps (batch 5 and 15), (a) :func:`cfm_jax.opspace.kinematics`
   (MuJoCo C through ``jax.pure_callback``) and (b) the same in JAX with MJX
   (``mjx.kinematics``; ``J`` by ``jax.jacfwd``, ``Jdot qd`` by nested ``jax.jvp``).
-* Tracking: :func:`cfm_jax.opspace.host_rollout` of the oracle (:class:`HostOracle`) and of
-  PD-only (:func:`pd_gains`, ``tau = J^T (K_p e + K_d ed)``) on the 5 default Cartesian
-  references (2 s), kp = 100, kd = 20, control_dt 0.01 s (5 physics steps of 0.002 s,
-  torque held) and 0.002 s.
+* Tracking: :func:`cfm_jax.baselines.host_rollout` of the oracle
+  (:class:`cfm_jax.baselines.HostOpspaceOracle`) and of PD-only
+  (:func:`cfm_jax.baselines.opspace_pd_gains`, ``tau = J^T (K_p e + K_d ed)``) on the 5
+  default Cartesian references (2 s), kp = 100, kd = 20, control_dt 0.01 s (5 physics steps
+  of 0.002 s, torque held) and 0.002 s.
 
 Usage:
   python experiments/opspace_baselines.py            # ~2 min on 2 cores (MJX compiles)
@@ -26,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import cfm_jax  # noqa: F401  (sets the XLA flag before JAX's backend starts)
-from cfm_jax import opspace, robots
+from cfm_jax import baselines, opspace, robots
 
 
 def mjx_kinematics(robot, site):
@@ -71,8 +72,8 @@ def time_loop(kinematics, robot, batch, steps=200, repeats=3):
 
 def tracking(robot, site, control_dt, kp=100.0, kd=20.0):
     reference = opspace.cartesian_reaching(robot, site, None, 2.0, control_dt)
-    oracle = opspace.HostOracle(robot, site)
-    gain_p, gain_d = opspace.pd_gains(robot, kp, kd, site)
+    oracle = baselines.HostOpspaceOracle(robot, site)
+    gain_p, gain_d = baselines.opspace_pd_gains(robot, kp, kd, site)
     kinematics = opspace.HostKinematics(robot, site)
 
     def pd(q, qd, desired, ref_x, ref_xd):
@@ -82,8 +83,8 @@ def tracking(robot, site, control_dt, kp=100.0, kd=20.0):
 
     rows = []
     for name, policy in (("oracle", lambda q, qd, xdd, *_: oracle(q, qd, xdd)), ("PD", pd)):
-        out = opspace.host_rollout(robot, reference, policy, kp, kd, control_dt, site)
-        rmse = np.sqrt(np.asarray(opspace.tracking_mse(out.position, reference.x)))
+        out = baselines.host_rollout(robot, reference, policy, kp, kd, control_dt, site)
+        rmse = np.sqrt(np.asarray(baselines.site_tracking_mse(out.position, reference.x)))
         saturated = np.mean(np.any(np.abs(out.tau) >= robot.torque_limit - 1e-9, axis=-1))
         rows.append((name, rmse, saturated))
     return rows

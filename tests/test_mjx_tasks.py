@@ -4,8 +4,8 @@ equal MuJoCo C's.
 
 Oracles: the traced program itself (its primitives; the native simulator's rollout is the
 positive control, it must show its host callback), and MuJoCo C in float64
-(:class:`cfm_jax.opspace.HostKinematics`, :class:`cfm_jax.opspace.HostOracle`) at random
-states."""
+(:class:`cfm_jax.opspace.HostKinematics`, :class:`cfm_jax.baselines.HostOpspaceOracle`) at
+random states."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ import jax
 import numpy as np
 import pytest
 
+from cfm_jax import baselines, opspace, robots, tasks, training
 from cfm_jax import config as config_lib
-from cfm_jax import opspace, robots, tasks, training
 
 CALLBACK = re.compile(r"callback|cfm_native_step")
 
@@ -97,7 +97,7 @@ def test_mjx_oracle_equals_the_host_oracle(arms, name, site):
     robot = arms[name]
     qpos, qvel = random_states(robot, 6, seed=2)
     desired = np.random.default_rng(3).normal(0.0, 2.0, (6, 3)).astype(np.float32)
-    got = jax.jit(opspace.oracle_policy(robot, site, simulator="mjx"))(qpos, qvel, desired)
-    want = opspace.HostOracle(robot, site)(qpos, qvel, desired)
+    got = jax.jit(baselines.opspace_oracle(robot, site, simulator="mjx"))(qpos, qvel, desired)
+    want = baselines.HostOpspaceOracle(robot, site)(qpos, qvel, desired)
     scale = np.abs(want).max()
     np.testing.assert_allclose(np.asarray(got), want, rtol=1e-3, atol=1e-4 * scale)

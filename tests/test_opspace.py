@@ -1,11 +1,11 @@
-"""Operational-space building blocks (cfm_jax/opspace.py).
+"""Operational-space building blocks (cfm_jax/opspace.py): site lookup, kinematics, and
+(for now) the Cartesian references.
 
 Oracles: closed-form planar kinematics of the two-link arm and the iiwa's home pose worked
 by hand from the facts sheet; central finite differences of MuJoCo's site positions and of
 the site velocity along an RK4 trajectory; MuJoCo's own velocity / acceleration recursions
 (``mj_objectVelocity``, ``mj_rnePostConstraint`` + ``mj_objectAcceleration``, whose linear
-part is the classical acceleration minus gravity); one ``mj_step`` of the C engine for the
-oracle controller; closed forms of the quintic; sums worked by hand for the metrics.
+part is the classical acceleration minus gravity); closed forms of the quintic.
 """
 
 from __future__ import annotations
@@ -18,17 +18,19 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from sites import (
+    IIWA_HOME_FLANGE,
+    IIWA_REACH,
+    L1,
+    L2,
+    SHOULDER_Z,
+    mujoco_site_acceleration,
+    random_states,
+    site_kinematics_closed_form,
+)
 
-from cfm_jax import opspace, references, robots, rollout
+from cfm_jax import opspace, references, robots
 from cfm_jax.config import ConfigError
-
-L1, L2, SHOULDER_Z = 0.5, 0.4, 1.0  # two-link arm geometry (robots/two_link_arm.xml)
-# iiwa home flange, by hand: J2 at z = 0.36; link2..4 (0.42 m) tilted by q2 = pi/4 about +y,
-# J4..flange (0.4 + 0.126 = 0.526 m) tilted by q2 - q4 = 3 pi/4: x = 0.946 s, z = 0.36 - 0.106 s
-# with s = sin(pi/4).
-S45 = np.sqrt(0.5)
-IIWA_HOME_FLANGE = np.array([0.946 * S45, 0.0, 0.36 - 0.106 * S45])
-IIWA_REACH = 0.2045 + 0.2155 + 0.1845 + 0.2155 + 0.081 + 0.045  # J2 -> flange, [1.2]
 
 
 @pytest.fixture(scope="module")
@@ -39,54 +41,6 @@ def iiwa():
 @pytest.fixture(scope="module")
 def arm():
     return robots.load("two_link_arm")
-
-
-def site_kinematics_closed_form(q, qd):
-    """Tip position, Jacobian and Jdot qd of the planar two-link arm (x-z plane)."""
-    q1, q12 = q[0], q[0] + q[1]
-    w1, w12 = qd[0], qd[0] + qd[1]
-    x = np.array(
-        [L1 * np.cos(q1) + L2 * np.cos(q12), 0.0, SHOULDER_Z + L1 * np.sin(q1) + L2 * np.sin(q12)]
-    )
-    jac = np.array(
-        [
-            [-L1 * np.sin(q1) - L2 * np.sin(q12), -L2 * np.sin(q12)],
-            [0.0, 0.0],
-            [L1 * np.cos(q1) + L2 * np.cos(q12), L2 * np.cos(q12)],
-        ]
-    )
-    bias = np.array(
-        [
-            -L1 * np.cos(q1) * w1**2 - L2 * np.cos(q12) * w12**2,
-            0.0,
-            -L1 * np.sin(q1) * w1**2 - L2 * np.sin(q12) * w12**2,
-        ]
-    )
-    return x, jac, bias
-
-
-def mujoco_site_acceleration(model, site, qpos, qvel, qacc):
-    """Classical linear site acceleration from MuJoCo's cacc recursion: mj_objectAcceleration
-    (world orientation) plus gravity (the recursion starts from the world at -gravity)."""
-    data = mujoco.MjData(model)
-    data.qpos[:], data.qvel[:] = qpos, qvel
-    mujoco.mj_forward(model, data)
-    data.qacc[:] = qacc
-    mujoco.mj_rnePostConstraint(model, data)
-    res = np.zeros(6)
-    mujoco.mj_objectAcceleration(model, data, mujoco.mjtObj.mjOBJ_SITE, site, res, 0)
-    return res[3:] + model.opt.gravity
-
-
-def random_states(robot, rng, count, spread=0.5):
-    """States near home (inside the joint limits), moderate velocities."""
-    low, high = robot.joint_range[:, 0], robot.joint_range[:, 1]
-    q = np.clip(
-        robot.home + rng.uniform(-spread, spread, (count, robot.nq)),
-        low + 0.1 * (high - low),
-        high - 0.1 * (high - low),
-    )
-    return q, rng.uniform(-1.0, 1.0, (count, robot.nv))
 
 
 # ---- site -------------------------------------------------------------------------------
@@ -388,196 +342,3 @@ def test_desired_acceleration_formula():
     )
     # x: 0.2 + 100 * 0.01 = 1.2; y: 20 * 0.1 = 2; z: -1 - 20 * 0.05 = -2
     np.testing.assert_allclose(np.asarray(out), [1.2, 2.0, -2.0], atol=1e-12)
-
-
-# ---- oracle -----------------------------------------------------------------------------
-
-
-def step_once(robot, qpos, qvel, tau):
-    """One mj_step of the C engine with torque tau; returns the new qvel and #constraints."""
-    model = robot.mj_model
-    data = mujoco.MjData(model)
-    data.qpos[:], data.qvel[:] = qpos, qvel
-    data.ctrl[robot.actuator_of_joint] = tau / robot.gear
-    mujoco.mj_step(model, data)
-    return data.qvel.copy(), data.nefc
-
-
-@pytest.mark.parametrize(("name", "site"), [("iiwa14", None), ("two_link_arm", "tip")])
-def test_oracle_realises_desired_site_acceleration_in_one_step(name, site):
-    robot = robots.load(name)
-    model, site_id = robot.mj_model, opspace.ee_site(robot, site)
-    oracle = opspace.HostOracle(robot, site)
-    rng = np.random.default_rng(4)
-    checked = 0
-    while checked < 8:
-        q, qd = random_states(robot, rng, 1)
-        desired = rng.uniform(-2.0, 2.0, 3)
-        if name == "two_link_arm":
-            desired[1] = 0.0  # the arm moves in the x-z plane
-        tau = oracle(q[0], qd[0], desired)
-        if np.any(np.abs(tau) >= robot.torque_limit):
-            continue  # the test is about the dynamics, not about saturation
-        qvel, constraints = step_once(robot, q[0], qd[0], tau)
-        assert constraints == 0
-        realised_qacc = (qvel - qd[0]) / model.opt.timestep
-        realised = mujoco_site_acceleration(model, site_id, q[0], qd[0], realised_qacc)
-        # float64: (qd1 - qd0) / h amplifies rounding by 1/h = 500; measured ~4e-14.
-        np.testing.assert_allclose(realised, desired, atol=1e-11)
-        checked += 1
-
-
-def test_oracle_null_space_term_is_invisible_at_the_site(iiwa):
-    # The posture term changes the torque but, through J Mt^-1 N^T = 0, not the site
-    # acceleration: one C step with either torque realises the same xdd.
-    rng = np.random.default_rng(5)
-    q, qd = random_states(iiwa, rng, 1, spread=0.3)
-    desired = np.array([0.5, -0.5, 1.0])
-    with_posture = opspace.HostOracle(iiwa)(q[0], qd[0], desired)
-    without = opspace.HostOracle(iiwa, null_kp=0.0, null_kd=0.0)(q[0], qd[0], desired)
-    assert np.linalg.norm(with_posture - without) > 1.0
-    site, h = opspace.ee_site(iiwa), iiwa.mj_model.opt.timestep
-    for tau in (with_posture, without):
-        assert np.all(np.abs(tau) < iiwa.torque_limit)
-        qvel, _ = step_once(iiwa, q[0], qd[0], tau)
-        xdd = mujoco_site_acceleration(iiwa.mj_model, site, q[0], qd[0], (qvel - qd[0]) / h)
-        np.testing.assert_allclose(xdd, desired, atol=1e-11)
-
-
-def test_implicit_damping_only_for_euler(iiwa):
-    np.testing.assert_allclose(rollout.implicit_damping(iiwa.mj_model), 0.5 * 0.002)
-    model = copy.deepcopy(iiwa.mj_model)
-    model.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
-    np.testing.assert_array_equal(rollout.implicit_damping(model), 0.0)
-    model = copy.deepcopy(iiwa.mj_model)
-    model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
-    np.testing.assert_array_equal(rollout.implicit_damping(model), 0.0)
-
-
-def test_oracle_policy_jax_matches_host(iiwa):
-    rng = np.random.default_rng(6)
-    q, qd = (np.asarray(a, np.float32) for a in random_states(iiwa, rng, 5))
-    desired = rng.uniform(-1.0, 1.0, (5, 3)).astype(np.float32)
-    torque = jax.jit(jax.vmap(opspace.oracle_policy(iiwa)))(q, qd, desired)
-    expected = opspace.HostOracle(iiwa)(q, qd, desired)
-    assert torque.dtype == jnp.float32 and torque.shape == (5, 7)
-    # float32 rounding of torques up to a few hundred N m
-    np.testing.assert_allclose(torque, expected, atol=1e-4 * np.max(np.abs(expected)))
-
-
-# ---- PD baseline ------------------------------------------------------------------------
-
-
-def test_pd_gains_give_kp_acceleration_at_home(iiwa):
-    # A task-space force F = K_p e applied from rest at home (with the bias compensated so
-    # that only F acts) accelerates the site at kp e over one C step: K_p = kp Lambda(home).
-    kp, kd = 100.0, 20.0
-    gain_p, gain_d = opspace.pd_gains(iiwa, kp, kd)
-    np.testing.assert_allclose(gain_d, gain_p * kd / kp, rtol=1e-15)
-    np.testing.assert_allclose(gain_p, gain_p.T, atol=1e-9)
-    assert np.all(np.linalg.eigvalsh(gain_p) > 0)
-    model, site = iiwa.mj_model, opspace.ee_site(iiwa)
-    data = mujoco.MjData(model)
-    data.qpos[:] = iiwa.home
-    mujoco.mj_forward(model, data)
-    jac = np.zeros((3, 7))
-    mujoco.mj_jacSite(model, data, jac, None, site)
-    error = np.array([0.01, -0.02, 0.005])
-    tau = jac.T @ gain_p @ error + data.qfrc_bias
-    qvel, _ = step_once(iiwa, iiwa.home, np.zeros(7), tau)
-    xdd = mujoco_site_acceleration(model, site, iiwa.home, np.zeros(7), qvel / model.opt.timestep)
-    np.testing.assert_allclose(xdd, kp * error, atol=1e-11)
-
-
-def test_pd_policy_formula(iiwa):
-    gain_p = np.diag([300.0, 200.0, 100.0])
-    gain_d = np.diag([30.0, 20.0, 10.0])
-    rng = np.random.default_rng(8)
-    q, qd = random_states(iiwa, rng, 3)
-    ref_x = rng.uniform(0.3, 0.7, (3, 3))
-    ref_xd = rng.uniform(-0.5, 0.5, (3, 3))
-    args = [np.asarray(a, np.float32) for a in (q, qd, ref_x, ref_xd)]
-    torque = jax.jit(opspace.pd_policy(iiwa, gain_p, gain_d))(*args)
-    model, site = iiwa.mj_model, opspace.ee_site(iiwa)
-    data = mujoco.MjData(model)
-    for i in range(3):
-        data.qpos[:], data.qvel[:] = args[0][i], args[1][i]
-        mujoco.mj_forward(model, data)
-        jac = np.zeros((3, 7))
-        mujoco.mj_jacSite(model, data, jac, None, site)
-        force = gain_p @ (args[2][i] - data.site_xpos[site]) + gain_d @ (
-            args[3][i] - jac @ args[1][i]
-        )
-        np.testing.assert_allclose(torque[i], jac.T @ force, atol=1e-5 * np.abs(force).max())
-
-
-# ---- metrics and closed loop ------------------------------------------------------------
-
-
-def test_tracking_mse_by_hand():
-    reference = np.zeros((2, 3, 3))
-    reference[1, 1:] = 1.0
-    positions = np.zeros((2, 2, 3))
-    positions[0, 0] = [0.1, 0.2, 0.2]  # error^2 sum 0.09 over 6 numbers
-    positions[1] = 1.0  # exactly on the reference after step 0
-    mse = opspace.tracking_mse(positions, reference)
-    np.testing.assert_allclose(np.asarray(mse), [0.09 / 6, 0.0], rtol=1e-6)
-    np.testing.assert_allclose(opspace.tracking_mse(positions, reference[:, 1:]), mse)
-
-
-def test_closed_loop_oracle_tracks_pd_does_not(iiwa):
-    # 5 default references, 2 s, control_dt 0.01 (torque held for 5 physics steps).
-    ref = opspace.cartesian_reaching(iiwa, None, None, 2.0, 0.01)
-    oracle = opspace.HostOracle(iiwa)
-    out = opspace.host_rollout(
-        iiwa, ref, lambda q, qd, xdd, *_: oracle(q, qd, xdd), 100.0, 20.0, 0.01
-    )
-    assert out.position.shape == (5, 200, 3)
-    assert np.all(np.abs(out.tau) < iiwa.torque_limit)
-    rmse = np.sqrt(np.asarray(opspace.tracking_mse(out.position, ref.x)))
-    # exact per physics step, the held torque leaves ~0.05 mm (measured 0.03-0.08 mm)
-    assert np.all(rmse < 2e-4), rmse
-    gains = opspace.pd_gains(iiwa, 100.0, 20.0)
-    kin = opspace.HostKinematics(iiwa)
-
-    def pd(q, qd, desired, ref_x, ref_xd):
-        state = kin(q, qd)
-        force = (ref_x - state.position) @ gains[0].T + (ref_xd - state.velocity) @ gains[1].T
-        return np.einsum("bij,bi->bj", state.jacobian, force)
-
-    pd_out = opspace.host_rollout(iiwa, ref, pd, 100.0, 20.0, 0.01)
-    pd_rmse = np.sqrt(np.asarray(opspace.tracking_mse(pd_out.position, ref.x)))
-    assert np.all(pd_rmse > 0.02), pd_rmse  # no gravity compensation: sags by centimetres
-
-
-def test_jax_closed_loop_matches_host_rollout(arm):
-    # The JAX policies inside a scanned, vmapped loop with the native simulator reproduce
-    # the host reference loop (what a wired-in opspace rollout must do).
-    control_dt, kp, kd = 0.01, 100.0, 20.0
-    ref = opspace.cartesian_reaching(arm, "tip", None, 0.5, control_dt)
-    oracle = opspace.HostOracle(arm, "tip")
-    host = opspace.host_rollout(
-        arm, ref, lambda q, qd, xdd, *_: oracle(q, qd, xdd), kp, kd, control_dt, "tip"
-    )
-    physics = rollout.native_physics(arm, rollout.substeps(arm, control_dt))
-    torque = opspace.oracle_policy(arm, "tip")
-    limit = jnp.asarray(arm.torque_limit, jnp.float32)
-
-    def one_target(ref_x, ref_xd, ref_xdd):
-        def step(carry, t):
-            q, qd = carry
-            kin = opspace.kinematics(arm, q, qd, "tip")
-            desired = opspace.desired_acceleration(
-                ref_x[t], ref_xd[t], ref_xdd[t], kin.position, kin.velocity, kp, kd
-            )
-            tau = jnp.clip(torque(q, qd, desired), -limit, limit)
-            q, qd, _ = physics(q, qd, arm.torque_to_ctrl(tau))
-            return (q, qd), opspace.ee_position(arm, q, "tip")
-
-        q0 = jnp.asarray(arm.home, jnp.float32)
-        return jax.lax.scan(step, (q0, jnp.zeros_like(q0)), jnp.arange(ref_x.shape[0] - 1))[1]
-
-    positions = jax.jit(jax.vmap(one_target))(*opspace.as_jax(ref))
-    # float32 desired accelerations vs float64 in the host loop: differences ~1e-6 m/s^2
-    # that the stable closed loop does not amplify.
-    np.testing.assert_allclose(positions, host.position, atol=1e-6)

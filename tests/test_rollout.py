@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from cfm_jax import native, references, robots, rollout, tasks
+from cfm_jax import baselines, native, references, robots, rollout, tasks
 from cfm_jax.config import ConfigError
 
 CONTROL_DT = 0.01  # 5 physics steps of 0.002 s per control step
@@ -130,7 +130,7 @@ def arm_case(arm, request):
     ref = references.quintic(
         arm.home, arm.home + np.array([0.1, -0.1]), duration=0.1, control_dt=CONTROL_DT
     )
-    gain_p, gain_d = rollout.pd_gains(arm, 100.0, 20.0, arm.home)
+    gain_p, gain_d = baselines.joint_pd_gains(arm, 100.0, 20.0, arm.home)
 
     @jax.jit
     def run(torques, key):
@@ -259,7 +259,7 @@ def test_oracle_policy_realises_desired_acceleration(arm, simulator):
     out = jax.jit(
         lambda: rollout.run(
             tasks.JointSpaceTask(arm, ref, kp=0.0, kd=0.0, control_dt=dt),
-            rollout.oracle_policy(arm, simulator),
+            baselines.inverse_dynamics_oracle(arm, simulator),
             key=jax.random.key(0),
             simulator=simulator,
         )

@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cfm_jax import babbling, rollout
+from cfm_jax import babbling, baselines
 from cfm_jax.config import ConfigError, TaskConfig
 from cfm_jax.references import (
     Reference,
@@ -93,7 +93,7 @@ class JointSpaceTask:
 
     def _pd_gains(self, kp: float, kd: float):
         """The torque gains of :meth:`feedback` for the acceleration gains ``kp``, ``kd``."""
-        return rollout.pd_gains(self.robot, kp, kd, self.reference_np.q[0, 0])
+        return baselines.joint_pd_gains(self.robot, kp, kd, self.reference_np.q[0, 0])
 
     def _gains(self, kp: float, kd: float) -> dict:
         gain_p, gain_d = self._pd_gains(kp, kd)
@@ -215,14 +215,14 @@ class JointSpaceTask:
         return {}
 
     def feedback(self, step):
-        """``K_p (q_ref - q) + K_d (qd_ref - qd)`` with :func:`cfm_jax.rollout.pd_gains`."""
+        """``K_p (q_ref - q) + K_d (qd_ref - qd)`` with :func:`cfm_jax.baselines.joint_pd_gains`."""
         ref = step.reference
         return self.gain_p * (ref.q - step.qpos) + self.gain_d * (ref.qd - step.qvel)
 
     def oracle_policy(self, simulator: str):
         """MuJoCo's inverse dynamics of the desired acceleration
-        (:func:`cfm_jax.rollout.oracle_policy`)."""
-        return rollout.oracle_policy(self.robot, simulator)
+        (:func:`cfm_jax.baselines.inverse_dynamics_oracle`)."""
+        return baselines.inverse_dynamics_oracle(self.robot, simulator)
 
 
 def require_fixed_base(robot, name: str) -> None:

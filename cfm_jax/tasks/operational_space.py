@@ -6,7 +6,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from cfm_jax import babbling, opspace
+from cfm_jax import babbling, baselines, opspace
 from cfm_jax.config import TaskConfig, check_duration
 from cfm_jax.references import check_positions, minimum_jerk
 from cfm_jax.tasks.inverse_dynamics import JointSpaceTask, require_fixed_base
@@ -23,8 +23,9 @@ class OperationalSpaceTask(JointSpaceTask):
     non-unique. The tracking error is the site position error ``x' - x_ref(t+1)`` (m).
     Site kinematics come from MuJoCo C through a host callback with the native simulator
     and from MJX with ``mjx`` (:mod:`cfm_jax.opspace`); the features carried in
-    the rollout are ``[x, xd]`` of the site. Baselines: the analytic operational-space
-    controller (Khatib) as oracle and task-space PD (``J^T (K_p e + K_d ed)``).
+    the rollout are ``[x, xd]`` of the site. Baselines (:mod:`cfm_jax.baselines`): the
+    analytic operational-space controller (Khatib) as oracle and task-space PD
+    (``J^T (K_p e + K_d ed)``).
 
     Args:
       robot: a fixed-base arm with the end-effector site.
@@ -53,7 +54,7 @@ class OperationalSpaceTask(JointSpaceTask):
         check_duration(task.duration, control_dt)
         home = robot.home if task.home is None else np.asarray(task.home, np.float64)
         check_positions("task.home", home[None], robot)
-        self.robot, self.opspace, self.simulator = robot, opspace, simulator
+        self.robot, self.simulator = robot, simulator
         self.site = opspace.ee_site(robot, task.site)
         targets = (
             opspace.default_cartesian_targets(robot, self.site, home)
@@ -81,11 +82,11 @@ class OperationalSpaceTask(JointSpaceTask):
         return float(np.sqrt(np.mean(np.square(delta))))
 
     def _pd_gains(self, kp: float, kd: float):
-        """Task-space torque gains at home (:func:`cfm_jax.opspace.pd_gains`)."""
-        return self.opspace.pd_gains(self.robot, kp, kd, self.site, self._home_np)
+        """Task-space torque gains at home (:func:`cfm_jax.baselines.opspace_pd_gains`)."""
+        return baselines.opspace_pd_gains(self.robot, kp, kd, self.site, self._home_np)
 
     def _site(self, qpos, qvel):
-        kin = self.opspace.kinematics(self.robot, qpos, qvel, self.site, self.simulator)
+        kin = opspace.kinematics(self.robot, qpos, qvel, self.site, self.simulator)
         return jnp.concatenate([kin.position, kin.velocity], -1)
 
     def start(self, reference):
@@ -105,7 +106,7 @@ class OperationalSpaceTask(JointSpaceTask):
         else:
             poses = jnp.broadcast_to(self.home, (self.targets, self.robot.nq))
             poses = babbling.random_poses(key, self.robot, poses)
-            goal = self.opspace.kinematics(
+            goal = opspace.kinematics(
                 self.robot, poses, jnp.zeros_like(poses), self.site, self.simulator
             )
             goal = goal.position
@@ -113,7 +114,7 @@ class OperationalSpaceTask(JointSpaceTask):
         return type(self.reference)(x, xd, xdd)
 
     def desired(self, ref_t, qpos, qvel, features):
-        return self.opspace.desired_acceleration(
+        return opspace.desired_acceleration(
             ref_t.x, ref_t.xd, ref_t.xdd, features[:3], features[3:], self.kp, self.kd
         )
 
@@ -131,18 +132,17 @@ class OperationalSpaceTask(JointSpaceTask):
 
     def feedback(self, step):
         """Task-space PD ``J^T (K_p (x_ref - x) + K_d (xd_ref - xd))``
-        (:func:`cfm_jax.opspace.pd_policy`)."""
-        torque = self.opspace.pd_policy(
+        (:func:`cfm_jax.baselines.opspace_pd_policy`)."""
+        torque = baselines.opspace_pd_policy(
             self.robot, self.gain_p, self.gain_d, self.site, self.simulator
         )
         return torque(step.qpos, step.qvel, step.reference.x, step.reference.xd)
 
     def oracle_policy(self, simulator: str):
-        """The analytic operational-space controller (:func:`cfm_jax.opspace.oracle_policy`:
-        MuJoCo C on the host for ``native``, MJX in JAX for ``mjx``)."""
-        torque = self.opspace.oracle_policy(
-            self.robot, self.site, self._home_np, simulator=simulator
-        )
+        """The analytic operational-space controller
+        (:func:`cfm_jax.baselines.opspace_oracle`: MuJoCo C on the host for ``native``, MJX
+        in JAX for ``mjx``)."""
+        torque = baselines.opspace_oracle(self.robot, self.site, self._home_np, simulator=simulator)
 
         def policy(step, key):
             del key
