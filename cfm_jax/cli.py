@@ -16,7 +16,7 @@ import time
 
 import cfm_jax  # noqa: F401  (sets the XLA flag before JAX starts)
 from cfm_jax import config as config_lib
-from cfm_jax import losses, report
+from cfm_jax import losses, plots, report
 
 
 def train(
@@ -303,7 +303,7 @@ def _write_outputs(out, frames, result, base, task) -> None:
         text += "\n\n" + report.paired_markdown(report.paired_table(metrics, reference=None))
     with open(os.path.join(out, "summary.md"), "w") as f:
         f.write(text + "\n")
-    report.plot_learning_curves(
+    plots.plot_learning_curves(
         metrics,
         os.path.join(out, "learning_curves.png"),
         result.baselines,

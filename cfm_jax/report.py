@@ -1,12 +1,14 @@
-"""Summaries, tables and figures of training results (pandas, rich, matplotlib).
+"""Summaries, tables and statistics of training results (pandas, rich); their figures are
+in :mod:`cfm_jax.plots`.
 
 Statistics: the unit of every uncertainty here is the *seed*, each seed averaged over its
 targets (:func:`seed_means`): the targets of one seed share its networks and data, so they
 are not independent runs. :func:`summary` gives each loss's mean with a percentile
 bootstrap confidence interval over seeds (:func:`bootstrap_ci`), :func:`paired_table` the
 paired difference between a reference loss and each other loss over the seeds both have
-(:func:`paired_difference`), and the learning-curve figures draw the same interval as a
-band. The bootstrap uses a fixed seed, so the same metrics give the same report.
+(:func:`paired_difference`), and the learning-curve figures (:mod:`cfm_jax.plots`) draw
+the same interval as a band. The bootstrap uses a fixed seed, so the same metrics give the
+same report.
 
 Examples:
   >>> import pandas as pd
@@ -333,7 +335,7 @@ def summary(
     _require(metrics, ["loss", "iteration", column])
     means = seed_means(metrics, column, iteration)
     rows = {}
-    for loss in _loss_order(means["loss"]):
+    for loss in loss_order(means["loss"]):
         per_seed = means[means["loss"] == loss]
         at = int(per_seed["iteration"].iloc[0])
         final = metrics[(metrics["loss"] == loss) & (metrics["iteration"] == at)]
@@ -409,7 +411,7 @@ def paired_table(
       0  task             -1.5    -2.0     -1.0      2
     """
     means = seed_means(metrics, column, iteration)
-    present = _loss_order(means["loss"])
+    present = loss_order(means["loss"])
     if reference is None:
         reference = "joint" if "joint" in present else (present[0] if present else "joint")
     if reference not in present:
@@ -442,8 +444,20 @@ def _require(frame: pd.DataFrame, columns: Iterable[str]) -> None:
         raise ValueError(f"columns {missing} are not in the metrics table")
 
 
-def _loss_order(names) -> list[str]:
-    """The library's losses in ``CONTROLLER_LOSSES`` order, then other names as they come."""
+def loss_order(names) -> list[str]:
+    """The order in which tables and figures show losses: the library's losses in
+    ``CONTROLLER_LOSSES`` order, then other names (baselines, ...) as they come.
+
+    Args:
+      names: loss names, repeats allowed (a metrics table's ``loss`` column).
+
+    Returns:
+      The distinct names in that order.
+
+    Examples:
+      >>> loss_order(["mine", "task", "joint", "task"])
+      ['joint', 'task', 'mine']
+    """
     present = list(dict.fromkeys(names))
     known = [name for name in losses.CONTROLLER_LOSSES if name in present]
     return known + [name for name in present if name not in losses.CONTROLLER_LOSSES]
@@ -677,61 +691,6 @@ def paired_markdown(table: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def plot_learning_curves(
-    metrics: pd.DataFrame,
-    path: str,
-    baselines: pd.DataFrame | None = None,
-    title: str = "",
-    tracking_label: str = "joint tracking MSE (rad$^2$)",
-    output_unit: str = "(rad/s$^2$)$^2$",
-) -> str:
-    """Tracking MSE, prediction error and predicted task error per iteration, per loss.
-
-    Each seed is averaged over its targets; the line is the mean over seeds and the shaded
-    band its 95% percentile bootstrap confidence interval over seeds (:func:`seed_curves`,
-    :func:`bootstrap_ci`; one seed: no band), as the legend says (the paper's Fig. 3 and 4
-    style). Oracle and PD-only tracking MSE as horizontal lines. Log scale. Saves a PNG.
-
-    Args:
-      metrics: a metrics table (``TrainResult.metrics``, or several concatenated) with
-        columns ``loss``, ``iteration``, ``tracking_mse``, ``seed`` (without it: one
-        seed) and optionally ``prediction_error`` and ``predicted_task_error``; one curve
-        per loss.
-      path: the image file to write (its folder must exist).
-      baselines: ``TrainResult.baselines`` (columns ``baseline``, ``tracking_mse``); their
-        mean tracking MSE is drawn as horizontal lines (None: no lines).
-      title: the figure's title ("": none).
-      tracking_label: y label of the tracking panel (the task's tracking error and unit).
-      output_unit: squared unit of the forward model's predicted quantity, for the labels
-        of the two prediction panels.
-
-    Returns:
-      ``path``.
-
-    Examples:
-      >>> import os, tempfile
-      >>> import pandas as pd
-      >>> metrics = pd.DataFrame({"loss": ["joint"] * 4, "seed": [0, 0, 1, 1],
-      ...                         "iteration": [0, 1, 0, 1], "target": [0] * 4,
-      ...                         "tracking_mse": [1.0, 0.1, 2.0, 0.2],
-      ...                         "prediction_error": [1.0, 0.5, 1.0, 0.5],
-      ...                         "predicted_task_error": [0.5, 0.1, 0.5, 0.1]})
-      >>> with tempfile.TemporaryDirectory() as folder:
-      ...     path = plot_learning_curves(metrics, os.path.join(folder, "curves.png"))
-      ...     os.path.getsize(path) > 0
-      True
-    """
-    frame = metrics if "seed" in metrics.columns else metrics.assign(seed=0)
-    columns = [c for c, _ in _panels(tracking_label, output_unit) if c in frame.columns]
-    curves = seed_curves(frame, by=["loss"], columns=columns)
-    series = []
-    for loss in _loss_order(curves["loss"]):
-        series.append((loss, _bands(curves[curves["loss"] == loss].set_index("iteration"))))
-    return _plot_series(
-        series, path, baselines, title, tracking_label, output_unit, _band_label(curves)
-    )
-
-
 CURVE_ID_COLUMNS = ("seed", "iteration", "target")
 """Columns of a metrics table that identify a row rather than measure something."""
 
@@ -869,143 +828,3 @@ def curves_markdown(
         cells += [f"{_format(row[c + '_mean'])} ± {_format(row[c + '_std'])}" for c in columns]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
-
-
-def plot_curves(
-    curves: pd.DataFrame,
-    path: str,
-    by: Sequence[str] = ("loss",),
-    baselines: pd.DataFrame | None = None,
-    title: str = "",
-    tracking_label: str = "joint tracking MSE (rad$^2$)",
-    output_unit: str = "(rad/s$^2$)$^2$",
-) -> str:
-    """The figure of :func:`plot_learning_curves` from a :func:`seed_curves` table: one
-    line per group (mean over seeds, each seed averaged over its targets) with its
-    confidence interval over seeds as a shaded band (a table without ``_ci_low`` /
-    ``_ci_high`` columns: mean ± one std), log scale; the legend says which.
-
-    Args:
-      curves: the output of :func:`seed_curves` (with ``tracking_mse``, and
-        ``prediction_error`` and ``predicted_task_error`` when they are to be drawn).
-      path: the image file to write (its suffix picks the format).
-      by: the group columns of ``curves``; lines are labelled ``loss, path=value``.
-      baselines: oracle and PD-only tracking per target (drawn as horizontal lines), or
-        None.
-      title: the figure's title.
-      tracking_label: the label of the tracking error's axis.
-      output_unit: the unit of the forward model's output, for the other two axes.
-
-    Returns:
-      ``path``.
-
-    Examples:
-      >>> import os, tempfile
-      >>> import pandas as pd
-      >>> metrics = pd.DataFrame({"loss": ["joint"] * 4, "seed": [0, 1, 0, 1],
-      ...                         "iteration": [0, 0, 1, 1], "target": [0] * 4,
-      ...                         "tracking_mse": [1.0, 3.0, 0.5, 0.7]})
-      >>> path = os.path.join(tempfile.mkdtemp(), "curves.png")
-      >>> plot_curves(seed_curves(metrics), path) == path and os.path.getsize(path) > 0
-      True
-    """
-    by = list(by)
-    series = []
-    for key, frame in curves.groupby(by, sort=False, dropna=False):
-        key = key if isinstance(key, tuple) else (key,)
-        pairs = zip(by[1:], key[1:], strict=True)
-        label = str(key[0]) + "".join(f", {name}={value}" for name, value in pairs)
-        series.append((label, _bands(frame.set_index("iteration"))))
-    return _plot_series(
-        series, path, baselines, title, tracking_label, output_unit, _band_label(curves)
-    )
-
-
-def _panels(tracking_label: str, output_unit: str) -> list[tuple[str, str]]:
-    return [
-        ("tracking_mse", tracking_label),
-        ("prediction_error", f"forward-model prediction error ({output_unit})"),
-        ("predicted_task_error", f"predicted task error ({output_unit})"),
-    ]
-
-
-def _bands(frame: pd.DataFrame) -> dict:
-    """``{column: (mean, low, high)}`` of an iteration-indexed :func:`seed_curves` group:
-    its confidence interval, or mean ± std for a table without one."""
-    bands = {}
-    for column, _ in _panels("", ""):
-        if f"{column}_mean" not in frame:
-            continue
-        mean = frame[f"{column}_mean"]
-        if f"{column}_ci_low" in frame:
-            low, high = frame[f"{column}_ci_low"], frame[f"{column}_ci_high"]
-        else:
-            std = frame[f"{column}_std"].fillna(0.0)
-            low, high = mean - std, mean + std
-        bands[column] = (mean, low.fillna(mean), high.fillna(mean))
-    return bands
-
-
-def _band_label(curves: pd.DataFrame) -> str:
-    if any(c.endswith("_ci_low") for c in curves.columns):
-        confidence = curves.attrs.get("confidence") or CONFIDENCE
-        return f"band: {100 * confidence:g}% bootstrap CI of the mean over seeds"
-    return "band: ± 1 std over seeds"
-
-
-def _plot_series(
-    series, path, baselines, title, tracking_label, output_unit, band_label=None
-) -> str:
-    """Three log-scale panels; ``series``: ``[(label, {column: (mean, low, high)})]`` with
-    iteration-indexed mean and band (:func:`_bands`); ``band_label`` names the band in the
-    legend."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Patch
-    from matplotlib.ticker import MaxNLocator
-
-    panels = _panels(tracking_label, output_unit)
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
-    for ax, (column, label) in zip(axes, panels, strict=True):
-        for name, stats in series:
-            if column not in stats:
-                continue
-            mean, low, high = stats[column]
-            (line,) = ax.plot(mean.index, mean.values, marker="o", ms=3, label=name)
-            lower = np.maximum(low.values, mean.values * 1e-2)  # log scale: keep it positive
-            ax.fill_between(mean.index, lower, high.values, alpha=0.2, color=line.get_color())
-        if column == "tracking_mse" and baselines is not None:
-            styles = {"oracle": ":", "pd_only": "--"}
-            for name, frame in baselines.groupby("baseline", sort=False):
-                ax.axhline(
-                    frame["tracking_mse"].mean(),
-                    color="k",
-                    ls=styles.get(name, "-."),
-                    lw=1,
-                    label=name,
-                )
-        ax.set_yscale("log")
-        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-        ax.set_xlabel("iteration")
-        ax.set_ylabel(label)
-        ax.grid(alpha=0.3)
-    handles, labels = axes[0].get_legend_handles_labels()
-    if band_label:
-        handles.append(Patch(facecolor="0.5", alpha=0.3, label=band_label))
-        labels.append(band_label)
-    axes[0].legend(
-        handles,
-        labels,
-        fontsize="small",
-        framealpha=0.8,
-        title="line: mean over seeds,\neach seed averaged over its targets",
-        title_fontsize="small",
-    )
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path

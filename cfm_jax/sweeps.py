@@ -53,7 +53,7 @@ import pandas as pd
 
 from cfm_jax import config as config_lib
 from cfm_jax import losses as losses_lib
-from cfm_jax import report
+from cfm_jax import plots, report
 from cfm_jax._files import write_atomic, write_text
 
 BACKENDS = ("local", "ray")
@@ -212,10 +212,10 @@ class SweepResult:
         return "\n\n".join(parts)
 
     def plot(self, path: str, title: str = "", **labels) -> str:
-        """The paper-style figure of the curves (:func:`cfm_jax.report.plot_curves`); the
+        """The paper-style figure of the curves (:func:`cfm_jax.plots.plot_curves`); the
         baselines are drawn when the sweep has no overrides. Returns ``path``."""
         baselines = self.baselines if not self.override_columns else None
-        return report.plot_curves(
+        return plots.plot_curves(
             self.curves(), path, self.group_columns, baselines=baselines, title=title, **labels
         )
 

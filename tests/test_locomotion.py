@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from cfm_jax import locomotion as L
-from cfm_jax import plots, solo12
+from cfm_jax import solo12
 from cfm_jax.native import Stepper
 
 
@@ -184,13 +184,3 @@ def test_cache_dir_from_environment(monkeypatch, tmp_path):
     assert L.cache_dir(tmp_path) == tmp_path
     monkeypatch.delenv(L.CACHE_ENV)
     assert L.cache_dir() == Path.home() / ".cache" / "cfm_jax" / "references"
-
-
-def test_foot_force_plot(tmp_path, jumps, model):
-    ref = jumps[0]
-    q0 = ref.qpos[0].copy()
-    q0[2] += 0.005
-    run = L.replay(ref, model, qpos0=q0)
-    path = tmp_path / "force.png"
-    plots.plot_foot_force(ref, path, observed=run.foot_force, foot="FR")
-    assert path.stat().st_size > 10_000

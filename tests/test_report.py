@@ -1,9 +1,9 @@
-"""Summary tables and figures (cfm_jax/report.py) against hand-computed numbers."""
+"""Summary tables and statistics (cfm_jax/report.py) against hand-computed numbers; the
+figures drawn from them are tested in tests/test_plots.py."""
 
 from __future__ import annotations
 
 import math
-import os
 import statistics
 from types import SimpleNamespace
 
@@ -49,12 +49,6 @@ def test_summary_uses_the_final_iteration_over_seeds_and_targets():
     text = report.markdown(table)
     assert text.splitlines()[0].startswith("| controller |")
     assert "| joint | 2.5 |" in text
-
-
-def test_learning_curves_figure_is_written(tmp_path):
-    path = report.plot_learning_curves(_metrics(), str(tmp_path / "curves.png"), title="t")
-    assert (tmp_path / "curves.png").stat().st_size > 10_000
-    assert path.endswith("curves.png")
 
 
 # ----- statistics over seeds ----------------------------------------------------------
@@ -318,37 +312,13 @@ def test_paired_table_against_hand_differences():
     assert len(alone) == 0 and "| loss | joint - loss |" in report.paired_markdown(alone)
 
 
-def test_seed_curves_band_is_the_bootstrap_ci_over_seed_means(monkeypatch, tmp_path):
+def test_seed_curves_band_is_the_bootstrap_ci_over_seed_means():
     curves = report.seed_curves(_hand_frame(), columns=["tracking_mse"])
     final = curves[curves.iteration == 2].set_index("loss")
     for loss, means in (("joint", JOINT), ("task", TASK), ("supervised", SUPERVISED)):
         expected = report.bootstrap_ci(means)
         got = (final.loc[loss, "tracking_mse_ci_low"], final.loc[loss, "tracking_mse_ci_high"])
         assert got == expected
-    # the learning-curve figure draws that interval as its band, and says so
-    drawn = {}
-
-    def capture(series, path, baselines, title, tracking_label, output_unit, band_label=None):
-        drawn.update(series=dict(series), band_label=band_label)
-        return path
-
-    monkeypatch.setattr(report, "_plot_series", capture)
-    report.plot_learning_curves(_hand_frame(), str(tmp_path / "c.png"))
-    mean, low, high = drawn["series"]["task"]["tracking_mse"]
-    assert mean[2] == statistics.mean(TASK) and (low[2], high[2]) == report.bootstrap_ci(TASK)
-    assert low[1] == high[1] == 100.0  # every seed the same: no spread
-    assert drawn["band_label"] == "band: 95% bootstrap CI of the mean over seeds"
-    old = curves.drop(columns=["tracking_mse_ci_low", "tracking_mse_ci_high"])
-    report.plot_curves(old, str(tmp_path / "old.png"))
-    mean, low, high = drawn["series"]["task"]["tracking_mse"]
-    std = final.loc["task", "tracking_mse_std"]
-    np.testing.assert_allclose([low[2], high[2]], [mean[2] - std, mean[2] + std])
-    assert drawn["band_label"] == "band: ± 1 std over seeds"
-
-
-def test_figures_with_bands_are_written(tmp_path):
-    path = report.plot_curves(report.seed_curves(_hand_frame()), str(tmp_path / "c.png"))
-    assert os.path.getsize(path) > 10_000
 
 
 def test_rich_tables_show_the_interval_and_say_what_it_is(capsys):

@@ -37,6 +37,7 @@ from cfm_jax import (
     ForwardModelConfig,
     LoopConfig,
     TaskConfig,
+    plots,
     render,
     report,
     robots,
@@ -130,11 +131,11 @@ table = report.summary(result.metrics, result.baselines, result.rms_reach)
 print(report.markdown(table))
 
 # %% [markdown]
-# `report.plot_learning_curves` draws the library's standard figure (tracking error,
+# `plots.plot_learning_curves` draws the library's standard figure (tracking error,
 # prediction error and predicted task error per loss):
 
 # %%
-path = report.plot_learning_curves(
+path = plots.plot_learning_curves(
     result.metrics, os.path.join(OUT, "learning_curves.png"), baselines=result.baselines
 )
 display(Image(filename=path))
