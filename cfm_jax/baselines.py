@@ -41,7 +41,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from cfm_jax import native, opspace, rollout
+from cfm_jax import native, opspace, references, rollout
 
 # Gains of the null-space posture term of the oracle (1/s^2 and 1/s): a critically damped
 # joint-space PD towards the home pose, 5 rad/s, acting only in the task's null space.
@@ -530,9 +530,9 @@ class HostRollout(NamedTuple):
       tau: applied (clipped) torque, ``(targets, steps, nv)``.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax import references, robots
       >>> arm = robots.load("two_link_arm")
-      >>> ref = opspace.cartesian_reaching(
+      >>> ref = references.cartesian_reaching(
       ...     arm, "tip", [[0.5, 0.0, 1.4]], duration=0.1, control_dt=0.01)
       >>> oracle = HostOpspaceOracle(arm, "tip")
       >>> out = host_rollout(arm, ref, lambda q, qd, xdd, *_: oracle(q, qd, xdd),
@@ -550,7 +550,7 @@ class HostRollout(NamedTuple):
 
 def host_rollout(
     robot,
-    reference: opspace.CartesianReference,
+    reference: references.CartesianReference,
     policy,
     kp: float,
     kd: float,
@@ -563,13 +563,14 @@ def host_rollout(
     The reference implementation of the operational-space rollout, with the conventions of
     :func:`cfm_jax.rollout.run` and its ``native`` simulator (:class:`cfm_jax.native.Stepper`,
     state stored as float32 between control steps): start at rest at ``home``; at step ``t``
-    ``xdd*_t`` from :func:`cfm_jax.opspace.desired_acceleration`, ``tau = clip(policy(qpos,
+    ``xdd*_t`` from :func:`cfm_jax.references.desired_acceleration`, ``tau = clip(policy(qpos,
     qvel, xdd*_t, x_ref(t), xd_ref(t)), limits)`` held for ``control_dt / timestep`` physics
     steps.
 
     Args:
       robot: a fixed-base :class:`cfm_jax.robots.Robot`.
-      reference: a :class:`cfm_jax.opspace.CartesianReference` (NumPy), ``(targets, steps + 1, 3)``.
+      reference: a :class:`cfm_jax.references.CartesianReference` (NumPy),
+        ``(targets, steps + 1, 3)``.
       policy: ``policy(qpos (B, nq), qvel (B, nv), desired (B, 3), ref_x (B, 3),
         ref_xd (B, 3)) -> tau (B, nv)``, NumPy; e.g. ``lambda q, qd, xdd, *_:
         HostOpspaceOracle(robot)(q, qd, xdd)``.
@@ -583,9 +584,9 @@ def host_rollout(
       A :class:`HostRollout`, ``(targets, steps, ...)``.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax import references, robots
       >>> arm = robots.load("two_link_arm")
-      >>> ref = opspace.cartesian_reaching(
+      >>> ref = references.cartesian_reaching(
       ...     arm, "tip", [[0.5, 0.0, 1.4]], duration=0.5, control_dt=0.01)
       >>> oracle = HostOpspaceOracle(arm, "tip")
       >>> out = host_rollout(arm, ref, lambda q, qd, xdd, *_: oracle(q, qd, xdd),
@@ -604,7 +605,7 @@ def host_rollout(
     ctrl = np.zeros((k, robot.mj_model.nu))
     for t in range(steps):
         state = kin(qpos, qvel)
-        desired = opspace.desired_acceleration(
+        desired = references.desired_acceleration(
             reference.x[:, t],
             reference.xd[:, t],
             reference.xdd[:, t],

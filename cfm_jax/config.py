@@ -198,7 +198,7 @@ class TaskConfig:
     control_dt: float | None = 0.01
     # Reaching targets, one tuple per target: joint positions (inverse_dynamics) or
     # end-effector positions (x, y, z) in metres (opspace); None: the robot's 5 default
-    # targets (derived from its joint ranges, see tasks.py and opspace.py).
+    # targets (derived from its joint ranges, see references.py).
     targets: tuple[tuple[float, ...], ...] | None = None
     # Start pose (joint positions); None: the MJCF keyframe named "home", else qpos0.
     home: tuple[float, ...] | None = None

@@ -1,14 +1,10 @@
-"""Operational-space (end-effector) building blocks: site, kinematics, references.
+"""Operational-space kinematics of an end-effector site: site lookup, MuJoCo C and MJX.
 
-The operational-space task (paper section IV-A-2): the end effector (a MuJoCo *site*,
-:func:`ee_site`) reaches from its home position to each target along a quintic straight
-line of ``duration`` seconds. At each control step the desired end-effector acceleration is
-
-    xdd*_t = xdd_ref(t) + kp (x_ref(t) - x_t) + kd (xd_ref(t) - xd_t)
-
-and the controller input is ``(q, qdot, xdd*)``. Everything is linear, in the world frame,
-of the site's origin: position ``x (3,)``, velocity ``xd = J qd``, acceleration
-``xdd = J qdd + Jdot qd`` with the translational site Jacobian ``J (3, nv)``.
+The operational-space task (paper section IV-A-2) controls a MuJoCo *site* (:func:`ee_site`)
+of the arm. Everything here is linear, in the world frame, of the site's origin: position
+``x (3,)``, velocity ``xd = J qd``, acceleration ``xdd = J qdd + Jdot qd`` with the
+translational site Jacobian ``J (3, nv)``. The task's Cartesian references are in
+:mod:`cfm_jax.references`, its oracle and PD baseline in :mod:`cfm_jax.baselines`.
 
 Kinematics are computed by MuJoCo's C engine (``mj_kinematics``, ``mj_comPos``,
 ``mj_comVel``, ``mj_jacSite``, ``mj_jacDot``), on the host, through ``jax.pure_callback``
@@ -18,20 +14,19 @@ Measured against MJX in JAX on the iiwa (``docs/opspace.md``): compile 0.13 s in
 states. The callback's inputs are wrapped in ``stop_gradient``: the kinematics are
 constants of the state under ``jax.grad``; :func:`task_acceleration` is linear in ``qacc``
 and differentiable in it (the path a task loss on predicted joint accelerations needs).
+With ``simulator="mjx"`` the same quantities come from MJX (:func:`mjx_kinematics`), in
+JAX on the device.
 
 Host class (NumPy float64, any leading batch shape; the oracle of the tests):
 :class:`HostKinematics`. JAX functions (float32, jit/vmap-able): :func:`kinematics`,
 :func:`ee_position`, :func:`ee_velocity`, :func:`ee_jacobian`, :func:`ee_acceleration`.
-The op-space task's oracle and PD baseline are in :mod:`cfm_jax.baselines`.
 
 Examples:
   >>> import numpy as np
   >>> from cfm_jax import robots
   >>> iiwa = robots.load("iiwa14")
-  >>> ref = cartesian_reaching(iiwa, None, None, duration=2.0, control_dt=0.01)
-  >>> ref.x.shape
-  (5, 201, 3)
-  >>> np.round(ref.x[0, 0], 3).tolist()  # the flange at the home pose
+  >>> x = ee_position(iiwa, iiwa.home)  # the flange at the home pose
+  >>> np.round(np.asarray(x, np.float64), 3).tolist()
   [0.669, 0.0, 0.285]
 """
 
@@ -45,8 +40,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from cfm_jax import references
-from cfm_jax.config import SIMULATORS, ConfigError, check_duration
+from cfm_jax.config import SIMULATORS, ConfigError
 
 DEFAULT_SITES = ("ee", "flange")
 """Site names tried in order when no site is configured."""
@@ -484,269 +478,3 @@ def ee_acceleration(robot, qpos, qvel, qacc, site: int | str | None = None):
       [-0.9, 0.0, 0.0]
     """
     return task_acceleration(kinematics(robot, qpos, qvel, site), qacc)
-
-
-# ---- references ------------------------------------------------------------------------
-
-
-class CartesianReference(NamedTuple):
-    """End-effector reference trajectories, one per target.
-
-    Arrays are NumPy float64 (:func:`as_jax` makes float32 JAX copies).
-
-    Attributes:
-      x: ``(targets, steps + 1, 3)`` site positions at the control times
-        ``0, dt, ..., duration`` (world frame, m).
-      xd: ``(targets, steps + 1, 3)`` site velocities at the same times (m/s).
-      xdd: ``(targets, steps + 1, 3)`` site accelerations at the same times (m/s^2).
-
-    Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> ref = cartesian_reaching(arm, "tip", [[0.5, 0.0, 1.4]], duration=0.5, control_dt=0.01)
-      >>> ref.x.shape, ref.steps, ref.x[0, -1].tolist()
-      ((1, 51, 3), 50, [0.5, 0.0, 1.4])
-    """
-
-    x: np.ndarray
-    xd: np.ndarray
-    xdd: np.ndarray
-
-    @property
-    def steps(self) -> int:
-        """Number of control steps per rollout."""
-        return self.x.shape[1] - 1
-
-
-def reach(robot, site: int | str | None = None) -> tuple[float, np.ndarray, str]:
-    """Upper bound of the distance between the arm's base and the site, from the model.
-
-    The base is the anchor of the last joint of the site's kinematic chain whose anchor
-    cannot move (it lies on the axes of all hinges before it, with no slide joint before
-    it): for the iiwa joint 2 at (0, 0, 0.36), for the two-link arm the shoulder. The reach
-    is the sum of the distances between consecutive joint anchors from there to the site
-    (taken at ``qpos0``), plus the travel ``hi - lo`` of every slide joint (infinite if a
-    slide joint is unlimited). A target farther than this is certainly unreachable;
-    joint limits may make nearer targets unreachable too.
-
-    Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
-      site: the site's id or name, or None for :func:`ee_site`'s default.
-
-    Returns:
-      ``(reach in m, base position (3,), base joint name)``.
-
-    Examples:
-      >>> from cfm_jax import robots
-      >>> length, base, joint = reach(robots.load("two_link_arm"), "tip")
-      >>> round(length, 6), base.tolist(), joint
-      (0.9, [0.0, 0.0, 1.0], 'shoulder')
-    """
-    model = robot.mj_model
-    site = _site_id(robot, site)
-    data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)
-    chain = []
-    body = int(model.site_bodyid[site])
-    while body > 0:
-        start, count = model.body_jntadr[body], model.body_jntnum[body]
-        chain = list(range(start, start + count)) + chain
-        body = int(model.body_parentid[body])
-    hinge, slide = int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)
-    base = 0
-    for k in range(1, len(chain)):
-        anchor = data.xanchor[chain[k]]
-        fixed = True
-        for j in chain[:k]:
-            if int(model.jnt_type[j]) == slide:
-                fixed = False
-                break
-            offset = anchor - data.xanchor[j]
-            if np.linalg.norm(np.cross(offset, data.xaxis[j])) > 1e-9:
-                fixed = False
-                break
-        if not fixed:
-            break
-        base = k
-    points = [data.xanchor[j] for j in chain[base:]] + [data.site_xpos[site]]
-    length = float(np.sum(np.linalg.norm(np.diff(np.array(points), axis=0), axis=1)))
-    for j in chain:
-        if int(model.jnt_type[j]) == slide:
-            limited = bool(model.jnt_limited[j])
-            length += float(np.ptp(model.jnt_range[j])) if limited else np.inf
-        elif int(model.jnt_type[j]) != hinge:
-            length = np.inf
-    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, chain[base]) or f"#{chain[base]}"
-    return length, data.xanchor[chain[base]].copy(), name
-
-
-def default_cartesian_targets(robot, site: int | str | None = None, home=None) -> np.ndarray:
-    """Five reachable end-effector targets: the site positions at the five default
-    joint-space targets :func:`cfm_jax.references.default_targets` (inside the joint limits, so
-    reachable by construction, and deterministic; the same reaching motions as the
-    joint-space task, seen at the end effector).
-
-    For the iiwa with the flange from the home pose they lie 0.21 to 0.57 m from the home
-    flange position.
-
-    Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
-      site: the site's id or name, or None for :func:`ee_site`'s default.
-      home: ``(nq,)`` pose the joint-space targets are placed around, or None for
-        ``robot.home``.
-
-    Returns:
-      ``(5, 3)`` positions in the world frame (m).
-
-    Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> targets = default_cartesian_targets(arm, "tip")
-      >>> targets.shape, bool(np.all(targets[:, 1] == 0.0))  # the arm moves in the x-z plane
-      ((5, 3), True)
-    """
-    home = robot.home if home is None else np.asarray(home, np.float64)
-    joint_targets = references.default_targets(robot.joint_range, home)
-    return HostKinematics(robot, site)(joint_targets, np.zeros_like(joint_targets)).position
-
-
-def check_targets(robot, targets, site: int | str | None = None) -> np.ndarray:
-    """Validate end-effector targets; returns them as a ``(k, 3)`` float64 array.
-
-    Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
-      targets: end-effector positions (m, world frame), anything ``np.asarray`` makes a
-        ``(k, 3)`` array of.
-      site: the site's id or name, or None for :func:`ee_site`'s default (for the reach).
-
-    Returns:
-      ``(k, 3)`` float64 array of the targets.
-
-    Raises:
-      ConfigError: not a non-empty ``(k, 3)`` array of finite numbers, or a target farther
-        from the arm's base than its :func:`reach` (the message names the target and its
-        distance).
-
-    Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> check_targets(arm, [[0.5, 0.0, 1.4]], "tip").shape
-      (1, 3)
-      >>> check_targets(arm, [[2.0, 0.0, 0.0]], "tip")
-      Traceback (most recent call last):
-      ...
-      cfm_jax.config.ConfigError: task.targets[0]=(2.0, 0.0, 0.0) is not allowed: it is ...
-    """
-    try:
-        array = np.asarray(targets, dtype=np.float64)
-    except (TypeError, ValueError):
-        array = None
-    if array is None or array.ndim != 2 or array.shape[0] == 0 or array.shape[1] != 3:
-        shape = None if array is None else array.shape
-        raise ConfigError(
-            f"task.targets={targets!r} is not allowed (shape {shape}): a non-empty sequence "
-            "of end-effector positions (x, y, z) in metres, shape (k, 3)"
-        )
-    if not np.all(np.isfinite(array)):
-        k = int(np.argwhere(~np.isfinite(array))[0, 0])
-        raise ConfigError(
-            f"task.targets[{k}]={tuple(array[k].tolist())} is not allowed: finite positions"
-        )
-    length, base, joint = reach(robot, site)
-    distance = np.linalg.norm(array - base, axis=1)
-    far = np.flatnonzero(distance > length)
-    if far.size:
-        k = int(far[0])
-        raise ConfigError(
-            f"task.targets[{k}]={tuple(np.round(array[k], 4).tolist())} is not allowed: it is "
-            f"{distance[k]:.3f} m from the base of robot {robot.name!r} (joint {joint!r} at "
-            f"{tuple(np.round(base, 4).tolist())}), beyond the arm's reach of {length:.3f} m "
-            f"to site {site_names(robot)[_site_id(robot, site)]!r}"
-        )
-    return array
-
-
-def cartesian_reaching(
-    robot, site: int | str | None, targets, duration: float, control_dt: float, home=None
-) -> CartesianReference:
-    """Quintic straight-line paths of the site from its home position to each target.
-
-    ``x(t) = x_home + (x_goal - x_home) s(t / duration)``, ``s(u) = 10 u^3 - 15 u^4 + 6 u^5``
-    (minimum jerk; zero velocity and acceleration at both ends), sampled every
-    ``control_dt`` (:func:`cfm_jax.references.quintic` per target).
-
-    Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
-      site: site name, id, or None for :func:`ee_site`'s default.
-      targets: ``(k, 3)`` end-effector positions (m, world frame), or None for
-        :func:`default_cartesian_targets`.
-      duration: seconds per reach, a whole number (>= 1) of control periods.
-      control_dt: control period (s).
-      home: ``(nq,)`` start pose, or None for ``robot.home``.
-
-    Returns:
-      A :class:`CartesianReference` ``(k, steps + 1, 3)``.
-
-    Raises:
-      ConfigError: bad site, home, targets (see :func:`check_targets`) or duration.
-
-    Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> ref = cartesian_reaching(arm, "tip", [[0.5, 0.0, 1.4]], duration=0.5, control_dt=0.01)
-      >>> np.round(ref.x[0, 0], 3).tolist()  # the tip at the home pose
-      [0.636, 0.0, 0.929]
-    """
-    check_duration(duration, control_dt)
-    home = robot.home if home is None else np.asarray(home, np.float64)
-    references.check_positions("task.home", home[None], robot)
-    if targets is None:
-        targets = default_cartesian_targets(robot, site, home)
-    targets = check_targets(robot, targets, site)
-    start = HostKinematics(robot, site)(home, np.zeros(robot.nv)).position
-    parts = [references.quintic(start, goal, duration, control_dt) for goal in targets]
-    return CartesianReference(*(np.concatenate(arrays) for arrays in zip(*parts, strict=True)))
-
-
-def desired_acceleration(ref_x, ref_xd, ref_xdd, x, xd, kp: float, kd: float):
-    """``xdd* = xdd_ref + kp (x_ref - x) + kd (xd_ref - xd)``; all arrays ``(..., 3)``
-    (the same formula as :func:`cfm_jax.references.desired_acceleration`).
-
-    Args:
-      ref_x: reference site positions ``x_ref``, ``(..., 3)``.
-      ref_xd: reference site velocities ``xd_ref``, ``(..., 3)``.
-      ref_xdd: reference site accelerations ``xdd_ref``, ``(..., 3)``.
-      x: current site positions, ``(..., 3)``.
-      xd: current site velocities, ``(..., 3)``.
-      kp: proportional gain (1/s^2).
-      kd: derivative gain (1/s).
-
-    Returns:
-      ``xdd*``, ``(..., 3)`` (NumPy or JAX, as the inputs).
-
-    Examples:
-      >>> desired_acceleration(np.array([1.0, 0.0, 0.0]), np.zeros(3), np.zeros(3),
-      ...                      np.array([0.9, 0.0, 0.0]), np.array([0.1, 0.0, 0.0]),
-      ...                      kp=100.0, kd=20.0)
-      array([8., 0., 0.])
-    """
-    return references.desired_acceleration(ref_x, ref_xd, ref_xdd, x, xd, kp, kd)
-
-
-def as_jax(reference: CartesianReference) -> CartesianReference:
-    """The same reference as float32 JAX arrays.
-
-    Args:
-      reference: a :class:`CartesianReference` of NumPy arrays.
-
-    Returns:
-      A :class:`CartesianReference` of float32 ``jax.Array``, same shapes.
-
-    Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> ref = cartesian_reaching(arm, "tip", [[0.5, 0.0, 1.4]], duration=0.5, control_dt=0.01)
-      >>> as_jax(ref).xdd.dtype
-      dtype('float32')
-    """
-    return CartesianReference(*(jnp.asarray(x, jnp.float32) for x in reference))

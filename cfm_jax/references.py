@@ -1,5 +1,4 @@
-"""Reference trajectories: joint-space reaching, and the legged recordings padded to one
-length.
+"""Reference trajectories of the tasks: joint-space and Cartesian reaching, legged recordings.
 
 Joint-space reaching (the inverse-dynamics task, paper section IV-A-1): the robot reaches
 from its home pose to each target along a quintic (minimum-jerk) joint-space path of
@@ -8,15 +7,28 @@ from its home pose to each target along a quintic (minimum-jerk) joint-space pat
     qdd*_t = qdd_ref(t) + kp (q_ref(t) - q_t) + kd (qd_ref(t) - qd_t)
 
 (``kp = kd = 0`` is pure feed-forward of the reference acceleration;
-:func:`desired_acceleration`). The Cartesian references of the operational-space task are
-in :mod:`cfm_jax.opspace`; the Solo12 recordings themselves in :mod:`cfm_jax.locomotion`
-(:func:`as_jax_legged` pads them for the legged tasks).
+:func:`desired_acceleration`).
+
+Cartesian reaching (the operational-space task, paper section IV-A-2): the end effector (a
+MuJoCo *site*, :func:`cfm_jax.opspace.ee_site`) reaches from its home position to each
+target along a quintic straight line (:func:`cartesian_reaching`), and the desired
+end-effector acceleration is the same formula in the world frame,
+``xdd*_t = xdd_ref(t) + kp (x_ref(t) - x_t) + kd (xd_ref(t) - xd_t)``. The site
+kinematics come from :mod:`cfm_jax.opspace`.
+
+The Solo12 recordings themselves are in :mod:`cfm_jax.locomotion`; :func:`as_jax_legged`
+pads them for the legged tasks.
 
 Examples:
   >>> import numpy as np
   >>> ref = quintic(np.zeros(1), np.ones(1), duration=1.0, control_dt=0.5)
   >>> ref.q[0, :, 0].tolist()
   [0.0, 0.5, 1.0]
+  >>> from cfm_jax import robots
+  >>> iiwa = robots.load("iiwa14")
+  >>> cartesian = cartesian_reaching(iiwa, None, None, duration=2.0, control_dt=0.01)
+  >>> cartesian.x.shape, np.round(cartesian.x[0, 0], 3).tolist()  # the flange at home
+  ((5, 201, 3), [0.669, 0.0, 0.285])
 """
 
 from __future__ import annotations
@@ -25,8 +37,10 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 
+from cfm_jax import opspace
 from cfm_jax.config import ConfigError, TaskConfig, check_duration
 
 DEFAULT_TARGET_COUNT = 5
@@ -34,6 +48,9 @@ DEFAULT_TARGET_COUNT = 5
 # range kept free at both ends when placing default targets.
 DEFAULT_REACH = 0.6
 RANGE_MARGIN = 0.1
+
+
+# ---- joint-space reaching (inverse_dynamics) --------------------------------------------
 
 
 class Reference(NamedTuple):
@@ -240,25 +257,33 @@ def check_positions(field: str, positions: np.ndarray, robot) -> None:
 
 
 def desired_acceleration(ref_q, ref_qd, ref_qdd, q, qd, kp: float, kd: float):
-    """``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``; all arrays ``(..., nv)``.
+    """``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``; all arrays ``(..., n)``.
+
+    The desired acceleration of every reaching task: of the joints (``n = nv``) for the
+    joint-space task, of the end-effector site (``n = 3``, world frame, the arguments then
+    being ``x_ref, xd_ref, xdd_ref, x, xd``) for the operational-space task.
 
     Args:
-      ref_q: reference positions ``q_ref``, ``(..., nv)``.
-      ref_qd: reference velocities ``qd_ref``, ``(..., nv)``.
-      ref_qdd: reference accelerations ``qdd_ref``, ``(..., nv)``.
-      q: current positions, ``(..., nv)``.
-      qd: current velocities, ``(..., nv)``.
+      ref_q: reference positions ``q_ref``, ``(..., n)``.
+      ref_qd: reference velocities ``qd_ref``, ``(..., n)``.
+      ref_qdd: reference accelerations ``qdd_ref``, ``(..., n)``.
+      q: current positions, ``(..., n)``.
+      qd: current velocities, ``(..., n)``.
       kp: proportional gain (1/s^2).
       kd: derivative gain (1/s).
 
     Returns:
-      ``qdd*``, ``(..., nv)`` (NumPy or JAX, as the inputs).
+      ``qdd*``, ``(..., n)`` (NumPy or JAX, as the inputs).
 
     Examples:
       >>> import numpy as np
       >>> desired_acceleration(np.array([1.0]), np.array([0.0]), np.array([0.5]),
       ...                      q=np.array([0.9]), qd=np.array([0.2]), kp=100.0, kd=20.0)
       array([6.5])
+      >>> desired_acceleration(np.array([1.0, 0.0, 0.0]), np.zeros(3), np.zeros(3),  # a site
+      ...                      np.array([0.9, 0.0, 0.0]), np.array([0.1, 0.0, 0.0]),
+      ...                      kp=100.0, kd=20.0)
+      array([8., 0., 0.])
     """
     return ref_qdd + kp * (ref_q - q) + kd * (ref_qd - qd)
 
@@ -296,6 +321,251 @@ def as_jax(reference: Reference) -> Reference:
       (dtype('float32'), (1, 3, 1))
     """
     return Reference(*(jnp.asarray(x, jnp.float32) for x in reference))
+
+
+# ---- Cartesian reaching (opspace) -------------------------------------------------------
+
+
+class CartesianReference(NamedTuple):
+    """End-effector reference trajectories, one per target.
+
+    Arrays are NumPy float64 (:func:`as_jax_cartesian` makes float32 JAX copies).
+
+    Attributes:
+      x: ``(targets, steps + 1, 3)`` site positions at the control times
+        ``0, dt, ..., duration`` (world frame, m).
+      xd: ``(targets, steps + 1, 3)`` site velocities at the same times (m/s).
+      xdd: ``(targets, steps + 1, 3)`` site accelerations at the same times (m/s^2).
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> ref = cartesian_reaching(arm, "tip", [[0.5, 0.0, 1.4]], duration=0.5, control_dt=0.01)
+      >>> ref.x.shape, ref.steps, ref.x[0, -1].tolist()
+      ((1, 51, 3), 50, [0.5, 0.0, 1.4])
+    """
+
+    x: np.ndarray
+    xd: np.ndarray
+    xdd: np.ndarray
+
+    @property
+    def steps(self) -> int:
+        """Number of control steps per rollout."""
+        return self.x.shape[1] - 1
+
+
+def reach(robot, site: int | str | None = None) -> tuple[float, np.ndarray, str]:
+    """Upper bound of the distance between the arm's base and the site, from the model.
+
+    The base is the anchor of the last joint of the site's kinematic chain whose anchor
+    cannot move (it lies on the axes of all hinges before it, with no slide joint before
+    it): for the iiwa joint 2 at (0, 0, 0.36), for the two-link arm the shoulder. The reach
+    is the sum of the distances between consecutive joint anchors from there to the site
+    (taken at ``qpos0``), plus the travel ``hi - lo`` of every slide joint (infinite if a
+    slide joint is unlimited). A target farther than this is certainly unreachable;
+    joint limits may make nearer targets unreachable too.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      site: the site's id or name, or None for :func:`cfm_jax.opspace.ee_site`'s default.
+
+    Returns:
+      ``(reach in m, base position (3,), base joint name)``.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> length, base, joint = reach(robots.load("two_link_arm"), "tip")
+      >>> round(length, 6), base.tolist(), joint
+      (0.9, [0.0, 0.0, 1.0], 'shoulder')
+    """
+    model = robot.mj_model
+    site = opspace._site_id(robot, site)
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    chain = []
+    body = int(model.site_bodyid[site])
+    while body > 0:
+        start, count = model.body_jntadr[body], model.body_jntnum[body]
+        chain = list(range(start, start + count)) + chain
+        body = int(model.body_parentid[body])
+    hinge, slide = int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)
+    base = 0
+    for k in range(1, len(chain)):
+        anchor = data.xanchor[chain[k]]
+        fixed = True
+        for j in chain[:k]:
+            if int(model.jnt_type[j]) == slide:
+                fixed = False
+                break
+            offset = anchor - data.xanchor[j]
+            if np.linalg.norm(np.cross(offset, data.xaxis[j])) > 1e-9:
+                fixed = False
+                break
+        if not fixed:
+            break
+        base = k
+    points = [data.xanchor[j] for j in chain[base:]] + [data.site_xpos[site]]
+    length = float(np.sum(np.linalg.norm(np.diff(np.array(points), axis=0), axis=1)))
+    for j in chain:
+        if int(model.jnt_type[j]) == slide:
+            limited = bool(model.jnt_limited[j])
+            length += float(np.ptp(model.jnt_range[j])) if limited else np.inf
+        elif int(model.jnt_type[j]) != hinge:
+            length = np.inf
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, chain[base]) or f"#{chain[base]}"
+    return length, data.xanchor[chain[base]].copy(), name
+
+
+def default_cartesian_targets(robot, site: int | str | None = None, home=None) -> np.ndarray:
+    """Five reachable end-effector targets: the site positions at the five default
+    joint-space targets :func:`default_targets` (inside the joint limits, so
+    reachable by construction, and deterministic; the same reaching motions as the
+    joint-space task, seen at the end effector).
+
+    For the iiwa with the flange from the home pose they lie 0.21 to 0.57 m from the home
+    flange position.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      site: the site's id or name, or None for :func:`cfm_jax.opspace.ee_site`'s default.
+      home: ``(nq,)`` pose the joint-space targets are placed around, or None for
+        ``robot.home``.
+
+    Returns:
+      ``(5, 3)`` positions in the world frame (m).
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> targets = default_cartesian_targets(arm, "tip")
+      >>> targets.shape, bool(np.all(targets[:, 1] == 0.0))  # the arm moves in the x-z plane
+      ((5, 3), True)
+    """
+    home = robot.home if home is None else np.asarray(home, np.float64)
+    joint_targets = default_targets(robot.joint_range, home)
+    return opspace.HostKinematics(robot, site)(joint_targets, np.zeros_like(joint_targets)).position
+
+
+def check_targets(robot, targets, site: int | str | None = None) -> np.ndarray:
+    """Validate end-effector targets; returns them as a ``(k, 3)`` float64 array.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      targets: end-effector positions (m, world frame), anything ``np.asarray`` makes a
+        ``(k, 3)`` array of.
+      site: the site's id or name, or None for :func:`cfm_jax.opspace.ee_site`'s default
+        (for the reach).
+
+    Returns:
+      ``(k, 3)`` float64 array of the targets.
+
+    Raises:
+      ConfigError: not a non-empty ``(k, 3)`` array of finite numbers, or a target farther
+        from the arm's base than its :func:`reach` (the message names the target and its
+        distance).
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> check_targets(arm, [[0.5, 0.0, 1.4]], "tip").shape
+      (1, 3)
+      >>> check_targets(arm, [[2.0, 0.0, 0.0]], "tip")
+      Traceback (most recent call last):
+      ...
+      cfm_jax.config.ConfigError: task.targets[0]=(2.0, 0.0, 0.0) is not allowed: it is ...
+    """
+    try:
+        array = np.asarray(targets, dtype=np.float64)
+    except (TypeError, ValueError):
+        array = None
+    if array is None or array.ndim != 2 or array.shape[0] == 0 or array.shape[1] != 3:
+        shape = None if array is None else array.shape
+        raise ConfigError(
+            f"task.targets={targets!r} is not allowed (shape {shape}): a non-empty sequence "
+            "of end-effector positions (x, y, z) in metres, shape (k, 3)"
+        )
+    if not np.all(np.isfinite(array)):
+        k = int(np.argwhere(~np.isfinite(array))[0, 0])
+        raise ConfigError(
+            f"task.targets[{k}]={tuple(array[k].tolist())} is not allowed: finite positions"
+        )
+    length, base, joint = reach(robot, site)
+    distance = np.linalg.norm(array - base, axis=1)
+    far = np.flatnonzero(distance > length)
+    if far.size:
+        k = int(far[0])
+        raise ConfigError(
+            f"task.targets[{k}]={tuple(np.round(array[k], 4).tolist())} is not allowed: it is "
+            f"{distance[k]:.3f} m from the base of robot {robot.name!r} (joint {joint!r} at "
+            f"{tuple(np.round(base, 4).tolist())}), beyond the arm's reach of {length:.3f} m "
+            f"to site {opspace.site_names(robot)[opspace._site_id(robot, site)]!r}"
+        )
+    return array
+
+
+def cartesian_reaching(
+    robot, site: int | str | None, targets, duration: float, control_dt: float, home=None
+) -> CartesianReference:
+    """Quintic straight-line paths of the site from its home position to each target.
+
+    ``x(t) = x_home + (x_goal - x_home) s(t / duration)``, ``s(u) = 10 u^3 - 15 u^4 + 6 u^5``
+    (minimum jerk; zero velocity and acceleration at both ends), sampled every
+    ``control_dt`` (:func:`quintic` per target).
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      site: site name, id, or None for :func:`cfm_jax.opspace.ee_site`'s default.
+      targets: ``(k, 3)`` end-effector positions (m, world frame), or None for
+        :func:`default_cartesian_targets`.
+      duration: seconds per reach, a whole number (>= 1) of control periods.
+      control_dt: control period (s).
+      home: ``(nq,)`` start pose, or None for ``robot.home``.
+
+    Returns:
+      A :class:`CartesianReference` ``(k, steps + 1, 3)``.
+
+    Raises:
+      ConfigError: bad site, home, targets (see :func:`check_targets`) or duration.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> ref = cartesian_reaching(arm, "tip", [[0.5, 0.0, 1.4]], duration=0.5, control_dt=0.01)
+      >>> np.round(ref.x[0, 0], 3).tolist()  # the tip at the home pose
+      [0.636, 0.0, 0.929]
+    """
+    check_duration(duration, control_dt)
+    home = robot.home if home is None else np.asarray(home, np.float64)
+    check_positions("task.home", home[None], robot)
+    if targets is None:
+        targets = default_cartesian_targets(robot, site, home)
+    targets = check_targets(robot, targets, site)
+    start = opspace.HostKinematics(robot, site)(home, np.zeros(robot.nv)).position
+    parts = [quintic(start, goal, duration, control_dt) for goal in targets]
+    return CartesianReference(*(np.concatenate(arrays) for arrays in zip(*parts, strict=True)))
+
+
+def as_jax_cartesian(reference: CartesianReference) -> CartesianReference:
+    """The same reference as float32 JAX arrays.
+
+    Args:
+      reference: a :class:`CartesianReference` of NumPy arrays.
+
+    Returns:
+      A :class:`CartesianReference` of float32 ``jax.Array``, same shapes.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> ref = cartesian_reaching(arm, "tip", [[0.5, 0.0, 1.4]], duration=0.5, control_dt=0.01)
+      >>> as_jax_cartesian(ref).xdd.dtype
+      dtype('float32')
+    """
+    return CartesianReference(*(jnp.asarray(x, jnp.float32) for x in reference))
+
+
+# ---- legged recordings padded (walk, jump) ----------------------------------------------
 
 
 class LeggedReference(NamedTuple):

@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import cfm_jax  # noqa: F401  (sets the XLA flag before JAX's backend starts)
-from cfm_jax import baselines, opspace, robots
+from cfm_jax import baselines, opspace, references, robots
 
 
 def mjx_kinematics(robot, site):
@@ -71,7 +71,7 @@ def time_loop(kinematics, robot, batch, steps=200, repeats=3):
 
 
 def tracking(robot, site, control_dt, kp=100.0, kd=20.0):
-    reference = opspace.cartesian_reaching(robot, site, None, 2.0, control_dt)
+    reference = references.cartesian_reaching(robot, site, None, 2.0, control_dt)
     oracle = baselines.HostOpspaceOracle(robot, site)
     gain_p, gain_d = baselines.opspace_pd_gains(robot, kp, kd, site)
     kinematics = opspace.HostKinematics(robot, site)

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from sites import mujoco_site_acceleration, random_states
 
-from cfm_jax import baselines, opspace, robots, rollout
+from cfm_jax import baselines, opspace, references, robots, rollout
 
 
 @pytest.fixture(scope="module")
@@ -169,7 +169,7 @@ def test_site_tracking_mse_by_hand():
 
 def test_closed_loop_oracle_tracks_pd_does_not(iiwa):
     # 5 default references, 2 s, control_dt 0.01 (torque held for 5 physics steps).
-    ref = opspace.cartesian_reaching(iiwa, None, None, 2.0, 0.01)
+    ref = references.cartesian_reaching(iiwa, None, None, 2.0, 0.01)
     oracle = baselines.HostOpspaceOracle(iiwa)
     out = baselines.host_rollout(
         iiwa, ref, lambda q, qd, xdd, *_: oracle(q, qd, xdd), 100.0, 20.0, 0.01
@@ -196,7 +196,7 @@ def test_jax_closed_loop_matches_host_rollout(arm):
     # The JAX policies inside a scanned, vmapped loop with the native simulator reproduce
     # the host reference loop (what a wired-in opspace rollout must do).
     control_dt, kp, kd = 0.01, 100.0, 20.0
-    ref = opspace.cartesian_reaching(arm, "tip", None, 0.5, control_dt)
+    ref = references.cartesian_reaching(arm, "tip", None, 0.5, control_dt)
     oracle = baselines.HostOpspaceOracle(arm, "tip")
     host = baselines.host_rollout(
         arm, ref, lambda q, qd, xdd, *_: oracle(q, qd, xdd), kp, kd, control_dt, "tip"
@@ -209,7 +209,7 @@ def test_jax_closed_loop_matches_host_rollout(arm):
         def step(carry, t):
             q, qd = carry
             kin = opspace.kinematics(arm, q, qd, "tip")
-            desired = opspace.desired_acceleration(
+            desired = references.desired_acceleration(
                 ref_x[t], ref_xd[t], ref_xdd[t], kin.position, kin.velocity, kp, kd
             )
             tau = jnp.clip(torque(q, qd, desired), -limit, limit)
@@ -219,7 +219,7 @@ def test_jax_closed_loop_matches_host_rollout(arm):
         q0 = jnp.asarray(arm.home, jnp.float32)
         return jax.lax.scan(step, (q0, jnp.zeros_like(q0)), jnp.arange(ref_x.shape[0] - 1))[1]
 
-    positions = jax.jit(jax.vmap(one_target))(*opspace.as_jax(ref))
+    positions = jax.jit(jax.vmap(one_target))(*references.as_jax_cartesian(ref))
     # float32 desired accelerations vs float64 in the host loop: differences ~1e-6 m/s^2
     # that the stable closed loop does not amplify.
     np.testing.assert_allclose(positions, host.position, atol=1e-6)

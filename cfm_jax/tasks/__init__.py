@@ -9,9 +9,9 @@ the names ``Config.task.name`` takes:
 * ``opspace``: :class:`OperationalSpaceTask` (:mod:`cfm_jax.tasks.operational_space`),
 * ``walk`` and ``jump``: :class:`LeggedTask` (:mod:`cfm_jax.tasks.legged`).
 
-The references they follow are in :mod:`cfm_jax.references` (joint-space reaching, the
-legged recordings padded), :mod:`cfm_jax.opspace` (Cartesian reaching) and
-:mod:`cfm_jax.locomotion` (the Solo12 recordings).
+The references they follow are in :mod:`cfm_jax.references` (joint-space and Cartesian
+reaching, the legged recordings padded) and :mod:`cfm_jax.locomotion` (the Solo12
+recordings); the arms' oracles and PD baselines in :mod:`cfm_jax.baselines`.
 
 A new task is one new module with a ``make(robot, task_config, control_dt, simulator)``
 and one call of :func:`register`; :func:`make` then builds it for any config that names

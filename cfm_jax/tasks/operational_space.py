@@ -8,7 +8,15 @@ import numpy as np
 
 from cfm_jax import babbling, baselines, opspace
 from cfm_jax.config import TaskConfig, check_duration
-from cfm_jax.references import check_positions, minimum_jerk
+from cfm_jax.references import (
+    as_jax_cartesian,
+    cartesian_reaching,
+    check_positions,
+    check_targets,
+    default_cartesian_targets,
+    desired_acceleration,
+    minimum_jerk,
+)
 from cfm_jax.tasks.inverse_dynamics import JointSpaceTask, require_fixed_base
 
 
@@ -21,6 +29,7 @@ class OperationalSpaceTask(JointSpaceTask):
     ``(qdot' - qdot) / dt`` and ``(xd' - xd) / dt``), of which the desired quantity specifies
     the last three (``desired_index``). Redundant arms make ``tau`` for a given ``xdd*``
     non-unique. The tracking error is the site position error ``x' - x_ref(t+1)`` (m).
+    References: straight quintic lines of the site (:func:`cfm_jax.references.cartesian_reaching`).
     Site kinematics come from MuJoCo C through a host callback with the native simulator
     and from MJX with ``mjx`` (:mod:`cfm_jax.opspace`); the features carried in
     the rollout are ``[x, xd]`` of the site. Baselines (:mod:`cfm_jax.baselines`): the
@@ -57,14 +66,14 @@ class OperationalSpaceTask(JointSpaceTask):
         self.robot, self.simulator = robot, simulator
         self.site = opspace.ee_site(robot, task.site)
         targets = (
-            opspace.default_cartesian_targets(robot, self.site, home)
+            default_cartesian_targets(robot, self.site, home)
             if task.targets is None
-            else opspace.check_targets(robot, task.targets, self.site)
+            else check_targets(robot, task.targets, self.site)
         )
-        self.reference_np = opspace.cartesian_reaching(
+        self.reference_np = cartesian_reaching(
             robot, self.site, targets, task.duration, control_dt, home
         )
-        self.reference = opspace.as_jax(self.reference_np)
+        self.reference = as_jax_cartesian(self.reference_np)
         self.home = jnp.asarray(home, jnp.float32)
         self.control_dt = float(control_dt)
         self._home_np = home
@@ -114,7 +123,7 @@ class OperationalSpaceTask(JointSpaceTask):
         return type(self.reference)(x, xd, xdd)
 
     def desired(self, ref_t, qpos, qvel, features):
-        return opspace.desired_acceleration(
+        return desired_acceleration(
             ref_t.x, ref_t.xd, ref_t.xdd, features[:3], features[3:], self.kp, self.kd
         )
 
