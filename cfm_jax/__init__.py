@@ -10,14 +10,16 @@ Examples:
   >>> result.metrics.groupby("iteration").tracking_mse.mean()  # doctest: +SKIP
 
 Public names (imported on first use, so ``import cfm_jax`` stays cheap and sets the XLA
-flag before JAX's backend starts): :func:`train`, :class:`TrainResult`,
-:class:`Experiment` (from :mod:`cfm_jax.training`); :class:`Config`, :class:`TaskConfig`,
-:class:`ForwardModelConfig`, :class:`ControllerConfig`, :class:`LoopConfig`,
-:class:`ConfigError`, :func:`for_task` (from :mod:`cfm_jax.config`); :func:`sweep`,
-:class:`SweepResult`, :class:`SweepError` (from :mod:`cfm_jax.sweeps`). Submodules:
-``robots``, ``tasks``, ``opspace``, ``solo12``, ``locomotion``, ``networks``, ``losses``,
-``dataset``, ``native``, ``rollout``, ``update``, ``training``, ``checkpoint``, ``report``,
-``plots``, ``render``, ``bench``, ``theory``, ``sweeps``.
+flag before JAX's backend starts): :func:`train`, :class:`TrainResult` (from
+:mod:`cfm_jax.training`); :class:`Experiment` (from :mod:`cfm_jax.experiment`);
+:data:`METRIC_COLUMNS` (from :mod:`cfm_jax.algorithm`); :class:`Config`,
+:class:`TaskConfig`, :class:`ForwardModelConfig`, :class:`ControllerConfig`,
+:class:`LoopConfig`, :class:`ConfigError`, :func:`for_task` (from :mod:`cfm_jax.config`);
+:func:`sweep`, :class:`SweepResult`, :class:`SweepError` (from :mod:`cfm_jax.sweeps`).
+Submodules: ``robots``, ``tasks``, ``references``, ``babbling``, ``opspace``, ``solo12``,
+``locomotion``, ``networks``, ``losses``, ``dataset``, ``native``, ``rollout``,
+``baselines``, ``update``, ``algorithm``, ``experiment``, ``training``, ``checkpoint``,
+``report``, ``plots``, ``render``, ``bench``, ``theory``, ``sweeps``.
 """
 
 from cfm_jax import _xla
@@ -29,8 +31,8 @@ __version__ = "0.1.0"
 _LAZY = {
     "train": "cfm_jax.training",
     "TrainResult": "cfm_jax.training",
-    "Experiment": "cfm_jax.training",
-    "METRIC_COLUMNS": "cfm_jax.training",
+    "Experiment": "cfm_jax.experiment",
+    "METRIC_COLUMNS": "cfm_jax.algorithm",
     "Config": "cfm_jax.config",
     "TaskConfig": "cfm_jax.config",
     "ForwardModelConfig": "cfm_jax.config",

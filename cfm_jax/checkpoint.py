@@ -1,7 +1,7 @@
 """Checkpoints of the whole training state with Orbax, verified by a content manifest.
 
 A checkpoint ``DIR/<step>/`` (``step`` = completed iterations of Algorithm 1) holds the
-:class:`cfm_jax.training.TrainState` of every seed (both models' parameters and optimiser
+:class:`cfm_jax.algorithm.TrainState` of every seed (both models' parameters and optimiser
 states, normalisation statistics, the data set, the PRNG key as raw key data, the
 iteration counter) and a JSON ``meta`` part (the config and the metric rows so far). Orbax
 writes each step atomically (a temporary directory renamed on commit) and keeps the last

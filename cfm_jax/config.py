@@ -638,8 +638,8 @@ RUNTIME_FIELDS = (
 """Fields whose values do not change the compiled program: the seed and the checkpoint
 settings are not part of it; the learning rates, the initial log-variance bounds, the
 babbling strategy and noise, the task gains and the reference trajectories are arguments of it
-(:class:`cfm_jax.training.Knobs`). Configs that differ only in these and in ``loss`` share
-one :class:`cfm_jax.training.Experiment` and its compilations (a sweep over them compiles
+(:class:`cfm_jax.algorithm.Knobs`). Configs that differ only in these and in ``loss`` share
+one :class:`cfm_jax.experiment.Experiment` and its compilations (a sweep over them compiles
 once per loss). Two of them are partly structure (see :func:`structure`): the *number* of
 ``task.targets`` (None: the default set) and, for ``opspace``, ``task.home`` (the
 oracle's null-space posture lives in its host callback). Every other field (robot,
@@ -651,7 +651,7 @@ def structure(config: Config) -> dict:
     """The part of ``config`` that shapes its compiled program: :func:`to_dict` without
     ``loss`` and :data:`RUNTIME_FIELDS`, but with the number of ``task.targets`` (None when
     the default targets are used) and, for ``opspace``, ``task.home``. Two configs with
-    equal structures can share an :class:`cfm_jax.training.Experiment`.
+    equal structures can share an :class:`cfm_jax.experiment.Experiment`.
 
     Args:
       config: a :class:`Config`.
@@ -698,3 +698,30 @@ def seeds_of(config: Config) -> Sequence[int]:
       (5, 6, 7)
     """
     return tuple(range(config.seed, config.seed + config.loop.seeds))
+
+
+def differences(old: dict, new: dict, prefix: str = "") -> list[str]:
+    """Dotted names of the fields that differ between two config dicts, with both values.
+
+    Args:
+      old: a config dict (:func:`to_dict`), for example a run's.
+      new: another one.
+      prefix: prefix of the dotted names (used by the recursion).
+
+    Returns:
+      One string per differing field, sorted by name.
+
+    Examples:
+      >>> differences({"loss": "task", "loop": {"seeds": 1}},
+      ...             {"loss": "task", "loop": {"seeds": 3}})
+      ['loop.seeds (1 in the run, 3 now)']
+    """
+    out = []
+    for key in sorted(set(old) | set(new)):
+        a, b = old.get(key), new.get(key)
+        name = f"{prefix}{key}"
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += differences(a, b, name + ".")
+        elif a != b:
+            out.append(f"{name} ({a!r} in the run, {b!r} now)")
+    return out

@@ -6,7 +6,7 @@ A sweep is a grid of *cells*: every combination of the ``overrides`` (dotted con
 such as ``"task.kp"`` or ``"controller.learning_rate"``, each with a list of values) times
 every controller loss. Each cell is one call of :func:`cfm_jax.train` with all the seeds as
 its vmap axis, so a cell compiles once and runs its seeds as one program; cells that share
-everything but the loss also share one :class:`cfm_jax.training.Experiment` (babbling
+everything but the loss also share one :class:`cfm_jax.experiment.Experiment` (babbling
 data, initial forward fit and the compiled rollout), as ``cfm-jax train --loss all`` does.
 
 Impure shell: this module runs cells, writes files and talks to Ray. Each finished cell is
@@ -422,7 +422,7 @@ _EXPERIMENTS: collections.OrderedDict = collections.OrderedDict()
 
 
 def experiment_for(config: config_lib.Config):
-    """A :class:`cfm_jax.training.Experiment` for ``config``, reused (with its compiled
+    """A :class:`cfm_jax.experiment.Experiment` for ``config``, reused (with its compiled
     functions and babbling data) for configs that differ only in the loss and in
     :data:`cfm_jax.config.RUNTIME_FIELDS` (seed, learning rates, babbling noise, task
     gains, target sets, checkpointing): a sweep compiles once per loss and per override that changes

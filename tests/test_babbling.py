@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from tiny import tiny_config
 
-from cfm_jax import babbling, references, training
+from cfm_jax import algorithm, babbling, references, training
 from cfm_jax import config as config_lib
 
 
@@ -31,7 +31,7 @@ def _data(exp: training.Experiment, config=None):
     the transitions and the mask of rows that become data."""
     knobs = exp.knobs if config is None else exp.knobs_for(config)
     result = exp.babbling_rollouts(_keys(), knobs)
-    return jax.device_get(result.transitions), np.asarray(training._valid(result))
+    return jax.device_get(result.transitions), np.asarray(algorithm.data_mask(result))
 
 
 def _assert_same(a, b):
@@ -97,9 +97,10 @@ def test_legged_babbling_ignores_the_recorded_motion_unless_it_uses_it(name):
     # Another recorded motion of the same shape: the reference shifted by 2 cm forward with
     # forces scaled by 1.1 (the structure stays, every value of the motion moves).
     ref = exp.task.reference
-    exp.task = exp.task.with_reference(
+    moved_task = exp.task.with_reference(
         ref._replace(qpos=ref.qpos.at[..., 0].add(0.02), force=1.1 * ref.force)
     )
+    exp.setup = dataclasses.replace(exp.setup, task=moved_task)
     exp._compiled.clear()  # the legged references are constants of the compiled rollout
     for strategy in ("home", "oracle"):  # the default, and one that uses the references
         moved, _ = _data(exp, _with(config, strategy))

@@ -28,6 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 # cli (their examples train or write runs) and torch_reference (it needs the optional
 # torch of the bench extra).
 DOCTEST_MODULES = (
+    "algorithm",
     "baselines",
     "bench",
     "config",

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 import cfm_jax
+from cfm_jax import algorithm, locomotion, robots, rollout, tasks, training
 from cfm_jax import config as config_lib
-from cfm_jax import locomotion, robots, rollout, tasks, training
 
 
 @pytest.fixture(scope="module")
@@ -112,7 +112,7 @@ def test_falls_are_flagged_when_the_robot_goes_down(walk):
     assert float(np.max(np.abs(np.asarray(out.tracking_error[..., 2])))) > 0.1
     # A fallen robot gives no more data (its body has no floor contact and sinks): the
     # steps that become data end before the first fallen step of each target (plain loop).
-    valid = np.asarray(training._valid(out))
+    valid = np.asarray(algorithm.data_mask(out))
     fell, active = np.asarray(out.extras["fell"]), np.asarray(out.extras["active"])
     for k in range(walk.targets):
         first_fall = next(i for i in range(walk.steps) if fell[k, i])

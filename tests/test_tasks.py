@@ -168,7 +168,7 @@ def test_values_of_another_config_equal_a_task_built_for_it(arm, name):
     # Oracle: the task built from the config with other gains and other targets (the same
     # number). A PD-only rollout uses the reference and the gains twice, in s* (kp, kd) and
     # in the feedback torque (gain_p, gain_d); with that task's values swapped in (what
-    # cfm_jax.training.Knobs carries into the compiled functions) it must be the same
+    # cfm_jax.algorithm.Knobs carries into the compiled functions) it must be the same
     # rollout bit for bit, and differ from the original one.
     from cfm_jax import rollout
 

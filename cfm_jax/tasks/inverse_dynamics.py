@@ -46,7 +46,7 @@ class JointSpaceTask:
     * ``value_names``, ``values() -> dict`` and ``with_values(values)``: the attributes
       that hold values of the config rather than its structure (here the reference and the
       gains), and a copy of the task that uses other values of the same shapes (traced
-      ones, inside compiled code). :class:`cfm_jax.training.Experiment` passes them as
+      ones, inside compiled code). :class:`cfm_jax.experiment.Experiment` passes them as
       arguments of its compiled functions, so a sweep over the gains or over targets
       compiles once.
 

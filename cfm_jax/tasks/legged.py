@@ -238,7 +238,7 @@ class LeggedTask(JointSpaceTask):
             "active": step.reference.active > 0,
             "force_error": features_next - step.reference.force,
             "fell": fell,
-            "terminal": fell,  # no data from a fallen robot (see training._before_terminal)
+            "terminal": fell,  # no data from a fallen robot (algorithm.data_mask)
         }
 
     def metrics(self, result) -> dict:

@@ -1,0 +1,817 @@
+"""Algorithm 1 of the paper as pure functions of one seed.
+
+The paper's listing and the functions that carry out each line (``setup`` holds what does
+not change during a run, :class:`Setup`; ``knobs`` the config's runtime values,
+:class:`Knobs`)::
+
+    init(setup, loss, key, knobs, data=None)                       -> TrainState
+      D <- motor babbling (loop.babbling_rollouts rollouts)         babble_all
+      normaliser from D; f and g initialised; fit f on D            start
+      fit g on D with the loss through f                            fit_initial_controller
+    iteration(setup, loss, state, knobs, data=None)                 -> (TrainState, metrics)
+      roll g out on every target                                    rollout
+      measure, before any refit                                     metrics
+      D <- D + the rollout's transitions                            collected, dataset.add
+      refit f on D                                                  fit_forward
+      refit g on D with the loss through f                          fit_controller
+
+With ``data`` given, :func:`init` and :func:`iteration` add those transitions instead of
+the ones they collect: that is the replay of a recorded data set (the controller is still
+rolled out in an iteration, for its metrics); given the data a run collected, with the same
+seed and loss, it is that run exactly.
+
+Everything here is a pure function of its arguments, for one seed.
+:class:`cfm_jax.experiment.Experiment` vmaps them over seeds and compiles them;
+:func:`cfm_jax.train` is the impure shell around them (progress, files, checkpoints,
+divergence checks).
+
+Examples:
+  A tiny run of the listing, one seed, compiled as a whole:
+
+  >>> from cfm_jax import config as cfg
+  >>> fit = dict(hidden=(8,), initial_steps=5, steps_per_iteration=5, batch_size=16)
+  >>> config = cfg.Config(
+  ...     robot="two_link_arm", task=cfg.TaskConfig(duration=0.1),
+  ...     forward=cfg.ForwardModelConfig(ensemble_size=2, **fit),
+  ...     controller=cfg.ControllerConfig(**fit),
+  ...     loop=cfg.LoopConfig(iterations=1, babbling_rollouts=1))
+  >>> setup = Setup.of(config)
+  >>> knobs = Knobs.of(config, setup.robot, setup.task)
+  >>> state = jax.jit(lambda key, knobs: init(setup, "joint", key, knobs))(
+  ...     jax.random.key(0), knobs)
+  >>> step = jax.jit(lambda state, knobs: iteration(setup, "joint", state, knobs))
+  >>> state, measured = step(state, knobs)
+  >>> int(state.iteration), int(state.data.size), measured["tracking_mse"].shape
+  (1, 100, (5,))
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+
+from cfm_jax import babbling, dataset, networks, robots, tasks, update
+from cfm_jax import config as config_lib
+from cfm_jax import rollout as rollout_lib
+
+METRIC_COLUMNS = (
+    "loss",
+    "seed",
+    "iteration",
+    "target",
+    "tracking_mse",
+    "prediction_error",
+    "predicted_task_error",
+    "finite_fraction",
+    "transitions_added",
+    "forward_loss",
+    "controller_loss",
+)
+"""Columns of every metrics table, in order: the run's ``loss``, ``seed``, ``iteration`` and
+``target``, then the metrics of every task (see :func:`metrics`); a task adds its own after
+them (``Experiment.metric_columns``)."""
+
+
+@struct.dataclass
+class TrainState:
+    """Everything one run carries from iteration to iteration (a pytree).
+
+    With several seeds every leaf has a leading seed axis ``(seeds, ...)``.
+
+    Attributes:
+      forward_params: the forward ensemble's parameters (leaves ``(ensemble_size, ...)``).
+      forward_opt_state: its Adam state.
+      controller_params: the controller's parameters.
+      controller_opt_state: its Adam state.
+      normaliser: the :class:`cfm_jax.networks.Normaliser` of the babbling data.
+      data: the :class:`cfm_jax.dataset.Dataset` collected so far.
+      key: the PRNG key of the next iteration.
+      iteration: completed iterations of Algorithm 1 (int32 scalar).
+
+    Examples:
+      >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
+      >>> int(result.state.iteration[0]), result.state.data.size  # doctest: +SKIP
+      (10, Array([3000], dtype=int32))
+    """
+
+    forward_params: Any
+    forward_opt_state: Any
+    controller_params: Any
+    controller_opt_state: Any
+    normaliser: networks.Normaliser
+    data: dataset.Dataset
+    key: jax.Array
+    iteration: jax.Array  # int32: completed iterations of Algorithm 1
+
+
+@struct.dataclass
+class Knobs:
+    """The values of a config that the compiled functions take as arguments (a pytree of
+    float32 arrays; see :data:`cfm_jax.config.RUNTIME_FIELDS`). Configs that differ only
+    in these share an :class:`cfm_jax.experiment.Experiment` and its compilations.
+
+    Attributes:
+      forward_learning_rate: ``forward.learning_rate``.
+      controller_learning_rate: ``controller.learning_rate``.
+      forward_log_variance_bounds: ``(forward.min_log_variance,
+        forward.max_log_variance)``, the initial soft bounds of the forward model.
+      babbling_noise_std: ``loop.babbling_noise`` times each torque limit, ``(action_dim,)``.
+      babbling: ``loop.babbling`` as its index in :data:`cfm_jax.config.BABBLING` (int32).
+      task: the task's values, ``values()`` of the task built for ``config.task``: the
+        gains (``task.kp``, ``task.kd``, ... and what the task derives from them) and, for
+        the arm tasks, the reference trajectories (``task.targets``; ``task.home`` for
+        ``inverse_dynamics``).
+
+    Examples:
+      >>> from cfm_jax import config as cfg
+      >>> config = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3))
+      >>> setup = Setup.of(config)
+      >>> knobs = Knobs.of(config, setup.robot, setup.task)
+      >>> float(knobs.task["kp"]), knobs.babbling_noise_std.shape
+      (100.0, (2,))
+    """
+
+    forward_learning_rate: jax.Array
+    controller_learning_rate: jax.Array
+    forward_log_variance_bounds: jax.Array
+    babbling_noise_std: jax.Array
+    babbling: jax.Array
+    task: dict
+
+    @classmethod
+    def of(cls, config: config_lib.Config, robot, task) -> Knobs:
+        """The knobs of ``config`` on ``robot``, with the values of ``task`` (the task built
+        for ``config.task``)."""
+        limit = np.asarray(robot.torque_limit, np.float64)
+        return cls(
+            forward_learning_rate=jnp.asarray(config.forward.learning_rate, jnp.float32),
+            controller_learning_rate=jnp.asarray(config.controller.learning_rate, jnp.float32),
+            forward_log_variance_bounds=jnp.asarray(
+                [config.forward.min_log_variance, config.forward.max_log_variance], jnp.float32
+            ),
+            babbling_noise_std=jnp.asarray(config.loop.babbling_noise * limit, jnp.float32),
+            babbling=jnp.asarray(config_lib.BABBLING.index(config.loop.babbling), jnp.int32),
+            task=task.values(),
+        )
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Setup:
+    """What Algorithm 1 needs of a config that does not change during a run: the robot,
+    the task (its structure; its values come in :class:`Knobs`), the two networks and the
+    sizes of the data set and of the fits.
+
+    Attributes:
+      config: the :class:`cfm_jax.config.Config` (its structural fields are used; the
+        runtime ones come in :class:`Knobs`).
+      robot: the :class:`cfm_jax.robots.Robot`.
+      control_dt: seconds between controller steps.
+      task: the task object (:func:`cfm_jax.tasks.make`).
+      forward: the forward ensemble (:func:`cfm_jax.networks.forward_model`).
+      controller: the controller (:func:`cfm_jax.networks.controller`).
+      capacity: rows of the data set (babbling and every iteration's rollout).
+
+    Examples:
+      >>> from cfm_jax import config as cfg
+      >>> setup = Setup.of(cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3)))
+      >>> setup.capacity  # 150 transitions per rollout, 2 babbling rollouts + 10 iterations
+      1800
+    """
+
+    config: config_lib.Config
+    robot: Any
+    control_dt: float
+    task: Any
+    forward: Any
+    controller: Any
+    capacity: int
+
+    @classmethod
+    def of(cls, config: config_lib.Config) -> Setup:
+        """Build the setup of ``config`` (loads the robot, builds the task and networks).
+
+        Args:
+          config: a :class:`cfm_jax.config.Config`.
+
+        Returns:
+          Its :class:`Setup`.
+
+        Raises:
+          ConfigError: ``task.control_dt`` is not a multiple of the robot's time step, or
+            the task does not fit the robot (the field and the allowed values are named).
+
+        Examples:
+          >>> from cfm_jax import config as cfg
+          >>> setup = Setup.of(cfg.Config(robot="two_link_arm",
+          ...                             task=cfg.TaskConfig(duration=0.3)))
+          >>> setup.task.targets, setup.task.steps, setup.transitions_per_rollout
+          (5, 30, 150)
+        """
+        robot = robots.load(config.robot)
+        task_config = config.task
+        control_dt = (
+            task_config.control_dt if task_config.control_dt is not None else robot.timestep
+        )
+        rollout_lib.substeps(robot, control_dt)  # validates control_dt
+        task = tasks.make(robot, task_config, control_dt, config.simulator)
+        fm = config.forward
+        forward = networks.forward_model(
+            fm.hidden,
+            fm.ensemble_size,
+            task.output_dim,
+            fm.min_log_variance,
+            fm.max_log_variance,
+            action_dim=task.action_dim,
+        )
+        controller = networks.controller(
+            config.controller.hidden, task.action_dim, task.desired_dim
+        )
+        per_rollout = task.targets * task.steps
+        capacity = per_rollout * (config.loop.babbling_rollouts + config.loop.iterations)
+        return cls(config, robot, control_dt, task, forward, controller, capacity)
+
+    @property
+    def transitions_per_rollout(self) -> int:
+        """Transitions of one rollout of the task: ``targets * steps``."""
+        return self.task.targets * self.task.steps
+
+
+# ----- the listing ----------------------------------------------------------------------
+
+
+def init(setup: Setup, loss: str, key, knobs: Knobs, data=None) -> TrainState:
+    """The start of Algorithm 1 for one seed: motor babbling, the normaliser, fresh models,
+    the initial fit of f, then of g with ``loss``.
+
+    Args:
+      setup: the run's :class:`Setup`.
+      loss: the controller's loss (:data:`cfm_jax.config.LOSSES`).
+      key: the seed's PRNG key.
+      knobs: the runtime values (:class:`Knobs`).
+      data: ``(transitions, valid)`` to start from instead of babbling (a replay), or None.
+
+    Returns:
+      The :class:`TrainState` after the initial fits (``iteration`` 0).
+
+    Examples:
+      >>> state = init(setup, "joint", jax.random.key(0), knobs)  # doctest: +SKIP
+      >>> int(state.iteration), int(state.data.size)  # doctest: +SKIP
+      (0, 1500)
+
+      See the module's example for a run.
+    """
+    state, key_controller = prepare(setup, key, knobs, data)
+    return fit_initial_controller(setup, loss, state, key_controller, knobs)
+
+
+def prepare(setup: Setup, key, knobs: Knobs, data=None) -> tuple[TrainState, jax.Array]:
+    """The loss-independent part of :func:`init`: babbling (unless ``data`` is given) and
+    :func:`_start`. Every loss of a comparison starts from this state, so losses are
+    compared on the same data and the same initial forward model.
+
+    Args:
+      setup: the run's :class:`Setup`.
+      key: the seed's PRNG key (split into the babbling's and the fits').
+      knobs: the runtime values.
+      data: ``(transitions, valid)`` to start from instead of babbling, or None.
+
+    Returns:
+      The state (controller initialised, not yet fitted) and the key of the controller's
+      initial fit (:func:`fit_initial_controller`).
+
+    Examples:
+      >>> state, key_fit = prepare(setup, jax.random.key(0), knobs)  # doctest: +SKIP
+      >>> state = fit_initial_controller(setup, "joint", state, key_fit, knobs)  # doctest: +SKIP
+    """
+    key_babble, key_fit = jax.random.split(key, 2)
+    if data is None:
+        data = collected(babble_all(setup, key_babble, knobs))
+    return _start(setup, *data, key_fit, knobs)
+
+
+def iteration(
+    setup: Setup, loss: str, state: TrainState, knobs: Knobs, data=None
+) -> tuple[TrainState, dict]:
+    """One iteration of Algorithm 1 for one seed: roll the controller out on every target,
+    measure (:func:`metrics`, before any refit), add the rollout's transitions (or ``data``,
+    ``(transitions, valid)``, in a replay), refit f, refit g with ``loss``.
+
+    Args:
+      setup: the run's :class:`Setup`.
+      loss: the controller's loss.
+      state: the seed's :class:`TrainState`.
+      knobs: the runtime values.
+      data: ``(transitions, valid)`` rows to add instead of the rollout's (a replay: the
+        rollout is still run, for the metrics), or None.
+
+    Returns:
+      The next state and the metrics of the rollout (:func:`metrics`, per target), with
+      ``forward_loss`` and ``controller_loss`` of the refits.
+
+    Examples:
+      >>> state, measured = iteration(setup, "joint", state, knobs)  # doctest: +SKIP
+      >>> measured["tracking_mse"].shape  # one value per target  # doctest: +SKIP
+      (5,)
+
+      See the module's example for a run.
+    """
+    cfg = setup.config
+    key, key_rollout, key_fit_fm, key_fit_ctrl = jax.random.split(state.key, 4)
+    result = rollout(setup, learned_policy(setup, state), key_rollout, knobs)
+    out = metrics(setup, state, result)
+    chunk, valid = collected(result) if data is None else data
+    state = state.replace(data=dataset.add(state.data, chunk, valid))
+    state, forward_loss = _fit_forward(
+        setup, state, key_fit_fm, cfg.forward.steps_per_iteration, knobs
+    )
+    state, controller_loss = _fit_controller(
+        setup, loss, state, key_fit_ctrl, cfg.controller.steps_per_iteration, knobs
+    )
+    out["forward_loss"] = forward_loss
+    out["controller_loss"] = controller_loss
+    return state.replace(key=key, iteration=state.iteration + 1), out
+
+
+def evaluate(setup: Setup, state: TrainState, result: rollout_lib.Rollout) -> dict:
+    """The metrics of a rollout of the current controller with no refit (the final
+    evaluation; ``forward_loss`` and ``controller_loss`` are NaN).
+
+    Args:
+      setup: the run's :class:`Setup`.
+      state: the seed's :class:`TrainState`.
+      result: the rollout of :func:`learned_policy` with :func:`evaluation_key`.
+
+    Returns:
+      :func:`metrics` with NaN losses.
+
+    Examples:
+      >>> policy = learned_policy(setup, state)  # doctest: +SKIP
+      >>> result = rollout(setup, policy, evaluation_key(state), knobs)  # doctest: +SKIP
+      >>> evaluate(setup, state, result)["forward_loss"]  # doctest: +SKIP
+      Array(nan, dtype=float32)
+    """
+    out = metrics(setup, state, result)
+    out["forward_loss"] = jnp.float32(jnp.nan)
+    out["controller_loss"] = jnp.float32(jnp.nan)
+    return out
+
+
+def evaluation_key(state: TrainState):
+    """The key of the final evaluation's rollout, derived from ``state.key`` without
+    consuming it.
+
+    Args:
+      state: a :class:`TrainState` (or anything with a ``key``).
+
+    Returns:
+      ``fold_in(state.key, 1)``.
+
+    Examples:
+      >>> from types import SimpleNamespace
+      >>> key = jax.random.key(3)
+      >>> bool((jax.random.key_data(evaluation_key(SimpleNamespace(key=key)))
+      ...       == jax.random.key_data(jax.random.fold_in(key, 1))).all())
+      True
+    """
+    return jax.random.fold_in(state.key, 1)
+
+
+# ----- the steps --------------------------------------------------------------------------
+
+
+def babble_all(setup: Setup, key, knobs: Knobs) -> rollout_lib.Rollout:
+    """``loop.babbling_rollouts`` rollouts of the babbling controller
+    (:func:`babbling_policy`) following the task's babbling reference of the strategy
+    ``knobs.babbling`` (a runtime value: one compilation serves every strategy).
+
+    Args:
+      setup: the run's :class:`Setup`.
+      key: the babbling's key (one per rollout is split from it; ``reaching`` draws its
+        goals from a key folded out of each).
+      knobs: the runtime values.
+
+    Returns:
+      A :class:`cfm_jax.rollout.Rollout` with leading axes ``(rollouts, targets, steps)``.
+
+    Examples:
+      >>> result = babble_all(setup, jax.random.key(0), knobs)  # doctest: +SKIP
+      >>> result.finite.shape  # (babbling_rollouts, targets, steps)  # doctest: +SKIP
+      (2, 5, 30)
+    """
+    count = setup.config.loop.babbling_rollouts
+    policy = _broadcast(babbling_policy(setup, knobs), count)
+    keys = jax.random.split(key, count)
+    return jax.vmap(functools.partial(_babble, setup), in_axes=(0, 0, None))(policy, keys, knobs)
+
+
+def _babble(
+    setup: Setup, policy: rollout_lib.MixedPolicy, key, knobs: Knobs
+) -> rollout_lib.Rollout:
+    """One babbling rollout: ``policy`` following the task's babbling reference of the
+    strategy ``knobs.babbling`` (a runtime value: one compilation serves every strategy;
+    ``reaching`` draws its goals from a key folded out of ``key``, the torque noise uses
+    ``key`` itself)."""
+    task = _task_of(setup, knobs)
+    key_goals = jax.random.fold_in(key, babbling.GOAL_STREAM)
+    references = [
+        functools.partial(task.babbling_reference, strategy, key_goals)
+        for strategy in config_lib.BABBLING
+    ]
+    return _run(setup, task.with_reference(jax.lax.switch(knobs.babbling, references)), policy, key)
+
+
+def babbling_policy(setup: Setup, knobs: Knobs) -> rollout_lib.MixedPolicy:
+    """The babbling controller of ``loop.babbling`` (the task's PD feedback, or its oracle
+    for ``oracle``; :mod:`cfm_jax.babbling`) plus Gaussian torque noise
+    (``loop.babbling_noise`` of each limit).
+
+    Args:
+      setup: the run's :class:`Setup`.
+      knobs: the runtime values (``knobs.babbling`` may be traced).
+
+    Returns:
+      A :class:`cfm_jax.rollout.MixedPolicy`.
+
+    Examples:
+      >>> from cfm_jax import config as cfg
+      >>> config = cfg.Config(robot="two_link_arm", loop=cfg.LoopConfig(babbling="oracle"))
+      >>> setup = Setup.of(config)
+      >>> policy = babbling_policy(setup, Knobs.of(config, setup.robot, setup.task))
+      >>> float(policy.oracle_weight), float(policy.feedback_weight)
+      (1.0, 0.0)
+    """
+    # knobs.babbling is a runtime value: pick each strategy's weights by indexing.
+    weights = [babbling.policy_weights(strategy) for strategy in config_lib.BABBLING]
+    chosen = {
+        name: jnp.asarray([w.get(name, 0.0) for w in weights], jnp.float32)[knobs.babbling]
+        for name in ("oracle", "feedback")
+    }
+    return mixed_policy(setup, **chosen, noise_std=knobs.babbling_noise_std)
+
+
+def _start(
+    setup: Setup, chunk: dataset.Transitions, valid, key, knobs: Knobs
+) -> tuple[TrainState, jax.Array]:
+    """The normaliser of the initial data ``chunk`` (rows where ``valid``), the data set,
+    fresh parameters and the initial fit of the forward model.
+
+    Returns:
+      The state and the key of the controller's initial fit.
+    """
+    cfg, task = setup.config, setup.task
+    key, key_fm, key_ctrl, key_fit_fm, key_fit_ctrl = jax.random.split(key, 5)
+    normaliser = networks.Normaliser.from_data(
+        chunk.state,
+        chunk.observed,
+        setup.robot.torque_limit,
+        weights=valid,
+        desired_index=task.desired_index,
+    )
+    empty = dataset.empty(
+        setup.capacity, task.state_dim, task.desired_dim, task.action_dim, task.output_dim
+    )
+    data = dataset.add(empty, chunk, valid)
+    forward_params = setup.forward.init(key_fm, task.state_dim)
+    lower, upper = knobs.forward_log_variance_bounds
+    forward_params = {
+        **forward_params,
+        "min_log_variance": jnp.full_like(forward_params["min_log_variance"], lower),
+        "max_log_variance": jnp.full_like(forward_params["max_log_variance"], upper),
+    }
+    controller_params = setup.controller.init(key_ctrl, task.state_dim)
+    state = TrainState(
+        forward_params,
+        _forward_optimizer(knobs).init(forward_params),
+        controller_params,
+        _controller_optimizer(knobs).init(controller_params),
+        normaliser,
+        data,
+        key,
+        jnp.int32(0),
+    )
+    state, _ = _fit_forward(setup, state, key_fit_fm, cfg.forward.initial_steps, knobs)
+    return state, key_fit_ctrl
+
+
+def fit_initial_controller(
+    setup: Setup, loss: str, state: TrainState, key, knobs: Knobs
+) -> TrainState:
+    """The controller's initial fit with ``loss`` on the initial data
+    (``controller.initial_steps`` updates).
+
+    Args:
+      setup: the run's :class:`Setup`.
+      loss: the controller's loss.
+      state: the state of :func:`prepare`.
+      key: the key :func:`prepare` returned.
+      knobs: the runtime values.
+
+    Returns:
+      The state with the fitted controller.
+
+    Examples:
+      >>> state, key_fit = prepare(setup, key, knobs)  # doctest: +SKIP
+      >>> state = fit_initial_controller(setup, "task", state, key_fit, knobs)  # doctest: +SKIP
+    """
+    steps = setup.config.controller.initial_steps
+    state, _ = _fit_controller(setup, loss, state, key, steps, knobs)
+    return state
+
+
+def _fit_forward(
+    setup: Setup, state: TrainState, key, steps: int, knobs: Knobs
+) -> tuple[TrainState, jax.Array]:
+    """``steps`` forward-model updates on ``state.data``; returns the state and mean loss."""
+    params, opt_state, loss = update.fit_forward(
+        setup.forward,
+        _forward_optimizer(knobs),
+        state.forward_params,
+        state.forward_opt_state,
+        state.normaliser,
+        state.data,
+        key,
+        steps,
+        setup.config.forward.batch_size,
+    )
+    return state.replace(forward_params=params, forward_opt_state=opt_state), loss
+
+
+def _fit_controller(
+    setup: Setup, loss: str, state: TrainState, key, steps: int, knobs: Knobs
+) -> tuple[TrainState, jax.Array]:
+    """``steps`` controller updates with ``loss`` through ``state``'s forward model;
+    returns the state and mean loss."""
+    params, opt_state, mean_loss = update.fit_controller(
+        loss,
+        setup.forward,
+        setup.controller,
+        _controller_optimizer(knobs),
+        state.controller_params,
+        state.controller_opt_state,
+        state.forward_params,
+        state.normaliser,
+        state.data,
+        key,
+        steps,
+        setup.config.controller.batch_size,
+    )
+    return state.replace(controller_params=params, controller_opt_state=opt_state), mean_loss
+
+
+def _forward_optimizer(knobs: Knobs):
+    """Adam at ``knobs.forward_learning_rate`` (the optimiser state does not hold the rate,
+    so states of configs that differ in it are interchangeable)."""
+    return optax.adam(knobs.forward_learning_rate)
+
+
+def _controller_optimizer(knobs: Knobs):
+    """Adam at ``knobs.controller_learning_rate``."""
+    return optax.adam(knobs.controller_learning_rate)
+
+
+def rollout(
+    setup: Setup, policy: rollout_lib.MixedPolicy, key, knobs: Knobs
+) -> rollout_lib.Rollout:
+    """Roll a :class:`cfm_jax.rollout.MixedPolicy` out on every target, with the task
+    values of ``knobs`` and the config's simulator.
+
+    Args:
+      setup: the run's :class:`Setup`.
+      policy: the policy's parameters (:func:`learned_policy`, :func:`mixed_policy`).
+      key: the rollout's key (its torque noise).
+      knobs: the runtime values.
+
+    Returns:
+      A :class:`cfm_jax.rollout.Rollout`, leading axes ``(targets, steps)``.
+
+    Examples:
+      >>> oracle = mixed_policy(setup, oracle=1.0)  # doctest: +SKIP
+      >>> rollout(setup, oracle, jax.random.key(0), knobs).finite.shape  # doctest: +SKIP
+      (5, 30)
+    """
+    return _run(setup, _task_of(setup, knobs), policy, key)
+
+
+def _run(setup: Setup, task, policy: rollout_lib.MixedPolicy, key) -> rollout_lib.Rollout:
+    """Roll ``policy`` out on ``task`` (a task of ``setup``'s structure) with the config's
+    simulator."""
+    simulator = setup.config.simulator
+    return rollout_lib.run(
+        task,
+        rollout_lib.mixed_policy(task, setup.controller, policy, simulator),
+        key,
+        simulator=simulator,
+    )
+
+
+def _task_of(setup: Setup, knobs: Knobs):
+    """The task with the values of ``knobs`` (traced inside the compiled functions)."""
+    return setup.task.with_values(knobs.task)
+
+
+def mixed_policy(setup: Setup, **weights) -> rollout_lib.MixedPolicy:
+    """A non-learned :class:`cfm_jax.rollout.MixedPolicy`: its controller part is a
+    placeholder with weight 0.
+
+    Args:
+      setup: the run's :class:`Setup`.
+      weights: keyword arguments ``oracle``, ``feedback`` (weights of the task's oracle
+        and PD feedback) and ``noise_std`` (``(action_dim,)`` torque noise), as
+        :meth:`cfm_jax.rollout.MixedPolicy.of` takes them.
+
+    Returns:
+      A :class:`cfm_jax.rollout.MixedPolicy`.
+
+    Examples:
+      >>> from cfm_jax import config as cfg
+      >>> setup = Setup.of(cfg.Config(robot="two_link_arm"))
+      >>> pd_only = mixed_policy(setup, feedback=1.0)
+      >>> float(pd_only.feedback_weight), float(pd_only.controller_weight)
+      (1.0, 0.0)
+    """
+    task = setup.task
+    dummy = setup.controller.init(jax.random.key(0), task.state_dim)
+    norm = networks.Normaliser.identity(
+        task.state_dim, task.output_dim, setup.robot.torque_limit, task.desired_index
+    )
+    return rollout_lib.MixedPolicy.of(dummy, norm, task.action_dim, **weights)
+
+
+def learned_policy(setup: Setup, state: TrainState) -> rollout_lib.MixedPolicy:
+    """The learned controller of ``state`` alone (weight 1, no oracle, feedback or noise).
+
+    Args:
+      setup: the run's :class:`Setup`.
+      state: one seed's :class:`TrainState`.
+
+    Returns:
+      A :class:`cfm_jax.rollout.MixedPolicy`.
+
+    Examples:
+      >>> float(learned_policy(setup, state).controller_weight)  # doctest: +SKIP
+      1.0
+    """
+    return rollout_lib.MixedPolicy.of(
+        state.controller_params, state.normaliser, setup.task.action_dim, controller=1.0
+    )
+
+
+def collected(result: rollout_lib.Rollout) -> tuple[dataset.Transitions, jax.Array]:
+    """The transitions of a rollout as data-set rows and which of them are data
+    (:func:`data_mask`), whatever the leading axes (``(targets, steps)``, or
+    ``(rollouts, targets, steps)`` for babbling).
+
+    Args:
+      result: a :class:`cfm_jax.rollout.Rollout`.
+
+    Returns:
+      ``(transitions, valid)``: :class:`cfm_jax.dataset.Transitions` with one leading
+      row axis, and the ``(rows,)`` bool mask.
+
+    Examples:
+      >>> rows, valid = collected(babble_all(setup, key, knobs))  # doctest: +SKIP
+      >>> rows.state.shape, valid.shape  # 2 rollouts x 5 targets x 30 steps  # doctest: +SKIP
+      ((300, 4), (300,))
+    """
+    lead = result.finite.ndim
+    flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[lead:]), result.transitions)
+    return flat, data_mask(result).reshape(-1)
+
+
+# ----- metrics ----------------------------------------------------------------------------
+
+
+def metrics(setup: Setup, state: TrainState, result: rollout_lib.Rollout) -> dict:
+    """Per-target metrics of a rollout of the current models (before any refit).
+
+    * ``tracking_mse``: mean over steps and components of the task's tracking error
+      squared (joint-space task: ``(q - q_ref)^2``, rad^2).
+    * ``prediction_error``: mean of ``(f(s, tau_run) - y_obs)^2`` over the forward
+      model's outputs (joint-space task: accelerations, (rad/s^2)^2).
+    * ``predicted_task_error``: mean of ``(P f(s, g(s, s*)) - s*)^2`` over the desired
+      entries ``P``.
+    * ``finite_fraction``: share of steps whose simulator state stayed finite.
+    * ``transitions_added``: the rollout's steps that are data (finite, and inside the
+      target's horizon for tasks with horizons of different lengths).
+    * the task's own metrics (``task.metric_names``).
+
+    Means are over the steps inside each target's horizon (all steps for the arms);
+    ``prediction_error`` and ``predicted_task_error`` only over the steps before the
+    first terminal step (a legged robot's fall), the steps that become data.
+
+    Args:
+      setup: the run's :class:`Setup`.
+      state: the seed's :class:`TrainState` (the models that were rolled out).
+      result: their rollout.
+
+    Returns:
+      ``{name: (targets,) array}``.
+
+    Examples:
+      >>> sorted(metrics(setup, state, result))[:3]  # doctest: +SKIP
+      ['finite_fraction', 'prediction_error', 'predicted_task_error']
+    """
+    t = result.transitions
+    norm = state.normaliser
+    forward, controller = setup.forward, setup.controller
+    predicted = norm.output_inverse(
+        networks.ensemble_mean(forward, state.forward_params, norm, t.state, t.action)
+    )
+    tau = controller.apply(state.controller_params, norm, t.state, t.desired)
+    predicted_task = norm.select(
+        norm.output_inverse(
+            networks.ensemble_mean(forward, state.forward_params, norm, t.state, tau)
+        )
+    )
+    step_mean = _step_mean(result, before_terminal=True)
+    return {
+        "prediction_error": step_mean(predicted - t.observed),
+        "predicted_task_error": step_mean(predicted_task - t.desired),
+        **rollout_metrics(setup, result),
+    }
+
+
+def rollout_metrics(setup: Setup, result: rollout_lib.Rollout) -> dict:
+    """Per-target metrics of a rollout that need no model: ``tracking_mse``,
+    ``finite_fraction``, ``transitions_added`` and the task's own (the baselines' table).
+
+    Args:
+      setup: the run's :class:`Setup`.
+      result: a rollout.
+
+    Returns:
+      ``{name: (targets,) array}``.
+
+    Examples:
+      >>> result = rollout(setup, mixed_policy(setup, oracle=1.0), key, knobs)  # doctest: +SKIP
+      >>> rollout_metrics(setup, result)["tracking_mse"].shape  # doctest: +SKIP
+      (5,)
+    """
+    return {
+        "tracking_mse": _step_mean(result)(result.tracking_error),
+        "finite_fraction": jnp.mean(result.finite.astype(jnp.float32), axis=-1),
+        "transitions_added": jnp.sum(data_mask(result), axis=-1).astype(jnp.float32),
+        **setup.task.metrics(result),
+    }
+
+
+def data_mask(result: rollout_lib.Rollout):
+    """Steps that become data: finite, inside the horizon when the task has one, and before
+    the first terminal step when the task has those (a legged robot's fall).
+
+    Args:
+      result: a :class:`cfm_jax.rollout.Rollout`.
+
+    Returns:
+      A bool mask of the shape of ``result.finite``.
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> from types import SimpleNamespace
+      >>> fell = jnp.array([[False, True, False]])
+      >>> result = SimpleNamespace(finite=jnp.ones((1, 3), bool),
+      ...                          extras={"terminal": fell})
+      >>> data_mask(result).tolist()  # no data from the step of the fall on
+      [[True, False, False]]
+    """
+    steps = _steps(result, before_terminal=True)
+    return result.finite if steps is None else result.finite & steps
+
+
+def _step_mean(result: rollout_lib.Rollout, before_terminal: bool = False):
+    """``x (targets, steps, k) -> (targets,)``: mean of ``x^2`` over components and over the
+    steps of :func:`_steps` (every step when the task masks none)."""
+    steps = _steps(result, before_terminal)
+    if steps is None:
+        return lambda x: jnp.mean(jnp.square(x), axis=(-2, -1))
+    weights = steps.astype(jnp.float32)
+    count = jnp.maximum(jnp.sum(weights, axis=-1), 1.0)
+    return lambda x: jnp.sum(jnp.mean(jnp.square(x), axis=-1) * weights, axis=-1) / count
+
+
+def _steps(result: rollout_lib.Rollout, before_terminal: bool):
+    """``(targets, steps)`` mask of the steps inside each target's horizon
+    (``extras["active"]``) and, with ``before_terminal``, before the first terminal step;
+    None when the task marks neither (every step counts).
+
+    A task marks a step terminal (``extras["terminal"]``, for example a legged robot that
+    fell) when what follows it is not the dynamics the models should learn: the legged
+    models have foot-floor contacts only, so a fallen body sinks through the floor.
+    """
+    extras = result.extras if isinstance(result.extras, dict) else {}
+    masks = [extras["active"]] if "active" in extras else []
+    if before_terminal and "terminal" in extras:
+        masks.append(jnp.cumsum(extras["terminal"].astype(jnp.int32), axis=-1) == 0)
+    return functools.reduce(jnp.logical_and, masks) if masks else None
+
+
+def _broadcast(tree, n: int):
+    """Every leaf of ``tree`` repeated along a new leading axis of size ``n``."""
+    return jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + jnp.shape(x)), tree)

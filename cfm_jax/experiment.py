@@ -1,0 +1,310 @@
+"""Algorithm 1 compiled: the pure functions of :mod:`cfm_jax.algorithm`, vmapped over seeds,
+jit-compiled once per config structure and kept with their config.
+
+:class:`Experiment` holds one config's :class:`cfm_jax.algorithm.Setup` and its compiled
+functions. Configs that differ only in the loss and in
+:data:`cfm_jax.config.RUNTIME_FIELDS` (seed, learning rates, babbling, task gains,
+references) run on the same compilations: those values are arguments
+(:class:`cfm_jax.algorithm.Knobs`). Its only impurity is the caching of compiled functions
+and of host-side results (the loss-independent start of a run, the baselines).
+
+Examples:
+  >>> from cfm_jax import config as cfg
+  >>> exp = Experiment(cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3)))
+  >>> exp.task.targets, exp.task.steps, exp.state_dim
+  (5, 30, 4)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+
+import jax
+import numpy as np
+import pandas as pd
+
+from cfm_jax import _xla, algorithm, dataset, rollout, tasks
+from cfm_jax import config as config_lib
+from cfm_jax.algorithm import METRIC_COLUMNS, Knobs, TrainState
+
+
+class Experiment:
+    """The static pieces of one config (robot, reference, models) and its compiled
+    functions. Build once and reuse, also across losses and across the values of
+    :data:`cfm_jax.config.RUNTIME_FIELDS` (seed, learning rates, babbling noise, task
+    gains, target sets, checkpointing): those are arguments of the compiled functions
+    (:class:`cfm_jax.algorithm.Knobs`), so the rollout used for evaluation and the
+    baselines compiles once per experiment, and each loss's iteration compiles once.
+
+    ``config.loss`` and the runtime fields of ``config`` are only the defaults: every
+    method takes the loss to use and, optionally, the :class:`Knobs` of another config
+    (:meth:`knobs_for`).
+
+    Args:
+      config: the :class:`cfm_jax.config.Config` to build for.
+
+    Attributes:
+      config: that config.
+      setup: its :class:`cfm_jax.algorithm.Setup`; ``robot``, ``task``, ``forward``,
+        ``controller``, ``control_dt``, ``capacity`` are its fields.
+      knobs: the :class:`Knobs` of ``config``.
+
+    Examples:
+      >>> from cfm_jax import config as cfg
+      >>> exp = Experiment(cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3)))
+      >>> exp.metric_columns[:5]
+      ('loss', 'seed', 'iteration', 'target', 'tracking_mse')
+      >>> other = exp.config.replace(seed=4, task=cfg.TaskConfig(duration=0.3, kp=25.0))
+      >>> float(exp.knobs_for(other).task["kp"]), float(exp.knobs.task["kp"])
+      (25.0, 100.0)
+      >>> exp.knobs_for(other.replace(task=cfg.TaskConfig(duration=0.5)))
+      Traceback (most recent call last):
+      ...
+      ValueError: the experiment was built for a config that differs in more than the loss ...
+    """
+
+    def __init__(self, config: config_lib.Config):
+        self.config = config
+        if config.simulator == "mjx" and jax.default_backend() == "cpu":
+            _xla.warn_if_slow_mjx()
+        self.setup = algorithm.Setup.of(config)
+        self._compiled: dict = {}  # name -> jitted function
+        self._cache: dict = {}  # host-side results: prepared states, baselines, tasks
+        self.knobs = self.knobs_for(config)
+
+    # The setup's parts, as attributes of the experiment.
+    robot = property(lambda self: self.setup.robot)
+    task = property(lambda self: self.setup.task)
+    control_dt = property(lambda self: self.setup.control_dt)
+    forward = property(lambda self: self.setup.forward)
+    controller = property(lambda self: self.setup.controller)
+    capacity = property(lambda self: self.setup.capacity)
+    state_dim = property(lambda self: self.setup.task.state_dim)
+    transitions_per_rollout = property(lambda self: self.setup.transitions_per_rollout)
+
+    @property
+    def metric_columns(self) -> tuple[str, ...]:
+        """Columns of the metrics table: :data:`cfm_jax.algorithm.METRIC_COLUMNS` and the
+        task's metrics."""
+        return METRIC_COLUMNS + tuple(self.task.metric_names)
+
+    # ----- which configs run on this experiment -------------------------------------------
+
+    def compatible(self, config: config_lib.Config) -> bool:
+        """True when ``config`` differs from this experiment's at most in ``loss`` and
+        :data:`cfm_jax.config.RUNTIME_FIELDS` (it can then run on this experiment's
+        compilations)."""
+        return not self.differences(config)
+
+    def differences(self, config: config_lib.Config) -> list[str]:
+        """The fields outside ``loss`` and :data:`cfm_jax.config.RUNTIME_FIELDS` in which
+        ``config`` differs from this experiment's, with both values (empty: compatible)."""
+        return [
+            d.replace(" in the run,", " in the experiment,")
+            for d in config_lib.differences(
+                config_lib.structure(self.config), config_lib.structure(config)
+            )
+        ]
+
+    def knobs_for(self, config: config_lib.Config) -> Knobs:
+        """The :class:`Knobs` of ``config``, a config :meth:`compatible` with this one.
+
+        Args:
+          config: the config to run on this experiment's compilations.
+
+        Returns:
+          Its :class:`Knobs`.
+
+        Raises:
+          ValueError: ``config`` differs in a field that changes the compiled program (the
+            fields are listed).
+        """
+        diff = self.differences(config)
+        if diff:
+            raise ValueError(
+                "the experiment was built for a config that differs in more than the loss "
+                "and the runtime fields (cfm_jax.config.RUNTIME_FIELDS): "
+                + "; ".join(diff)
+                + "; build an Experiment for this config"
+            )
+        return Knobs.of(config, self.robot, self.task_for(config))
+
+    def task_for(self, config: config_lib.Config):
+        """The task object of ``config`` (a config :meth:`compatible` with this one): this
+        experiment's task when ``config.task`` is its own, else one built for it (on the
+        host; kept for the last few task configs). Its :meth:`values` are what the compiled
+        functions get; its host attributes (``tracking_scale``, the NumPy references)
+        describe ``config``."""
+        if config.task == self.config.task:
+            return self.task
+        key = json.dumps(dataclasses.asdict(config.task), sort_keys=True)
+        cache = self._cache.setdefault("tasks", {})
+        if key not in cache:
+            task = tasks.make(self.robot, config.task, self.control_dt, config.simulator)
+            self.task.with_values(task.values())  # the same shapes, or a named error
+            cache[key] = task
+            while len(cache) > 8:
+                cache.pop(next(iter(cache)))
+        return cache[key]
+
+    def _knobs(self, knobs: Knobs | None) -> Knobs:
+        return self.knobs if knobs is None else knobs
+
+    # ----- one seed, uncompiled (for callers that transform them themselves) ---------------
+
+    def rollout_one(
+        self, policy: rollout.MixedPolicy, key, knobs: Knobs | None = None
+    ) -> rollout.Rollout:
+        """:func:`cfm_jax.algorithm.rollout` for one seed, with the task values of ``knobs``
+        (None: this experiment's)."""
+        return algorithm.rollout(self.setup, policy, key, self._knobs(knobs))
+
+    def babbling_policy(self, knobs: Knobs | None = None) -> rollout.MixedPolicy:
+        """:func:`cfm_jax.algorithm.babbling_policy` of ``knobs`` (None: this experiment's)."""
+        return algorithm.babbling_policy(self.setup, self._knobs(knobs))
+
+    def learned_policy(self, state: TrainState) -> rollout.MixedPolicy:
+        """:func:`cfm_jax.algorithm.learned_policy` (one seed's ``state``)."""
+        return algorithm.learned_policy(self.setup, state)
+
+    # ----- compiled, vmapped over seeds ---------------------------------------------------
+
+    def _jit(self, name, fn, **kwargs):
+        if name not in self._compiled:
+            self._compiled[name] = jax.jit(fn, **kwargs)
+        return self._compiled[name]
+
+    def _vmapped(self, fn, *args, in_axes):
+        return jax.vmap(functools.partial(fn, self.setup, *args), in_axes=in_axes)
+
+    def compilations(self) -> dict[str, int]:
+        """How many programs each compiled function of this experiment holds (one per
+        distinct argument shape; values of :class:`Knobs` do not add any).
+
+        Returns:
+          ``{name: count}``, e.g. ``{"prepare": 1, "init/joint": 1, "iteration/joint": 1,
+          "rollout": 1}``.
+        """
+        return {name: fn._cache_size() for name, fn in self._compiled.items()}
+
+    def init(self, loss: str, keys, knobs: Knobs | None = None) -> TrainState:
+        """:func:`cfm_jax.algorithm.init` for every seed of ``keys``.
+
+        Compiled in two parts: :meth:`prepare` (babbling, normaliser, initial fit of f),
+        computed once per set of keys and knobs and shared by every loss of this
+        experiment, then the controller's initial fit with ``loss``."""
+        knobs = self._knobs(knobs)
+        prepared, key_fit = self.prepare(keys, knobs)
+        return self._fit_initial(loss, prepared, key_fit, knobs)
+
+    def prepare(self, keys, knobs: Knobs | None = None) -> tuple[TrainState, jax.Array]:
+        """:func:`cfm_jax.algorithm.prepare` for every seed of ``keys`` (cached for the last
+        keys and knobs)."""
+        knobs = self._knobs(knobs)
+        cache_key = _fingerprint((jax.random.key_data(keys), knobs))
+        cached = self._cache.get("prepared")
+        if cached is None or cached[0] != cache_key:
+            fn = self._vmapped(algorithm.prepare, in_axes=(0, None))
+            self._cache["prepared"] = (cache_key, self._jit("prepare", fn)(keys, knobs))
+        return self._cache["prepared"][1]
+
+    def init_from_data(
+        self, loss: str, keys, chunk: dataset.Transitions, valid, knobs: Knobs | None = None
+    ) -> TrainState:
+        """:meth:`init` with the babbling data given (``chunk`` and ``valid`` with a leading
+        seed axis) instead of collected; the keys are used exactly as :meth:`init` uses
+        them, so the same data and seed give the same state."""
+        knobs = self._knobs(knobs)
+
+        def prepare(key, knobs, chunk, valid):
+            return algorithm.prepare(self.setup, key, knobs, (chunk, valid))
+
+        fn = jax.vmap(prepare, in_axes=(0, None, 0, 0))
+        prepared, key_fit = self._jit("prepare_from_data", fn)(keys, knobs, chunk, valid)
+        return self._fit_initial(loss, prepared, key_fit, knobs)
+
+    def _fit_initial(self, loss: str, prepared, key_fit, knobs: Knobs) -> TrainState:
+        fn = self._vmapped(algorithm.fit_initial_controller, loss, in_axes=(0, 0, None))
+        return self._jit(f"init/{loss}", fn)(prepared, key_fit, knobs)
+
+    def iteration(self, loss: str, state: TrainState, knobs: Knobs | None = None):
+        """:func:`cfm_jax.algorithm.iteration` for every seed: ``(state, metrics)``."""
+        fn = self._vmapped(algorithm.iteration, loss, in_axes=(0, None))
+        return self._jit(f"iteration/{loss}", fn)(state, self._knobs(knobs))
+
+    def replay_iteration(
+        self, loss: str, state: TrainState, chunk, valid, knobs: Knobs | None = None
+    ):
+        """:meth:`iteration` with the data given (``chunk``, ``valid`` with leading seed
+        axes) instead of collected (:func:`cfm_jax.algorithm.iteration` with ``data``)."""
+
+        def replay(state, knobs, chunk, valid):
+            return algorithm.iteration(self.setup, loss, state, knobs, (chunk, valid))
+
+        fn = jax.vmap(replay, in_axes=(0, None, 0, 0))
+        return self._jit(f"replay/{loss}", fn)(state, self._knobs(knobs), chunk, valid)
+
+    def rollout(
+        self, policy: rollout.MixedPolicy, keys, knobs: Knobs | None = None
+    ) -> rollout.Rollout:
+        """Rollouts for a seed axis: ``policy`` leaves and ``keys`` have a leading seed axis.
+        Compiled once per experiment and batch shape (evaluation and baselines share it)."""
+        fn = self._vmapped(algorithm.rollout, in_axes=(0, 0, None))
+        return self._jit("rollout", fn)(policy, keys, self._knobs(knobs))
+
+    def babbling_rollouts(self, keys, knobs: Knobs | None = None) -> rollout.Rollout:
+        """:func:`cfm_jax.algorithm.babble_all` for every seed of ``keys``: the babbling
+        rollouts ``(seeds, loop.babbling_rollouts, ...)`` of the strategy ``knobs.babbling``
+        (the data :meth:`init` starts from, with the key it derives; for inspection)."""
+        fn = self._vmapped(algorithm.babble_all, in_axes=(0, None))
+        key_babble = jax.vmap(lambda k: jax.random.split(k, 2)[0])(keys)
+        return self._jit("babble", fn)(key_babble, self._knobs(knobs))
+
+    def evaluate(self, state: TrainState, knobs: Knobs | None = None) -> dict:
+        """Metrics of a rollout of the current controllers (no update), every seed
+        (:func:`cfm_jax.algorithm.evaluate`; the rollout key is
+        :func:`cfm_jax.algorithm.evaluation_key`)."""
+        keys = jax.vmap(algorithm.evaluation_key)(state)
+        policy = jax.vmap(self.learned_policy)(state)
+        result = self.rollout(policy, keys, knobs)
+        fn = self._vmapped(algorithm.evaluate, in_axes=(0, 0))
+        return self._jit("evaluate", fn)(state, result)
+
+    def baselines(self, knobs: Knobs | None = None) -> pd.DataFrame:
+        """Tracking MSE per target of the oracle (MuJoCo inverse dynamics) and PD-only
+        (with the task values of ``knobs``: gains and references; cached per knobs)."""
+        knobs = self._knobs(knobs)
+        cache = self._cache.setdefault("baselines", {})
+        cache_key = _fingerprint(knobs.task)
+        if cache_key in cache:
+            return cache[cache_key].copy()
+        policies = {
+            "oracle": algorithm.mixed_policy(self.setup, oracle=1.0),
+            "pd_only": algorithm.mixed_policy(self.setup, feedback=1.0),
+        }
+        rows = []
+        metrics_fn = jax.vmap(functools.partial(algorithm.rollout_metrics, self.setup))
+        for name, policy in policies.items():
+            keys = jax.random.split(jax.random.key(0), 1)
+            result = self.rollout(jax.tree.map(lambda x: x[None], policy), keys, knobs)
+            metrics = jax.device_get(metrics_fn(result))
+            names = ["tracking_mse", *self.task.metric_names]
+            for k in range(self.task.targets):
+                row = {"baseline": name, "target": k}
+                row.update({m: float(np.asarray(metrics[m])[0, k]) for m in names})
+                rows.append(row)
+        cache[cache_key] = pd.DataFrame(rows)
+        return cache[cache_key].copy()
+
+
+def _fingerprint(tree) -> bytes:
+    """Bytes that identify the values, shapes and dtypes of a pytree of arrays."""
+    digest = hashlib.sha256()
+    for leaf in jax.tree.leaves(tree):
+        leaf = np.asarray(leaf)
+        digest.update(f"{leaf.dtype}{leaf.shape}".encode())
+        digest.update(leaf.tobytes())
+    return digest.digest()
