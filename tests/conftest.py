@@ -31,8 +31,10 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 
 import jax  # noqa: E402
+import pytest  # noqa: E402
 
 import cfm_jax  # noqa: E402, F401
+from cfm_jax import robots  # noqa: E402
 
 # Also when JAX was imported before this file (a plugin) and read the variables too early.
 jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
@@ -63,3 +65,19 @@ LONGEST_FIRST = (
 def pytest_collection_modifyitems(config, items):
     rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(LONGEST_FIRST)))  # stable
+
+
+# The robots most test files use, loaded once per worker (robots.load parses the MJCF).
+@pytest.fixture(scope="session")
+def iiwa():
+    return robots.load("iiwa14")
+
+
+@pytest.fixture(scope="session")
+def arm():
+    return robots.load("two_link_arm")
+
+
+@pytest.fixture(scope="session")
+def solo():
+    return robots.load("solo12")

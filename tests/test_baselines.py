@@ -21,17 +21,6 @@ from sites import mujoco_site_acceleration, random_states
 
 from cfm_jax import baselines, opspace, references, robots, rollout
 
-
-@pytest.fixture(scope="module")
-def iiwa():
-    return robots.load("iiwa14")
-
-
-@pytest.fixture(scope="module")
-def arm():
-    return robots.load("two_link_arm")
-
-
 # ---- oracle -----------------------------------------------------------------------------
 
 

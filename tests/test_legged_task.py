@@ -19,11 +19,6 @@ from cfm_jax import config as config_lib
 
 
 @pytest.fixture(scope="module")
-def solo():
-    return robots.load("solo12")
-
-
-@pytest.fixture(scope="module")
 def walk(solo):
     return tasks.make(solo, config_lib.TaskConfig(name="walk", control_dt=0.004), 0.004)
 

@@ -24,19 +24,8 @@ from sites import (
     site_kinematics_closed_form,
 )
 
-from cfm_jax import opspace, robots
+from cfm_jax import opspace
 from cfm_jax.config import ConfigError
-
-
-@pytest.fixture(scope="module")
-def iiwa():
-    return robots.load("iiwa14")
-
-
-@pytest.fixture(scope="module")
-def arm():
-    return robots.load("two_link_arm")
-
 
 # ---- site -------------------------------------------------------------------------------
 

@@ -17,12 +17,7 @@ import pytest
 
 import cfm_jax
 from cfm_jax import config as config_lib
-from cfm_jax import robots, rollout, tasks, training
-
-
-@pytest.fixture(scope="module")
-def iiwa():
-    return robots.load("iiwa14")
+from cfm_jax import rollout, tasks, training
 
 
 def test_task_sizes_and_desired_index(iiwa):

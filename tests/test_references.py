@@ -15,18 +15,8 @@ import numpy as np
 import pytest
 from sites import IIWA_HOME_FLANGE, IIWA_REACH, L1, L2, SHOULDER_Z, site_kinematics_closed_form
 
-from cfm_jax import opspace, references, robots
+from cfm_jax import opspace, references
 from cfm_jax.config import ConfigError
-
-
-@pytest.fixture(scope="module")
-def iiwa():
-    return robots.load("iiwa14")
-
-
-@pytest.fixture(scope="module")
-def arm():
-    return robots.load("two_link_arm")
 
 
 def test_cartesian_reaching_quintic_straight_lines(iiwa):

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from cfm_jax import baselines, native, references, robots, rollout, tasks
+from cfm_jax import baselines, native, references, rollout, tasks
 from cfm_jax.config import ConfigError
 
 CONTROL_DT = 0.01  # 5 physics steps of 0.002 s per control step
@@ -52,16 +52,6 @@ def c_rollout(robot, q0, torques, control_dt):
         qpos.append(data.qpos.copy())
         qvel.append(data.qvel.copy())
     return np.array(qpos), np.array(qvel), max_constraints
-
-
-@pytest.fixture(scope="module")
-def iiwa():
-    return robots.load("iiwa14")
-
-
-@pytest.fixture(scope="module")
-def arm():
-    return robots.load("two_link_arm")
 
 
 # ---- (a) MJX vs MuJoCo C on the iiwa ----------------------------------------------------------

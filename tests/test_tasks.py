@@ -21,16 +21,6 @@ START = np.array([0.2, -1.0, 0.5])
 GOAL = np.array([0.8, 0.5, 0.5])  # the third joint does not move
 
 
-@pytest.fixture(scope="module")
-def iiwa():
-    return robots.load("iiwa14")
-
-
-@pytest.fixture(scope="module")
-def arm():
-    return robots.load("two_link_arm")
-
-
 def test_quintic_boundary_conditions():
     ref = references.quintic(START, GOAL, duration=2.0, control_dt=0.01)
     assert ref.q.shape == ref.qd.shape == ref.qdd.shape == (1, 201, 3)

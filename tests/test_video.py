@@ -8,15 +8,10 @@ import numpy as np
 import pytest
 from tiny import tiny_config
 
-from cfm_jax import render, robots, training
+from cfm_jax import render, training
 
 OK, WHY = render.render_available()
 needs_gl = pytest.mark.skipif(not OK, reason=f"no offscreen OpenGL: {WHY}")
-
-
-@pytest.fixture(scope="module")
-def arm():
-    return robots.load("two_link_arm")
 
 
 @pytest.fixture(scope="module")
