@@ -25,6 +25,16 @@ from cfm_jax import config as config_lib
 
 CALLBACK = re.compile(r"callback|cfm_native_step")
 
+COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
+"""XLA's CPU back end without LLVM optimisation: these rollouts are tiny, and optimising
+them takes longer than it saves (the MJX compile of the two-link arm's rollout drops from
+7.6 to 3.0 s, the Solo12's from 9.3 to 2.9 s); results move in float32's last digits."""
+
+
+def fast_jit(fn, *args):
+    """``fn`` compiled for ``args`` with :data:`COMPILER_OPTIONS` (called like ``fn``)."""
+    return jax.jit(fn).lower(*args).compile(COMPILER_OPTIONS)
+
 
 def small(name: str, simulator: str) -> config_lib.Config:
     """The task's defaults at a small size (the traced program has the same structure)."""
@@ -103,13 +113,14 @@ def random_states(robot, n: int, seed: int):
 def test_mjx_site_kinematics_equal_mujoco_c(arms, name, site):
     robot = arms[name]
     qpos, qvel = random_states(robot, 6, seed=1)
-    got = jax.jit(lambda q, qd: opspace.mjx_kinematics(robot, q, qd, site))(qpos, qvel)
+    got = fast_jit(lambda q, qd: opspace.mjx_kinematics(robot, q, qd, site), qpos, qvel)(qpos, qvel)
     want = opspace.HostKinematics(robot, site)(qpos, qvel)
     for field, a, b in zip(want._fields, got, want, strict=True):
         # float32 against float64: positions to ~1e-6 m, derivatives to a few 1e-5.
         np.testing.assert_allclose(np.asarray(a), b, rtol=1e-4, atol=1e-4, err_msg=field)
     # The same through the task's entry point, and batched over two axes.
-    both = opspace.kinematics(robot, qpos.reshape(2, 3, -1), qvel.reshape(2, 3, -1), site, "mjx")
+    q2, qd2 = qpos.reshape(2, 3, -1), qvel.reshape(2, 3, -1)
+    both = fast_jit(lambda q, qd: opspace.kinematics(robot, q, qd, site, "mjx"), q2, qd2)(q2, qd2)
     np.testing.assert_allclose(
         np.asarray(both.jacobian).reshape(6, 3, -1), want.jacobian, rtol=1e-4, atol=1e-4
     )
@@ -124,6 +135,8 @@ def test_mjx_oracle_equals_the_host_oracle(arms, name, site):
     robot = arms[name]
     qpos, qvel = random_states(robot, 6, seed=2)
     desired = np.random.default_rng(3).normal(0.0, 2.0, (6, 3)).astype(np.float32)
+    # Plain jit, not fast_jit: at XLA's optimisation level 0 the first of these 6 states
+    # comes out wrong (-9.87 instead of 5.18 N m; the other 5 agree), not yet understood.
     got = jax.jit(baselines.opspace_oracle(robot, site, simulator="mjx"))(qpos, qvel, desired)
     want = baselines.HostOpspaceOracle(robot, site)(qpos, qvel, desired)
     scale = np.abs(want).max()
@@ -202,12 +215,6 @@ def shortened(task, steps: int):
     return short
 
 
-COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
-"""XLA's CPU back end without LLVM optimisation: these rollouts are tiny, and optimising
-them takes longer than it saves (the MJX compile of the two-link arm's rollout drops from
-7.6 to 3.0 s, the Solo12's from 9.3 to 2.9 s); results move in float32's last digits."""
-
-
 @pytest.fixture(scope="module")
 def runs(programs):
     """``runs(name, simulator, policy)`` -> :class:`Run`, each rolled out once; ``policy``:
@@ -281,15 +288,10 @@ def discrepancies(name: str, native: Run, mjx: Run) -> dict[str, float]:
     return out
 
 
-# One arm task and one legged task in the default run (together ~17 s on 2 busy cores, most
-# of it MJX's compile); the other two compile as much again (the op-space rollout's site kinematics
-# ~10 s), so they run with the slow studies (pytest -m slow) before a release.
-COMPARED = [
-    "inverse_dynamics",
-    pytest.param("opspace", marks=pytest.mark.slow),
-    "jump",
-    pytest.param("walk", marks=pytest.mark.slow),
-]
+# Every task in the default run (the issue's acceptance: MJX against native per task in
+# CI). Walk and jump compile the same program, so JAX's persistent cache (on in
+# conftest.py) serves the second; the op-space rollout's MJX site kinematics add ~10 s.
+COMPARED = ["inverse_dynamics", "opspace", "jump", "walk"]
 
 
 @pytest.mark.parametrize("policy", ["oracle", "pd"])
@@ -315,5 +317,4 @@ def test_the_comparison_sees_a_one_percent_gain_change(runs, name):
 
 
 def test_every_task_is_compared():
-    names = {p if isinstance(p, str) else p.values[0] for p in COMPARED}
-    assert names == set(tasks.REGISTRY)
+    assert set(COMPARED) == set(tasks.REGISTRY)
