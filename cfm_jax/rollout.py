@@ -2,7 +2,7 @@
 
 No gradient flows through the simulator (the method does not need one): rollouts produce
 transitions for the data set and tracking errors for the metrics. Two simulators step the
-physics inside the same compiled rollout (see :data:`SIMULATORS`):
+physics inside the same compiled rollout (see :data:`cfm_jax.config.SIMULATORS`):
 
 * ``"native"`` (default): MuJoCo's C engine (``mujoco.rollout``), called once per control
   step for the whole batch through ``jax.pure_callback``. Exact MuJoCo physics in float64
@@ -41,10 +41,7 @@ import jax.numpy as jnp
 from mujoco import mjx
 
 from cfm_jax import dataset, native
-from cfm_jax.config import ConfigError
-
-SIMULATORS = ("native", "mjx")
-"""Physics back ends for :func:`run`."""
+from cfm_jax.config import SIMULATORS, ConfigError
 
 
 class Step(NamedTuple):
@@ -140,7 +137,7 @@ def run(task, policy, key, simulator="native") -> Rollout:
       policy: ``policy(step, key) -> tau (action_dim,)`` of a :class:`Step`; torques are
         clipped to the robot's limits.
       key: PRNG key, split per target and step.
-      simulator: one of :data:`SIMULATORS`.
+      simulator: one of :data:`cfm_jax.config.SIMULATORS`.
 
     Returns:
       A :class:`Rollout`; rollout ``k`` starts where the task says (``task.start``), for the

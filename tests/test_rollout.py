@@ -18,7 +18,7 @@ import pytest
 from mujoco import mjx
 
 from cfm_jax import baselines, native, references, rollout, tasks
-from cfm_jax.config import ConfigError
+from cfm_jax.config import SIMULATORS, ConfigError
 
 CONTROL_DT = 0.01  # 5 physics steps of 0.002 s per control step
 
@@ -57,7 +57,7 @@ def c_rollout(robot, q0, torques, control_dt):
 # ---- (a) MJX vs MuJoCo C on the iiwa ----------------------------------------------------------
 
 
-@pytest.mark.parametrize("simulator", rollout.SIMULATORS)
+@pytest.mark.parametrize("simulator", SIMULATORS)
 def test_iiwa_rollout_matches_mujoco_c(iiwa, simulator):
     steps = 50
     ref = references.quintic(
@@ -115,7 +115,7 @@ def test_iiwa_rollout_matches_mujoco_c(iiwa, simulator):
 ARM_STEPS = 10  # duration 0.1 s at control_dt 0.01
 
 
-@pytest.fixture(scope="module", params=rollout.SIMULATORS)
+@pytest.fixture(scope="module", params=SIMULATORS)
 def arm_case(arm, request):
     ref = references.quintic(
         arm.home, arm.home + np.array([0.1, -0.1]), duration=0.1, control_dt=CONTROL_DT
@@ -237,7 +237,7 @@ def test_nan_torque_makes_finite_false_from_that_step_on(arm_case):
 # ---- (c) the oracle policy ------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("simulator", rollout.SIMULATORS)
+@pytest.mark.parametrize("simulator", SIMULATORS)
 def test_oracle_policy_realises_desired_acceleration(arm, simulator):
     # kp = kd = 0 and control_dt = timestep (1 physics step per control step): the oracle's
     # torque M qdd* + h D qdd* + bias - passive makes MuJoCo's Euler step (implicit joint
