@@ -93,8 +93,8 @@ def test_the_callback_check_sees_the_native_simulator(programs):
 
 
 @pytest.fixture(scope="module")
-def arms():
-    return {"iiwa14": robots.load("iiwa14"), "two_link_arm": robots.load("two_link_arm")}
+def arms(iiwa, arm):
+    return {"iiwa14": iiwa, "two_link_arm": arm}  # the shared fixtures of conftest.py
 
 
 def random_states(robot, n: int, seed: int):
