@@ -526,7 +526,7 @@ class Replay(NamedTuple):
       tau: ``(T, 12)`` applied (clipped) torques.
       foot_force: ``(T+1, 4, 3)`` floor forces on the feet (world frame), as
         :attr:`LocomotionReference.foot_force`.
-      fell: whether :func:`cfm_jax.solo12.fell` with :data:`cfm_jax.solo12.REPLAY_FALL`
+      fell: whether :func:`cfm_jax.solo12.fell` with :data:`cfm_jax.solo12.FALL`
         is true at any control instant.
 
     Examples:
@@ -591,7 +591,7 @@ def replay(ref: LocomotionReference, model=None, qpos0=None, qvel0=None) -> Repl
         np.array(qvel),
         np.array(taus),
         forces,
-        bool(solo12.fell(qpos, forces, solo12.REPLAY_FALL).any()),
+        bool(solo12.fell(qpos, forces, solo12.FALL).any()),
     )
 
 

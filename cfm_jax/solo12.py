@@ -305,8 +305,8 @@ def quat_to_mat(quat, xp=np):
 
 @dataclasses.dataclass(frozen=True)
 class FallLimits:
-    """Thresholds of :func:`fell`. The defaults are the strict rule of the reference checks
-    (:data:`REPLAY_FALL`); :data:`TRAINING_FALL` is the legged tasks' rule.
+    """Thresholds of :func:`fell`. The defaults are the library's one fall rule,
+    :data:`FALL`, used by the reference checks and by the legged tasks' training alike.
 
     Attributes:
       min_base_height: lowest allowed base origin height (m; standing is 0.239 m, the
@@ -314,7 +314,8 @@ class FallLimits:
       max_tilt: largest allowed angle between the base z axis and the world z axis (rad).
       body_clearance: the lowest base-box corner (and knee, with ``knees``) must stay this
         far above the floor (m; the model has no body-floor contacts, so touching the floor
-        is detected geometrically).
+        is detected geometrically; the knee point is the knee joint's axis, inside the lower
+        leg's 8 mm capsule, so at 5 mm the leg's shell is already in the floor).
       knees: whether the four knees count as body points for ``body_clearance``.
       max_pull: largest downward normal force (N) a foot may exert on the floor when
         :func:`fell` is given the foot forces (beyond it the state is non-physical).
@@ -332,17 +333,14 @@ class FallLimits:
     max_pull: float = 1e-6
 
 
-REPLAY_FALL = FallLimits()
-"""The strict fall rule of the reference checks (:func:`cfm_jax.locomotion.replay`): base
-below 0.10 m, tilt above 0.8 rad, or a base-box corner or knee within 5 mm of the floor."""
-
-TRAINING_FALL = FallLimits(body_clearance=0.0, knees=False)
-"""The fall rule of the legged tasks' ``fell`` metric and terminal steps
-(:meth:`cfm_jax.tasks.legged.LeggedTask.record`): base below 0.10 m, tilt above 0.8 rad,
-or a base-box corner below the floor; knees do not count."""
+FALL = FallLimits()
+"""The fall rule of the library: base below 0.10 m, tilt above 0.8 rad, or a base-box corner
+or knee within 5 mm of the floor. The reference checks (:func:`cfm_jax.locomotion.replay`)
+and the legged tasks' ``fell`` metric and terminal steps
+(:meth:`cfm_jax.tasks.legged.LeggedTask.record`) both use it."""
 
 
-def fell(qpos, foot_force=None, limits: FallLimits = FallLimits(), xp=np):
+def fell(qpos, foot_force=None, limits: FallLimits = FALL, xp=np):
     """True where the robot has fallen: base too low, body (base-box corner, or knee when
     ``limits.knees``) closer to the floor than ``limits.body_clearance``, or base tilted more
     than ``limits.max_tilt``. ``qpos (..., 19)``; returns ``(...)`` bool. ``foot_force
@@ -356,8 +354,7 @@ def fell(qpos, foot_force=None, limits: FallLimits = FallLimits(), xp=np):
     Args:
       qpos: ``(..., 19)`` positions (base pose, 12 joints).
       foot_force: ``(..., 4, 3)`` floor forces on the feet (world frame), or None.
-      limits: the :class:`FallLimits` (default: :data:`REPLAY_FALL`, the reference checks'
-        strict rule; :data:`TRAINING_FALL`: the legged tasks').
+      limits: the :class:`FallLimits` (default: :data:`FALL`, the library's rule).
       xp: the array module, ``numpy`` or ``jax.numpy``.
 
     Returns:
@@ -371,7 +368,8 @@ def fell(qpos, foot_force=None, limits: FallLimits = FallLimits(), xp=np):
       [False, True]
       >>> kneel = standing.copy()
       >>> kneel[2] = 0.11  # knees at the floor, base above 0.10 m
-      >>> bool(fell(kneel)), bool(fell(kneel, limits=TRAINING_FALL))
+      >>> no_knees = FallLimits(body_clearance=0.0, knees=False)
+      >>> bool(fell(kneel)), bool(fell(kneel, limits=no_knees))
       (True, False)
     """
     qpos = np.asarray(qpos, float) if xp is np else xp.asarray(qpos)

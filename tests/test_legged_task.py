@@ -10,11 +10,12 @@ horizons of different length must be masked out of the data and the metrics.
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import cfm_jax
-from cfm_jax import algorithm, locomotion, robots, rollout, tasks, training
+from cfm_jax import algorithm, locomotion, robots, rollout, solo12, tasks, training
 from cfm_jax import config as config_lib
 
 
@@ -115,6 +116,35 @@ def test_falls_are_flagged_when_the_robot_goes_down(walk):
         expected[:first_fall] = True
         np.testing.assert_array_equal(valid[k], expected & active[k])
     assert 0 < valid.sum() < active.sum()
+
+
+def test_training_fall_flag_counts_the_knees_as_the_reference_checks_do(walk, solo):
+    """The metric ``fell`` and the terminal step use the library's one fall rule: a robot
+    whose knees are at the floor (base sunk to 0.11 m: knee axes just below the floor; to
+    0.115 m: 0-5 mm above it, inside the leg's 8 mm capsule; the base box 8 cm up and the
+    base above its 0.10 m limit) has fallen, in training as in the reference checks;
+    standing has not."""
+    import types
+
+    import mujoco
+
+    m, d = solo.mj_model, mujoco.MjData(solo.mj_model)
+    home = m.key("home").qpos.copy()
+    cases = [(home, False)]
+    for height, knee_low, knee_high in ((0.11, -0.005, 0.0), (0.115, 0.0, 0.005)):
+        state = home.copy()
+        state[2] = height
+        d.qpos[:] = state
+        mujoco.mj_kinematics(m, d)
+        knee_z = min(d.xpos[m.body(f"{leg}_lower_leg").id][2] for leg in ("FL", "FR", "HL", "HR"))
+        assert knee_low < knee_z < knee_high and height - solo12.BASE_HALF[2] > 0.08
+        cases.append((state, True))
+    reference = types.SimpleNamespace(active=jnp.float32(1.0), force=jnp.zeros(12))
+    step = types.SimpleNamespace(reference=reference)
+    for qpos, expected in cases:
+        out = walk.record(step, None, jnp.asarray(qpos, jnp.float32), None, jnp.zeros(12))
+        assert bool(out["fell"]) is expected and bool(out["terminal"]) is expected
+        assert bool(solo12.fell(qpos)) is expected  # the reference checks' answer
 
 
 def test_legged_tasks_refuse_arms_and_slow_control(solo):

@@ -250,7 +250,7 @@ def test_leg_fk_ik_match_mujoco(solo):
 def _fell_loop(qpos, foot_force=None, height=0.10, tilt=0.8, clearance=0.005, knees=True):
     """The former NumPy fall check, copied as the oracle: a plain loop over states and legs,
     knees from :func:`cfm_jax.solo12.knee_fk` (itself checked against MuJoCo above); a
-    ``knees`` switch added so that it also states the legged tasks' rule."""
+    ``knees`` switch added so that it also states the legged tasks' former rule."""
     qpos = np.asarray(qpos, float)
     batch = qpos.shape[:-1]
     flat = qpos.reshape(-1, qpos.shape[-1])
@@ -272,8 +272,8 @@ def _fell_loop(qpos, foot_force=None, height=0.10, tilt=0.8, clearance=0.005, kn
 
 
 def _training_fell_before(qpos_next):
-    """The legged tasks' fall rule as LeggedTask.record computed it before it called
-    solo12.fell (float32, one state), copied as the oracle of bit-identity."""
+    """The legged tasks' former fall rule (no knees) as LeggedTask.record computed it before
+    it called solo12.fell (float32, one state), copied as the oracle of bit-identity."""
     import jax.numpy as jnp
 
     quat = qpos_next[3:7] / jnp.linalg.norm(qpos_next[3:7])
@@ -304,8 +304,9 @@ def _random_states(n, seed=0):
 
 
 RULES = {  # name: (FallLimits, oracle keywords)
-    "replay": (solo12.REPLAY_FALL, {}),
-    "training": (solo12.TRAINING_FALL, {"clearance": 0.0, "knees": False}),
+    "fall": (solo12.FALL, {}),  # the library's rule: replay and training
+    "no_knees": (solo12.FallLimits(body_clearance=0.0, knees=False),  # the training's before
+                 {"clearance": 0.0, "knees": False}),  # fmt: skip
     "knees_at_floor": (solo12.FallLimits(body_clearance=0.0), {"clearance": 0.0}),
 }
 
@@ -335,18 +336,18 @@ def test_fell_matches_the_plain_loop_on_random_states(rule):
     assert all(np.any(other != expected) for other in others)
 
 
-def test_training_rule_is_bit_identical_to_the_tasks_former_check():
+def test_no_knees_limits_are_bit_identical_to_the_tasks_former_check():
+    """The legged tasks' rule before it counted the knees, stated as FallLimits, gives the
+    former inline check's answers bit for bit (so the limits are the only difference)."""
     import jax
     import jax.numpy as jnp
 
     q32 = jnp.asarray(_random_states(3000, seed=1), jnp.float32)
-    new = jax.jit(jax.vmap(lambda q: solo12.fell(q, limits=solo12.TRAINING_FALL, xp=jnp)))
+    limits = RULES["no_knees"][0]
+    new = jax.jit(jax.vmap(lambda q: solo12.fell(q, limits=limits, xp=jnp)))
     before = jax.jit(jax.vmap(_training_fell_before))
     np.testing.assert_array_equal(np.asarray(new(q32)), np.asarray(before(q32)))
-    from cfm_jax.tasks.legged import LeggedTask
-
-    assert LeggedTask.FALL_LIMITS == solo12.TRAINING_FALL
-    assert solo12.TRAINING_FALL == solo12.FallLimits(0.10, 0.8, 0.0, knees=False)
+    assert solo12.FALL == solo12.FallLimits(0.10, 0.8, 0.005, knees=True)
 
 
 def test_fell_on_hand_made_states(solo):
@@ -376,9 +377,9 @@ def test_fell_on_hand_made_states(solo):
         assert state[2] - solo12.BASE_HALF[2] > 0.08
     states = np.stack([home, low, tilted, slight, nose, kneel, touch])
     expected = {
-        "replay": [False, True, True, False, True, True, True],
+        "fall": [False, True, True, False, True, True, True],
         "knees_at_floor": [False, True, True, False, True, True, False],
-        "training": [False, True, True, False, True, False, False],
+        "no_knees": [False, True, True, False, True, False, False],
     }
     for rule, (limits, keywords) in RULES.items():
         np.testing.assert_array_equal(_fell_loop(states, **keywords), expected[rule])

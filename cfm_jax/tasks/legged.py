@@ -50,8 +50,10 @@ class LeggedTask(JointSpaceTask):
       data and the metrics.
     * Tracking error: base position (m) and orientation (rad) error. Further metrics:
       ``force_mse`` (N^2, foot forces against the reference), ``fell`` (1 if the robot
-      fell within the horizon: :func:`cfm_jax.solo12.fell` with :attr:`FALL_LIMITS`, base
-      below 0.1 m, tilted more than 0.8 rad, or a base-box corner below the floor),
+      fell within the horizon: :func:`cfm_jax.solo12.fell` with :attr:`FALL_LIMITS`, the
+      library's rule :data:`cfm_jax.solo12.FALL`: base below 0.1 m, tilted more than
+      0.8 rad, or a base-box corner or knee within 5 mm of the floor; the reference checks
+      use the same rule),
       ``base_position_mse``, ``base_orientation_mse``.
     * Baselines: the reference's own controller (its feed-forward torque plus its joint
       PD) as ``oracle``, the joint PD alone as ``pd_only``.
@@ -83,7 +85,7 @@ class LeggedTask(JointSpaceTask):
     output_unit = "(m/s, rad/s)$^2$ and N$^2$"
     metric_names = ("force_mse", "fell", "base_position_mse", "base_orientation_mse")
     MAX_CONTROL_DT = 0.004
-    FALL_LIMITS = solo12.TRAINING_FALL  # the rule of the metric ``fell`` and of terminal steps
+    FALL_LIMITS = solo12.FALL  # the rule of the metric ``fell`` and of terminal steps
 
     def __init__(self, robot, task: TaskConfig, control_dt: float):
         import mujoco
