@@ -42,6 +42,7 @@ import numpy as np
 from mujoco import mjx
 
 from cfm_jax import native, opspace, references, rollout
+from cfm_jax.config import check_simulator
 
 # Gains of the null-space posture term of the oracle (1/s^2 and 1/s): a critically damped
 # joint-space PD towards the home pose, 5 rad/s, acting only in the task's null space.
@@ -332,12 +333,12 @@ def opspace_oracle(
     """
     if simulator == "mjx":
         return mjx_opspace_oracle(robot, site, home, null_kp, null_kd)
-    opspace._check_simulator(simulator)
+    check_simulator(simulator)
     home = tuple(np.asarray(robot.home if home is None else home, np.float64).tolist())
-    host = opspace._cached(
+    host = opspace.host_function(
         HostOpspaceOracle,
         robot,
-        opspace._site_id(robot, site),
+        opspace.site_id(robot, site),
         home,
         float(null_kp),
         float(null_kd),
@@ -347,9 +348,7 @@ def opspace_oracle(
         args = [jax.lax.stop_gradient(jnp.asarray(a, jnp.float32)) for a in (qpos, qvel)]
         desired = jax.lax.stop_gradient(jnp.asarray(xdd_desired, jnp.float32))
         shape = jax.ShapeDtypeStruct(desired.shape[:-1] + (robot.nv,), jnp.float32)
-        return jax.pure_callback(
-            opspace._float32(host), shape, *args, desired, vmap_method="broadcast_all"
-        )
+        return jax.pure_callback(host, shape, *args, desired, vmap_method="broadcast_all")
 
     return torque
 
@@ -387,7 +386,7 @@ def mjx_opspace_oracle(
       >>> tau.shape  # doctest: +SKIP
       (7,)
     """
-    model, sid, bid, blank = opspace._mjx_site(robot, site)
+    model, sid, bid, blank = opspace.mjx_site(robot, site)
     del sid, bid
     home = jnp.asarray(robot.home if home is None else home, jnp.float32)
     damping = jnp.asarray(implicit_damping(robot.mj_model), jnp.float32)
@@ -408,7 +407,7 @@ def mjx_opspace_oracle(
     def torque(qpos, qvel, xdd_desired):
         args = [jax.lax.stop_gradient(jnp.asarray(a, jnp.float32)) for a in (qpos, qvel)]
         desired = jax.lax.stop_gradient(jnp.asarray(xdd_desired, jnp.float32))
-        return opspace._over_batch(one, *args, desired)
+        return opspace.over_batch(one, *args, desired)
 
     return torque
 

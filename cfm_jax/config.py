@@ -43,6 +43,28 @@ def add_task_name(name: str) -> None:
 SIMULATORS = ("native", "mjx")
 """Physics back ends for ``Config.simulator`` (see :mod:`cfm_jax.rollout`)."""
 
+
+def check_simulator(simulator: str) -> None:
+    """Raise :class:`ConfigError` unless ``simulator`` is one of :data:`SIMULATORS` (the
+    check of every function that takes a ``simulator`` argument).
+
+    Args:
+      simulator: the name to check.
+
+    Raises:
+      ConfigError: naming the value and the allowed ones.
+
+    Examples:
+      >>> check_simulator("mjx")
+      >>> check_simulator("mujoco")
+      Traceback (most recent call last):
+      ...
+      cfm_jax.config.ConfigError: simulator='mujoco' is not allowed: one of ('native', 'mjx')
+    """
+    if simulator not in SIMULATORS:
+        raise ConfigError(f"simulator={simulator!r} is not allowed: one of {SIMULATORS}")
+
+
 PAPER_LOSSES = ("joint", "task", "distal", "supervised")
 """The paper's four controller losses, in the order results are reported (``"all"`` in
 sweeps and the CLI); the functions are in :mod:`cfm_jax.losses`."""

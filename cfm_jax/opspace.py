@@ -40,7 +40,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from cfm_jax.config import SIMULATORS, ConfigError
+from cfm_jax.config import ConfigError, check_simulator
 
 DEFAULT_SITES = ("ee", "flange")
 """Site names tried in order when no site is configured."""
@@ -125,8 +125,25 @@ def ee_site(robot, name: str | None = None) -> int:
     return int(site)
 
 
-def _site_id(robot, site) -> int:
-    """A site id from an id, a name or None (default site)."""
+def site_id(robot, site: int | str | None) -> int:
+    """A site's id from its id, its name or None (:func:`ee_site`'s default), checked.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      site: a site id, a site name, or None.
+
+    Returns:
+      The site id.
+
+    Raises:
+      ConfigError: an id out of range, a name the robot lacks, a site fixed to the world.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> site_id(arm, "tip"), site_id(arm, 0)
+      (0, 0)
+    """
     if isinstance(site, int | np.integer) and not isinstance(site, bool):
         if not 0 <= int(site) < robot.mj_model.nsite:
             raise ConfigError(
@@ -212,7 +229,7 @@ class HostKinematics:
 
     def __init__(self, robot, site: int | str | None = None):
         self.model = robot.mj_model
-        self.site = _site_id(robot, site)
+        self.site = site_id(robot, site)
         self.body = int(self.model.site_bodyid[self.site])
         self.data = mujoco.MjData(self.model)
 
@@ -255,17 +272,35 @@ class HostKinematics:
 _HOSTS: dict = {}
 
 
-def _cached(kind, robot, site, *args):
-    """One host object per (kind, model, site, args); the model is kept alive with it."""
+def host_function(kind, robot, site: int, *args):
+    """The host object ``kind(robot, site, *args)``, built once per (kind, model, site, args)
+    and reused, wrapped to return float32 arrays: the callable that ``jax.pure_callback``
+    calls for :func:`kinematics` and :func:`cfm_jax.baselines.opspace_oracle`.
+
+    Args:
+      kind: a class taking ``(robot, site, *args)`` whose instances are called on NumPy
+        arrays (:class:`HostKinematics`, :class:`cfm_jax.baselines.HostOpspaceOracle`).
+      robot: a :class:`cfm_jax.robots.Robot` (its model is kept alive with the object).
+      site: the site id (:func:`site_id`).
+      args: further hashable constructor arguments.
+
+    Returns:
+      A function of the same arguments as the object, returning its outputs as float32.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> host = host_function(HostKinematics, arm, site_id(arm, "tip"))
+      >>> host(arm.home, np.zeros(2)).position.dtype
+      dtype('float32')
+    """
     key = (kind.__name__, id(robot.mj_model), site, args)
     if key not in _HOSTS:
         _HOSTS[key] = (robot.mj_model, kind(robot, site, *args))
-    return _HOSTS[key][1]
+    function = _HOSTS[key][1]
 
-
-def _float32(function):
-    def host(*args):
-        return jax.tree.map(lambda a: np.asarray(a, np.float32), function(*args))
+    def host(*arrays):
+        return jax.tree.map(lambda a: np.asarray(a, np.float32), function(*arrays))
 
     return host
 
@@ -301,8 +336,8 @@ def kinematics(
         qpos = jax.lax.stop_gradient(jnp.asarray(qpos, jnp.float32))
         qvel = jax.lax.stop_gradient(jnp.asarray(qvel, jnp.float32))
         return mjx_kinematics(robot, qpos, qvel, site)
-    _check_simulator(simulator)
-    host = _cached(HostKinematics, robot, _site_id(robot, site))
+    check_simulator(simulator)
+    host = host_function(HostKinematics, robot, site_id(robot, site))
     nv = robot.nv
     qpos = jax.lax.stop_gradient(jnp.asarray(qpos, jnp.float32))
     qvel = jax.lax.stop_gradient(jnp.broadcast_to(jnp.asarray(qvel, jnp.float32), qpos.shape))
@@ -310,28 +345,55 @@ def kinematics(
     shapes = Kinematics(
         *(jax.ShapeDtypeStruct(batch + shape, jnp.float32) for shape in ((3,), (3,), (3, nv), (3,)))
     )
-    return jax.pure_callback(_float32(host), shapes, qpos, qvel, vmap_method="broadcast_all")
+    return jax.pure_callback(host, shapes, qpos, qvel, vmap_method="broadcast_all")
 
 
-def _check_simulator(simulator: str) -> None:
-    if simulator not in SIMULATORS:
-        raise ConfigError(f"simulator={simulator!r} is not allowed: one of {SIMULATORS}")
+def mjx_site(robot, site: int | str | None):
+    """What the MJX site computations need: ``(mjx model, site id, body id, blank data)``.
 
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot` with hinge and slide joints (``nq == nv``).
+      site: the site's id or name, or None for :func:`ee_site`'s default.
 
-def _mjx_site(robot, site):
-    """``(mjx model, site id, body id, blank data)``; MJX kinematics here need nq == nv."""
+    Returns:
+      ``(robot.mjx_model, site id, id of the site's body, mjx.make_data(model))``.
+
+    Raises:
+      ValueError: the robot has a ball or free joint (``nq != nv``).
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> model, site, body, blank = mjx_site(arm, "tip")
+      >>> site == site_id(arm, "tip"), blank.qpos.shape
+      (True, (2,))
+    """
     if robot.nq != robot.nv:
         raise ValueError(
             f"robot {robot.name!r} has nq={robot.nq} != nv={robot.nv} (a ball or free joint); "
             "the MJX site kinematics take hinge and slide joints only"
         )
-    sid = _site_id(robot, site)
+    sid = site_id(robot, site)
     model = robot.mjx_model
     return model, sid, int(robot.mj_model.site_bodyid[sid]), mjx.make_data(model)
 
 
-def _over_batch(one, *arrays):
-    """``one`` of unbatched arrays, mapped over the common leading axes of ``arrays``."""
+def over_batch(one, *arrays):
+    """``one`` of unbatched arrays, mapped (``jax.vmap``) over the common leading axes of
+    ``arrays`` (each broadcast to them; the last axis is each array's own).
+
+    Args:
+      one: a function of one unbatched array per argument, returning a pytree of arrays.
+      arrays: ``(..., k_i)`` arrays whose leading axes broadcast together.
+
+    Returns:
+      ``one``'s pytree with the common leading axes ``...`` in front of every leaf.
+
+    Examples:
+      >>> out = over_batch(lambda a, b: a @ b, jnp.ones((4, 5, 3)), jnp.ones((5, 3)))
+      >>> out.shape, float(out[0, 0])
+      ((4, 5), 3.0)
+    """
     batch = jnp.broadcast_shapes(*(a.shape[:-1] for a in arrays))
     flat = [jnp.broadcast_to(a, batch + a.shape[-1:]).reshape(-1, a.shape[-1]) for a in arrays]
     out = jax.vmap(one)(*flat)
@@ -368,7 +430,7 @@ def mjx_kinematics(robot, qpos, qvel, site: int | str | None = None) -> Kinemati
       >>> np.round(np.asarray(kin.bias_acceleration, np.float64), 3).tolist()  # doctest: +SKIP
       [-0.9, 0.0, 0.0]
     """
-    model, sid, bid, blank = _mjx_site(robot, site)
+    model, sid, bid, blank = mjx_site(robot, site)
 
     def position_and_jacobian(q):
         data = mjx.com_pos(model, mjx.kinematics(model, blank.replace(qpos=q)))
@@ -382,7 +444,7 @@ def mjx_kinematics(robot, qpos, qvel, site: int | str | None = None) -> Kinemati
         return Kinematics(x, velocity, jac, bias)
 
     qpos, qvel = (jnp.asarray(a, jnp.float32) for a in (qpos, qvel))
-    return _over_batch(one, qpos, qvel)
+    return over_batch(one, qpos, qvel)
 
 
 def ee_position(robot, qpos, site: int | str | None = None):

@@ -380,7 +380,7 @@ def reach(robot, site: int | str | None = None) -> tuple[float, np.ndarray, str]
       (0.9, [0.0, 0.0, 1.0], 'shoulder')
     """
     model = robot.mj_model
-    site = opspace._site_id(robot, site)
+    site = opspace.site_id(robot, site)
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
     chain = []
@@ -499,7 +499,7 @@ def check_targets(robot, targets, site: int | str | None = None) -> np.ndarray:
             f"task.targets[{k}]={tuple(np.round(array[k], 4).tolist())} is not allowed: it is "
             f"{distance[k]:.3f} m from the base of robot {robot.name!r} (joint {joint!r} at "
             f"{tuple(np.round(base, 4).tolist())}), beyond the arm's reach of {length:.3f} m "
-            f"to site {opspace.site_names(robot)[opspace._site_id(robot, site)]!r}"
+            f"to site {opspace.site_names(robot)[opspace.site_id(robot, site)]!r}"
         )
     return array
 

@@ -41,7 +41,7 @@ import jax.numpy as jnp
 from mujoco import mjx
 
 from cfm_jax import dataset, native
-from cfm_jax.config import SIMULATORS, ConfigError
+from cfm_jax.config import ConfigError, check_simulator
 
 
 class Step(NamedTuple):
@@ -155,8 +155,7 @@ def run(task, policy, key, simulator="native") -> Rollout:
       >>> bool(tracking_mse(out)[0] < 1e-5)  # the oracle tracks the reference
       True
     """
-    if simulator not in SIMULATORS:
-        raise ConfigError(f"simulator={simulator!r} is not allowed: one of {SIMULATORS}")
+    check_simulator(simulator)
     robot = task.robot
     n_sub = substeps(robot, task.control_dt)
     limit = jnp.asarray(robot.torque_limit, jnp.float32)
