@@ -1,11 +1,12 @@
 """Baselines (cfm_jax/baselines.py): the operational-space oracle, task-space PD, the
-implicit-damping term both oracles use, the site tracking metric and the NumPy closed loop.
+implicit-damping term both oracles use, the site tracking metric, the NumPy closed loop and
+the joint-space (inverse dynamics) oracle.
 
 Oracles: one ``mj_step`` of the C engine for the oracle controller and the PD gains
 (realised site accelerations from MuJoCo's own recursion); the host controller for its JAX
 form; MuJoCo's Jacobian for the PD formula; sums worked by hand for the metric; the host
-closed loop for the compiled one. The joint-space oracle is tested in test_rollout.py
-against the rollout it drives.
+closed loop for the compiled one; for the joint-space oracle, the closed-form reference
+(quintic) and the semi-implicit Euler recurrence of the rollout it drives.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ import numpy as np
 import pytest
 from sites import mujoco_site_acceleration, random_states
 
-from cfm_jax import baselines, opspace, references, robots, rollout
+from cfm_jax import baselines, opspace, references, robots, rollout, tasks
+from cfm_jax.config import SIMULATORS
 
 # ---- oracle -----------------------------------------------------------------------------
 
@@ -212,3 +214,45 @@ def test_jax_closed_loop_matches_host_rollout(arm):
     # float32 desired accelerations vs float64 in the host loop: differences ~1e-6 m/s^2
     # that the stable closed loop does not amplify.
     np.testing.assert_allclose(positions, host.position, atol=1e-6)
+
+
+# ---- the joint-space (inverse dynamics) oracle ---------------------------------------------
+@pytest.mark.parametrize("simulator", SIMULATORS)
+def test_oracle_policy_realises_desired_acceleration(arm, simulator):
+    # kp = kd = 0 and control_dt = timestep (1 physics step per control step): the oracle's
+    # torque M qdd* + h D qdd* + bias - passive makes MuJoCo's Euler step (implicit joint
+    # damping) produce exactly qdd* = qdd_ref(t).
+    dt = arm.timestep
+    ref = references.quintic(
+        arm.home, arm.home + np.array([0.05, -0.05]), duration=0.1, control_dt=dt
+    )
+    out = jax.jit(
+        lambda: rollout.run(
+            tasks.JointSpaceTask(arm, ref, kp=0.0, kd=0.0, control_dt=dt),
+            baselines.inverse_dynamics_oracle(arm, simulator),
+            key=jax.random.key(0),
+            simulator=simulator,
+        )
+    )()
+    qdd_ref = ref.qdd[0, :-1]
+    np.testing.assert_allclose(np.asarray(out.transitions.desired[0]), qdd_ref, atol=1e-5)
+    # Torques stay inside the limits (so no clipping spoils the inverse dynamics).
+    assert np.all(np.abs(np.asarray(out.transitions.action[0])) < 0.9 * arm.torque_limit)
+    # Observed (qd_{t+1} - qd_t) / h equals qdd_ref(t). float32: |qd| <= 0.94 rad/s has
+    # rounding <= 6e-8, divided by h = 0.002 that is 3e-5 rad/s^2 per velocity, 6e-5 for the
+    # difference (observed 1.8e-5); allow 1e-4 against |qdd| up to 29 rad/s^2.
+    np.testing.assert_allclose(np.asarray(out.transitions.observed[0]), qdd_ref, atol=1e-4)
+    # Positions follow the semi-implicit Euler recurrence of qdd_ref exactly (float64 here):
+    # qd_{t+1} = qd_t + h qdd_ref(t), q_{t+1} = q_t + h qd_{t+1}.
+    q, qd = ref.q[0, 0].copy(), np.zeros(2)
+    expected = []
+    for t in range(ref.steps):
+        qd = qd + dt * ref.qdd[0, t]
+        q = q + dt * qd
+        expected.append(q)
+    q_mjx = np.asarray(out.tracking_error[0], np.float64) + ref.q[0, 1:]
+    # float32 positions ~1 rad: 50 rounded increments, 50 * 1.2e-7 = 6e-6; allow 1e-5.
+    np.testing.assert_allclose(q_mjx, expected, atol=1e-5)
+    # And against the closed form of the reference the only error is the Euler
+    # discretisation, O(h * reach) = 0.002 * 0.05 * 15/8 / 0.1 ~ 2e-4 rad: tiny.
+    assert np.max(np.abs(np.asarray(out.tracking_error[0]))) < 3e-4

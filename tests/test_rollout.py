@@ -1,11 +1,11 @@
 """MJX rollouts (cfm_jax/rollout.py) against MuJoCo's C engine and plain Python loops.
 
 Oracles: ``mujoco.mj_step`` (C, float64) on the same torque sequence; a Python loop of
-``mjx.step`` with the same policy; the closed-form reference (quintic) for the oracle policy.
+``mjx.step`` with the same policy.
 
 Compiles are the cost here (10-25 s each on 2 cores): one iiwa rollout, and on the two-link
 arm one rollout shared by the scan-vs-loop and NaN tests (the torque sequence is an argument),
-one oracle rollout and one jitted ``mjx.step``.
+and one jitted ``mjx.step``.
 """
 
 from __future__ import annotations
@@ -232,50 +232,6 @@ def test_nan_torque_makes_finite_false_from_that_step_on(arm_case):
     # The steps before are real transitions, after it the state is NaN.
     assert np.all(np.isfinite(np.asarray(out.transitions.state[0, : bad_step + 1])))
     assert np.all(np.isnan(np.asarray(out.transitions.state[0, bad_step + 1 :])))
-
-
-# ---- (c) the oracle policy ------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("simulator", SIMULATORS)
-def test_oracle_policy_realises_desired_acceleration(arm, simulator):
-    # kp = kd = 0 and control_dt = timestep (1 physics step per control step): the oracle's
-    # torque M qdd* + h D qdd* + bias - passive makes MuJoCo's Euler step (implicit joint
-    # damping) produce exactly qdd* = qdd_ref(t).
-    dt = arm.timestep
-    ref = references.quintic(
-        arm.home, arm.home + np.array([0.05, -0.05]), duration=0.1, control_dt=dt
-    )
-    out = jax.jit(
-        lambda: rollout.run(
-            tasks.JointSpaceTask(arm, ref, kp=0.0, kd=0.0, control_dt=dt),
-            baselines.inverse_dynamics_oracle(arm, simulator),
-            key=jax.random.key(0),
-            simulator=simulator,
-        )
-    )()
-    qdd_ref = ref.qdd[0, :-1]
-    np.testing.assert_allclose(np.asarray(out.transitions.desired[0]), qdd_ref, atol=1e-5)
-    # Torques stay inside the limits (so no clipping spoils the inverse dynamics).
-    assert np.all(np.abs(np.asarray(out.transitions.action[0])) < 0.9 * arm.torque_limit)
-    # Observed (qd_{t+1} - qd_t) / h equals qdd_ref(t). float32: |qd| <= 0.94 rad/s has
-    # rounding <= 6e-8, divided by h = 0.002 that is 3e-5 rad/s^2 per velocity, 6e-5 for the
-    # difference (observed 1.8e-5); allow 1e-4 against |qdd| up to 29 rad/s^2.
-    np.testing.assert_allclose(np.asarray(out.transitions.observed[0]), qdd_ref, atol=1e-4)
-    # Positions follow the semi-implicit Euler recurrence of qdd_ref exactly (float64 here):
-    # qd_{t+1} = qd_t + h qdd_ref(t), q_{t+1} = q_t + h qd_{t+1}.
-    q, qd = ref.q[0, 0].copy(), np.zeros(2)
-    expected = []
-    for t in range(ref.steps):
-        qd = qd + dt * ref.qdd[0, t]
-        q = q + dt * qd
-        expected.append(q)
-    q_mjx = np.asarray(out.tracking_error[0], np.float64) + ref.q[0, 1:]
-    # float32 positions ~1 rad: 50 rounded increments, 50 * 1.2e-7 = 6e-6; allow 1e-5.
-    np.testing.assert_allclose(q_mjx, expected, atol=1e-5)
-    # And against the closed form of the reference the only error is the Euler
-    # discretisation, O(h * reach) = 0.002 * 0.05 * 15/8 / 0.1 ~ 2e-4 rad: tiny.
-    assert np.max(np.abs(np.asarray(out.tracking_error[0]))) < 3e-4
 
 
 # ---- (e) control_dt must be a multiple of the timestep ---------------------------------------
