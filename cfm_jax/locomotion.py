@@ -622,12 +622,20 @@ def cache_dir(path: str | os.PathLike | None = None) -> Path:
     return Path.home() / ".cache" / "cfm_jax" / "references"
 
 
+GENERATOR_FILES = (Path(__file__), Path(solo12.__file__))
+"""The source files of the reference generator (this module and the robot's kinematics);
+their bytes are part of the cache key, so an edit of the generator is never answered with
+references recorded by the code before it."""
+
+
 def _cache_key(kind: str, params, control_dt: float, model_file: str) -> str:
     h = hashlib.sha256()
     meta = {"kind": kind, "params": dataclasses.asdict(params), "control_dt": control_dt}
     meta["format"] = _FORMAT_VERSION
     h.update(json.dumps(meta, sort_keys=True).encode())
     h.update(Path(model_file).read_bytes())
+    for source in GENERATOR_FILES:
+        h.update(Path(source).read_bytes())
     return h.hexdigest()[:24]
 
 
@@ -668,8 +676,8 @@ def walk_reference(
     **params,
 ) -> LocomotionReference:
     """Trot reference of ``duration`` s (other :class:`WalkParams` fields as keywords),
-    loaded from the cache when present (:func:`cache_dir`; key: parameters, control_dt and
-    the model file's bytes).
+    loaded from the cache when present (:func:`cache_dir`; key: parameters, control_dt, the
+    model file's bytes and the generator's source, :data:`GENERATOR_FILES`).
 
     Args:
       duration: length of the reference (s).

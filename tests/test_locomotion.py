@@ -178,6 +178,21 @@ def test_determinism_and_cache(tmp_path, model):
     assert len(list(tmp_path.glob("walk-*.npz"))) == 3
 
 
+def test_an_edited_generator_is_not_answered_from_the_cache(tmp_path, monkeypatch):
+    """The generator's source is part of the key: after an edit of one of its files (here a
+    copy of the module with one added comment standing for the edit) the same call
+    simulates anew instead of loading what the code before the edit recorded."""
+    L.walk_reference(0.2, cache=tmp_path)
+    assert len(list(tmp_path.glob("walk-*.npz"))) == 1
+    L.walk_reference(0.2, cache=tmp_path)  # unchanged source: the same entry
+    assert len(list(tmp_path.glob("walk-*.npz"))) == 1
+    edited = tmp_path / "locomotion_edited.py"
+    edited.write_bytes(Path(L.__file__).read_bytes() + b"# an edit\n")
+    monkeypatch.setattr(L, "GENERATOR_FILES", (edited, *L.GENERATOR_FILES[1:]))
+    L.walk_reference(0.2, cache=tmp_path)
+    assert len(list(tmp_path.glob("walk-*.npz"))) == 2
+
+
 def test_cache_dir_from_environment(monkeypatch, tmp_path):
     monkeypatch.setenv(L.CACHE_ENV, str(tmp_path / "x"))
     assert L.cache_dir() == tmp_path / "x"
