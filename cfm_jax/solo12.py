@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cfm_jax.config import ConfigError
+
 LEGS = ("FL", "FR", "HL", "HR")
 JOINTS = tuple(f"{leg}_{j}" for leg in LEGS for j in ("HAA", "HFE", "KFE"))
 # (front +1 / hind -1, left +1 / right -1) for each leg, [2.1] of the facts sheet.
@@ -89,6 +91,70 @@ def load_model(path: str | None = None):
     import mujoco
 
     return mujoco.MjModel.from_xml_path(path or model_path())
+
+
+KINEMATICS_TOLERANCE = 1e-6
+"""Largest foot or knee position difference (m) between MuJoCo and the closed-form leg
+kinematics that :func:`check_model` accepts."""
+
+
+def check_model(model, name: str = "solo12") -> None:
+    """Check that ``model`` has the Solo12's structure and leg geometry, which the legged
+    tasks' references and fall rule assume (:func:`leg_fk`, :func:`leg_ik`,
+    :func:`knee_positions`): a free base then the 12 joints :data:`JOINTS` in that order, 12
+    actuators, the sites ``<leg>_foot`` and bodies ``<leg>_lower_leg``, and foot and knee
+    positions that the closed form reproduces within :data:`KINEMATICS_TOLERANCE` at three
+    poses. Masses, inertias, friction, gains and the timestep may differ.
+
+    Args:
+      model: a ``mujoco.MjModel``.
+      name: the robot's name, for the message.
+
+    Raises:
+      ConfigError: saying what differs from the Solo12.
+
+    Examples:
+      >>> check_model(load_model())  # the model file of this package passes
+    """
+    import mujoco
+
+    def fail(what: str) -> None:
+        raise ConfigError(
+            f"robot {name!r} is not allowed for the legged tasks: they generate their "
+            f"references with the Solo12's leg kinematics (cfm_jax.solo12), and {what}"
+        )
+
+    if model.nq != 19 or model.nv != 18 or model.nu != 12:
+        fail(f"it has nq={model.nq}, nv={model.nv}, nu={model.nu} instead of 19, 18, 12")
+    if int(model.jnt_type[0]) != int(mujoco.mjtJoint.mjJNT_FREE):
+        fail("its first joint is not a free joint (the floating base)")
+    joints = tuple(model.joint(i).name for i in range(1, model.njnt))
+    if joints != JOINTS:
+        fail(f"its joints are {joints} instead of {JOINTS}")
+    names = {int(mujoco.mjtObj.mjOBJ_SITE): "_foot", int(mujoco.mjtObj.mjOBJ_BODY): "_lower_leg"}
+    for kind, suffix in names.items():
+        for leg in LEGS:
+            if mujoco.mj_name2id(model, kind, leg + suffix) < 0:
+                fail(f"it has no {'site' if suffix == '_foot' else 'body'} {leg + suffix!r}")
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(0)
+    for pose in (HOME_JOINTS, *(HOME_JOINTS + rng.uniform(-0.5, 0.5, (2, 12)))):
+        data.qpos[:7] = [0, 0, 0, 1, 0, 0, 0]  # base at the origin: world frame = base frame
+        data.qpos[7:] = pose
+        mujoco.mj_kinematics(model, data)
+        knees = knee_positions(pose)
+        for i, leg in enumerate(LEGS):
+            q = pose[3 * i : 3 * i + 3]
+            for point, mine, theirs in (
+                ("foot", leg_fk(q, i), data.site(f"{leg}_foot").xpos),
+                ("knee", knees[i], data.body(f"{leg}_lower_leg").xpos),
+            ):
+                gap = float(np.max(np.abs(mine - theirs)))
+                if gap > KINEMATICS_TOLERANCE:
+                    fail(
+                        f"its {leg} {point} lies {gap:.3g} m from where the Solo12's leg "
+                        f"kinematics put it (joints {np.round(q, 3).tolist()})"
+                    )
 
 
 # ---- contact forces --------------------------------------------------------------------------

@@ -9,6 +9,8 @@ horizons of different length must be masked out of the data and the metrics.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -161,6 +163,29 @@ def test_legged_tasks_refuse_arms_and_slow_control(solo):
     home = config_lib.TaskConfig(name="jump", control_dt=0.004, home=(0.0,) * 19)
     with pytest.raises(config_lib.ConfigError, match=r"task.home=.* not allowed .* 'jump'"):
         tasks.make(solo, home, 0.004)
+
+
+def test_legged_tasks_refuse_legs_other_than_the_solo12s(tmp_path):
+    """The references are generated with the Solo12's closed-form leg kinematics, so a
+    robot whose legs differ is refused with what differs (a front-left shin 1 cm longer, a
+    joint renamed); a Solo12 with other physics (friction, a heavier base) is accepted. The
+    oracle of what differs is MuJoCo's own kinematics of the edited file."""
+    text = Path(solo12.model_path()).read_text()
+    knee = '<body name="FL_lower_leg" pos="0 0.03745 -0.16">'
+    assert text.count(knee) == 1 and text.count('friction="1.0 ') == 2
+    edits = {
+        "longer_shin.xml": text.replace(knee, knee.replace("-0.16", "-0.17")),
+        "renamed.xml": text.replace('"HR_KFE"', '"HR_knee"'),  # and its motor's
+        "slippery.xml": text.replace('friction="1.0 ', 'friction="0.5 '),
+    }
+    for name, edited in edits.items():
+        (tmp_path / name).write_text(edited)
+    longer = robots.load(str(tmp_path / "longer_shin.xml"))
+    with pytest.raises(config_lib.ConfigError, match=r"legged tasks: .* its FL foot lies 0.0"):
+        tasks.make(longer, config_lib.TaskConfig(name="walk", control_dt=0.004), 0.004)
+    with pytest.raises(config_lib.ConfigError, match=r"its joints are .*'HR_knee'"):
+        solo12.check_model(robots.load(str(tmp_path / "renamed.xml")).mj_model, "renamed")
+    solo12.check_model(robots.load(str(tmp_path / "slippery.xml")).mj_model)  # accepted
 
 
 @pytest.mark.parametrize("name", ["jump", "walk"])

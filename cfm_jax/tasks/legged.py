@@ -60,7 +60,9 @@ class LeggedTask(JointSpaceTask):
 
     Args:
       robot: a floating-base :class:`cfm_jax.robots.Robot` with one contact sensor per foot
-        (``solo12``).
+        and the Solo12's joints and leg geometry (:func:`cfm_jax.solo12.check_model`: the
+        references are generated with its leg kinematics); masses, friction and gains may
+        differ.
       task: the :class:`cfm_jax.config.TaskConfig`; ``name`` (``walk`` or ``jump``), ``kp``,
         ``kd``, ``joint_kp`` and ``joint_kd`` are used. The targets and horizons are the 5
         references of :mod:`cfm_jax.locomotion`: ``duration`` is not used, and ``targets``
@@ -68,8 +70,9 @@ class LeggedTask(JointSpaceTask):
       control_dt: control period (s), at most :attr:`MAX_CONTROL_DT`.
 
     Raises:
-      ConfigError: the robot has no floating base or no foot contact sensors,
-        ``control_dt`` is too long, or ``task.targets`` / ``task.home`` is given.
+      ConfigError: the robot has no floating base, no foot contact sensors or legs other
+        than the Solo12's, ``control_dt`` is too long, or ``task.targets`` / ``task.home``
+        is given.
 
     Examples:
       >>> from cfm_jax import config, robots
@@ -96,6 +99,7 @@ class LeggedTask(JointSpaceTask):
                 f"task.name={task.name!r} is not allowed for robot {robot.name!r}: it needs a "
                 "legged robot with a floating base (for example robot='solo12')"
             )
+        solo12.check_model(robot.mj_model, robot.name)
         if control_dt > self.MAX_CONTROL_DT + 1e-12:
             raise ConfigError(
                 f"task.control_dt={control_dt!r} is not allowed for task {task.name!r}: the "
