@@ -131,11 +131,14 @@ def check_model(model, name: str = "solo12") -> None:
     joints = tuple(model.joint(i).name for i in range(1, model.njnt))
     if joints != JOINTS:
         fail(f"its joints are {joints} instead of {JOINTS}")
-    names = {int(mujoco.mjtObj.mjOBJ_SITE): "_foot", int(mujoco.mjtObj.mjOBJ_BODY): "_lower_leg"}
-    for kind, suffix in names.items():
+    objects = (
+        (mujoco.mjtObj.mjOBJ_SITE, "site", "_foot"),
+        (mujoco.mjtObj.mjOBJ_BODY, "body", "_lower_leg"),
+    )
+    for kind, word, suffix in objects:
         for leg in LEGS:
             if mujoco.mj_name2id(model, kind, leg + suffix) < 0:
-                fail(f"it has no {'site' if suffix == '_foot' else 'body'} {leg + suffix!r}")
+                fail(f"it has no {word} {leg + suffix!r}")
     data = mujoco.MjData(model)
     rng = np.random.default_rng(0)
     for pose in (HOME_JOINTS, *(HOME_JOINTS + rng.uniform(-0.5, 0.5, (2, 12)))):
