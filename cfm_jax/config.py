@@ -204,6 +204,13 @@ class TaskConfig:
       joint_kd: legged tasks: derivative gain (1/s) on the actuated joints; None: ``kd``.
       site: ``opspace``: the end-effector site of the MJCF; None: the site ``ee``, else
         ``flange``.
+      motions: legged tasks: the references to follow, walk durations (s) for ``walk`` or
+        foot clearances (m) for ``jump``, one reference each
+        (:func:`cfm_jax.locomotion.walk_reference`, :func:`~cfm_jax.locomotion.jump_reference`);
+        None: the paper's 5 test references (:data:`cfm_jax.locomotion.WALK_DURATIONS`,
+        :data:`~cfm_jax.locomotion.JUMP_HEIGHTS`). Other motions than the test ones are
+        what a choice of defaults is made on (``experiments/select_defaults.py``). The arm
+        tasks take ``targets`` and reject a value here.
 
     Examples:
       >>> task = TaskConfig(duration=1.0, targets=((0.2, -0.3),))
@@ -235,6 +242,9 @@ class TaskConfig:
     joint_kd: float | None = None
     # opspace: name of the end-effector site of the MJCF; None: the site "ee", else "flange".
     site: str | None = None
+    # Legged tasks: walk durations (s) or jump foot clearances (m) of the references to
+    # follow; None: the 5 test references. Arm tasks: must be None (they take targets).
+    motions: tuple[float, ...] | None = None
 
     def __post_init__(self):
         if not isinstance(self.name, str) or self.name not in TASKS:
@@ -259,6 +269,24 @@ class TaskConfig:
             _nonnegative_float(f"task.{field}", value)
         if self.site is not None and (not isinstance(self.site, str) or not self.site):
             _fail("task.site", self.site, "None or the name of a site of the robot's MJCF")
+        if self.motions is not None:
+            allowed = (
+                "None, or a non-empty tuple of positive numbers: walk durations (s) for "
+                "'walk', jump foot clearances (m) for 'jump'"
+            )
+            if self.name not in ("walk", "jump"):
+                _fail(
+                    "task.motions",
+                    self.motions,
+                    f"None for task {self.name!r} (the arm tasks follow task.targets)",
+                )
+            try:
+                motions = tuple(float(x) for x in self.motions)
+            except (TypeError, ValueError):
+                _fail("task.motions", self.motions, allowed)
+            if not motions or not all(math.isfinite(x) and x > 0 for x in motions):
+                _fail("task.motions", self.motions, allowed)
+            object.__setattr__(self, "motions", motions)
         if self.targets is not None:
             try:
                 targets = tuple(tuple(float(x) for x in t) for t in self.targets)
@@ -627,7 +655,7 @@ def from_dict(data: dict) -> Config:
             value = dict(value)
             if key == "task" and value.get("targets") is not None:
                 value["targets"] = tuple(tuple(t) for t in value["targets"])
-            for tuple_field in ("hidden", "home"):
+            for tuple_field in ("hidden", "home", "motions"):
                 if isinstance(value.get(tuple_field), list):
                     value[tuple_field] = tuple(value[tuple_field])
             if key == "loop" and "babbling" not in value:

@@ -48,6 +48,12 @@ DEFAULT_TARGET_COUNT = 5
 # range kept free at both ends when placing default targets.
 DEFAULT_REACH = 0.6
 RANGE_MARGIN = 0.1
+# Seed of the selection run's arm targets (default_targets(..., seed=SELECTION_SEED)): five
+# reaches of the same kind as the test targets (seed 0). 3 is the first seed whose targets
+# are all at least 0.1 rad (max-norm) from every test target on both the iiwa14 (0.64 rad)
+# and the two-link arm (0.16 rad); seeds 1 and 2 put one of the two-link arm's on a test
+# target (its two joints clip to the same corner).
+SELECTION_SEED = 3
 
 
 # ---- joint-space reaching (inverse_dynamics) --------------------------------------------
@@ -146,18 +152,21 @@ def minimum_jerk(start, goal, duration: float, control_dt: float, xp=jnp):
     return x, xd, xdd
 
 
-def default_targets(joint_range: np.ndarray, home: np.ndarray) -> np.ndarray:
+def default_targets(joint_range: np.ndarray, home: np.ndarray, seed: int = 0) -> np.ndarray:
     """Five reaching targets inside the joint limits, the same for every call.
 
     Target ``i`` is ``home + reach * d_i``, where ``d_i`` are fixed directions with entries in
-    ``[-1, 1]`` (drawn once from a seeded generator), ``reach = min(0.6, range / 4)`` per
-    joint, and the result is clipped to the joint range shrunk by 10% at each end. Works for
-    any number of joints.
+    ``[-1, 1]`` (drawn once from a generator seeded with ``seed``), ``reach = min(0.6,
+    range / 4)`` per joint, and the result is clipped to the joint range shrunk by 10% at
+    each end. Works for any number of joints. ``seed=0`` gives the five test targets;
+    another seed gives five other motions of the same kind (the selection of defaults,
+    ``experiments/select_defaults.py``, uses :data:`SELECTION_SEED`).
 
     Args:
       joint_range: ``(nq, 2)`` lower and upper joint limits (``-inf, inf`` for unlimited
         joints), as :attr:`cfm_jax.robots.Robot.joint_range`.
       home: ``(nq,)`` start pose the targets are placed around.
+      seed: the directions' generator seed (0: the test targets).
 
     Returns:
       ``(5, nq)`` target joint positions.
@@ -170,7 +179,7 @@ def default_targets(joint_range: np.ndarray, home: np.ndarray) -> np.ndarray:
       ((5, 2), True)
     """
     nq = home.shape[0]
-    directions = np.random.default_rng(0).uniform(-1.0, 1.0, size=(DEFAULT_TARGET_COUNT, nq))
+    directions = np.random.default_rng(seed).uniform(-1.0, 1.0, size=(DEFAULT_TARGET_COUNT, nq))
     # Make every target move every joint by at least a third of the reach.
     directions = np.sign(directions) * np.maximum(np.abs(directions), 1 / 3)
     width = joint_range[:, 1] - joint_range[:, 0]
@@ -417,7 +426,9 @@ def reach(robot, site: int | str | None = None) -> tuple[float, np.ndarray, str]
     return length, data.xanchor[chain[base]].copy(), name
 
 
-def default_cartesian_targets(robot, site: int | str | None = None, home=None) -> np.ndarray:
+def default_cartesian_targets(
+    robot, site: int | str | None = None, home=None, seed: int = 0
+) -> np.ndarray:
     """Five reachable end-effector targets: the site positions at the five default
     joint-space targets :func:`default_targets` (inside the joint limits, so
     reachable by construction, and deterministic; the same reaching motions as the
@@ -431,6 +442,7 @@ def default_cartesian_targets(robot, site: int | str | None = None, home=None) -
       site: the site's id or name, or None for :func:`cfm_jax.opspace.ee_site`'s default.
       home: ``(nq,)`` pose the joint-space targets are placed around, or None for
         ``robot.home``.
+      seed: the seed of :func:`default_targets` (0: the test targets).
 
     Returns:
       ``(5, 3)`` positions in the world frame (m).
@@ -443,7 +455,7 @@ def default_cartesian_targets(robot, site: int | str | None = None, home=None) -
       ((5, 3), True)
     """
     home = robot.home if home is None else np.asarray(home, np.float64)
-    joint_targets = default_targets(robot.joint_range, home)
+    joint_targets = default_targets(robot.joint_range, home, seed)
     return opspace.HostKinematics(robot, site)(joint_targets, np.zeros_like(joint_targets)).position
 
 

@@ -295,3 +295,14 @@ def test_a_config_written_before_loop_babbling_reads_as_what_ran():
     data = config_lib.to_dict(config_lib.for_task("walk"))
     assert config_lib.from_dict(data).loop.babbling == "home"
     assert config_lib.from_dict({"robot": "iiwa14"}).loop.babbling == "home"
+
+
+def test_motions_are_for_the_legged_tasks_only():
+    walk = config.TaskConfig(name="walk", motions=[1.25, 2.75])
+    assert walk.motions == (1.25, 2.75)
+    assert config.from_dict(config.to_dict(config.Config(task=walk))).task == walk
+    with pytest.raises(config.ConfigError, match=r"task.motions=\(1.0,\) .* 'inverse_dynamics'"):
+        config.TaskConfig(motions=(1.0,))
+    for bad in ((), (0.0,), (-1.0,), (float("nan"),), ("a",), 3.0):
+        with pytest.raises(config.ConfigError, match="task.motions=.*positive numbers"):
+            config.TaskConfig(name="jump", motions=bad)

@@ -165,6 +165,26 @@ def test_legged_tasks_refuse_arms_and_slow_control(solo):
         tasks.make(solo, home, 0.004)
 
 
+def test_motions_choose_the_references_other_than_the_test_ones(solo):
+    """``task.motions`` names the walk durations / jump clearances to follow (the selection
+    of defaults runs on motions other than the test ones); oracle: the references
+    :mod:`cfm_jax.locomotion` records for those parameters, and the test set for None."""
+    config = config_lib.TaskConfig(name="jump", control_dt=0.004, motions=(0.065, 0.125))
+    jump = tasks.make(solo, config, 0.004)
+    expected = [locomotion.jump_reference(h) for h in (0.065, 0.125)]
+    assert jump.targets == 2 and jump.steps == max(r.horizon for r in expected)
+    for got, ref in zip(jump.references, expected, strict=True):
+        np.testing.assert_array_equal(got.qpos, ref.qpos)
+    clearances = [locomotion.jump_clearance(r) for r in jump.references]
+    np.testing.assert_allclose(clearances, [0.065, 0.125], atol=0.002)
+    assert not set(np.round(clearances, 3)) & set(locomotion.JUMP_HEIGHTS)
+    # None: the 5 test references.
+    default = config_lib.TaskConfig(name="jump", control_dt=0.004)
+    assert [r.params for r in tasks.make(solo, default, 0.004).references] == [
+        r.params for r in locomotion.default_jumps()
+    ]
+
+
 def test_legged_tasks_refuse_legs_other_than_the_solo12s(tmp_path):
     """The references are generated with the Solo12's closed-form leg kinematics, so a
     robot whose legs differ is refused with what differs (a front-left shin 1 cm longer, a

@@ -69,10 +69,11 @@ def test_quintic_as_jax_is_float32():
     assert ref.q.shape == (1, 11, 3)
 
 
+@pytest.mark.parametrize("seed", [0, references.SELECTION_SEED])
 @pytest.mark.parametrize("name", ["iiwa14", "two_link_arm"])
-def test_default_targets_inside_limits_five_deterministic(name):
+def test_default_targets_inside_limits_five_deterministic(name, seed):
     robot = robots.load(name)
-    targets = references.default_targets(robot.joint_range, robot.home)
+    targets = references.default_targets(robot.joint_range, robot.home, seed)
     assert targets.shape == (5, robot.nq)
     low, high = robot.joint_range[:, 0], robot.joint_range[:, 1]
     width = high - low
@@ -88,8 +89,11 @@ def test_default_targets_inside_limits_five_deterministic(name):
     # Deterministic: same inputs, same targets (no global RNG state involved).
     np.random.seed(123)
     np.testing.assert_array_equal(
-        references.default_targets(robot.joint_range, robot.home), targets
+        references.default_targets(robot.joint_range, robot.home, seed), targets
     )
+    if seed != 0:  # the selection's targets: none of them a test target
+        test = references.default_targets(robot.joint_range, robot.home)
+        assert np.min(np.abs(test[:, None] - targets[None]).max(axis=-1)) > 0.1
 
 
 def test_default_targets_unlimited_joint():

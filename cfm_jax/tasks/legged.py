@@ -64,9 +64,9 @@ class LeggedTask(JointSpaceTask):
         references are generated with its leg kinematics); masses, friction and gains may
         differ.
       task: the :class:`cfm_jax.config.TaskConfig`; ``name`` (``walk`` or ``jump``), ``kp``,
-        ``kd``, ``joint_kp`` and ``joint_kd`` are used. The targets and horizons are the 5
-        references of :mod:`cfm_jax.locomotion`: ``duration`` is not used, and ``targets``
-        and ``home`` must be None.
+        ``kd``, ``joint_kp`` and ``joint_kd`` are used. The targets and horizons are the
+        references of :mod:`cfm_jax.locomotion` named by ``task.motions`` (None: the 5 test
+        references): ``duration`` is not used, and ``targets`` and ``home`` must be None.
       control_dt: control period (s), at most :attr:`MAX_CONTROL_DT`.
 
     Raises:
@@ -131,9 +131,11 @@ class LeggedTask(JointSpaceTask):
         self.feet = len(feet)
         kwargs = dict(control_dt=control_dt, model_file=robot.path)
         if task.name == "walk":
-            refs = [locomotion.walk_reference(d, **kwargs) for d in locomotion.WALK_DURATIONS]
+            durations = locomotion.WALK_DURATIONS if task.motions is None else task.motions
+            refs = [locomotion.walk_reference(d, **kwargs) for d in durations]
         else:
-            refs = [locomotion.jump_reference(h, **kwargs) for h in locomotion.JUMP_HEIGHTS]
+            heights = locomotion.JUMP_HEIGHTS if task.motions is None else task.motions
+            refs = [locomotion.jump_reference(h, **kwargs) for h in heights]
         self.references = refs  # the NumPy recordings (the other tasks' reference_np)
         self.reference = as_jax_legged(refs)
         self.control_dt = float(control_dt)
