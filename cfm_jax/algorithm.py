@@ -6,12 +6,13 @@ not change during a run, :class:`Setup`; ``knobs`` the config's runtime values,
 
     init(setup, loss, key, knobs, data=None)                       -> TrainState
       D <- motor babbling (loop.babbling_rollouts rollouts)         babble_all
-      normaliser from D; f and g initialised; fit f on D            start
+      normaliser (loop.normaliser); new f and g; fit f on D         start
       fit g on D with the loss through f                            fit_initial_controller
     iteration(setup, loss, state, knobs, data=None)                 -> (TrainState, metrics)
       roll g out on every target                                    rollout
       measure, before any refit                                     metrics
       D <- D + the rollout's transitions                            collected, dataset.add
+      normaliser of D (loop.normaliser "data" only)                 data_normaliser
       refit f on D                                                  fit_forward
       refit g on D with the loss through f                          fit_controller
 
@@ -60,6 +61,7 @@ from flax import struct
 from cfm_jax import babbling, dataset, networks, robots, tasks, update
 from cfm_jax import config as config_lib
 from cfm_jax import rollout as rollout_lib
+from cfm_jax.tasks import scales
 
 METRIC_COLUMNS = (
     "loss",
@@ -90,7 +92,9 @@ class TrainState:
       forward_opt_state: its Adam state.
       controller_params: the controller's parameters.
       controller_opt_state: its Adam state.
-      normaliser: the :class:`cfm_jax.networks.Normaliser` of the babbling data.
+      normaliser: the :class:`cfm_jax.networks.Normaliser` the models were last fitted
+        with (``loop.normaliser``: of the babbling data, of the whole data set at the last
+        refit, or the robot's fixed scales).
       data: the :class:`cfm_jax.dataset.Dataset` collected so far.
       key: the PRNG key of the next iteration.
       iteration: completed iterations of Algorithm 1 (int32 scalar).
@@ -328,6 +332,8 @@ def iteration(
     out = metrics(setup, state, result)
     chunk, valid = collected(result) if data is None else data
     state = state.replace(data=dataset.add(state.data, chunk, valid))
+    if cfg.loop.normaliser == "data":  # statistics of all data, before both refits
+        state = state.replace(normaliser=data_normaliser(setup, state.data))
     state, forward_loss = _fit_forward(
         setup, state, key_fit_fm, cfg.forward.steps_per_iteration, knobs
     )
@@ -467,17 +473,26 @@ def _start(
     """
     cfg, task = setup.config, setup.task
     key, key_fm, key_ctrl, key_fit_fm, key_fit_ctrl = jax.random.split(key, 5)
-    normaliser = networks.Normaliser.from_data(
-        chunk.state,
-        chunk.observed,
-        setup.robot.torque_limit,
-        weights=valid,
-        desired_index=task.desired_index,
-    )
     empty = dataset.empty(
         setup.capacity, task.state_dim, task.desired_dim, task.action_dim, task.output_dim
     )
     data = dataset.add(empty, chunk, valid)
+    if cfg.loop.normaliser == "babbling":
+        normaliser = networks.Normaliser.from_data(
+            chunk.state,
+            chunk.observed,
+            setup.robot.torque_limit,
+            weights=valid,
+            desired_index=task.desired_index,
+        )
+    elif cfg.loop.normaliser == "robot":
+        normaliser = networks.Normaliser.from_scales(
+            **scales.robot_scales(task),
+            torque_limit=setup.robot.torque_limit,
+            desired_index=task.desired_index,
+        )
+    else:  # "data"
+        normaliser = data_normaliser(setup, data)
     forward_params = setup.forward.init(key_fm, task.state_dim)
     lower, upper = knobs.forward_log_variance_bounds
     forward_params = {
@@ -498,6 +513,31 @@ def _start(
     )
     state, _ = _fit_forward(setup, state, key_fit_fm, cfg.forward.initial_steps, knobs)
     return state, key_fit_ctrl
+
+
+def data_normaliser(setup: Setup, data: dataset.Dataset) -> networks.Normaliser:
+    """The ``data`` normaliser (``loop.normaliser = "data"``): the statistics of the filled
+    rows of the data set (:func:`cfm_jax.networks.Normaliser.from_data`), recomputed before
+    every refit of both models.
+
+    Args:
+      setup: the run's :class:`Setup`.
+      data: the :class:`cfm_jax.dataset.Dataset`.
+
+    Returns:
+      A :class:`cfm_jax.networks.Normaliser`.
+
+    Examples:
+      >>> norm = data_normaliser(setup, state.data)  # doctest: +SKIP
+    """
+    filled = jnp.arange(data.capacity) < data.size
+    return networks.Normaliser.from_data(
+        data.data.state,
+        data.data.observed,
+        setup.robot.torque_limit,
+        weights=filled,
+        desired_index=setup.task.desired_index,
+    )
 
 
 def fit_initial_controller(

@@ -90,6 +90,20 @@ nor the reference controller; ``reference_pd`` and ``oracle`` use them and exist
 study their effect."""
 
 
+NORMALISERS = ("babbling", "data", "robot")
+"""Input and output scaling of both networks for ``Config.loop.normaliser``
+(:class:`cfm_jax.networks.Normaliser`): ``babbling`` (statistics of the initial data, fitted
+once and frozen; today's default), ``data`` (statistics of the whole data set, recomputed
+before every refit of both models) and ``robot`` (fixed physical scales from the MJCF and
+the task, :mod:`cfm_jax.tasks.scales`)."""
+
+DESIRED = ("pd", "next_velocity")
+"""How the legged tasks build ``s*`` (``Config.task.desired``): ``pd`` (the PD correction
+with the gains ``task.kp``, ``task.kd``, ``task.joint_kp``, ``task.joint_kd``) or
+``next_velocity`` (the authors' Solo12 code: the desired next velocity, ``kp = 0`` and
+``kd = 1 / control_dt`` on every base and joint coordinate)."""
+
+
 class ConfigError(ValueError):
     """A configuration field has a value that is not allowed.
 
@@ -211,6 +225,11 @@ class TaskConfig:
         :data:`~cfm_jax.locomotion.JUMP_HEIGHTS`). Other motions than the test ones are
         what a choice of defaults is made on (``experiments/select_defaults.py``). The arm
         tasks take ``targets`` and reject a value here.
+      desired: how the legged tasks build ``s*``, one of :data:`DESIRED`: ``pd`` (default;
+        the gains above) or ``next_velocity`` (the authors' Solo12 code: the desired next
+        velocity ``s* = v_ref(t+1) - v(t)``, i.e. ``kp = 0``, ``kd = 1 / control_dt`` on
+        the base and the joints; ``kp`` and ``kd`` must then be 0 and ``joint_kp``,
+        ``joint_kd`` None). The arm tasks take ``pd`` only.
 
     Examples:
       >>> task = TaskConfig(duration=1.0, targets=((0.2, -0.3),))
@@ -245,6 +264,10 @@ class TaskConfig:
     # Legged tasks: walk durations (s) or jump foot clearances (m) of the references to
     # follow; None: the 5 test references. Arm tasks: must be None (they take targets).
     motions: tuple[float, ...] | None = None
+    # Legged tasks: how s* is built; one of DESIRED. "pd": the PD correction with the gains
+    # above; "next_velocity": the authors' Solo12 code, the desired next velocity
+    # (kp = 0, kd = 1 / control_dt on base and joints; kp, kd must be 0, joint gains None).
+    desired: str = "pd"
 
     def __post_init__(self):
         if not isinstance(self.name, str) or self.name not in TASKS:
@@ -267,6 +290,30 @@ class TaskConfig:
                     "'jump'; the arm tasks use task.kp and task.kd for their joints)",
                 )
             _nonnegative_float(f"task.{field}", value)
+        if not isinstance(self.desired, str) or self.desired not in DESIRED:
+            _fail("task.desired", self.desired, f"one of {DESIRED}")
+        if self.desired == "next_velocity":
+            if self.name not in ("walk", "jump"):
+                _fail(
+                    "task.desired",
+                    self.desired,
+                    f"'pd' for task {self.name!r} (the desired next velocity is an s* of the "
+                    "legged tasks 'walk' and 'jump')",
+                )
+            for field, allowed in (
+                ("kp", 0.0),
+                ("kd", 0.0),
+                ("joint_kp", None),
+                ("joint_kd", None),
+            ):
+                if getattr(self, field) != allowed:
+                    _fail(
+                        f"task.{field}",
+                        getattr(self, field),
+                        f"{allowed!r} with task.desired='next_velocity' (its gains are fixed: "
+                        "kp = 0 and kd = 1 / control_dt on the base and the joints; "
+                        "config.for_task('walk') has kp = kd = 0)",
+                    )
         if self.site is not None and (not isinstance(self.site, str) or not self.site):
             _fail("task.site", self.site, "None or the name of a site of the robot's MJCF")
         if self.motions is not None:
@@ -430,6 +477,11 @@ class LoopConfig:
         the task: ``targets x steps`` transitions).
       babbling_noise: standard deviation of the babbling torque noise, as a fraction of each
         torque limit.
+      normaliser: the input and output scaling of both networks, one of
+        :data:`NORMALISERS`: ``babbling`` (default; statistics of the initial data, fitted
+        once), ``data`` (statistics of the whole data set, recomputed before every refit of
+        both models) or ``robot`` (fixed scales from the MJCF and the task:
+        :mod:`cfm_jax.tasks.scales`).
       checkpoint_every: save a checkpoint every this many iterations (and after the initial
         fit and the last iteration) when ``train`` has an output directory; 0: none.
       checkpoint_keep: number of most recent checkpoints kept on disk.
@@ -451,6 +503,10 @@ class LoopConfig:
     babbling_rollouts: int = 2
     # Standard deviation of the babbling torque noise, as a fraction of each torque limit.
     babbling_noise: float = 0.1
+    # Input and output scaling of both networks; one of NORMALISERS. "babbling": statistics
+    # of the initial data, frozen; "data": statistics of the whole data set before every
+    # refit; "robot": fixed scales from the MJCF and the task (cfm_jax.tasks.scales).
+    normaliser: str = "babbling"
     # Save a checkpoint every this many iterations (and after the initial fit and the last
     # iteration) when train() has an output directory; 0: no checkpoints.
     checkpoint_every: int = 1
@@ -464,6 +520,8 @@ class LoopConfig:
             _fail("loop.babbling", self.babbling, f"one of {BABBLING}")
         _positive_int("loop.babbling_rollouts", self.babbling_rollouts)
         _nonnegative_float("loop.babbling_noise", self.babbling_noise)
+        if not isinstance(self.normaliser, str) or self.normaliser not in NORMALISERS:
+            _fail("loop.normaliser", self.normaliser, f"one of {NORMALISERS}")
         _nonnegative_int("loop.checkpoint_every", self.checkpoint_every)
         _positive_int("loop.checkpoint_keep", self.checkpoint_keep)
 
@@ -560,11 +618,12 @@ def for_task(task: str, **changes) -> Config:
     use the paper's quadruped networks (forward model 1000-500-500, a single member;
     controller 3 x 300), the Solo12, 250 Hz control (``task.control_dt = 0.004``) and no
     feedback in ``s*`` (``task.kp = task.kd = 0``, the joints too): the paper's ``s*`` is
-    the planned accelerations and contact forces of the reference, and the authors' Solo12
-    code puts no PD term into it. The earlier legged choices, babbling 4 x 0.3 and the
-    gains ``kp = 100``, ``kd = 20`` on the base, ``joint_kp = 2000``, ``joint_kd = 50``,
-    were chosen on pilot runs of the joint loss alone; they remain cells of
-    ``experiments/robustness_study.py``, not defaults.
+    the planned accelerations and contact forces of the reference (the authors' Solo12
+    code's ``s*`` is the desired next velocity instead: ``task.desired =
+    "next_velocity"``, kept as an option until a selection run decides). The earlier
+    legged choices, babbling 4 x 0.3 and the gains ``kp = 100``, ``kd = 20`` on the base,
+    ``joint_kp = 2000``, ``joint_kd = 50``, were chosen on pilot runs of the joint loss
+    alone; they remain cells of ``experiments/robustness_study.py``, not defaults.
 
     Args:
       task: one of :data:`TASKS`.
@@ -676,6 +735,7 @@ RUNTIME_FIELDS = (
     "task.joint_kd",
     "task.targets",
     "task.home",
+    "task.desired",
     "forward.learning_rate",
     "controller.learning_rate",
     "forward.min_log_variance",
@@ -687,7 +747,8 @@ RUNTIME_FIELDS = (
 )
 """Fields whose values do not change the compiled program: the seed and the checkpoint
 settings are not part of it; the learning rates, the initial log-variance bounds, the
-babbling strategy and noise, the task gains and the reference trajectories are arguments of it
+babbling strategy and noise, the task gains (and ``task.desired``, which sets the legged
+gains) and the reference trajectories are arguments of it
 (:class:`cfm_jax.algorithm.Knobs`). Configs that differ only in these and in ``loss`` share
 one :class:`cfm_jax.experiment.Experiment` and its compilations (a sweep over them compiles
 once per loss). Two of them are partly structure (see :func:`structure`): the *number* of

@@ -32,7 +32,10 @@ from flax import struct
 
 @struct.dataclass
 class Normaliser:
-    """Data statistics for inputs and outputs (fixed after motor babbling).
+    """Centres and scales of the networks' inputs and outputs: statistics of the babbling
+    data (fitted once), of the whole data set (refitted before every fit) or fixed physical
+    scales of the robot, as ``Config.loop.normaliser`` says (:func:`from_data`,
+    :func:`from_scales`).
 
     Attributes:
       state_mean: ``(state_dim,)`` mean of the learning state.
@@ -102,6 +105,31 @@ class Normaliser:
             output_std,
             jnp.asarray(torque_limit, jnp.float32),
             _index(desired_index, observed.shape[-1]),
+        )
+
+    @classmethod
+    def from_scales(
+        cls, state_mean, state_std, output_mean, output_std, torque_limit, desired_index=None
+    ) -> Normaliser:
+        """A normaliser of given centres and scales (for example the robot's fixed
+        physical scales, :func:`cfm_jax.tasks.scales.robot_scales`), as float32.
+
+        Examples:
+          >>> norm = Normaliser.from_scales([1.0], [2.0], [0.0], [4.0], [1.0])
+          >>> norm.state(jnp.array([3.0])).tolist(), norm.output(jnp.array([2.0])).tolist()
+          ([1.0], [0.5])
+        """
+        state_mean, state_std, output_mean, output_std, torque_limit = (
+            jnp.asarray(x, jnp.float32)
+            for x in (state_mean, state_std, output_mean, output_std, torque_limit)
+        )
+        return cls(
+            state_mean,
+            state_std,
+            output_mean,
+            output_std,
+            torque_limit,
+            _index(desired_index, output_mean.shape[-1]),
         )
 
     def state(self, s):

@@ -38,9 +38,10 @@ BOOTSTRAP_SEED = 0
 
 
 def protocol(config) -> str:
-    """One line that says how a run's initial data and ``s*`` were made, for every summary
-    table: ``loop.babbling`` (:mod:`cfm_jax.babbling`), its rollouts and noise, and the
-    ``s*`` gains.
+    """One line that says how a run's initial data and ``s*`` were made and how the
+    networks' inputs are scaled, for every summary table: ``loop.babbling``
+    (:mod:`cfm_jax.babbling`), its rollouts and noise, the ``s*`` gains (or
+    ``task.desired='next_velocity'``) and ``loop.normaliser``.
 
     Args:
       config: a :class:`cfm_jax.config.Config`.
@@ -51,18 +52,29 @@ def protocol(config) -> str:
     Examples:
       >>> from cfm_jax import config
       >>> print(protocol(config.Config()))
-      initial data: `loop.babbling='home'` (2 rollouts per target, torque noise 0.1 of the limit); s* gains kp 100, kd 20
+      initial data: `loop.babbling='home'` (2 rollouts per target, torque noise 0.1 of the limit); s* gains kp 100, kd 20; `loop.normaliser='babbling'`
+      >>> walk = config.for_task("walk").replace(task=config.TaskConfig(
+      ...     name="walk", control_dt=0.004, kp=0.0, kd=0.0, desired="next_velocity"))
+      >>> print(protocol(walk).split("; ", 1)[1])
+      s* the desired next velocity (`task.desired='next_velocity'`: kp 0, kd 1/control_dt = 250/s on base and joints); `loop.normaliser='babbling'`
     """  # noqa: E501
     loop, task = config.loop, config.task
-    gains = f"kp {task.kp:g}, kd {task.kd:g}"
+    gains = f"s* gains kp {task.kp:g}, kd {task.kd:g}"
     if task.joint_kp is not None or task.joint_kd is not None:
         joint_kp = task.kp if task.joint_kp is None else task.joint_kp
         joint_kd = task.kd if task.joint_kd is None else task.joint_kd
         gains += f" (base), joint_kp {joint_kp:g}, joint_kd {joint_kd:g}"
+    if task.desired == "next_velocity":
+        rate = "" if task.control_dt is None else f" = {1.0 / task.control_dt:g}/s"
+        gains = (
+            f"s* the desired next velocity (`task.desired={task.desired!r}`: kp 0, kd "
+            f"1/control_dt{rate} on base and joints)"
+        )
     return (
         f"initial data: `loop.babbling={loop.babbling!r}` ({loop.babbling_rollouts} rollout"
         f"{'s' if loop.babbling_rollouts != 1 else ''} "
-        f"per target, torque noise {loop.babbling_noise:g} of the limit); s* gains {gains}"
+        f"per target, torque noise {loop.babbling_noise:g} of the limit); {gains}; "
+        f"`loop.normaliser={loop.normaliser!r}`"
     )
 
 

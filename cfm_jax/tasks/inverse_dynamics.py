@@ -38,6 +38,9 @@ class JointSpaceTask:
       taken over (here ``q' - q_ref(t+1)``, rad), ``record(...)`` further per-step
       records, ``metrics(rollout)`` further per-target metrics.
     * ``start(reference) -> (qpos0, qvel0, features0)``: initial state of a rollout.
+    * ``entries()``: what each entry of the state and the output is (a position, a
+      velocity, an acceleration, a force, ...; :mod:`cfm_jax.tasks.scales`), so that the
+      ``robot`` normaliser can scale them from the MJCF.
     * ``babbling_reference(strategy, key)``: the reference the initial data's controller
       follows (:mod:`cfm_jax.babbling`), of the shapes of ``reference``, and
       ``with_reference(reference)``: a copy that follows another reference.
@@ -180,6 +183,28 @@ class JointSpaceTask:
         start = self.reference.q[:, 0]  # (targets, nq): every reach starts at home
         goal = start if strategy == "home" else babbling.random_poses(key, self.robot, start)
         return Reference(*minimum_jerk(start, goal, self.steps * self.control_dt, self.control_dt))
+
+    def entries(self) -> dict:
+        """What each entry of the state and of the output is, as ``(kind, index)`` pairs of
+        :data:`cfm_jax.tasks.scales.KINDS` (the ``robot`` normaliser scales them from the
+        MJCF): here the state ``[q, qdot]`` is ``qpos`` then ``qvel`` entries and the output
+        the joint accelerations.
+
+        Returns:
+          ``{"state": (state_dim pairs), "output": (output_dim pairs)}``.
+
+        Examples:
+          >>> from cfm_jax import config, robots
+          >>> task = make(robots.load("two_link_arm"), config.TaskConfig(duration=0.5), 0.01)
+          >>> task.entries()["state"]
+          (('position', 0), ('position', 1), ('velocity', 0), ('velocity', 1))
+        """
+        nq, nv = self.robot.nq, self.robot.nv
+        return {
+            "state": tuple(("position", i) for i in range(nq))
+            + tuple(("velocity", i) for i in range(nv)),
+            "output": tuple(("acceleration", i) for i in range(nv)),
+        }
 
     def start(self, reference):
         return (

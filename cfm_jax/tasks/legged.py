@@ -64,9 +64,11 @@ class LeggedTask(JointSpaceTask):
         references are generated with its leg kinematics); masses, friction and gains may
         differ.
       task: the :class:`cfm_jax.config.TaskConfig`; ``name`` (``walk`` or ``jump``), ``kp``,
-        ``kd``, ``joint_kp`` and ``joint_kd`` are used. The targets and horizons are the
-        references of :mod:`cfm_jax.locomotion` named by ``task.motions`` (None: the 5 test
-        references): ``duration`` is not used, and ``targets`` and ``home`` must be None.
+        ``kd``, ``joint_kp``, ``joint_kd`` and ``desired`` (``next_velocity``: the authors'
+        ``s*``, ``kp = 0`` and ``kd = 1 / control_dt`` on every coordinate) are used. The
+        targets and horizons are the references of :mod:`cfm_jax.locomotion` named by
+        ``task.motions`` (None: the 5 test references): ``duration`` is not used, and
+        ``targets`` and ``home`` must be None.
       control_dt: control period (s), at most :attr:`MAX_CONTROL_DT`.
 
     Raises:
@@ -159,7 +161,18 @@ class LeggedTask(JointSpaceTask):
         ``(6 + joints,)`` float32 (``task.kp``, ``task.kd`` on the 6 base coordinates, then
         ``task.joint_kp``, ``task.joint_kd`` on the actuated joints; None there: ``kp``,
         ``kd``). Not the references' joint PD torque gains ``gain_p``, ``gain_d``, which
-        come with the recordings."""
+        come with the recordings.
+
+        With ``task.desired == "next_velocity"`` (the authors' Solo12 code) ``kp = 0`` and
+        ``kd = 1 / control_dt`` on every coordinate: then ``s* = qacc* dt =
+        qacc_ref dt + v_ref - v = v_ref(t+1) - v(t)``, the desired next velocity, because
+        the recorded ``qacc_ref`` is ``(v_ref(t+1) - v_ref(t)) / dt`` (docs/locomotion.md)."""
+        if task.desired == "next_velocity":
+            n = 6 + self.robot.action_dim
+            return {
+                "desired_kp": jnp.zeros(n, jnp.float32),
+                "desired_kd": jnp.full(n, 1.0 / self.control_dt, jnp.float32),
+            }
         kp, kd = float(task.kp), float(task.kd)
         joint_kp = kp if task.joint_kp is None else float(task.joint_kp)
         joint_kd = kd if task.joint_kd is None else float(task.joint_kd)
@@ -205,6 +218,18 @@ class LeggedTask(JointSpaceTask):
             force=jnp.broadcast_to(jnp.asarray(force), shape + force.shape),
             active=jnp.ones(shape, jnp.float32),
         )
+
+    def entries(self) -> dict:
+        """As :meth:`JointSpaceTask.entries`: the state ``[qpos, foot forces, qvel]``, the
+        output ``[qacc dt, foot forces]`` (``velocity_change`` and ``force`` entries)."""
+        nq, nv, forces = self.robot.nq, self.robot.nv, 3 * self.feet
+        return {
+            "state": tuple(("position", i) for i in range(nq))
+            + tuple(("force", i) for i in range(forces))
+            + tuple(("velocity", i) for i in range(nv)),
+            "output": tuple(("velocity_change", i) for i in range(nv))
+            + tuple(("force", i) for i in range(forces)),
+        }
 
     def state(self, qpos, qvel, features):
         return jnp.concatenate([qpos, features, qvel])

@@ -98,6 +98,13 @@ class OperationalSpaceTask(JointSpaceTask):
         kin = opspace.kinematics(self.robot, qpos, qvel, self.site, self.simulator)
         return jnp.concatenate([kin.position, kin.velocity], -1)
 
+    def entries(self) -> dict:
+        """As :meth:`JointSpaceTask.entries`; the output ``[qdd, xdd]`` ends with the
+        site's three Cartesian accelerations (``site_acceleration``, index the site id)."""
+        joint = super().entries()
+        site = tuple(("site_acceleration", int(self.site)) for _ in range(3))
+        return {"state": joint["state"], "output": joint["output"] + site}
+
     def start(self, reference):
         del reference
         qvel = jnp.zeros(self.robot.nv, jnp.float32)

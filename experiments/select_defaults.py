@@ -1,0 +1,392 @@
+"""Choosing the defaults fairly: every option of the learner compared with all four losses
+alike, on motions that are not the test motions, by a rule written before the run.
+
+The rule (``RULE``, also on the page this script writes) is fixed before any cell runs:
+
+* A run is one (loss, seed, target) at the last iteration. Its score is
+  ``log10(final tracking MSE)``; a run that fell (legged tasks) or diverged (its simulation
+  blew up), or whose error is not finite, is a failure and scores
+  ``log10(1000 x PD-only MSE on that target)`` or its own score if that is higher: a
+  failure is never better than tracking 1000 times worse than the plain PD baseline.
+* A cell's score is the mean over the four losses (``joint``, ``task``, ``distal``,
+  ``supervised``) of the mean over seeds of the mean over targets. Every loss weighs the
+  same; no option is chosen on runs of one loss.
+* Factors are varied one at a time from a stated base (``BASE``; a full grid does not fit,
+  see the page's sizing). For each factor the value whose cell has the lowest score is the
+  default; the paired difference to the base cell over seeds (mean over losses) is given
+  with its 95% bootstrap interval, and called *clear* when the interval excludes 0.
+
+The motions: the arm tasks reach the five targets of
+``references.default_targets(..., seed=references.SELECTION_SEED)`` (joint space) or the
+end-effector positions of those poses (op-space), never a test target; the legged tasks
+follow walks of ``SELECTION_WALKS`` seconds and jumps of ``SELECTION_JUMPS`` m, never a
+test reference (``locomotion.WALK_DURATIONS`` / ``JUMP_HEIGHTS``).
+
+Outputs: the runs in ``--runs`` (one :func:`cfm_jax.sweep` folder per cell, resumable) and,
+in ``--out``, each finished cell's record (``cells/<task>/<cell>/``: ``metrics.csv``,
+``baselines.csv``, ``seconds.txt``, ``config.json``), ``selection.csv`` (one row per task,
+cell and loss), ``curves.csv`` (the score per iteration) and ``index.md`` (the tables).
+
+Usage:
+  python experiments/select_defaults.py --budget 3000            # a resumable piece
+  python experiments/select_defaults.py --only walk --budget 0   # tables of finished cells
+  python experiments/select_defaults.py --quick --runs /tmp/s --out /tmp/s  # smoke test
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import shutil
+import time
+
+import numpy as np
+import pandas as pd
+
+import cfm_jax
+from cfm_jax import config as config_lib
+from cfm_jax import losses, references, report, robots
+
+RULE = (
+    "Score of a run (loss, seed, target at the last iteration): log10 of its final tracking "
+    "MSE; a run that fell or diverged, or whose error is not finite, scores "
+    "log10(1000 x the PD-only MSE on that target), or its own score if higher. Score of a "
+    "cell: mean over the four losses of the mean over seeds of the mean over targets. Per "
+    "factor, the value with the lowest cell score is the default; its paired difference to "
+    "the base over seeds (mean over losses), 95% bootstrap CI, is *clear* when the interval "
+    "excludes 0. Written before the run; all losses alike; motions other than the test ones."
+)
+FAILURE_FACTOR = 1000.0
+
+SELECTION_WALKS = (1.25, 1.75, 2.25, 2.75)
+"""Walk durations (s) of the selection: none of them a test horizon (1.0 ... 3.0 by 0.5)."""
+SELECTION_JUMPS = (0.065, 0.095, 0.125, 0.155)
+"""Jump foot clearances (m) of the selection: none of them a test height (0.05 ... 0.17)."""
+
+ARM = ("inverse_dynamics", "opspace")
+LEGGED = ("walk", "jump")
+ROBOT = {"inverse_dynamics": "iiwa14", "opspace": "iiwa14", "walk": "solo12", "jump": "solo12"}
+ITERATIONS = {"inverse_dynamics": 10, "opspace": 10, "walk": 30, "jump": 30}
+SEEDS = 3
+
+# The base every factor is varied from, per task family, and the factors: (name, dotted
+# config path, values). The base's value of each factor comes first.
+BASE = {
+    "arm": {"loop.normaliser": "data", "loop.babbling": "reaching"},
+    "legged": {"loop.normaliser": "data", "task.desired": "next_velocity"},
+}
+FACTORS = {
+    "arm": (
+        ("normaliser", "loop.normaliser", ("data", "babbling", "robot")),
+        ("babbling", "loop.babbling", ("reaching", "home")),
+        ("forward model", "forward.kind", ("mlp", "rigid_body")),
+        ("controller goal", "controller.goal", ("desired", "observed")),
+        ("loss form", "controller.loss_form", ("squared", "norm")),
+        ("fit start", "forward+controller.start", ("warm", "warm_new_optimizer", "fresh")),
+    ),
+    "legged": (
+        ("normaliser", "loop.normaliser", ("data", "babbling", "robot")),
+        ("s*", "task.desired", ("next_velocity", "pd")),
+        ("forward model", "forward.kind", ("mlp", "rigid_body")),
+        ("controller goal", "controller.goal", ("desired", "observed")),
+        ("loss form", "controller.loss_form", ("squared", "norm")),
+        ("fit start", "forward+controller.start", ("warm", "warm_new_optimizer", "fresh")),
+    ),
+}
+
+
+def family(task: str) -> str:
+    return "legged" if task in LEGGED else "arm"
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    """One cell: a task, and the factor changed from the base (None: the base itself)."""
+
+    task: str
+    factor: str | None = None
+    value: str | None = None
+
+    @property
+    def name(self) -> str:
+        if self.factor is None:
+            return "base"
+        return f"{self.factor.replace(' ', '_').replace('*', 'star')}={self.value}"
+
+    def changes(self) -> dict:
+        """The dotted-path values of this cell: the base's, then the factor's."""
+        values = dict(BASE[family(self.task)])
+        if self.factor is not None:
+            path = dict((n, p) for n, p, _ in FACTORS[family(self.task)])[self.factor]
+            if path.startswith("forward+controller."):
+                field = path.split(".", 1)[1]
+                values[f"forward.{field}"] = self.value
+                values[f"controller.{field}"] = self.value
+            else:
+                values[path] = self.value
+        return values
+
+    def config(self, iterations: int | None = None) -> config_lib.Config:
+        task = self.task
+        config = config_lib.for_task(task, robot=ROBOT[task])
+        tree = config_lib.to_dict(config)
+        tree["loop"]["iterations"] = ITERATIONS[task] if iterations is None else iterations
+        for path, value in self.changes().items():
+            section, field = path.split(".")
+            tree[section][field] = value
+        tree["task"].update(selection_motions(task, config))
+        return config_lib.from_dict(tree)
+
+
+def selection_motions(task: str, config: config_lib.Config) -> dict:
+    """The task fields that put a config on the selection's motions."""
+    if task == "walk":
+        return {"motions": SELECTION_WALKS}
+    if task == "jump":
+        return {"motions": SELECTION_JUMPS}
+    robot = robots.load(config.robot)
+    home = robot.home if config.task.home is None else np.asarray(config.task.home)
+    if task == "inverse_dynamics":
+        targets = references.default_targets(robot.joint_range, home, references.SELECTION_SEED)
+    else:
+        targets = references.default_cartesian_targets(
+            robot, config.task.site, home, references.SELECTION_SEED
+        )
+    return {"targets": tuple(tuple(float(x) for x in t) for t in targets)}
+
+
+def cells_of(task: str) -> list[Cell]:
+    """The base, then each factor's other values (one at a time)."""
+    cells = [Cell(task)]
+    for name, _, values in FACTORS[family(task)]:
+        cells += [Cell(task, name, v) for v in values[1:]]
+    return cells
+
+
+def run_dir(runs: str, cell: Cell) -> str:
+    return os.path.join(runs, cell.task, cell.name)
+
+
+def record_dir(out: str, cell: Cell) -> str:
+    return os.path.join(out, "cells", cell.task, cell.name)
+
+
+RECORD_FILES = ("metrics.csv", "baselines.csv", "seconds.txt", "summary.md")
+
+
+def keep_record(runs: str, out: str, cell: Cell) -> None:
+    source = run_dir(runs, cell)
+    if not os.path.isfile(os.path.join(source, "metrics.csv")):
+        return
+    os.makedirs(record_dir(out, cell), exist_ok=True)
+    for name in RECORD_FILES:
+        if os.path.isfile(os.path.join(source, name)):
+            shutil.copyfile(os.path.join(source, name), os.path.join(record_dir(out, cell), name))
+
+
+def finished(runs: str, out: str, cell: Cell) -> bool:
+    if not os.path.isfile(os.path.join(record_dir(out, cell), "metrics.csv")):
+        keep_record(runs, out, cell)
+    return os.path.isfile(os.path.join(record_dir(out, cell), "metrics.csv"))
+
+
+def run_cell(cell: Cell, args) -> float:
+    """Run (or resume) one cell; returns the wall time of this piece in seconds."""
+    config = cell.config(args.iterations)
+    seeds = SEEDS
+    if args.quick:
+        from _study import quick_config
+
+        config = quick_config(config)
+        config = config.replace(loop=dataclasses.replace(config.loop, iterations=1))
+        seeds = 2
+    os.makedirs(record_dir(args.out, cell), exist_ok=True)
+    with open(os.path.join(record_dir(args.out, cell), "config.json"), "w") as f:
+        json.dump(config_lib.to_dict(config), f, indent=1)
+    start = time.perf_counter()
+    cfm_jax.sweep(
+        config, seeds=seeds, losses=list(losses.PAPER_LOSSES), out_dir=run_dir(args.runs, cell),
+        progress=not args.quiet,
+    )  # fmt: skip
+    seconds = time.perf_counter() - start
+    with open(os.path.join(run_dir(args.runs, cell), "seconds.txt"), "a") as f:
+        f.write(f"{seconds:.1f}\n")
+    keep_record(args.runs, args.out, cell)
+    return seconds
+
+
+# ----- the rule ---------------------------------------------------------------------------
+
+
+def failed(frame: pd.DataFrame) -> pd.Series:
+    """Runs that count as failures: fell, diverged, or a non-finite error."""
+    bad = ~np.isfinite(frame["tracking_mse"].astype(float))
+    for column in ("fell", "diverged"):
+        if column in frame:
+            bad |= frame[column].fillna(0).astype(float) > 0
+    return bad
+
+
+def scores(metrics: pd.DataFrame, baselines: pd.DataFrame) -> pd.DataFrame:
+    """Per (loss, seed, iteration, target): ``score`` and ``failed`` under :data:`RULE`."""
+    pd_only = baselines[baselines["baseline"] == "pd_only"].set_index("target")["tracking_mse"]
+    frame = metrics.copy()
+    frame["failed"] = failed(frame)
+    floor = np.log10(FAILURE_FACTOR * frame["target"].map(pd_only).astype(float))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        own = np.log10(frame["tracking_mse"].astype(float))
+    own = own.where(np.isfinite(own), np.inf)
+    frame["score"] = np.where(frame["failed"], np.maximum(floor, own), own)
+    frame.loc[frame["failed"] & ~np.isfinite(frame["score"]), "score"] = floor
+    return frame
+
+
+def seed_scores(frame: pd.DataFrame, iteration: int | None = None) -> pd.DataFrame:
+    """``(loss, seed) -> score`` at ``iteration`` (None: the last): the mean over targets."""
+    last = frame["iteration"].max() if iteration is None else iteration
+    at = frame[frame["iteration"] == last]
+    return at.groupby(["loss", "seed"])["score"].mean().unstack("loss")
+
+
+def cell_score(frame: pd.DataFrame, iteration: int | None = None) -> float:
+    """Mean over the four losses of the mean over seeds (:data:`RULE`)."""
+    return float(seed_scores(frame, iteration).mean(axis=0).mean())
+
+
+def paired(frame: pd.DataFrame, base: pd.DataFrame) -> dict:
+    """Cell minus base over the same seeds (each seed: mean over losses), with a 95%
+    percentile bootstrap interval over seeds."""
+    a = seed_scores(frame).mean(axis=1)
+    b = seed_scores(base).mean(axis=1)
+    common = a.index.intersection(b.index)
+    diff = (a[common] - b[common]).to_numpy()
+    low, high = report.bootstrap_ci(diff)
+    return {"mean": float(np.mean(diff)), "low": low, "high": high}
+
+
+def load(out: str, cell: Cell) -> pd.DataFrame:
+    folder = record_dir(out, cell)
+    return scores(
+        pd.read_csv(os.path.join(folder, "metrics.csv")),
+        pd.read_csv(os.path.join(folder, "baselines.csv")),
+    )
+
+
+def tables(out: str, tasks) -> str:
+    """``selection.csv``, ``curves.csv`` and the page ``index.md``; returns the page."""
+    rows, curves = [], []
+    lines = [
+        "# Choosing the defaults: the selection run",
+        "",
+        "Written by `experiments/select_defaults.py`. **The rule, fixed before the run:** "
+        + RULE,
+        "",
+        f"Failure floor: {FAILURE_FACTOR:g} x PD-only. Seeds per cell: {SEEDS}. Iterations: "
+        + ", ".join(f"{t} {ITERATIONS[t]}" for t in tasks)
+        + ". Motions: arm targets of `references.default_targets(..., seed="
+        f"{references.SELECTION_SEED})`; walks {SELECTION_WALKS} s; jumps {SELECTION_JUMPS} m.",
+    ]
+    for task in tasks:
+        cells = [c for c in cells_of(task) if os.path.isfile(
+            os.path.join(record_dir(out, c), "metrics.csv"))]  # fmt: skip
+        base_text = ", ".join(f"`{k}={v}`" for k, v in BASE[family(task)].items())
+        lines += ["", f"## {task} ({ROBOT[task]}; base: {base_text})", ""]
+        if not cells:
+            lines.append("No cell finished yet.")
+            continue
+        frames = {c: load(out, c) for c in cells}
+        base = frames.get(Cell(task))
+        names = list(losses.PAPER_LOSSES)
+        lines += [
+            "| cell | score | " + " | ".join(names) + " | failed | vs base [95% CI] |",
+            "|---|---:|" + "---:|" * len(names) + "---:|---|",
+        ]
+        for cell, frame in frames.items():
+            per_loss = seed_scores(frame).mean(axis=0)
+            last = frame[frame["iteration"] == frame["iteration"].max()]
+            fails = int(last["failed"].sum())
+            vs = "" if base is None or cell == Cell(task) else report.ci_text(paired(frame, base))
+            lines.append(
+                f"| {cell.name} | {cell_score(frame):.3f} | "
+                + " | ".join(f"{per_loss.get(n, np.nan):.3f}" for n in names)
+                + f" | {fails}/{len(last)} | {vs} |"
+            )
+            for loss in names:
+                sub = last[last["loss"] == loss]
+                rows.append({
+                    "task": task, "cell": cell.name, "factor": cell.factor, "value": cell.value,
+                    "loss": loss, "score": float(per_loss.get(loss, np.nan)),
+                    "failed": int(sub["failed"].sum()), "runs": len(sub),
+                    "median_tracking_mse": float(sub["tracking_mse"].median()),
+                })  # fmt: skip
+            for it in sorted(frame["iteration"].unique()):
+                at = frame[frame["iteration"] == it]
+                curves.append({
+                    "task": task, "cell": cell.name, "iteration": int(it),
+                    "score": cell_score(frame, it), "failed": int(at["failed"].sum()),
+                    "runs": len(at),
+                })  # fmt: skip
+        lines += ["", "Chosen per factor (lowest score; *clear* when the paired interval "
+                  "against the base excludes 0):", ""]  # fmt: skip
+        for name, _, values in FACTORS[family(task)]:
+            options = [Cell(task) if i == 0 else Cell(task, name, v) for i, v in enumerate(values)]
+            have = [(v, frames[c]) for v, c in zip(values, options, strict=True) if c in frames]
+            if len(have) < len(values):
+                lines.append(f"* {name}: not all cells finished ({len(have)}/{len(values)})")
+                continue
+            best_value, best = min(have, key=lambda vf: cell_score(vf[1]))
+            if best_value == values[0]:
+                lines.append(f"* {name}: **{best_value}** (the base's value)")
+            else:
+                stats = paired(best, base)
+                clear = stats["high"] < 0
+                lines.append(
+                    f"* {name}: **{best_value}** ({report.ci_text(stats)} against "
+                    f"{values[0]}{', clear' if clear else ', not clear'})"
+                )
+    os.makedirs(out, exist_ok=True)
+    pd.DataFrame(rows).to_csv(os.path.join(out, "selection.csv"), index=False)
+    pd.DataFrame(curves).to_csv(os.path.join(out, "curves.csv"), index=False)
+    page = "\n".join(lines) + "\n"
+    with open(os.path.join(out, "index.md"), "w") as f:
+        f.write(page)
+    return page
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--runs", default="results/selection", help="the runs (large)")
+    parser.add_argument("--out", default="docs/results/selection", help="records, tables")
+    parser.add_argument("--only", default=",".join(ARM + LEGGED), help="comma-separated tasks")
+    parser.add_argument("--iterations", type=int, default=None, help="default: per task")
+    parser.add_argument(
+        "--budget", type=float, default=float("inf"),
+        help="seconds: start no further cell after this; started again, the run resumes",
+    )  # fmt: skip
+    parser.add_argument("--quick", action="store_true", help="smoke test: tiny, no result")
+    parser.add_argument("--quiet", action="store_true")
+    args = parser.parse_args()
+    tasks = [t.strip() for t in args.only.split(",") if t.strip()]
+    bad = [t for t in tasks if t not in ARM + LEGGED]
+    if bad or not tasks:
+        parser.error(f"--only={args.only!r} is not allowed: names from {', '.join(ARM + LEGGED)}")
+    start = time.perf_counter()
+    for task in tasks:
+        for cell in cells_of(task):
+            if finished(args.runs, args.out, cell):
+                continue
+            if time.perf_counter() - start >= args.budget:
+                print(f"select_defaults: budget of {args.budget:.0f} s used; stopping", flush=True)
+                print(tables(args.out, tasks))
+                return
+            print(f"select_defaults: {task}/{cell.name}", flush=True)
+            seconds = run_cell(cell, args)
+            print(f"select_defaults: {task}/{cell.name} done in {seconds:.0f} s", flush=True)
+            tables(args.out, tasks)
+    print(tables(args.out, tasks))
+
+
+if __name__ == "__main__":
+    main()
