@@ -277,3 +277,45 @@ def test_config_fields_validate_and_round_trip():
         cfg.ForwardModelConfig(start="cold")
     with pytest.raises(cfg.ConfigError, match="controller.loss_weights"):  # arm output: 2
         algorithm.Setup.of(_tiny(loss_form="norm", loss_weights=((1.0, (0, 2)),)))
+
+
+# ---- 1-D theory of the observed goal ---------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["task", "joint"])
+@pytest.mark.parametrize("cubic", [0.0, 0.1])
+def test_observed_goal_fixed_point_matches_a_plain_loop(name, cubic):
+    from cfm_jax import theory
+
+    system = theory.TrueSystem(gain=1.0, offset=0.0, cubic=cubic)
+    model = theory.LinearModel(gain=1.2, offset=0.2)
+    desired, beta_1 = 1.0, 0.3
+
+    @jax.jit
+    def train_offset(beta_0, observed):  # gradient descent to rest on the offset only
+        def loss(b):
+            controller = theory.AffineController(b, beta_1)
+            return theory.controller_loss(name, controller, model, desired, observed, "observed")
+
+        return jax.lax.fori_loop(0, 300, lambda _, b: b - 0.1 * jax.grad(loss)(b), beta_0)
+
+    beta_0, actions = 0.0, []
+    for _ in range(40):  # Algorithm 1 with a fixed model: roll out at s_d, train at s_a
+        action = beta_0 + beta_1 * desired
+        actions.append(action)
+        observed = float(theory.true_response(system, action))
+        beta_0 = float(train_offset(beta_0, observed))
+    fp = theory.observed_goal_fixed_point(name, system, model, desired, beta_1)
+    np.testing.assert_allclose(actions[-1], float(fp.action), atol=1e-5)
+    # The contraction is the ratio of successive distances to the fixed point.
+    ratio = (actions[4] - float(fp.action)) / (actions[3] - float(fp.action))
+    np.testing.assert_allclose(ratio, float(fp.contraction), rtol=0.02)
+    if cubic == 0.0:  # the closed forms of the docstring
+        e_task = (desired - model.offset) / model.gain - desired  # a = 1, b = 0
+        a, a_hat = 1.0, model.gain
+        want = (
+            e_task / (1 + a * beta_1)
+            if name == "task"
+            else 2 * a_hat * e_task / (2 * a_hat - a + 2 * a * a_hat * beta_1)
+        )
+        np.testing.assert_allclose(float(fp.error), want, rtol=1e-6)
