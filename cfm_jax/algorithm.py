@@ -239,7 +239,9 @@ class Setup:
         )
         per_rollout = task.targets * task.steps
         capacity = per_rollout * (config.loop.babbling_rollouts + config.loop.iterations)
-        return cls(config, robot, control_dt, task, forward, controller, capacity)
+        setup = cls(config, robot, control_dt, task, forward, controller, capacity)
+        loss_groups(setup)  # validates controller.loss_weights against the task's output
+        return setup
 
     @property
     def transitions_per_rollout(self) -> int:
@@ -334,6 +336,7 @@ def iteration(
     state = state.replace(data=dataset.add(state.data, chunk, valid))
     if cfg.loop.normaliser == "data":  # statistics of all data, before both refits
         state = state.replace(normaliser=data_normaliser(setup, state.data))
+    state = restart_fits(setup, state, key_fit_fm, key_fit_ctrl, knobs)
     state, forward_loss = _fit_forward(
         setup, state, key_fit_fm, cfg.forward.steps_per_iteration, knobs
     )
@@ -565,6 +568,113 @@ def fit_initial_controller(
     return state
 
 
+def restart_fits(setup: Setup, state: TrainState, key_forward, key_controller, knobs: Knobs):
+    """How the iteration's refits start (``forward.start``, ``controller.start``):
+    ``warm`` leaves the parameters and the Adam state of the previous fit (the state is
+    returned unchanged); ``warm_new_optimizer`` re-creates Adam for the kept parameters;
+    ``fresh`` re-initialises the parameters from a key folded out of the fit's key (the
+    fit's own sampling key is unchanged) and re-creates Adam.
+
+    Args:
+      setup: the run's :class:`Setup`.
+      state: the state before the refits.
+      key_forward: the forward refit's key.
+      key_controller: the controller refit's key.
+      knobs: the runtime values.
+
+    Returns:
+      The state the refits start from.
+
+    Examples:
+      >>> restart_fits(setup, state, key_fm, key_ctrl, knobs) is state  # warm  # doctest: +SKIP
+      True
+    """
+    cfg, task = setup.config, setup.task
+    start = cfg.forward.start
+    if start == "fresh":
+        params = fresh_forward_params(setup, jax.random.fold_in(key_forward, FRESH_SALT), knobs)
+        state = state.replace(forward_params=params)
+    if start != "warm":
+        opt_state = _forward_optimizer(knobs).init(state.forward_params)
+        state = state.replace(forward_opt_state=opt_state)
+    start = cfg.controller.start
+    if start == "fresh":
+        key = jax.random.fold_in(key_controller, FRESH_SALT)
+        state = state.replace(controller_params=setup.controller.init(key, task.state_dim))
+    if start != "warm":
+        opt_state = _controller_optimizer(knobs).init(state.controller_params)
+        state = state.replace(controller_opt_state=opt_state)
+    return state
+
+
+FRESH_SALT = 0x5EED
+"""Folded into a refit's key (``jax.random.fold_in``) for the key of its ``fresh``
+parameters, so the re-initialisation is deterministic and the fit's own key is unchanged."""
+
+
+def fresh_forward_params(setup: Setup, key, knobs: Knobs):
+    """Newly initialised forward-model parameters with the initial log-variance bounds of
+    ``knobs`` (as :func:`prepare` starts them).
+
+    Args:
+      setup: the run's :class:`Setup`.
+      key: the PRNG key of the initialisation.
+      knobs: the runtime values.
+
+    Returns:
+      The parameters.
+
+    Examples:
+      >>> params = fresh_forward_params(setup, jax.random.key(0), knobs)  # doctest: +SKIP
+    """
+    params = setup.forward.init(key, setup.task.state_dim)
+    lower, upper = knobs.forward_log_variance_bounds
+    return {
+        **params,
+        "min_log_variance": jnp.full_like(params["min_log_variance"], lower),
+        "max_log_variance": jnp.full_like(params["max_log_variance"], upper),
+    }
+
+
+def loss_groups(setup: Setup):
+    """The coordinate groups of the controller loss: None for ``controller.loss_form =
+    "squared"``; for ``"norm"`` ``controller.loss_weights``, or when that is None the
+    task's default (``task.loss_weights()``; a task without that method: one group of
+    weight 1 over every output entry).
+
+    Args:
+      setup: the run's :class:`Setup`.
+
+    Returns:
+      None or ``((weight, (output index, ...)), ...)``.
+
+    Raises:
+      ConfigError: an index of ``controller.loss_weights`` is not an entry of the
+        task's output (``0 .. output_dim - 1``).
+
+    Examples:
+      >>> from cfm_jax import config as cfg
+      >>> config = cfg.Config(robot="two_link_arm",
+      ...                     controller=cfg.ControllerConfig(loss_form="norm"))
+      >>> loss_groups(Setup.of(config))
+      ((1.0, (0, 1)),)
+    """
+    cfg, task = setup.config.controller, setup.task
+    if cfg.loss_form == "squared":
+        return None
+    if cfg.loss_weights is not None:
+        for _, index in cfg.loss_weights:
+            if max(index) >= task.output_dim:
+                raise config_lib.ConfigError(
+                    f"controller.loss_weights={cfg.loss_weights!r} is not allowed: indices "
+                    f"of the task's output y, 0 .. {task.output_dim - 1}"
+                )
+        return cfg.loss_weights
+    if hasattr(task, "loss_weights"):
+        return tuple(task.loss_weights())
+    return ((1.0, tuple(range(task.output_dim))),)
+
+
 def _fit_forward(
     setup: Setup, state: TrainState, key, steps: int, knobs: Knobs
 ) -> tuple[TrainState, jax.Array]:
@@ -601,6 +711,9 @@ def _fit_controller(
         key,
         steps,
         setup.config.controller.batch_size,
+        goal=setup.config.controller.goal,
+        groups=loss_groups(setup),
+        full_batch=setup.config.controller.full_batch,
     )
     return state.replace(controller_params=params, controller_opt_state=opt_state), mean_loss
 

@@ -102,6 +102,23 @@ DESIRED = ("pd", "next_velocity")
 with the gains ``task.kp``, ``task.kd``, ``task.joint_kp``, ``task.joint_kd``) or
 ``next_velocity`` (the authors' Solo12 code: the desired next velocity, ``kp = 0`` and
 ``kd = 1 / control_dt`` on every base and joint coordinate)."""
+CONTROLLER_GOALS = ("desired", "observed")
+"""What the controller is given as its goal while it is trained (``controller.goal``):
+``desired`` feeds ``g(s, s*)`` (the paper's text, eq. 4; the default), ``observed`` feeds
+``g(s, P s_a)``, the observed next state in the desired quantity's coordinates (the authors'
+public Solo12 code). At run time ``g`` is always given ``s*``."""
+
+LOSS_FORMS = ("squared", "norm")
+"""Forms of the controller loss (``controller.loss_form``): ``squared`` (sums of squares,
+the default) or ``norm`` (per-sample Euclidean norms of weighted coordinate groups, the
+authors' public Solo12 code; see :func:`cfm_jax.losses.grouped`)."""
+
+FIT_STARTS = ("warm", "warm_new_optimizer", "fresh")
+"""How each refit of a network in an iteration starts (``forward.start``,
+``controller.start``): ``warm`` (the default) continues from the parameters and the Adam
+state of the previous fit; ``warm_new_optimizer`` keeps the parameters and re-creates Adam
+(the authors' public Solo12 code); ``fresh`` re-initialises the parameters (from a key derived
+from the iteration's key) and Adam."""
 
 
 class ConfigError(ValueError):
@@ -159,6 +176,40 @@ def _layer_sizes(field: str, value: Any) -> None:
         or any(isinstance(v, bool) or not isinstance(v, int) or v <= 0 for v in value)
     ):
         _fail(field, value, "a non-empty tuple of positive integers, e.g. (400, 400, 400)")
+
+
+def _loss_weights(field: str, value: Any) -> Any:
+    """``None`` or a non-empty tuple of ``(weight, (index, ...))`` groups (lists accepted),
+    returned as tuples of float and int."""
+    if value is None:
+        return None
+    allowed = (
+        "None (the task's default) or a non-empty tuple of (weight, (index, ...)) groups: "
+        "weight a finite number >= 0, indices distinct integers >= 0"
+    )
+    if not isinstance(value, tuple | list) or len(value) == 0:
+        _fail(field, value, allowed)
+    groups = []
+    for group in value:
+        if not isinstance(group, tuple | list) or len(group) != 2:
+            _fail(field, value, allowed)
+        weight, index = group
+        if (
+            isinstance(weight, bool)
+            or not isinstance(weight, int | float)
+            or not math.isfinite(weight)
+            or weight < 0
+        ):
+            _fail(field, value, allowed)
+        if (
+            not isinstance(index, tuple | list)
+            or len(index) == 0
+            or any(isinstance(i, bool) or not isinstance(i, int) or i < 0 for i in index)
+            or len(set(index)) != len(index)
+        ):
+            _fail(field, value, allowed)
+        groups.append((float(weight), tuple(int(i) for i in index)))
+    return tuple(groups)
 
 
 def check_duration(duration: float, control_dt: float) -> None:
@@ -377,6 +428,11 @@ class ForwardModelConfig:
       min_log_variance: initial lower soft bound of the predicted log-variance (normalised
         units); learned, as in PETS.
       max_log_variance: initial upper soft bound; learned; above ``min_log_variance``.
+      start: how each refit in an iteration starts, one of :data:`FIT_STARTS`: ``warm``
+        (default: the parameters and Adam state of the previous fit carry on),
+        ``warm_new_optimizer`` (parameters kept, Adam re-created for each fit: the
+        authors' public Solo12 code) or ``fresh`` (parameters re-initialised each
+        iteration from a key derived from the iteration's key, Adam re-created).
 
     Examples:
       >>> ForwardModelConfig(hidden=[64, 64]).hidden  # lists become tuples
@@ -399,6 +455,10 @@ class ForwardModelConfig:
     # learned, as in PETS.
     min_log_variance: float = -10.0
     max_log_variance: float = 0.5
+    # How each refit in an iteration starts; one of FIT_STARTS. "warm": parameters and Adam
+    # state carry on (today); "warm_new_optimizer": parameters kept, Adam re-created (the
+    # authors' code); "fresh": parameters re-initialised from a derived key, Adam re-created.
+    start: str = "warm"
 
     def __post_init__(self):
         object.__setattr__(self, "hidden", tuple(self.hidden))
@@ -420,6 +480,8 @@ class ForwardModelConfig:
                 self.min_log_variance,
                 f"a number below forward.max_log_variance={self.max_log_variance}",
             )
+        if self.start not in FIT_STARTS:
+            _fail("forward.start", self.start, f"one of {FIT_STARTS}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -432,7 +494,26 @@ class ControllerConfig:
       initial_steps: gradient steps before the first iteration (after the forward model's
         initial fit).
       steps_per_iteration: gradient steps per iteration of Algorithm 1.
-      batch_size: minibatch size.
+      batch_size: minibatch size (rows drawn uniformly with replacement per step).
+      goal: the controller's goal input while it is trained, one of
+        :data:`CONTROLLER_GOALS`: ``desired`` (default, the paper's eq. 4:
+        ``f(s, g(s, s*))``) or ``observed`` (the authors' public Solo12 code: ``g(s, P s_a)``,
+        the observed next state in the desired quantity's coordinates; each loss keeps its
+        targets; ``supervised`` feeds the observed goal either way).
+      loss_form: one of :data:`LOSS_FORMS`: ``squared`` (default: sums of squares, every
+        coordinate alike) or ``norm`` (per-sample Euclidean norms of weighted coordinate
+        groups, the authors' code; :func:`cfm_jax.losses.grouped`).
+      loss_weights: the coordinate groups of the ``norm`` form, ``((weight, (index, ...)),
+        ...)`` with indices into the forward model's output ``y``; None: the task's default
+        (``task.loss_weights()``: the legged tasks the authors' groups with 10 on the base's
+        vertical and angular velocity, the arm tasks one group of weight 1). Only with
+        ``loss_form="norm"``.
+      start: how each refit in an iteration starts, one of :data:`FIT_STARTS` (as
+        ``forward.start``; default ``warm``).
+      full_batch: False (default): each step a minibatch of ``batch_size`` rows; True: each
+        step every filled row of the data set (the authors' code: one batch of the whole
+        data set), a mean over the fixed-capacity buffer weighted by the filled-row mask
+        (``batch_size`` is then not used).
 
     Examples:
       >>> ControllerConfig(hidden=(32,), initial_steps=50).steps_per_iteration
@@ -449,6 +530,18 @@ class ControllerConfig:
     steps_per_iteration: int = 200
     # Minibatch size.
     batch_size: int = 256
+    # The goal g is given in training; one of CONTROLLER_GOALS. "desired": g(s, s*) (paper
+    # eq. 4, today); "observed": g(s, P s_a) (the authors' code). Run time: always s*.
+    goal: str = "desired"
+    # Form of the controller loss; one of LOSS_FORMS. "squared": sums of squares (today);
+    # "norm": per-sample Euclidean norms of weighted coordinate groups (the authors' code).
+    loss_form: str = "squared"
+    # Groups ((weight, (output index, ...)), ...) of the "norm" form; None: the task's default.
+    loss_weights: tuple | None = None
+    # How each refit in an iteration starts; one of FIT_STARTS (as forward.start).
+    start: str = "warm"
+    # True: every step on every filled row (mask-weighted mean); False: minibatches (today).
+    full_batch: bool = False
 
     def __post_init__(self):
         object.__setattr__(self, "hidden", tuple(self.hidden))
@@ -457,6 +550,23 @@ class ControllerConfig:
         _nonnegative_int("controller.initial_steps", self.initial_steps)
         _nonnegative_int("controller.steps_per_iteration", self.steps_per_iteration)
         _positive_int("controller.batch_size", self.batch_size)
+        if self.goal not in CONTROLLER_GOALS:
+            _fail("controller.goal", self.goal, f"one of {CONTROLLER_GOALS}")
+        if self.loss_form not in LOSS_FORMS:
+            _fail("controller.loss_form", self.loss_form, f"one of {LOSS_FORMS}")
+        weights = _loss_weights("controller.loss_weights", self.loss_weights)
+        if weights is not None and self.loss_form != "norm":
+            _fail(
+                "controller.loss_weights",
+                self.loss_weights,
+                'None unless controller.loss_form="norm" (the squared form weights every '
+                "coordinate alike)",
+            )
+        object.__setattr__(self, "loss_weights", weights)
+        if self.start not in FIT_STARTS:
+            _fail("controller.start", self.start, f"one of {FIT_STARTS}")
+        if not isinstance(self.full_batch, bool):
+            _fail("controller.full_batch", self.full_batch, "True or False")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -11,6 +11,11 @@ next state, ``s_d`` the desired next state, ``s_a`` the observed (actual) next s
 
 Shapes: every per-sample loss takes arrays of shape ``(..., d)`` and returns the sum of
 squares over the last axis, shape ``(...)``. Means over batches are taken by the caller.
+
+Two forms (``controller.loss_form``): ``squared`` (the paper's text, the default) and
+``norm``, where every distance ``|x - y|^2`` of a controller loss becomes the weighted sum of
+per-sample Euclidean norms of coordinate groups, ``sum_k w_k |x[I_k] - y[I_k]|``
+(:func:`grouped`; the authors' public Solo12 code).
 """
 
 from __future__ import annotations
@@ -135,7 +140,14 @@ def supervised(predicted_action, executed_action):
 
 
 def controller_loss(
-    name, predicted_next, desired_next, observed_next, select=None, predicted_run=None
+    name,
+    predicted_next,
+    desired_next,
+    observed_next,
+    select=None,
+    predicted_run=None,
+    groups=None,
+    desired_index=None,
 ):
     """Dispatch the model-based controller losses by name (``task``, ``joint``, ``distal``,
     ``distal_literal``).
@@ -158,6 +170,13 @@ def controller_loss(
         the forward model predicts).
       predicted_run: ``s_p,run = f(s, tau_run)``, shape ``(..., d_out)``; needed by
         ``distal`` only.
+      groups: None (the ``squared`` form, every ``|x - y|^2`` above a sum of squares) or
+        the ``norm`` form's ``((weight, (output index, ...)), ...)``: every ``|x - y|^2``
+        becomes :func:`grouped` of ``x - y``, with the groups over the output for
+        ``|s_p - s_a|`` and mapped by :func:`desired_groups` with ``desired_index`` for
+        the distances in the desired quantity's coordinates.
+      desired_index: the output entries ``select`` picks (None: all); used with
+        ``groups`` only.
 
     Returns:
       shape ``(...)``.
@@ -171,6 +190,18 @@ def controller_loss(
       >>> float(controller_loss("joint", p, d, o, select=lambda y: y[..., :1]))
       5.0
     """
+    if groups is not None:
+        in_desired = desired_groups(groups, desired_index)
+        return _controller_loss_norm(
+            name,
+            predicted_next,
+            desired_next,
+            observed_next,
+            select,
+            predicted_run,
+            groups,
+            in_desired,
+        )
     if select is None:
         select = lambda y: y  # noqa: E731
     if name == "task":
@@ -189,6 +220,80 @@ def controller_loss(
         f"loss={name!r} is not a model-based controller loss; allowed: 'task', 'joint', "
         "'distal', 'distal_literal' ('supervised' is computed by losses.supervised)"
     )
+
+
+def safe_norm(x):
+    """Euclidean norm over the last axis, with gradient 0 (a subgradient) where ``x = 0``.
+
+    ``jnp.linalg.norm`` has a NaN gradient at 0, which a sample the model predicts exactly
+    would otherwise give.
+
+    Args:
+      x: shape ``(..., d)``.
+
+    Returns:
+      shape ``(...)``.
+
+    Examples:
+      >>> import jax
+      >>> float(safe_norm(jnp.array([3.0, 4.0]))), jax.grad(safe_norm)(jnp.zeros(2)).tolist()
+      (5.0, [0.0, 0.0])
+    """
+    squares = jnp.sum(jnp.square(x), axis=-1)
+    positive = squares > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, squares, 1.0)), 0.0)
+
+
+def grouped(error, groups):
+    """Weighted sum of the Euclidean norms of coordinate groups of ``error``:
+    ``sum_k w_k |error[..., I_k]|`` (the ``norm`` form of the controller losses).
+
+    The authors' Solo12 task loss ``|v_p - v*| + |F_p - F*| + 10 |v_p[2:6] - v*[2:6]|`` is
+    ``grouped(s_p - s*, ((1, velocities), (1, forces), (10, (2, 3, 4, 5))))``.
+
+    Args:
+      error: shape ``(..., d)``.
+      groups: ``((weight, (index, ...)), ...)``, indices into the last axis (static).
+
+    Returns:
+      shape ``(...)``.
+
+    Examples:
+      >>> e = jnp.array([3.0, 4.0, 1.0])
+      >>> float(grouped(e, ((1.0, (0, 1)), (2.0, (2,)))))  # 5 + 2 * 1
+      7.0
+    """
+    total = 0.0
+    for weight, index in groups:
+        total = total + weight * safe_norm(error[..., jnp.asarray(index)])
+    return total
+
+
+def desired_groups(groups, desired_index):
+    """Groups over the forward model's output ``y`` as groups over the desired quantity
+    ``s* = P y`` (``P``: the entries ``desired_index``): each group keeps the entries ``P``
+    selects, renumbered as positions in ``s*``; groups left empty are dropped.
+
+    Args:
+      groups: ``((weight, (output index, ...)), ...)``.
+      desired_index: the output entries ``s*`` specifies, or None (all, in order).
+
+    Returns:
+      ``((weight, (desired position, ...)), ...)``.
+
+    Examples:
+      >>> desired_groups(((1.0, (0, 1, 2)), (5.0, (0,))), desired_index=(1, 2))
+      ((1.0, (0, 1)),)
+    """
+    if desired_index is None:
+        return tuple(groups)
+    position = {int(i): j for j, i in enumerate(desired_index)}
+    out = []
+    for weight, index in groups:
+        kept = tuple(position[i] for i in index if i in position)
+        if kept:
+            out.append((weight, kept))
+    return tuple(out)
 
 
 def squared_error(predicted, target):
@@ -227,3 +332,32 @@ def gaussian_nll(mean, log_variance, target):
       4.0
     """
     return jnp.sum(jnp.square(target - mean) * jnp.exp(-log_variance) + log_variance, axis=-1)
+
+
+def _controller_loss_norm(
+    name, predicted_next, desired_next, observed_next, select, predicted_run, groups, in_desired
+):
+    """:func:`controller_loss` in the ``norm`` form (``groups`` over the output,
+    ``in_desired`` over the desired quantity)."""
+    if select is None:
+        select = lambda y: y  # noqa: E731
+
+    def d_desired(x, y):
+        return grouped(x - y, in_desired)
+
+    predicted = select(predicted_next)
+    if name == "task":
+        return d_desired(predicted, desired_next)
+    if name == "joint":
+        return d_desired(predicted, desired_next) + grouped(predicted_next - observed_next, groups)
+    if name == "distal":
+        if predicted_run is None:
+            raise ValueError("loss='distal' needs predicted_run = f(s, tau_run)")
+        outcome = predicted - select(predicted_run) + select(observed_next)
+        return d_desired(outcome, desired_next)
+    if name == "distal_literal":
+        return d_desired(predicted, desired_next) - d_desired(predicted, select(observed_next))
+    raise ValueError(
+        f"loss={name!r} is not a model-based controller loss; allowed: 'task', 'joint', "
+        "'distal', 'distal_literal' ('supervised' is computed by losses.supervised)"
+    )

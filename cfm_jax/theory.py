@@ -63,6 +63,11 @@ THEORY_LOSSES = ("task", "joint", "distal", "supervised")
 MODEL_BASED_LOSSES = ("task", "joint", "distal")
 """Losses that go through the forward model (``f o g``)."""
 
+GOALS = ("desired", "observed")
+"""The controller's goal while it is trained (``Config.controller.goal``): ``g(s_d)`` (the
+paper's eq. 4) or ``g(s_a)`` (the authors' public Solo12 code); see
+:func:`observed_goal_fixed_point`."""
+
 REFIT_MODES = ("none", "latest", "all")
 """How the forward model (and the supervised controller) is refitted after each rollout:
 
@@ -325,7 +330,14 @@ def biased_model(system: TrueSystem, gain_ratio=1.0, offset_error=0.0) -> Linear
 # ----------------------------------------------------------------------------- losses, gradients
 
 
-def controller_loss(name: str, controller: AffineController, model: LinearModel, desired, observed):
+def controller_loss(
+    name: str,
+    controller: AffineController,
+    model: LinearModel,
+    desired,
+    observed,
+    goal: str = "desired",
+):
     """A model-based controller loss of :mod:`cfm_jax.losses` on ``s_p = f(g(s_d))``.
 
     ``task``: ``(s_p - s_d)^2``; ``joint``: ``(s_p - s_d)^2 + (s_p - s_a)^2``;
@@ -341,6 +353,9 @@ def controller_loss(name: str, controller: AffineController, model: LinearModel,
       model: a :class:`LinearModel` (likewise).
       desired: ``s_d``, shape ``(...)``.
       observed: ``s_a``, shape ``(...)``, held fixed.
+      goal: ``"desired"`` (``s_p = f(g(s_d))``, the paper) or ``"observed"``
+        (``s_p = f(g(s_a))``, the authors' Solo12 code, ``controller.goal``); the targets
+        are the same.
     Returns:
       loss of shape ``(...)``.
 
@@ -349,7 +364,10 @@ def controller_loss(name: str, controller: AffineController, model: LinearModel,
       ...                       3.0, 0.0))
       5.0
     """
-    predicted = model_prediction(model, controller_action(controller, desired))
+    if goal not in GOALS:
+        raise ValueError(f"goal={goal!r} not in {GOALS}")
+    given = desired if goal == "desired" else observed
+    predicted = model_prediction(model, controller_action(controller, given))
     return losses.controller_loss(
         "distal_literal" if name == "distal" else name,
         jnp.asarray(predicted)[..., None],
@@ -390,6 +408,7 @@ def controller_gradient(
     desired,
     observed,
     executed_action=None,
+    goal: str = "desired",
 ) -> AffineController:
     """``dL/dbeta`` by ``jax.grad`` through ``f o g`` (scalar data).
 
@@ -405,6 +424,9 @@ def controller_gradient(
       desired: ``s_d`` (scalar).
       observed: ``s_a`` (scalar), held fixed.
       executed_action: ``tau_run`` (scalar), used by the supervised loss.
+      goal: ``"desired"`` or ``"observed"`` (:func:`controller_loss`); with ``observed``
+        the task and joint gradients are ``2 f' (s_p - s_d) (1, s_a)`` and
+        ``2 f' (2 s_p - s_d - s_a) (1, s_a)`` with ``s_p = f(g(s_a))``.
     Returns:
       an :class:`AffineController` holding ``(dL/dbeta_0, dL/dbeta_1)``.
 
@@ -421,7 +443,7 @@ def controller_gradient(
         if executed_action is None:
             raise ValueError("the supervised loss needs executed_action (tau_run)")
         return jax.grad(supervised_loss)(controller, observed, executed_action)
-    return jax.grad(controller_loss, argnums=1)(name, controller, model, desired, observed)
+    return jax.grad(controller_loss, argnums=1)(name, controller, model, desired, observed, goal)
 
 
 def loss_landscape(name: str, model: LinearModel, desired, observed, actions):
@@ -1059,3 +1081,78 @@ def sweep_model_bias(
 
     table = jax.jit(jax.vmap(one_case))(grid_gain.ravel(), grid_offset.ravel())
     return {"gain_ratio": grid_gain.ravel(), "offset_error": grid_offset.ravel(), **table}
+
+
+def observed_goal_fixed_point(
+    name: str,
+    system: TrueSystem,
+    model: LinearModel,
+    desired,
+    controller_gain,
+    newton_iterations: int = 40,
+) -> FixedPoint:
+    """Fixed point of Algorithm 1 when the controller is trained on the *observed* goal
+    (``controller.goal="observed"``) with a fixed model: roll out ``tau_k = g(s_d)``, observe
+    ``s_a = h(tau_k)``, train the offset ``beta_0`` to rest on the loss of ``s_p = f(g(s_a))``
+    (gain ``beta_1 = controller_gain`` held).
+
+    The rest of training pins ``g`` at the observed goal only: ``f(g(s_a)) = s_d`` (task)
+    or ``(s_d + s_a) / 2`` (joint). The run-time action is read at the desired goal,
+    ``g(s_d) = g(s_a) + beta_1 (s_d - s_a)``, so the fixed point ``s_a = h(tau*)`` solves
+
+    * task: ``f(tau) - s_d + a_hat beta_1 (h(tau) - s_d) = 0``,
+    * joint: ``2 f(tau) - h(tau) - s_d + 2 a_hat beta_1 (h(tau) - s_d) = 0``,
+
+    and the action map ``tau_{k+1}(tau_k)`` has the slope (the contraction) ``-beta_1 a'``
+    (task) or ``a' (1 / (2 a_hat) - beta_1)`` (joint), ``a' = h'(tau*)``. For a linear system
+    the errors are ``e = e_task / (1 + a beta_1)`` (task) and ``e = 2 a_hat e_task / (2 a_hat
+    - a + 2 a a_hat beta_1)`` (joint), with ``e_task`` the desired goal's task error; with
+    ``beta_1 = 0`` (a controller that ignores its goal) both are the desired goal's.
+
+    Args:
+      name: ``"task"`` or ``"joint"``.
+      system: a :class:`TrueSystem` of scalars.
+      model: a :class:`LinearModel` of scalars.
+      desired: ``s_d`` (scalar).
+      controller_gain: ``beta_1``, the controller's slope in its goal (held).
+      newton_iterations: Newton steps (exact in one for a linear system).
+
+    Returns:
+      :class:`FixedPoint`.
+
+    Raises:
+      ValueError: ``name`` is not ``task`` or ``joint``.
+
+    Examples:
+      >>> fp = observed_goal_fixed_point("joint", TrueSystem(), LinearModel(1.0, 0.2),
+      ...                                desired=1.0, controller_gain=1.0)
+      >>> round(float(fp.error), 4), round(float(fp.contraction), 4)  # 2 e_task / 3, -1/2
+      (-0.1333, -0.5)
+    """
+    if name not in ("task", "joint"):
+        raise ValueError(f"observed_goal_fixed_point: loss={name!r} not in ('task', 'joint')")
+    beta_1 = jnp.asarray(controller_gain, dtype=jnp.result_type(float))
+    pull = model.gain * beta_1
+
+    def residual(action):
+        outcome = true_response(system, action)
+        if name == "task":
+            return model_prediction(model, action) - desired + pull * (outcome - desired)
+        return (
+            2.0 * model_prediction(model, action)
+            - outcome
+            - desired
+            + 2.0 * pull * (outcome - desired)
+        )
+
+    def newton_step(_, action):
+        return action - residual(action) / jax.grad(residual)(action)
+
+    start = (jnp.asarray(desired, dtype=jnp.result_type(float)) - model.offset) / model.gain
+    action = jax.lax.fori_loop(0, newton_iterations, newton_step, start)
+    slope = true_slope(system, action)
+    if name == "task":
+        contraction = -beta_1 * slope
+    else:
+        contraction = slope * (0.5 / model.gain - beta_1)
+    return FixedPoint(action, true_response(system, action) - desired, contraction)

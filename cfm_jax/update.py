@@ -60,7 +60,16 @@ def forward_objective(forward_params, forward, normaliser, batch: dataset.Transi
 
 
 def controller_objective(
-    controller_params, forward_params, loss: str, forward, controller, normaliser, batch
+    controller_params,
+    forward_params,
+    loss: str,
+    forward,
+    controller,
+    normaliser,
+    batch,
+    goal: str = "desired",
+    groups=None,
+    weights=None,
 ):
     """Mean controller loss over a minibatch (normalised acceleration / torque units).
 
@@ -73,6 +82,15 @@ def controller_objective(
     * ``supervised``: ``|g(s, P s_a) - tau_run|^2`` with torques divided by their limits
       (``P s_a`` the observed values of the desired entries).
 
+    With ``goal="observed"`` (``controller.goal``, the authors' Solo12 code) the model-based
+    losses give ``g`` the observed goal ``P s_a`` in place of ``s*``: ``s_p = f(s, g(s, P
+    s_a))``, and each loss keeps its targets (``task`` pulls ``s_p`` to ``s*``, ``joint``
+    to ``s*`` and ``s_a``, ``distal`` compares ``s_p - s_p,run + s_a`` with ``s*``);
+    ``supervised`` feeds ``P s_a`` with either goal. With ``groups`` (the ``norm`` form)
+    every distance is :func:`cfm_jax.losses.grouped`; ``supervised`` then takes the
+    per-sample Euclidean norm of its scaled torque error (the groups are over the forward
+    model's output, which it does not use).
+
     ``jax.grad`` of this function in its first argument is the controller's gradient: the
     forward model's parameters are an argument it is not differentiated in.
 
@@ -84,6 +102,11 @@ def controller_objective(
       controller: the controller :class:`cfm_jax.networks.Model`.
       normaliser: the :class:`cfm_jax.networks.Normaliser`.
       batch: :class:`cfm_jax.dataset.Transitions` ``(batch, ...)``.
+      goal: ``"desired"`` (default) or ``"observed"`` (static; see above).
+      groups: None (the ``squared`` form) or the ``norm`` form's ``((weight, (output
+        index, ...)), ...)`` (static).
+      weights: None (a plain mean over the rows) or ``(batch,)`` row weights (a weighted
+        mean, ``sum w L / max(sum w, 1)``: the full-batch fit's filled-row mask).
 
     Returns:
       The scalar loss.
@@ -101,12 +124,17 @@ def controller_objective(
       >>> jax.tree.structure(grads) == jax.tree.structure(beta)
       True
     """
+    if goal not in ("desired", "observed"):
+        raise ValueError(f"goal={goal!r} is not allowed: 'desired' or 'observed'")
     if loss == "supervised":
         achieved = normaliser.select(batch.observed)
         predicted = controller.apply(controller_params, normaliser, batch.state, achieved)
         scale = normaliser.torque_limit
-        return jnp.mean(losses.supervised(predicted / scale, batch.action / scale))
-    tau = controller.apply(controller_params, normaliser, batch.state, batch.desired)
+        if groups is not None:
+            return _mean(losses.safe_norm(predicted / scale - batch.action / scale), weights)
+        return _mean(losses.supervised(predicted / scale, batch.action / scale), weights)
+    goal_input = batch.desired if goal == "desired" else normaliser.select(batch.observed)
+    tau = controller.apply(controller_params, normaliser, batch.state, goal_input)
     predicted = networks.ensemble_mean(forward, forward_params, normaliser, batch.state, tau)
     predicted_run = None
     if loss == "distal":  # f(s, tau_run): no controller parameter in it
@@ -120,8 +148,18 @@ def controller_objective(
         normaliser.output(batch.observed),
         select=None if normaliser.desired_index is None else normaliser.select,
         predicted_run=predicted_run,
+        groups=groups,
+        desired_index=normaliser.desired_index,
     )
-    return jnp.mean(per_sample)
+    return _mean(per_sample, weights)
+
+
+def _mean(per_sample, weights):
+    """``jnp.mean(per_sample)``, or its mean weighted by ``weights`` (rows of weight 0 out)."""
+    if weights is None:
+        return jnp.mean(per_sample)
+    per_sample = jnp.where(weights > 0, per_sample, 0.0)  # a NaN in an empty row stays out
+    return jnp.sum(weights * per_sample) / jnp.maximum(jnp.sum(weights), 1.0)
 
 
 def fit_forward(forward, optimizer, params, opt_state, normaliser, data, key, steps, batch_size):
@@ -188,6 +226,9 @@ def fit_controller(
     key,
     steps,
     batch_size,
+    goal="desired",
+    groups=None,
+    full_batch=False,
 ):
     """``steps`` Adam steps of :func:`controller_objective` in the controller's parameters.
 
@@ -203,7 +244,14 @@ def fit_controller(
       data: the :class:`cfm_jax.dataset.Dataset` to sample from.
       key: PRNG key.
       steps: number of steps (static; 0 returns the inputs and a NaN loss).
-      batch_size: rows per step (static).
+      batch_size: rows per step (static; not used with ``full_batch``).
+      goal: the goal ``g`` is given, ``"desired"`` or ``"observed"`` (static; see
+        :func:`controller_objective`).
+      groups: None (``squared`` form) or the ``norm`` form's groups (static).
+      full_batch: False: each step a minibatch of ``batch_size`` rows drawn uniformly
+        with replacement; True: each step every row of the buffer, the mean weighted by
+        the filled-row mask (rows ``[0, data.size)``), so the empty rows of the
+        fixed-capacity buffer count for nothing (static).
 
     Returns:
       ``(params, opt_state, mean loss over the steps)``.
@@ -224,11 +272,24 @@ def fit_controller(
       ()
     """
 
+    filled = None
+    if full_batch:
+        filled = (jnp.arange(data.capacity) < data.size).astype(jnp.float32)
+
     def one_step(carry, step_key):
         params, opt_state = carry
-        batch = dataset.sample(data, step_key, batch_size)
+        batch = data.data if full_batch else dataset.sample(data, step_key, batch_size)
         value, grads = jax.value_and_grad(controller_objective)(
-            params, forward_params, loss, forward, controller, normaliser, batch
+            params,
+            forward_params,
+            loss,
+            forward,
+            controller,
+            normaliser,
+            batch,
+            goal,
+            groups,
+            filled,
         )
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), value

@@ -239,6 +239,24 @@ class JointSpaceTask:
     def metrics(self, result) -> dict:
         return {}
 
+    def loss_weights(self) -> tuple:
+        """The default coordinate groups of the ``norm`` controller loss
+        (``controller.loss_form="norm"``, :func:`cfm_jax.losses.grouped`):
+        ``((weight, (output index, ...)), ...)`` over the forward model's output ``y``.
+
+        The arm tasks: one group of weight 1, every output entry, so the ``norm`` form is
+        the plain Euclidean norm of the error (no coordinate of an arm's acceleration has a
+        reason to count more than another; the authors' code weights only the legged
+        robot's base).
+
+        Examples:
+          >>> from cfm_jax import config, robots, tasks
+          >>> arm = robots.load("two_link_arm")
+          >>> tasks.make(arm, config.TaskConfig(duration=0.1), 0.01).loss_weights()
+          ((1.0, (0, 1)),)
+        """
+        return ((1.0, tuple(range(self.output_dim))),)
+
     def feedback(self, step):
         """``K_p (q_ref - q) + K_d (qd_ref - qd)`` with :func:`cfm_jax.baselines.joint_pd_gains`."""
         ref = step.reference

@@ -290,6 +290,31 @@ class LeggedTask(JointSpaceTask):
             "base_orientation_mse": masked_mean(result.tracking_error[..., 3:6]),
         }
 
+    BASE_WEIGHT = 10.0
+    """Weight of the base's vertical and angular velocity in the ``norm`` controller loss
+    (the authors' public Solo12 code: ``10 mean |v_p[2:6] - v*[2:6]|``)."""
+
+    def loss_weights(self) -> tuple:
+        """The default coordinate groups of the ``norm`` controller loss, the authors'
+        Solo12 task loss ``|v_p - v*| + |F_p - F*| + 10 |v_p[2:6] - v*[2:6]|``: the whole
+        velocity change (``nv`` entries) with weight 1, the foot forces with weight 1 (a norm
+        of their own, so newtons and velocities are not summed under one square root), and
+        the base's vertical velocity and its three angular velocities (free-joint entries 2
+        to 5) again with weight :attr:`BASE_WEIGHT`: those are the coordinates of balance
+        (height, roll, pitch, yaw), a few of ``nv``, whose errors a controller would
+        otherwise trade for the many joints' tracking.
+
+        Examples:
+          >>> task.loss_weights()[2]  # doctest: +SKIP
+          (10.0, (2, 3, 4, 5))
+        """
+        nv = self.robot.nv
+        return (
+            (1.0, tuple(range(nv))),
+            (1.0, tuple(range(nv, self.output_dim))),
+            (self.BASE_WEIGHT, (2, 3, 4, 5)),
+        )
+
     def feedback(self, step):
         """The references' joint PD ``kp (q_ref - q) + kd (qd_ref - qd)`` on the actuated
         joints."""
