@@ -40,6 +40,28 @@ def add_task_name(name: str) -> None:
         TASKS = TASKS + (name,)
 
 
+FORWARD_KINDS = ("mlp", "rigid_body")
+"""Kinds of forward model for ``Config.forward.kind`` (see :mod:`cfm_jax.forward_models`):
+``mlp``, the PETS ensemble of the paper's text (the default), and ``rigid_body``, the
+physics-structured model of the authors' Solo12 code (:mod:`cfm_jax.rigid_body`)."""
+
+
+def add_forward_kind(name: str) -> None:
+    """Allow ``name`` as ``forward.kind`` (called by
+    :func:`cfm_jax.forward_models.register`).
+
+    Args:
+      name: the new kind's name; a name already in :data:`FORWARD_KINDS` changes nothing.
+
+    Examples:
+      >>> add_forward_kind("mlp"); FORWARD_KINDS
+      ('mlp', 'rigid_body')
+    """
+    global FORWARD_KINDS
+    if name not in FORWARD_KINDS:
+        FORWARD_KINDS = FORWARD_KINDS + (name,)
+
+
 SIMULATORS = ("native", "mjx")
 """Physics back ends for ``Config.simulator`` (see :mod:`cfm_jax.rollout`)."""
 
@@ -302,6 +324,15 @@ class ForwardModelConfig:
       min_log_variance: initial lower soft bound of the predicted log-variance (normalised
         units); learned, as in PETS.
       max_log_variance: initial upper soft bound; learned; above ``min_log_variance``.
+      kind: one of :data:`FORWARD_KINDS`: ``"mlp"`` (default; the paper's text: the
+        ensemble predicts the output from ``(s, tau)``) or ``"rigid_body"`` (the authors'
+        Solo12 code: ``qdd = M(q)^-1 (S tau - h(q, qd)) + residual(s, tau)`` with ``M`` and
+        ``h`` of a nominal MuJoCo model and the ensemble as the residual;
+        :mod:`cfm_jax.rigid_body`). Not for ``opspace``.
+      nominal: ``rigid_body`` only: the MJCF file (a path or a registered robot name) of
+        the nominal model ``M`` and ``h`` come from; None (default): the robot's own.
+      nominal_mass_scale: ``rigid_body`` only: every body mass and inertia of the nominal
+        model multiplied by this factor (> 0; default 1.0), to study model bias.
 
     Examples:
       >>> ForwardModelConfig(hidden=[64, 64]).hidden  # lists become tuples
@@ -324,6 +355,13 @@ class ForwardModelConfig:
     # learned, as in PETS.
     min_log_variance: float = -10.0
     max_log_variance: float = 0.5
+    # "mlp" (the PETS ensemble; default) or "rigid_body" (M^-1 (S tau - h) of a nominal
+    # MuJoCo model plus the ensemble as a residual; cfm_jax.rigid_body).
+    kind: str = "mlp"
+    # rigid_body: MJCF path or robot name of the nominal model (None: the robot's own).
+    nominal: str | None = None
+    # rigid_body: factor on every body mass and inertia of the nominal model.
+    nominal_mass_scale: float = 1.0
 
     def __post_init__(self):
         object.__setattr__(self, "hidden", tuple(self.hidden))
@@ -345,6 +383,20 @@ class ForwardModelConfig:
                 self.min_log_variance,
                 f"a number below forward.max_log_variance={self.max_log_variance}",
             )
+        if self.kind not in FORWARD_KINDS:
+            _fail("forward.kind", self.kind, f"one of {FORWARD_KINDS}")
+        if self.nominal is not None and (not isinstance(self.nominal, str) or not self.nominal):
+            _fail("forward.nominal", self.nominal, "None or an MJCF path / robot name")
+        _positive_float("forward.nominal_mass_scale", self.nominal_mass_scale)
+        if self.kind != "rigid_body":
+            for name, default in (("nominal", None), ("nominal_mass_scale", 1.0)):
+                if getattr(self, name) != default:
+                    _fail(
+                        f"forward.{name}",
+                        getattr(self, name),
+                        f"{default!r} unless forward.kind='rigid_body' (forward.kind="
+                        f"{self.kind!r} has no nominal model)",
+                    )
 
 
 @dataclasses.dataclass(frozen=True)
