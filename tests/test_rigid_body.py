@@ -94,13 +94,15 @@ def arms():
 
 
 @pytest.mark.parametrize(
-    "name", ["two_link_arm", pytest.param("iiwa14", marks=pytest.mark.slow)]  # iiwa: ~5 s
+    "name",
+    ["two_link_arm", pytest.param("iiwa14", marks=pytest.mark.slow)],  # iiwa: ~5 s
 )
 def test_zero_residual_predicts_mujoco_qacc_and_jacobian_is_inverse_mass(arms, name):
     robot, task = arms[name]
     rng = np.random.default_rng(1)
     fm, params = _model(robot, task)
     norm = _normaliser(task, robot, rng)
+
     def both(s, t):
         y = _predict(fm, params, norm, s, t)
         return y, y
@@ -197,9 +199,7 @@ def test_nominal_file_must_have_the_robots_joints_and_opspace_is_not_supported(a
     robot, task = arms["two_link_arm"]
     with pytest.raises(config_lib.ConfigError, match=r"forward\.nominal='iiwa14'"):
         _model(robot, task, nominal="iiwa14")
-    ops = tasks.make(
-        robot, config_lib.TaskConfig(name="opspace", duration=0.1, site="tip"), 0.01
-    )
+    ops = tasks.make(robot, config_lib.TaskConfig(name="opspace", duration=0.1, site="tip"), 0.01)
     with pytest.raises(config_lib.ConfigError, match=r"forward\.kind='rigid_body'.*opspace"):
         _model(robot, ops)
 
@@ -224,9 +224,7 @@ def test_forward_config_fields_validated_and_round_trip():
 @pytest.mark.slow  # ~20 s: compiles a whole iteration
 def test_tiny_train_with_rigid_body_stores_mujocos_terms_with_the_data():
     base = tiny_config(iterations=1, seeds=1)
-    config = dataclasses.replace(
-        base, forward=dataclasses.replace(base.forward, kind="rigid_body")
-    )
+    config = dataclasses.replace(base, forward=dataclasses.replace(base.forward, kind="rigid_body"))
     result = cfm_jax.train(config, progress=False)
     assert np.all(np.isfinite(result.metrics["prediction_error"]))
     data = jax.tree.map(lambda x: np.asarray(x[0]), result.state.data)
