@@ -187,6 +187,13 @@ def terms_function(model: mujoco.MjModel, actuated_dofs, configuration):
 
     Returns:
       The function (pure, jittable).
+
+    Examples:
+      >>> arm = robots.load("two_link_arm")
+      >>> split = lambda s: (s[..., :2], s[..., 2:])  # (qpos, qvel) of [q, qd]
+      >>> terms = terms_function(arm.mj_model, arm.actuated_dofs, split)
+      >>> jax.jit(terms)(jnp.zeros((3, 7, 4))).gain.shape
+      (3, 7, 2, 2)
     """
     device_model = mjx.put_model(model)
     dofs = np.asarray(actuated_dofs)
@@ -218,6 +225,16 @@ def structured(residual: networks.Model, terms, output_dim: int, entries, scale:
 
     Returns:
       The :class:`cfm_jax.networks.Model` (with ``terms``).
+
+    Examples:
+      >>> residual = networks.forward_model(hidden=(4,), ensemble_size=2, nv=3, action_dim=1)
+      >>> fm = structured(residual, None, output_dim=3, entries=(0,), scale=0.5)
+      >>> norm = networks.Normaliser.identity(state_dim=2, output_dim=3, torque_limit=[1.0])
+      >>> zero = jax.tree.map(jnp.zeros_like, fm.init(jax.random.key(0), state_dim=2))
+      >>> t = Terms(gain=jnp.array([[[2.0]]]), drift=jnp.array([[1.0]]))  # qacc = 2 tau + 1
+      >>> mean, _ = fm.apply(zero, norm, jnp.zeros((1, 2)), jnp.array([[3.0]]), terms=t)
+      >>> mean[:, 0].tolist()  # per member: 0.5 * 7 in entry 0, the residual's 0 elsewhere
+      [[3.5, 0.0, 0.0], [3.5, 0.0, 0.0]]
     """
     index = np.asarray(entries, np.int32)
     mask = np.zeros(output_dim, bool)

@@ -221,10 +221,15 @@ def test_forward_config_fields_validated_and_round_trip():
     assert sorted(forward_models.REGISTRY) == sorted(config_lib.FORWARD_KINDS)
 
 
-@pytest.mark.slow  # ~20 s: compiles a whole iteration
-def test_tiny_train_with_rigid_body_stores_mujocos_terms_with_the_data():
+@pytest.mark.slow  # ~20 s (native), longer on mjx: compiles a whole iteration
+@pytest.mark.parametrize("simulator", ["native", "mjx"])
+def test_tiny_train_with_rigid_body_stores_mujocos_terms_with_the_data(simulator):
     base = tiny_config(iterations=1, seeds=1)
-    config = dataclasses.replace(base, forward=dataclasses.replace(base.forward, kind="rigid_body"))
+    config = dataclasses.replace(
+        base,
+        simulator=simulator,
+        forward=dataclasses.replace(base.forward, kind="rigid_body"),
+    )
     result = cfm_jax.train(config, progress=False)
     assert np.all(np.isfinite(result.metrics["prediction_error"]))
     data = jax.tree.map(lambda x: np.asarray(x[0]), result.state.data)
