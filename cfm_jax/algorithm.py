@@ -58,7 +58,7 @@ import numpy as np
 import optax
 from flax import struct
 
-from cfm_jax import babbling, dataset, networks, robots, tasks, update
+from cfm_jax import babbling, dataset, forward_models, networks, robots, tasks, update
 from cfm_jax import config as config_lib
 from cfm_jax import rollout as rollout_lib
 from cfm_jax.tasks import scales
@@ -178,7 +178,8 @@ class Setup:
       robot: the :class:`cfm_jax.robots.Robot`.
       control_dt: seconds between controller steps.
       task: the task object (:func:`cfm_jax.tasks.make`).
-      forward: the forward ensemble (:func:`cfm_jax.networks.forward_model`).
+      forward: the forward model of ``forward.kind`` (:func:`cfm_jax.forward_models.make`;
+        the ensemble :func:`cfm_jax.networks.forward_model` by default).
       controller: the controller (:func:`cfm_jax.networks.controller`).
       capacity: rows of the data set (babbling and every iteration's rollout).
 
@@ -225,15 +226,7 @@ class Setup:
         )
         rollout_lib.substeps(robot, control_dt)  # validates control_dt
         task = tasks.make(robot, task_config, control_dt, config.simulator)
-        fm = config.forward
-        forward = networks.forward_model(
-            fm.hidden,
-            fm.ensemble_size,
-            task.output_dim,
-            fm.min_log_variance,
-            fm.max_log_variance,
-            action_dim=task.action_dim,
-        )
+        forward = forward_models.make(config.forward, robot, task)
         controller = networks.controller(
             config.controller.hidden, task.action_dim, task.desired_dim
         )
@@ -331,8 +324,10 @@ def iteration(
     cfg = setup.config
     key, key_rollout, key_fit_fm, key_fit_ctrl = jax.random.split(state.key, 4)
     result = rollout(setup, learned_policy(setup, state), key_rollout, knobs)
+    result = result._replace(transitions=with_terms(setup, result.transitions))
     out = metrics(setup, state, result)
     chunk, valid = collected(result) if data is None else data
+    chunk = with_terms(setup, chunk)
     state = state.replace(data=dataset.add(state.data, chunk, valid))
     if cfg.loop.normaliser == "data":  # statistics of all data, before both refits
         state = state.replace(normaliser=data_normaliser(setup, state.data))
@@ -476,8 +471,14 @@ def _start(
     """
     cfg, task = setup.config, setup.task
     key, key_fm, key_ctrl, key_fit_fm, key_fit_ctrl = jax.random.split(key, 5)
+    chunk = with_terms(setup, chunk)
     empty = dataset.empty(
-        setup.capacity, task.state_dim, task.desired_dim, task.action_dim, task.output_dim
+        setup.capacity,
+        task.state_dim,
+        task.desired_dim,
+        task.action_dim,
+        task.output_dim,
+        terms=None if chunk.terms is None else jax.tree.map(lambda x: x[0], chunk.terms),
     )
     data = dataset.add(empty, chunk, valid)
     if cfg.loop.normaliser == "babbling":
@@ -816,6 +817,29 @@ def learned_policy(setup: Setup, state: TrainState) -> rollout_lib.MixedPolicy:
     )
 
 
+def with_terms(setup: Setup, transitions: dataset.Transitions) -> dataset.Transitions:
+    """``transitions`` with the forward model's per-transition terms (``setup.forward.terms``
+    of their states, :attr:`cfm_jax.dataset.Transitions.terms`), computed once where they
+    enter the data set or the metrics; unchanged when the model has no terms (``mlp``) or
+    they are there already.
+
+    Args:
+      setup: the run's :class:`Setup`.
+      transitions: :class:`cfm_jax.dataset.Transitions` with any leading axes.
+
+    Returns:
+      The transitions with ``terms`` set (or the same transitions).
+
+    Examples:
+      >>> rows = dataset.Transitions(*(jnp.zeros((3, d)) for d in (4, 2, 2, 2)))
+      >>> with_terms(setup, rows).terms is None  # the mlp kind  # doctest: +SKIP
+      True
+    """
+    if setup.forward.terms is None or transitions.terms is not None:
+        return transitions
+    return transitions._replace(terms=setup.forward.terms(transitions.state))
+
+
 def collected(result: rollout_lib.Rollout) -> tuple[dataset.Transitions, jax.Array]:
     """The transitions of a rollout as data-set rows and which of them are data
     (:func:`data_mask`), whatever the leading axes (``(targets, steps)``, or
@@ -871,16 +895,18 @@ def metrics(setup: Setup, state: TrainState, result: rollout_lib.Rollout) -> dic
       >>> sorted(metrics(setup, state, result))[:3]  # doctest: +SKIP
       ['finite_fraction', 'prediction_error', 'predicted_task_error']
     """
-    t = result.transitions
+    t = with_terms(setup, result.transitions)
     norm = state.normaliser
     forward, controller = setup.forward, setup.controller
     predicted = norm.output_inverse(
-        networks.ensemble_mean(forward, state.forward_params, norm, t.state, t.action)
+        networks.ensemble_mean(
+            forward, state.forward_params, norm, t.state, t.action, terms=t.terms
+        )
     )
     tau = controller.apply(state.controller_params, norm, t.state, t.desired)
     predicted_task = norm.select(
         norm.output_inverse(
-            networks.ensemble_mean(forward, state.forward_params, norm, t.state, tau)
+            networks.ensemble_mean(forward, state.forward_params, norm, t.state, tau, terms=t.terms)
         )
     )
     step_mean = _step_mean(result, before_terminal=True)

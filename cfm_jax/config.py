@@ -40,6 +40,28 @@ def add_task_name(name: str) -> None:
         TASKS = TASKS + (name,)
 
 
+FORWARD_KINDS = ("mlp", "rigid_body")
+"""Kinds of forward model for ``Config.forward.kind`` (see :mod:`cfm_jax.forward_models`):
+``mlp``, the PETS ensemble of the paper's text (the default), and ``rigid_body``, the
+physics-structured model of the authors' Solo12 code (:mod:`cfm_jax.rigid_body`)."""
+
+
+def add_forward_kind(name: str) -> None:
+    """Allow ``name`` as ``forward.kind`` (called by
+    :func:`cfm_jax.forward_models.register`).
+
+    Args:
+      name: the new kind's name; a name already in :data:`FORWARD_KINDS` changes nothing.
+
+    Examples:
+      >>> add_forward_kind("mlp"); FORWARD_KINDS
+      ('mlp', 'rigid_body')
+    """
+    global FORWARD_KINDS
+    if name not in FORWARD_KINDS:
+        FORWARD_KINDS = FORWARD_KINDS + (name,)
+
+
 SIMULATORS = ("native", "mjx")
 """Physics back ends for ``Config.simulator`` (see :mod:`cfm_jax.rollout`)."""
 
@@ -433,6 +455,15 @@ class ForwardModelConfig:
         ``warm_new_optimizer`` (parameters kept, Adam re-created for each fit: the
         authors' public Solo12 code) or ``fresh`` (parameters re-initialised each
         iteration from a key derived from the iteration's key, Adam re-created).
+      kind: one of :data:`FORWARD_KINDS`: ``"mlp"`` (default; the paper's text: the
+        ensemble predicts the output from ``(s, tau)``) or ``"rigid_body"`` (the authors'
+        Solo12 code: ``qdd = M(q)^-1 (S tau - h(q, qd)) + residual(s, tau)`` with ``M`` and
+        ``h`` of a nominal MuJoCo model and the ensemble as the residual;
+        :mod:`cfm_jax.rigid_body`). Not for ``opspace``.
+      nominal: ``rigid_body`` only: the MJCF file (a path or a registered robot name) of
+        the nominal model ``M`` and ``h`` come from; None (default): the robot's own.
+      nominal_mass_scale: ``rigid_body`` only: every body mass and inertia of the nominal
+        model multiplied by this factor (> 0; default 1.0), to study model bias.
 
     Examples:
       >>> ForwardModelConfig(hidden=[64, 64]).hidden  # lists become tuples
@@ -459,6 +490,13 @@ class ForwardModelConfig:
     # state carry on (today); "warm_new_optimizer": parameters kept, Adam re-created (the
     # authors' code); "fresh": parameters re-initialised from a derived key, Adam re-created.
     start: str = "warm"
+    # "mlp" (the PETS ensemble; default) or "rigid_body" (M^-1 (S tau - h) of a nominal
+    # MuJoCo model plus the ensemble as a residual; cfm_jax.rigid_body).
+    kind: str = "mlp"
+    # rigid_body: MJCF path or robot name of the nominal model (None: the robot's own).
+    nominal: str | None = None
+    # rigid_body: factor on every body mass and inertia of the nominal model.
+    nominal_mass_scale: float = 1.0
 
     def __post_init__(self):
         object.__setattr__(self, "hidden", tuple(self.hidden))
@@ -482,6 +520,20 @@ class ForwardModelConfig:
             )
         if self.start not in FIT_STARTS:
             _fail("forward.start", self.start, f"one of {FIT_STARTS}")
+        if self.kind not in FORWARD_KINDS:
+            _fail("forward.kind", self.kind, f"one of {FORWARD_KINDS}")
+        if self.nominal is not None and (not isinstance(self.nominal, str) or not self.nominal):
+            _fail("forward.nominal", self.nominal, "None or an MJCF path / robot name")
+        _positive_float("forward.nominal_mass_scale", self.nominal_mass_scale)
+        if self.kind != "rigid_body":
+            for name, default in (("nominal", None), ("nominal_mass_scale", 1.0)):
+                if getattr(self, name) != default:
+                    _fail(
+                        f"forward.{name}",
+                        getattr(self, name),
+                        f"{default!r} unless forward.kind='rigid_body' (forward.kind="
+                        f"{self.kind!r} has no nominal model)",
+                    )
 
 
 @dataclasses.dataclass(frozen=True)

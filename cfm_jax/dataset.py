@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import os
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -38,17 +38,29 @@ class Transitions(NamedTuple):
       action: executed torque ``tau_run``, ``(n, action_dim)``.
       observed: the observed quantity the forward model predicts (the acceleration
         ``(qdot_{t+1} - qdot_t) / dt`` for the joint-space task), ``(n, output_dim)``.
+      terms: what the forward model needs per transition besides ``(s, tau)``, computed
+        once when the transition enters the data set (``Model.terms``; for ``rigid_body``
+        the :class:`cfm_jax.rigid_body.Terms` ``M^-1 S`` and ``-M^-1 h`` of the state); a
+        pytree of ``(n, ...)`` arrays, or None (the ``mlp`` forward model: no terms, so
+        the data pytree is the four arrays above). Not written by :func:`save`: a replay
+        recomputes them.
 
     Examples:
       >>> batch = Transitions(*(jnp.zeros((3, d)) for d in (4, 2, 2, 2)))
-      >>> batch.state.shape, batch._fields
-      ((3, 4), ('state', 'desired', 'action', 'observed'))
+      >>> batch.state.shape, batch._fields[:4], batch.terms
+      ((3, 4), ('state', 'desired', 'action', 'observed'), None)
     """
 
     state: jax.Array
     desired: jax.Array
     action: jax.Array
     observed: jax.Array
+    terms: Any = None
+
+
+RECORDED_FIELDS = ("state", "desired", "action", "observed")
+"""The fields of :class:`Transitions` that :func:`save` writes (``terms`` are derived from
+the state and recomputed when a replay adds the rows)."""
 
 
 @struct.dataclass
@@ -81,6 +93,7 @@ def empty(
     nv: int,
     action_dim: int | None = None,
     output_dim: int | None = None,
+    terms: Any = None,
 ) -> Dataset:
     """An empty data set for ``capacity`` transitions.
 
@@ -90,6 +103,8 @@ def empty(
       nv: size of the desired quantity ``s*``.
       action_dim: size of the action (default ``nv``, the joint-space task).
       output_dim: size of the observed quantity (default ``nv``).
+      terms: the forward model's per-transition terms of one row (a pytree of arrays,
+        whose shapes the rows get), or None (no terms).
 
     Returns:
       A :class:`Dataset` of float32 zeros, ``size = insert = 0``.
@@ -100,6 +115,9 @@ def empty(
     """
     dims = (state_dim, nv, action_dim or nv, output_dim or nv)
     data = Transitions(*(jnp.zeros((capacity, d), jnp.float32) for d in dims))
+    if terms is not None:
+        rows = jax.tree.map(lambda x: jnp.zeros((capacity,) + jnp.shape(x), jnp.float32), terms)
+        data = data._replace(terms=rows)
     return Dataset(data, jnp.int32(0), jnp.int32(0))
 
 
@@ -222,14 +240,15 @@ class Recorded(NamedTuple):
         ``rows`` rows: ``(transitions (seeds, rows, ...), valid (seeds, rows))``."""
         seeds = self.size.shape[0]
         start = np.concatenate([np.zeros((seeds, 1), np.int64), np.cumsum(self.segments, 1)], 1)
-        out = [np.zeros((seeds, rows) + x.shape[2:], np.float32) for x in self.transitions]
+        fields = [getattr(self.transitions, name) for name in RECORDED_FIELDS]
+        out = [np.zeros((seeds, rows) + x.shape[2:], np.float32) for x in fields]
         valid = np.zeros((seeds, rows), bool)
         for k in range(seeds):
             n = int(self.segments[k, segment])
             if n > rows:
                 raise ValueError(f"segment {segment} of seed {k} has {n} rows, more than {rows}")
             lo = int(start[k, segment])
-            for buffer, x in zip(out, self.transitions, strict=True):
+            for buffer, x in zip(out, fields, strict=True):
                 buffer[k, :n] = x[k, lo : lo + n]
             valid[k, :n] = True
         return Transitions(*out), valid
@@ -265,7 +284,7 @@ def save(path: str, data: Dataset, segments, seeds, config: dict) -> None:
     if not np.all(np.asarray(segments).sum(axis=1) == size):
         raise ValueError(f"segments {np.asarray(segments).tolist()} do not add up to {size}")
     rows = int(size.max())
-    arrays = {name: np.asarray(x)[:, :rows] for name, x in data.data._asdict().items()}
+    arrays = {name: np.asarray(getattr(data.data, name))[:, :rows] for name in RECORDED_FIELDS}
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         np.savez_compressed(
             f,
@@ -299,11 +318,11 @@ def load(path: str) -> Recorded:
     if not os.path.isfile(path):
         raise FileNotFoundError(f"data={path!r}: no such file (a run writes OUT/dataset.npz)")
     with np.load(path) as f:
-        missing = {"size", "segments", "seeds", "config", *Transitions._fields} - set(f.files)
+        missing = {"size", "segments", "seeds", "config", *RECORDED_FIELDS} - set(f.files)
         if missing:
             raise ValueError(f"data={path!r} is not a cfm_jax data set: no {sorted(missing)}")
         return Recorded(
-            Transitions(*(f[name] for name in Transitions._fields)),
+            Transitions(*(f[name] for name in RECORDED_FIELDS)),
             f["size"],
             f["segments"],
             f["seeds"],

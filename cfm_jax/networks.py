@@ -177,7 +177,13 @@ class Model(NamedTuple):
     Attributes:
       init: ``init(key, state_dim) -> params``.
       apply: ``apply(params, normaliser, state, other) -> output`` (see
-        :func:`forward_model` and :func:`controller`).
+        :func:`forward_model` and :func:`controller`); a forward model's also takes
+        ``per_member`` and ``terms`` (keywords).
+      terms: forward models only: ``terms(state (..., state_dim)) -> pytree (..., ...)``,
+        what ``apply`` needs per transition besides ``(s, tau)``, computed once when a
+        transition enters the data set (:attr:`cfm_jax.dataset.Transitions.terms`) and
+        passed to ``apply`` as ``terms=``; None (the ``mlp`` ensemble, the controller):
+        none.
 
     Examples:
       >>> g = controller(hidden=(8,), nv=2)
@@ -189,6 +195,7 @@ class Model(NamedTuple):
 
     init: Any
     apply: Any
+    terms: Any = None
 
 
 def forward_model(
@@ -244,7 +251,8 @@ def forward_model(
             "min_log_variance": jnp.full((nv,), min_log_variance, jnp.float32),
         }
 
-    def apply(params, normaliser: Normaliser, state, tau, per_member: bool = False):
+    def apply(params, normaliser: Normaliser, state, tau, per_member: bool = False, terms=None):
+        del terms  # the ensemble needs nothing but (s, tau)
         x = jnp.concatenate([normaliser.state(state), tau / normaliser.torque_limit], -1)
         in_axes = (0, 0) if per_member else (0, None)
         out = jax.vmap(mlp.apply, in_axes=in_axes)(params["members"], x)
@@ -257,7 +265,7 @@ def forward_model(
     return Model(init, apply)
 
 
-def ensemble_mean(forward: Model, params, normaliser: Normaliser, state, tau):
+def ensemble_mean(forward: Model, params, normaliser: Normaliser, state, tau, terms=None):
     """Prediction of the ensemble in normalised units: the mean over members.
 
     Args:
@@ -266,6 +274,8 @@ def ensemble_mean(forward: Model, params, normaliser: Normaliser, state, tau):
       normaliser: the :class:`Normaliser`.
       state: ``(..., state_dim)``.
       tau: ``(..., action_dim)``.
+      terms: the per-transition terms of ``state`` (``forward.terms``), or None (a model
+        without terms).
 
     Returns:
       ``(..., nv)`` (use ``normaliser.output_inverse`` for physical units).
@@ -277,7 +287,8 @@ def ensemble_mean(forward: Model, params, normaliser: Normaliser, state, tau):
       >>> ensemble_mean(fm, params, norm, jnp.zeros((5, 4)), jnp.zeros((5, 2))).shape
       (5, 2)
     """
-    mean, _ = forward.apply(params, normaliser, state, tau)
+    extra = {} if terms is None else {"terms": terms}
+    mean, _ = forward.apply(params, normaliser, state, tau, **extra)
     return jnp.mean(mean, axis=0)
 
 

@@ -49,8 +49,9 @@ def forward_objective(forward_params, forward, normaliser, batch: dataset.Transi
       ()
     """
 
+    extra = {} if batch.terms is None else {"terms": batch.terms}
     mean, log_var = forward.apply(
-        forward_params, normaliser, batch.state, batch.action, per_member=True
+        forward_params, normaliser, batch.state, batch.action, per_member=True, **extra
     )
     nll = losses.gaussian_nll(mean, log_var, normaliser.output(batch.observed))
     bounds = jnp.sum(forward_params["max_log_variance"]) - jnp.sum(
@@ -135,11 +136,13 @@ def controller_objective(
         return _mean(losses.supervised(predicted / scale, batch.action / scale), weights)
     goal_input = batch.desired if goal == "desired" else normaliser.select(batch.observed)
     tau = controller.apply(controller_params, normaliser, batch.state, goal_input)
-    predicted = networks.ensemble_mean(forward, forward_params, normaliser, batch.state, tau)
+    predicted = networks.ensemble_mean(
+        forward, forward_params, normaliser, batch.state, tau, terms=batch.terms
+    )
     predicted_run = None
     if loss == "distal":  # f(s, tau_run): no controller parameter in it
         predicted_run = networks.ensemble_mean(
-            forward, forward_params, normaliser, batch.state, batch.action
+            forward, forward_params, normaliser, batch.state, batch.action, terms=batch.terms
         )
     per_sample = losses.controller_loss(
         loss,

@@ -229,6 +229,21 @@ class JointSpaceTask:
         del qpos_next, features_next
         return (qvel_next - step.qvel) / self.control_dt
 
+    def configuration(self, state):
+        """``(qpos, qvel)`` of learning states ``(..., state_dim)``: every task's state
+        starts with ``qpos`` and ends with ``qvel`` (a task whose state does not overrides
+        this). Used by the ``rigid_body`` forward model (:mod:`cfm_jax.rigid_body`)."""
+        nq, nv = self.robot.nq, self.robot.nv
+        return state[..., :nq], state[..., state.shape[-1] - nv :]
+
+    def acceleration_output(self):
+        """Where the joint accelerations lie in the forward model's output ``y``:
+        ``(entries, scale)`` with ``y[entries] = scale * qacc`` (here the whole output,
+        scale 1), or None when the output is not a linear image of ``qacc`` alone. The
+        ``rigid_body`` forward model puts its physics there; the other entries are the
+        residual network's alone."""
+        return tuple(range(self.robot.nv)), 1.0
+
     def tracking_error(self, ref_next, qpos_next, qvel_next, features_next):
         del qvel_next, features_next
         return qpos_next - ref_next.q

@@ -261,6 +261,11 @@ class LeggedTask(JointSpaceTask):
     def observed(self, step, qpos_next, qvel_next, features_next):
         return jnp.concatenate([qvel_next - step.qvel, features_next])
 
+    def acceleration_output(self):
+        """``y[:nv] = control_dt * qacc`` (the foot forces after it are the residual
+        network's alone; see :meth:`JointSpaceTask.acceleration_output`)."""
+        return tuple(range(self.robot.nv)), self.control_dt
+
     def tracking_error(self, ref_next, qpos_next, qvel_next, features_next):
         error = self._pose_error(ref_next.qpos, qpos_next)[:6]
         return error * ref_next.active  # beyond the horizon: no error

@@ -146,6 +146,12 @@ class OperationalSpaceTask(JointSpaceTask):
     def tracking_error(self, ref_next, qpos_next, qvel_next, features_next):
         return features_next[:3] - ref_next.x
 
+    def acceleration_output(self):
+        """None: the site acceleration ``xdd = J qdd + Jdot qd`` in the output needs the
+        site's Jacobian terms, which the ``rigid_body`` forward model does not store yet
+        (see :meth:`JointSpaceTask.acceleration_output`)."""
+        return None
+
     def feedback(self, step):
         """Task-space PD ``J^T (K_p (x_ref - x) + K_d (xd_ref - xd))``
         (:func:`cfm_jax.baselines.opspace_pd_policy`)."""
