@@ -12,11 +12,11 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from tiny import tiny_config
 
 import cfm_jax
 from cfm_jax import config as config_lib
 from cfm_jax import forward_models, networks, rigid_body, robots, tasks
-from tests.tiny import tiny_config
 
 
 def _random_states(robot, rng, count):
