@@ -87,9 +87,11 @@ def train(
     )
     if babbling is not None:
         base = base.replace(loop=dataclasses.replace(base.loop, babbling=babbling))
-    os.makedirs(out, exist_ok=True)
     start = time.perf_counter()
-    experiment = train_lib.Experiment(base)
+    experiment = train_lib.Experiment(base)  # checks robot and config: nothing written yet
+    if data is not None:  # a bad --data is refused before anything is written
+        train_lib._recorded_for(experiment, base, data)
+    os.makedirs(out, exist_ok=True)
     frames, result = [], None
     for name in names:
         run_dir = os.path.join(out, name)
@@ -131,8 +133,7 @@ def _base_config(
     robot, task, loss, seed, seeds, iterations, simulator, control_dt and site."""
     base = config_lib.for_task(task)
     if config is not None:
-        with open(config) as f:
-            base = config_lib.from_dict(json.load(f))
+        base = config_lib.from_dict(_read_config(config))
     task_fields = {**config_lib.to_dict(base)["task"], "name": task}
     if control_dt is not None:
         task_fields["control_dt"] = control_dt
@@ -150,6 +151,23 @@ def _base_config(
             **{**config_lib.to_dict(base)["loop"], "iterations": iterations, "seeds": seeds}
         ),
     )
+
+
+def _read_config(path: str) -> dict:
+    """The JSON of ``--config``; a missing or unreadable file, or text that is not JSON,
+    raises :class:`cfm_jax.config.ConfigError` naming the file."""
+    allowed = "a JSON file of a full config (as a run's config.json)"
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except FileNotFoundError:
+        config_lib._fail("--config", path, f"{allowed}; there is no such file")
+    except IsADirectoryError:
+        config_lib._fail("--config", path, f"{allowed}; it is a directory")
+    except (OSError, UnicodeDecodeError) as error:
+        config_lib._fail("--config", path, f"{allowed}; it cannot be read ({error})")
+    except json.JSONDecodeError as error:
+        config_lib._fail("--config", path, f"{allowed}; it is not JSON ({error})")
 
 
 def sweep(
@@ -276,10 +294,10 @@ def _losses(spec: str, flag: str = "--loss") -> list[str]:
         return list(losses.PAPER_LOSSES)
     names = [s.strip() for s in spec.split(",") if s.strip()]
     bad = [n for n in names if n not in losses.CONTROLLER_LOSSES]
-    if not names or bad:
+    if not names or bad or len(set(names)) != len(names):
         raise config_lib.ConfigError(
-            f"{flag}={spec!r} is not allowed: 'all' or a comma-separated list of "
-            f"{losses.CONTROLLER_LOSSES}"
+            f"{flag}={spec!r} is not allowed: 'all' or a comma-separated list of distinct "
+            f"names from {losses.CONTROLLER_LOSSES}"
         )
     return names
 
@@ -332,7 +350,8 @@ def main() -> None:
     try:
         tyro.extras.subcommand_cli_from_dict({"train": train, "sweep": sweep, "bench": bench.bench})
     except (config_lib.ConfigError, RobotError) as error:
-        print(f"cfm-jax: error: {error}", file=sys.stderr)
+        one_line = " ".join(str(error).split())  # MuJoCo's parser messages span lines
+        print(f"cfm-jax: error: {one_line}", file=sys.stderr)
         raise SystemExit(2) from None
     except RuntimeError as error:
         from cfm_jax.sweeps import SweepError

@@ -150,7 +150,7 @@ def without_diverged(metrics: pd.DataFrame, column: str) -> pd.Series:
     the runs that did not diverge and the count and fraction of those that did are
     reported beside it (``diverged``, ``diverged_fraction`` of :func:`summary`). A
     diverged run is a failed run, as a fall is: its error over the steps before it
-    diverged is not a small error (see docs/concepts/metrics.md).
+    diverged is not a small error (see docs/how-to/metrics.md).
 
     Examples:
       >>> import pandas as pd
