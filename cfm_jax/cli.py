@@ -92,7 +92,7 @@ def train(
     if data is not None:  # a bad --data is refused before anything is written
         train_lib._recorded_for(experiment, base, data)
     os.makedirs(out, exist_ok=True)
-    frames, result = [], None
+    frames, result, notes = [], None, []
     for name in names:
         run_dir = os.path.join(out, name)
         can_resume = resume and os.path.isdir(os.path.join(run_dir, "checkpoints"))
@@ -105,7 +105,8 @@ def train(
             data=data,
         )
         frames.append(result.metrics)
-        _write_outputs(out, frames, result, base, experiment.task)
+        notes += _notes(name, result)
+        _write_outputs(out, frames, result, base, experiment.task, notes)
     wall = time.perf_counter() - start
     metrics = _concat(frames)
     table = report.summary(metrics, result.baselines, result.rms_reach)
@@ -120,6 +121,8 @@ def train(
     if metrics["loss"].nunique() > 1:
         paired = report.paired_table(metrics, reference=None)  # joint (else the first loss)
         report.print_paired(paired, title=f"{base.robot} {task}: tracking MSE, paired by seed")
+    for line in notes:
+        print(line)
     print(
         f"RMS reaching distance {result.rms_reach:.4f} {unit}. Results in {out}/ "
         f"(metrics.csv, summary.md, learning_curves.png)"
@@ -308,7 +311,34 @@ def _concat(frames):
     return pd.concat(frames, ignore_index=True)
 
 
-def _write_outputs(out, frames, result, base, task) -> None:
+def _notes(loss: str, result) -> list[str]:
+    """Lines naming what failed in a loss's run: diverged rollouts, seeds stopped by a
+    non-finite training quantity, MuJoCo's captured warnings (empty when nothing did)."""
+    lines = []
+    metrics = result.metrics
+    if "diverged" in metrics and len(metrics):
+        bad = metrics[metrics["diverged"] == 1]
+        if len(bad):
+            first = bad.iloc[0]
+            lines.append(
+                f"{loss}: {len(bad)} of {len(metrics)} rollouts diverged (seeds "
+                f"{sorted(int(x) for x in bad.seed.unique())}; the first: seed "
+                f"{int(first.seed)}, target {int(first.target)}, iteration "
+                f"{int(first.iteration)}, control step {int(first.diverged_step)}; all in "
+                "metrics.csv, columns diverged and diverged_step)"
+            )
+    for entry in result.stopped:
+        lines.append(
+            f"{loss}: seed {entry['seed']} stopped at iteration {entry['iteration']}: its "
+            f"{entry['quantity']} became non-finite (its last good state was kept)"
+        )
+    if result.warnings:
+        counts = ", ".join(f"{text} ({n}x)" for text, n in result.warnings.items())
+        lines.append(f"{loss}: MuJoCo warnings (captured, not printed): {counts}")
+    return lines
+
+
+def _write_outputs(out, frames, result, base, task, notes=()) -> None:
     """Write the combined files after every loss, so finished losses are never lost."""
     metrics = _concat(frames)
     metrics.to_csv(os.path.join(out, "metrics.csv"), index=False)
@@ -319,6 +349,8 @@ def _write_outputs(out, frames, result, base, task) -> None:
     text = report.protocol(base) + "\n\n" + report.markdown(table)
     if metrics["loss"].nunique() > 1:  # the joint loss (else the first) against the others
         text += "\n\n" + report.paired_markdown(report.paired_table(metrics, reference=None))
+    if notes:
+        text += "\n\nWhat failed:\n\n" + "\n".join(f"* {line}" for line in notes)
     with open(os.path.join(out, "summary.md"), "w") as f:
         f.write(text + "\n")
     plots.plot_learning_curves(

@@ -144,6 +144,21 @@ def diverged_runs(metrics: pd.DataFrame) -> pd.Series:
     return metrics["diverged"].fillna(0) == 1
 
 
+def failed_runs(metrics: pd.DataFrame) -> pd.Series:
+    """Which rows are failed runs for every ranking or selection rule: the simulation
+    diverged (:func:`diverged_runs`) or, for the legged tasks, the robot fell (``fell``).
+
+    Examples:
+      >>> import pandas as pd
+      >>> failed_runs(pd.DataFrame({"diverged": [0.0, 1.0, 0.0], "fell": [1.0, 0.0, 0.0]})).tolist()
+      [True, True, False]
+    """
+    failed = diverged_runs(metrics)
+    if "fell" in metrics.columns:
+        failed = failed | (metrics["fell"].fillna(0) == 1)
+    return failed
+
+
 def without_diverged(metrics: pd.DataFrame, column: str) -> pd.Series:
     """The one rule for a metric of runs that may have diverged: ``column`` with the
     diverged runs (:func:`diverged_runs`) set to NaN, so every mean of this module is over

@@ -136,3 +136,34 @@ def test_stepper_never_steps_a_bad_row_and_keeps_rows_apart(arm):
     for got, ref in zip(dirty, clean, strict=True):
         np.testing.assert_array_equal(got[0], ref[0])
         assert np.isnan(got[1:]).all()
+
+
+@pytest.mark.slow
+def test_cli_of_all_four_losses_on_a_diverging_robot_completes_and_counts(tmp_path):
+    import subprocess
+
+    import pandas as pd
+    from tiny import cli_command, tiny_config
+
+    config = tiny_config(iterations=1, seeds=1).replace(robot=ARM)
+    out = tmp_path / "run"
+    command = cli_command(config, tmp_path, out, "all", seeds=1, iterations=1)
+    done = subprocess.run(command, capture_output=True, text=True, timeout=900, cwd=tmp_path)
+    terminal = done.stdout + done.stderr
+    assert done.returncode == 0, terminal[-3000:]
+    assert "Traceback" not in terminal and "WARNING" not in terminal
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+    metrics = pd.read_csv(out / "metrics.csv")
+    assert set(metrics.loss) == {"joint", "task", "distal", "supervised"}
+    final = metrics[metrics.iteration == 1]
+    diverged = final.groupby("loss").diverged.sum()
+    assert diverged.sum() > 0  # the robot is made to diverge under a learned controller
+    summary = (out / "summary.md").read_text()
+    for loss, count in diverged.items():
+        row = next(line for line in summary.splitlines() if line.startswith(f"| {loss} |"))
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        header = next(line for line in summary.splitlines() if line.startswith("| controller"))
+        names = [c.strip() for c in header.strip("|").split("|")]
+        assert cells[names.index("diverged")] == str(int(count))
+    assert "What failed" in summary and "rollouts diverged" in summary
+    assert "rollouts diverged" in done.stdout
