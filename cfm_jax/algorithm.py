@@ -772,6 +772,12 @@ def divergence(result: rollout_lib.Rollout) -> dict:
     """``diverged`` (1.0 or 0.0) and ``diverged_step`` (the first control step whose state
     was bad, -1.0 when none) per rollout, from ``result.finite``.
 
+    Args:
+      result: a :class:`cfm_jax.rollout.Rollout` (its ``finite``, ``(..., steps)``).
+
+    Returns:
+      ``{"diverged": (...,), "diverged_step": (...,)}`` float32 arrays.
+
     Examples:
       >>> import jax.numpy as jnp
       >>> from types import SimpleNamespace

@@ -66,6 +66,13 @@ def _capture(message: str) -> None:
 def bad_rows(x: np.ndarray) -> np.ndarray:
     """Rows (all axes but the last) of ``x`` with a bad entry (:data:`MAXVAL`).
 
+    Args:
+      x: an array ``(..., n)``.
+
+    Returns:
+      A bool array ``(...)``: True where a row has a NaN, an infinity or an entry beyond
+      :data:`MAXVAL` in magnitude.
+
     Examples:
       >>> bad_rows(np.array([[0.0, 1.0], [np.nan, 0.0], [2e10, 0.0]])).tolist()
       [False, True, True]

@@ -134,6 +134,12 @@ def diverged_runs(metrics: pd.DataFrame) -> pd.Series:
     """Which rows of a metrics table are runs whose simulation diverged (``diverged == 1``;
     none when the table has no ``diverged`` column). See :func:`without_diverged`.
 
+    Args:
+      metrics: a metrics table.
+
+    Returns:
+      A bool Series on the table's index.
+
     Examples:
       >>> import pandas as pd
       >>> diverged_runs(pd.DataFrame({"diverged": [0.0, 1.0]})).tolist()
@@ -147,6 +153,12 @@ def diverged_runs(metrics: pd.DataFrame) -> pd.Series:
 def failed_runs(metrics: pd.DataFrame) -> pd.Series:
     """Which rows are failed runs for every ranking or selection rule: the simulation
     diverged (:func:`diverged_runs`) or, for the legged tasks, the robot fell (``fell``).
+
+    Args:
+      metrics: a metrics table.
+
+    Returns:
+      A bool Series on the table's index.
 
     Examples:
       >>> import pandas as pd
@@ -166,6 +178,14 @@ def without_diverged(metrics: pd.DataFrame, column: str) -> pd.Series:
     reported beside it (``diverged``, ``diverged_fraction`` of :func:`summary`). A
     diverged run is a failed run, as a fall is: its error over the steps before it
     diverged is not a small error (see docs/how-to/metrics.md).
+
+    Args:
+      metrics: a metrics table.
+      column: the metric (``diverged`` and ``diverged_step`` themselves, and non-numeric
+        columns, are returned as they are).
+
+    Returns:
+      The column as a Series, NaN at the diverged runs.
 
     Examples:
       >>> import pandas as pd
