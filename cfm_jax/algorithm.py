@@ -73,6 +73,8 @@ METRIC_COLUMNS = (
     "predicted_task_error",
     "finite_fraction",
     "transitions_added",
+    "diverged",
+    "diverged_step",
     "forward_loss",
     "controller_loss",
 )
@@ -877,6 +879,9 @@ def metrics(setup: Setup, state: TrainState, result: rollout_lib.Rollout) -> dic
     * ``finite_fraction``: share of steps whose simulator state stayed finite.
     * ``transitions_added``: the rollout's steps that are data (finite, and inside the
       target's horizon for tasks with horizons of different lengths).
+    * ``diverged``: 1 when the simulation diverged (:func:`cfm_jax.rollout.run`), else 0;
+      ``diverged_step``: the control step it diverged at, -1 when it did not. A diverged
+      rollout's ``tracking_mse`` is NaN: a failed run (see :func:`cfm_jax.report.rule`).
     * the task's own metrics (``task.metric_names``).
 
     Means are over the steps inside each target's horizon (all steps for the arms);
@@ -937,7 +942,33 @@ def rollout_metrics(setup: Setup, result: rollout_lib.Rollout) -> dict:
         "tracking_mse": _step_mean(result)(result.tracking_error),
         "finite_fraction": jnp.mean(result.finite.astype(jnp.float32), axis=-1),
         "transitions_added": jnp.sum(data_mask(result), axis=-1).astype(jnp.float32),
+        **divergence(result),
         **setup.task.metrics(result),
+    }
+
+
+def divergence(result: rollout_lib.Rollout) -> dict:
+    """``diverged`` (1.0 or 0.0) and ``diverged_step`` (the first control step whose state
+    was bad, -1.0 when none) per rollout, from ``result.finite``.
+
+    Args:
+      result: a :class:`cfm_jax.rollout.Rollout` (its ``finite``, ``(..., steps)``).
+
+    Returns:
+      ``{"diverged": (...,), "diverged_step": (...,)}`` float32 arrays.
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> from types import SimpleNamespace
+      >>> result = SimpleNamespace(finite=jnp.array([[True, True, True], [True, False, False]]))
+      >>> {k: v.tolist() for k, v in divergence(result).items()}
+      {'diverged': [0.0, 1.0], 'diverged_step': [-1.0, 1.0]}
+    """
+    diverged = ~result.finite[..., -1]
+    good_steps = jnp.sum(result.finite.astype(jnp.int32), axis=-1)
+    return {
+        "diverged": diverged.astype(jnp.float32),
+        "diverged_step": jnp.where(diverged, good_steps, -1).astype(jnp.float32),
     }
 
 

@@ -87,10 +87,12 @@ def train(
     )
     if babbling is not None:
         base = base.replace(loop=dataclasses.replace(base.loop, babbling=babbling))
-    os.makedirs(out, exist_ok=True)
     start = time.perf_counter()
-    experiment = train_lib.Experiment(base)
-    frames, result = [], None
+    experiment = train_lib.Experiment(base)  # checks robot and config: nothing written yet
+    if data is not None:  # a bad --data is refused before anything is written
+        train_lib._recorded_for(experiment, base, data)
+    os.makedirs(out, exist_ok=True)
+    frames, result, notes = [], None, []
     for name in names:
         run_dir = os.path.join(out, name)
         can_resume = resume and os.path.isdir(os.path.join(run_dir, "checkpoints"))
@@ -103,7 +105,8 @@ def train(
             data=data,
         )
         frames.append(result.metrics)
-        _write_outputs(out, frames, result, base, experiment.task)
+        notes += _notes(name, result)
+        _write_outputs(out, frames, result, base, experiment.task, notes)
     wall = time.perf_counter() - start
     metrics = _concat(frames)
     table = report.summary(metrics, result.baselines, result.rms_reach)
@@ -118,6 +121,8 @@ def train(
     if metrics["loss"].nunique() > 1:
         paired = report.paired_table(metrics, reference=None)  # joint (else the first loss)
         report.print_paired(paired, title=f"{base.robot} {task}: tracking MSE, paired by seed")
+    for line in notes:
+        print(line)
     print(
         f"RMS reaching distance {result.rms_reach:.4f} {unit}. Results in {out}/ "
         f"(metrics.csv, summary.md, learning_curves.png)"
@@ -131,8 +136,7 @@ def _base_config(
     robot, task, loss, seed, seeds, iterations, simulator, control_dt and site."""
     base = config_lib.for_task(task)
     if config is not None:
-        with open(config) as f:
-            base = config_lib.from_dict(json.load(f))
+        base = config_lib.from_dict(_read_config(config))
     task_fields = {**config_lib.to_dict(base)["task"], "name": task}
     if control_dt is not None:
         task_fields["control_dt"] = control_dt
@@ -150,6 +154,23 @@ def _base_config(
             **{**config_lib.to_dict(base)["loop"], "iterations": iterations, "seeds": seeds}
         ),
     )
+
+
+def _read_config(path: str) -> dict:
+    """The JSON of ``--config``; a missing or unreadable file, or text that is not JSON,
+    raises :class:`cfm_jax.config.ConfigError` naming the file."""
+    allowed = "a JSON file of a full config (as a run's config.json)"
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except FileNotFoundError:
+        config_lib._fail("--config", path, f"{allowed}; there is no such file")
+    except IsADirectoryError:
+        config_lib._fail("--config", path, f"{allowed}; it is a directory")
+    except (OSError, UnicodeDecodeError) as error:
+        config_lib._fail("--config", path, f"{allowed}; it cannot be read ({error})")
+    except json.JSONDecodeError as error:
+        config_lib._fail("--config", path, f"{allowed}; it is not JSON ({error})")
 
 
 def sweep(
@@ -276,10 +297,10 @@ def _losses(spec: str, flag: str = "--loss") -> list[str]:
         return list(losses.PAPER_LOSSES)
     names = [s.strip() for s in spec.split(",") if s.strip()]
     bad = [n for n in names if n not in losses.CONTROLLER_LOSSES]
-    if not names or bad:
+    if not names or bad or len(set(names)) != len(names):
         raise config_lib.ConfigError(
-            f"{flag}={spec!r} is not allowed: 'all' or a comma-separated list of "
-            f"{losses.CONTROLLER_LOSSES}"
+            f"{flag}={spec!r} is not allowed: 'all' or a comma-separated list of distinct "
+            f"names from {losses.CONTROLLER_LOSSES}"
         )
     return names
 
@@ -290,7 +311,34 @@ def _concat(frames):
     return pd.concat(frames, ignore_index=True)
 
 
-def _write_outputs(out, frames, result, base, task) -> None:
+def _notes(loss: str, result) -> list[str]:
+    """Lines naming what failed in a loss's run: diverged rollouts, seeds stopped by a
+    non-finite training quantity, MuJoCo's captured warnings (empty when nothing did)."""
+    lines = []
+    metrics = result.metrics
+    if "diverged" in metrics and len(metrics):
+        bad = metrics[metrics["diverged"] == 1]
+        if len(bad):
+            first = bad.iloc[0]
+            lines.append(
+                f"{loss}: {len(bad)} of {len(metrics)} rollouts diverged (seeds "
+                f"{sorted(int(x) for x in bad.seed.unique())}; the first: seed "
+                f"{int(first.seed)}, target {int(first.target)}, iteration "
+                f"{int(first.iteration)}, control step {int(first.diverged_step)}; all in "
+                "metrics.csv, columns diverged and diverged_step)"
+            )
+    for entry in result.stopped:
+        lines.append(
+            f"{loss}: seed {entry['seed']} stopped at iteration {entry['iteration']}: its "
+            f"{entry['quantity']} became non-finite (its last good state was kept)"
+        )
+    if result.warnings:
+        counts = ", ".join(f"{text} ({n}x)" for text, n in result.warnings.items())
+        lines.append(f"{loss}: MuJoCo warnings (captured, not printed): {counts}")
+    return lines
+
+
+def _write_outputs(out, frames, result, base, task, notes=()) -> None:
     """Write the combined files after every loss, so finished losses are never lost."""
     metrics = _concat(frames)
     metrics.to_csv(os.path.join(out, "metrics.csv"), index=False)
@@ -301,6 +349,8 @@ def _write_outputs(out, frames, result, base, task) -> None:
     text = report.protocol(base) + "\n\n" + report.markdown(table)
     if metrics["loss"].nunique() > 1:  # the joint loss (else the first) against the others
         text += "\n\n" + report.paired_markdown(report.paired_table(metrics, reference=None))
+    if notes:
+        text += "\n\nWhat failed:\n\n" + "\n".join(f"* {line}" for line in notes)
     with open(os.path.join(out, "summary.md"), "w") as f:
         f.write(text + "\n")
     plots.plot_learning_curves(
@@ -332,7 +382,8 @@ def main() -> None:
     try:
         tyro.extras.subcommand_cli_from_dict({"train": train, "sweep": sweep, "bench": bench.bench})
     except (config_lib.ConfigError, RobotError) as error:
-        print(f"cfm-jax: error: {error}", file=sys.stderr)
+        one_line = " ".join(str(error).split())  # MuJoCo's parser messages span lines
+        print(f"cfm-jax: error: {one_line}", file=sys.stderr)
         raise SystemExit(2) from None
     except RuntimeError as error:
         from cfm_jax.sweeps import SweepError

@@ -862,6 +862,8 @@ def from_dict(data: dict) -> Config:
         "loop": LoopConfig,
     }
     top_fields = {f.name for f in dataclasses.fields(Config)}
+    if not isinstance(data, dict):
+        _fail("config", data, "a JSON object of the fields of Config (as config.json)")
     unknown = set(data) - top_fields
     if unknown:
         _fail("config", sorted(unknown), f"known top-level fields are {sorted(top_fields)}")
@@ -870,6 +872,8 @@ def from_dict(data: dict) -> Config:
         if key in sections:
             cls = sections[key]
             fields = {f.name for f in dataclasses.fields(cls)}
+            if not isinstance(value, dict):
+                _fail(key, value, f"an object of the fields {sorted(fields)}")
             bad = set(value) - fields
             if bad:
                 _fail(key, sorted(bad), f"known fields of {key} are {sorted(fields)}")

@@ -34,6 +34,52 @@ import numpy as np
 
 from cfm_jax import _jax_private
 
+MAXVAL = 1e10
+"""MuJoCo's ``mjMAXVAL``: a state entry that is NaN, infinite or larger than this in magnitude
+is *bad* (MuJoCo's own test, ``mju_isBad``, behind its "Nan, Inf or huge value" warnings)."""
+
+WARNINGS: dict[str, int] = {}
+"""MuJoCo warnings raised while :class:`Stepper` objects stepped, by message (the DOF and time
+stripped), counted since the last :func:`take_warnings`. They are captured, not printed."""
+
+
+def take_warnings() -> dict[str, int]:
+    """The MuJoCo warnings captured since the last call (:data:`WARNINGS`), and clear them.
+
+    Returns:
+      ``{message: count}``, for example ``{"Nan, Inf or huge value in QACC": 3}``.
+
+    Examples:
+      >>> take_warnings()
+      {}
+    """
+    out = dict(WARNINGS)
+    WARNINGS.clear()
+    return out
+
+
+def _capture(message: str) -> None:
+    key = message.split(" at DOF")[0].split(". ")[0]
+    WARNINGS[key] = WARNINGS.get(key, 0) + 1
+
+
+def bad_rows(x: np.ndarray) -> np.ndarray:
+    """Rows (all axes but the last) of ``x`` with a bad entry (:data:`MAXVAL`).
+
+    Args:
+      x: an array ``(..., n)``.
+
+    Returns:
+      A bool array ``(...)``: True where a row has a NaN, an infinity or an entry beyond
+      :data:`MAXVAL` in magnitude.
+
+    Examples:
+      >>> bad_rows(np.array([[0.0, 1.0], [np.nan, 0.0], [2e10, 0.0]])).tolist()
+      [False, True, True]
+    """
+    with np.errstate(invalid="ignore"):
+        return ~np.all(np.abs(x) <= MAXVAL, axis=-1)
+
 
 class _Buffers:
     """Preallocated arrays of one batch size (reused by every call of that size)."""
@@ -62,6 +108,18 @@ class Stepper:
     instability disabled (``mjDSBL_AUTORESET``), so a diverging state stays non-finite and
     is flagged like in MJX, instead of silently jumping back to ``qpos0``; a non-finite
     control makes the state non-finite too (MuJoCo would zero it and step on).
+
+    Divergence: a row whose ``qpos`` or ``qvel`` is bad (NaN, infinite or beyond MuJoCo's
+    ``mjMAXVAL`` = 1e10, :data:`MAXVAL`) at any of its ``n_sub`` physics steps, or that
+    ``mujoco.rollout`` stopped stepping because MuJoCo raised a warning (MuJoCo's own test
+    of ``qpos``, ``qvel`` and ``qacc`` against ``mjMAXVAL`` among them; seen as a time short
+    of ``n_sub`` steps, so it needs ``n_sub >= 2``), returns NaN ``qpos``, ``qvel`` and
+    sensors; a row whose input state or control is bad is not
+    stepped at all (the C engine never sees it) and returns NaN too. Every row is stepped
+    alone, so a diverging row changes no other row's numbers. MuJoCo's warnings ("Nan, Inf or
+    huge value in QACC ...") are captured while stepping (``mujoco.set_mju_user_warning``)
+    and counted in :data:`WARNINGS` instead of being printed and logged to
+    ``MUJOCO_LOG.TXT``.
 
     Batches of at least :attr:`threaded_batch` physics steps' worth of rollouts use a pool
     of ``threads`` threads (``mujoco.rollout``, one chunk per thread); results do not
@@ -108,6 +166,11 @@ class Stepper:
         nq, nv = self.model.nq, self.model.nv
         self.qpos = slice(1, 1 + nq)
         self.qvel = slice(1 + nq, 1 + nq + nv)
+        # The time after n_sub steps (MuJoCo adds the timestep once per step): a row that
+        # ends earlier was stopped by mujoco.rollout, which stops at MuJoCo's first warning.
+        self.final_time = 0.0
+        for _ in range(self.n_sub):
+            self.final_time += self.model.opt.timestep
         if threads is None:
             threads = min(2, os.cpu_count() or 1)
         self.threads = max(1, int(threads))
@@ -120,6 +183,8 @@ class Stepper:
         self._lock = threading.Lock()
 
     def __call__(self, qpos, qvel, ctrl):
+        import mujoco
+
         nq, nv, nu = self.model.nq, self.model.nv, self.model.nu
         batch_shape = np.shape(qpos)[:-1]
         qpos = np.reshape(qpos, (-1, nq))
@@ -132,27 +197,30 @@ class Stepper:
             state[:, self.qpos] = qpos
             state[:, self.qvel] = np.reshape(qvel, (-1, nv))
             control[:] = np.reshape(ctrl, (-1, 1, nu))
+            # Rows that are already bad are not stepped (no warnings, nothing to learn).
+            skip = bad_rows(state[:, self.qpos]) | bad_rows(state[:, self.qvel])
+            skip |= ~np.all(np.isfinite(control[:, 0]), axis=-1)
+            if skip.any():
+                state[skip] = self.template
+                control[skip] = 0.0
             threaded = self._pool is not None and batch >= self.threaded_batch
             runner, datas = (self._pool, self.datas) if threaded else (self._single, self.datas[:1])
-            runner.rollout_.rollout(
-                buffers.models,
-                datas,
-                self.n_sub,
-                self.ctrl_spec,
-                state,
-                None,
-                control,
-                buffers.out,
-                buffers.sensors,
-                -(-batch // len(datas)),  # chunk size: one chunk per thread
-            )
+            previous = mujoco.get_mju_user_warning()
+            mujoco.set_mju_user_warning(_capture)
+            try:
+                self._rollout(runner, buffers, datas, batch)
+            finally:
+                mujoco.set_mju_user_warning(previous)
             last = buffers.out[:, -1]
             q_next = last[:, self.qpos].astype(np.float32)
             qd_next = last[:, self.qvel].astype(np.float32)
             sensors = buffers.sensors.astype(np.float32)
-            # MuJoCo zeroes a non-finite ctrl (with a warning) and steps on; mark such
-            # rollouts non-finite instead, as MJX's NaN propagation does.
-            bad = ~np.all(np.isfinite(control[:, 0]), axis=-1)
+            # A row diverged when its state was bad after any physics step (MuJoCo goes on
+            # with huge values when auto-reset is off).
+            out = buffers.out
+            diverged = bad_rows(out[:, :, self.qpos]) | bad_rows(out[:, :, self.qvel])
+            diverged = np.any(diverged, axis=1) | (out[:, -1, 0] != self.final_time)
+            bad = skip | diverged
         if bad.any():
             q_next[bad] = np.nan
             qd_next[bad] = np.nan
@@ -161,6 +229,20 @@ class Stepper:
             q_next.reshape(*batch_shape, nq),
             qd_next.reshape(*batch_shape, nv),
             sensors.reshape(*batch_shape, self.n_sub, self.model.nsensordata),
+        )
+
+    def _rollout(self, runner, buffers, datas, batch):
+        runner.rollout_.rollout(
+            buffers.models,
+            datas,
+            self.n_sub,
+            self.ctrl_spec,
+            buffers.state,
+            None,
+            buffers.control,
+            buffers.out,
+            buffers.sensors,
+            -(-batch // len(datas)),  # chunk size: one chunk per thread
         )
 
 

@@ -196,10 +196,12 @@ def _plot_series(
     panels = _panels(tracking_label, output_unit)
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     for ax, (column, label) in zip(axes, panels, strict=True):
+        positive = False  # a log scale needs a positive value (every run may have diverged)
         for name, stats in series:
             if column not in stats:
                 continue
             mean, low, high = stats[column]
+            positive |= bool(np.any(np.asarray(mean.values, float) > 0))
             (line,) = ax.plot(mean.index, mean.values, marker="o", ms=3, label=name)
             lower = np.maximum(low.values, mean.values * 1e-2)  # log scale: keep it positive
             ax.fill_between(mean.index, lower, high.values, alpha=0.2, color=line.get_color())
@@ -213,7 +215,12 @@ def _plot_series(
                     lw=1,
                     label=name,
                 )
-        ax.set_yscale("log")
+                positive |= bool(frame["tracking_mse"].mean() > 0)
+        if positive:
+            ax.set_yscale("log")
+        else:
+            ax.text(0.5, 0.5, "no values: every run diverged", ha="center",
+                    transform=ax.transAxes)  # fmt: skip
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_xlabel("iteration")
         ax.set_ylabel(label)

@@ -142,6 +142,75 @@ def bootstrap_ci(
     return float(low), float(high)
 
 
+def diverged_runs(metrics: pd.DataFrame) -> pd.Series:
+    """Which rows of a metrics table are runs whose simulation diverged (``diverged == 1``;
+    none when the table has no ``diverged`` column). See :func:`without_diverged`.
+
+    Args:
+      metrics: a metrics table.
+
+    Returns:
+      A bool Series on the table's index.
+
+    Examples:
+      >>> import pandas as pd
+      >>> diverged_runs(pd.DataFrame({"diverged": [0.0, 1.0]})).tolist()
+      [False, True]
+    """
+    if "diverged" not in metrics.columns:
+        return pd.Series(False, index=metrics.index)
+    return metrics["diverged"].fillna(0) == 1
+
+
+def failed_runs(metrics: pd.DataFrame) -> pd.Series:
+    """Which rows are failed runs for every ranking or selection rule: the simulation
+    diverged (:func:`diverged_runs`) or, for the legged tasks, the robot fell (``fell``).
+
+    Args:
+      metrics: a metrics table.
+
+    Returns:
+      A bool Series on the table's index.
+
+    Examples:
+      >>> import pandas as pd
+      >>> failed_runs(pd.DataFrame({"diverged": [0.0, 1.0, 0.0], "fell": [1.0, 0.0, 0.0]})).tolist()
+      [True, True, False]
+    """
+    failed = diverged_runs(metrics)
+    if "fell" in metrics.columns:
+        failed = failed | (metrics["fell"].fillna(0) == 1)
+    return failed
+
+
+def without_diverged(metrics: pd.DataFrame, column: str) -> pd.Series:
+    """The one rule for a metric of runs that may have diverged: ``column`` with the
+    diverged runs (:func:`diverged_runs`) set to NaN, so every mean of this module is over
+    the runs that did not diverge and the count and fraction of those that did are
+    reported beside it (``diverged``, ``diverged_fraction`` of :func:`summary`). A
+    diverged run is a failed run, as a fall is: its error over the steps before it
+    diverged is not a small error (see docs/how-to/metrics.md).
+
+    Args:
+      metrics: a metrics table.
+      column: the metric (``diverged`` and ``diverged_step`` themselves, and non-numeric
+        columns, are returned as they are).
+
+    Returns:
+      The column as a Series, NaN at the diverged runs.
+
+    Examples:
+      >>> import pandas as pd
+      >>> frame = pd.DataFrame({"tracking_mse": [1.0, 0.5], "diverged": [0.0, 1.0]})
+      >>> without_diverged(frame, "tracking_mse").tolist()
+      [1.0, nan]
+    """
+    values = metrics[column]
+    if column in ("diverged", "diverged_step") or not pd.api.types.is_numeric_dtype(values):
+        return values
+    return values.where(~np.asarray(diverged_runs(metrics)))
+
+
 def seed_means(
     metrics: pd.DataFrame,
     column: str = "tracking_mse",
@@ -152,7 +221,8 @@ def seed_means(
     statistics of this module.
 
     ``m[g, s] = (1/K) sum_k x[g, s, k]`` for each group ``g`` (a loss), seed ``s`` and the
-    ``K`` targets (rows) of that seed at the iteration; NaN values are skipped (pandas).
+    ``K`` targets (rows) of that seed at the iteration; NaN values and the runs that
+    diverged (:func:`without_diverged`) are skipped.
 
     Args:
       metrics: a metrics table (``TrainResult.metrics``, several concatenated, a sweep's
@@ -189,6 +259,7 @@ def seed_means(
         frame = frame[frame["iteration"] == last]
     else:
         frame = frame[frame["iteration"] == iteration]
+    frame = frame.assign(**{column: without_diverged(frame, column)})
     grouped = frame.groupby([*by, "seed", "iteration"], sort=False, dropna=False)[column]
     out = pd.DataFrame({column: grouped.mean(), "targets": grouped.count()}).reset_index()
     rank = {key: i for i, key in enumerate(dict.fromkeys(_group_keys(out, by)))}
@@ -324,7 +395,10 @@ def summary(
       appearance) and baseline. Columns: ``iteration``; ``<column>_mean`` and
       ``<column>_std`` (mean and population std, ``ddof=0``, over seeds x targets);
       ``runs`` (seeds x targets); ``seeds``, ``seed_std``, ``ci_low``, ``ci_high`` (over
-      the seed means, as above; NaN for the baselines); ``prediction_error_mean``,
+      the seed means, as above; NaN for the baselines); ``diverged`` and
+      ``diverged_fraction`` (the runs whose simulation diverged, when ``metrics`` has a
+      ``diverged`` column: every mean is over the others, :func:`without_diverged`);
+      ``prediction_error_mean``,
       ``predicted_task_error_mean`` (when in ``metrics``); ``rmse_over_reach``. The
       frame's ``attrs`` hold ``column``, ``confidence`` and ``resamples``.
 
@@ -354,19 +428,24 @@ def summary(
         values = per_seed[column].to_numpy(dtype=float)
         values = values[np.isfinite(values)]
         low, high = bootstrap_ci(values, confidence)
+        kept = without_diverged(final, column)
         rows[loss] = {
             "iteration": at,
-            f"{column}_mean": final[column].mean(),
-            f"{column}_std": final[column].std(ddof=0),
+            f"{column}_mean": kept.mean(),
+            f"{column}_std": kept.std(ddof=0),
             "runs": len(final),
             "seeds": len(values),
             "seed_std": float(np.std(values, ddof=1)) if len(values) > 1 else float("nan"),
             "ci_low": low,
             "ci_high": high,
         }
+        if "diverged" in final:
+            count = int(np.sum(diverged_runs(final)))
+            rows[loss]["diverged"] = count
+            rows[loss]["diverged_fraction"] = count / len(final) if len(final) else np.nan
         for extra in ("prediction_error", "predicted_task_error"):
             if extra in final and extra != column:
-                rows[loss][f"{extra}_mean"] = final[extra].mean()
+                rows[loss][f"{extra}_mean"] = without_diverged(final, extra).mean()
     if baselines is not None and column in baselines:
         for name, frame in baselines.groupby("baseline", sort=False):
             rows[name] = {
@@ -487,6 +566,8 @@ SHORT_HEADERS = {
     "prediction_error_mean": "pred. err",
     "predicted_task_error_mean": "pred. task err",
     "rmse_over_reach": "RMSE/reach",
+    "diverged": "diverged",
+    "diverged_fraction": "div. frac.",
 }
 
 
@@ -565,7 +646,8 @@ def print_summary(
         "seeds, each seed averaged over its targets (-: fewer than two seeds, or a "
         "baseline); pred. err / pred. task err: forward-model prediction error and "
         "predicted task error (squared units of the predicted quantities); RMSE/reach: "
-        "sqrt(MSE mean) / RMS reaching distance",
+        "sqrt(MSE mean) / RMS reaching distance; diverged / div. frac.: count and fraction "
+        "of the runs whose simulation diverged (failed runs; every mean is over the others)",
     )
     out.add_column("controller")
     columns = _table_columns(table)

@@ -221,8 +221,6 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
         ) from error
     name = os.path.splitext(os.path.basename(path))[0]
     where = f"robot={name_or_path!r} ({path})"
-    if model.nu == 0:
-        raise RobotError(f"{where} has no actuators; add one <motor> per joint")
     floating_base = False
     unactuated = set()
     for j in range(model.njnt):
@@ -243,6 +241,8 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
                 f"{where}: joint {jname!r} is {kind}; supported are hinge and slide joints, "
                 "on a fixed base or below one free joint at the root (a floating base)"
             )
+    if model.nu == 0:  # after the joint types: a ball joint is the first problem to report
+        raise RobotError(f"{where} has no actuators; add one <motor> per joint")
     actuator_of_joint = -np.ones(model.nv, dtype=np.int32)
     gear = np.ones(model.nv)
     torque_limit = np.full(model.nv, np.inf)

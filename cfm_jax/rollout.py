@@ -143,6 +143,15 @@ def run(task, policy, key, simulator="native") -> Rollout:
       A :class:`Rollout`; rollout ``k`` starts where the task says (``task.start``), for the
       joint-space task at rest at the reference's first position.
 
+    Divergence: a rollout *diverges* at the first control step at one of whose physics
+    steps its ``qpos``, ``qvel`` or ``qacc`` is bad (NaN, infinite, or beyond MuJoCo's
+    ``mjMAXVAL`` = 1e10 in magnitude: MuJoCo's own test behind its "Nan, Inf or huge
+    value" warnings), on both simulators. From that step on ``finite`` is False, the rollout
+    is frozen at its last good state and not stepped again (its later transitions, tracking
+    errors and observations are NaN or stale and never data, see
+    :func:`cfm_jax.algorithm.data_mask`). Each rollout is simulated alone, so one that
+    diverges changes no other rollout's numbers.
+
     Examples:
       >>> import jax, numpy as np
       >>> from cfm_jax import references, robots, tasks
@@ -165,7 +174,7 @@ def run(task, policy, key, simulator="native") -> Rollout:
         qpos0, qvel0, features0 = task.start(reference)
 
         def control_step(carry, t):
-            qpos, qvel, features, key = carry
+            qpos, qvel, features, key, alive = carry
             key, key_policy = jax.random.split(key)
             ref_t = jax.tree.map(lambda x: x[t], reference)
             ref_next = jax.tree.map(lambda x: x[t + 1], reference)
@@ -179,8 +188,11 @@ def run(task, policy, key, simulator="native") -> Rollout:
                 ref_t,
             )
             tau = jnp.clip(policy(step, key_policy), -limit, limit)
-            qpos_next, qvel_next, sensors = physics(qpos, qvel, robot.torque_to_ctrl(tau))
-            finite = jnp.all(jnp.isfinite(qpos_next)) & jnp.all(jnp.isfinite(qvel_next))
+            # A frozen (diverged) rollout is not stepped: a NaN control makes both
+            # simulators return NaN without computing anything from it.
+            ctrl = jnp.where(alive, robot.torque_to_ctrl(tau), jnp.nan)
+            qpos_next, qvel_next, sensors = physics(qpos, qvel, ctrl)
+            finite = alive & _good(qpos_next) & _good(qvel_next)
             features_next = task.features(qpos_next, qvel_next, sensors)
             out = (
                 dataset.Transitions(
@@ -193,10 +205,25 @@ def run(task, policy, key, simulator="native") -> Rollout:
                 finite,
                 task.record(step, tau, qpos_next, qvel_next, features_next),
             )
-            return (qpos_next, qvel_next, features_next, key), out
+
+            # Freeze a diverged rollout at its last good state: nothing non-finite
+            # reaches the policy or the simulator again (its later steps are not data).
+            def keep(new, old):
+                return jnp.where(finite, new, old)
+
+            carry = (
+                keep(qpos_next, qpos),
+                keep(qvel_next, qvel),
+                jax.tree.map(keep, features_next, features),
+                key,
+                finite,
+            )
+            return carry, out
 
         _, (transitions, error, finite, extras) = jax.lax.scan(
-            control_step, (qpos0, qvel0, features0, target_key), jnp.arange(task.steps)
+            control_step,
+            (qpos0, qvel0, features0, target_key, jnp.bool_(True)),
+            jnp.arange(task.steps),
         )
         # Once the state is non-finite, everything after it is too.
         finite = jnp.cumprod(finite.astype(jnp.int32)).astype(bool)
@@ -204,6 +231,16 @@ def run(task, policy, key, simulator="native") -> Rollout:
 
     keys = jax.random.split(key, task.targets)
     return jax.vmap(one_target)(task.reference, keys)
+
+
+MAXVAL = native.MAXVAL
+"""MuJoCo's ``mjMAXVAL`` (1e10): the bound of a good simulator state (see :func:`run`)."""
+
+
+def _good(x):
+    """All entries of ``x`` finite and at most :data:`MAXVAL` in magnitude (MuJoCo's
+    ``mju_isBad`` negated; NaN compares false)."""
+    return jnp.all(jnp.abs(x) <= MAXVAL)
 
 
 def mjx_physics(robot, n_sub: int):
@@ -236,10 +273,14 @@ def mjx_physics(robot, n_sub: int):
 
         def substep(data, _):
             data = mjx.step(model, data)
-            return data, data.sensordata
+            good = _good(data.qpos) & _good(data.qvel) & _good(data.qacc)
+            return data, (data.sensordata, good)
 
-        data, sensors = jax.lax.scan(substep, data, None, length=n_sub)
-        return data.qpos, data.qvel, sensors
+        data, (sensors, good) = jax.lax.scan(substep, data, None, length=n_sub)
+        # As the native stepper: a state that was bad after any physics step is NaN.
+        good = jnp.all(good)
+        qpos, qvel = (jnp.where(good, x, jnp.nan) for x in (data.qpos, data.qvel))
+        return qpos, qvel, jnp.where(good, sensors, jnp.nan)
 
     return physics
 

@@ -134,6 +134,9 @@ class CellOutput:
       pid: the process that ran it.
       host: the machine that ran it.
       labels: axis labels of the task for figures (``tracking_label``, ``output_unit``).
+      stopped: :attr:`cfm_jax.TrainResult.stopped` of the cell: seeds stopped by a
+        non-finite training quantity (a diverged *rollout* is in ``metrics``, ``diverged``;
+        neither loses the cell).
 
     Examples:
       A custom runner does extra work around :func:`run_cell` and returns its output:
@@ -150,6 +153,7 @@ class CellOutput:
     pid: int
     host: str
     labels: dict = dataclasses.field(default_factory=dict)
+    stopped: list = dataclasses.field(default_factory=list)
 
 
 @dataclasses.dataclass
@@ -508,6 +512,7 @@ def run_cell(
             "tracking_label": f"{task.tracking_name} ({task.tracking_unit}$^2$)",
             "output_unit": task.output_unit,
         },
+        stopped=list(result.stopped),
     )
 
 
@@ -727,6 +732,7 @@ def _write_cell(out_dir: str, cell: Cell, output: CellOutput) -> None:
         "pid": output.pid,
         "host": output.host,
         "labels": output.labels,
+        "stopped": output.stopped,
     }
     write_text(os.path.join(directory, "cell.json"), json.dumps(info, indent=2))
     write_atomic(
@@ -755,7 +761,13 @@ def _load_cell(out_dir: str, cell: Cell) -> CellOutput | None:
         metrics = _read_csv(os.path.join(directory, "metrics.csv"))
         baselines = _read_csv(os.path.join(directory, "baselines.csv"))
         return CellOutput(
-            metrics, baselines, info["seconds"], info["pid"], info["host"], info.get("labels", {})
+            metrics,
+            baselines,
+            info["seconds"],
+            info["pid"],
+            info["host"],
+            info.get("labels", {}),
+            info.get("stopped", []),
         )
     except (FileNotFoundError, KeyError, json.JSONDecodeError, pd.errors.EmptyDataError):
         return None

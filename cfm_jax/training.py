@@ -55,6 +55,13 @@ class TrainResult:
       seconds: wall time of the run (s).
       compile_seconds: wall time of the first iteration this call ran (s), which includes
         compiling it; NaN when the run had no iteration to run.
+      stopped: the seeds stopped by a non-finite training quantity, one dict each:
+        ``{"loss", "seed", "iteration", "quantity"}`` (``quantity``: ``forward_loss``,
+        ``controller_loss``, ``forward-model parameters`` or ``controller parameters``).
+        Such a seed keeps the state of its last good iteration, and has no metrics rows
+        from the iteration it stopped at on.
+      warnings: MuJoCo warnings captured while stepping (``{message: count}``, see
+        :func:`cfm_jax.native.take_warnings`); they are not printed.
 
     Examples:
       >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
@@ -69,6 +76,8 @@ class TrainResult:
     rms_reach: float
     seconds: float
     compile_seconds: float
+    stopped: list = dataclasses.field(default_factory=list)
+    warnings: dict = dataclasses.field(default_factory=dict)
 
     @property
     def params(self) -> dict:
@@ -97,8 +106,9 @@ def _rows(loss, seeds, iteration, metrics, columns=METRIC_COLUMNS) -> list[dict]
 class DivergenceError(RuntimeError):
     """Training produced a non-finite quantity.
 
-    The message names the iteration, the quantity (simulator state, a loss, parameters), the
-    seed, for the simulator the targets, and where the last good checkpoint is.
+    :func:`train` no longer raises it: a diverged rollout is recorded in the metrics
+    (``diverged``) and a non-finite loss or parameter stops one seed
+    (:attr:`TrainResult.stopped`). Kept for code that catches it.
 
     Examples:
       >>> try:
@@ -113,16 +123,14 @@ def _jsonable(config: config_lib.Config) -> dict:
     return json.loads(json.dumps(config_lib.to_dict(config)))
 
 
-def _check_finite(
-    state: TrainState, metrics: dict, iteration: int, seeds, where: str, losses: bool = True
-) -> None:
-    """Raise :class:`DivergenceError` for the first non-finite quantity, by seed."""
-    checks = [("simulator state", np.asarray(metrics["finite_fraction"]) < 1.0)]
-    if losses:  # the final evaluation has no refit, its losses are NaN by design
-        checks += [
-            ("forward_loss", ~np.isfinite(np.asarray(metrics["forward_loss"]))),
-            ("controller_loss", ~np.isfinite(np.asarray(metrics["controller_loss"]))),
-        ]
+def _nonfinite(state: TrainState, metrics: dict, n_seeds: int) -> list[str | None]:
+    """Per seed, the first quantity of an update that is non-finite (a training loss or
+    the parameters of a model), or None. A diverged *rollout* is not in this list: it is an
+    outcome of the controller, recorded in the metrics (``diverged``)."""
+    checks = [
+        ("forward_loss", ~np.isfinite(np.asarray(metrics["forward_loss"]))),
+        ("controller_loss", ~np.isfinite(np.asarray(metrics["controller_loss"]))),
+    ]
     for name, params in (
         ("forward-model parameters", state.forward_params),
         ("controller parameters", state.controller_params),
@@ -132,18 +140,23 @@ def _check_finite(
             for x in jax.tree.leaves(params)
         ]
         checks.append((name, ~np.all(np.stack(finite), axis=0)))
+    out: list[str | None] = [None] * n_seeds
     for name, bad in checks:
-        bad = np.asarray(bad).reshape(len(seeds), -1)
-        for s, seed in enumerate(seeds):
-            if np.any(bad[s]):
-                detail = ""
-                if name == "simulator state":
-                    targets = np.flatnonzero(bad[s]).tolist()
-                    detail = f" in the rollout of target(s) {targets}"
-                raise DivergenceError(
-                    f"iteration {iteration}, seed {seed}: {name} became non-finite (NaN or "
-                    f"Inf){detail}. {where}"
-                )
+        bad = np.asarray(bad).reshape(n_seeds, -1)
+        for s in range(n_seeds):
+            if out[s] is None and np.any(bad[s]):
+                out[s] = name
+    return out
+
+
+def _keep_seeds(new: TrainState, old: TrainState, keep_old: np.ndarray) -> TrainState:
+    """``new`` with the seeds where ``keep_old`` is True taken from ``old``."""
+    index = np.flatnonzero(keep_old)
+
+    def pick(a, b):
+        return a.at[index].set(b[index])
+
+    return jax.tree.map(pick, new, old)
 
 
 def train(
@@ -161,9 +174,14 @@ def train(
     a crash loses at most the iteration in flight), ``out_dir/config.json``,
     ``out_dir/baselines.csv`` and Orbax checkpoints of the whole state in
     ``out_dir/checkpoints/`` (``loop.checkpoint_every``, ``loop.checkpoint_keep``). After
-    every iteration the metrics, losses and parameters are checked: a non-finite value
-    stops the run with :class:`DivergenceError`, before it is checkpointed. Everything
-    under it is pure and compiled.
+    every iteration the losses and parameters are checked: a seed whose update made one of
+    them non-finite is stopped (it keeps its last good state, is listed in
+    :attr:`TrainResult.stopped` and ``out_dir/stopped.json``, and has no rows from then
+    on); the other seeds go on. A rollout whose simulation diverged is an outcome, not an
+    error: it is recorded (``diverged``, ``diverged_step``) and its finite transitions
+    before the divergence are data (:func:`cfm_jax.rollout.run`). MuJoCo's warnings are
+    captured, not printed (:attr:`TrainResult.warnings`). Everything under it is pure and
+    compiled.
 
     Args:
       config: a :class:`cfm_jax.config.Config`.
@@ -198,7 +216,6 @@ def train(
       ValueError: ``experiment`` was built for a config of another structure.
       ConfigError: ``resume`` names a run of a different config (the fields are listed).
       CheckpointError: the newest checkpoint is corrupt (the previous valid one is offered).
-      DivergenceError: a non-finite simulator state, loss or parameter.
 
     Examples:
       >>> import cfm_jax
@@ -251,8 +268,12 @@ def train(
                 os.path.join(out_dir, "metrics.csv"), lambda tmp: frame.to_csv(tmp, index=False)
             )
 
+    stopped: list[dict] = []
+
     def record(iteration, metrics):
         new = _rows(config.loss, seeds, iteration, metrics, exp.metric_columns)
+        gone = {entry["seed"] for entry in stopped}
+        new = [row for row in new if row["seed"] not in gone]
         rows.extend(new)
         write_metrics()
         if progress_fn is not None:
@@ -260,18 +281,12 @@ def train(
 
     last_saved = [None]
 
-    def where() -> str:
-        if checkpointer is None or last_saved[0] is None:
-            return "No checkpoint was written."
-        return (
-            f"The last good checkpoint (iteration {last_saved[0]}) is in {checkpointer.directory}."
-        )
-
     def save(state, done: int, final: bool = False):
         if checkpointer is None:
             return
         if final or done % config.loop.checkpoint_every == 0:
-            checkpointer.save(done, state, {"rows": rows, "config": _jsonable(config)})
+            meta = {"rows": rows, "config": _jsonable(config), "stopped": stopped}
+            checkpointer.save(done, state, meta)
             last_saved[0] = done
 
     with _progress(progress) as bar:
@@ -287,7 +302,7 @@ def train(
         jax.block_until_ready(state)
         first = 0
         if resume is not None and checkpointer is not None:
-            state, rows, first = _restore(checkpointer, state)
+            state, rows, first, stopped[:] = _restore(checkpointer, state)
             last_saved[0] = first
             write_metrics()
         elif first == 0:
@@ -297,6 +312,7 @@ def train(
         for i in range(first, config.loop.iterations):
             bar.update(task, description=f"{config.robot} {config.loss}: iteration {i + 1}")
             t0 = time.perf_counter()
+            previous = state
             if recorded is None:
                 state, metrics = exp.iteration(config.loss, state, knobs)
             else:
@@ -305,13 +321,12 @@ def train(
             metrics = jax.device_get(metrics)
             if i == first:
                 compile_seconds = time.perf_counter() - t0
-            _check_finite(state, metrics, i, seeds, where())
+            state = _stop_nonfinite(state, previous, metrics, i, config.loss, seeds, stopped)
             record(i, metrics)
             save(state, i + 1, final=i + 1 == config.loop.iterations)
             bar.advance(task)
         bar.update(task, description=f"{config.robot} {config.loss}: final evaluation")
         final_metrics = jax.device_get(exp.evaluate(state, knobs))
-        _check_finite(state, final_metrics, config.loop.iterations, seeds, where(), losses=False)
         record(config.loop.iterations, final_metrics)
         baselines = exp.baselines(knobs)
         bar.advance(task)
@@ -321,6 +336,8 @@ def train(
         write_atomic(
             os.path.join(out_dir, "baselines.csv"), lambda tmp: baselines.to_csv(tmp, index=False)
         )
+        if stopped:
+            write_text(os.path.join(out_dir, "stopped.json"), json.dumps(stopped, indent=2))
         dataset.save(
             os.path.join(out_dir, "dataset.npz"),
             state.data,
@@ -336,7 +353,30 @@ def train(
         rms_reach=exp.task_for(config).tracking_scale,
         seconds=time.perf_counter() - start,
         compile_seconds=compile_seconds,
+        stopped=list(stopped),
+        warnings=_take_warnings(),
     )
+
+
+def _take_warnings() -> dict:
+    from cfm_jax import native
+
+    return native.take_warnings()
+
+
+def _stop_nonfinite(state, previous, metrics, iteration, loss, seeds, stopped) -> TrainState:
+    """Stop the seeds whose update produced a non-finite loss or parameter: they keep
+    ``previous`` (their last good state) from now on and are listed in ``stopped``."""
+    n = len(seeds)
+    gone = {entry["seed"] for entry in stopped}
+    for s, quantity in enumerate(_nonfinite(state, metrics, n)):
+        if quantity is not None and seeds[s] not in gone:
+            stopped.append(
+                {"loss": loss, "seed": int(seeds[s]), "iteration": iteration, "quantity": quantity}
+            )
+    gone = {entry["seed"] for entry in stopped}
+    keep_old = np.array([seed in gone for seed in seeds])
+    return _keep_seeds(state, previous, keep_old) if keep_old.any() else state
 
 
 def rollout_qpos(result, *, seed: int = 0, experiment=None) -> np.ndarray:
@@ -390,11 +430,13 @@ def _segments(
     if recorded is not None:
         added = np.asarray(recorded.segments[:, 1 : iterations + 1])
     else:
-        frame = pd.DataFrame(rows)
+        frame = pd.DataFrame(rows, columns=["seed", "iteration", "transitions_added"])
         frame = frame[frame.iteration < iterations]
         frame = frame.assign(added=np.round(frame.transitions_added).astype(np.int64))
         table = frame.pivot_table(index="seed", columns="iteration", values="added", aggfunc="sum")
-        added = table.reindex(columns=range(iterations)).to_numpy(np.int64)
+        # A stopped seed has no rows from its stop on: it added nothing more.
+        table = table.reindex(index=list(config_lib.seeds_of(config)), columns=range(iterations))
+        added = table.fillna(0).to_numpy(np.int64)
         added = added.reshape(size.shape[0], iterations)
     return np.concatenate([(size - added.sum(1))[:, None], added], axis=1)
 
@@ -470,7 +512,8 @@ def _restore(checkpointer, template: TrainState):
             continue
         state, meta = checkpointer.restore(step, template)
         rows = [r for r in meta["rows"] if r["iteration"] < step]
-        return state, rows, step
+        stopped = [e for e in meta.get("stopped", []) if e["iteration"] < step]
+        return state, rows, step, stopped
     raise ckpt_lib.CheckpointError(
         f"no usable checkpoint in {checkpointer.directory}: start the run again without resume"
     )

@@ -56,7 +56,8 @@ def per_seed(metrics: pd.DataFrame, column: str, over: str = "last") -> dict[str
     if over == "last":
         means = report.seed_means(metrics, column=column)
         return {loss: f.set_index("seed")[column] for loss, f in means.groupby("loss")}
-    frame = metrics.groupby(["loss", "seed"])[column].mean().reset_index()
+    frame = metrics.assign(**{column: report.without_diverged(metrics, column)})
+    frame = frame.groupby(["loss", "seed"])[column].mean().reset_index()
     return {loss: f.set_index("seed")[column] for loss, f in frame.groupby("loss")}
 
 
@@ -148,10 +149,11 @@ def pd_only_extra(column="tracking_mse"):
 
 def falls_extra(metrics, baselines, values):
     final = metrics[metrics.iteration == metrics.iteration.max()]
+    final = final.assign(failed=report.failed_runs(final))  # fell or diverged
     text = ", ".join(
-        f"{loss} {int(f.fell.sum())}/{len(f)}" for loss, f in final.groupby("loss", sort=False)
+        f"{loss} {int(f.failed.sum())}/{len(f)}" for loss, f in final.groupby("loss", sort=False)
     )
-    return f"falls at the last iteration: {text}"
+    return f"falls at the last iteration: {text}"  # a diverged run counts as a fall
 
 
 def success_claim(cells, task):
@@ -164,7 +166,7 @@ def success_claim(cells, task):
 
     def verdict(metrics):
         final = metrics[metrics.iteration == metrics.iteration.max()]
-        falls = final.groupby("loss").fell.sum()
+        falls = final.assign(failed=report.failed_runs(final)).groupby("loss").failed.sum()
         ok = falls.get("joint", 1) == 0 and all(falls.get(n, 0) > 0 for n in OTHERS)
         return ("reproduces" if ok else "does not reproduce"), falls
 

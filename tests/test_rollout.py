@@ -229,9 +229,12 @@ def test_nan_torque_makes_finite_false_from_that_step_on(arm_case):
     finite = np.asarray(out.finite[0])
     expected = np.arange(ARM_STEPS) < bad_step
     np.testing.assert_array_equal(finite, expected)
-    # The steps before are real transitions, after it the state is NaN.
-    assert np.all(np.isfinite(np.asarray(out.transitions.state[0, : bad_step + 1])))
-    assert np.all(np.isnan(np.asarray(out.transitions.state[0, bad_step + 1 :])))
+    # The steps before are real transitions; from it on the rollout is frozen at its last
+    # good state (nothing non-finite reaches the policy again), and what it observed is NaN.
+    state = np.asarray(out.transitions.state[0])
+    assert np.all(np.isfinite(state))
+    assert np.all(state[bad_step + 1 :] == state[bad_step])
+    assert np.all(np.isnan(np.asarray(out.transitions.observed[0, bad_step:])))
 
 
 # ---- (e) control_dt must be a multiple of the timestep ---------------------------------------

@@ -1,0 +1,151 @@
+"""Every bad command line ends in one ``cfm-jax: error:`` line, exit status 2, nothing
+written (cfm_jax/cli.py; the checks in config.py, robots.py, training.py).
+
+Oracle: the command-line contract itself, run in-process through ``cfm_jax.cli.main``: any
+other exception (a traceback) fails the test, and so does another exit status, a message
+of more than one line, or a file in the output directory.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+
+from cfm_jax import cli, robots
+from cfm_jax import config as config_lib
+
+BALL = (
+    '<mujoco><worldbody><body name="b"><joint name="socket" type="ball"/>'
+    '<geom type="sphere" size="0.1" mass="1"/></body></worldbody></mujoco>'
+)
+
+# (name, files to write into tmp_path, argv after "cfm-jax", words the message must hold)
+CASES = [
+    (
+        "config missing",
+        {},
+        ["train", "--config", "{tmp}/missing.json"],
+        ["missing.json", "no such file"],
+    ),
+    (
+        "config not JSON",
+        {"broken.json": "{not json"},
+        ["train", "--config", "{tmp}/broken.json"],
+        ["broken.json", "not JSON"],
+    ),
+    (
+        "config a list",
+        {"list.json": "[1, 2]"},
+        ["train", "--config", "{tmp}/list.json"],
+        ["config=[1, 2]", "JSON object"],
+    ),
+    (
+        "config section a number",
+        {"sec.json": '{"loop": 3}'},
+        ["train", "--config", "{tmp}/sec.json"],
+        ["loop=3", "object"],
+    ),
+    (
+        "config unknown field",
+        {"unk.json": '{"speed": 1}'},
+        ["train", "--config", "{tmp}/unk.json"],
+        ["speed", "top-level"],
+    ),
+    (
+        "config is a directory",
+        {"dir.json/x": ""},
+        ["train", "--config", "{tmp}/dir.json"],
+        ["dir.json", "directory"],
+    ),
+    (
+        "loss twice",
+        {},
+        ["train", "--robot", "two_link_arm", "--loss", "joint,joint"],
+        ["joint,joint", "distinct"],
+    ),
+    ("unknown loss", {}, ["train", "--robot", "two_link_arm", "--loss", "nope"], ["nope"]),
+    (
+        "sweep loss twice",
+        {},
+        ["sweep", "--robot", "two_link_arm", "--losses", "task,task"],
+        ["task,task", "distinct"],
+    ),
+    (
+        "ball joint, no actuators",
+        {"ball.xml": BALL},
+        ["train", "--robot", "{tmp}/ball.xml"],
+        ["'socket' is mjJNT_BALL"],
+    ),
+    ("robot file missing", {}, ["train", "--robot", "{tmp}/none.xml"], ["none.xml"]),
+    (
+        "robot file not MJCF",
+        {"bad.xml": "<mujoco><oops"},
+        ["train", "--robot", "{tmp}/bad.xml"],
+        ["does not parse"],
+    ),
+    (
+        "unknown simulator",
+        {},
+        ["train", "--robot", "two_link_arm", "--simulator", "warp"],
+        ["warp"],
+    ),
+    ("zero seeds", {}, ["train", "--robot", "two_link_arm", "--seeds", "0"], ["seeds=0"]),
+    ("unknown task", {}, ["train", "--task", "juggle"], ["juggle"]),
+    (
+        "control_dt off the timestep",
+        {},
+        ["train", "--robot", "two_link_arm", "--control_dt", "0.003"],
+        ["0.003"],
+    ),
+    (
+        "unknown babbling",
+        {},
+        ["train", "--robot", "two_link_arm", "--babbling", "dance"],
+        ["dance"],
+    ),
+    (
+        "data file missing",
+        {},
+        ["train", "--robot", "two_link_arm", "--data", "{tmp}/none.npz"],
+        ["none.npz"],
+    ),
+    (
+        "override without =",
+        {},
+        ["sweep", "--robot", "two_link_arm", "--override", "task.kp"],
+        ["task.kp"],
+    ),
+]
+
+
+@pytest.mark.parametrize(("name", "files", "argv", "words"), CASES, ids=[c[0] for c in CASES])
+def test_bad_input_is_one_error_line_exit_2_nothing_written(
+    name, files, argv, words, tmp_path, monkeypatch, capsys
+):
+    for relative, text in files.items():
+        path = tmp_path / relative
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    out = tmp_path / "out"
+    args = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    monkeypatch.setattr(sys, "argv", ["cfm-jax", *args, "--out", str(out), "--quiet"])
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main()  # any other exception is a traceback: the test fails
+    assert exit_info.value.code == 2, name
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("cfm-jax: error: "), captured.err
+    for word in words:
+        assert word in lines[0], (word, lines[0])
+    assert not out.exists(), f"{name}: {sorted(p.name for p in out.rglob('*'))}"
+
+
+def test_python_api_raises_the_same_typed_errors(tmp_path):
+    with pytest.raises(config_lib.ConfigError, match="JSON object"):
+        config_lib.from_dict([1, 2])
+    with pytest.raises(config_lib.ConfigError, match="loop=3"):
+        config_lib.from_dict({"loop": 3})
+    (tmp_path / "ball.xml").write_text(BALL)
+    with pytest.raises(robots.RobotError, match="mjJNT_BALL"):
+        robots.load(str(tmp_path / "ball.xml"))
