@@ -280,8 +280,7 @@ def tables(out: str, tasks) -> str:
     lines = [
         "# Choosing the defaults: the selection run",
         "",
-        "Written by `experiments/select_defaults.py`. **The rule, fixed before the run:** "
-        + RULE,
+        "Written by `experiments/select_defaults.py`. **The rule, fixed before the run:** " + RULE,
         "",
         f"Failure floor: {FAILURE_FACTOR:g} x PD-only. Seeds per cell: {SEEDS}. Iterations: "
         + ", ".join(f"{t} {ITERATIONS[t]}" for t in tasks)

@@ -1,0 +1,117 @@
+"""experiments/select_defaults.py: its cells and its rule, on hand-made sweep outputs.
+
+Oracles: the test motions of the library (``references.default_targets`` with seed 0,
+``locomotion.WALK_DURATIONS`` / ``JUMP_HEIGHTS``), which no selection cell may use; and the
+rule's scores computed by hand below (log10 errors, the failure floor of 1000 x PD-only).
+No training runs here.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cfm_jax import config as config_lib
+from cfm_jax import locomotion, references, robots
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
+import select_defaults as select  # noqa: E402
+
+LOSSES = ("joint", "task", "distal", "supervised")
+
+
+@pytest.mark.parametrize("task", ["inverse_dynamics", "walk", "jump"])
+def test_every_cell_runs_on_motions_other_than_the_test_ones(task):
+    cells = select.cells_of(task)
+    assert cells[0] == select.Cell(task)  # the base first
+    for cell in cells:
+        config = cell.config()
+        assert config.loop.iterations == select.ITERATIONS[task]
+        if task == "walk":
+            assert config.task.motions == select.SELECTION_WALKS
+            assert not set(config.task.motions) & set(locomotion.WALK_DURATIONS)
+        elif task == "jump":
+            assert config.task.motions == select.SELECTION_JUMPS
+            assert not set(config.task.motions) & set(locomotion.JUMP_HEIGHTS)
+        else:
+            robot = robots.load("iiwa14")
+            test = references.default_targets(robot.joint_range, robot.home)
+            chosen = np.asarray(config.task.targets)
+            assert chosen.shape == test.shape
+            assert np.min(np.abs(test[:, None] - chosen[None]).max(axis=-1)) > 0.1
+    # One factor at a time: each cell differs from the base in its factor's fields only.
+    base = config_lib.to_dict(cells[0].config())
+    for cell in cells[1:]:
+        tree = config_lib.to_dict(cell.config())
+        changed = {
+            f"{section}.{field}"
+            for section, values in tree.items()
+            if isinstance(values, dict)
+            for field, value in values.items()
+            if base[section][field] != value
+        }
+        base_values = select.BASE[select.family(task)]
+        expected = {p for p, v in cell.changes().items() if base_values.get(p) != v}
+        assert changed == expected and expected, cell.name
+
+
+def _metrics(errors, fell=None):
+    """A sweep's metrics.csv: ``errors[loss][seed][target]`` at the last iteration 3 (and
+    ten times larger at iteration 0)."""
+    rows = []
+    for i, loss in enumerate(LOSSES):
+        for seed, per_target in enumerate(errors[i]):
+            for target, error in enumerate(per_target):
+                for iteration, factor in ((0, 10.0), (3, 1.0)):
+                    rows.append(dict(
+                        loss=loss, seed=seed, iteration=iteration, target=target,
+                        tracking_mse=error * factor,
+                        fell=float(fell is not None and (i, seed, target) == fell),
+                    ))  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+BASELINES = pd.DataFrame(
+    {
+        "baseline": ["pd_only", "pd_only", "oracle"],
+        "target": [0, 1, 0],
+        "tracking_mse": [1e-3, 1e-2, 0],
+    }
+)
+
+
+def test_the_rule_scores_by_hand():
+    # Loss i, seed s, target k: error 10^-(i + s + k + 1).
+    errors = [[[10.0 ** -(i + s + k + 1) for k in range(2)] for s in range(2)] for i in range(4)]
+    frame = select.scores(_metrics(errors), BASELINES)
+    # Seed score of loss i, seed s: mean over k of -(i + s + k + 1) = -(i + s + 1.5); the
+    # mean over s: -(i + 2); over the four losses: -(0 + 1 + 2 + 3)/4 - 2 = -3.5.
+    assert select.cell_score(frame) == pytest.approx(-3.5, abs=1e-12)
+    # A fall (loss 0, seed 0, target 1: error 1e-2, log -2) scores the failure floor
+    # log10(1000 x PD-only of target 1) = log10(10) = 1: the loss-0 mean moves by
+    # (1 - (-2)) / 2 / 2 = 0.75, the cell's by 0.75 / 4.
+    fallen = select.scores(_metrics(errors, fell=(0, 0, 1)), BASELINES)
+    assert int(fallen[fallen.iteration == 3]["failed"].sum()) == 1
+    assert select.cell_score(fallen) == pytest.approx(-3.5 + 0.75 / 4, abs=1e-12)
+    # A diverged run (NaN error) scores the floor of its target: target 0, log10(1) = 0.
+    nan = [[list(seed) for seed in loss] for loss in errors]
+    nan[3][1][0] = math.nan
+    diverged = select.scores(_metrics(nan), BASELINES)
+    expected = -3.5 + (0 - (-(3 + 1 + 0 + 1))) / 2 / 2 / 4
+    assert select.cell_score(diverged) == pytest.approx(expected, abs=1e-12)
+    # A failure that is worse than the floor keeps its own score.
+    huge = [[list(seed) for seed in loss] for loss in errors]
+    huge[1][0][0] = 1e6
+    worse = select.scores(_metrics(huge, fell=(1, 0, 0)), BASELINES)
+    assert worse.loc[
+        (worse.loss == "task") & (worse.seed == 0) & (worse.target == 0) & (worse.iteration == 3),
+        "score",
+    ].item() == pytest.approx(6.0)
+    # The paired difference over seeds, mean over losses: the fall is on seed 0 only.
+    stats = select.paired(fallen, frame)
+    assert stats["mean"] == pytest.approx((0.75 * 2 / 4 + 0.0) / 2, abs=1e-12)
