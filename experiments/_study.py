@@ -8,6 +8,7 @@ import argparse
 import dataclasses
 import os
 import re
+import shutil
 import time
 
 import cfm_jax
@@ -81,6 +82,23 @@ def run(config: config_lib.Config, args) -> tuple[cfm_jax.SweepResult, float, co
         progress=not args.quiet,
     )
     return result, time.perf_counter() - start, config
+
+
+def keep_record(source: str, record: str, files) -> None:
+    """Copy a finished run's ``files`` from ``source`` to its small record folder ``record``
+    (when ``source`` has a ``metrics.csv``): what a study's tables are made of, kept with
+    them so that a fresh clone skips the finished cell."""
+    if not os.path.isfile(os.path.join(source, "metrics.csv")):
+        return
+    os.makedirs(record, exist_ok=True)
+    for name in files:
+        if os.path.isfile(os.path.join(source, name)):
+            shutil.copyfile(os.path.join(source, name), os.path.join(record, name))
+
+
+def recorded(record: str) -> bool:
+    """Whether a record folder holds a finished cell (its ``metrics.csv``)."""
+    return os.path.isfile(os.path.join(record, "metrics.csv"))
 
 
 def write_benchmark_section(out: str, marker: str, section: str) -> None:

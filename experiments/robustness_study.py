@@ -49,9 +49,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
-import shutil
 import time
 
+import _study
 import numpy as np
 import pandas as pd
 
@@ -141,25 +141,15 @@ RECORD_FILES = ("metrics.csv", "baselines.csv", "seconds.txt", "summary.md", "cu
 
 def keep_record(runs: str, out: str, cell: Cell) -> None:
     """Copy a finished run's ``RECORD_FILES`` to :func:`record_dir` (when it has them)."""
-    source = run_dir(runs, cell)
-    if not os.path.isfile(os.path.join(source, "metrics.csv")):
-        return
-    os.makedirs(record_dir(out, cell), exist_ok=True)
-    for name in RECORD_FILES:
-        if os.path.isfile(os.path.join(source, name)):
-            shutil.copyfile(os.path.join(source, name), os.path.join(record_dir(out, cell), name))
+    _study.keep_record(run_dir(runs, cell), record_dir(out, cell), RECORD_FILES)
 
 
 def finished(runs: str, out: str, cell: Cell) -> bool:
     """A cell is finished when its record exists, or its sweep wrote the tables of all its
     losses (then the record is made)."""
-    if not _recorded(out, cell):
+    if not _study.recorded(record_dir(out, cell)):
         keep_record(runs, out, cell)
-    return _recorded(out, cell)
-
-
-def _recorded(out: str, cell: Cell) -> bool:
-    return os.path.isfile(os.path.join(record_dir(out, cell), "metrics.csv"))
+    return _study.recorded(record_dir(out, cell))
 
 
 def run_cell(cell: Cell, args) -> float:
@@ -167,11 +157,8 @@ def run_cell(cell: Cell, args) -> float:
     config = cell.config(args.iterations)
     seeds, losses_ = cell.seeds, "all"
     if args.quick:
-        from _study import quick_config
-
-        config = quick_config(config).replace(
-            loop=dataclasses.replace(quick_config(config).loop, iterations=1)
-        )
+        quick = _study.quick_config(config)
+        config = quick.replace(loop=dataclasses.replace(quick.loop, iterations=1))
         seeds = 2
     start = time.perf_counter()
     cfm_jax.sweep(

@@ -39,9 +39,9 @@ import argparse
 import dataclasses
 import json
 import os
-import shutil
 import time
 
+import _study
 import numpy as np
 import pandas as pd
 
@@ -177,19 +177,13 @@ RECORD_FILES = ("metrics.csv", "baselines.csv", "seconds.txt", "summary.md")
 
 
 def keep_record(runs: str, out: str, cell: Cell) -> None:
-    source = run_dir(runs, cell)
-    if not os.path.isfile(os.path.join(source, "metrics.csv")):
-        return
-    os.makedirs(record_dir(out, cell), exist_ok=True)
-    for name in RECORD_FILES:
-        if os.path.isfile(os.path.join(source, name)):
-            shutil.copyfile(os.path.join(source, name), os.path.join(record_dir(out, cell), name))
+    _study.keep_record(run_dir(runs, cell), record_dir(out, cell), RECORD_FILES)
 
 
 def finished(runs: str, out: str, cell: Cell) -> bool:
-    if not os.path.isfile(os.path.join(record_dir(out, cell), "metrics.csv")):
+    if not _study.recorded(record_dir(out, cell)):
         keep_record(runs, out, cell)
-    return os.path.isfile(os.path.join(record_dir(out, cell), "metrics.csv"))
+    return _study.recorded(record_dir(out, cell))
 
 
 def run_cell(cell: Cell, args) -> float:
@@ -197,9 +191,7 @@ def run_cell(cell: Cell, args) -> float:
     config = cell.config(args.iterations)
     seeds = SEEDS
     if args.quick:
-        from _study import quick_config
-
-        config = quick_config(config)
+        config = _study.quick_config(config)
         config = config.replace(loop=dataclasses.replace(config.loop, iterations=1))
         seeds = 2
     os.makedirs(record_dir(args.out, cell), exist_ok=True)
@@ -221,12 +213,9 @@ def run_cell(cell: Cell, args) -> float:
 
 
 def failed(frame: pd.DataFrame) -> pd.Series:
-    """Runs that count as failures: fell, diverged, or a non-finite error."""
-    bad = ~np.isfinite(frame["tracking_mse"].astype(float))
-    for column in ("fell", "diverged"):
-        if column in frame:
-            bad |= frame[column].fillna(0).astype(float) > 0
-    return bad
+    """Runs that count as failures: the library's one rule (:func:`cfm_jax.report.failed_runs`:
+    diverged or fell), and a non-finite error."""
+    return report.failed_runs(frame) | ~np.isfinite(frame["tracking_mse"].astype(float))
 
 
 def scores(metrics: pd.DataFrame, baselines: pd.DataFrame) -> pd.DataFrame:
