@@ -108,7 +108,7 @@ def test_a_diverging_rollout_stops_at_its_step_and_touches_no_other(arm, simulat
     rows, valid = algorithm.collected(out)
     valid = np.asarray(valid).reshape(3, STEPS)
     assert valid[1].tolist() == finite[1].tolist() and valid[[0, 2]].all()
-    for leaf in rows:
+    for leaf in jax.tree.leaves(rows):  # terms=None (mlp) is no leaf
         assert np.all(np.isfinite(np.asarray(leaf)[np.asarray(valid).reshape(-1)]))
     # Frozen: what the policy saw after the divergence is the last good state, finite.
     assert np.all(np.isfinite(np.asarray(out.transitions.state[1])))
