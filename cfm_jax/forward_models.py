@@ -82,14 +82,7 @@ def make(forward: ForwardModelConfig, robot, task) -> networks.Model:
 def _mlp(forward: ForwardModelConfig, robot, task) -> networks.Model:
     """The ``mlp`` kind: the PETS ensemble over the task's output."""
     del robot
-    return networks.forward_model(
-        forward.hidden,
-        forward.ensemble_size,
-        task.output_dim,
-        forward.min_log_variance,
-        forward.max_log_variance,
-        action_dim=task.action_dim,
-    )
+    return networks.ensemble(forward, task.output_dim, task.action_dim)
 
 
 register("mlp", _mlp)

@@ -265,6 +265,36 @@ def forward_model(
     return Model(init, apply)
 
 
+def ensemble(forward, output_dim: int, action_dim: int) -> Model:
+    """The PETS ensemble a forward-model config describes (:func:`forward_model` with its
+    ``hidden``, ``ensemble_size`` and log-variance bounds) over an output of
+    ``output_dim`` from ``action_dim`` torques: the ``mlp`` kind, and the residual of the
+    ``rigid_body`` kind.
+
+    Args:
+      forward: a :class:`cfm_jax.config.ForwardModelConfig`.
+      output_dim: the task's output size.
+      action_dim: the task's number of torques.
+
+    Returns:
+      A :class:`Model`.
+
+    Examples:
+      >>> from cfm_jax.config import ForwardModelConfig
+      >>> fm = ensemble(ForwardModelConfig(hidden=(8,), ensemble_size=2), 3, 2)
+      >>> fm.init(jax.random.key(0), state_dim=4)["max_log_variance"].shape
+      (3,)
+    """
+    return forward_model(
+        forward.hidden,
+        forward.ensemble_size,
+        output_dim,
+        forward.min_log_variance,
+        forward.max_log_variance,
+        action_dim=action_dim,
+    )
+
+
 def ensemble_mean(forward: Model, params, normaliser: Normaliser, state, tau, terms=None):
     """Prediction of the ensemble in normalised units: the mean over members.
 

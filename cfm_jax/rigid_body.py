@@ -291,13 +291,6 @@ def make(forward: ForwardModelConfig, robot, task) -> networks.Model:
         )
     entries, scale = where
     model = nominal_model(robot, forward.nominal, forward.nominal_mass_scale)
-    residual = networks.forward_model(
-        forward.hidden,
-        forward.ensemble_size,
-        task.output_dim,
-        forward.min_log_variance,
-        forward.max_log_variance,
-        action_dim=task.action_dim,
-    )
+    residual = networks.ensemble(forward, task.output_dim, task.action_dim)
     terms = terms_function(model, robot.actuated_dofs, task.configuration)
     return structured(residual, terms, task.output_dim, entries, float(scale))

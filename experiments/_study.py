@@ -84,6 +84,17 @@ def run(config: config_lib.Config, args) -> tuple[cfm_jax.SweepResult, float, co
     return result, time.perf_counter() - start, config
 
 
+def timed_sweep(config: config_lib.Config, seeds, losses, out_dir: str, quiet: bool) -> float:
+    """:func:`cfm_jax.sweep` of ``config`` into ``out_dir`` (resumed where it stopped); the
+    wall time of this piece is appended to ``out_dir/seconds.txt`` and returned."""
+    start = time.perf_counter()
+    cfm_jax.sweep(config, seeds=seeds, losses=losses, out_dir=out_dir, progress=not quiet)
+    seconds = time.perf_counter() - start
+    with open(os.path.join(out_dir, "seconds.txt"), "a") as f:
+        f.write(f"{seconds:.1f}\n")
+    return seconds
+
+
 def keep_record(source: str, record: str, files) -> None:
     """Copy a finished run's ``files`` from ``source`` to its small record folder ``record``
     (when ``source`` has a ``metrics.csv``): what a study's tables are made of, kept with

@@ -55,7 +55,6 @@ import _study
 import numpy as np
 import pandas as pd
 
-import cfm_jax
 from cfm_jax import config as config_lib
 from cfm_jax import losses, report
 
@@ -160,14 +159,7 @@ def run_cell(cell: Cell, args) -> float:
         quick = _study.quick_config(config)
         config = quick.replace(loop=dataclasses.replace(quick.loop, iterations=1))
         seeds = 2
-    start = time.perf_counter()
-    cfm_jax.sweep(
-        config, seeds=seeds, losses=losses_, out_dir=run_dir(args.runs, cell),
-        progress=not args.quiet,
-    )  # fmt: skip
-    seconds = time.perf_counter() - start
-    with open(os.path.join(run_dir(args.runs, cell), "seconds.txt"), "a") as f:
-        f.write(f"{seconds:.1f}\n")
+    seconds = _study.timed_sweep(config, seeds, losses_, run_dir(args.runs, cell), args.quiet)
     keep_record(args.runs, args.out, cell)
     return seconds
 

@@ -45,7 +45,6 @@ import _study
 import numpy as np
 import pandas as pd
 
-import cfm_jax
 from cfm_jax import config as config_lib
 from cfm_jax import losses, references, report, robots
 
@@ -197,14 +196,9 @@ def run_cell(cell: Cell, args) -> float:
     os.makedirs(record_dir(args.out, cell), exist_ok=True)
     with open(os.path.join(record_dir(args.out, cell), "config.json"), "w") as f:
         json.dump(config_lib.to_dict(config), f, indent=1)
-    start = time.perf_counter()
-    cfm_jax.sweep(
-        config, seeds=seeds, losses=list(losses.PAPER_LOSSES), out_dir=run_dir(args.runs, cell),
-        progress=not args.quiet,
-    )  # fmt: skip
-    seconds = time.perf_counter() - start
-    with open(os.path.join(run_dir(args.runs, cell), "seconds.txt"), "a") as f:
-        f.write(f"{seconds:.1f}\n")
+    seconds = _study.timed_sweep(
+        config, seeds, list(losses.PAPER_LOSSES), run_dir(args.runs, cell), args.quiet
+    )
     keep_record(args.runs, args.out, cell)
     return seconds
 
