@@ -128,10 +128,9 @@ def test_incomplete_last_step_is_skipped_on_resume(uninterrupted, tmp_path):
     pd.testing.assert_frame_equal(resumed.metrics, uninterrupted[0].metrics, check_exact=True)
 
 
-def test_nan_in_simulator_state_is_a_diverged_rollout_not_an_error(uninterrupted, tmp_path,
-                                                                    monkeypatch):  # fmt: skip
-    # Put a NaN into the state MuJoCo returns for the first batch element (seed 0,
-    # target 0) at control step 9 of the rollout of iteration index 1 (the second one).
+def _poison_the_simulator(monkeypatch):
+    """Put a NaN into the state MuJoCo returns for the first batch element (seed 0,
+    target 0) at control step 9 of the rollout of iteration index 1 (the second one)."""
     original = native.Stepper.__call__
     calls = {"n": 0}
     babbling_calls = STEPS  # one batched call per control step
@@ -145,8 +144,19 @@ def test_nan_in_simulator_state_is_a_diverged_rollout_not_an_error(uninterrupted
         return q, qd, sensors
 
     monkeypatch.setattr(native.Stepper, "__call__", poisoned)
-    out = tmp_path / "nan_sim"
-    result = cfm_jax.train(CFG, progress=False, out_dir=str(out))  # no exception
+
+
+@pytest.fixture(scope="module")
+def nan_run(tmp_path_factory):
+    """A run of CFG whose rollout (seed 0, target 0, iteration index 1) diverges."""
+    out = tmp_path_factory.mktemp("nan_sim")
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        _poison_the_simulator(monkeypatch)
+        return cfm_jax.train(CFG, progress=False, out_dir=str(out)), out  # no exception
+
+
+def test_nan_in_simulator_state_is_a_diverged_rollout_not_an_error(uninterrupted, nan_run):
+    result, out = nan_run
     m, full = result.metrics, uninterrupted[0].metrics
     hit = (m.seed == 0) & (m.iteration == 1) & (m.target == 0)
     assert m.loc[hit, "diverged"].tolist() == [1.0]
@@ -169,6 +179,39 @@ def test_nan_in_simulator_state_is_a_diverged_rollout_not_an_error(uninterrupted
     assert np.all(np.isfinite(np.asarray(result.state.data.data.observed)[0, : size[0]]))
     assert result.stopped == []
     assert pd.read_csv(out / "metrics.csv").iteration.max() == CFG.loop.iterations
+
+
+def test_resume_after_a_divergence_reproduces_its_flags_bit_for_bit(nan_run, tmp_path):
+    # Resume from the checkpoint after iteration 3 (the divergence was in iteration index 1):
+    # the diverged flags come back from the checkpoint, and iteration 4 learns from the
+    # restored data set that lacks the diverged rows; the metrics equal the uninterrupted
+    # run's bit for bit, the simulator no longer poisoned.
+    result, out = nan_run
+    copy = _copy_run(out, tmp_path / "run")
+    import shutil
+
+    shutil.rmtree(copy / "checkpoints" / "4")
+    resumed = cfm_jax.train(CFG, progress=False, resume=str(copy))
+    pd.testing.assert_frame_equal(resumed.metrics, result.metrics, check_exact=True)
+    assert resumed.metrics.diverged.sum() == 1
+    size = np.asarray(resumed.state.data.size)
+    np.testing.assert_array_equal(size, np.asarray(result.state.data.size))
+
+
+def test_a_sweep_keeps_the_cell_of_a_diverged_seed(nan_run, tmp_path, monkeypatch):
+    # The same fault inside a sweep cell: the cell finishes with both seeds and its table
+    # is train's under the same fault bit for bit (the diverged flag included).
+    from cfm_jax import sweeps
+
+    _poison_the_simulator(monkeypatch)
+    swept = sweeps.sweep(CFG, seeds=2, losses="joint", out_dir=str(tmp_path / "s"), progress=False)
+    m = swept.metrics
+    assert sorted(m.seed.unique()) == [0, 1] and (swept.cells.status == "ran").all()
+    columns = list(nan_run[0].metrics.columns)
+    pd.testing.assert_frame_equal(
+        m[columns].reset_index(drop=True), nan_run[0].metrics, check_exact=True
+    )
+    assert m.diverged.sum() == 1
 
 
 def _keys():
