@@ -36,11 +36,26 @@ with a second MLP. This module is that model for any robot and task of the libra
 * ``M`` and ``h`` come from MJX (JAX, float32) with both simulators: no host callback, so
   ``simulator="mjx"`` stays on the device.
 
-The model's output is the task's (:meth:`cfm_jax.tasks.JointSpaceTask.acceleration_output`):
-``qacc`` for ``inverse_dynamics``, ``[qacc dt, foot forces]`` for ``walk`` and ``jump``.
-``opspace`` (whose output includes the site acceleration ``J qdd + Jdot qd``) is not
-supported yet: :func:`make` raises :class:`cfm_jax.config.ConfigError` naming
-``forward.kind``.
+The model's output is the task's, declared by
+:meth:`cfm_jax.tasks.JointSpaceTask.acceleration_output` as an affine image of ``qacc``
+that may depend on the state, ``y[entries] = scale * (A(s) qacc + b(s))``
+(:class:`cfm_jax.tasks.inverse_dynamics.AccelerationOutput`): ``qacc`` for
+``inverse_dynamics`` (``A = I``), ``[qacc dt, foot forces]`` for ``walk`` and ``jump``
+(``A = I`` on the first ``nv`` entries, scale ``control_dt``), ``[qacc, xdd]`` for
+``opspace`` with ``A = [I; J(q)]`` and ``b = [0; Jdot(q, qd) qd]`` of the task's site, so
+that the site part is ``xdd = J qdd + Jdot qd``. A task with a state-dependent map gets
+its :class:`Terms` in output coordinates, ``A M^-1 S`` and ``A (-M^-1 h) + b``, computed
+once per transition like ``M`` and ``h`` (``J`` and ``Jdot qd`` by MJX, of the simulated
+robot's kinematics: the nominal model enters through ``M`` and ``h`` only), so a fit costs
+the same and the gradient flows through ``gain @ tau`` as for the joint tasks; a task
+whose map is the identity (today's joint tasks) keeps the terms ``M^-1 S`` and ``-M^-1 h``.
+
+``opspace`` observes its site acceleration as the finite difference of the site velocity
+``xd = J qd`` over the control period, ``(xd' - xd) / control_dt``, which is the *average*
+of the site acceleration over the period (as its joint part is the average of ``qacc``).
+The physics part is the *instantaneous* ``J qdd + Jdot qd`` at the start of the period,
+with the torque held; the residual learns the difference (the change of ``J``, ``Jdot``
+and ``qdd`` along the period), as it does for ``qacc``.
 
 Examples:
   >>> import jax, jax.numpy as jnp
@@ -66,17 +81,21 @@ from mujoco import mjx
 
 from cfm_jax import networks, robots
 from cfm_jax.config import ConfigError, ForwardModelConfig
+from cfm_jax.tasks.inverse_dynamics import AccelerationOutput
 
 
 class Terms(NamedTuple):
     """The rigid-body terms of states, stored with each transition.
 
     Attributes:
-      gain: ``M(q)^-1 S``, ``(..., nv, action_dim)``: the acceleration per unit torque.
+      gain: ``M(q)^-1 S``, ``(..., nv, action_dim)``: the acceleration per unit torque; for
+        a task with a state-dependent output map ``A`` (``opspace``), ``A M^-1 S``,
+        ``(..., k, action_dim)``, in output coordinates.
       drift: ``-M(q)^-1 h(q, qd) = M^-1 (qfrc_passive - qfrc_bias)``, ``(..., nv)``: the
-        acceleration at zero torque.
+        acceleration at zero torque; with a map ``(A, b)``, ``A (-M^-1 h) + b``, ``(..., k)``.
 
-    The free-space acceleration for torques ``tau`` is ``gain @ tau + drift``.
+    The free-space acceleration (or its image ``A qacc + b``) for torques ``tau`` is
+    ``gain @ tau + drift``.
 
     Examples:
       >>> t = Terms(jnp.eye(2), jnp.array([0.0, -9.5]))
@@ -177,14 +196,21 @@ def physics_terms(model, actuated_dofs, qpos, qvel) -> Terms:
     return Terms(solution[:, :-1], solution[:, -1])
 
 
-def terms_function(model: mujoco.MjModel, actuated_dofs, configuration):
+def terms_function(model: mujoco.MjModel, actuated_dofs, configuration, affine=None):
     """``terms(state (..., state_dim)) -> Terms (..., ·)``: :func:`physics_terms` of every
-    state, with ``configuration(state) -> (qpos, qvel)`` (the task's).
+    state, with ``configuration(state) -> (qpos, qvel)`` (the task's), in the output
+    coordinates of ``affine``.
+
+    With ``affine(qpos, qvel) -> (A (k, nv), b (k,))`` (a task's
+    :class:`cfm_jax.tasks.inverse_dynamics.AccelerationOutput`) the terms are
+    ``Terms(A M^-1 S, A (-M^-1 h) + b)``, so that ``gain @ tau + drift = A qacc + b``;
+    without (None), ``M^-1 S`` and ``-M^-1 h``.
 
     Args:
       model: the nominal ``mujoco.MjModel`` (put on the device here, outside any trace).
       actuated_dofs: ``(action_dim,)`` dof index of each torque.
       configuration: the task's ``configuration``.
+      affine: None, or the map of one state to ``(A, b)`` (traceable, float32).
 
     Returns:
       The function (pure, jittable).
@@ -195,14 +221,27 @@ def terms_function(model: mujoco.MjModel, actuated_dofs, configuration):
       >>> terms = terms_function(arm.mj_model, arm.actuated_dofs, split)
       >>> jax.jit(terms)(jnp.zeros((3, 7, 4))).gain.shape  # doctest: +SKIP
       (3, 7, 2, 2)
+      >>> double = lambda q, v: (2.0 * jnp.eye(2), jnp.ones(2))  # y = 2 qacc + 1
+      >>> jax.jit(terms_function(arm.mj_model, arm.actuated_dofs, split, double))(
+      ...     jnp.zeros((3, 4))).drift.shape  # doctest: +SKIP
+      (3, 2)
     """
     device_model = mjx.put_model(model)
     dofs = np.asarray(actuated_dofs)
+    exact = jax.lax.Precision.HIGHEST  # no reduced-precision matmul on accelerators
+
+    def one(qpos, qvel):
+        terms = physics_terms(device_model, dofs, qpos, qvel)
+        if affine is None:
+            return terms
+        a, b = affine(qpos, qvel)
+        gain = jnp.matmul(a, terms.gain, precision=exact)
+        return Terms(gain, jnp.matmul(a, terms.drift, precision=exact) + b)
 
     def terms(state):
         lead = state.shape[:-1]
         qpos, qvel = configuration(state.reshape((-1, state.shape[-1])))
-        out = jax.vmap(lambda q, v: physics_terms(device_model, dofs, q, v))(qpos, qvel)
+        out = jax.vmap(one)(qpos, qvel)
         return jax.tree.map(lambda x: x.reshape(lead + x.shape[1:]).astype(jnp.float32), out)
 
     return terms
@@ -215,14 +254,16 @@ def structured(residual: networks.Model, terms, output_dim: int, entries, scale:
     ``apply(params, normaliser, state, tau, per_member=False, terms=Terms)`` returns
     ``(mean, log_variance)`` in normalised output units, like the ensemble's: the residual
     ensemble's outputs, with ``normaliser.output(y_phys)`` added at ``entries``, where
-    ``y_phys[entries] = scale * (gain @ tau + drift)``. ``init`` is the residual's.
+    ``y_phys[entries] = scale * (gain @ tau + drift)`` (the terms in the coordinates of
+    ``entries``: ``qacc``, or ``A qacc + b`` of the task's map). ``init`` is the residual's.
 
     Args:
       residual: the ensemble (:func:`cfm_jax.networks.forward_model`).
       terms: ``terms(state) -> Terms`` (:func:`terms_function`).
       output_dim: the task's output size.
-      entries: the output entries of ``qacc`` (``task.acceleration_output()``).
-      scale: the factor on ``qacc`` there (1, or ``control_dt`` for the legged tasks).
+      entries: the output entries of the physics (``task.acceleration_output().entries``).
+      scale: the factor on ``gain @ tau + drift`` there (1, or ``control_dt`` for the
+        legged tasks).
 
     Returns:
       The :class:`cfm_jax.networks.Model` (with ``terms``).
@@ -269,28 +310,28 @@ def make(forward: ForwardModelConfig, robot, task) -> networks.Model:
       A :class:`cfm_jax.networks.Model` with ``terms``.
 
     Raises:
-      ConfigError: the task's output is not a linear image of ``qacc``
-        (``opspace``), or the nominal model does not fit the robot.
+      ConfigError: the task's ``acceleration_output()`` is None (its output is not an
+        affine image of ``qacc``), or the nominal model does not fit the robot.
 
     Examples:
       >>> from cfm_jax import config, tasks
       >>> arm = robots.load("two_link_arm")
       >>> ops = tasks.make(arm, config.TaskConfig(name="opspace", duration=0.1, site="tip"),
       ...                  control_dt=0.01)
-      >>> make(config.ForwardModelConfig(kind="rigid_body"), arm, ops)
-      Traceback (most recent call last):
-      ...
-      cfm_jax.config.ConfigError: forward.kind='rigid_body' is not allowed for task 'opspace': ...
+      >>> fm = make(config.ForwardModelConfig(kind="rigid_body", hidden=(8,)), arm, ops)
+      >>> terms = jax.jit(fm.terms)(jnp.zeros((5, 4)))  # y = [qacc (2), xdd (3)]
+      >>> terms.gain.shape, terms.drift.shape
+      ((5, 5, 2), (5, 5))
     """
     where = task.acceleration_output()
     if where is None:
         raise ConfigError(
-            f"forward.kind='rigid_body' is not allowed for task {task.name!r}: its output is "
-            "not the joint accelerations alone (the site acceleration J qdd + Jdot qd is not "
-            "stored yet); use forward.kind='mlp'"
+            f"forward.kind='rigid_body' is not allowed for task {task.name!r}: its "
+            "acceleration_output() is None (the output is not an affine image of the joint "
+            "accelerations); use forward.kind='mlp'"
         )
-    entries, scale = where
+    where = AccelerationOutput(*where)  # a task may return a plain (entries, scale)
     model = nominal_model(robot, forward.nominal, forward.nominal_mass_scale)
     residual = networks.ensemble(forward, task.output_dim, task.action_dim)
-    terms = terms_function(model, robot.actuated_dofs, task.configuration)
-    return structured(residual, terms, task.output_dim, entries, float(scale))
+    terms = terms_function(model, robot.actuated_dofs, task.configuration, where.affine)
+    return structured(residual, terms, task.output_dim, where.entries, float(where.scale))

@@ -6,12 +6,15 @@ mass scale scales ``M`` (the links' part) and the bias force as the closed form 
 from __future__ import annotations
 
 import dataclasses
+import types
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+import pandas as pd
 import pytest
+import sites
 from tiny import tiny_config
 
 import cfm_jax
@@ -195,13 +198,66 @@ def test_nominal_mass_scale_scales_links_inertia_and_bias(arms):
     assert m.body_mass[1] == robots.load("two_link_arm").mj_model.body_mass[1]
 
 
-def test_nominal_file_must_have_the_robots_joints_and_opspace_is_not_supported(arms):
+def test_nominal_file_must_have_the_robots_joints(arms):
     robot, task = arms["two_link_arm"]
     with pytest.raises(config_lib.ConfigError, match=r"forward\.nominal='iiwa14'"):
         _model(robot, task, nominal="iiwa14")
-    ops = tasks.make(robot, config_lib.TaskConfig(name="opspace", duration=0.1, site="tip"), 0.01)
-    with pytest.raises(config_lib.ConfigError, match=r"forward\.kind='rigid_body'.*opspace"):
-        _model(robot, ops)
+
+
+def test_a_task_whose_output_is_not_affine_in_qacc_is_refused():
+    robot = robots.load("two_link_arm")
+    task = types.SimpleNamespace(name="custom", acceleration_output=lambda: None)
+    with pytest.raises(config_lib.ConfigError, match=r"forward\.kind='rigid_body'.*'custom'"):
+        rigid_body.make(config_lib.ForwardModelConfig(kind="rigid_body"), robot, task)
+
+
+def _mujoco_opspace_output(robot, site, qpos, qvel, tau):
+    """``[qacc, xdd]`` of MuJoCo C: ``qacc`` of ``mj_forward`` with the torques, ``xdd``
+    the site's classical acceleration from MuJoCo's own ``cacc`` recursion
+    (``mj_objectAcceleration``, :func:`sites.mujoco_site_acceleration`) at that ``qacc``."""
+    qacc = _mujoco_qacc(robot, qpos, qvel, tau)
+    return np.concatenate(
+        [qacc, sites.mujoco_site_acceleration(robot.mj_model, site, qpos, qvel, qacc)]
+    )
+
+
+@pytest.mark.parametrize(
+    ("name", "site"),
+    [("two_link_arm", "tip"), pytest.param("iiwa14", "flange", marks=pytest.mark.slow)],
+)
+def test_opspace_zero_residual_predicts_mujoco_qacc_and_site_acceleration(name, site):
+    """The op-space output ``[qacc, J qacc + Jdot qd]`` with a zero residual is MuJoCo C's,
+    and its Jacobian in ``tau`` is that of MuJoCo C (central differences)."""
+    robot = robots.load(name)
+    task = tasks.make(robot, config_lib.TaskConfig(name="opspace", duration=0.1, site=site), 0.01)
+    sid = task.site
+    rng = np.random.default_rng(4)
+    fm, params = _model(robot, task)
+    norm = _normaliser(task, robot, rng)
+
+    def both(s, t):
+        y = _predict(fm, params, norm, s, t)
+        return y, y
+
+    predict = jax.jit(jax.jacfwd(both, argnums=1, has_aux=True))
+    for qpos, qvel, tau in _random_states(robot, rng, 3):
+        state = jnp.asarray(np.concatenate([qpos, qvel]), jnp.float32)
+        expected = _mujoco_opspace_output(robot, sid, qpos, qvel, tau)
+        got_jacobian, got = (np.asarray(x) for x in predict(state, jnp.asarray(tau, jnp.float32)))
+        assert got.shape == (robot.nv + 3,)
+        np.testing.assert_allclose(got, expected, rtol=0, atol=2e-5 * np.max(np.abs(expected)))
+        eps = 1e-3 * robot.torque_limit
+        columns = []
+        for j in range(robot.action_dim):
+            step = np.zeros(robot.action_dim)
+            step[j] = eps[j]
+            plus = _mujoco_opspace_output(robot, sid, qpos, qvel, tau + step)
+            minus = _mujoco_opspace_output(robot, sid, qpos, qvel, tau - step)
+            columns.append((plus - minus) / (2 * eps[j]))
+        expected_jacobian = np.stack(columns, axis=1)
+        np.testing.assert_allclose(
+            got_jacobian, expected_jacobian, rtol=0, atol=2e-5 * np.max(np.abs(expected_jacobian))
+        )
 
 
 def test_forward_config_fields_validated_and_round_trip():
@@ -247,3 +303,52 @@ def test_tiny_train_with_rigid_body_stores_mujocos_terms_with_the_data(simulator
         np.testing.assert_allclose(data.data.terms.gain[row], inverse, rtol=1e-4, atol=1e-4)
         drift = inverse @ (d.qfrc_passive - d.qfrc_bias)
         np.testing.assert_allclose(data.data.terms.drift[row], drift, rtol=1e-4, atol=1e-3)
+
+
+def _rigid_body_config(base, **task):
+    return dataclasses.replace(
+        base,
+        task=dataclasses.replace(base.task, **task),
+        forward=dataclasses.replace(base.forward, kind="rigid_body"),
+    )
+
+
+@pytest.mark.slow  # ~55 s on 2 busy cores: compiles a whole iteration with the site terms
+def test_tiny_opspace_train_with_rigid_body_has_finite_metrics_and_site_terms():
+    config = _rigid_body_config(tiny_config(iterations=1, seeds=1), name="opspace", site="tip")
+    result = cfm_jax.train(config, progress=False)
+    assert len(result.metrics) > 0
+    for column in ("tracking_mse", "prediction_error"):
+        assert np.all(np.isfinite(result.metrics[column]))
+    data = jax.tree.map(lambda x: np.asarray(x[0]), result.state.data)
+    assert data.data.terms.gain.shape[1:] == (2 + 3, 2)  # [qacc, xdd] per unit torque
+    robot = robots.load("two_link_arm")
+    row = int(data.size) - 1
+    qpos, qvel = data.data.state[row, :2], data.data.state[row, 2:]
+    tau = np.array([0.3, -0.2]) * robot.torque_limit
+    expected = _mujoco_opspace_output(robot, 0, qpos, qvel, tau)
+    got = data.data.terms.gain[row] @ tau + data.data.terms.drift[row]
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-4 * np.max(np.abs(expected)))
+
+
+@pytest.mark.slow  # ~110 s on 2 busy cores: two runs of 2 iterations
+def test_rigid_body_resume_after_a_lost_last_checkpoint_is_bit_identical(tmp_path):
+    """The terms are not in the checkpoint's data files (derived from the states): a run
+    resumed from iteration 1 recomputes them and ends bit for bit as the whole run."""
+    import shutil
+
+    config = _rigid_body_config(tiny_config(iterations=2, seeds=1, checkpoint_keep=2))
+    out = tmp_path / "full"
+    full = cfm_jax.train(config, progress=False, out_dir=str(out))
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy)
+    shutil.rmtree(copy / "checkpoints" / "2")
+    assert (copy / "checkpoints" / "1").is_dir()  # it resumes from iteration 1
+    resumed = cfm_jax.train(config, progress=False, resume=str(copy))
+    pd.testing.assert_frame_equal(resumed.metrics, full.metrics, check_exact=True)
+    for got, want in zip(
+        jax.tree.leaves(resumed.state.data.data.terms),
+        jax.tree.leaves(full.state.data.data.terms),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))

@@ -4,6 +4,9 @@ reaching, the controller gets a desired joint acceleration. Its class,
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -18,6 +21,34 @@ from cfm_jax.references import (
     reaching,
     rms_reach,
 )
+
+
+class AccelerationOutput(NamedTuple):
+    """How the joint accelerations ``qacc`` enter a task's forward-model output ``y``
+    (:meth:`JointSpaceTask.acceleration_output`): an affine map that may depend on the
+    state, ``y[entries] = scale * (A(s) qacc + b(s))``.
+
+    Attributes:
+      entries: the ``k`` output indices the map fills; the other entries of ``y`` are not
+        accelerations (the legged tasks' foot forces).
+      scale: a constant factor (1, or ``control_dt`` for outputs in velocity units).
+      affine: None for ``A = I``, ``b = 0`` (then ``k == nv``), or
+        ``affine(qpos (nq,), qvel (nv,)) -> (A (k, nv), b (k,))`` of one state, float32
+        and traceable by JAX (no host callback, so that it runs under ``jit`` with either
+        simulator): ``opspace`` gives ``A = [I; J(q)]``, ``b = [0; Jdot(q, qd) qd]`` of its
+        site.
+
+    The ``rigid_body`` forward model (:mod:`cfm_jax.rigid_body`) puts its physics there.
+
+    Examples:
+      >>> out = AccelerationOutput(entries=(0, 1), scale=0.5)
+      >>> out.entries, out.scale, out.affine is None
+      ((0, 1), 0.5, True)
+    """
+
+    entries: tuple[int, ...]
+    scale: float = 1.0
+    affine: Callable | None = None
 
 
 class JointSpaceTask:
@@ -237,12 +268,20 @@ class JointSpaceTask:
         return state[..., :nq], state[..., state.shape[-1] - nv :]
 
     def acceleration_output(self):
-        """Where the joint accelerations lie in the forward model's output ``y``:
-        ``(entries, scale)`` with ``y[entries] = scale * qacc`` (here the whole output,
-        scale 1), or None when the output is not a linear image of ``qacc`` alone. The
-        ``rigid_body`` forward model puts its physics there; the other entries are the
-        residual network's alone."""
-        return tuple(range(self.robot.nv)), 1.0
+        """How the joint accelerations enter the forward model's output ``y``: an
+        :class:`AccelerationOutput` ``(entries, scale, affine)`` with
+        ``y[entries] = scale * (A(s) qacc + b(s))`` (here the whole output, scale 1,
+        ``A = I``, ``b = 0``), or None when the output is not an affine image of ``qacc``.
+        The ``rigid_body`` forward model puts its physics there; the other entries are the
+        residual network's alone.
+
+        Examples:
+          >>> from cfm_jax import config, robots, tasks
+          >>> arm = robots.load("two_link_arm")
+          >>> tasks.make(arm, config.TaskConfig(duration=0.1), 0.01).acceleration_output()
+          AccelerationOutput(entries=(0, 1), scale=1.0, affine=None)
+        """
+        return AccelerationOutput(tuple(range(self.robot.nv)), 1.0)
 
     def tracking_error(self, ref_next, qpos_next, qvel_next, features_next):
         del qvel_next, features_next

@@ -9,7 +9,7 @@ import numpy as np
 from cfm_jax import babbling, locomotion, solo12
 from cfm_jax.config import ConfigError, TaskConfig
 from cfm_jax.references import LeggedReference, as_jax_legged, minimum_jerk
-from cfm_jax.tasks.inverse_dynamics import JointSpaceTask
+from cfm_jax.tasks.inverse_dynamics import AccelerationOutput, JointSpaceTask
 
 
 def _quat_error(target, quat):
@@ -264,7 +264,7 @@ class LeggedTask(JointSpaceTask):
     def acceleration_output(self):
         """``y[:nv] = control_dt * qacc`` (the foot forces after it are the residual
         network's alone; see :meth:`JointSpaceTask.acceleration_output`)."""
-        return tuple(range(self.robot.nv)), self.control_dt
+        return AccelerationOutput(tuple(range(self.robot.nv)), self.control_dt)
 
     def tracking_error(self, ref_next, qpos_next, qvel_next, features_next):
         error = self._pose_error(ref_next.qpos, qpos_next)[:6]

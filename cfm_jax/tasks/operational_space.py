@@ -17,7 +17,7 @@ from cfm_jax.references import (
     desired_acceleration,
     minimum_jerk,
 )
-from cfm_jax.tasks.inverse_dynamics import JointSpaceTask, require_fixed_base
+from cfm_jax.tasks.inverse_dynamics import AccelerationOutput, JointSpaceTask, require_fixed_base
 
 
 class OperationalSpaceTask(JointSpaceTask):
@@ -147,10 +147,33 @@ class OperationalSpaceTask(JointSpaceTask):
         return features_next[:3] - ref_next.x
 
     def acceleration_output(self):
-        """None: the site acceleration ``xdd = J qdd + Jdot qd`` in the output needs the
-        site's Jacobian terms, which the ``rigid_body`` forward model does not store yet
-        (see :meth:`JointSpaceTask.acceleration_output`)."""
-        return None
+        """The output ``y = [qdd, xdd]`` is an affine image of ``qacc``: ``A = [I; J(q)]``,
+        ``b = [0; Jdot(q, qd) qd]`` with the site's translational Jacobian ``J`` and bias
+        acceleration ``Jdot qd`` from MJX (:func:`cfm_jax.opspace.mjx_kinematics`, in JAX
+        with either simulator; the simulated robot's kinematics), scale 1 (see
+        :class:`cfm_jax.tasks.inverse_dynamics.AccelerationOutput`). The observed ``y``
+        is the control period's finite difference of ``qdot`` and of ``xd = J qd``, i.e.
+        the *average* of ``qdd`` and of the site acceleration over the period; ``A qacc + b``
+        at the state is the instantaneous value at its start.
+
+        Examples:
+          >>> from cfm_jax import config, robots
+          >>> arm = robots.load("two_link_arm")
+          >>> ops = make(arm, config.TaskConfig(name="opspace", duration=0.1, site="tip"), 0.01)
+          >>> out = ops.acceleration_output()
+          >>> a, b = out.affine(jnp.zeros(2), jnp.array([1.0, 0.0]))  # doctest: +SKIP
+          >>> a.shape, np.round(np.asarray(b), 3).tolist()  # doctest: +SKIP
+          ((5, 2), [0.0, 0.0, -0.9, 0.0, 0.0])
+        """
+        robot, site, nv = self.robot, self.site, self.robot.nv
+
+        def affine(qpos, qvel):
+            kin = opspace.mjx_kinematics(robot, qpos, qvel, site)
+            a = jnp.concatenate([jnp.eye(nv, dtype=jnp.float32), kin.jacobian])
+            b = jnp.concatenate([jnp.zeros(nv, jnp.float32), kin.bias_acceleration])
+            return a, b
+
+        return AccelerationOutput(tuple(range(nv + 3)), 1.0, affine)
 
     def feedback(self, step):
         """Task-space PD ``J^T (K_p (x_ref - x) + K_d (xd_ref - xd))``
