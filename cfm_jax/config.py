@@ -459,7 +459,8 @@ class ForwardModelConfig:
         ensemble predicts the output from ``(s, tau)``) or ``"rigid_body"`` (the authors'
         Solo12 code: ``qdd = M(q)^-1 (S tau - h(q, qd)) + residual(s, tau)`` with ``M`` and
         ``h`` of a nominal MuJoCo model and the ensemble as the residual;
-        :mod:`cfm_jax.rigid_body`). Not for ``opspace``.
+        :mod:`cfm_jax.rigid_body`), with every task: the physics fills the output entries
+        that are an affine image of ``qacc`` (``opspace``: ``[qacc, J qacc + Jdot qd]``).
       nominal: ``rigid_body`` only: the MJCF file (a path or a registered robot name) of
         the nominal model ``M`` and ``h`` come from; None (default): the robot's own.
       nominal_mass_scale: ``rigid_body`` only: every body mass and inertia of the nominal

@@ -41,7 +41,8 @@ def protocol(config) -> str:
     """One line that says how a run's initial data and ``s*`` were made and how the
     networks' inputs are scaled, for every summary table: ``loop.babbling``
     (:mod:`cfm_jax.babbling`), its rollouts and noise, the ``s*`` gains (or
-    ``task.desired='next_velocity'``) and ``loop.normaliser``.
+    ``task.desired='next_velocity'``), ``loop.normaliser`` and ``forward.kind`` (with
+    ``forward.nominal`` and ``forward.nominal_mass_scale`` where they are not the default).
 
     Args:
       config: a :class:`cfm_jax.config.Config`.
@@ -52,11 +53,15 @@ def protocol(config) -> str:
     Examples:
       >>> from cfm_jax import config
       >>> print(protocol(config.Config()))
-      initial data: `loop.babbling='home'` (2 rollouts per target, torque noise 0.1 of the limit); s* gains kp 100, kd 20; `loop.normaliser='babbling'`
+      initial data: `loop.babbling='home'` (2 rollouts per target, torque noise 0.1 of the limit); s* gains kp 100, kd 20; `loop.normaliser='babbling'`; `forward.kind='mlp'`
       >>> walk = config.for_task("walk").replace(task=config.TaskConfig(
       ...     name="walk", control_dt=0.004, kp=0.0, kd=0.0, desired="next_velocity"))
       >>> print(protocol(walk).split("; ", 1)[1])
-      s* the desired next velocity (`task.desired='next_velocity'`: kp 0, kd 1/control_dt = 250/s on base and joints); `loop.normaliser='babbling'`
+      s* the desired next velocity (`task.desired='next_velocity'`: kp 0, kd 1/control_dt = 250/s on base and joints); `loop.normaliser='babbling'`; `forward.kind='mlp'`
+      >>> biased = walk.replace(forward=config.ForwardModelConfig(
+      ...     kind="rigid_body", nominal_mass_scale=1.2))
+      >>> print(protocol(biased).rsplit("; ", 1)[1])
+      `forward.kind='rigid_body'` (`forward.nominal_mass_scale=1.2`)
     """  # noqa: E501
     loop, task = config.loop, config.task
     gains = f"s* gains kp {task.kp:g}, kd {task.kd:g}"
@@ -70,11 +75,20 @@ def protocol(config) -> str:
             f"s* the desired next velocity (`task.desired={task.desired!r}`: kp 0, kd "
             f"1/control_dt{rate} on base and joints)"
         )
+    forward = config.forward
+    model = f"`forward.kind={forward.kind!r}`"
+    nominal = []
+    if forward.nominal is not None:
+        nominal.append(f"`forward.nominal={forward.nominal!r}`")
+    if forward.nominal_mass_scale != 1.0:
+        nominal.append(f"`forward.nominal_mass_scale={forward.nominal_mass_scale:g}`")
+    if nominal:
+        model += f" ({', '.join(nominal)})"
     return (
         f"initial data: `loop.babbling={loop.babbling!r}` ({loop.babbling_rollouts} rollout"
         f"{'s' if loop.babbling_rollouts != 1 else ''} "
         f"per target, torque noise {loop.babbling_noise:g} of the limit); {gains}; "
-        f"`loop.normaliser={loop.normaliser!r}`"
+        f"`loop.normaliser={loop.normaliser!r}`; {model}"
     )
 
 

@@ -868,7 +868,8 @@ def _write_tables(out_dir: str, result: SweepResult, base_config, cells, labels)
     }
     write_text(os.path.join(out_dir, "sweep.json"), json.dumps(description, indent=2))
     protocol = report.protocol(base_config)
-    if any(path.startswith("loop.babbling") for path in result.override_columns):
+    overridden = ("loop.babbling", "forward.kind", "forward.nominal")  # and nominal_mass_scale
+    if any(path.startswith(overridden) for path in result.override_columns):
         protocol += " (the base; the cells override it, see the columns)"
     write_text(os.path.join(out_dir, "summary.md"), protocol + "\n\n" + result.markdown() + "\n")
     config = cells[0].config

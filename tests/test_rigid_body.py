@@ -260,6 +260,24 @@ def test_opspace_zero_residual_predicts_mujoco_qacc_and_site_acceleration(name, 
         )
 
 
+def test_protocol_line_names_the_forward_model_and_a_nominal_that_is_not_the_default():
+    from cfm_jax import report
+
+    base = config_lib.Config()
+    assert report.protocol(base).endswith("; `forward.kind='mlp'`")
+    exact = base.replace(forward=config_lib.ForwardModelConfig(kind="rigid_body"))
+    assert report.protocol(exact).endswith("; `forward.kind='rigid_body'`")
+    biased = base.replace(
+        forward=config_lib.ForwardModelConfig(
+            kind="rigid_body", nominal="two_link_arm", nominal_mass_scale=0.8
+        )
+    )
+    assert report.protocol(biased).endswith(
+        "; `forward.kind='rigid_body'` (`forward.nominal='two_link_arm'`, "
+        "`forward.nominal_mass_scale=0.8`)"
+    )
+
+
 def test_forward_config_fields_validated_and_round_trip():
     with pytest.raises(config_lib.ConfigError, match=r"forward\.kind='gru'"):
         config_lib.ForwardModelConfig(kind="gru")
