@@ -62,9 +62,9 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 from cfm_jax import networks, robots
+from cfm_jax._mjx import mjx
 from cfm_jax.config import ConfigError, ForwardModelConfig
 
 
