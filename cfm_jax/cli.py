@@ -536,6 +536,11 @@ def _value(path: str, type_text: str, given):
         return tuple(_number(text, "float" in type_text) for text in given)
     if optional and given in ("None", "null"):
         return None
+    if path in _JSON_FIELDS:
+        try:
+            return json.loads(given)
+        except json.JSONDecodeError as error:
+            config_lib._fail(path, given, f"None or a JSON list, e.g. [[0.5, 0.5]] ({error})")
     if type_text.startswith("str"):
         return given
     return _number(given, type_text.startswith("float"))
