@@ -447,8 +447,8 @@ _SHORT = {  # the short flags of earlier versions, kept as aliases of the nested
 }
 
 _TOP_HELP = {
-    "robot": "registered robot name (iiwa14, two_link_arm, solo12) or path to an MJCF file "
-    "(the default is the task's robot: iiwa14 for the arm tasks, solo12 for walk and jump).",
+    "robot": "registered robot name (iiwa14, two_link_arm, solo12) or path to an MJCF file; "
+    "the default follows --task (solo12 for walk and jump).",
     "seed": "first seed; run k of loop.seeds uses seed + k.",
     "simulator": "physics back end: native (MuJoCo C, exact, fast on CPU) or mjx (MuJoCo MJX "
     "in JAX, on the device).",
