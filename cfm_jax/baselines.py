@@ -39,9 +39,9 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 from cfm_jax import native, opspace, references, rollout
+from cfm_jax._mjx import mjx
 from cfm_jax.config import check_simulator
 
 # Gains of the null-space posture term of the oracle (1/s^2 and 1/s): a critically damped

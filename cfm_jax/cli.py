@@ -9,24 +9,32 @@ Examples:
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import dataclasses
+import inspect
 import json
 import os
+import re
 import time
+from typing import Annotated
 
-import cfm_jax  # noqa: F401  (sets the XLA flag before JAX starts)
+import tyro
+from tyro.conf import arg as tyro_arg
+
+import cfm_jax  # (sets the XLA flag before JAX starts)
 from cfm_jax import config as config_lib
 from cfm_jax import losses, plots, report
 
 
 def train(
     robot: str | None = None,
-    task: str = "inverse_dynamics",
+    task: str | None = None,
     loss: str = "all",
-    seeds: int = 1,
-    iterations: int = 4,
+    seeds: int | None = None,
+    iterations: int | None = None,
     out: str = "results/train",
-    seed: int = 0,
+    seed: int | None = None,
     config: str | None = None,
     simulator: str | None = None,
     resume: bool = False,
@@ -46,17 +54,18 @@ def train(
       robot: registered robot name (iiwa14, two_link_arm, solo12) or path to an MJCF
         file (default: the task's robot, iiwa14 for the arm tasks and solo12 for walk and
         jump).
-      task: task name (inverse_dynamics, opspace, walk, jump).
+      task: task name (inverse_dynamics, opspace, walk, jump); None: the config file's,
+        else inverse_dynamics.
       loss: a controller loss (joint, task, distal, supervised, distal_literal), a
         comma-separated list of them, or "all" (the paper's four).
-      seeds: number of seeds (run together as a vmap axis).
-      iterations: iterations of Algorithm 1.
+      seeds: number of seeds (run together as a vmap axis); None: the config's (1).
+      iterations: iterations of Algorithm 1; None: the config file's, else 4.
       out: output directory.
-      seed: first seed.
-      config: JSON file of a full config (as written to config.json); the flags above
-        override its robot, task, seeds, iterations and seed. Without it, the task's
-        defaults (cfm_jax.config.for_task: for walk and jump the paper's quadruped
-        networks and 250 Hz control).
+      seed: first seed; None: the config's (0).
+      config: JSON file of a full config (as written to config.json); the arguments above
+        that are not None override its robot, task, seeds, iterations and seed. Without
+        it, the task's defaults (cfm_jax.config.for_task: for walk and jump the paper's
+        quadruped networks and 250 Hz control).
       simulator: physics back end, native (MuJoCo C) or mjx; default: the config's (native).
       resume: continue an interrupted run in OUT (same flags and config): every loss
         resumes from its newest valid checkpoint in OUT/<loss>/checkpoints (finished losses
@@ -79,19 +88,34 @@ def train(
 
       >>> train(robot="two_link_arm", iterations=1, out="/tmp/quick")  # doctest: +SKIP
     """
-    from cfm_jax import training as train_lib
-
     names = _losses(loss)
     base = _base_config(
         robot, task, names[0], seed, seeds, iterations, config, simulator, control_dt, site
     )
     if babbling is not None:
         base = base.replace(loop=dataclasses.replace(base.loop, babbling=babbling))
+    _run_train(base, names, out, resume, data, quiet)
+
+
+def _run_train(base, names, out, resume, data, quiet) -> None:
+    """Train every loss of ``names`` on ``base`` into ``out`` and print the tables."""
+    from cfm_jax import training as train_lib
+
     start = time.perf_counter()
     experiment = train_lib.Experiment(base)  # checks robot and config: nothing written yet
     if data is not None:  # a bad --data is refused before anything is written
         train_lib._recorded_for(experiment, base, data)
-    os.makedirs(out, exist_ok=True)
+    with _removed_if_empty(out):
+        os.makedirs(out, exist_ok=True)
+        frames, result, notes = _train_losses(base, names, out, resume, data, quiet, experiment)
+    wall = time.perf_counter() - start
+    _print_train(base, experiment, frames, result, notes, out, wall)
+
+
+def _train_losses(base, names, out, resume, data, quiet, experiment):
+    """Train each loss in turn, writing the combined files after each."""
+    from cfm_jax import training as train_lib
+
     frames, result, notes = [], None, []
     for name in names:
         run_dir = os.path.join(out, name)
@@ -107,7 +131,12 @@ def train(
         frames.append(result.metrics)
         notes += _notes(name, result)
         _write_outputs(out, frames, result, base, experiment.task, notes)
-    wall = time.perf_counter() - start
+    return frames, result, notes
+
+
+def _print_train(base, experiment, frames, result, notes, out, wall) -> None:
+    """Print the summary table, the paired comparison and what failed."""
+    task, seeds = base.task.name, base.loop.seeds
     metrics = _concat(frames)
     table = report.summary(metrics, result.baselines, result.rms_reach)
     label, unit = experiment.task.tracking_name, experiment.task.tracking_unit
@@ -132,28 +161,42 @@ def train(
 def _base_config(
     robot, task, loss, seed, seeds, iterations, config, simulator, control_dt, site
 ) -> config_lib.Config:
-    """The config of the flags: the task's defaults (or the --config file) with the flags'
-    robot, task, loss, seed, seeds, iterations, simulator, control_dt and site."""
-    base = config_lib.for_task(task)
+    """The config of :func:`train`'s arguments: the --config file (else the task's defaults
+    with 4 iterations) with the arguments that are not None: robot, task, seed, seeds,
+    iterations, simulator, control_dt and site; and ``loss``."""
     if config is not None:
         base = config_lib.from_dict(_read_config(config))
-    task_fields = {**config_lib.to_dict(base)["task"], "name": task}
-    if control_dt is not None:
-        task_fields["control_dt"] = control_dt
-    if site is not None:
-        task_fields["site"] = site
-    return config_lib.Config(
-        robot=base.robot if robot is None else robot,
-        loss=loss,
-        seed=seed,
-        simulator=base.simulator if simulator is None else simulator,
-        task=config_lib.TaskConfig(**task_fields),
-        forward=base.forward,
-        controller=base.controller,
-        loop=config_lib.LoopConfig(
-            **{**config_lib.to_dict(base)["loop"], "iterations": iterations, "seeds": seeds}
-        ),
-    )
+    else:
+        base = config_lib.for_task(task or "inverse_dynamics")
+        base = base.replace(loop=dataclasses.replace(base.loop, iterations=4))
+    data = config_lib.to_dict(base)
+    data["loss"] = loss
+    for section, name, value in (
+        (None, "robot", robot),
+        (None, "seed", seed),
+        (None, "simulator", simulator),
+        ("task", "name", task),
+        ("task", "control_dt", control_dt),
+        ("task", "site", site),
+        ("loop", "seeds", seeds),
+        ("loop", "iterations", iterations),
+    ):
+        if value is not None:
+            (data if section is None else data[section])[name] = value
+    return config_lib.from_dict(data)
+
+
+@contextlib.contextmanager
+def _removed_if_empty(out: str):
+    """Remove the directory ``out`` if it did not exist before and the block failed with it
+    still empty (a failed run leaves no empty output directory behind)."""
+    existed = os.path.isdir(out)
+    try:
+        yield
+    except BaseException:
+        if not existed and os.path.isdir(out) and not any(os.scandir(out)):
+            os.rmdir(out)
+        raise
 
 
 def _read_config(path: str) -> dict:
@@ -175,13 +218,13 @@ def _read_config(path: str) -> dict:
 
 def sweep(
     robot: str | None = None,
-    task: str = "inverse_dynamics",
+    task: str | None = None,
     losses: str = "all",
-    seeds: int = 1,
-    iterations: int = 4,
+    seeds: int | None = None,
+    iterations: int | None = None,
     out: str = "results/sweep",
     override: tuple[str, ...] = (),
-    seed: int = 0,
+    seed: int | None = None,
     config: str | None = None,
     simulator: str | None = None,
     control_dt: float | None = None,
@@ -205,20 +248,21 @@ def sweep(
       robot: registered robot name (iiwa14, two_link_arm, solo12) or path to an MJCF
         file (default: the task's robot, iiwa14 for the arm tasks and solo12 for walk and
         jump).
-      task: task name (inverse_dynamics, opspace, walk, jump).
+      task: task name (inverse_dynamics, opspace, walk, jump); None: the config file's,
+        else inverse_dynamics.
       losses: "all" (the paper's four: joint, task, distal, supervised), or a
         comma-separated list of controller losses (those and distal_literal).
-      seeds: number of seeds (a vmap axis inside every cell).
-      iterations: iterations of Algorithm 1.
+      seeds: number of seeds (a vmap axis inside every cell); None: the config's (1).
+      iterations: iterations of Algorithm 1; None: the config file's, else 4.
       out: output directory.
       override: grid axes, each PATH=V1,V2,... (values parsed as JSON numbers, true/false,
         null, else text) or PATH=[JSON list] for values that contain commas, e.g.
         --override task.kp=50,100 controller.learning_rate=1e-3,3e-4
         'task.targets=[[[0.5,0.5]],[[1.0,0.2]]]'.
-      seed: first seed.
-      config: JSON file of a full config (as written to config.json); the flags above
-        override its robot, task, seeds, iterations and seed. Without it, the task's
-        defaults (cfm_jax.config.for_task).
+      seed: first seed; None: the config's (0).
+      config: JSON file of a full config (as written to config.json); the arguments above
+        that are not None override its robot, task, seeds, iterations and seed. Without
+        it, the task's defaults (cfm_jax.config.for_task).
       simulator: physics back end, native (MuJoCo C) or mjx; default: the config's (native).
       control_dt: control period in seconds (default: the config's or the task's).
       site: opspace: the end-effector site of the MJCF (default: "ee", else "flange").
@@ -236,24 +280,30 @@ def sweep(
 
       >>> sweep(robot="two_link_arm", iterations=1, out="/tmp/sweep")  # doctest: +SKIP
     """
-    from cfm_jax import sweeps
-
     names = _losses(losses, flag="--losses")
     base = _base_config(
         robot, task, names[0], seed, seeds, iterations, config, simulator, control_dt, site
     )
+    _run_sweep(base, names, override, out, backend, address, max_retries, quiet)
+
+
+def _run_sweep(base, names, override, out, backend, address, max_retries, quiet) -> None:
+    """Run the sweep of ``base`` over ``names`` and the ``override`` axes; print its table."""
+    from cfm_jax import sweeps
+
     grid_axes = dict(_override(text) for text in override)
     start = time.perf_counter()
-    result = sweeps.sweep(
-        base,
-        losses=names,
-        overrides=grid_axes,
-        out_dir=out,
-        backend=backend,
-        address=address,
-        max_retries=max_retries,
-        progress=not quiet,
-    )
+    with _removed_if_empty(out):
+        result = sweeps.sweep(
+            base,
+            losses=names,
+            overrides=grid_axes,
+            out_dir=out,
+            backend=backend,
+            address=address,
+            max_retries=max_retries,
+            progress=not quiet,
+        )
     ran = int((result.cells["status"] == "ran").sum())
     print(result.markdown())
     print(
@@ -363,9 +413,311 @@ def _write_outputs(out, frames, result, base, task, notes=()) -> None:
     )
 
 
+_UNSET = "\x00"  # the value of a config flag that was not given (tyro needs a str)
+
+_SECTIONS = {
+    "task": config_lib.TaskConfig,
+    "forward": config_lib.ForwardModelConfig,
+    "controller": config_lib.ControllerConfig,
+    "loop": config_lib.LoopConfig,
+}
+
+_CHOICES = {  # fields whose values are a known set (the config checks them)
+    "task.name": "TASKS",
+    "task.desired": "DESIRED",
+    "forward.start": "FIT_STARTS",
+    "forward.kind": "FORWARD_KINDS",
+    "controller.goal": "CONTROLLER_GOALS",
+    "controller.loss_form": "LOSS_FORMS",
+    "controller.start": "FIT_STARTS",
+    "loop.babbling": "BABBLING",
+    "loop.normaliser": "NORMALISERS",
+    "simulator": "SIMULATORS",
+}
+
+_JSON_FIELDS = ("task.targets", "controller.loss_weights")  # nested tuples: one JSON value
+
+_SHORT = {  # the short flags of earlier versions, kept as aliases of the nested ones
+    "task.name": "--task",
+    "task.control_dt": "--control-dt",
+    "task.site": "--site",
+    "loop.seeds": "--seeds",
+    "loop.iterations": "--iterations",
+    "loop.babbling": "--babbling",
+}
+
+_TOP_HELP = {
+    "robot": "registered robot name (iiwa14, two_link_arm, solo12) or path to an MJCF file; "
+    "the default follows --task (solo12 for walk and jump).",
+    "seed": "first seed; run k of loop.seeds uses seed + k.",
+    "simulator": "physics back end: native (MuJoCo C, exact, fast on CPU) or mjx (MuJoCo MJX "
+    "in JAX, on the device).",
+    "config": "JSON file of a full config (a run's config.json, or the output of cfm-jax "
+    "config): the base of every config flag; only the flags given override it. Without it, "
+    "the task's defaults (cfm_jax.config.for_task) with 4 iterations.",
+}
+
+
+def _plain(text: str) -> str:
+    """Docstring text as one plain paragraph: no line breaks, no reST roles or literals; a
+    :data: reference to a tuple of allowed names in config.py is replaced by its names."""
+
+    def role(match):
+        target = match[1].lstrip("~")
+        value = getattr(config_lib, target, None)
+        return ", ".join(value) if isinstance(value, tuple) else target
+
+    text = re.sub(r":\w+:`([^`]+)`", role, " ".join(text.split()))
+    return text.replace("``", "")
+
+
+def _attribute_help(cls) -> dict[str, str]:
+    """Each field's paragraph of the ``Attributes:`` section of ``cls``'s docstring."""
+    lines = inspect.cleandoc(cls.__doc__).splitlines()
+    found, name = {}, None
+    for line in lines[lines.index("Attributes:") + 1 :]:
+        if line and not line.startswith("  "):
+            break
+        match = re.match(r"  (\w+): (.*)", line)
+        if match:
+            name = match[1]
+            found[name] = match[2]
+        elif name and line.strip():
+            found[name] += " " + line.strip()
+    return {key: _plain(value) for key, value in found.items()}
+
+
+def _shown(value) -> str:
+    if isinstance(value, tuple) and all(isinstance(v, int | float) for v in value):
+        return " ".join(str(v) for v in value)
+    if isinstance(value, tuple):
+        return json.dumps(value)
+    return str(value)
+
+
+def _metavar(path: str, type_text: str) -> str:
+    optional = "|None" if "None" in type_text else ""
+    if path in _CHOICES:
+        return "{" + ",".join(getattr(config_lib, _CHOICES[path])) + "}" + optional
+    if path in _JSON_FIELDS:
+        return "JSON" + optional
+    if path in ("robot", "forward.nominal"):
+        return "NAME|FILE.xml" + optional
+    element = "INT" if "int" in type_text else "FLOAT" if "float" in type_text else "TEXT"
+    if type_text.startswith("tuple"):
+        return f"{element} [{element} ...]" + optional
+    return element + optional
+
+
+def _flag(path: str, type_text: str, default, help_text: str, aliases=()):
+    """A tyro field for one config field: parsed as text (the config checks the value and
+    names field, value and what is allowed), its default the base config's."""
+    hint = f"(default: {_shown(default)})"
+    if type_text == "bool":
+        return Annotated[bool, tyro_arg(help=help_text, aliases=aliases)], default
+    kind = tuple[str, ...] if type_text.startswith("tuple") and path not in _JSON_FIELDS else str
+    sentinel = (_UNSET,) if kind is not str else _UNSET
+    meta = _metavar(path, type_text)
+    return (
+        Annotated[kind, tyro_arg(help=help_text, metavar=meta, help_behavior_hint=hint,
+                                 aliases=aliases)],
+        sentinel,
+    )  # fmt: skip
+
+
+def _value(path: str, type_text: str, given):
+    """The config value of a flag's text (``_UNSET`` when the flag was not given)."""
+    if given in (_UNSET, (_UNSET,)) or type_text == "bool":
+        return given
+    optional = "None" in type_text
+    if isinstance(given, tuple):
+        if optional and given in (("None",), ("null",)):
+            return None
+        return tuple(_number(text, "float" in type_text) for text in given)
+    if optional and given in ("None", "null"):
+        return None
+    if path in _JSON_FIELDS:
+        try:
+            return json.loads(given)
+        except json.JSONDecodeError as error:
+            config_lib._fail(path, given, f"None or a JSON list, e.g. [[0.5, 0.5]] ({error})")
+    if type_text.startswith("str"):
+        return given
+    return _number(given, type_text.startswith("float"))
+
+
+def _number(text: str, as_float: bool):
+    """JSON of ``text`` (a number, a list), else the text itself for the config to refuse."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError:
+        return text
+    if as_float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
+def _flags_class(command: str, base: config_lib.Config, extra: list):
+    """The tyro dataclass of ``command``: ``extra`` (its own flags), the top-level config
+    fields and one nested group per config section, defaults from ``base``."""
+    fields = list(extra)
+    top_types = {f.name: f.type for f in dataclasses.fields(config_lib.Config)}
+    for name in ("robot", "seed", "simulator"):
+        fields.append((name, *_flag(name, top_types[name], getattr(base, name), _TOP_HELP[name])))
+    fields.append(("config", Annotated[str | None, tyro_arg(help=_TOP_HELP["config"],
+                   metavar="FILE", help_behavior_hint="")], None))  # fmt: skip
+    for section, cls in _SECTIONS.items():
+        helps = _attribute_help(cls)
+        group = []
+        for field in dataclasses.fields(cls):
+            path = f"{section}.{field.name}"
+            aliases = (_SHORT[path],) if path in _SHORT else ()
+            value = getattr(getattr(base, section), field.name)
+            group.append((field.name, *_flag(path, field.type, value, helps[field.name], aliases)))
+        group_cls = dataclasses.make_dataclass(
+            f"{section}", [(n, t, dataclasses.field(default=d)) for n, t, d in group]
+        )
+        group_cls.__doc__ = _plain(inspect.cleandoc(cls.__doc__).split("\n\n")[0])
+        fields.append((section, group_cls, dataclasses.field(default_factory=group_cls)))
+    flags = dataclasses.make_dataclass(
+        command,
+        [f if isinstance(f[2], dataclasses.Field) else (f[0], f[1], dataclasses.field(default=f[2]))
+         for f in fields],
+    )  # fmt: skip
+    return flags
+
+
+def _prescan(argv: list[str]) -> config_lib.Config:
+    """The base config of a command line: the --config file, else the defaults of its
+    --task (cfm_jax.config.for_task) with the CLI's 4 iterations."""
+    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    parser.add_argument("--config")
+    parser.add_argument("--task", "--task.name", dest="task")
+    known, _ = parser.parse_known_args(argv)
+    if known.config is not None:
+        return config_lib.from_dict(_read_config(known.config))
+    task = known.task or "inverse_dynamics"
+    if task not in config_lib.TASKS:
+        config_lib._fail("task.name", task, f"one of {config_lib.TASKS}")
+    base = config_lib.for_task(task)
+    return base.replace(loop=dataclasses.replace(base.loop, iterations=4))
+
+
+def _config_of(flags, base: config_lib.Config, loss: str) -> config_lib.Config:
+    """``base`` with the config flags that were given (validated by the config)."""
+    data = config_lib.to_dict(base)
+    top_types = {f.name: f.type for f in dataclasses.fields(config_lib.Config)}
+    for name in ("robot", "seed", "simulator"):
+        value = _value(name, top_types[name], getattr(flags, name))
+        if value != _UNSET:
+            data[name] = value
+    data["loss"] = loss
+    for section, cls in _SECTIONS.items():
+        group = getattr(flags, section)
+        for field in dataclasses.fields(cls):
+            value = _value(f"{section}.{field.name}", field.type, getattr(group, field.name))
+            if value not in (_UNSET, (_UNSET,)):
+                data[section][field.name] = value
+    return config_lib.from_dict(data)
+
+
+_OUT_HELP = "output directory."
+_QUIET_HELP = "no progress output."
+
+
+def _train_command(argv: list[str]) -> None:
+    base = _prescan(argv)
+    extra = [
+        ("loss", Annotated[str, tyro_arg(metavar="NAMES", help="a controller loss (joint, "
+         "task, distal, supervised, distal_literal), a comma-separated list of them, or all "
+         "(the paper's four).")], "all"),
+        ("out", Annotated[str, tyro_arg(metavar="DIR", help=_OUT_HELP)], "results/train"),
+        ("resume", Annotated[bool, tyro_arg(help="continue an interrupted run in --out (same "
+         "flags and config): every loss resumes from its newest valid checkpoint in "
+         "OUT/LOSS/checkpoints (finished losses are only re-evaluated); losses without "
+         "checkpoints start fresh.")], False),
+        ("data", Annotated[str | None, tyro_arg(metavar="FILE", help_behavior_hint="", help=
+         "replay a recorded data set (a run's OUT/LOSS/dataset.npz) instead of collecting "
+         "data: every loss trains f and g from scratch on it, revealed iteration by iteration "
+         "as it was recorded; the controller is evaluated on the robot every iteration. "
+         "--seeds must equal the recorded run's.")], None),
+        ("quiet", Annotated[bool, tyro_arg(help="no progress bar.")], False),
+    ]  # fmt: skip
+    flags_cls = _flags_class("train", base, extra)
+    flags_cls.__doc__ = _description(train)
+    flags = tyro.cli(flags_cls, args=argv, prog="cfm-jax train")
+    names = _losses(flags.loss)
+    _run_train(_config_of(flags, base, names[0]), names, flags.out, flags.resume, flags.data,
+               flags.quiet)  # fmt: skip
+
+
+def _sweep_command(argv: list[str]) -> None:
+    base = _prescan(argv)
+    extra = [
+        ("losses", Annotated[str, tyro_arg(metavar="NAMES", help="all (the paper's four: "
+         "joint, task, distal, supervised), or a comma-separated list of controller losses "
+         "(those and distal_literal).")], "all"),
+        ("out", Annotated[str, tyro_arg(metavar="DIR", help=_OUT_HELP)], "results/sweep"),
+        ("override", Annotated[tuple[str, ...], tyro_arg(metavar="PATH=VALUES [...]", help=
+         "grid axes, each PATH=V1,V2,... (values parsed as JSON numbers, true/false, null, "
+         "else text) or PATH=[JSON list] for values that contain commas. Example: --override "
+         "task.kp=50,100 controller.learning_rate=1e-3,3e-4")], ()),
+        ("backend", Annotated[str, tyro_arg(metavar="{local,ray}", help="local (this process) "
+         "or ray (each cell a Ray task; pip install 'cfm_jax[ray]').")], "local"),
+        ("address", Annotated[str | None, tyro_arg(metavar="HOST:PORT", help_behavior_hint="",
+         help="ray: address of an existing cluster (host:port or auto); default: start a "
+         "local one on this machine.")], None),
+        ("max_retries", Annotated[int, tyro_arg(metavar="INT", help="ray: retries of a cell "
+         "whose worker process died.")], 3),
+        ("quiet", Annotated[bool, tyro_arg(help=_QUIET_HELP)], False),
+    ]  # fmt: skip
+    flags_cls = _flags_class("sweep", base, extra)
+    flags_cls.__doc__ = _description(sweep)
+    flags = tyro.cli(flags_cls, args=argv, prog="cfm-jax sweep")
+    names = _losses(flags.losses, flag="--losses")
+    _run_sweep(_config_of(flags, base, names[0]), names, flags.override, flags.out,
+               flags.backend, flags.address, flags.max_retries, flags.quiet)  # fmt: skip
+
+
+def _config_command(argv: list[str]) -> None:
+    base = _prescan(argv)
+    extra = [
+        ("loss", Annotated[str, tyro_arg(metavar="NAME", help="the controller loss (joint, "
+         "task, distal, supervised, distal_literal).")], base.loss),
+    ]  # fmt: skip
+    flags_cls = _flags_class("config", base, extra)
+    flags_cls.__doc__ = _description(print_config)
+    flags = tyro.cli(flags_cls, args=argv, prog="cfm-jax config")
+    print(json.dumps(config_lib.to_dict(_config_of(flags, base, flags.loss)), indent=2))
+
+
+def print_config() -> None:
+    """Print the config that cfm-jax train runs with the same flags, as JSON (the file
+    --config reads).
+
+    Examples:
+      cfm-jax config --task walk > walk.json
+      cfm-jax train --config walk.json --forward.learning-rate 3e-4 --out results/walk
+    """
+    _config_command([])
+
+
+def _description(function) -> str:
+    """A command's help text: the docstring's first paragraph as one line, then its
+    command-line examples as they are (to copy and paste)."""
+    doc = inspect.cleandoc(function.__doc__)
+    head = " ".join(doc.split("\n\n")[0].split())
+    commands = [line.strip() for line in doc.splitlines() if line.strip().startswith("cfm-jax ")]
+    text = head + "\n\nEvery field of the config is a flag (--SECTION.FIELD VALUE); --config "
+    text += "FILE is the base and only the flags given override it."
+    if commands:
+        text += "\n\nExamples:\n" + "\n".join(f"  {line}" for line in commands)
+    return text
+
+
 def main() -> None:
-    """Entry point of the ``cfm-jax`` command: dispatch to ``train``, ``sweep`` or ``bench``
-    (tyro).
+    """Entry point of the ``cfm-jax`` command: dispatch to ``train``, ``sweep``, ``config``
+    or ``bench`` (tyro); ``cfm-jax --version`` prints the installed version.
 
     Examples:
       >>> import sys
@@ -374,13 +726,23 @@ def main() -> None:
     """
     import sys
 
-    import tyro
-
     from cfm_jax import bench
     from cfm_jax.robots import RobotError
 
+    argv = sys.argv[1:]
+    commands = {"train": _train_command, "sweep": _sweep_command, "config": _config_command}
     try:
-        tyro.extras.subcommand_cli_from_dict({"train": train, "sweep": sweep, "bench": bench.bench})
+        if argv[:1] == ["--version"]:
+            print(f"cfm-jax {_version()}")
+        elif argv[:1] and argv[0] in commands:
+            commands[argv[0]](argv[1:])
+        else:  # the list of commands, and bench
+            tyro.extras.subcommand_cli_from_dict(
+                {"train": train, "sweep": sweep, "config": print_config, "bench": bench.bench},
+                prog="cfm-jax",
+                description=f"cfm-jax {_version()}: coupled forward and inverse models "
+                "(Bechtle et al., ICRA 2021). cfm-jax COMMAND --help lists a command's flags.",
+            )
     except (config_lib.ConfigError, RobotError) as error:
         one_line = " ".join(str(error).split())  # MuJoCo's parser messages span lines
         print(f"cfm-jax: error: {one_line}", file=sys.stderr)
@@ -392,6 +754,16 @@ def main() -> None:
             raise
         print(f"cfm-jax: error: {error}", file=sys.stderr)
         raise SystemExit(1) from None
+
+
+def _version() -> str:
+    """The installed package's version (its metadata), else ``cfm_jax.__version__``."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("cfm_jax")
+    except metadata.PackageNotFoundError:
+        return cfm_jax.__version__
 
 
 if __name__ == "__main__":

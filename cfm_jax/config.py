@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from collections.abc import Sequence
 from typing import Any
 
@@ -736,6 +737,17 @@ class Config:
     def __post_init__(self):
         if not isinstance(self.robot, str) or not self.robot:
             _fail("robot", self.robot, "a registered robot name or a path to an MJCF file")
+        if not (os.path.sep in self.robot or self.robot.endswith(".xml")):
+            # A name (not a path, which is read lazily): one of the shipped robots.
+            from cfm_jax import robots
+
+            if self.robot not in robots.registered():
+                _fail(
+                    "robot",
+                    self.robot,
+                    f"a registered robot name {robots.registered()} or a path to an MJCF "
+                    "file (containing a path separator or ending in .xml)",
+                )
         if self.loss not in CONTROLLER_LOSSES:
             _fail("loss", self.loss, f"one of {CONTROLLER_LOSSES}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:

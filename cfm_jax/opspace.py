@@ -38,8 +38,8 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
+from cfm_jax._mjx import mjx
 from cfm_jax.config import ConfigError, check_simulator
 
 DEFAULT_SITES = ("ee", "flange")

@@ -77,9 +77,9 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 from cfm_jax import networks, robots
+from cfm_jax._mjx import mjx
 from cfm_jax.config import ConfigError, ForwardModelConfig
 from cfm_jax.tasks.inverse_dynamics import AccelerationOutput
 

@@ -171,7 +171,7 @@ class Robot:
     @cached_property
     def mjx_model(self):
         """The MJX model (``mujoco.mjx.put_model``); built by :func:`load`, outside any trace."""
-        from mujoco import mjx
+        from cfm_jax._mjx import mjx
 
         return mjx.put_model(self.mj_model)
 

@@ -38,9 +38,9 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-from mujoco import mjx
 
 from cfm_jax import dataset, native
+from cfm_jax._mjx import mjx
 from cfm_jax.config import ConfigError, check_simulator
 
 

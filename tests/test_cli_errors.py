@@ -111,6 +111,42 @@ CASES = [
         ["none.npz"],
     ),
     (
+        "nested flag out of range",
+        {},
+        ["train", "--robot", "two_link_arm", "--forward.learning-rate", "-1"],
+        ["forward.learning_rate=-1.0", "a finite number > 0"],
+    ),
+    (
+        "nested flag not a number",
+        {},
+        ["train", "--robot", "two_link_arm", "--task.kd", "stiff"],
+        ["task.kd='stiff'", "a finite number >= 0"],
+    ),
+    (
+        "nested flag not an integer",
+        {},
+        ["sweep", "--robot", "two_link_arm", "--controller.batch-size", "2.5"],
+        ["controller.batch_size=2.5", "a positive integer"],
+    ),
+    (
+        "nested flag unknown choice",
+        {},
+        ["train", "--robot", "two_link_arm", "--loop.normaliser", "max"],
+        ["loop.normaliser='max'", "'babbling', 'data', 'robot'"],
+    ),
+    (
+        "nested flag bad JSON",
+        {},
+        ["train", "--robot", "two_link_arm", "--task.targets", "[[0.5,"],
+        ["task.targets='[[0.5,'", "JSON list"],
+    ),
+    (
+        "unknown robot name",
+        {},
+        ["train", "--robot", "ur5"],
+        ["robot='ur5'", "'two_link_arm'", "MJCF"],
+    ),
+    (
         "override without =",
         {},
         ["sweep", "--robot", "two_link_arm", "--override", "task.kp"],

@@ -1,0 +1,160 @@
+"""``cfm-jax train``/``sweep``/``config`` take every config field as a nested flag; --config
+is the base and only the flags given override it; ``cfm-jax config`` prints what --config
+reads; nothing but the library's own lines is printed (cfm_jax/cli.py, cfm_jax/_mjx.py).
+
+Oracles: configs built by hand with ``dataclasses.replace`` from ``config.for_task`` (the
+flags must reach exactly those fields); the file written by the test itself for
+--config; for the output, an empty stderr and no line of another package's messages.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+import subprocess
+import sys
+
+import pytest
+from tiny import cli_command, tiny_config
+
+from cfm_jax import cli
+from cfm_jax import config as config_lib
+
+
+def printed_config(argv, monkeypatch, capsys) -> dict:
+    """``cfm-jax config ARGV`` in-process: the JSON it prints."""
+    monkeypatch.setattr(sys, "argv", ["cfm-jax", "config", *argv])
+    cli.main()
+    return json.loads(capsys.readouterr().out)
+
+
+def cli_default(task: str = "inverse_dynamics") -> config_lib.Config:
+    """What the CLI runs without flags: the task's defaults with 4 iterations."""
+    base = config_lib.for_task(task)
+    return base.replace(loop=dataclasses.replace(base.loop, iterations=4))
+
+
+@pytest.mark.parametrize(
+    ("flags", "section", "changes"),
+    [
+        (["--task.kd", "5"], "task", {"kd": 5.0}),
+        (["--forward.learning-rate", "3e-4"], "forward", {"learning_rate": 3e-4}),
+        (["--controller.hidden", "8", "16"], "controller", {"hidden": (8, 16)}),
+        (["--loop.babbling", "reaching"], "loop", {"babbling": "reaching"}),
+        (["--task.targets", "[[0.5, 0.5]]"], "task", {"targets": ((0.5, 0.5),)}),
+        (["--control_dt", "0.02"], "task", {"control_dt": 0.02}),  # the short flags
+        (["--seeds", "3", "--iterations", "2"], "loop", {"seeds": 3, "iterations": 2}),
+    ],
+)
+def test_a_nested_flag_reaches_its_config_field(flags, section, changes, monkeypatch, capsys):
+    printed = printed_config(flags, monkeypatch, capsys)
+    base = cli_default()
+    expected = base.replace(**{section: dataclasses.replace(getattr(base, section), **changes)})
+    assert config_lib.from_dict(printed) == expected
+    assert printed == json.loads(json.dumps(config_lib.to_dict(expected)))
+
+
+def test_config_file_plus_one_flag_changes_only_that_field(tmp_path, monkeypatch, capsys):
+    # The issue's case: a walk config with the default --task no longer replaces its task.
+    walk = config_lib.for_task("walk")
+    path = tmp_path / "walk.json"
+    path.write_text(json.dumps(config_lib.to_dict(walk)))
+    assert printed_config(["--config", str(path)], monkeypatch, capsys) == json.loads(
+        path.read_text()
+    )
+    printed = printed_config(["--config", str(path), "--loop.babbling-noise", "0.3"],
+                             monkeypatch, capsys)  # fmt: skip
+    expected = json.loads(path.read_text())
+    expected["loop"]["babbling_noise"] = 0.3
+    assert printed == expected
+
+
+def test_config_output_round_trips_through_config(tmp_path, monkeypatch, capsys):
+    printed = printed_config(["--task", "walk", "--robot", "solo12"], monkeypatch, capsys)
+    assert config_lib.from_dict(printed) == cli_default("walk")
+    path = tmp_path / "walk.json"
+    path.write_text(json.dumps(printed))
+    assert printed_config(["--config", str(path)], monkeypatch, capsys) == printed
+    # train builds its config the same way: its flags class parses the same file
+    base = cli._prescan(["--config", str(path)])
+    assert base == config_lib.from_dict(printed)
+
+
+def test_version_is_the_package_metadata(monkeypatch, capsys):
+    from importlib import metadata
+
+    monkeypatch.setattr(sys, "argv", ["cfm-jax", "--version"])
+    cli.main()
+    assert capsys.readouterr().out.strip() == f"cfm-jax {metadata.version('cfm_jax')}"
+
+
+def test_help_has_no_hard_breaks_and_readable_metavars(monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["cfm-jax", "train", "--help"])
+    monkeypatch.setenv("COLUMNS", "100")
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main()
+    assert exit_info.value.code == 0
+    text = capsys.readouterr().out
+    assert "{None}" not in text and "``" not in text and ":data:" not in text
+    for flag in ("--forward.learning-rate", "--loop.babbling", "--task.kd", "--seeds"):
+        assert flag in text
+    assert text.count("(default: 0.001)") == 2  # both learning rates, each stated once
+    assert "{home,reaching,reference_pd,oracle}" in text
+
+
+def test_a_run_that_fails_after_creating_out_leaves_no_empty_directory(tmp_path, monkeypatch):
+    def fail(*args, **kwargs):
+        raise RuntimeError("failed inside the run")
+
+    monkeypatch.setattr(cli, "_train_losses", fail)  # after the output directory exists
+    out = tmp_path / "out"
+    argv = ["cfm-jax", "train", "--robot", "two_link_arm", "--out", str(out), "--quiet"]
+    monkeypatch.setattr(sys, "argv", argv)
+    with pytest.raises(RuntimeError, match="failed inside the run"):
+        cli.main()
+    assert not out.exists()
+    (tmp_path / "kept").mkdir()  # a directory that existed before is kept, empty or not
+    monkeypatch.setattr(sys, "argv", [*argv[:-3], "--out", str(tmp_path / "kept"), "--quiet"])
+    with pytest.raises(RuntimeError, match="failed inside the run"):
+        cli.main()
+    assert (tmp_path / "kept").is_dir()
+
+
+FOREIGN = re.compile(r"warp|WARNING|Warning|Traceback|Failed to import|^[EWI]\d{4} ")
+
+
+def _assert_own_output(done) -> None:
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stderr == "", done.stderr  # --quiet: nothing at all on stderr
+    foreign = [line for line in done.stdout.splitlines() if FOREIGN.search(line)]
+    assert not foreign, foreign
+
+
+def test_importing_every_module_and_the_cli_prints_nothing(tmp_path):
+    # Negative control: this mujoco's mjx prints the Warp lines when Warp is missing (read
+    # from its source, so the check below could fail); then the library's imports print
+    # nothing although they import mujoco.mjx.
+    import importlib.util
+
+    spec = importlib.util.find_spec("mujoco.mjx.warp")
+    if spec is None or importlib.util.find_spec("warp") is not None:
+        pytest.skip("no Warp import message to filter on this install")
+    assert "Failed to import warp" in open(spec.origin).read()
+    imports = (
+        "import cfm_jax.cli, cfm_jax.training, cfm_jax.rollout, cfm_jax.rigid_body, sys; "
+        "assert 'mujoco.mjx' in sys.modules"
+    )
+    done = subprocess.run([sys.executable, "-c", imports], capture_output=True, text=True,
+                          timeout=300)  # fmt: skip
+    _assert_own_output(done)
+    assert done.stdout == ""
+
+
+@pytest.mark.slow
+def test_a_cli_run_prints_only_the_library_s_own_lines(tmp_path):
+    out = tmp_path / "out"
+    command = cli_command(tiny_config(), tmp_path, out, "joint", seeds=1, iterations=1)
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    _assert_own_output(done)
+    assert "RMS reaching distance" in done.stdout
