@@ -115,3 +115,13 @@ def test_the_rule_scores_by_hand():
     # The paired difference over seeds, mean over losses: the fall is on seed 0 only.
     stats = select.paired(fallen, frame)
     assert stats["mean"] == pytest.approx((0.75 * 2 / 4 + 0.0) / 2, abs=1e-12)
+
+
+def test_factors_are_chosen_on_one_task_per_family_and_the_page_says_so(tmp_path):
+    assert select.SELECTED_ON == {"arm": "inverse_dynamics", "legged": "walk"}
+    assert {select.family(t) for t in select.SELECTED_ON.values()} == {"arm", "legged"}
+    page = select.tables(str(tmp_path), ["inverse_dynamics", "opspace", "walk", "jump"])
+    assert page.count("Not a task the factors are chosen on") == 2
+    assert "takes the choice made on inverse_dynamics" in page.split("## opspace")[1]
+    assert "takes the choice made on walk" in page.split("## jump")[1]
+    assert "**Sizing.**" in page
