@@ -161,8 +161,8 @@ def standing_forces(robot, feet: int) -> np.ndarray:
     Examples:
       >>> from cfm_jax import robots
       >>> solo = robots.load("solo12")
-      >>> np.round(standing_forces(solo, 4)[:3], 2).tolist()
-      [0.0, 0.0, 6.63]
+      >>> np.round(standing_forces(solo, 4)[:3].astype(float), 2).tolist()  # 2.501 kg g / 4
+      [0.0, 0.0, 6.13]
     """
     import mujoco
 

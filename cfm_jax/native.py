@@ -140,8 +140,8 @@ class Stepper:
       >>> q, qd, sensors = stepper(arm.home, np.zeros(2), np.zeros(2))  # one state, no batch
       >>> q.shape, q.dtype, sensors.shape  # the arm has no sensors
       ((2,), dtype('float32'), (5, 0))
-      >>> q, _, _ = stepper(arm.home, np.zeros(2), np.array([np.nan, 0.0]))  # doctest: +SKIP
-      >>> q.tolist()  # doctest: +SKIP
+      >>> q, _, _ = stepper(arm.home, np.zeros(2), np.array([np.nan, 0.0]))
+      >>> q.tolist()  # a NaN torque gives a NaN state (no auto-reset)
       [nan, nan]
     """
 

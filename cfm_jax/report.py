@@ -640,6 +640,7 @@ def print_summary(
     Examples:
       >>> import pandas as pd
       >>> metrics = pd.DataFrame({"loss": ["task"], "iteration": [0], "tracking_mse": [0.5]})
+      >>> # not run: rich lays the table out to the terminal's width
       >>> print_summary(summary(metrics))  # doctest: +SKIP
     """
     from rich.table import Table
@@ -683,6 +684,7 @@ def print_paired(table: pd.DataFrame, title: str | None = None) -> None:
       >>> import pandas as pd
       >>> metrics = pd.DataFrame({"loss": ["joint", "task"], "seed": [0, 0],
       ...                         "iteration": [0, 0], "tracking_mse": [0.5, 1.0]})
+      >>> # not run: rich lays the table out to the terminal's width
       >>> print_paired(paired_table(metrics))  # doctest: +SKIP
     """
     from rich.table import Table

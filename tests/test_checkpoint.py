@@ -253,19 +253,39 @@ def test_nan_in_parameters_stops_that_seed_only_and_names_it(uninterrupted, tmp_
 
 
 def test_cli_resume_continues_each_loss(tmp_path):
-    # Run the CLI for one iteration of two losses, drop the second loss's last checkpoint
-    # and its metrics as a kill would, and resume: the final table is the same.
+    # Run the CLI for two iterations of two losses, then leave the files as a kill during
+    # the second loss's last iteration would: its last checkpoint gone, its metrics up to
+    # iteration 1, the run's table with the first loss only. Resume: the second loss's last
+    # iteration reruns (its checkpoint 2 is written again), the finished first loss is not
+    # retrained (its checkpoint files untouched), and the final tables are the same.
     out = tmp_path / "cli"
     command = cli_command(CFG, tmp_path, out, "joint,task", seeds=2, iterations=2)
     first = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert first.returncode == 0, first.stderr[-3000:]
     complete = pd.read_csv(out / "metrics.csv")
+    task_complete = pd.read_csv(out / "task" / "metrics.csv")
     import shutil
 
+    def stamps(folder):
+        return {str(p.relative_to(folder)): p.stat().st_mtime_ns for p in folder.rglob("*")}
+
+    joint_before = stamps(out / "joint" / "checkpoints")
+    task_one = out / "task" / "checkpoints" / "1"
+    task_one_before = stamps(task_one)
     shutil.rmtree(out / "task" / "checkpoints" / "2")
+    task_complete[task_complete.iteration <= 1].to_csv(out / "task" / "metrics.csv", index=False)
+    complete[complete.loss == "joint"].to_csv(out / "metrics.csv", index=False)
     again = subprocess.run(command + ["--resume"], capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr[-3000:]
+    rerun = out / "task" / "checkpoints" / "2"
+    assert rerun.is_dir()  # the interrupted iteration ran again and was checkpointed
+    assert min(stamps(rerun).values()) > max(task_one_before.values())
+    assert stamps(task_one) == task_one_before  # restored from, not rewritten
+    assert stamps(out / "joint" / "checkpoints") == joint_before  # finished: not retrained
     pd.testing.assert_frame_equal(pd.read_csv(out / "metrics.csv"), complete, check_exact=True)
+    pd.testing.assert_frame_equal(
+        pd.read_csv(out / "task" / "metrics.csv"), task_complete, check_exact=True
+    )
     refused = subprocess.run(
         command[:-1] + ["--seed", "3", "--quiet", "--resume"], capture_output=True, text=True
     )

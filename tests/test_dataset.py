@@ -168,16 +168,27 @@ def test_add_inside_jit_and_scan_compiles_once():
     )
     valid = jnp.asarray(np.random.default_rng(2).random((rounds, n)) < 0.7)
 
+    traces = []
+
     @jax.jit
     def fill(data, batches, valid):
         def body(data, xs):
             batch, ok = xs
             data = dataset.add(data, batch, ok)
+            traces.append("body")  # Python runs only while tracing
             return data, data.size
 
+        traces.append("fill")
         return jax.lax.scan(body, data, (batches, valid))
 
+    # Once from empty and once more from a partly filled set: the second call must reuse
+    # the first compilation (the carry's shapes and dtypes do not change with its contents).
+    partly = fill(dataset.empty(capacity, STATE_DIM, NV), batches, ~valid)[0]
+    assert int(partly.size) > 0
     data, sizes = fill(dataset.empty(capacity, STATE_DIM, NV), batches, valid)
+    fill(partly, batches, valid)
+    assert traces == ["fill", "body"]  # one trace of fill, the scan body traced once
+    assert fill._cache_size() == 1  # one compiled executable for all three calls
     ref = RingReference(capacity)
     expected_sizes = []
     for k in range(rounds):

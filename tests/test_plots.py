@@ -8,15 +8,69 @@ import os
 import statistics
 
 import numpy as np
-from test_report import TASK, _hand_frame, _metrics
+import pandas as pd
+import pytest
+from test_report import JOINT, SUPERVISED, TASK, _hand_frame, _metrics
 
 from cfm_jax import locomotion, plots, report
 
 
-def test_learning_curves_figure_is_written(tmp_path):
-    path = plots.plot_learning_curves(_metrics(), str(tmp_path / "curves.png"), title="t")
+@pytest.fixture
+def drawn_figures(monkeypatch):
+    """The figures the plots module draws, kept open: pyplot's ``close`` only records them
+    (the module closes each figure after saving it), so a test can read the drawn data."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figures = []
+    monkeypatch.setattr(plt, "close", figures.append)
+    yield figures
+    monkeypatch.undo()
+    for figure in figures:
+        plt.close(figure)
+
+
+def _lines(ax):
+    """``{label: (x, y)}`` of an axes' plotted lines (horizontal lines: y of length 2)."""
+    return {
+        line.get_label(): (np.asarray(line.get_xdata(), float), np.asarray(line.get_ydata()))
+        for line in ax.get_lines()
+    }
+
+
+def test_learning_curves_figure_is_written(tmp_path, drawn_figures):
+    """The three panels' lines are the metrics' means by hand: _metrics() has
+    ``mse = scale (1 + seed + 2 target) (10 at iteration 0, else 1)``, so a seed's mean
+    over its targets 0, 1 is ``scale (2 + seed) f`` and the mean over seeds 0, 1 is
+    ``2.5 scale f``; prediction_error is 0.5 mse, predicted_task_error 0.25 mse. The
+    baselines are horizontal lines at their mean over targets."""
+    baselines = pd.DataFrame(
+        {"baseline": ["oracle", "oracle", "pd_only", "pd_only"], "target": [0, 1, 0, 1],
+         "tracking_mse": [1e-3, 3e-3, 10.0, 30.0]}
+    )  # fmt: skip
+    path = plots.plot_learning_curves(
+        _metrics(), str(tmp_path / "curves.png"), baselines=baselines, title="t"
+    )
     assert (tmp_path / "curves.png").stat().st_size > 10_000
     assert path.endswith("curves.png")
+    (figure,) = drawn_figures
+    axes = figure.axes
+    assert len(axes) == 3
+    for ax, factor in zip(axes, (1.0, 0.5, 0.25), strict=True):
+        lines = _lines(ax)
+        for loss, scale in (("joint", 1.0), ("task", 2.0)):
+            x, y = lines[loss]
+            np.testing.assert_array_equal(x, [0, 1])
+            np.testing.assert_allclose(y, factor * 2.5 * scale * np.array([10.0, 1.0]))
+        assert ax.get_yscale() == "log"
+    tracking = _lines(axes[0])
+    assert set(tracking) == {"joint", "task", "oracle", "pd_only"}
+    np.testing.assert_allclose(tracking["oracle"][1], [2e-3, 2e-3])
+    np.testing.assert_allclose(tracking["pd_only"][1], [20.0, 20.0])
+    assert set(_lines(axes[1])) == {"joint", "task"}  # baselines on the tracking panel only
+    assert figure._suptitle.get_text() == "t"
 
 
 def test_learning_curves_band_is_the_bootstrap_ci_over_seed_means(monkeypatch, tmp_path):
@@ -45,16 +99,54 @@ def test_learning_curves_band_is_the_bootstrap_ci_over_seed_means(monkeypatch, t
     assert drawn["band_label"] == "band: ± 1 std over seeds"
 
 
-def test_figures_with_bands_are_written(tmp_path):
-    path = plots.plot_curves(report.seed_curves(_hand_frame()), str(tmp_path / "c.png"))
+def test_figures_with_bands_are_written(tmp_path, drawn_figures):
+    """plot_curves draws each loss's mean over seeds (the hand-computed seed means JOINT,
+    TASK, SUPERVISED at iteration 2; every seed 100 at iteration 1) and fills its band
+    between report's interval bounds (the band's upper edge is the interval's high end,
+    its lower edge the low end, kept above 1 % of the mean for the log scale)."""
+    curves = report.seed_curves(_hand_frame())
+    path = plots.plot_curves(curves, str(tmp_path / "c.png"))
     assert os.path.getsize(path) > 10_000
+    (figure,) = drawn_figures
+    tracking = figure.axes[0]
+    lines = _lines(tracking)
+    assert set(lines) == {"joint", "task", "supervised"}
+    for loss, seed_means in (("joint", JOINT), ("task", TASK), ("supervised", SUPERVISED)):
+        x, y = lines[loss]
+        np.testing.assert_array_equal(x, [1, 2])
+        np.testing.assert_allclose(y, [100.0, statistics.mean(seed_means)])
+    bands = tracking.collections
+    assert len(bands) == 3
+    for band, seed_means in zip(bands, (JOINT, TASK, SUPERVISED), strict=True):
+        vertices = band.get_paths()[0].vertices
+        at_final = vertices[vertices[:, 0] == 2, 1]
+        low, high = report.bootstrap_ci(seed_means)
+        np.testing.assert_allclose([at_final.min(), at_final.max()], [low, high])
+        at_first = vertices[vertices[:, 0] == 1, 1]
+        np.testing.assert_allclose(at_first, 100.0)  # every seed the same: no spread
 
 
-def test_foot_force_plot(tmp_path):
+def test_foot_force_plot(tmp_path, drawn_figures):
     ref = locomotion.jump_reference(0.05, cache=tmp_path / "references")
     q0 = ref.qpos[0].copy()
     q0[2] += 0.005
     run = locomotion.replay(ref, qpos0=q0)
     path = tmp_path / "force.png"
-    plots.plot_foot_force(ref, path, observed=run.foot_force, predicted=run.foot_force, foot="FR")
+    observed = np.asarray(run.foot_force)
+    # a prediction unlike the observation on every leg and axis, so each curve is told apart
+    predicted = 0.5 * observed[1:] + np.arange(12.0).reshape(4, 3)
+    plots.plot_foot_force(ref, path, observed=observed, predicted=predicted, foot="FR")
     assert path.stat().st_size > 10_000
+    (figure,) = drawn_figures
+    fr = 1  # Solo12's legs in the order FL, FR, HL, HR
+    time = np.arange(len(ref.foot_force)) * ref.control_dt
+    for axis, ax in enumerate(figure.axes):
+        lines = _lines(ax)
+        assert list(lines) == ["desired", "observed", "predicted"]
+        for label, force in (
+            ("desired", ref.foot_force), ("observed", observed), ("predicted", predicted)
+        ):  # fmt: skip
+            x, y = lines[label]
+            np.testing.assert_allclose(x, time[len(time) - len(force) :])  # the last steps
+            np.testing.assert_array_equal(y, force[:, fr, axis])
+        assert ax.get_ylabel() == f"f{'xyz'[axis]} [N]"

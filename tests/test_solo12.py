@@ -462,10 +462,17 @@ def test_foot_forces_jax_matches_numpy(standing):
 
     ref, rec = standing
     s = rec.sensordata[::50]
+    want = solo12.foot_forces(s)  # float64 NumPy
+    # float32 JAX: a rotation of float32-rounded inputs, so within a few float32 ulps of the
+    # largest force (|f| <= 6.6 N). Measured: 2.3e-7 N (0.3 ulp of 6.6 N); tolerance 4 ulps
+    # (3e-6 N). A wrong axis or sign would be off by up to 6.6 N (normal) or 0.37 N
+    # (tangential, the smallest components checked here).
+    atol = 4 * np.finfo(np.float32).eps * np.abs(want).max()
     np.testing.assert_allclose(
         np.asarray(solo12.foot_forces(jnp.asarray(s, jnp.float32), xp=jnp)),
-        solo12.foot_forces(s),
-        atol=1e-4,
+        want,
+        atol=atol,
+        rtol=0,
     )
 
 

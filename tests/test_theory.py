@@ -95,11 +95,19 @@ def test_loss_landscape_gradient_is_derivative_of_loss():
         loss, grad = jax.jit(theory.loss_landscape, static_argnums=0)(
             name, model, 1.0, -0.5, actions
         )
-        # central difference of an exact quadratic in tau is exact up to rounding
-        step = 1e-2
+        # The loss is a polynomial of degree <= 2 in tau, so the central difference is exact
+        # for ANY step up to rounding; a wide step keeps the rounding small. Its error is
+        # that of the two float32 loss values divided by 2 step: a few ulps of max|loss|
+        # (<= 9.6 at the shifted actions) / step. Bound used: 4 ulps, 4 * 1.2e-7 * 9.6 / 0.5
+        # = 9e-6 for joint.
+        # Measured (float32 CPU): 4.8e-7 at step 0.5 (2.0e-5 at step 1e-2, the old test's
+        # step, which needed atol 2e-3).
+        step = 0.5
         plus, _ = theory.loss_landscape(name, model, 1.0, -0.5, actions + step)
         minus, _ = theory.loss_landscape(name, model, 1.0, -0.5, actions - step)
-        np.testing.assert_allclose(grad, (plus - minus) / (2 * step), atol=2e-3)
+        plus, minus = np.asarray(plus, np.float64), np.asarray(minus, np.float64)
+        atol = 4 * np.finfo(np.float32).eps * max(np.abs(plus).max(), np.abs(minus).max()) / step
+        np.testing.assert_allclose(grad, (plus - minus) / (2 * step), rtol=0, atol=atol)
         assert loss.shape == (9,)
 
 

@@ -78,39 +78,46 @@ def test_baselines_bracket_the_problem(two_seeds):
 
 
 def test_vmapped_seeds_equal_a_loop_over_seeds():
-    # Oracle: the same seeds run one at a time (seed axis of size 1). With the reference_pd
-    # babbling data: the tiny models fitted on the default data held at home amplify the
-    # rounding differences of batched kernels (below) to 5e-4 in one prediction error; the
-    # seed axis is the same mechanism for every strategy.
-    base = TINY.replace(loop=dataclasses.replace(TINY.loop, babbling="reference_pd"))
-    together = cfm_jax.train(base, progress=False)
+    """Oracle: the same seeds run one at a time (seed axis of size 1), on the default
+    (``home``) initial data.
+
+    XLA:CPU may pick different kernels for batched (vmapped) and unbatched matrix products,
+    so float32 results agree to rounding, not bitwise, and each fit-and-rollout iteration
+    amplifies the difference. Measured on this config extended to 6 iterations (max
+    relative difference over targets of seed 0, iterations 0..6; seed 1 was bit-identical
+    up to iteration 2 and <= 1e-4 after):
+      prediction_error      7.0e-6, 5.0e-4, 1.6e-5, 6.5e-3, 2.9e-4, 5.1e-3, 1.3e-3
+      tracking_mse          1.9e-7, 4.6e-5, 7.9e-7, 4.3e-4, 1.7e-4, 5.4e-4, 1.8e-4
+      predicted_task_error  1.5e-7, 6.0e-5, 6.3e-6, 1.4e-3, 1.8e-4, 1.4e-3, 2.2e-4
+    (final controller parameters 1.2e-4, forward model 5.1e-5). The differences do not
+    compound from one iteration to the next (parameters stay within ~1e-4) but one
+    iteration can amplify them ~100x in the prediction error of the models fitted at home
+    (errors ~2e4 (rad/s^2)^2). Tolerances: iteration 0, after the initial fits only,
+    rtol 1e-4 (measured 7e-6); iterations 1-2, rtol 5e-3 (10x the measured 5e-4; longer
+    runs reach 6.5e-3, so this tolerance holds for this 2-iteration config only). The
+    tolerance still tells seeds apart: the two seeds' metrics differ by >= 17 % (checked
+    below), so a mixed-up or shared seed fails by a factor > 30.
+    """
+    together = cfm_jax.train(TINY, progress=False)
     frame = together.metrics.set_index(["seed", "iteration", "target"]).sort_index()
+    columns = ("tracking_mse", "prediction_error", "predicted_task_error")
+    rtol = {0: 1e-4, 1: 5e-3, 2: 5e-3}
+    assert sorted(frame.index.get_level_values("iteration").unique()) == sorted(rtol)
     for seed in (0, 1):
-        alone = (
-            cfm_jax.train(
-                base.replace(
-                    seed=seed,
-                    loop=config_lib.LoopConfig(
-                        **{
-                            **config_lib.to_dict(base)["loop"],
-                            "seeds": 1,
-                        }
-                    ),
-                ),
-                progress=False,
-            )
-            .metrics.set_index(["seed", "iteration", "target"])
-            .sort_index()
-        )
-        together = frame.loc[seed]
-        alone = alone.loc[seed]
-        # XLA:CPU may pick different kernels for batched (vmapped) and unbatched matrix
-        # products, so float32 results agree to rounding rather than bitwise; 20 Adam
-        # steps and a rollout do not amplify 1e-7 differences beyond 1e-4 relative.
-        for column in ("tracking_mse", "prediction_error", "predicted_task_error"):
-            np.testing.assert_allclose(
-                together[column].to_numpy(), alone[column].to_numpy(), rtol=1e-4, err_msg=column
-            )
+        single = TINY.replace(seed=seed, loop=dataclasses.replace(TINY.loop, seeds=1))
+        alone = cfm_jax.train(single, progress=False).metrics
+        alone = alone.set_index(["seed", "iteration", "target"]).sort_index().loc[seed]
+        for iteration, tolerance in rtol.items():
+            for column in columns:
+                np.testing.assert_allclose(
+                    frame.loc[seed].loc[iteration][column].to_numpy(),
+                    alone.loc[iteration][column].to_numpy(),
+                    rtol=tolerance,
+                    err_msg=f"seed {seed}, iteration {iteration}, {column}",
+                )
+    for column in columns:  # the tolerance has power: the seeds themselves differ far more
+        a, b = frame.loc[0][column].to_numpy(), frame.loc[1][column].to_numpy()
+        assert np.min(np.abs(a - b) / np.abs(b)) > 0.1, column
 
 
 def test_same_config_twice_gives_identical_metrics_and_progress_fn_sees_them(two_seeds, experiment):
@@ -219,8 +226,9 @@ def test_cli_rejects_unknown_loss(tmp_path):
     command = [sys.executable, "-m", "cfm_jax.cli", "train", "--loss", "joint,foo",
                "--out", str(tmp_path)]  # fmt: skip
     done = subprocess.run(command, capture_output=True, text=True, timeout=300)
-    assert done.returncode != 0
+    assert done.returncode == 2  # argparse's usage-error status, not a crash
     assert "--loss='joint,foo' is not allowed" in done.stderr
+    assert "Traceback" not in done.stderr
 
 
 def test_cli_rejects_unknown_simulator(tmp_path):
