@@ -25,6 +25,7 @@ from tyro.conf import arg as tyro_arg
 import cfm_jax  # (sets the XLA flag before JAX starts)
 from cfm_jax import config as config_lib
 from cfm_jax import losses, plots, report
+from cfm_jax._files import write_atomic, write_text
 
 
 def train(
@@ -112,14 +113,24 @@ def _run_train(base, names, out, resume, data, quiet) -> None:
     _print_train(base, experiment, frames, result, notes, out, wall)
 
 
-def _train_losses(base, names, out, resume, data, quiet, experiment):
-    """Train each loss in turn, writing the combined files after each."""
+def _train_losses(base, names, out, resume, data, quiet, experiment, progress_fn=None):
+    """Train each loss in turn: the top-level metrics.csv is rewritten after every iteration
+    (the finished losses' rows and this loss's rows so far), the other combined files after
+    each loss. ``progress_fn`` (e.g. the TensorBoard writer) is called as train calls it."""
     from cfm_jax import training as train_lib
 
     frames, result, notes = [], None, []
     for name in names:
         run_dir = os.path.join(out, name)
         can_resume = resume and os.path.isdir(os.path.join(run_dir, "checkpoints"))
+
+        def iteration_done(iteration, rows, run_dir=run_dir):
+            # train wrote run_dir/metrics.csv (every row of this loss so far, restored ones
+            # included) just before calling this
+            _write_metrics(out, [*frames, _read_metrics(run_dir)])
+            if progress_fn is not None:
+                progress_fn(iteration, rows)
+
         result = train_lib.train(
             base.replace(loss=name),
             progress=not quiet,
@@ -127,11 +138,24 @@ def _train_losses(base, names, out, resume, data, quiet, experiment):
             experiment=experiment,
             resume=run_dir if can_resume else None,
             data=data,
+            progress_fn=iteration_done,
         )
         frames.append(result.metrics)
         notes += _notes(name, result)
         _write_outputs(out, frames, result, base, experiment.task, notes)
     return frames, result, notes
+
+
+def _read_metrics(run_dir: str):
+    import pandas as pd
+
+    return pd.read_csv(os.path.join(run_dir, "metrics.csv"), float_precision="round_trip")
+
+
+def _write_metrics(out: str, frames) -> None:
+    """OUT/metrics.csv: the rows of ``frames``, written whole and renamed into place."""
+    metrics = _concat(frames)
+    write_atomic(os.path.join(out, "metrics.csv"), lambda tmp: metrics.to_csv(tmp, index=False))
 
 
 def _print_train(base, experiment, frames, result, notes, out, wall) -> None:
@@ -389,20 +413,21 @@ def _notes(loss: str, result) -> list[str]:
 
 
 def _write_outputs(out, frames, result, base, task, notes=()) -> None:
-    """Write the combined files after every loss, so finished losses are never lost."""
+    """Write the combined files after every loss, so finished losses are never lost; each
+    is written whole and renamed into place (cfm_jax._files)."""
     metrics = _concat(frames)
-    metrics.to_csv(os.path.join(out, "metrics.csv"), index=False)
-    result.baselines.to_csv(os.path.join(out, "baselines.csv"), index=False)
-    with open(os.path.join(out, "config.json"), "w") as f:
-        json.dump(config_lib.to_dict(base), f, indent=2)  # per-loss configs: OUT/<loss>/
+    _write_metrics(out, frames)
+    baselines = result.baselines
+    write_atomic(os.path.join(out, "baselines.csv"), lambda tmp: baselines.to_csv(tmp, index=False))
+    # per-loss configs: OUT/<loss>/config.json
+    write_text(os.path.join(out, "config.json"), json.dumps(config_lib.to_dict(base), indent=2))
     table = report.summary(metrics, result.baselines, result.rms_reach)
     text = report.protocol(base) + "\n\n" + report.markdown(table)
     if metrics["loss"].nunique() > 1:  # the joint loss (else the first) against the others
         text += "\n\n" + report.paired_markdown(report.paired_table(metrics, reference=None))
     if notes:
         text += "\n\nWhat failed:\n\n" + "\n".join(f"* {line}" for line in notes)
-    with open(os.path.join(out, "summary.md"), "w") as f:
-        f.write(text + "\n")
+    write_text(os.path.join(out, "summary.md"), text + "\n")
     plots.plot_learning_curves(
         metrics,
         os.path.join(out, "learning_curves.png"),

@@ -2,13 +2,23 @@
 of training results and the foot forces of a legged reference. The numbers they draw come
 from :mod:`cfm_jax.report` (tables, statistics) and :mod:`cfm_jax.locomotion`.
 
+Each function returns the matplotlib :class:`~matplotlib.figure.Figure` (a notebook shows
+it); given a ``path`` it also writes the image there, whole and renamed into place
+(:mod:`cfm_jax._files`; the path's suffix picks the format, default PNG). The figures are
+made without pyplot: none stays open in pyplot's list, and the notebook's backend is left
+as it is.
+
 Examples:
   >>> import os, tempfile
   >>> import pandas as pd
   >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [0, 1],
   ...                         "tracking_mse": [1.0, 0.1]})
+  >>> figure = plot_learning_curves(metrics)  # no file
+  >>> [ax.get_ylabel() for ax in figure.axes][0]
+  'joint tracking MSE (rad$^2$)'
   >>> path = os.path.join(tempfile.mkdtemp(), "curves.png")
-  >>> plot_learning_curves(metrics, path) == path
+  >>> figure = plot_learning_curves(metrics, path)  # and the file
+  >>> os.path.getsize(path) > 0
   True
 """
 
@@ -22,21 +32,31 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cfm_jax import report, solo12
+from cfm_jax._files import atomic_path
 
 if TYPE_CHECKING:
     import pandas as pd
+    from matplotlib.figure import Figure
 
     from cfm_jax.locomotion import LocomotionReference
 
 
-def _pyplot():
-    """matplotlib's pyplot on the file-only Agg backend."""
-    import matplotlib
+def _figure(figsize: tuple[float, float]) -> Figure:
+    """A new matplotlib Figure, not registered with pyplot (no backend is chosen or
+    switched, nothing to close)."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    return Figure(figsize=figsize)
 
-    return plt
+
+def _save(figure: Figure, path: str | os.PathLike | None, dpi: int) -> None:
+    """Write ``figure`` to ``path`` atomically (its suffix picks the format; none: PNG);
+    nothing for None."""
+    if path is None:
+        return
+    fmt = Path(path).suffix.lstrip(".").lower() or "png"
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        figure.savefig(f, format=fmt, dpi=dpi)
 
 
 # ---- learning curves -------------------------------------------------------------------------
@@ -44,26 +64,27 @@ def _pyplot():
 
 def plot_learning_curves(
     metrics: pd.DataFrame,
-    path: str,
+    path: str | os.PathLike | None = None,
     baselines: pd.DataFrame | None = None,
     title: str = "",
     tracking_label: str = "joint tracking MSE (rad$^2$)",
     output_unit: str = "(rad/s$^2$)$^2$",
-) -> str:
+) -> Figure:
     """Tracking MSE, prediction error and predicted task error per iteration, per loss.
 
     Each seed is averaged over its targets; the line is the mean over seeds and the shaded
     band its 95% percentile bootstrap confidence interval over seeds
     (:func:`cfm_jax.report.seed_curves`, :func:`cfm_jax.report.bootstrap_ci`; one seed: no
     band), as the legend says (the paper's Fig. 3 and 4 style). Oracle and PD-only tracking
-    MSE as horizontal lines. Log scale. Saves a PNG.
+    MSE as horizontal lines. Log scale.
 
     Args:
       metrics: a metrics table (``TrainResult.metrics``, or several concatenated) with
         columns ``loss``, ``iteration``, ``tracking_mse``, ``seed`` (without it: one
         seed) and optionally ``prediction_error`` and ``predicted_task_error``; one curve
         per loss.
-      path: the image file to write (its folder must exist).
+      path: the image file to write (its folder must exist; its suffix picks the format),
+        or None (default): no file.
       baselines: ``TrainResult.baselines`` (columns ``baseline``, ``tracking_mse``); their
         mean tracking MSE is drawn as horizontal lines (None: no lines).
       title: the figure's title ("": none).
@@ -72,7 +93,7 @@ def plot_learning_curves(
         of the two prediction panels.
 
     Returns:
-      ``path``.
+      The :class:`~matplotlib.figure.Figure` (three panels, ``figure.axes``).
 
     Examples:
       >>> import os, tempfile
@@ -83,9 +104,12 @@ def plot_learning_curves(
       ...                         "prediction_error": [1.0, 0.5, 1.0, 0.5],
       ...                         "predicted_task_error": [0.5, 0.1, 0.5, 0.1]})
       >>> with tempfile.TemporaryDirectory() as folder:
-      ...     path = plot_learning_curves(metrics, os.path.join(folder, "curves.png"))
+      ...     path = os.path.join(folder, "curves.png")
+      ...     figure = plot_learning_curves(metrics, path)
       ...     os.path.getsize(path) > 0
       True
+      >>> [line.get_label() for line in figure.axes[0].get_lines()]
+      ['joint']
     """
     frame = metrics if "seed" in metrics.columns else metrics.assign(seed=0)
     columns = [c for c, _ in _panels(tracking_label, output_unit) if c in frame.columns]
@@ -100,13 +124,13 @@ def plot_learning_curves(
 
 def plot_curves(
     curves: pd.DataFrame,
-    path: str,
+    path: str | os.PathLike | None = None,
     by: Sequence[str] = ("loss",),
     baselines: pd.DataFrame | None = None,
     title: str = "",
     tracking_label: str = "joint tracking MSE (rad$^2$)",
     output_unit: str = "(rad/s$^2$)$^2$",
-) -> str:
+) -> Figure:
     """The figure of :func:`plot_learning_curves` from a :func:`cfm_jax.report.seed_curves`
     table: one line per group (mean over seeds, each seed averaged over its targets) with its
     confidence interval over seeds as a shaded band (a table without ``_ci_low`` /
@@ -115,7 +139,8 @@ def plot_curves(
     Args:
       curves: the output of :func:`cfm_jax.report.seed_curves` (with ``tracking_mse``, and
         ``prediction_error`` and ``predicted_task_error`` when they are to be drawn).
-      path: the image file to write (its suffix picks the format).
+      path: the image file to write (its suffix picks the format), or None (default): no
+        file.
       by: the group columns of ``curves``; lines are labelled ``loss, path=value``.
       baselines: oracle and PD-only tracking per target (drawn as horizontal lines), or
         None.
@@ -124,7 +149,7 @@ def plot_curves(
       output_unit: the unit of the forward model's output, for the other two axes.
 
     Returns:
-      ``path``.
+      The :class:`~matplotlib.figure.Figure` (three panels, ``figure.axes``).
 
     Examples:
       >>> import os, tempfile
@@ -135,7 +160,10 @@ def plot_curves(
       ...                         "tracking_mse": [1.0, 3.0, 0.5, 0.7]})
       >>> path = os.path.join(tempfile.mkdtemp(), "curves.png")
       >>> curves = report.seed_curves(metrics)
-      >>> plot_curves(curves, path) == path and os.path.getsize(path) > 0
+      >>> figure = plot_curves(curves, path)
+      >>> figure.axes[0].get_lines()[0].get_ydata().tolist()  # mean over seeds
+      [2.0, 0.6]
+      >>> os.path.getsize(path) > 0
       True
     """
     by = list(by)
@@ -185,16 +213,16 @@ def _band_label(curves: pd.DataFrame) -> str:
 
 def _plot_series(
     series, path, baselines, title, tracking_label, output_unit, band_label=None
-) -> str:
+) -> Figure:
     """Three log-scale panels; ``series``: ``[(label, {column: (mean, low, high)})]`` with
     iteration-indexed mean and band (:func:`_bands`); ``band_label`` names the band in the
-    legend."""
-    plt = _pyplot()
+    legend; written to ``path`` unless it is None."""
     from matplotlib.patches import Patch
     from matplotlib.ticker import MaxNLocator
 
     panels = _panels(tracking_label, output_unit)
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    fig = _figure((15, 4.2))
+    axes = fig.subplots(1, 3)
     for ax, (column, label) in zip(axes, panels, strict=True):
         positive = False  # a log scale needs a positive value (every run may have diverged)
         for name, stats in series:
@@ -240,9 +268,8 @@ def _plot_series(
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    _save(fig, path, dpi=120)
+    return fig
 
 
 # ---- legged references -----------------------------------------------------------------------
@@ -250,13 +277,13 @@ def _plot_series(
 
 def plot_foot_force(
     ref: LocomotionReference,
-    path: str | os.PathLike,
+    path: str | os.PathLike | None = None,
     *,
     observed: np.ndarray | None = None,
     predicted: np.ndarray | None = None,
     foot: str = "FR",
     title: str | None = None,
-):
+) -> Figure:
     """Plot desired (``ref.foot_force``) vs observed (and optionally predicted) force of one
     foot over time, one panel per world axis, like the paper's Fig. 6; saves a PNG. The
     force arrays are ``(T+1, 4, 3)`` (or ``(T, 4, 3)`` for the states after each step).
@@ -264,11 +291,15 @@ def plot_foot_force(
     Args:
       ref: the :class:`cfm_jax.locomotion.LocomotionReference` (its ``foot_force`` is the
         desired force).
-      path: the image file to write (its folder is created).
+      path: the image file to write (its folder is created; its suffix picks the format),
+        or None (default): no file.
       observed: ``(T+1, 4, 3)`` or ``(T, 4, 3)`` observed forces, or None.
       predicted: forces of the same shape predicted by a model, or None.
       foot: ``"FL"``, ``"FR"``, ``"HL"`` or ``"HR"``.
       title: the figure's title (None: the kind and foot).
+
+    Returns:
+      The :class:`~matplotlib.figure.Figure` (one panel per world axis x, y, z).
 
     Examples:
       >>> import os, tempfile
@@ -276,14 +307,16 @@ def plot_foot_force(
       >>> ref = locomotion.walk_reference(0.2, use_cache=False)
       >>> with tempfile.TemporaryDirectory() as folder:
       ...     path = os.path.join(folder, "force.png")
-      ...     plot_foot_force(ref, path, observed=locomotion.replay(ref).foot_force)
+      ...     figure = plot_foot_force(ref, path, observed=locomotion.replay(ref).foot_force)
       ...     os.path.getsize(path) > 0
       True
+      >>> [line.get_label() for line in figure.axes[0].get_lines()]
+      ['desired', 'observed']
     """
-    plt = _pyplot()
     leg = solo12.LEGS.index(foot)
     t = np.arange(len(ref.foot_force)) * ref.control_dt
-    fig, axes = plt.subplots(3, 1, figsize=(7, 6), sharex=True)
+    fig = _figure((7, 6))
+    axes = fig.subplots(3, 1, sharex=True)
     curves = [("desired", ref.foot_force, dict(color="k", lw=2.0, alpha=0.6))]
     if observed is not None:
         curves.append(("observed", np.asarray(observed), dict(color="C0", lw=1.2)))
@@ -298,6 +331,7 @@ def plot_foot_force(
     axes[-1].set_xlabel("time [s]")
     fig.suptitle(title or f"{ref.kind}: contact force of the {foot} foot (world frame)")
     fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    if path is not None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+    _save(fig, path, dpi=110)
+    return fig

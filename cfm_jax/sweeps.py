@@ -215,9 +215,10 @@ class SweepResult:
         )
         return "\n\n".join(parts)
 
-    def plot(self, path: str, title: str = "", **labels) -> str:
+    def plot(self, path: str | None = None, title: str = "", **labels):
         """The paper-style figure of the curves (:func:`cfm_jax.plots.plot_curves`); the
-        baselines are drawn when the sweep has no overrides. Returns ``path``."""
+        baselines are drawn when the sweep has no overrides. Returns the matplotlib
+        ``Figure``; given ``path``, also writes the image there (atomically)."""
         baselines = self.baselines if not self.override_columns else None
         return plots.plot_curves(
             self.curves(), path, self.group_columns, baselines=baselines, title=title, **labels

@@ -88,6 +88,34 @@ class TrainResult:
         """Rows of the last iteration."""
         return self.metrics[self.metrics.iteration == self.metrics.iteration.max()]
 
+    def summary(self, **options) -> pd.DataFrame:
+        """The table ``cfm-jax train`` prints and writes to ``summary.md``: final tracking
+        MSE per loss (mean and std over seeds and targets, the 95% bootstrap CI of the mean
+        over seeds), the oracle and PD-only baselines, and the tracking RMSE over the RMS
+        reaching distance; :func:`cfm_jax.report.summary` of ``metrics``, ``baselines`` and
+        ``rms_reach``. ``options`` go to it (``column=``, ``iteration=``,
+        ``confidence=``); :func:`cfm_jax.report.markdown` prints it as markdown.
+
+        Examples:
+          A result built by hand (a real one: ``result = cfm_jax.train(config)``):
+
+          >>> import pandas as pd
+          >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1],
+          ...                         "iteration": [0, 0], "target": [0, 0],
+          ...                         "tracking_mse": [0.25, 0.75]})
+          >>> baselines = pd.DataFrame({"baseline": ["pd_only"], "target": [0],
+          ...                           "tracking_mse": [4.0]})
+          >>> result = TrainResult(None, metrics, baselines, None, rms_reach=2.0,
+          ...                      seconds=0.0, compile_seconds=0.0)
+          >>> result.summary()[["tracking_mse_mean", "seeds", "rmse_over_reach"]]
+                   tracking_mse_mean  seeds  rmse_over_reach
+          joint                  0.5    2.0         0.353553
+          pd_only                4.0    NaN         1.000000
+        """
+        from cfm_jax import report
+
+        return report.summary(self.metrics, self.baselines, self.rms_reach, **options)
+
 
 def _rows(loss, seeds, iteration, metrics, columns=METRIC_COLUMNS) -> list[dict]:
     metrics = jax.tree.map(np.asarray, metrics)

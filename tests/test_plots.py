@@ -1,6 +1,7 @@
-"""The figures (cfm_jax/plots.py): each is written, and the learning curves draw the
-statistics of cfm_jax/report.py (the hand-computed frames of tests/test_report.py) as their
-lines and bands."""
+"""The figures (cfm_jax/plots.py): each is returned as a matplotlib Figure and written only
+when given a path, and the learning curves draw the statistics of cfm_jax/report.py (the
+hand-computed frames of tests/test_report.py) as their lines and bands, read back from the
+returned figure."""
 
 from __future__ import annotations
 
@@ -15,23 +16,6 @@ from test_report import JOINT, SUPERVISED, TASK, _hand_frame, _metrics
 from cfm_jax import locomotion, plots, report
 
 
-@pytest.fixture
-def drawn_figures(monkeypatch):
-    """The figures the plots module draws, kept open: pyplot's ``close`` only records them
-    (the module closes each figure after saving it), so a test can read the drawn data."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    figures = []
-    monkeypatch.setattr(plt, "close", figures.append)
-    yield figures
-    monkeypatch.undo()
-    for figure in figures:
-        plt.close(figure)
-
-
 def _lines(ax):
     """``{label: (x, y)}`` of an axes' plotted lines (horizontal lines: y of length 2)."""
     return {
@@ -40,7 +24,7 @@ def _lines(ax):
     }
 
 
-def test_learning_curves_figure_is_written(tmp_path, drawn_figures):
+def test_learning_curves_figure_is_written(tmp_path):
     """The three panels' lines are the metrics' means by hand: _metrics() has
     ``mse = scale (1 + seed + 2 target) (10 at iteration 0, else 1)``, so a seed's mean
     over its targets 0, 1 is ``scale (2 + seed) f`` and the mean over seeds 0, 1 is
@@ -50,12 +34,12 @@ def test_learning_curves_figure_is_written(tmp_path, drawn_figures):
         {"baseline": ["oracle", "oracle", "pd_only", "pd_only"], "target": [0, 1, 0, 1],
          "tracking_mse": [1e-3, 3e-3, 10.0, 30.0]}
     )  # fmt: skip
-    path = plots.plot_learning_curves(
+    figure = plots.plot_learning_curves(
         _metrics(), str(tmp_path / "curves.png"), baselines=baselines, title="t"
     )
+    assert (tmp_path / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (tmp_path / "curves.png").stat().st_size > 10_000
-    assert path.endswith("curves.png")
-    (figure,) = drawn_figures
+    assert os.listdir(tmp_path) == ["curves.png"]  # no temporary file left
     axes = figure.axes
     assert len(axes) == 3
     for ax, factor in zip(axes, (1.0, 0.5, 0.25), strict=True):
@@ -99,15 +83,14 @@ def test_learning_curves_band_is_the_bootstrap_ci_over_seed_means(monkeypatch, t
     assert drawn["band_label"] == "band: ± 1 std over seeds"
 
 
-def test_figures_with_bands_are_written(tmp_path, drawn_figures):
+def test_figures_with_bands_are_written(tmp_path):
     """plot_curves draws each loss's mean over seeds (the hand-computed seed means JOINT,
     TASK, SUPERVISED at iteration 2; every seed 100 at iteration 1) and fills its band
     between report's interval bounds (the band's upper edge is the interval's high end,
     its lower edge the low end, kept above 1 % of the mean for the log scale)."""
     curves = report.seed_curves(_hand_frame())
-    path = plots.plot_curves(curves, str(tmp_path / "c.png"))
-    assert os.path.getsize(path) > 10_000
-    (figure,) = drawn_figures
+    figure = plots.plot_curves(curves, str(tmp_path / "c.pdf"))
+    assert (tmp_path / "c.pdf").read_bytes()[:5] == b"%PDF-"  # the suffix picks the format
     tracking = figure.axes[0]
     lines = _lines(tracking)
     assert set(lines) == {"joint", "task", "supervised"}
@@ -126,7 +109,7 @@ def test_figures_with_bands_are_written(tmp_path, drawn_figures):
         np.testing.assert_allclose(at_first, 100.0)  # every seed the same: no spread
 
 
-def test_foot_force_plot(tmp_path, drawn_figures):
+def test_foot_force_plot(tmp_path):
     ref = locomotion.jump_reference(0.05, cache=tmp_path / "references")
     q0 = ref.qpos[0].copy()
     q0[2] += 0.005
@@ -135,9 +118,8 @@ def test_foot_force_plot(tmp_path, drawn_figures):
     observed = np.asarray(run.foot_force)
     # a prediction unlike the observation on every leg and axis, so each curve is told apart
     predicted = 0.5 * observed[1:] + np.arange(12.0).reshape(4, 3)
-    plots.plot_foot_force(ref, path, observed=observed, predicted=predicted, foot="FR")
+    figure = plots.plot_foot_force(ref, path, observed=observed, predicted=predicted, foot="FR")
     assert path.stat().st_size > 10_000
-    (figure,) = drawn_figures
     fr = 1  # Solo12's legs in the order FL, FR, HL, HR
     time = np.arange(len(ref.foot_force)) * ref.control_dt
     for axis, ax in enumerate(figure.axes):
@@ -150,3 +132,37 @@ def test_foot_force_plot(tmp_path, drawn_figures):
             np.testing.assert_allclose(x, time[len(time) - len(force) :])  # the last steps
             np.testing.assert_array_equal(y, force[:, fr, axis])
         assert ax.get_ylabel() == f"f{'xyz'[axis]} [N]"
+
+
+def test_without_a_path_nothing_is_written_and_no_pyplot_figure_stays_open(tmp_path, monkeypatch):
+    """The returned figure is the one a path would have saved; without a path no file is
+    written; pyplot's list of open figures is not touched (no leak in a long notebook)."""
+    import matplotlib.pyplot as plt
+
+    monkeypatch.chdir(tmp_path)
+    before = plt.get_fignums()
+    figure = plots.plot_learning_curves(_metrics())
+    assert os.listdir(tmp_path) == []
+    assert plt.get_fignums() == before
+    x, y = _lines(figure.axes[0])["joint"]
+    np.testing.assert_allclose(y, 2.5 * np.array([10.0, 1.0]))  # as in the test above
+
+
+def test_a_failed_save_leaves_the_previous_image(tmp_path, monkeypatch):
+    """The image is written whole and renamed into place: a failure in the middle of
+    writing keeps the previous file and leaves no temporary file."""
+    from matplotlib.figure import Figure
+
+    path = tmp_path / "curves.png"
+    plots.plot_learning_curves(_metrics(), path)
+    previous = path.read_bytes()
+
+    def half_save(self, f, **kwargs):
+        f.write(b"\x89PNG half")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(Figure, "savefig", half_save)
+    with pytest.raises(OSError, match="disk full"):
+        plots.plot_learning_curves(_metrics(), path, title="new")
+    assert path.read_bytes() == previous
+    assert os.listdir(tmp_path) == ["curves.png"]

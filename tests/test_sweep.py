@@ -329,8 +329,9 @@ def test_curves_are_the_mean_and_std_over_seeds_of_the_target_means(local, tmp_p
     final = curves[(curves.loss == "task") & (curves.iteration == 1)]
     expected = report._format(final.tracking_mse_mean.item()) + " ± "
     assert f"| task | 100.0 | 2 | {expected}" in text
-    path = result.plot(str(tmp_path / "curves.png"), title="tiny")
-    assert os.path.getsize(path) > 10_000
+    figure = result.plot(str(tmp_path / "curves.png"), title="tiny")
+    assert os.path.getsize(tmp_path / "curves.png") > 10_000
+    assert figure._suptitle.get_text() == "tiny"
 
 
 def test_seed_curves_group_by_override_values():

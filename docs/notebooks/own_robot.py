@@ -148,7 +148,7 @@ config = cfm_jax.Config(
 )
 experiment = cfm_jax.Experiment(config)
 result = cfm_jax.train(config, progress=False, experiment=experiment)
-print(report.markdown(report.summary(result.metrics, result.baselines, result.rms_reach)))
+print(report.markdown(result.summary()))
 
 # %%
 result.metrics.groupby("iteration").tracking_mse.agg(["mean", "std"])

@@ -127,18 +127,18 @@ fig.tight_layout()
 # fraction of the reaching distance:
 
 # %%
-table = report.summary(result.metrics, result.baselines, result.rms_reach)
+table = result.summary()  # = report.summary(result.metrics, result.baselines, result.rms_reach)
 print(report.markdown(table))
 
 # %% [markdown]
 # `plots.plot_learning_curves` draws the library's standard figure (tracking error,
-# prediction error and predicted task error per loss):
+# prediction error and predicted task error per loss) and returns it (given a path, it
+# also writes the image there):
 
 # %%
-path = plots.plot_learning_curves(
+plots.plot_learning_curves(
     result.metrics, os.path.join(OUT, "learning_curves.png"), baselines=result.baselines
 )
-display(Image(filename=path))
 
 # %% [markdown]
 # ## A video of the learned controller
