@@ -44,6 +44,7 @@ def train(
     site: str | None = None,
     babbling: str | None = None,
     quiet: bool = False,
+    tensorboard: str | None = None,
 ) -> None:
     """Learn a tracking controller with Algorithm 1 and compare controller losses.
 
@@ -80,6 +81,9 @@ def train(
       babbling: the initial data, loop.babbling (home, reaching, reference_pd, oracle; see
         cfm_jax.babbling); default: the config's (home).
       quiet: no progress bar.
+      tensorboard: also write TensorBoard event files to this folder (needs tensorboardX:
+        pip install 'cfm_jax[tensorboard]'): after every iteration one scalar per loss and
+        metric, tag LOSS/METRIC, the mean over seeds and targets (cfm_jax.tensorboard).
 
     Examples:
       On the command line (``cfm-jax train --help`` lists every flag)::
@@ -95,20 +99,28 @@ def train(
     )
     if babbling is not None:
         base = base.replace(loop=dataclasses.replace(base.loop, babbling=babbling))
-    _run_train(base, names, out, resume, data, quiet)
+    _run_train(base, names, out, resume, data, quiet, tensorboard)
 
 
-def _run_train(base, names, out, resume, data, quiet) -> None:
+def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
     """Train every loss of ``names`` on ``base`` into ``out`` and print the tables."""
+    from cfm_jax import tensorboard as tensorboard_lib
     from cfm_jax import training as train_lib
 
+    if tensorboard is not None and not tensorboard_lib.available():
+        config_lib._fail("--tensorboard", tensorboard, tensorboard_lib.MISSING)
     start = time.perf_counter()
     experiment = train_lib.Experiment(base)  # checks robot and config: nothing written yet
     if data is not None:  # a bad --data is refused before anything is written
         train_lib._recorded_for(experiment, base, data)
-    with _removed_if_empty(out):
+    with _removed_if_empty(out), contextlib.ExitStack() as stack:
         os.makedirs(out, exist_ok=True)
-        frames, result, notes = _train_losses(base, names, out, resume, data, quiet, experiment)
+        writer = None
+        if tensorboard is not None:
+            writer = stack.enter_context(tensorboard_lib.TensorBoardWriter(tensorboard))
+        frames, result, notes = _train_losses(
+            base, names, out, resume, data, quiet, experiment, progress_fn=writer
+        )
     wall = time.perf_counter() - start
     _print_train(base, experiment, frames, result, notes, out, wall)
 
@@ -149,7 +161,7 @@ def _train_losses(base, names, out, resume, data, quiet, experiment, progress_fn
 def _read_metrics(run_dir: str):
     import pandas as pd
 
-    return pd.read_csv(os.path.join(run_dir, "metrics.csv"), float_precision="round_trip")
+    return pd.read_csv(os.path.join(run_dir, "metrics.csv"))
 
 
 def _write_metrics(out: str, frames) -> None:
@@ -667,13 +679,17 @@ def _train_command(argv: list[str]) -> None:
          "as it was recorded; the controller is evaluated on the robot every iteration. "
          "--seeds must equal the recorded run's.")], None),
         ("quiet", Annotated[bool, tyro_arg(help="no progress bar.")], False),
+        ("tensorboard", Annotated[str | None, tyro_arg(metavar="DIR", help_behavior_hint="",
+         help="also write TensorBoard event files to DIR (needs tensorboardX: pip install "
+         "'cfm_jax[tensorboard]'): after every iteration one scalar per loss and metric, tag "
+         "LOSS/METRIC, the mean over seeds and targets.")], None),
     ]  # fmt: skip
     flags_cls = _flags_class("train", base, extra)
     flags_cls.__doc__ = _description(train)
     flags = tyro.cli(flags_cls, args=argv, prog="cfm-jax train")
     names = _losses(flags.loss)
     _run_train(_config_of(flags, base, names[0]), names, flags.out, flags.resume, flags.data,
-               flags.quiet)  # fmt: skip
+               flags.quiet, flags.tensorboard)  # fmt: skip
 
 
 def _sweep_command(argv: list[str]) -> None:

@@ -53,6 +53,7 @@ DOCTEST_MODULES = (
     "tasks.legged",
     "tasks.operational_space",
     "tasks.scales",
+    "tensorboard",
     "theory",
     "training",
     "update",

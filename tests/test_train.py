@@ -222,6 +222,84 @@ def test_cli_train_end_to_end(tmp_path):
         assert os.path.exists(out / loss / "metrics.csv")
 
 
+def test_cli_run_tensorboard_summary_and_files(tmp_path, monkeypatch, capsys, experiment):
+    """One in-process ``cfm-jax train --tensorboard`` run on the tiny config (the module's
+    compiled experiment reused): the event file read back equals the means of the CLI's
+    metrics.csv per loss, metric and iteration; ``TrainResult.summary()`` is the table the
+    CLI writes to summary.md and its numbers are metrics.csv's and baselines.csv's by hand;
+    the top-level metrics.csv holds every row so far after each iteration."""
+    pytest.importorskip("tensorboardX", reason="tensorboardX is not installed")
+    from test_tensorboard import read_scalars
+
+    from cfm_jax import cli, report, tensorboard
+
+    out, events = tmp_path / "cli", tmp_path / "tb"
+    command = cli_command(TINY, tmp_path, out, "joint", seeds=2, iterations=2)
+    monkeypatch.setattr(sys, "argv", ["cfm-jax", *command[3:], "--tensorboard", str(events)])
+    monkeypatch.setattr(training, "Experiment", lambda config: experiment)
+    results, rows_seen = [], []
+    real_train, real_call = training.train, tensorboard.TensorBoardWriter.__call__
+    monkeypatch.setattr(training, "train", lambda *a, **k: results.append(real_train(*a, **k))
+                        or results[-1])  # fmt: skip
+
+    def call(self, iteration, rows):  # what the top-level file holds when an iteration ends
+        rows_seen.append((iteration, len(pd.read_csv(out / "metrics.csv"))))
+        real_call(self, iteration, rows)
+
+    monkeypatch.setattr(tensorboard.TensorBoardWriter, "__call__", call)
+    cli.main()
+    capsys.readouterr()
+    (result,) = results
+    metrics = pd.read_csv(out / "metrics.csv")
+    assert rows_seen == [(i, (i + 1) * 2 * TARGETS) for i in range(3)]  # seeds x targets
+    # TensorBoard: one scalar per metric, loss and iteration, the mean over seeds and targets
+    scalars = read_scalars(events)
+    columns = [c for c in metrics.columns if c not in ("loss", "seed", "iteration", "target")]
+    assert set(scalars) == {f"joint/{c}" for c in columns}
+    means = metrics.groupby("iteration")[columns].mean()
+    for column in columns:
+        steps, values = zip(*scalars[f"joint/{column}"], strict=True)
+        assert list(steps) == [0, 1, 2]
+        expected = means[column].to_numpy()  # the file stores float32: up to its rounding
+        np.testing.assert_allclose(values, expected, rtol=2**-24, atol=1e-45)
+    # summary(): the CLI's table, and by hand from the files
+    table = result.summary()
+    assert report.markdown(table) in (out / "summary.md").read_text()
+    final = metrics[metrics.iteration == 2]
+    seed_means = final.groupby("seed").tracking_mse.mean().to_numpy()
+    assert table.loc["joint", "tracking_mse_mean"] == pytest.approx(final.tracking_mse.mean())
+    assert table.loc["joint", "seed_std"] == pytest.approx(np.std(seed_means, ddof=1))
+    baselines = pd.read_csv(out / "baselines.csv").groupby("baseline").tracking_mse.mean()
+    for name in ("oracle", "pd_only"):
+        assert table.loc[name, "tracking_mse_mean"] == pytest.approx(baselines[name])
+    assert table.loc["joint", "rmse_over_reach"] == pytest.approx(
+        np.sqrt(final.tracking_mse.mean()) / result.rms_reach
+    )
+
+
+def test_cli_top_level_files_are_written_whole(tmp_path, monkeypatch, two_seeds, experiment):
+    """A failure in the middle of rewriting the CLI's combined files leaves the previous
+    ones whole and no temporary file."""
+    from cfm_jax import cli
+
+    cli._write_outputs(str(tmp_path), [two_seeds.metrics], two_seeds, TINY, experiment.task)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    assert set(before) == {"metrics.csv", "baselines.csv", "config.json", "summary.md",
+                           "learning_curves.png"}  # fmt: skip
+    real_to_csv = pd.DataFrame.to_csv
+
+    def half_to_csv(self, path, **kwargs):
+        real_to_csv(self.head(3), path, **kwargs)
+        raise OSError("disk full")
+
+    monkeypatch.setattr(pd.DataFrame, "to_csv", half_to_csv)
+    more = two_seeds.metrics.assign(loss="task")
+    with pytest.raises(OSError, match="disk full"):
+        cli._write_outputs(str(tmp_path), [two_seeds.metrics, more], two_seeds, TINY,
+                           experiment.task)  # fmt: skip
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
 def test_cli_rejects_unknown_loss(tmp_path):
     command = [sys.executable, "-m", "cfm_jax.cli", "train", "--loss", "joint,foo",
                "--out", str(tmp_path)]  # fmt: skip
