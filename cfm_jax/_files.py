@@ -26,20 +26,24 @@ from collections.abc import Callable, Iterator
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike, *, durable: bool = False) -> Iterator[str]:
+def atomic_path(
+    path: str | os.PathLike, *, durable: bool = False, suffix: str = ""
+) -> Iterator[str]:
     """A temporary path to write; on leaving the block it replaces ``path``.
 
     Args:
       path: the file to write.
       durable: also flush the temporary file to the disk (``fsync``) before the rename, so
         that the new content survives a power cut, not only a crash of the process.
+      suffix: appended to the temporary name, for writers that pick the format from the
+        file's extension (``".mp4"`` for ffmpeg).
 
     Yields:
-      The temporary path (``<path>.tmp<pid>``). Writers that add an extension to a name
-      (``np.savez``) must be given an open file instead.
+      The temporary path (``<path>.tmp<pid><suffix>``). Writers that add an extension to a
+      name (``np.savez``) must be given an open file instead.
     """
     path = os.fspath(path)
-    tmp = f"{path}.tmp{os.getpid()}"
+    tmp = f"{path}.tmp{os.getpid()}{suffix}"
     try:
         yield tmp
         if durable:

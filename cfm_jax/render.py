@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cfm_jax._files import atomic_path
+
 
 class RenderUnavailable(RuntimeError):
     """No OpenGL context could be created (the message says why and what to try).
@@ -222,7 +224,9 @@ def frame_strip(
             parts.append(white)
     strip = np.concatenate(parts, axis=1)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    matplotlib.image.imsave(str(path), strip)
+    fmt = Path(path).suffix.lstrip(".").lower() or "png"
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:  # written whole, renamed into place
+        matplotlib.image.imsave(f, strip, format=fmt)
     return strip
 
 
@@ -277,7 +281,8 @@ def write_video(frames: np.ndarray, path: str | os.PathLike, *, fps: float = 30.
 
         # GIF frame durations are whole hundredths of a second in most players.
         duration_ms = max(10, int(round(100.0 / fps)) * 10)
-        iio.imwrite(path, frames, extension=".gif", duration=duration_ms, loop=0)
+        with atomic_path(path) as tmp:  # written whole, renamed into place
+            iio.imwrite(tmp, frames, extension=".gif", duration=duration_ms, loop=0)
         return path
     try:
         import imageio.v2 as iio2
@@ -290,20 +295,21 @@ def write_video(frames: np.ndarray, path: str | os.PathLike, *, fps: float = 30.
     pad_h, pad_w = frames.shape[1] % 2, frames.shape[2] % 2
     if pad_h or pad_w:
         frames = np.pad(frames, ((0, 0), (0, pad_h), (0, pad_w), (0, 0)), mode="edge")
-    writer = iio2.get_writer(
-        path,
-        format="FFMPEG",
-        fps=float(fps),
-        codec="libx264",
-        pixelformat="yuv420p",
-        macro_block_size=1,
-        output_params=["-crf", "18"],
-    )
-    try:
-        for frame in frames:
-            writer.append_data(frame)
-    finally:
-        writer.close()
+    with atomic_path(path, suffix=suffix) as tmp:  # written whole, renamed into place
+        writer = iio2.get_writer(
+            tmp,
+            format="FFMPEG",
+            fps=float(fps),
+            codec="libx264",
+            pixelformat="yuv420p",
+            macro_block_size=1,
+            output_params=["-crf", "18"],
+        )
+        try:
+            for frame in frames:
+                writer.append_data(frame)
+        finally:
+            writer.close()
     return path
 
 
