@@ -71,7 +71,7 @@ ADDED_SINCE = {"diverged": 0.0, "diverged_step": -1.0}
 # tracking_mse 2.3e-2, prediction_error 0.145, predicted_task_error 5.7e-2, forward_loss
 # 1.8e-2, controller_loss 1.6e-2 (9x to 230x the tolerance below); opspace tracking_mse
 # 2.65e-2, prediction_error 4.0e-3, predicted_task_error 1.8e-2, forward_loss 5.5e-3,
-# controller_loss 4.6e-3 (540x to 3800x).
+# controller_loss 4.6e-3 (1500x to 4600x).
 #
 # The legged runs are chaotic: the baselines agree bit for bit between the two machines,
 # but the learned controller's first rollout (iteration 0, after the fits on babbling
