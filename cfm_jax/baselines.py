@@ -52,6 +52,14 @@ NULL_KD = 10.0
 # moves in a plane, so its 3 x 3 J M^-1 J^T has rank 2; the iiwa's has rank 3 away from
 # singularities).
 RCOND = 1e-9
+# The same cut-off for the float32 pseudo-inverse of the MJX oracle: 10 x 3 x float32's eps
+# (3.6e-6, jnp.linalg.pinv's default for a 3 x 3). RCOND is below float32's rounding: the
+# eigensolver returns the planar arm's zero eigenvalue as noise of ~1e-8 (seen: -1.3e-8
+# against 2.92, 4.5e-9 relative, at XLA's optimisation level 0), which RCOND keeps and
+# inverts (a 7.6e7 entry in Lambda). Poses whose J M^-1 J^T has a true eigenvalue ratio
+# between RCOND and RCOND_FLOAT32 (condition number 3e5 to 1e9, next to a singularity) are
+# cut by the MJX oracle and kept by the host one.
+RCOND_FLOAT32 = 10 * 3 * float(np.finfo(np.float32).eps)
 
 
 # ---- joint space: inverse dynamics and PD gains -----------------------------------------
@@ -365,8 +373,9 @@ def mjx_opspace_oracle(
 
     The same formula: ``J``, ``Jdot qd`` from :func:`cfm_jax.opspace.mjx_kinematics`, ``M``
     from ``mjx.full_m``, ``qfrc_bias`` and ``qfrc_passive`` from ``mjx.fwd_position`` and
-    ``mjx.fwd_velocity``, ``Lambda`` with ``jnp.linalg.pinv`` at the same relative cut-off
-    :data:`RCOND`; float32 instead of float64.
+    ``mjx.fwd_velocity``, ``Lambda`` with ``jnp.linalg.pinv`` at the relative cut-off
+    :data:`RCOND_FLOAT32` (float32's rounding; :data:`RCOND` for the float64 host); float32
+    instead of float64.
 
     Args:
       robot: a fixed-base :class:`cfm_jax.robots.Robot` with hinge and slide joints.
@@ -398,7 +407,7 @@ def mjx_opspace_oracle(
         inertia = mjx.full_m(model, data) + jnp.diag(damping)
         jac = kin.jacobian
         inverse_jt = jnp.linalg.solve(inertia, jac.T)  # Mt^-1 J^T, (nv, 3)
-        task_inertia = jnp.linalg.pinv(jac @ inverse_jt, rtol=RCOND, hermitian=True)
+        task_inertia = jnp.linalg.pinv(jac @ inverse_jt, rtol=RCOND_FLOAT32, hermitian=True)
         force = task_inertia @ (desired - kin.bias_acceleration)
         tau_null = inertia @ (null_kp * (home - q) - null_kd * qd)
         projected = tau_null - jac.T @ (task_inertia @ (inverse_jt.T @ tau_null))

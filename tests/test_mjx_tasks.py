@@ -135,9 +135,20 @@ def test_mjx_oracle_equals_the_host_oracle(arms, name, site):
     robot = arms[name]
     qpos, qvel = random_states(robot, 6, seed=2)
     desired = np.random.default_rng(3).normal(0.0, 2.0, (6, 3)).astype(np.float32)
-    # Plain jit, not fast_jit: at XLA's optimisation level 0 the first of these 6 states
-    # comes out wrong (-9.87 instead of 5.18 N m; the other 5 agree), not yet understood.
-    got = jax.jit(baselines.opspace_oracle(robot, site, simulator="mjx"))(qpos, qvel, desired)
+    # At XLA's optimisation level 0 the first of these 6 states once came out wrong (-9.87
+    # instead of 5.18 N m). Cause, in our code: the two-link arm moves in a plane, so its
+    # 3 x 3 J Mt^-1 J^T has rank 2 (J's y row is exactly 0); float32's eigensolver returns
+    # the zero eigenvalue as rounding noise, and the float64 cut-off RCOND = 1e-9 kept it.
+    # Measured at level 0 (eigenvalues of J Mt^-1 J^T): state 0 [-1.3e-8, 0.48, 2.92],
+    # state 2 [-8.1e-9, 0.56, 2.92] (2.8e-9 and 4.5e-9 relative, above 1e-9), so pinv put
+    # 7.6e7 and 1.2e8 into Lambda (state 2 agreed by luck: the noise's eigenvector was y,
+    # which J^T drops); the other 4 states, and all 6 at the default level, gave exactly 0;
+    # float64 MuJoCo C gives |0| <= 7e-17. The MJX oracle now cuts at float32's rounding,
+    # RCOND_FLOAT32 = 3.6e-6 (800x the noise, 3e4x below this arm's smallest true ratio
+    # here, 0.12); compiled at level 0 on purpose, where the noise shows.
+    got = fast_jit(baselines.opspace_oracle(robot, site, simulator="mjx"), qpos, qvel, desired)(
+        qpos, qvel, desired
+    )
     want = baselines.HostOpspaceOracle(robot, site)(qpos, qvel, desired)
     scale = np.abs(want).max()
     np.testing.assert_allclose(np.asarray(got), want, rtol=1e-3, atol=1e-4 * scale)
