@@ -220,6 +220,7 @@ class Recorded(NamedTuple):
       config: the run's config as a dict (:func:`cfm_jax.config.to_dict`).
 
     Examples:
+      >>> # not run: it needs the files of a finished run (cfm_jax.train with out_dir)
       >>> recorded = load("results/run/joint/dataset.npz")  # doctest: +SKIP
       >>> recorded.iterations, recorded.segments.shape  # doctest: +SKIP
       (10, (3, 11))

@@ -43,6 +43,7 @@ def register(kind: str, make_model: Callable) -> None:
       ValueError: ``kind`` is not a non-empty string, or is registered already.
 
     Examples:
+      >>> # not run: it would add "my_kind" to the registry for the rest of the session
       >>> register("my_kind", lambda forward, robot, task: None)  # doctest: +SKIP
     """
     if not isinstance(kind, str) or not kind:

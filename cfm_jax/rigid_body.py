@@ -174,6 +174,7 @@ def physics_terms(model, actuated_dofs, qpos, qvel) -> Terms:
     Examples:
       >>> arm = robots.load("two_link_arm")
       >>> zero = jnp.zeros(2)
+      >>> # not run: MJX run op by op, 12 s on 2 shared cores
       >>> t = physics_terms(arm.mjx_model, arm.actuated_dofs, zero, zero)  # doctest: +SKIP
       >>> t.gain.shape  # doctest: +SKIP
       (2, 2)
@@ -219,6 +220,7 @@ def terms_function(model: mujoco.MjModel, actuated_dofs, configuration, affine=N
       >>> arm = robots.load("two_link_arm")
       >>> split = lambda s: (s[..., :2], s[..., 2:])  # (qpos, qvel) of [q, qd]
       >>> terms = terms_function(arm.mj_model, arm.actuated_dofs, split)
+      >>> # not run: each compile of MJX's dynamics takes about 4 s on 2 shared cores
       >>> jax.jit(terms)(jnp.zeros((3, 7, 4))).gain.shape  # doctest: +SKIP
       (3, 7, 2, 2)
       >>> double = lambda q, v: (2.0 * jnp.eye(2), jnp.ones(2))  # y = 2 qacc + 1

@@ -92,6 +92,7 @@ def register(name: str, make: Callable, default_config: Callable | None = None) 
       ValueError: ``name`` is not a non-empty string, or is registered already.
 
     Examples:
+      >>> # not run: it would add "my_task" to the registry for the rest of the session
       >>> spec = register("my_task", lambda robot, task, dt, sim: None)  # doctest: +SKIP
     """
     if not isinstance(name, str) or not name:
