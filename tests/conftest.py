@@ -56,6 +56,7 @@ LONGEST_FIRST = (
     "test_checkpoint.py",
     "test_train.py",
     "test_legged_task.py",
+    "test_learning.py",
     "test_mjx_tasks.py",
     "test_replay.py",
     "test_opspace_task.py",
