@@ -68,12 +68,12 @@ SELECTION_JUMPS = (0.065, 0.095, 0.125, 0.155)
 """Jump foot clearances (m) of the selection: none of them a test height (0.05 ... 0.17)."""
 
 SIZING = (
-    "Measured first cells (3 seeds, shared 2-core CPU): inverse dynamics base 1187 s "
-    "(10 iterations), walk base about 30 min (30 iterations). The one-factor-at-a-time plan "
-    "has 9 cells per task: about 3 h per arm task and 4.5 h per legged task, 15 h for all "
-    "four. The factors are therefore varied on one task per family (inverse dynamics: 3 h; "
-    "walk: 4.5 h) and op-space and jumping take their family's choice; decided before any "
-    "factor cell ran, on the cost alone."
+    "Measured first cells (3 seeds, on 2 CPU cores shared with other work): inverse "
+    "dynamics base 1187 s (10 iterations), walk base 3069 s (30 iterations). The "
+    "one-factor-at-a-time plan has 9 cells per task: about 3 h per arm task and 5 to 8 h "
+    "per legged task, 16 to 22 h for all four. The factors are therefore varied on one task "
+    "per family (inverse dynamics and walk), and op-space and jumping take their family's "
+    "choice; decided before any factor cell ran, on the cost alone."
 )
 ARM = ("inverse_dynamics", "opspace")
 LEGGED = ("walk", "jump")
