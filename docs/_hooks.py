@@ -2,7 +2,7 @@
 
 README sections: a page line ``<!-- include-readme: NAME -->`` is replaced by the part of
 README.md between ``<!-- docs:NAME -->`` and ``<!-- /docs:NAME -->``, so the README stays
-the single source of the quickstart, the metrics table, the results and the library table.
+the single source of the quickstart, the Python example and the library table.
 README links into ``docs/`` are rewritten relative to the including page; any other
 relative link would point outside the site and fails ``mkdocs build --strict`` (as does an
 unknown section name).
@@ -115,7 +115,7 @@ def on_post_page(output: str, page, config) -> str:
     """Replace every formula of the page by MathML; strip nbconvert's CDN loaders."""
     where = page.file.src_uri
     output = ARITHMATEX.sub(lambda m: _arithmatex(m, where), output)
-    if not where.endswith(".py"):  # notebooks are docs/notebooks/*.py (mkdocs-jupyter)
+    if not where.endswith((".py", ".ipynb")):  # notebooks (mkdocs-jupyter)
         return output
     output = NBCONVERT_MATHJAX.sub("", output)
     output = NBCONVERT_MERMAID.sub("", output)

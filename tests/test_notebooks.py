@@ -22,6 +22,27 @@ def test_the_four_notebooks_are_there():
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_the_page_shows_this_source_executed(path):
+    """The site shows NAME.ipynb, NAME.py executed at its default size with the outputs
+    kept: the same cells (sources, kinds and tags), every code cell run in order, and
+    no error among the outputs. After editing NAME.py, execute it again into NAME.ipynb."""
+    import jupytext
+    import nbformat
+
+    source = jupytext.read(path)
+    shown = nbformat.read(path.with_suffix(".ipynb"), as_version=4)
+
+    def cells(notebook):
+        return [(c.cell_type, c.source.strip(), c.metadata.get("tags", [])) for c in notebook.cells]
+
+    assert cells(shown) == cells(source)
+    code = [c for c in shown.cells if c.cell_type == "code"]
+    assert [c.execution_count for c in code] == list(range(1, len(code) + 1))
+    kinds = [o.get("output_type") for c in code for o in c.get("outputs", [])]
+    assert "error" not in kinds and "display_data" in kinds
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_notebook_runs_top_to_bottom(path, tmp_path, monkeypatch):
     import jupytext
     import nbformat

@@ -31,13 +31,28 @@ import os
 
 import matplotlib.pyplot as plt
 import pandas as pd
+from IPython.display import Markdown, display
 
 import cfm_jax  # first: it sets the XLA flag before JAX starts
 from cfm_jax import ControllerConfig, ForwardModelConfig, LoopConfig, TaskConfig, losses, report
 
+# %% tags=["remove-cell"]
+# The tests run every notebook at a reduced size (CFM_JAX_DOCS_QUICK=1).
 QUICK = os.environ.get("CFM_JAX_DOCS_QUICK") == "1"
 
-if QUICK:
+# %%
+base = cfm_jax.Config(
+    robot="iiwa14",
+    task=TaskConfig(duration=1.0),
+    forward=ForwardModelConfig(
+        hidden=(128, 128), ensemble_size=2, initial_steps=400, steps_per_iteration=100
+    ),
+    controller=ControllerConfig(hidden=(128, 64), initial_steps=400, steps_per_iteration=100),
+    loop=LoopConfig(iterations=4, seeds=2, babbling_rollouts=2),
+)
+
+# %% tags=["remove-cell"]
+if QUICK:  # the tests' reduced size
     base = cfm_jax.Config(
         robot="iiwa14",
         task=TaskConfig(duration=0.3),
@@ -48,16 +63,6 @@ if QUICK:
             hidden=(32,), initial_steps=30, steps_per_iteration=10, batch_size=64
         ),
         loop=LoopConfig(iterations=1, seeds=1, babbling_rollouts=1),
-    )
-else:
-    base = cfm_jax.Config(
-        robot="iiwa14",
-        task=TaskConfig(duration=1.0),
-        forward=ForwardModelConfig(
-            hidden=(128, 128), ensemble_size=2, initial_steps=400, steps_per_iteration=100
-        ),
-        controller=ControllerConfig(hidden=(128, 64), initial_steps=400, steps_per_iteration=100),
-        loop=LoopConfig(iterations=4, seeds=2, babbling_rollouts=2),
     )
 
 # %% [markdown]
@@ -81,7 +86,7 @@ baselines = results["joint"].baselines
 
 # %%
 table = report.summary(metrics, baselines, results["joint"].rms_reach)
-print(report.markdown(table))
+display(Markdown(report.markdown(table)))
 
 # %% [markdown]
 # ## Learning curves

@@ -20,12 +20,13 @@
 # joint loss. Under a minute on two CPU cores (39 s measured; `CFM_JAX_DOCS_QUICK=1`: less).
 
 # %%
+import base64
 import os
 import pathlib
 import tempfile
 
 import numpy as np
-from IPython.display import Image, display
+from IPython.display import HTML, Image, Markdown, display
 
 import cfm_jax  # first: it sets the XLA flag before JAX starts
 from cfm_jax import (
@@ -40,7 +41,11 @@ from cfm_jax import (
     training,
 )
 
+# %% tags=["remove-cell"]
+# The tests run every notebook at a reduced size (CFM_JAX_DOCS_QUICK=1).
 QUICK = os.environ.get("CFM_JAX_DOCS_QUICK") == "1"
+
+# %%
 OUT = pathlib.Path(tempfile.mkdtemp(prefix="cfm_jax_own_robot_"))
 
 # %% [markdown]
@@ -109,7 +114,13 @@ except robots.RobotError as error:
 # above:
 
 # %%
-task = TaskConfig(duration=0.5 if QUICK else 1.5)
+task = TaskConfig(duration=1.5)
+
+# %% tags=["remove-cell"]
+if QUICK:  # the tests' reduced size
+    task = TaskConfig(duration=0.5)
+
+# %%
 reference = references.reaching(robot, task, control_dt=task.control_dt)
 print("reference q:", reference.q.shape, "(targets, steps + 1, nq)")
 top_view = {"distance": 1.6, "azimuth": 90.0, "elevation": -89.0, "lookat": [0.2, 0.0, 0.1]}
@@ -128,7 +139,14 @@ else:
 # ## Learn a controller for it
 
 # %%
-if QUICK:
+forward = ForwardModelConfig(
+    hidden=(128, 128), ensemble_size=3, initial_steps=500, steps_per_iteration=150
+)
+controller = ControllerConfig(hidden=(128, 64), initial_steps=500, steps_per_iteration=150)
+loop = LoopConfig(iterations=5, seeds=2, babbling_rollouts=2)
+
+# %% tags=["remove-cell"]
+if QUICK:  # the tests' reduced size
     forward = ForwardModelConfig(
         hidden=(32, 32), ensemble_size=2, initial_steps=50, steps_per_iteration=20, batch_size=64
     )
@@ -136,19 +154,14 @@ if QUICK:
         hidden=(32, 32), initial_steps=50, steps_per_iteration=20, batch_size=64
     )
     loop = LoopConfig(iterations=1, seeds=1, babbling_rollouts=1)
-else:
-    forward = ForwardModelConfig(
-        hidden=(128, 128), ensemble_size=3, initial_steps=500, steps_per_iteration=150
-    )
-    controller = ControllerConfig(hidden=(128, 64), initial_steps=500, steps_per_iteration=150)
-    loop = LoopConfig(iterations=5, seeds=2, babbling_rollouts=2)
 
+# %%
 config = cfm_jax.Config(
     robot=str(path), loss="joint", task=task, forward=forward, controller=controller, loop=loop
 )
 experiment = cfm_jax.Experiment(config)
 result = cfm_jax.train(config, progress=False, experiment=experiment)
-print(report.markdown(result.summary()))
+display(Markdown(report.markdown(result.summary())))
 
 # %%
 result.metrics.groupby("iteration").tracking_mse.agg(["mean", "std"])
@@ -171,6 +184,7 @@ if available:
         ],
         axis=2,
     )  # fmt: skip
-    every = 5 if QUICK else 3
+    every = 3
     gif = render.write_video(frames[::every], OUT / "my_arm.gif", fps=1 / (every * task.control_dt))
-    display(Image(filename=str(gif)))
+    with open(str(gif), "rb") as f:  # inline, as HTML: the site's pages show GIFs that way
+        display(HTML(f'<img src="data:image/gif;base64,{base64.b64encode(f.read()).decode()}">'))

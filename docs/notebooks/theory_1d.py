@@ -21,19 +21,16 @@
 # `cfm_jax.theory` makes each step computable. The full study, with figures for many
 # biases, is [The 1-D theory](../theory.md).
 #
-# Runs in well under a minute (6 s measured); `CFM_JAX_DOCS_QUICK=1` uses coarser grids.
+# Runs in well under a minute (6 s measured), so the tests run it at this size too
+# (`CFM_JAX_DOCS_QUICK=1` changes nothing here).
 
 # %%
-import os
-
 import jax.numpy as jnp
 import matplotlib.pyplot as plt
 import pandas as pd
 
 import cfm_jax  # noqa: F401  (first: it sets the XLA flag before JAX starts)
 from cfm_jax import theory
-
-QUICK = os.environ.get("CFM_JAX_DOCS_QUICK") == "1"
 
 # %% [markdown]
 # ## A biased model of a linear system
@@ -57,7 +54,7 @@ print(model, "observed s_a =", observed)
 # teacher's loss is linear in $s_p$ and has no rest point.
 
 # %%
-actions = jnp.linspace(-0.5, 2.0, 51 if QUICK else 301)
+actions = jnp.linspace(-0.5, 2.0, 301)
 fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), sharex=True)
 for name in theory.MODEL_BASED_LOSSES:
     loss, grad = theory.loss_landscape(name, model, desired, observed, actions)
@@ -85,7 +82,7 @@ fig.tight_layout()
 # both go to the goal, the joint loss more slowly (contraction $1 - a/(2\hat a)$).
 
 # %%
-iterations = 10 if QUICK else 30
+iterations = 30
 start = theory.AffineController(offset=float(theory.rest_action("task", model, desired, 0.0)))
 rows = []
 fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), sharey=True)
@@ -117,7 +114,7 @@ pd.DataFrame(rows)
 # biases in one `vmap`: where is the joint loss better than the task loss?
 
 # %%
-n = 5 if QUICK else 21
+n = 21
 sweep = theory.sweep_model_bias(
     system, desired, jnp.linspace(0.6, 1.6, n), jnp.linspace(-0.3, 0.3, n), refit="latest",
     num_iters=iterations,

@@ -25,11 +25,12 @@
 # minute; the code path is the same.
 
 # %%
+import base64
 import os
 import tempfile
 
 import matplotlib.pyplot as plt
-from IPython.display import Image, display
+from IPython.display import HTML, Markdown, display
 
 import cfm_jax  # first: it sets the XLA flag before JAX starts
 from cfm_jax import (
@@ -44,7 +45,11 @@ from cfm_jax import (
     training,
 )
 
+# %% tags=["remove-cell"]
+# The tests run every notebook at a reduced size (CFM_JAX_DOCS_QUICK=1).
 QUICK = os.environ.get("CFM_JAX_DOCS_QUICK") == "1"
+
+# %%
 OUT = tempfile.mkdtemp(prefix="cfm_jax_iiwa_")
 
 # %% [markdown]
@@ -57,7 +62,15 @@ OUT = tempfile.mkdtemp(prefix="cfm_jax_iiwa_")
 # (`kp = 100`, `kd = 20`), babbling with 10 % torque noise.
 
 # %%
-if QUICK:
+forward = ForwardModelConfig(
+    hidden=(200, 200), ensemble_size=3, initial_steps=500, steps_per_iteration=150
+)
+controller = ControllerConfig(hidden=(200, 100), initial_steps=500, steps_per_iteration=150)
+loop = LoopConfig(iterations=5, seeds=2, babbling_rollouts=2)
+task = TaskConfig(duration=1.0)
+
+# %% tags=["remove-cell"]
+if QUICK:  # the tests' reduced size
     forward = ForwardModelConfig(
         hidden=(32, 32), ensemble_size=2, initial_steps=50, steps_per_iteration=20, batch_size=64
     )
@@ -66,14 +79,8 @@ if QUICK:
     )
     loop = LoopConfig(iterations=1, seeds=1, babbling_rollouts=1)
     task = TaskConfig(duration=0.3)
-else:
-    forward = ForwardModelConfig(
-        hidden=(200, 200), ensemble_size=3, initial_steps=500, steps_per_iteration=150
-    )
-    controller = ControllerConfig(hidden=(200, 100), initial_steps=500, steps_per_iteration=150)
-    loop = LoopConfig(iterations=5, seeds=2, babbling_rollouts=2)
-    task = TaskConfig(duration=1.0)
 
+# %%
 config = cfm_jax.Config(
     robot="iiwa14", loss="joint", task=task, forward=forward, controller=controller, loop=loop
 )
@@ -128,7 +135,7 @@ fig.tight_layout()
 
 # %%
 table = result.summary()  # = report.summary(result.metrics, result.baselines, result.rms_reach)
-print(report.markdown(table))
+display(Markdown(report.markdown(table)))
 
 # %% [markdown]
 # `plots.plot_learning_curves` draws the library's standard figure (tracking error,
@@ -152,7 +159,7 @@ available, why = render.render_available()
 if available:
     qpos = training.rollout_qpos(result, seed=0, experiment=experiment)
     gif = os.path.join(OUT, "iiwa_target0.gif")
-    every = 4 if QUICK else 2
+    every = 2
     render.video(
         robots.load("iiwa14"),
         qpos[0],
@@ -164,6 +171,7 @@ if available:
         camera={"distance": 2.2, "azimuth": 120, "elevation": -20, "lookat": [0, 0, 0.6]},
         track=False,
     )
-    display(Image(filename=gif))
+    with open(gif, "rb") as f:  # inline, as HTML: the site's pages show GIFs that way
+        display(HTML(f'<img src="data:image/gif;base64,{base64.b64encode(f.read()).decode()}">'))
 else:
     print("no offscreen rendering here:", why)
