@@ -275,10 +275,9 @@ def sweep(
     Writes OUT/cells/<cell>/ as each cell finishes (a re-run skips finished cells), then
     OUT/metrics.csv and OUT/metrics.parquet (one row per cell, seed, iteration, target,
     with a column per override), OUT/baselines.csv, OUT/cells.csv, OUT/sweep.json,
-    OUT/summary.md (the protocol line; mean and std over seeds at the last iteration, the
-    95% bootstrap CI over seeds and the paired comparison of the joint loss) and
-    OUT/curves.png,
-    and prints the summary table.
+    OUT/summary.md (the protocol line; mean and std over seeds at the last iteration, a
+    bootstrap 95% CI over seeds and the paired comparison of the joint loss) and
+    OUT/curves.png, and prints the summary table.
 
     Args:
       robot: registered robot name (iiwa14, two_link_arm, solo12) or path to an MJCF
