@@ -6,6 +6,7 @@ for Learning Control" (ICRA 2021).
 Examples:
   >>> import cfm_jax
   >>> config = cfm_jax.Config(robot="iiwa14", loss="joint")
+  >>> # not run: it trains the iiwa on the default config (minutes)
   >>> result = cfm_jax.train(config)  # doctest: +SKIP
   >>> result.metrics.groupby("iteration").tracking_mse.mean()  # doctest: +SKIP
 

@@ -102,6 +102,7 @@ class TrainState:
       iteration: completed iterations of Algorithm 1 (int32 scalar).
 
     Examples:
+      >>> # not run: it trains (minutes)
       >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
       >>> int(result.state.iteration[0]), result.state.data.size  # doctest: +SKIP
       (10, Array([3000], dtype=int32))
@@ -262,6 +263,7 @@ def init(setup: Setup, loss: str, key, knobs: Knobs, data=None) -> TrainState:
       The :class:`TrainState` after the initial fits (``iteration`` 0).
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> state = init(setup, "joint", jax.random.key(0), knobs)  # doctest: +SKIP
       >>> int(state.iteration), int(state.data.size)  # doctest: +SKIP
       (0, 1500)
@@ -288,6 +290,7 @@ def prepare(setup: Setup, key, knobs: Knobs, data=None) -> tuple[TrainState, jax
       initial fit (:func:`fit_initial_controller`).
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> state, key_fit = prepare(setup, jax.random.key(0), knobs)  # doctest: +SKIP
       >>> state = fit_initial_controller(setup, "joint", state, key_fit, knobs)  # doctest: +SKIP
     """
@@ -317,6 +320,7 @@ def iteration(
       ``forward_loss`` and ``controller_loss`` of the refits.
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> state, measured = iteration(setup, "joint", state, knobs)  # doctest: +SKIP
       >>> measured["tracking_mse"].shape  # one value per target  # doctest: +SKIP
       (5,)
@@ -358,6 +362,7 @@ def evaluate(setup: Setup, state: TrainState, result: rollout_lib.Rollout) -> di
       :func:`metrics` with NaN losses.
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> policy = learned_policy(setup, state)  # doctest: +SKIP
       >>> result = rollout(setup, policy, evaluation_key(state), knobs)  # doctest: +SKIP
       >>> evaluate(setup, state, result)["forward_loss"]  # doctest: +SKIP
@@ -407,6 +412,7 @@ def babble_all(setup: Setup, key, knobs: Knobs) -> rollout_lib.Rollout:
       A :class:`cfm_jax.rollout.Rollout` with leading axes ``(rollouts, targets, steps)``.
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> result = babble_all(setup, jax.random.key(0), knobs)  # doctest: +SKIP
       >>> result.finite.shape  # (babbling_rollouts, targets, steps)  # doctest: +SKIP
       (2, 5, 30)
@@ -534,6 +540,7 @@ def data_normaliser(setup: Setup, data: dataset.Dataset) -> networks.Normaliser:
       A :class:`cfm_jax.networks.Normaliser`.
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> norm = data_normaliser(setup, state.data)  # doctest: +SKIP
     """
     filled = jnp.arange(data.capacity) < data.size
@@ -563,6 +570,7 @@ def fit_initial_controller(
       The state with the fitted controller.
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> state, key_fit = prepare(setup, key, knobs)  # doctest: +SKIP
       >>> state = fit_initial_controller(setup, "task", state, key_fit, knobs)  # doctest: +SKIP
     """
@@ -589,6 +597,7 @@ def restart_fits(setup: Setup, state: TrainState, key_forward, key_controller, k
       The state the refits start from.
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> restart_fits(setup, state, key_fm, key_ctrl, knobs) is state  # warm  # doctest: +SKIP
       True
     """
@@ -628,6 +637,7 @@ def fresh_forward_params(setup: Setup, key, knobs: Knobs):
       The parameters.
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> params = fresh_forward_params(setup, jax.random.key(0), knobs)  # doctest: +SKIP
     """
     params = setup.forward.init(key, setup.task.state_dim)
@@ -748,6 +758,7 @@ def rollout(
       A :class:`cfm_jax.rollout.Rollout`, leading axes ``(targets, steps)``.
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> oracle = mixed_policy(setup, oracle=1.0)  # doctest: +SKIP
       >>> rollout(setup, oracle, jax.random.key(0), knobs).finite.shape  # doctest: +SKIP
       (5, 30)
@@ -811,6 +822,7 @@ def learned_policy(setup: Setup, state: TrainState) -> rollout_lib.MixedPolicy:
       A :class:`cfm_jax.rollout.MixedPolicy`.
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> float(learned_policy(setup, state).controller_weight)  # doctest: +SKIP
       1.0
     """
@@ -834,6 +846,7 @@ def with_terms(setup: Setup, transitions: dataset.Transitions) -> dataset.Transi
 
     Examples:
       >>> rows = dataset.Transitions(*(jnp.zeros((3, d)) for d in (4, 2, 2, 2)))
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> with_terms(setup, rows).terms is None  # the mlp kind  # doctest: +SKIP
       True
     """
@@ -855,6 +868,7 @@ def collected(result: rollout_lib.Rollout) -> tuple[dataset.Transitions, jax.Arr
       row axis, and the ``(rows,)`` bool mask.
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> rows, valid = collected(babble_all(setup, key, knobs))  # doctest: +SKIP
       >>> rows.state.shape, valid.shape  # 2 rollouts x 5 targets x 30 steps  # doctest: +SKIP
       ((300, 4), (300,))
@@ -897,6 +911,7 @@ def metrics(setup: Setup, state: TrainState, result: rollout_lib.Rollout) -> dic
       ``{name: (targets,) array}``.
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> sorted(metrics(setup, state, result))[:3]  # doctest: +SKIP
       ['finite_fraction', 'prediction_error', 'predicted_task_error']
     """
@@ -934,6 +949,7 @@ def rollout_metrics(setup: Setup, result: rollout_lib.Rollout) -> dict:
       ``{name: (targets,) array}``.
 
     Examples:
+      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> result = rollout(setup, mixed_policy(setup, oracle=1.0), key, knobs)  # doctest: +SKIP
       >>> rollout_metrics(setup, result)["tracking_mse"].shape  # doctest: +SKIP
       (5,)

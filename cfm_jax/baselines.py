@@ -390,7 +390,8 @@ def mjx_opspace_oracle(
     Examples:
       >>> from cfm_jax import robots
       >>> iiwa = robots.load("iiwa14")
-      >>> torque = mjx_opspace_oracle(iiwa)  # compiles for ~40 s on a CPU:
+      >>> torque = mjx_opspace_oracle(iiwa)
+      >>> # not run: compiling MJX's op-space oracle of the iiwa takes 25-40 s on a CPU
       >>> tau = jax.jit(torque)(iiwa.home, np.zeros(7), np.zeros(3))  # doctest: +SKIP
       >>> tau.shape  # doctest: +SKIP
       (7,)

@@ -233,6 +233,7 @@ def measure_rollout(bench: Bench, batch: int, steps: int, repeats: int) -> dict:
       ``finite_fraction`` (of the closed loop's steps).
 
     Examples:
+      >>> # not run: it compiles and times rollouts on both simulators (tens of seconds)
       >>> result = measure_rollout(Bench.load("two_link_arm"), 2, 5, 1)  # doctest: +SKIP
       >>> result["batch"], result["ratio"] > 0, result["finite_fraction"]  # doctest: +SKIP
       (2, True, 1.0)
@@ -288,6 +289,7 @@ def measure_training(bench: Bench, targets: int, steps: int, fit_steps: int, rep
 
     Examples:
       >>> bench = Bench.load("two_link_arm")
+      >>> # not run: it compiles and times training iterations (tens of seconds)
       >>> times, (flat, _) = measure_training(bench, 2, 5, 2, 1)  # doctest: +SKIP
       >>> times["iteration_s"] > 0, flat.state.shape  # doctest: +SKIP
       (True, (10, 4))
@@ -385,6 +387,7 @@ def measure_torch(bench: Bench, flat, repeats: int, updates: int = 50) -> dict:
 
     Examples:
       >>> bench = Bench.load("two_link_arm")
+      >>> # not run: it needs torch (the bench extra) and compiles training iterations
       >>> _, (flat, _) = measure_training(bench, 2, 5, 2, 1)  # doctest: +SKIP
       >>> result = measure_torch(bench, flat, 1, updates=2)  # doctest: +SKIP
       >>> result["torch_forward_updates_per_s"] > 0  # doctest: +SKIP
@@ -506,6 +509,7 @@ def run(
       ``versions``.
 
     Examples:
+      >>> # not run: a benchmark: it compiles and times rollouts (tens of seconds)
       >>> result = run("two_link_arm", batch=2, steps=5, repeats=1, train=False)  # doctest: +SKIP
       >>> result["robot"], result["n_sub"], result["batch"]  # doctest: +SKIP
       ('two_link_arm', 5, 2)
@@ -569,6 +573,7 @@ def main() -> None:
 
     Examples:
       >>> import sys
+      >>> # not run: a benchmark from the command line (tens of seconds)
       >>> sys.argv = ["cfm_jax.bench", "--robot", "two_link_arm", "--no-train"]  # doctest: +SKIP
       >>> main()  # doctest: +SKIP
     """
@@ -602,6 +607,7 @@ def bench(
       json: print one JSON line instead of a table.
 
     Examples:
+      >>> # not run: a benchmark: it compiles and times rollouts (tens of seconds)
       >>> bench("two_link_arm", batch=2, steps=5, repeats=1, train=False)  # doctest: +SKIP
     """
     result = run(

@@ -10,6 +10,7 @@ size and SHA-256 of every file of the step, so a truncated or altered file is de
 restore; a step without a manifest (killed between the two writes) counts as incomplete.
 
 Examples:
+  >>> # not run: it needs a run's state, rows and template (cfm_jax.train)
   >>> ckpt = Checkpointer("/tmp/run/checkpoints", keep=3)  # doctest: +SKIP
   >>> ckpt.save(2, state, {"rows": rows})  # doctest: +SKIP
   >>> state, meta, step = ckpt.restore_latest(template)  # doctest: +SKIP
@@ -33,6 +34,7 @@ class CheckpointError(RuntimeError):
     """A checkpoint that cannot be used (the message names it and what to do).
 
     Examples:
+      >>> # not run: it resumes a run's files in results/run and trains (minutes)
       >>> try:
       ...     cfm_jax.train(config, resume="results/run")  # doctest: +SKIP
       ... except CheckpointError as error:
@@ -75,6 +77,7 @@ class Checkpointer:
       keep: number of most recent steps kept on disk (older ones are deleted by Orbax).
 
     Examples:
+      >>> # not run: it needs the result of a finished run (cfm_jax.train)
       >>> ckpt = Checkpointer("/tmp/run/checkpoints", keep=3)  # doctest: +SKIP
       >>> ckpt.save(2, result.state, {"rows": []})  # doctest: +SKIP
       >>> ckpt.steps(), ckpt.problem(2)  # doctest: +SKIP

@@ -91,6 +91,7 @@ def train(
           cfm-jax train --robot iiwa14 --loss all --seeds 3 --iterations 10 --out results/id
           cfm-jax train --robot iiwa14 --loss all --seeds 3 --out results/id --resume
 
+      >>> # not run: it trains (minutes) and writes /tmp/quick
       >>> train(robot="two_link_arm", iterations=1, out="/tmp/quick")  # doctest: +SKIP
     """
     names = _losses(loss)
@@ -313,6 +314,7 @@ def sweep(
           cfm-jax sweep --robot iiwa14 --losses joint,task --seeds 3 --out results/s
           cfm-jax sweep --losses all --override task.kp=50,100 --backend ray --out results/kp
 
+      >>> # not run: it runs a sweep (minutes) and writes /tmp/sweep
       >>> sweep(robot="two_link_arm", iterations=1, out="/tmp/sweep")  # doctest: +SKIP
     """
     names = _losses(losses, flag="--losses")
@@ -761,6 +763,7 @@ def main() -> None:
 
     Examples:
       >>> import sys
+      >>> # not run: the help is printed and main() exits (SystemExit)
       >>> sys.argv = ["cfm-jax", "train", "--help"]  # doctest: +SKIP
       >>> main()  # doctest: +SKIP
     """

@@ -16,8 +16,8 @@ Physics timestep 0.002 s (from the XML); references are given at ``control_dt`` 
 
 Examples:
   >>> from cfm_jax import locomotion
-  >>> ref = locomotion.walk_reference(1.0)  # doctest: +SKIP
-  >>> ref.qpos.shape, ref.tau.shape, ref.foot_force.shape  # doctest: +SKIP
+  >>> ref = locomotion.walk_reference(1.0)
+  >>> ref.qpos.shape, ref.tau.shape, ref.foot_force.shape
   ((251, 19), (250, 12), (251, 4, 3))
 """
 
@@ -761,6 +761,7 @@ def default_jumps(**kwargs) -> list[LocomotionReference]:
       A list of 5 :class:`LocomotionReference`.
 
     Examples:
+      >>> # not run: five jumps, each found by bisection: about 6 s uncached
       >>> jumps = default_jumps()  # doctest: +SKIP
       >>> [round(jump_clearance(ref), 2) for ref in jumps]  # doctest: +SKIP
       [0.05, 0.08, 0.11, 0.14, 0.17]

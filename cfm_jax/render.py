@@ -12,6 +12,7 @@ without raising, so callers can skip pictures with a clear message.
 Examples:
   >>> import mujoco
   >>> from cfm_jax import render
+  >>> # not run: it needs offscreen OpenGL (MUJOCO_GL=egl or osmesa), which CI may lack
   >>> model = mujoco.MjModel.from_xml_path("robots/solo12.xml")  # doctest: +SKIP
   >>> render.frame_strip(model, qpos_seq, "walk.png", n_frames=6)  # doctest: +SKIP
 """
@@ -32,6 +33,7 @@ class RenderUnavailable(RuntimeError):
     """No OpenGL context could be created (the message says why and what to try).
 
     Examples:
+      >>> # not run: it needs offscreen OpenGL (MUJOCO_GL=egl or osmesa), which CI may lack
       >>> try:
       ...     frames = render_frames(model, qpos)  # doctest: +SKIP
       ... except RenderUnavailable as error:
@@ -143,6 +145,7 @@ def render_frames(
     Examples:
       >>> from cfm_jax import robots
       >>> arm = robots.load("two_link_arm")
+      >>> # not run: it needs offscreen OpenGL (MUJOCO_GL=egl or osmesa), which CI may lack
       >>> frames = render_frames(arm.mj_model, arm.home, width=64, height=48)  # doctest: +SKIP
       >>> frames.shape  # doctest: +SKIP
       (1, 48, 64, 3)
@@ -202,6 +205,7 @@ def frame_strip(
     Examples:
       >>> from cfm_jax import robots
       >>> arm = robots.load("two_link_arm")
+      >>> # not run: it needs offscreen OpenGL (MUJOCO_GL=egl or osmesa), which CI may lack
       >>> strip = frame_strip(arm.mj_model, [arm.home] * 10, "/tmp/strip.png", n_frames=3,
       ...                     width=64, height=48, gap=4)  # doctest: +SKIP
       >>> strip.shape  # doctest: +SKIP
@@ -355,6 +359,7 @@ def video(
       >>> from cfm_jax import robots
       >>> arm = robots.load("two_link_arm")
       >>> qpos = arm.home + np.linspace(0, 1, 20)[:, None] * np.array([1.0, -1.0])
+      >>> # not run: it needs offscreen OpenGL (MUJOCO_GL=egl or osmesa), which CI may lack
       >>> frames = video(arm, qpos, "/tmp/arm.gif", fps=20, every=2)  # doctest: +SKIP
       >>> frames.shape  # doctest: +SKIP
       (10, 240, 320, 3)

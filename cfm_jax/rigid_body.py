@@ -225,7 +225,7 @@ def terms_function(model: mujoco.MjModel, actuated_dofs, configuration, affine=N
       (3, 7, 2, 2)
       >>> double = lambda q, v: (2.0 * jnp.eye(2), jnp.ones(2))  # y = 2 qacc + 1
       >>> jax.jit(terms_function(arm.mj_model, arm.actuated_dofs, split, double))(
-      ...     jnp.zeros((3, 4))).drift.shape  # doctest: +SKIP
+      ...     jnp.zeros((3, 4))).drift.shape
       (3, 2)
     """
     device_model = mjx.put_model(model)

@@ -28,6 +28,7 @@ Backends:
 Examples:
   >>> import cfm_jax
   >>> config = cfm_jax.Config(robot="two_link_arm")
+  >>> # not run: it trains 12 cells (minutes) and writes results/s
   >>> result = cfm_jax.sweep(
   ...     config, seeds=3, losses=["joint", "task"], overrides={"task.kp": [50.0, 100.0]},
   ...     out_dir="results/s")  # doctest: +SKIP
@@ -76,6 +77,7 @@ class SweepError(RuntimeError):
       total: the number of cells of the grid (for the message).
 
     Examples:
+      >>> # not run: it runs a sweep (minutes)
       >>> try:  # doctest: +SKIP
       ...     result = cfm_jax.sweep(config, losses="all", out_dir="results/s")
       ... except cfm_jax.SweepError as error:
@@ -141,7 +143,7 @@ class CellOutput:
     Examples:
       A custom runner does extra work around :func:`run_cell` and returns its output:
 
-      >>> def runner(config, run_dir):  # doctest: +SKIP
+      >>> def runner(config, run_dir):
       ...     output = run_cell(config, run_dir)
       ...     print(config.loss, output.seconds)
       ...     return output
@@ -175,6 +177,7 @@ class SweepResult:
       seconds: wall time of the sweep.
 
     Examples:
+      >>> # not run: it trains every loss (minutes) and writes results/s
       >>> result = cfm_jax.sweep(config, losses="all", out_dir="results/s")  # doctest: +SKIP
       >>> result.metrics.groupby(["loss", "iteration"]).tracking_mse.mean()  # doctest: +SKIP
       >>> print(result.markdown())  # the curves at the last iteration  # doctest: +SKIP
@@ -438,6 +441,7 @@ def experiment_for(config: config_lib.Config):
 
     Examples:
       >>> config = config_lib.Config(robot="two_link_arm")
+      >>> # not run: it builds an Experiment (1.5 s) and keeps it in this process's cache
       >>> same = experiment_for(config.replace(loss="task", seed=3))  # doctest: +SKIP
       >>> experiment_for(config) is same  # doctest: +SKIP
       True
@@ -474,6 +478,7 @@ def run_cell(
       A :class:`CellOutput`.
 
     Examples:
+      >>> # not run: it trains (minutes)
       >>> output = run_cell(config_lib.Config(robot="two_link_arm"))  # doctest: +SKIP
       >>> output.metrics.tracking_mse.mean()  # doctest: +SKIP
     """
@@ -581,6 +586,7 @@ def sweep(
 
     Examples:
       >>> config = cfm_jax.for_task("inverse_dynamics", robot="iiwa14")
+      >>> # not run: it needs ray and trains every loss (minutes)
       >>> result = cfm_jax.sweep(  # doctest: +SKIP
       ...     config, seeds=3, losses="all", overrides={"task.kp": [50.0, 100.0]},
       ...     out_dir="results/kp", backend="ray")

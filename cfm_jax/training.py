@@ -8,6 +8,7 @@ of a recorded data set.
 Examples:
   >>> from cfm_jax import config as cfg
   >>> small = cfg.Config(robot="two_link_arm", loop=cfg.LoopConfig(iterations=1))
+  >>> # not run: it trains (compiling an iteration takes tens of seconds)
   >>> result = train(small, progress=False)  # doctest: +SKIP
   >>> result.metrics.columns[:4].tolist()  # doctest: +SKIP
   ['loss', 'seed', 'iteration', 'target']
@@ -64,6 +65,7 @@ class TrainResult:
         :func:`cfm_jax.native.take_warnings`); they are not printed.
 
     Examples:
+      >>> # not run: it trains (minutes)
       >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
       >>> result.final().tracking_mse.mean()  # doctest: +SKIP
       >>> result.baselines.groupby("baseline").tracking_mse.mean()  # doctest: +SKIP
@@ -139,6 +141,7 @@ class DivergenceError(RuntimeError):
     (:attr:`TrainResult.stopped`). Kept for code that catches it.
 
     Examples:
+      >>> # not run: it trains (minutes) and writes results/run
       >>> try:
       ...     result = cfm_jax.train(config, out_dir="results/run")  # doctest: +SKIP
       ... except DivergenceError as error:
@@ -248,6 +251,7 @@ def train(
     Examples:
       >>> import cfm_jax
       >>> config = cfm_jax.Config(robot="iiwa14", loss="joint")
+      >>> # not run: it trains (minutes) and writes results/run
       >>> result = cfm_jax.train(config, out_dir="results/run")  # doctest: +SKIP
       >>> result.metrics.groupby("iteration").tracking_mse.agg(["mean", "std"])  # doctest: +SKIP
       >>> result = cfm_jax.train(config, resume="results/run")  # doctest: +SKIP
@@ -430,6 +434,7 @@ def rollout_qpos(result, *, seed: int = 0, experiment=None) -> np.ndarray:
       ValueError: ``seed`` out of range.
 
     Examples:
+      >>> # not run: it trains (minutes)
       >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
       >>> qpos = rollout_qpos(result)  # doctest: +SKIP
       >>> render.video(robots.load(config.robot), qpos[0], "t0.mp4", fps=100)  # doctest: +SKIP

@@ -80,6 +80,7 @@ class LeggedTask(JointSpaceTask):
       >>> from cfm_jax import config, robots
       >>> solo = robots.load("solo12")
       >>> walk = config.for_task("walk")  # control_dt 0.004
+      >>> # not run: it builds the 5 references: about 6 s of simulation uncached
       >>> task = LeggedTask(solo, walk.task, walk.task.control_dt)  # doctest: +SKIP
       >>> task.targets, task.steps, task.state_dim, task.desired_dim  # doctest: +SKIP
       (5, 750, 49, 30)
@@ -310,6 +311,7 @@ class LeggedTask(JointSpaceTask):
         otherwise trade for the many joints' tracking.
 
         Examples:
+          >>> # not run: it needs a LeggedTask (see the class's example)
           >>> task.loss_weights()[2]  # doctest: +SKIP
           (10.0, (2, 3, 4, 5))
         """
@@ -357,6 +359,7 @@ def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") 
     Examples:
       >>> from cfm_jax import config, robots
       >>> walk = config.for_task("walk")
+      >>> # not run: it builds the 5 references: about 6 s of simulation uncached
       >>> task = make(robots.load("solo12"), walk.task, walk.task.control_dt)  # doctest: +SKIP
       >>> task.targets  # doctest: +SKIP
       5
