@@ -522,7 +522,16 @@ def _attribute_help(cls) -> dict[str, str]:
             found[name] = match[2]
         elif name and line.strip():
             found[name] += " " + line.strip()
-    return {key: _plain(value) for key, value in found.items()}
+    return {key: _without_default(_plain(value)) for key, value in found.items()}
+
+
+def _without_default(text: str) -> str:
+    """A field's help without the docstring's note of the library default ("pd (default;
+    ...)", "None (default): ...", "(...; default warm)"): the flag's hint states the
+    default once, and it is the base config's (a --config file's value where given)."""
+    text = re.sub(r" \(default\)", "", text)
+    text = re.sub(r"\(default[;:,] ", "(", text)
+    return re.sub(r"; default [\w.]+\)", ")", text)
 
 
 def _shown(value) -> str:

@@ -100,6 +100,12 @@ def test_help_has_no_hard_breaks_and_readable_metavars(monkeypatch, capsys):
     for flag in ("--forward.learning-rate", "--loop.babbling", "--task.kd", "--seeds"):
         assert flag in text
     assert text.count("(default: 0.001)") == 2  # both learning rates, each stated once
+    # The docstrings' notes of the library default are left out: the hint says it once.
+    flat = " ".join(line.strip("│ ") for line in text.splitlines())
+    notes = ("(default;", "(default: the param", "(default,", "None (default)", "default warm)")
+    for note in notes:
+        assert note not in flat, note
+    assert "pd (the gains above)" in flat.replace("  ", " ")
     assert "{home,reaching,reference_pd,oracle}" in text
 
 
