@@ -77,7 +77,8 @@ def train(
         iteration by iteration as it was recorded; the controller is evaluated on the
         robot every iteration. --seeds must equal the recorded run's.
       control_dt: control period in seconds (default: the config's or the task's).
-      site: opspace: the end-effector site of the MJCF (default: "ee", else "flange").
+      site: opspace: the end-effector site of the MJCF (default: "ee", else "flange", else
+        "attachment_site").
       babbling: the initial data, loop.babbling (home, reaching, reference_pd, oracle; see
         cfm_jax.babbling); default: the config's (home).
       quiet: no progress bar.
@@ -300,7 +301,8 @@ def sweep(
         it, the task's defaults (cfm_jax.config.for_task).
       simulator: physics back end, native (MuJoCo C) or mjx; default: the config's (native).
       control_dt: control period in seconds (default: the config's or the task's).
-      site: opspace: the end-effector site of the MJCF (default: "ee", else "flange").
+      site: opspace: the end-effector site of the MJCF (default: "ee", else "flange", else
+        "attachment_site").
       backend: local (this process) or ray (each cell a Ray task; pip install 'cfm_jax[ray]').
       address: ray: address of an existing cluster (host:port or auto); default: start a
         local one on this machine.
@@ -469,6 +471,7 @@ _CHOICES = {  # fields whose values are a known set (the config checks them)
     "loop.babbling": "BABBLING",
     "loop.normaliser": "NORMALISERS",
     "simulator": "SIMULATORS",
+    "robot_actuators": "ROBOT_ACTUATORS",
 }
 
 _JSON_FIELDS = ("task.targets", "controller.loss_weights")  # nested tuples: one JSON value
@@ -482,12 +485,19 @@ _SHORT = {  # the short flags of earlier versions, kept as aliases of the nested
     "loop.babbling": "--babbling",
 }
 
+_TOP_FIELDS = ("robot", "seed", "simulator", "robot_actuators", "robot_torque_limit")
+
 _TOP_HELP = {
     "robot": "registered robot name (iiwa14, two_link_arm, solo12) or path to an MJCF file; "
     "the default follows --task (solo12 for walk and jump).",
     "seed": "first seed; run k of loop.seeds uses seed + k.",
     "simulator": "physics back end: native (MuJoCo C, exact, fast on CPU) or mjx (MuJoCo MJX "
     "in JAX, on the device).",
+    "robot_actuators": "strict: torque motors only; torque: each servo on a joint (position, "
+    "velocity, intvelocity, general with a bias or gain) replaced by a torque motor on the "
+    "same joint and gear (docs/how-to/own-robot.md).",
+    "robot_torque_limit": "with --robot-actuators torque: torque limit of servos whose file "
+    "has no forcerange or joint actuatorfrcrange; one number for all joints or one per joint.",
     "config": "JSON file of a full config (a run's config.json, or the output of cfm-jax "
     "config): the base of every config flag; only the flags given override it. Without it, "
     "the task's defaults (cfm_jax.config.for_task) with 4 iterations.",
@@ -598,7 +608,7 @@ def _flags_class(command: str, base: config_lib.Config, extra: list):
     fields and one nested group per config section, defaults from ``base``."""
     fields = list(extra)
     top_types = {f.name: f.type for f in dataclasses.fields(config_lib.Config)}
-    for name in ("robot", "seed", "simulator"):
+    for name in _TOP_FIELDS:
         fields.append((name, *_flag(name, top_types[name], getattr(base, name), _TOP_HELP[name])))
     fields.append(("config", Annotated[str | None, tyro_arg(help=_TOP_HELP["config"],
                    metavar="FILE", help_behavior_hint="")], None))  # fmt: skip
@@ -643,7 +653,7 @@ def _config_of(flags, base: config_lib.Config, loss: str) -> config_lib.Config:
     """``base`` with the config flags that were given (validated by the config)."""
     data = config_lib.to_dict(base)
     top_types = {f.name: f.type for f in dataclasses.fields(config_lib.Config)}
-    for name in ("robot", "seed", "simulator"):
+    for name in _TOP_FIELDS:
         value = _value(name, top_types[name], getattr(flags, name))
         if value != _UNSET:
             data[name] = value
