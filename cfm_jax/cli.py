@@ -655,7 +655,7 @@ def _config_of(flags, base: config_lib.Config, loss: str) -> config_lib.Config:
     top_types = {f.name: f.type for f in dataclasses.fields(config_lib.Config)}
     for name in _TOP_FIELDS:
         value = _value(name, top_types[name], getattr(flags, name))
-        if value != _UNSET:
+        if value not in (_UNSET, (_UNSET,)):
             data[name] = value
     data["loss"] = loss
     for section, cls in _SECTIONS.items():
@@ -752,6 +752,41 @@ def print_config() -> None:
     _config_command([])
 
 
+def robot_check(
+    file: Annotated[str, tyro.conf.Positional, tyro_arg(metavar="NAME|FILE.xml")],
+    robot_actuators: str = "strict",
+    robot_torque_limit: tuple[float, ...] | None = None,
+) -> None:
+    """Load an MJCF file as cfm-jax train would and print what it found: joints and ranges,
+    each actuator's kind and torque limit with its source, floating base, sites, keyframes,
+    and which tasks can run (and why not). Exit status 0 when inverse_dynamics can run.
+
+    Args:
+      file: registered robot name or path to an MJCF file.
+      robot_actuators: strict (torque motors only) or torque (servos replaced by motors).
+      robot_torque_limit: torque limit of servos whose file has none (one or per joint).
+
+    Examples:
+      cfm-jax robot check path/to/ur5e.xml --robot-actuators torque
+    """
+    from cfm_jax import robots
+
+    config_lib.Config(robot_actuators=robot_actuators, robot_torque_limit=robot_torque_limit)
+    found = robots.check(file, robot_actuators, robot_torque_limit)
+    print(found.text)
+    if not found.ok:
+        raise SystemExit(1)
+
+
+def _robot_command(argv: list[str]) -> None:
+    if argv[:1] != ["check"]:
+        tyro.extras.subcommand_cli_from_dict(
+            {"check": robot_check}, prog="cfm-jax robot", args=argv
+        )
+        return
+    tyro.cli(robot_check, args=argv[1:], prog="cfm-jax robot check")
+
+
 def _description(function) -> str:
     """A command's help text: the docstring's first paragraph as one line, then its
     command-line examples as they are (to copy and paste)."""
@@ -780,7 +815,12 @@ def main() -> None:
     from cfm_jax.robots import RobotError
 
     argv = sys.argv[1:]
-    commands = {"train": _train_command, "sweep": _sweep_command, "config": _config_command}
+    commands = {
+        "train": _train_command,
+        "sweep": _sweep_command,
+        "config": _config_command,
+        "robot": _robot_command,
+    }
     try:
         if argv[:1] == ["--version"]:
             print(f"cfm-jax {_version()}")

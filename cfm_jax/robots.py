@@ -606,3 +606,181 @@ def load(
     )
     robot.mjx_model  # noqa: B018 -- build the device copy now, never inside a jit trace
     return robot
+
+
+@dataclasses.dataclass(frozen=True)
+class Check:
+    """What :func:`check` found in an MJCF file.
+
+    Attributes:
+      text: the report, one screen of plain text (what ``cfm-jax robot check`` prints).
+      tasks: ``{task: None or the reason it cannot run}`` for ``inverse_dynamics``,
+        ``opspace``, ``walk`` and ``jump``.
+      robot: the :class:`Robot` as the library loads it with the given options, or None.
+    """
+
+    text: str
+    tasks: dict
+    robot: Robot | None
+
+    @property
+    def ok(self) -> bool:
+        """Whether at least the ``inverse_dynamics`` task can run."""
+        return self.tasks["inverse_dynamics"] is None
+
+
+_LEGGED_CONVERTED = (
+    "the legged tasks simulate their references from the MJCF file itself, so its servos "
+    "must be motors in the file (robot_actuators='torque' converts only the loaded model)"
+)
+
+
+def _limit_text(model, a) -> str:
+    gear = abs(float(model.actuator_gear[a, 0]))
+    limits = []
+    if model.actuator_ctrllimited[a]:
+        limits.append((np.max(np.abs(model.actuator_ctrlrange[a])) * gear, "ctrlrange"))
+    if model.actuator_forcelimited[a]:
+        limits.append((np.max(np.abs(model.actuator_forcerange[a])), "forcerange"))
+    if not limits:
+        return "no torque limit"
+    value, source = min(limits)
+    return f"torque limit {value:g} ({source})"
+
+
+def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Check:
+    """Load a file as the library would and say what it found and which tasks can run.
+
+    Lists the joints with their ranges, each actuator's kind and torque limit with its
+    source, whether the base floats, the sites, the keyframes, and for ``inverse_dynamics``,
+    ``opspace``, ``walk`` and ``jump`` whether the robot can run it and if not why.
+
+    Args:
+      name_or_path: registered name or MJCF path.
+      actuators: ``Config.robot_actuators`` (one of :data:`ACTUATORS`).
+      torque_limit: ``Config.robot_torque_limit``.
+
+    Returns:
+      A :class:`Check` (its ``text`` is the report, ``ok`` whether inverse dynamics can run).
+
+    Raises:
+      RobotError: the file does not exist or does not parse.
+
+    Examples:
+      >>> found = check("two_link_arm")
+      >>> found.ok, found.tasks["opspace"] is None
+      (True, False)
+      >>> print(found.text.splitlines()[2])
+        shoulder: hinge, range [-2.5, 2.5]
+    """
+    from cfm_jax import opspace, solo12
+    from cfm_jax.config import ConfigError
+    from cfm_jax.tasks import inverse_dynamics
+
+    path = resolve(name_or_path)
+    try:
+        raw = _compile(path)
+    except Exception as error:
+        raise RobotError(
+            f"robot={name_or_path!r}: MJCF file {path} does not parse: {error}"
+        ) from error
+    where = f"robot={name_or_path!r} ({path})"
+    lines = [f"robot {name_or_path} ({path})", f"joints ({raw.njnt}):"]
+    for j in range(raw.njnt):
+        kind = mujoco.mjtJoint(int(raw.jnt_type[j])).name[len("mjJNT_") :].lower()
+        limited = bool(raw.jnt_limited[j])
+        rng = f"range [{raw.jnt_range[j, 0]:g}, {raw.jnt_range[j, 1]:g}]" if limited else "no range"
+        lines.append(f"  {_joint_name(raw, j)}: {kind}, {rng}")
+    try:
+        servos = servo_limits(raw, torque_limit, where)
+        servo_error = None
+    except RobotError as error:
+        servos, servo_error = {}, str(error)
+    lines.append(f"actuators ({raw.nu}):")
+    for a in range(raw.nu):
+        aname = mujoco.mj_id2name(raw, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"#{a}"
+        if int(raw.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
+            trn = mujoco.mjtTrn(int(raw.actuator_trntype[a])).name[len("mjTRN_") :].lower()
+            lines.append(f"  {aname}: {trn} transmission (not usable: no joint of its own)")
+            continue
+        joint = _joint_name(raw, int(raw.actuator_trnid[a, 0]))
+        kind = _servo_kind(raw, a)
+        if kind is None:
+            lines.append(f"  {aname}: motor on {joint}, {_limit_text(raw, a)}")
+        elif a in servos:
+            _, limit, source = servos[a]
+            lines.append(
+                f"  {aname}: {kind} servo on {joint}; as a torque motor: torque limit "
+                f"{limit:g} ({source})"
+            )
+        else:
+            lines.append(f"  {aname}: {kind} servo on {joint}; no torque limit found")
+    if servo_error:
+        lines.append(f"  ! {servo_error}")
+    free = raw.njnt > 0 and int(raw.jnt_type[0]) == int(mujoco.mjtJoint.mjJNT_FREE)
+    lines.append(f"floating base: {'yes' if free else 'no'}")
+    sites = [
+        mujoco.mj_id2name(raw, mujoco.mjtObj.mjOBJ_SITE, i) or f"#{i}" for i in range(raw.nsite)
+    ]
+    lines.append(f"sites: {', '.join(sites) if sites else 'none'}")
+    keys = [mujoco.mj_id2name(raw, mujoco.mjtObj.mjOBJ_KEY, i) or f"#{i}" for i in range(raw.nkey)]
+    home = "home" in keys
+    lines.append(
+        f"keyframes: {', '.join(keys) if keys else 'none'} "
+        f"(start pose: {'keyframe home' if home else 'qpos0'})"
+    )
+    tasks: dict = {}
+    robot = None
+    try:
+        robot = load(name_or_path, actuators=actuators, torque_limit=torque_limit)
+        lines.append(f"loads with robot_actuators={actuators!r}: yes")
+    except RobotError as error:
+        reason = str(error).replace(where + ": ", "").replace(where + " ", "")
+        if actuators == "strict" and servos and servo_error is None:
+            reason += " -- with robot_actuators='torque' it loads"
+        lines.append(f"loads with robot_actuators={actuators!r}: no: {reason}")
+        tasks = dict.fromkeys(("inverse_dynamics", "opspace", "walk", "jump"), reason)
+        lines.append("tasks: none (the file does not load, see above)")
+        return Check("\n".join(lines), tasks, None)
+    if robot is not None:
+
+        def attempt(name, test):
+            try:
+                test()
+                tasks[name] = None
+            except ConfigError as error:
+                tasks[name] = str(error)
+
+        attempt(
+            "inverse_dynamics",
+            lambda: inverse_dynamics.require_fixed_base(robot, "inverse_dynamics"),
+        )
+        attempt(
+            "opspace",
+            lambda: (
+                inverse_dynamics.require_fixed_base(robot, "opspace"),
+                opspace.ee_site(robot),
+            ),
+        )
+
+        def legged():
+            if not robot.floating_base:
+                raise ConfigError(
+                    "the legged tasks need a floating base (a free joint at the root)"
+                )
+            solo12.check_model(robot.mj_model, robot.name)
+            if robot.converted:
+                raise ConfigError(_LEGGED_CONVERTED)
+
+        attempt("walk", legged)
+        tasks["jump"] = tasks["walk"]
+        if tasks["opspace"] is None:
+            site = opspace.site_names(robot)[opspace.ee_site(robot)]
+            tasks_site = f" (site {site!r})"
+        else:
+            tasks_site = ""
+    lines.append("tasks:")
+    for name, reason in tasks.items():
+        extra = tasks_site if name == "opspace" and robot is not None else ""
+        lines.append(f"  {name}: " + ("yes" + extra if reason is None else f"no: {reason}"))
+    return Check("\n".join(lines), tasks, robot)

@@ -2,12 +2,15 @@
 torque motor. Oracle: the same arm edited by hand into ``<motor>`` elements, simulated by
 MuJoCo C (and the closed-loop baselines on the native simulator)."""
 
+import json
+import sys
+
 import jax
 import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import config, references, report, rigid_body, robots, rollout, tasks
+from cfm_jax import cli, config, references, report, rigid_body, robots, rollout, tasks
 from cfm_jax.robots import RobotError
 
 # A vertical two-link arm under gravity with damping, armature, friction loss, joint ranges
@@ -221,3 +224,70 @@ def test_config_protocol_and_setup(tmp_path):
     assert "shoulder 30 (position, robot_torque_limit)" in line
     assert "elbow 12 (position, robot_torque_limit)" in line
     assert "robot_actuators" not in report.protocol(config.Config())
+
+
+def robot_check(argv, monkeypatch, capsys):
+    """``cfm-jax robot check ARGV`` in-process: (exit status, printed text)."""
+    monkeypatch.setattr(sys, "argv", ["cfm-jax", "robot", "check", *argv])
+    try:
+        cli.main()
+        status = 0
+    except SystemExit as stop:
+        status = stop.code
+    return status, capsys.readouterr().out
+
+
+def test_robot_check_on_a_servo_arm(tmp_path, monkeypatch, capsys):
+    path = arm(tmp_path, POSITION, frc2='actuatorfrcrange="-8 8"')
+    status, text = robot_check([path], monkeypatch, capsys)
+    assert status == 1
+    assert "a1: position servo on shoulder; as a torque motor: torque limit 40 (forcerange)" in text
+    # The joint's actuatorfrcrange comes after the actuator's forcerange (2 x 10 = 20 N m).
+    assert "a2: position servo on elbow; as a torque motor: torque limit 20 (forcerange)" in text
+    assert "loads with robot_actuators='strict': no" in text
+    assert "with robot_actuators='torque' it loads" in text
+    status, text = robot_check([path, "--robot-actuators", "torque"], monkeypatch, capsys)
+    assert status == 0
+    lines = text.splitlines()
+    assert "  shoulder: hinge, range [-2, 2]" in lines
+    assert "floating base: no" in lines and "sites: attachment_site" in lines
+    assert "  inverse_dynamics: yes" in lines
+    assert "  opspace: yes (site 'attachment_site')" in lines
+    assert lines[-1].startswith("  jump: no: the legged tasks need a floating base")
+    status, text = robot_check([arm(tmp_path, GENERAL), "--robot-actuators", "torque"],
+                               monkeypatch, capsys)  # fmt: skip
+    assert status == 1 and "no torque limit found" in text
+    status, text = robot_check(
+        [arm(tmp_path, GENERAL), "--robot-actuators", "torque", "--robot-torque-limit", "9"],
+        monkeypatch,
+        capsys,
+    )
+    assert status == 0 and "torque limit 9 (robot_torque_limit)" in text
+
+
+@pytest.mark.parametrize(
+    ("name", "status", "expected"),
+    [
+        ("two_link_arm", 0, ["  opspace: no: task.site=None", "  inverse_dynamics: yes"]),
+        ("iiwa14", 0, ["  opspace: yes (site 'flange')", "  joint7: motor on joint7, torque "
+                       "limit 40 (ctrlrange)"]),
+        ("solo12", 1, ["floating base: yes", "  walk: yes", "  jump: yes",
+                       "  inverse_dynamics: no: task.name='inverse_dynamics' is not allowed"]),
+    ],
+)  # fmt: skip
+def test_robot_check_on_the_shipped_robots(name, status, expected, monkeypatch, capsys):
+    got, text = robot_check([name], monkeypatch, capsys)
+    assert got == status
+    for line in expected:
+        assert any(out.startswith(line) for out in text.splitlines()), line
+
+
+def test_cli_flags_reach_the_config(monkeypatch, capsys):
+    monkeypatch.setattr(
+        sys,
+        "argv",
+        ["cfm-jax", "config", "--robot-actuators", "torque", "--robot-torque-limit", "3", "4"],
+    )
+    cli.main()
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["robot_actuators"] == "torque" and printed["robot_torque_limit"] == [3.0, 4.0]
