@@ -343,6 +343,18 @@ def convert(path: str, model, torque_limit=None, where: str = "robot"):
 
     Raises:
       RobotError: as :func:`servo_limits`.
+
+    Examples:
+      >>> import mujoco, os, tempfile
+      >>> xml = ('<mujoco><worldbody><body><joint name="j" axis="0 0 1"/><geom size=".1"/>'
+      ...        '</body></worldbody><actuator><position joint="j" kp="50" forcerange="-9 9"/>'
+      ...        '</actuator></mujoco>')
+      >>> path = os.path.join(tempfile.mkdtemp(), "servo.xml")
+      >>> with open(path, "w") as f:
+      ...     _ = f.write(xml)
+      >>> motor, servos = convert(path, mujoco.MjModel.from_xml_path(path))
+      >>> motor.actuator_biastype.tolist(), motor.actuator_ctrlrange.tolist(), servos
+      ([0], [[-9.0, 9.0]], {0: ('position', 9.0, 'forcerange')})
     """
     servos = servo_limits(model, torque_limit, where)
     if not servos:
@@ -617,6 +629,11 @@ class Check:
       tasks: ``{task: None or the reason it cannot run}`` for ``inverse_dynamics``,
         ``opspace``, ``walk`` and ``jump``.
       robot: the :class:`Robot` as the library loads it with the given options, or None.
+
+    Examples:
+      >>> found = check("iiwa14")
+      >>> found.ok, found.tasks["opspace"], found.robot.action_dim
+      (True, None, 7)
     """
 
     text: str
