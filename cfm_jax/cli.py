@@ -757,9 +757,10 @@ def robot_check(
     robot_actuators: str = "strict",
     robot_torque_limit: tuple[float, ...] | None = None,
 ) -> None:
-    """Load an MJCF file as cfm-jax train would and print what it found: joints and ranges,
-    each actuator's kind and torque limit with its source, floating base, sites, keyframes,
-    and which tasks can run (and why not). Exit status 0 when inverse_dynamics can run.
+    """(cfm-jax robot check FILE) Load an MJCF file as cfm-jax train would and print what it
+    found: joints and ranges, each actuator's kind and torque limit with its source, floating
+    base, sites, keyframes, and which tasks can run (and why not). Exit status 0 when
+    inverse_dynamics can run.
 
     Args:
       file: registered robot name or path to an MJCF file.
@@ -801,8 +802,8 @@ def _description(function) -> str:
 
 
 def main() -> None:
-    """Entry point of the ``cfm-jax`` command: dispatch to ``train``, ``sweep``, ``config``
-    or ``bench`` (tyro); ``cfm-jax --version`` prints the installed version.
+    """Entry point of the ``cfm-jax`` command: dispatch to ``train``, ``sweep``, ``config``,
+    ``robot check`` or ``bench`` (tyro); ``cfm-jax --version`` prints the installed version.
 
     Examples:
       >>> import sys
@@ -828,7 +829,13 @@ def main() -> None:
             commands[argv[0]](argv[1:])
         else:  # the list of commands, and bench
             tyro.extras.subcommand_cli_from_dict(
-                {"train": train, "sweep": sweep, "config": print_config, "bench": bench.bench},
+                {
+                    "train": train,
+                    "sweep": sweep,
+                    "config": print_config,
+                    "bench": bench.bench,
+                    "robot": robot_check,
+                },
                 prog="cfm-jax",
                 description=f"cfm-jax {_version()}: coupled forward and inverse models "
                 "(Bechtle et al., ICRA 2021). cfm-jax COMMAND --help lists a command's flags.",
