@@ -222,7 +222,11 @@ class Setup:
           >>> setup.task.targets, setup.task.steps, setup.transitions_per_rollout
           (5, 30, 150)
         """
-        robot = robots.load(config.robot)
+        robot = robots.load(
+            config.robot,
+            actuators=config.robot_actuators,
+            torque_limit=config.robot_torque_limit,
+        )
         task_config = config.task
         control_dt = (
             task_config.control_dt if task_config.control_dt is not None else robot.timestep

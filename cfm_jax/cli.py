@@ -77,7 +77,8 @@ def train(
         iteration by iteration as it was recorded; the controller is evaluated on the
         robot every iteration. --seeds must equal the recorded run's.
       control_dt: control period in seconds (default: the config's or the task's).
-      site: opspace: the end-effector site of the MJCF (default: "ee", else "flange").
+      site: opspace: the end-effector site of the MJCF (default: "ee", else "flange", else
+        "attachment_site").
       babbling: the initial data, loop.babbling (home, reaching, reference_pd, oracle; see
         cfm_jax.babbling); default: the config's (home).
       quiet: no progress bar.
@@ -301,7 +302,8 @@ def sweep(
         it, the task's defaults (cfm_jax.config.for_task).
       simulator: physics back end, native (MuJoCo C) or mjx; default: the config's (native).
       control_dt: control period in seconds (default: the config's or the task's).
-      site: opspace: the end-effector site of the MJCF (default: "ee", else "flange").
+      site: opspace: the end-effector site of the MJCF (default: "ee", else "flange", else
+        "attachment_site").
       backend: local (this process) or ray (each cell a Ray task; pip install 'cfm_jax[ray]').
       address: ray: address of an existing cluster (host:port or auto); default: start a
         local one on this machine.
@@ -471,6 +473,7 @@ _CHOICES = {  # fields whose values are a known set (the config checks them)
     "loop.babbling": "BABBLING",
     "loop.normaliser": "NORMALISERS",
     "simulator": "SIMULATORS",
+    "robot_actuators": "ROBOT_ACTUATORS",
 }
 
 _JSON_FIELDS = ("task.targets", "controller.loss_weights")  # nested tuples: one JSON value
@@ -484,12 +487,19 @@ _SHORT = {  # the short flags of earlier versions, kept as aliases of the nested
     "loop.babbling": "--babbling",
 }
 
+_TOP_FIELDS = ("robot", "seed", "simulator", "robot_actuators", "robot_torque_limit")
+
 _TOP_HELP = {
     "robot": "registered robot name (iiwa14, two_link_arm, solo12) or path to an MJCF file; "
     "the default follows --task (solo12 for walk and jump).",
     "seed": "first seed; run k of loop.seeds uses seed + k.",
     "simulator": "physics back end: native (MuJoCo C, exact, fast on CPU) or mjx (MuJoCo MJX "
     "in JAX, on the device).",
+    "robot_actuators": "strict: torque motors only; torque: each servo on a joint (position, "
+    "velocity, intvelocity, general with a bias or gain) replaced by a torque motor on the "
+    "same joint and gear (docs/how-to/own-robot.md).",
+    "robot_torque_limit": "with --robot-actuators torque: torque limit of servos whose file "
+    "has no forcerange or joint actuatorfrcrange; one number for all joints or one per joint.",
     "config": "JSON file of a full config (a run's config.json, or the output of cfm-jax "
     "config): the base of every config flag; only the flags given override it. Without it, "
     "the task's defaults (cfm_jax.config.for_task) with 4 iterations.",
@@ -609,7 +619,7 @@ def _flags_class(command: str, base: config_lib.Config, extra: list):
     fields and one nested group per config section, defaults from ``base``."""
     fields = list(extra)
     top_types = {f.name: f.type for f in dataclasses.fields(config_lib.Config)}
-    for name in ("robot", "seed", "simulator"):
+    for name in _TOP_FIELDS:
         fields.append((name, *_flag(name, top_types[name], getattr(base, name), _TOP_HELP[name])))
     fields.append(("config", Annotated[str | None, tyro_arg(help=_TOP_HELP["config"],
                    metavar="FILE", help_behavior_hint="")], None))  # fmt: skip
@@ -654,9 +664,9 @@ def _config_of(flags, base: config_lib.Config, loss: str) -> config_lib.Config:
     """``base`` with the config flags that were given (validated by the config)."""
     data = config_lib.to_dict(base)
     top_types = {f.name: f.type for f in dataclasses.fields(config_lib.Config)}
-    for name in ("robot", "seed", "simulator"):
+    for name in _TOP_FIELDS:
         value = _value(name, top_types[name], getattr(flags, name))
-        if value != _UNSET:
+        if value not in (_UNSET, (_UNSET,)):
             data[name] = value
     data["loss"] = loss
     for section, cls in _SECTIONS.items():
@@ -753,6 +763,42 @@ def print_config() -> None:
     _config_command([])
 
 
+def robot_check(
+    file: Annotated[str, tyro.conf.Positional, tyro_arg(metavar="NAME|FILE.xml")],
+    robot_actuators: str = "strict",
+    robot_torque_limit: tuple[float, ...] | None = None,
+) -> None:
+    """(cfm-jax robot check FILE) Load an MJCF file as cfm-jax train would and print what it
+    found: joints and ranges, each actuator's kind and torque limit with its source, floating
+    base, sites, keyframes, and which tasks can run (and why not). Exit status 0 when
+    inverse_dynamics can run.
+
+    Args:
+      file: registered robot name or path to an MJCF file.
+      robot_actuators: strict (torque motors only) or torque (servos replaced by motors).
+      robot_torque_limit: torque limit of servos whose file has none (one or per joint).
+
+    Examples:
+      cfm-jax robot check path/to/ur5e.xml --robot-actuators torque
+    """
+    from cfm_jax import robots
+
+    config_lib.Config(robot_actuators=robot_actuators, robot_torque_limit=robot_torque_limit)
+    found = robots.check(file, robot_actuators, robot_torque_limit)
+    print(found.text)
+    if not found.ok:
+        raise SystemExit(1)
+
+
+def _robot_command(argv: list[str]) -> None:
+    if argv[:1] != ["check"]:
+        tyro.extras.subcommand_cli_from_dict(
+            {"check": robot_check}, prog="cfm-jax robot", args=argv
+        )
+        return
+    tyro.cli(robot_check, args=argv[1:], prog="cfm-jax robot check")
+
+
 def _description(function) -> str:
     """A command's help text: the docstring's first paragraph as one line, then its
     command-line examples as they are (to copy and paste)."""
@@ -767,8 +813,8 @@ def _description(function) -> str:
 
 
 def main() -> None:
-    """Entry point of the ``cfm-jax`` command: dispatch to ``train``, ``sweep``, ``config``
-    or ``bench`` (tyro); ``cfm-jax --version`` prints the installed version.
+    """Entry point of the ``cfm-jax`` command: dispatch to ``train``, ``sweep``, ``config``,
+    ``robot check`` or ``bench`` (tyro); ``cfm-jax --version`` prints the installed version.
 
     Examples:
       >>> import sys
@@ -782,7 +828,12 @@ def main() -> None:
     from cfm_jax.robots import RobotError
 
     argv = sys.argv[1:]
-    commands = {"train": _train_command, "sweep": _sweep_command, "config": _config_command}
+    commands = {
+        "train": _train_command,
+        "sweep": _sweep_command,
+        "config": _config_command,
+        "robot": _robot_command,
+    }
     try:
         if argv[:1] == ["--version"]:
             print(f"cfm-jax {_version()}")
@@ -790,7 +841,13 @@ def main() -> None:
             commands[argv[0]](argv[1:])
         else:  # the list of commands, and bench
             tyro.extras.subcommand_cli_from_dict(
-                {"train": train, "sweep": sweep, "config": print_config, "bench": bench.bench},
+                {
+                    "train": train,
+                    "sweep": sweep,
+                    "config": print_config,
+                    "bench": bench.bench,
+                    "robot": robot_check,
+                },
                 prog="cfm-jax",
                 description=f"cfm-jax {_version()}: coupled forward and inverse models "
                 "(Bechtle et al., ICRA 2021). cfm-jax COMMAND --help lists a command's flags.",

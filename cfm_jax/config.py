@@ -120,6 +120,11 @@ once and frozen; today's default), ``data`` (statistics of the whole data set, r
 before every refit of both models) and ``robot`` (fixed physical scales from the MJCF and
 the task, :mod:`cfm_jax.tasks.scales`)."""
 
+ROBOT_ACTUATORS = ("strict", "torque")
+"""How the robot's actuators are taken (``Config.robot_actuators``): ``strict`` (the
+default; torque motors only) or ``torque`` (each servo on a joint replaced by a torque motor
+at load time, :func:`cfm_jax.robots.convert`)."""
+
 DESIRED = ("pd", "next_velocity")
 """How the legged tasks build ``s*`` (``Config.task.desired``): ``pd`` (the PD correction
 with the gains ``task.kp``, ``task.kd``, ``task.joint_kp``, ``task.joint_kd``) or
@@ -291,7 +296,7 @@ class TaskConfig:
         ``kp`` for their joints and reject a value here.
       joint_kd: legged tasks: derivative gain (1/s) on the actuated joints; None: ``kd``.
       site: ``opspace``: the end-effector site of the MJCF; None: the site ``ee``, else
-        ``flange``.
+        ``flange``, else ``attachment_site`` (MuJoCo Menagerie's name).
       motions: legged tasks: the references to follow, walk durations (s) for ``walk`` or
         foot clearances (m) for ``jump``, one reference each
         (:func:`cfm_jax.locomotion.walk_reference`, :func:`~cfm_jax.locomotion.jump_reference`);
@@ -333,7 +338,8 @@ class TaskConfig:
     # acceleration, kp/kd then act on the base pose; None: kp and kd. Arm tasks: must be None.
     joint_kp: float | None = None
     joint_kd: float | None = None
-    # opspace: name of the end-effector site of the MJCF; None: the site "ee", else "flange".
+    # opspace: name of the end-effector site of the MJCF; None: the site "ee", else "flange",
+    # else "attachment_site".
     site: str | None = None
     # Legged tasks: walk durations (s) or jump foot clearances (m) of the references to
     # follow; None: the 5 test references. Arm tasks: must be None (they take targets).
@@ -707,6 +713,14 @@ class Config:
       forward: a :class:`ForwardModelConfig`.
       controller: a :class:`ControllerConfig`.
       loop: a :class:`LoopConfig`.
+      robot_actuators: how the robot's actuators are taken, one of :data:`ROBOT_ACTUATORS`:
+        ``strict`` (default; torque motors only, a servo is an error) or ``torque`` (each
+        servo on a joint, as MuJoCo Menagerie's arms have, replaced by a torque motor on the
+        same joint and gear at load time: :func:`cfm_jax.robots.convert`).
+      robot_torque_limit: with ``robot_actuators="torque"``, the torque limit (N m or N) of
+        servos whose file gives none (no ``forcerange``, no joint ``actuatorfrcrange``):
+        None (default; such a servo is an error), one number for all joints, or one per
+        hinge/slide joint in model order.
 
     Examples:
       >>> config = Config(robot="two_link_arm", loss="task", loop=LoopConfig(seeds=3))
@@ -733,8 +747,38 @@ class Config:
     forward: ForwardModelConfig = dataclasses.field(default_factory=ForwardModelConfig)
     controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
     loop: LoopConfig = dataclasses.field(default_factory=LoopConfig)
+    # How the robot's actuators are taken; one of ROBOT_ACTUATORS. "strict": torque motors
+    # only; "torque": each joint servo replaced by a torque motor (cfm_jax.robots.convert).
+    robot_actuators: str = "strict"
+    # Torque limits of converted servos whose file has none: None, one number for all
+    # joints, or one per hinge/slide joint (model order).
+    robot_torque_limit: tuple[float, ...] | None = None
 
     def __post_init__(self):
+        if self.robot_actuators not in ROBOT_ACTUATORS:
+            _fail("robot_actuators", self.robot_actuators, f"one of {ROBOT_ACTUATORS}")
+        limit = self.robot_torque_limit
+        if isinstance(limit, int | float) and not isinstance(limit, bool):
+            limit = (float(limit),)
+        if isinstance(limit, list):
+            limit = tuple(limit)
+        if limit is not None and (
+            not isinstance(limit, tuple)
+            or not limit
+            or any(
+                isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v)
+                or v <= 0
+                for v in limit
+            )
+        ):  # fmt: skip
+            _fail(
+                "robot_torque_limit",
+                self.robot_torque_limit,
+                "None, a finite number > 0 (all joints) or a tuple of them (one per joint)",
+            )
+        if limit is not None:
+            limit = tuple(float(v) for v in limit)
+        object.__setattr__(self, "robot_torque_limit", limit)
         if not isinstance(self.robot, str) or not self.robot:
             _fail("robot", self.robot, "a registered robot name or a path to an MJCF file")
         if not (os.path.sep in self.robot or self.robot.endswith(".xml")):

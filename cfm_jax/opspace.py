@@ -42,7 +42,7 @@ import numpy as np
 from cfm_jax._mjx import mjx
 from cfm_jax.config import ConfigError, check_simulator
 
-DEFAULT_SITES = ("ee", "flange")
+DEFAULT_SITES = ("ee", "flange", "attachment_site")
 """Site names tried in order when no site is configured."""
 
 
@@ -71,7 +71,8 @@ def site_names(robot) -> tuple[str, ...]:
 
 def ee_site(robot, name: str | None = None) -> int:
     """Id of the end-effector site: ``name`` if given, else the first of :data:`DEFAULT_SITES`
-    (``"ee"``, then ``"flange"``) that the model has.
+    (``"ee"``, then ``"flange"``, then ``"attachment_site"``, MuJoCo Menagerie's name) that
+    the model has.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.

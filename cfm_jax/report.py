@@ -42,7 +42,9 @@ def protocol(config) -> str:
     networks' inputs are scaled, for every summary table: ``loop.babbling``
     (:mod:`cfm_jax.babbling`), its rollouts and noise, the ``s*`` gains (or
     ``task.desired='next_velocity'``), ``loop.normaliser`` and ``forward.kind`` (with
-    ``forward.nominal`` and ``forward.nominal_mass_scale`` where they are not the default).
+    ``forward.nominal`` and ``forward.nominal_mass_scale`` where they are not the default),
+    and with ``robot_actuators='torque'`` the servos converted and each torque limit's
+    source (:func:`cfm_jax.robots.conversion_note`).
 
     Args:
       config: a :class:`cfm_jax.config.Config`.
@@ -84,6 +86,10 @@ def protocol(config) -> str:
         nominal.append(f"`forward.nominal_mass_scale={forward.nominal_mass_scale:g}`")
     if nominal:
         model += f" ({', '.join(nominal)})"
+    if getattr(config, "robot_actuators", "strict") != "strict":
+        from cfm_jax import robots
+
+        model += "; " + robots.conversion_note(config.robot, config.robot_torque_limit)
     return (
         f"initial data: `loop.babbling={loop.babbling!r}` ({loop.babbling_rollouts} rollout"
         f"{'s' if loop.babbling_rollouts != 1 else ''} "

@@ -131,10 +131,11 @@ def nominal_model(robot, nominal: str | None = None, mass_scale: float = 1.0) ->
       2.0
     """
     if nominal is None:
-        model = mujoco.MjModel.from_xml_path(robot.path)
+        model = robots.fresh_model(robot)
     else:
         try:
-            other = robots.load(nominal)
+            limits = tuple(robot.torque_limit.tolist())
+            other = robots.load(nominal, actuators=robot.actuators, torque_limit=limits)
         except robots.RobotError as error:
             raise ConfigError(
                 f"forward.nominal={nominal!r} is not allowed: an MJCF file or robot name "
@@ -152,7 +153,7 @@ def nominal_model(robot, nominal: str | None = None, mass_scale: float = 1.0) ->
                 f"{robot.actuated_dofs.tolist()}); it has nq={other.nq}, nv={other.nv}, "
                 f"actuated dofs {other.actuated_dofs.tolist()}"
             )
-        model = mujoco.MjModel.from_xml_path(other.path)
+        model = robots.fresh_model(other)
     model.body_mass[:] = model.body_mass * mass_scale
     model.body_inertia[:] = model.body_inertia * mass_scale
     return model

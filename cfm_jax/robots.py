@@ -27,7 +27,20 @@ from functools import cached_property
 import mujoco
 import numpy as np
 
+from cfm_jax.config import ROBOT_ACTUATORS
+
 _ROBOT_PACKAGE = "cfm_jax._robot_files"
+
+ACTUATORS = ROBOT_ACTUATORS
+"""How :func:`load` takes a file's actuators (``Config.robot_actuators``): ``strict`` (the
+default) accepts torque motors only; ``torque`` replaces each servo on a joint (``position``,
+``velocity``, ``intvelocity``, ``general`` with a bias or a gain other than one) by a torque
+motor on the same joint and gear (see :func:`convert`)."""
+
+_OPTION = (
+    "robot_actuators='torque' (CLI: --robot-actuators torque) replaces each joint servo by a "
+    "torque motor on its joint"
+)
 
 
 class RobotError(ValueError):
@@ -125,6 +138,12 @@ class Robot:
       home: ``(nq,)`` the keyframe ``home`` if present, else ``qpos0``.
       actuated_dofs: ``(action_dim,)`` dof (``qvel``) index of each actuated joint.
       floating_base: whether the root is a free joint (its 6 dofs are not actuated).
+      actuators: how the file's actuators were taken, one of :data:`ACTUATORS`.
+      limit_source: ``(action_dim,)`` where each torque limit comes from: ``ctrlrange``
+        or ``forcerange`` of a motor, or for a converted servo ``forcerange``,
+        ``actuatorfrcrange`` (of the joint) or ``robot_torque_limit`` (given by the user).
+      converted: ``(name, kind)`` of each servo replaced by a torque motor
+        (``actuators="torque"``), in actuator order; empty for a file of motors.
 
     Examples:
       >>> arm = load("two_link_arm")
@@ -145,6 +164,9 @@ class Robot:
     home: np.ndarray
     actuated_dofs: np.ndarray
     floating_base: bool = False
+    actuators: str = "strict"
+    limit_source: tuple[str, ...] = ()
+    converted: tuple[tuple[str, str], ...] = ()
 
     @property
     def nq(self) -> int:
@@ -192,17 +214,270 @@ class Robot:
         return np.diag(full).copy()
 
 
-def load(name_or_path: str, timestep: float | None = None) -> Robot:
+def _servo_kind(model, a) -> str | None:
+    """None for a torque motor; else what actuator ``a`` is: ``position``, ``velocity``,
+    ``intvelocity`` or ``general`` (a servo :func:`convert` replaces) or ``other`` (a
+    muscle or user actuator, which it does not)."""
+    dyn = int(model.actuator_dyntype[a])
+    gain = int(model.actuator_gaintype[a])
+    bias = int(model.actuator_biastype[a])
+    if (
+        dyn == int(mujoco.mjtDyn.mjDYN_NONE)
+        and gain == int(mujoco.mjtGain.mjGAIN_FIXED)
+        and bias == int(mujoco.mjtBias.mjBIAS_NONE)
+        and model.actuator_gainprm[a, 0] == 1.0
+    ):
+        return None
+    fixed_or_affine = (int(mujoco.mjtGain.mjGAIN_FIXED), int(mujoco.mjtGain.mjGAIN_AFFINE))
+    if gain not in fixed_or_affine or bias not in (
+        int(mujoco.mjtBias.mjBIAS_NONE),
+        int(mujoco.mjtBias.mjBIAS_AFFINE),
+    ):
+        return "other"
+    if dyn == int(mujoco.mjtDyn.mjDYN_INTEGRATOR):
+        return "intvelocity"
+    affine = bias == int(mujoco.mjtBias.mjBIAS_AFFINE)
+    gainprm, biasprm = model.actuator_gainprm[a], model.actuator_biasprm[a]
+    if affine and biasprm[1] == -gainprm[0] and biasprm[0] == 0 and gainprm[0] != 0:
+        return "position"
+    if affine and biasprm[2] == -gainprm[0] and biasprm[:2].tolist() == [0, 0]:
+        return "velocity"
+    return "general"
+
+
+def _joint_name(model, j) -> str:
+    return mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}"
+
+
+def servo_limits(model, torque_limit=None, where: str = "robot"):
+    """Torque limit of each servo on a joint, and where it comes from: the actuator's
+    ``forcerange`` (times ``|gear|``), else the joint's ``actuatorfrcrange``, else
+    ``torque_limit`` (the user's).
+
+    Args:
+      model: a ``mujoco.MjModel`` as the file gives it.
+      torque_limit: None, or a tuple of limits (N m or N): one for every servo, or one per
+        hinge/slide joint in model order (``Robot.joint_names`` without a free joint).
+      where: the robot, for the messages.
+
+    Returns:
+      ``{actuator index: (kind, limit, source)}`` for each servo with a joint transmission.
+
+    Raises:
+      RobotError: a servo without a limit from any of the three (the message names the
+        joints and the three ways to give one), a muscle or user actuator on a joint, or a
+        ``torque_limit`` of the wrong length.
+
+    Examples:
+      >>> import mujoco
+      >>> model = mujoco.MjModel.from_xml_string(
+      ...     '<mujoco><worldbody><body><joint name="j" axis="0 0 1"/><geom size=".1"/>'
+      ...     '</body></worldbody><actuator><position joint="j" kp="50" forcerange="-9 9"/>'
+      ...     '</actuator></mujoco>')
+      >>> servo_limits(model)
+      {0: ('position', 9.0, 'forcerange')}
+    """
+    hinge_slide = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    joints = [j for j in range(model.njnt) if int(model.jnt_type[j]) in hinge_slide]
+    position = {j: k for k, j in enumerate(joints)}
+    if torque_limit is not None and len(torque_limit) not in (1, len(joints)):
+        raise RobotError(
+            f"{where}: robot_torque_limit={tuple(torque_limit)!r} has {len(torque_limit)} "
+            f"values; give one for all joints or one per joint ({len(joints)}: "
+            f"{[_joint_name(model, j) for j in joints]})"
+        )
+    found, missing = {}, []
+    for a in range(model.nu):
+        if int(model.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
+            continue  # reported by load()
+        kind = _servo_kind(model, a)
+        if kind is None:
+            continue
+        j = int(model.actuator_trnid[a, 0])
+        if kind == "other":
+            aname = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"#{a}"
+            raise RobotError(
+                f"{where}: actuator {aname!r} on joint {_joint_name(model, j)!r} is a muscle or "
+                "user actuator (gain or bias type other than fixed/affine); only motors and "
+                "servos can be taken as torque motors"
+            )
+        if model.actuator_forcelimited[a]:
+            limit = float(np.max(np.abs(model.actuator_forcerange[a])))
+            found[a] = (kind, limit * abs(float(model.actuator_gear[a, 0])), "forcerange")
+        elif model.jnt_actfrclimited[j]:
+            found[a] = (kind, float(np.max(np.abs(model.jnt_actfrcrange[j]))), "actuatorfrcrange")
+        elif torque_limit is not None and j in position:
+            value = torque_limit[0] if len(torque_limit) == 1 else torque_limit[position[j]]
+            found[a] = (kind, float(value), "robot_torque_limit")
+        else:
+            missing.append(_joint_name(model, j))
+    if missing:
+        raise RobotError(
+            f"{where}: the servos of joints {missing} have no torque limit; give one as the "
+            "actuator's forcerange (with forcelimited or autolimits), the joint's "
+            "actuatorfrcrange, or robot_torque_limit (CLI: --robot-torque-limit, one number "
+            "for all joints or one per joint)"
+        )
+    return found
+
+
+def convert(path: str, model, torque_limit=None, where: str = "robot"):
+    """The model of ``path`` with each servo on a joint replaced by a torque motor.
+
+    Each servo (:func:`servo_limits`) becomes a motor on the same joint and gear: unit fixed
+    gain, no bias, no activation dynamics, ``ctrlrange = +-limit / |gear|`` (its
+    ``forcerange`` kept). The joints (damping, armature, friction loss, ranges,
+    ``actuatorfrcrange``), contacts, options and integrator are not changed; the keyframes'
+    ``ctrl`` of the servos (their set points, not torques) become 0 and their ``act`` is
+    dropped.
+
+    Args:
+      path: the MJCF file (edited through ``mujoco.MjSpec``; the file is not written).
+      model: its ``mujoco.MjModel`` as compiled from the file.
+      torque_limit: the user's limits (see :func:`servo_limits`), or None.
+      where: the robot, for the messages.
+
+    Returns:
+      ``(model, servos)``: the converted ``mujoco.MjModel`` (``model`` itself when there is
+      no servo) and :func:`servo_limits`'s dict.
+
+    Raises:
+      RobotError: as :func:`servo_limits`.
+
+    Examples:
+      >>> import mujoco, os, tempfile
+      >>> xml = ('<mujoco><worldbody><body><joint name="j" axis="0 0 1"/><geom size=".1"/>'
+      ...        '</body></worldbody><actuator><position joint="j" kp="50" forcerange="-9 9"/>'
+      ...        '</actuator></mujoco>')
+      >>> path = os.path.join(tempfile.mkdtemp(), "servo.xml")
+      >>> with open(path, "w") as f:
+      ...     _ = f.write(xml)
+      >>> motor, servos = convert(path, mujoco.MjModel.from_xml_path(path))
+      >>> motor.actuator_biastype.tolist(), motor.actuator_ctrlrange.tolist(), servos
+      ([0], [[-9.0, 9.0]], {0: ('position', 9.0, 'forcerange')})
+    """
+    servos = servo_limits(model, torque_limit, where)
+    if not servos:
+        return model, servos
+    spec = mujoco.MjSpec.from_file(path)
+    for a, (_, limit, _) in servos.items():
+        act = spec.actuators[a]
+        gear = abs(float(model.actuator_gear[a, 0]))
+        act.dyntype = mujoco.mjtDyn.mjDYN_NONE
+        act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+        act.biastype = mujoco.mjtBias.mjBIAS_NONE
+        act.dynprm = [1.0] + [0.0] * 9
+        act.gainprm = [1.0] + [0.0] * 9
+        act.biasprm = [0.0] * 10
+        act.actlimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        act.actdim = -1
+        act.actearly = False
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        act.ctrlrange = [-limit / gear, limit / gear]
+    for key in spec.keys:
+        if len(key.ctrl) == model.nu:
+            ctrl = np.array(key.ctrl, dtype=float)
+            ctrl[list(servos)] = 0.0
+            key.ctrl = ctrl.tolist()
+        else:  # written for actuators the file no longer has (dropped by _compile)
+            key.ctrl = []
+        key.act = []
+    try:
+        return spec.compile(), servos
+    except Exception as error:  # mujoco raises ValueError with the compiler's message
+        raise RobotError(f"{where}: the converted model does not compile: {error}") from error
+
+
+def _compile(path: str):
+    """``mujoco.MjModel`` of the file; a keyframe whose ``ctrl`` or ``act`` does not fit the
+    actuators (written for servos since removed) has them dropped instead of failing."""
+    try:
+        return mujoco.MjModel.from_xml_path(path)
+    except ValueError as error:
+        if "invalid ctrl size" not in str(error) and "invalid act size" not in str(error):
+            raise
+        spec = mujoco.MjSpec.from_file(path)
+        for key in spec.keys:
+            key.ctrl = []
+            key.act = []
+        return spec.compile()
+
+
+def conversion_note(name_or_path: str, torque_limit=None) -> str:
+    """One line on what ``robot_actuators='torque'`` does to a file: the servos replaced by
+    torque motors, each joint's limit and its source (for the summary's protocol line).
+
+    Args:
+      name_or_path: registered name or MJCF path.
+      torque_limit: ``Config.robot_torque_limit``.
+
+    Returns:
+      Markdown text.
+
+    Raises:
+      RobotError: as :func:`servo_limits`.
+
+    Examples:
+      >>> conversion_note("two_link_arm")
+      "`robot_actuators='torque'`: no servos (all torque motors)"
+    """
+    path = resolve(name_or_path)
+    model = _compile(path)
+    servos = servo_limits(model, torque_limit, f"robot={name_or_path!r} ({path})")
+    if not servos:
+        return "`robot_actuators='torque'`: no servos (all torque motors)"
+    parts = [
+        f"{_joint_name(model, int(model.actuator_trnid[a, 0]))} {limit:g} ({kind}, {source})"
+        for a, (kind, limit, source) in servos.items()
+    ]
+    return (
+        f"`robot_actuators='torque'`: {len(servos)} servo{'s' if len(servos) != 1 else ''} "
+        f"as torque motors, limits {', '.join(parts)}"
+    )
+
+
+def fresh_model(robot: Robot) -> mujoco.MjModel:
+    """A new ``mujoco.MjModel`` of ``robot`` as :func:`load` built it from its file (servos
+    converted as they were, the file's timestep), for code that edits a model of its own.
+
+    Args:
+      robot: a :class:`Robot`.
+
+    Returns:
+      The model (``robot.mj_model`` is not touched).
+
+    Examples:
+      >>> arm = load("two_link_arm")
+      >>> fresh_model(arm).nu == arm.mj_model.nu
+      True
+    """
+    model = _compile(robot.path)
+    if robot.actuators == "torque":
+        model, _ = convert(robot.path, model, tuple(robot.torque_limit.tolist()), robot.name)
+    return model
+
+
+def load(
+    name_or_path: str,
+    timestep: float | None = None,
+    actuators: str = "strict",
+    torque_limit=None,
+) -> Robot:
     """Load and check a robot.
 
     Args:
       name_or_path: registered name (see :func:`registered`) or path to an MJCF file.
       timestep: override of the MJCF physics timestep in seconds (None: keep it).
+      actuators: one of :data:`ACTUATORS`: ``strict`` (torque motors only) or ``torque``
+        (each servo on a joint replaced by a torque motor, :func:`convert`).
+      torque_limit: with ``actuators="torque"``, limits for servos whose file gives none
+        (``Config.robot_torque_limit``): one number for all or one per hinge/slide joint.
 
     Raises:
       RobotError: the file does not exist, does not parse, has ball joints or a free joint
-        other than a single floating base, no actuators, non-torque actuators, or hinge /
-        slide joints without exactly one motor.
+        other than a single floating base, no actuators, non-torque actuators (with
+        ``strict``), servos without a torque limit (with ``torque``), actuators that do not
+        drive a joint, or hinge / slide joints without exactly one motor.
 
     Returns:
       The :class:`Robot` (its MJX model already built).
@@ -212,15 +487,20 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
       >>> solo.floating_base, solo.nq, solo.nv, solo.action_dim
       (True, 19, 18, 12)
     """
+    if actuators not in ACTUATORS:
+        raise RobotError(f"actuators={actuators!r} is not allowed: one of {ACTUATORS}")
     path = resolve(name_or_path)
     try:
-        model = mujoco.MjModel.from_xml_path(path)
+        model = _compile(path)
     except Exception as error:  # mujoco raises ValueError with the parser's message
         raise RobotError(
             f"robot={name_or_path!r}: MJCF file {path} does not parse: {error}"
         ) from error
     name = os.path.splitext(os.path.basename(path))[0]
     where = f"robot={name_or_path!r} ({path})"
+    servos = {}
+    if actuators == "torque":
+        model, servos = convert(path, model, torque_limit, where)
     floating_base = False
     unactuated = set()
     for j in range(model.njnt):
@@ -246,8 +526,16 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
     actuator_of_joint = -np.ones(model.nv, dtype=np.int32)
     gear = np.ones(model.nv)
     torque_limit = np.full(model.nv, np.inf)
+    limit_source = [""] * model.nv
     for a in range(model.nu):
         aname = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"#{a}"
+        if int(model.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
+            trn = mujoco.mjtTrn(int(model.actuator_trntype[a])).name[len("mjTRN_") :].lower()
+            raise RobotError(
+                f"{where}: actuator {aname!r} has a {trn} transmission; every actuator must "
+                "drive one hinge or slide joint directly (joint transmission), because the "
+                "controller outputs one torque per joint"
+            )
         is_motor = (
             int(model.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT)
             and int(model.actuator_dyntype[a]) == int(mujoco.mjtDyn.mjDYN_NONE)
@@ -260,13 +548,16 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
                 f"{where}: actuator {aname!r} is not a torque motor (need <motor joint=...>: "
                 "joint transmission, no activation dynamics, unit fixed gain, no bias); "
                 "position/velocity servos are not allowed because the controller outputs "
-                "torques"
+                f"torques; {_OPTION} (see docs/how-to/own-robot.md)"
             )
         dof = model.jnt_dofadr[model.actuator_trnid[a, 0]]
         if actuator_of_joint[dof] >= 0:
             raise RobotError(f"{where}: joint dof {dof} is driven by more than one actuator")
         actuator_of_joint[dof] = a
         gear[dof] = model.actuator_gear[a, 0]
+        if a in servos:
+            torque_limit[dof], limit_source[dof] = servos[a][1:]
+            continue
         limits = []
         if model.actuator_ctrllimited[a]:
             limits.append(np.max(np.abs(model.actuator_ctrlrange[a])) * abs(gear[dof]))
@@ -274,6 +565,7 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
             limits.append(np.max(np.abs(model.actuator_forcerange[a])))
         if limits:
             torque_limit[dof] = min(limits)
+            limit_source[dof] = ("ctrlrange", "forcerange")[int(np.argmin(limits))]
     actuated = np.array([d for d in range(model.nv) if d not in unactuated], dtype=np.int32)
     if np.any(actuator_of_joint[sorted(unactuated)] >= 0):
         raise RobotError(f"{where}: the floating base (free joint) cannot be actuated")
@@ -317,6 +609,195 @@ def load(name_or_path: str, timestep: float | None = None) -> Robot:
         home=home,
         actuated_dofs=actuated,
         floating_base=floating_base,
+        actuators=actuators,
+        limit_source=tuple(limit_source[d] for d in actuated),
+        converted=tuple(
+            (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"#{a}", kind)
+            for a, (kind, _, _) in servos.items()
+        ),
     )
     robot.mjx_model  # noqa: B018 -- build the device copy now, never inside a jit trace
     return robot
+
+
+@dataclasses.dataclass(frozen=True)
+class Check:
+    """What :func:`check` found in an MJCF file.
+
+    Attributes:
+      text: the report, one screen of plain text (what ``cfm-jax robot check`` prints).
+      tasks: ``{task: None or the reason it cannot run}`` for ``inverse_dynamics``,
+        ``opspace``, ``walk`` and ``jump``.
+      robot: the :class:`Robot` as the library loads it with the given options, or None.
+
+    Examples:
+      >>> found = check("iiwa14")
+      >>> found.ok, found.tasks["opspace"], found.robot.action_dim
+      (True, None, 7)
+    """
+
+    text: str
+    tasks: dict
+    robot: Robot | None
+
+    @property
+    def ok(self) -> bool:
+        """Whether at least the ``inverse_dynamics`` task can run."""
+        return self.tasks["inverse_dynamics"] is None
+
+
+_LEGGED_CONVERTED = (
+    "the legged tasks simulate their references from the MJCF file itself, so its servos "
+    "must be motors in the file (robot_actuators='torque' converts only the loaded model)"
+)
+
+
+def _limit_text(model, a) -> str:
+    gear = abs(float(model.actuator_gear[a, 0]))
+    limits = []
+    if model.actuator_ctrllimited[a]:
+        limits.append((np.max(np.abs(model.actuator_ctrlrange[a])) * gear, "ctrlrange"))
+    if model.actuator_forcelimited[a]:
+        limits.append((np.max(np.abs(model.actuator_forcerange[a])), "forcerange"))
+    if not limits:
+        return "no torque limit"
+    value, source = min(limits)
+    return f"torque limit {value:g} ({source})"
+
+
+def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Check:
+    """Load a file as the library would and say what it found and which tasks can run.
+
+    Lists the joints with their ranges, each actuator's kind and torque limit with its
+    source, whether the base floats, the sites, the keyframes, and for ``inverse_dynamics``,
+    ``opspace``, ``walk`` and ``jump`` whether the robot can run it and if not why.
+
+    Args:
+      name_or_path: registered name or MJCF path.
+      actuators: ``Config.robot_actuators`` (one of :data:`ACTUATORS`).
+      torque_limit: ``Config.robot_torque_limit``.
+
+    Returns:
+      A :class:`Check` (its ``text`` is the report, ``ok`` whether inverse dynamics can run).
+
+    Raises:
+      RobotError: the file does not exist or does not parse.
+
+    Examples:
+      >>> found = check("two_link_arm")
+      >>> found.ok, found.tasks["opspace"] is None
+      (True, False)
+      >>> print(found.text.splitlines()[2])
+        shoulder: hinge, range [-2.5, 2.5]
+    """
+    from cfm_jax import opspace, solo12
+    from cfm_jax.config import ConfigError
+    from cfm_jax.tasks import inverse_dynamics
+
+    path = resolve(name_or_path)
+    try:
+        raw = _compile(path)
+    except Exception as error:
+        raise RobotError(
+            f"robot={name_or_path!r}: MJCF file {path} does not parse: {error}"
+        ) from error
+    where = f"robot={name_or_path!r} ({path})"
+    lines = [f"robot {name_or_path} ({path})", f"joints ({raw.njnt}):"]
+    for j in range(raw.njnt):
+        kind = mujoco.mjtJoint(int(raw.jnt_type[j])).name[len("mjJNT_") :].lower()
+        limited = bool(raw.jnt_limited[j])
+        rng = f"range [{raw.jnt_range[j, 0]:g}, {raw.jnt_range[j, 1]:g}]" if limited else "no range"
+        lines.append(f"  {_joint_name(raw, j)}: {kind}, {rng}")
+    try:
+        servos = servo_limits(raw, torque_limit, where)
+        servo_error = None
+    except RobotError as error:
+        servos, servo_error = {}, str(error)
+    lines.append(f"actuators ({raw.nu}):")
+    for a in range(raw.nu):
+        aname = mujoco.mj_id2name(raw, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"#{a}"
+        if int(raw.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
+            trn = mujoco.mjtTrn(int(raw.actuator_trntype[a])).name[len("mjTRN_") :].lower()
+            lines.append(f"  {aname}: {trn} transmission (not usable: no joint of its own)")
+            continue
+        joint = _joint_name(raw, int(raw.actuator_trnid[a, 0]))
+        kind = _servo_kind(raw, a)
+        if kind is None:
+            lines.append(f"  {aname}: motor on {joint}, {_limit_text(raw, a)}")
+        elif a in servos:
+            _, limit, source = servos[a]
+            lines.append(
+                f"  {aname}: {kind} servo on {joint}; as a torque motor: torque limit "
+                f"{limit:g} ({source})"
+            )
+        else:
+            lines.append(f"  {aname}: {kind} servo on {joint}; no torque limit found")
+    if servo_error:
+        lines.append(f"  ! {servo_error}")
+    free = raw.njnt > 0 and int(raw.jnt_type[0]) == int(mujoco.mjtJoint.mjJNT_FREE)
+    lines.append(f"floating base: {'yes' if free else 'no'}")
+    sites = [
+        mujoco.mj_id2name(raw, mujoco.mjtObj.mjOBJ_SITE, i) or f"#{i}" for i in range(raw.nsite)
+    ]
+    lines.append(f"sites: {', '.join(sites) if sites else 'none'}")
+    keys = [mujoco.mj_id2name(raw, mujoco.mjtObj.mjOBJ_KEY, i) or f"#{i}" for i in range(raw.nkey)]
+    home = "home" in keys
+    lines.append(
+        f"keyframes: {', '.join(keys) if keys else 'none'} "
+        f"(start pose: {'keyframe home' if home else 'qpos0'})"
+    )
+    tasks: dict = {}
+    robot = None
+    try:
+        robot = load(name_or_path, actuators=actuators, torque_limit=torque_limit)
+        lines.append(f"loads with robot_actuators={actuators!r}: yes")
+    except RobotError as error:
+        reason = str(error).replace(where + ": ", "").replace(where + " ", "")
+        if actuators == "strict" and servos and servo_error is None:
+            reason += " -- with robot_actuators='torque' it loads"
+        lines.append(f"loads with robot_actuators={actuators!r}: no: {reason}")
+        tasks = dict.fromkeys(("inverse_dynamics", "opspace", "walk", "jump"), reason)
+        lines.append("tasks: none (the file does not load, see above)")
+        return Check("\n".join(lines), tasks, None)
+    if robot is not None:
+
+        def attempt(name, test):
+            try:
+                test()
+                tasks[name] = None
+            except ConfigError as error:
+                tasks[name] = str(error)
+
+        attempt(
+            "inverse_dynamics",
+            lambda: inverse_dynamics.require_fixed_base(robot, "inverse_dynamics"),
+        )
+        attempt(
+            "opspace",
+            lambda: (
+                inverse_dynamics.require_fixed_base(robot, "opspace"),
+                opspace.ee_site(robot),
+            ),
+        )
+
+        def legged():
+            if not robot.floating_base:
+                raise ConfigError(
+                    "the legged tasks need a floating base (a free joint at the root)"
+                )
+            solo12.check_model(robot.mj_model, robot.name)
+            if robot.converted:
+                raise ConfigError(_LEGGED_CONVERTED)
+
+        attempt("walk", legged)
+        tasks["jump"] = tasks["walk"]
+        if tasks["opspace"] is None:
+            site = opspace.site_names(robot)[opspace.ee_site(robot)]
+            tasks_site = f" (site {site!r})"
+        else:
+            tasks_site = ""
+    lines.append("tasks:")
+    for name, reason in tasks.items():
+        extra = tasks_site if name == "opspace" and robot is not None else ""
+        lines.append(f"  {name}: " + ("yes" + extra if reason is None else f"no: {reason}"))
+    return Check("\n".join(lines), tasks, robot)

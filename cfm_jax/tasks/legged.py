@@ -103,6 +103,10 @@ class LeggedTask(JointSpaceTask):
                 "legged robot with a floating base (for example robot='solo12')"
             )
         solo12.check_model(robot.mj_model, robot.name)
+        if getattr(robot, "converted", ()):
+            from cfm_jax.robots import _LEGGED_CONVERTED
+
+            raise ConfigError(f"robot {robot.name!r} is not allowed: {_LEGGED_CONVERTED}")
         if control_dt > self.MAX_CONTROL_DT + 1e-12:
             raise ConfigError(
                 f"task.control_dt={control_dt!r} is not allowed for task {task.name!r}: the "
