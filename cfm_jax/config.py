@@ -20,6 +20,8 @@ import os
 from collections.abc import Sequence
 from typing import Any
 
+from cfm_jax import _shipped
+
 TASKS = ("inverse_dynamics", "opspace", "walk", "jump")
 """Tasks available for ``Config.task.name``: the library's four, then those added by
 :func:`cfm_jax.tasks.register` (:func:`add_task_name`)."""
@@ -783,13 +785,11 @@ class Config:
             _fail("robot", self.robot, "a registered robot name or a path to an MJCF file")
         if not (os.path.sep in self.robot or self.robot.endswith(".xml")):
             # A name (not a path, which is read lazily): one of the shipped robots.
-            from cfm_jax import robots
-
-            if self.robot not in robots.registered():
+            if self.robot not in _shipped.registered():
                 _fail(
                     "robot",
                     self.robot,
-                    f"a registered robot name {robots.registered()} or a path to an MJCF "
+                    f"a registered robot name {_shipped.registered()} or a path to an MJCF "
                     "file (containing a path separator or ending in .xml)",
                 )
         if self.loss not in CONTROLLER_LOSSES:

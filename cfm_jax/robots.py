@@ -19,17 +19,14 @@ Examples:
 from __future__ import annotations
 
 import dataclasses
-import importlib.resources
 import os
-import pathlib
 from functools import cached_property
 
 import mujoco
 import numpy as np
 
+from cfm_jax import _shipped
 from cfm_jax.config import ROBOT_ACTUATORS
-
-_ROBOT_PACKAGE = "cfm_jax._robot_files"
 
 ACTUATORS = ROBOT_ACTUATORS
 """How :func:`load` takes a file's actuators (``Config.robot_actuators``): ``strict`` (the
@@ -67,10 +64,7 @@ def robot_dir():
       >>> (robot_dir() / "iiwa14.xml").is_file()
       True
     """
-    try:
-        return importlib.resources.files(_ROBOT_PACKAGE)
-    except ModuleNotFoundError:
-        return pathlib.Path(__file__).resolve().parent.parent / "robots"
+    return _shipped.robot_dir()
 
 
 def registered() -> tuple[str, ...]:
@@ -83,8 +77,7 @@ def registered() -> tuple[str, ...]:
       >>> registered()
       ('iiwa14', 'solo12', 'two_link_arm')
     """
-    files = robot_dir()
-    return tuple(sorted(p.name[:-4] for p in files.iterdir() if p.name.endswith(".xml")))
+    return _shipped.registered()
 
 
 def resolve(name_or_path: str) -> str:

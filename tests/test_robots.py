@@ -319,7 +319,9 @@ def test_shipped_robots_found_from_a_checkout_without_package_data(monkeypatch):
     # Python started inside a clone imports cfm_jax from the clone, where the package-data
     # module cfm_jax._robot_files (mapped from robots/ at install time) does not exist.
     # Simulated here whatever the install: no package data, module file inside the clone.
-    monkeypatch.setattr(robots, "_ROBOT_PACKAGE", "cfm_jax._no_such_module")
-    monkeypatch.setattr(robots, "__file__", str(ROBOT_DIR.parent / "cfm_jax" / "robots.py"))
+    from cfm_jax import _shipped
+
+    monkeypatch.setattr(_shipped, "ROBOT_PACKAGE", "cfm_jax._no_such_module")
+    monkeypatch.setattr(_shipped, "__file__", str(ROBOT_DIR.parent / "cfm_jax" / "_shipped.py"))
     assert {"iiwa14", "two_link_arm"} <= set(robots.registered())
     assert robots.resolve("iiwa14") == str(ROBOT_DIR / "iiwa14.xml")
