@@ -164,6 +164,32 @@ def test_claims_success_counts_the_falls_of_the_last_iteration():
     )
 
 
+
+def test_claims_count_the_failed_runs_beside_every_claim():
+    """Every claim's measured text counts the failed runs per loss at the last iteration by
+    the one rule (fell or diverged; issue 31): hand-made rows where the task loss diverged
+    on one of two targets at iteration 10, the distal loss fell on both, and the joint
+    loss's divergence at iteration 0 does not count."""
+    import claims
+
+    rows = [
+        dict(loss=loss, seed=0, iteration=it, target=k,
+             diverged=float((loss == "task" and it == 10 and k == 1)
+                            or (loss == "joint" and it == 0)),
+             fell=float(loss == "distal" and it == 10))
+        for loss in LOSSES for it in (0, 10) for k in (0, 1)
+    ]  # fmt: skip
+    frame = pd.DataFrame(rows)
+    assert claims.failures_text(frame) == (
+        "failed at the last iteration (fell or diverged): joint 0/2, task 1/2 (1 diverged), "
+        "distal 2/2, supervised 0/2"
+    )
+    arm = frame.drop(columns="fell")  # the arm tasks have no falls
+    assert claims.failures_text(arm) == (
+        "failed at the last iteration (diverged): joint 0/2, task 1/2 (1 diverged), "
+        "distal 0/2, supervised 0/2"
+    )
+
 def test_the_default_cells_run_the_configs_of_reproduce_all():
     """The headline results are the robustness study's default cells; reproduce_all.py's
     parts (through their scripts) run the very same configs, so either reproduces the
