@@ -51,6 +51,7 @@ jax.config.update(
 # The longest test files (``pytest --durations``), started first; the rest follow in
 # collection order. Only the order changes, never which tests run.
 LONGEST_FIRST = (
+    "test_learning_mjx.py",
     "test_sweep.py",
     "test_notebooks.py",
     "test_checkpoint.py",

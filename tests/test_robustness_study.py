@@ -164,7 +164,6 @@ def test_claims_success_counts_the_falls_of_the_last_iteration():
     )
 
 
-
 def test_claims_count_the_failed_runs_beside_every_claim():
     """Every claim's measured text counts the failed runs per loss at the last iteration by
     the one rule (fell or diverged; issue 31): hand-made rows where the task loss diverged
@@ -189,6 +188,7 @@ def test_claims_count_the_failed_runs_beside_every_claim():
         "failed at the last iteration (diverged): joint 0/2, task 1/2 (1 diverged), "
         "distal 0/2, supervised 0/2"
     )
+
 
 def test_the_default_cells_run_the_configs_of_reproduce_all():
     """The headline results are the robustness study's default cells; reproduce_all.py's

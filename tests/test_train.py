@@ -3,8 +3,8 @@
 Oracles: separate single-seed runs for the vmapped seed axis (a loop over seeds), a second
 identical run for determinism, XLA's compilation cache for "one compiled function per
 iteration", and the files the CLI promises. The tiny networks and step counts make these
-runs fast; they check the wiring, not learning quality (that is the acceptance run in the
-README, and ``test_joint_loss_learns_two_link_arm`` under the ``slow`` marker).
+runs fast; they check the wiring, not learning quality (that is tests/test_learning.py:
+every paper loss learns end to end on both simulators, in the default run).
 """
 
 from __future__ import annotations
@@ -316,16 +316,6 @@ def test_cli_rejects_unknown_simulator(tmp_path):
     assert done.returncode == 2
     assert "simulator='bullet' is not allowed: one of ('native', 'mjx')" in done.stderr
     assert "Traceback" not in done.stderr
-
-
-@pytest.mark.slow
-def test_joint_loss_learns_two_link_arm():
-    # Learning, not just wiring: a few iterations of the joint loss beat PD-only feedback.
-    cfg = config_lib.Config(robot="two_link_arm", loop=config_lib.LoopConfig(iterations=4, seeds=1))
-    result = cfm_jax.train(cfg, progress=False)
-    final = result.final().tracking_mse.mean()
-    base = result.baselines
-    assert final < base[base.baseline == "pd_only"].tracking_mse.mean()
 
 
 USER_ARM = """<mujoco model="three_link">
