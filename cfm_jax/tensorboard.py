@@ -10,7 +10,11 @@ averages (:func:`cfm_jax.report.summary`). Every numeric column of
 :attr:`cfm_jax.TrainResult.metrics` but ``seed``, ``iteration`` and ``target`` is a
 metric: ``tracking_mse``, ``prediction_error``, ``predicted_task_error``,
 ``forward_loss``, ``controller_loss``, ``diverged`` (the fraction of rollouts that
-diverged) and the task's own. The file is flushed after every iteration, so TensorBoard
+diverged) and the task's own. A metric whose mean is not finite at an iteration is not
+written there: the mean skips NaN rows, so that is a metric nobody measured at that step
+(``forward_loss`` and ``controller_loss`` at the final evaluation, which fits nothing), or
+an infinite one; TensorBoard would only draw a gap, and tensorboardX would print a warning
+for each. The file is flushed after every iteration, so TensorBoard
 shows a run while it trains (``tensorboard --logdir DIR``).
 
 Examples:
@@ -26,6 +30,7 @@ Examples:
 
 from __future__ import annotations
 
+import math
 import os
 
 import pandas as pd
@@ -99,6 +104,8 @@ class TensorBoardWriter:
         for loss, rows in frame.groupby("loss", sort=False):
             for column in columns:
                 tag, value = f"{loss}/{column}", float(rows[column].astype(float).mean())
+                if not math.isfinite(value):  # not measured here (all NaN), or infinite
+                    continue
                 self._writer.add_scalar(tag, value, global_step=int(iteration))
                 self.written.setdefault(tag, []).append((int(iteration), value))
         self._writer.flush()

@@ -67,6 +67,33 @@ def test_scalars_read_back_are_the_means_per_loss_and_iteration(tmp_path):
     assert scalars["joint/diverged"][0][1] == 0.25  # one rollout of four diverged
 
 
+def test_a_metric_measured_nowhere_at_a_step_is_not_written_and_nothing_printed(
+    tmp_path, capsys
+):
+    """The fit losses are NaN at the final evaluation (nothing is fitted): that step is
+    left out of their curves (the mean skips NaN rows, so only an all-NaN or infinite mean
+    is left out), and tensorboardX prints no NaN warning."""
+    pytest.importorskip("tensorboardX", reason=NEEDS)
+    nan = float("nan")
+    frames = [
+        pd.DataFrame({"loss": "joint", "seed": [0, 1], "iteration": 0, "target": 0,
+                      "tracking_mse": [0.5, 1.5], "forward_loss": [2.0, nan]}),
+        pd.DataFrame({"loss": "joint", "seed": [0, 1], "iteration": 1, "target": 0,
+                      "tracking_mse": [0.25, 0.75], "forward_loss": [nan, nan]}),
+        pd.DataFrame({"loss": "joint", "seed": [0, 1], "iteration": 2, "target": 0,
+                      "tracking_mse": [np.inf, 1.0], "forward_loss": [1.0, 3.0]}),
+    ]  # fmt: skip
+    with tensorboard.TensorBoardWriter(tmp_path / "tb") as writer:
+        for iteration, rows in enumerate(frames):
+            writer(iteration, rows)
+    scalars = read_scalars(tmp_path / "tb")
+    assert scalars == {"joint/tracking_mse": [(0, 1.0), (1, 0.5)],
+                       "joint/forward_loss": [(0, 2.0), (2, 2.0)]}  # fmt: skip
+    assert writer.written == scalars
+    captured = capsys.readouterr()
+    assert captured.out + captured.err == ""
+
+
 def test_missing_tensorboardx_is_a_clear_error(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "tensorboardX", None)  # import fails as if absent
     with pytest.raises(ImportError, match=r"pip install 'cfm_jax\[tensorboard\]'"):
