@@ -315,6 +315,7 @@ def sweep(
 
           cfm-jax sweep --robot iiwa14 --losses joint,task --seeds 3 --out results/s
           cfm-jax sweep --losses all --override task.kp=50,100 --backend ray --out results/kp
+          cfm-jax sweep --override task.kp=50,100 controller.learning_rate=1e-3,3e-4 --out results/g
 
       >>> # not run: it runs a sweep (minutes) and writes /tmp/sweep
       >>> sweep(robot="two_link_arm", iterations=1, out="/tmp/sweep")  # doctest: +SKIP
@@ -705,8 +706,7 @@ def _train_command(argv: list[str]) -> None:
          "LOSS/METRIC, the mean over seeds and targets.")], None),
     ]  # fmt: skip
     flags_cls = _flags_class("train", base, extra)
-    flags_cls.__doc__ = _description(train)
-    flags = tyro.cli(flags_cls, args=argv, prog="cfm-jax train")
+    flags = _parse(flags_cls, argv, "train", _description(train))
     names = _losses(flags.loss)
     _run_train(_config_of(flags, base, names[0]), names, flags.out, flags.resume, flags.data,
                flags.quiet, flags.tensorboard)  # fmt: skip
@@ -721,8 +721,8 @@ def _sweep_command(argv: list[str]) -> None:
         ("out", Annotated[str, tyro_arg(metavar="DIR", help=_OUT_HELP)], "results/sweep"),
         ("override", Annotated[tuple[str, ...], tyro_arg(metavar="PATH=VALUES [...]", help=
          "grid axes, each PATH=V1,V2,... (values parsed as JSON numbers, true/false, null, "
-         "else text) or PATH=[JSON list] for values that contain commas. Example: --override "
-         "task.kp=50,100 controller.learning_rate=1e-3,3e-4")], ()),
+         "else text) or PATH=[JSON list] for values that contain commas (see the examples "
+         "above); default: no axis, one cell.", help_behavior_hint="")], ()),
         ("backend", Annotated[str, tyro_arg(metavar="{local,ray}", help="local (this process) "
          "or ray (each cell a Ray task; pip install 'cfm_jax[ray]').")], "local"),
         ("address", Annotated[str | None, tyro_arg(metavar="HOST:PORT", help_behavior_hint="",
@@ -733,8 +733,7 @@ def _sweep_command(argv: list[str]) -> None:
         ("quiet", Annotated[bool, tyro_arg(help=_QUIET_HELP)], False),
     ]  # fmt: skip
     flags_cls = _flags_class("sweep", base, extra)
-    flags_cls.__doc__ = _description(sweep)
-    flags = tyro.cli(flags_cls, args=argv, prog="cfm-jax sweep")
+    flags = _parse(flags_cls, argv, "sweep", _description(sweep))
     names = _losses(flags.losses, flag="--losses")
     _run_sweep(_config_of(flags, base, names[0]), names, flags.override, flags.out,
                flags.backend, flags.address, flags.max_retries, flags.quiet)  # fmt: skip
@@ -747,8 +746,7 @@ def _config_command(argv: list[str]) -> None:
          "task, distal, supervised, distal_literal).")], base.loss),
     ]  # fmt: skip
     flags_cls = _flags_class("config", base, extra)
-    flags_cls.__doc__ = _description(print_config)
-    flags = tyro.cli(flags_cls, args=argv, prog="cfm-jax config")
+    flags = _parse(flags_cls, argv, "config", _description(print_config))
     print(json.dumps(config_lib.to_dict(_config_of(flags, base, flags.loss)), indent=2))
 
 
@@ -765,10 +763,12 @@ def print_config() -> None:
 
 def robot_check(
     file: Annotated[str, tyro.conf.Positional, tyro_arg(metavar="NAME|FILE.xml")],
-    robot_actuators: str = "strict",
-    robot_torque_limit: tuple[float, ...] | None = None,
+    robot_actuators: Annotated[str, tyro_arg(metavar="{strict,torque}")] = "strict",
+    robot_torque_limit: Annotated[
+        tuple[float, ...] | None, tyro_arg(metavar="N [N ...]", help_behavior_hint="")
+    ] = None,
 ) -> None:
-    """(cfm-jax robot check FILE) Load an MJCF file as cfm-jax train would and print what it
+    """Load an MJCF file as cfm-jax train would and print what it
     found: joints and ranges, each actuator's kind and torque limit with its source, floating
     base, sites, keyframes, and which tasks can run (and why not). Exit status 0 when
     inverse_dynamics can run.
@@ -776,7 +776,7 @@ def robot_check(
     Args:
       file: registered robot name or path to an MJCF file.
       robot_actuators: strict (torque motors only) or torque (servos replaced by motors).
-      robot_torque_limit: torque limit of servos whose file has none (one or per joint).
+      robot_torque_limit: limit of servos whose file has none (one, or one per joint).
 
     Examples:
       cfm-jax robot check path/to/ur5e.xml --robot-actuators torque
@@ -796,17 +796,26 @@ def _robot_command(argv: list[str]) -> None:
             {"check": robot_check}, prog="cfm-jax robot", args=argv
         )
         return
-    tyro.cli(robot_check, args=argv[1:], prog="cfm-jax robot check")
+    _parse(robot_check, argv[1:], "robot check", _description(robot_check, config_flags=False))
 
 
-def _description(function) -> str:
-    """A command's help text: the docstring's first paragraph as one line, then its
-    command-line examples as they are (to copy and paste)."""
+def _parse(target, argv: list[str], command: str, description: str):
+    """``tyro.cli`` of one command with its help text given as the description, which tyro
+    prints as given (from a docstring it would drop the Examples section)."""
+    return tyro.cli(target, args=argv, prog=f"cfm-jax {command}", description=description)
+
+
+def _description(function, config_flags: bool = True) -> str:
+    """A command's help text: the docstring's first paragraph as one line, then (for the
+    commands that take the config's flags) how those flags work, then its command-line
+    examples as they are (to copy and paste)."""
     doc = inspect.cleandoc(function.__doc__)
     head = " ".join(doc.split("\n\n")[0].split())
     commands = [line.strip() for line in doc.splitlines() if line.strip().startswith("cfm-jax ")]
-    text = head + "\n\nEvery field of the config is a flag (--SECTION.FIELD VALUE); --config "
-    text += "FILE is the base and only the flags given override it."
+    text = head
+    if config_flags:
+        text += "\n\nEvery field of the config is a flag (--SECTION.FIELD VALUE); --config "
+        text += "FILE is the base and only the flags given override it."
     if commands:
         text += "\n\nExamples:\n" + "\n".join(f"  {line}" for line in commands)
     return text

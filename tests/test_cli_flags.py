@@ -109,6 +109,34 @@ def test_help_has_no_hard_breaks_and_readable_metavars(monkeypatch, capsys):
     assert "{home,reaching,reference_pd,oracle}" in text
 
 
+@pytest.mark.parametrize("command", [["train"], ["sweep"], ["config"], ["robot", "check"]])
+def test_every_help_shows_examples_whose_flags_exist(command, monkeypatch, capsys):
+    """Each command's --help shows its docstring's command lines (tyro drops a docstring's
+    Examples section, so they are passed as the description), every flag they use is one
+    of that command's flags, and no metavar or default reads as Python."""
+    monkeypatch.setattr(sys, "argv", ["cfm-jax", *command, "--help"])
+    monkeypatch.setenv("COLUMNS", "100")
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main()
+    assert exit_info.value.code == 0
+    text = capsys.readouterr().out
+    assert "{None}" not in text and "(default: )" not in text and "(default: ())" not in text
+    lines = text.splitlines()
+    start = lines.index("Examples:")
+    examples = [line.strip() for line in lines[start + 1 :] if line.startswith("  cfm-jax ")]
+    assert examples and all(line.startswith("cfm-jax ") for line in examples)
+    options = "\n".join(lines[start + 1 + len(examples) :])  # the flags' list
+    flags = set(re.findall(r"(?m)^[\s│]*(--[\w.-]+)", options))
+    flags |= set(re.findall(r", (--[\w.-]+)", options))  # aliases: --seeds INT, --loop.seeds
+    assert "--help" in flags and len(flags) > 3
+    for example in examples:
+        if not example.startswith("cfm-jax " + " ".join(command)):
+            continue  # config's second example is a train command line
+        for word in example.split():
+            if word.startswith("--"):
+                assert word in flags, (example, word)
+
+
 def test_a_run_that_fails_after_creating_out_leaves_no_empty_directory(tmp_path, monkeypatch):
     def fail(*args, **kwargs):
         raise RuntimeError("failed inside the run")
