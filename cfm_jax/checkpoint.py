@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 
 import jax
@@ -28,6 +29,24 @@ import numpy as np
 from cfm_jax._files import write_text
 
 MANIFEST = "cfm_manifest.json"
+
+_ORBAX_TIMING = "Waiting for previous save to complete"
+
+
+class _DropOrbaxTiming(logging.Filter):
+    """Drops Orbax's timing note "Waiting for previous save to complete took N seconds",
+    logged as an absl WARNING when a save waits on the one before it (on busy cores): a
+    note about disk speed, not a problem of the run, and not the library's own line
+    (issue 26: a run prints nothing else). Every other absl record passes."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return _ORBAX_TIMING not in record.getMessage()
+
+
+def _quiet_orbax_timing() -> None:
+    absl = logging.getLogger("absl")
+    if not any(isinstance(f, _DropOrbaxTiming) for f in absl.filters):
+        absl.addFilter(_DropOrbaxTiming())
 
 
 class CheckpointError(RuntimeError):
@@ -88,6 +107,7 @@ class Checkpointer:
     def __init__(self, directory: str, keep: int = 3):
         import orbax.checkpoint as ocp
 
+        _quiet_orbax_timing()
         self.directory = os.path.abspath(directory)
         self._ocp = ocp
         self._manager = ocp.CheckpointManager(

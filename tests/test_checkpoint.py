@@ -291,3 +291,20 @@ def test_cli_resume_continues_each_loss(tmp_path):
     )
     assert refused.returncode == 2
     assert "seed (0 in the run, 3 now)" in refused.stderr and "Traceback" not in refused.stderr
+
+
+def test_orbax_timing_note_is_not_printed_other_absl_warnings_are(tmp_path, caplog):
+    """Orbax logs "Waiting for previous save to complete took N seconds" as an absl WARNING
+    when a save waits (seen on busy cores in a --quiet run): a Checkpointer drops that
+    note only, through absl's own logging call as Orbax makes it."""
+    import logging
+
+    from absl import logging as absl_logging
+
+    from cfm_jax.checkpoint import Checkpointer
+
+    Checkpointer(str(tmp_path / "c"))
+    with caplog.at_level(logging.WARNING, logger="absl"):
+        absl_logging.warning("Waiting for previous save to complete took %f seconds.", 1.13)
+        absl_logging.warning("A checkpoint problem of Orbax's own")
+    assert [r.getMessage() for r in caplog.records] == ["A checkpoint problem of Orbax's own"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import pkgutil
+import re
 import sys
 
 import cfm_jax
@@ -50,3 +51,17 @@ def public_modules() -> list[str]:
         if not any(part.startswith("_") for part in name.split(".")):
             found.append(name)
     return sorted(found)
+
+
+# Lines that are not the library's own: MuJoCo MJX's Warp import messages, Python or
+# MuJoCo warnings, tracebacks, absl/XLA log lines (issue 26 item 2).
+FOREIGN = re.compile(r"warp|WARNING|Warning|Traceback|Failed to import|^[EWI]\d{4} ")
+
+
+def assert_own_output(done) -> None:
+    """A finished ``--quiet`` CLI subprocess exited 0, wrote nothing to stderr and no
+    foreign line to stdout."""
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stderr == "", done.stderr  # --quiet: nothing at all on stderr
+    foreign = [line for line in done.stdout.splitlines() if FOREIGN.search(line)]
+    assert not foreign, foreign
