@@ -436,7 +436,7 @@ def _write_outputs(out, frames, result, base, task, notes=()) -> None:
     baselines = result.baselines
     write_atomic(os.path.join(out, "baselines.csv"), lambda tmp: baselines.to_csv(tmp, index=False))
     # per-loss configs: OUT/<loss>/config.json
-    write_text(os.path.join(out, "config.json"), json.dumps(config_lib.to_dict(base), indent=2))
+    write_text(os.path.join(out, "config.json"), json.dumps(report.config_record(base), indent=2))
     table = report.summary(metrics, result.baselines, result.rms_reach)
     text = report.protocol(base) + "\n\n" + report.markdown(table)
     if metrics["loss"].nunique() > 1:  # the joint loss (else the first) against the others

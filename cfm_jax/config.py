@@ -890,10 +890,17 @@ def to_dict(config: Config) -> dict:
     return dataclasses.asdict(config)
 
 
+DERIVED = ("robot_conversion",)
+"""Keys a run's ``config.json`` may hold beside the fields: derived from them (and from the
+robot file) for the reader, ignored by :func:`from_dict`."""
+
+
 def from_dict(data: dict) -> Config:
     """Inverse of :func:`to_dict`; unknown keys raise :class:`ConfigError` naming them.
 
-    Missing fields take their defaults, except ``loop.babbling`` in a config written
+    Keys of :data:`DERIVED` (written beside the fields for the reader, as the robot
+    conversion of :func:`cfm_jax.report.config_record`) are ignored. Missing fields take
+    their defaults, except ``loop.babbling`` in a config written
     before that field existed: those runs babbled as :data:`BABBLING_BEFORE` says, so the
     config reads as what ran.
 
@@ -921,6 +928,7 @@ def from_dict(data: dict) -> Config:
     top_fields = {f.name for f in dataclasses.fields(Config)}
     if not isinstance(data, dict):
         _fail("config", data, "a JSON object of the fields of Config (as config.json)")
+    data = {k: v for k, v in data.items() if k not in DERIVED}
     unknown = set(data) - top_fields
     if unknown:
         _fail("config", sorted(unknown), f"known top-level fields are {sorted(top_fields)}")

@@ -37,6 +37,38 @@ BOOTSTRAP_SEED = 0
 """Seed of the bootstrap's random numbers (fixed: the same data give the same report)."""
 
 
+def config_record(config) -> dict:
+    """The config as a run records it in ``config.json`` (and in its checkpoints): the
+    JSON form of :func:`cfm_jax.config.to_dict`, and for ``robot_actuators='torque'`` the
+    conversion (``robot_conversion``: each servo's joint, kind, torque limit and the
+    limit's source, :func:`cfm_jax.robots.conversion`). That part is derived from the robot
+    file, for the reader; :func:`cfm_jax.config.from_dict` ignores it, and a resume whose
+    file now converts differently is refused as a different config.
+
+    Args:
+      config: a :class:`cfm_jax.config.Config`.
+
+    Returns:
+      A dict of JSON types.
+
+    Examples:
+      >>> from cfm_jax import config as config_lib
+      >>> record = config_record(config_lib.Config(robot="two_link_arm"))
+      >>> "robot_conversion" in record, config_lib.from_dict(record).robot
+      (False, 'two_link_arm')
+    """
+    import json
+
+    from cfm_jax import config as config_lib
+
+    record = json.loads(json.dumps(config_lib.to_dict(config)))
+    if getattr(config, "robot_actuators", "strict") != "strict":
+        from cfm_jax import robots
+
+        record["robot_conversion"] = robots.conversion(config.robot, config.robot_torque_limit)
+    return record
+
+
 def protocol(config) -> str:
     """One line that says how a run's initial data and ``s*`` were made and how the
     networks' inputs are scaled, for every summary table: ``loop.babbling``

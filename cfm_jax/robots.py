@@ -396,6 +396,36 @@ def _compile(path: str):
         return spec.compile()
 
 
+def conversion(name_or_path: str, torque_limit=None) -> list[dict]:
+    """What ``robot_actuators='torque'`` does to a file, servo by servo: the joint, the
+    servo's kind, the torque limit of its motor and where that limit comes from
+    (``forcerange``, ``actuatorfrcrange`` or ``robot_torque_limit``), in actuator order.
+
+    Args:
+      name_or_path: registered name or MJCF path.
+      torque_limit: ``Config.robot_torque_limit``.
+
+    Returns:
+      One dict per servo (``joint``, ``servo``, ``torque_limit``, ``source``); empty when
+      every actuator is a torque motor already.
+
+    Raises:
+      RobotError: as :func:`servo_limits`.
+
+    Examples:
+      >>> conversion("two_link_arm")
+      []
+    """
+    path = resolve(name_or_path)
+    model = _compile(path)
+    servos = servo_limits(model, torque_limit, f"robot={name_or_path!r} ({path})")
+    return [
+        {"joint": _joint_name(model, int(model.actuator_trnid[a, 0])), "servo": kind,
+         "torque_limit": float(limit), "source": source}
+        for a, (kind, limit, source) in servos.items()
+    ]  # fmt: skip
+
+
 def conversion_note(name_or_path: str, torque_limit=None) -> str:
     """One line on what ``robot_actuators='torque'`` does to a file: the servos replaced by
     torque motors, each joint's limit and its source (for the summary's protocol line).
@@ -414,15 +444,10 @@ def conversion_note(name_or_path: str, torque_limit=None) -> str:
       >>> conversion_note("two_link_arm")
       "`robot_actuators='torque'`: no servos (all torque motors)"
     """
-    path = resolve(name_or_path)
-    model = _compile(path)
-    servos = servo_limits(model, torque_limit, f"robot={name_or_path!r} ({path})")
+    servos = conversion(name_or_path, torque_limit)
     if not servos:
         return "`robot_actuators='torque'`: no servos (all torque motors)"
-    parts = [
-        f"{_joint_name(model, int(model.actuator_trnid[a, 0]))} {limit:g} ({kind}, {source})"
-        for a, (kind, limit, source) in servos.items()
-    ]
+    parts = [f"{s['joint']} {s['torque_limit']:g} ({s['servo']}, {s['source']})" for s in servos]
     return (
         f"`robot_actuators='torque'`: {len(servos)} servo{'s' if len(servos) != 1 else ''} "
         f"as torque motors, limits {', '.join(parts)}"

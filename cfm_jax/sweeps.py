@@ -721,7 +721,7 @@ def _reporter(progress: bool, total: int, done_before: int):
 
 
 def _jsonable(config: config_lib.Config) -> dict:
-    return json.loads(json.dumps(config_lib.to_dict(config)))
+    return report.config_record(config)
 
 
 def _write_cell(out_dir: str, cell: Cell, output: CellOutput) -> None:

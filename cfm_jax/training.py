@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from cfm_jax import algorithm, dataset
+from cfm_jax import algorithm, dataset, report
 from cfm_jax import config as config_lib
 from cfm_jax._files import write_atomic, write_text
 from cfm_jax.algorithm import METRIC_COLUMNS, Knobs, TrainState  # noqa: F401 (Knobs: re-export)
@@ -151,7 +151,7 @@ class DivergenceError(RuntimeError):
 
 
 def _jsonable(config: config_lib.Config) -> dict:
-    return json.loads(json.dumps(config_lib.to_dict(config)))
+    return report.config_record(config)
 
 
 def _nonfinite(state: TrainState, metrics: dict, n_seeds: int) -> list[str | None]:
@@ -284,9 +284,7 @@ def train(
     checkpointer = None
     if out_dir:
         os.makedirs(out_dir, exist_ok=True)
-        write_text(
-            os.path.join(out_dir, "config.json"), json.dumps(config_lib.to_dict(config), indent=2)
-        )
+        write_text(os.path.join(out_dir, "config.json"), json.dumps(_jsonable(config), indent=2))
         if config.loop.checkpoint_every > 0:
             checkpointer = ckpt_lib.Checkpointer(
                 os.path.join(resume or out_dir, "checkpoints"), keep=config.loop.checkpoint_keep

@@ -138,7 +138,8 @@ def baselines_match(tmp_path, simulator):
     return servo
 
 
-@pytest.mark.slow
+# MJX: 25 s on 2 busy cores (four rollout programs compiled), in the default run: the
+# conversion must hold on both simulators (issue 28).
 def test_baselines_on_a_converted_arm_match_the_arm_by_hand_mjx(tmp_path):
     baselines_match(tmp_path, "mjx")
 
@@ -224,6 +225,22 @@ def test_config_protocol_and_setup(tmp_path):
     assert "shoulder 30 (position, robot_torque_limit)" in line
     assert "elbow 12 (position, robot_torque_limit)" in line
     assert "robot_actuators" not in report.protocol(config.Config())
+    # config.json (report.config_record, what train, the CLI and sweeps write) records the
+    # conversion and each limit's source; reading it back gives the same config.
+    record = report.config_record(cfg)
+    assert record["robot_conversion"] == [
+        {"joint": "shoulder", "servo": "position", "torque_limit": 30.0,
+         "source": "robot_torque_limit"},
+        {"joint": "elbow", "servo": "position", "torque_limit": 12.0,
+         "source": "robot_torque_limit"},
+    ]  # fmt: skip
+    assert config.from_dict(json.loads(json.dumps(record))) == cfg
+    forcerange = config.Config(robot=arm(tmp_path, POSITION, name="p.xml"),
+                               robot_actuators="torque")  # fmt: skip
+    assert [(c["joint"], c["torque_limit"], c["source"])
+            for c in report.config_record(forcerange)["robot_conversion"]] == [
+        ("shoulder", 40.0, "forcerange"), ("elbow", 20.0, "forcerange")]  # fmt: skip
+    assert "robot_conversion" not in report.config_record(config.Config())
 
 
 def robot_check(argv, monkeypatch, capsys):
