@@ -115,17 +115,20 @@ def pictures(out: str, config, loss: str, run_dir: str | None = None) -> dict:
     target = task.targets - 1  # the longest walk, the highest jump
     ref = task.references[target]
     n = ref.horizon
-    t = rollout_.transitions
-    norm = state.normaliser
-    from cfm_jax import networks
+    from cfm_jax import algorithm, networks
 
+    # The forward model's per-transition terms where its kind has them (rigid_body: M^-1 S
+    # and -M^-1 h of each state), as the library's metrics compute them.
+    t = algorithm.with_terms(experiment.setup, rollout_.transitions)
+    t = jax.tree.map(lambda x: x[target], t)
+    norm = state.normaliser
     predicted = norm.output_inverse(
         networks.ensemble_mean(
-            experiment.forward, state.forward_params, norm, t.state[target], t.action[target]
+            experiment.forward, state.forward_params, norm, t.state, t.action, terms=t.terms
         )
     )
     feet = task.feet
-    observed = np.asarray(t.observed[target, :n, -3 * feet :]).reshape(n, feet, 3)
+    observed = np.asarray(t.observed[:n, -3 * feet :]).reshape(n, feet, 3)
     predicted = np.asarray(predicted[:n, -3 * feet :]).reshape(n, feet, 3)
     fell = np.asarray(rollout_.extras["fell"][target, :n])
     first_fall = int(np.argmax(fell)) if fell.any() else None
@@ -139,7 +142,7 @@ def pictures(out: str, config, loss: str, run_dir: str | None = None) -> dict:
         + ("" if first_fall is None else f" (fell at {first_fall * ref.control_dt:.2f} s)"),
     )
     drawn = {"loss": loss, "target": target, "fell_at_step": first_fall}
-    qpos = np.asarray(t.state[target, :n, : task.robot.nq])  # s = [qpos, forces, qvel]
+    qpos = np.asarray(t.state[:n, : task.robot.nq])  # s = [qpos, forces, qvel]
     ok, why = render.render_available()
     if ok:
         # The camera follows the base horizontally at a fixed height, so a jump shows.
