@@ -271,7 +271,12 @@ def load(out: str, cell: Cell) -> pd.DataFrame:
 
 
 def tables(out: str, tasks) -> str:
-    """``selection.csv``, ``curves.csv`` and the page ``index.md``; returns the page."""
+    """``selection.csv``, ``curves.csv`` and the page ``index.md``; returns the page. The
+    page holds ``tasks`` and every other task with records in ``out``, so that two pieces
+    run side by side (``--only inverse_dynamics`` and ``--only walk``) never drop each
+    other's tables."""
+    tasks = [t for t in ARM + LEGGED
+             if t in tasks or os.path.isdir(os.path.join(out, "cells", t))]  # fmt: skip
     rows, curves = [], []
     lines = [
         "# Choosing the defaults: the selection run",

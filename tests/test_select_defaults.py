@@ -125,3 +125,23 @@ def test_factors_are_chosen_on_one_task_per_family_and_the_page_says_so(tmp_path
     assert "takes the choice made on inverse_dynamics" in page.split("## opspace")[1]
     assert "takes the choice made on walk" in page.split("## jump")[1]
     assert "**Sizing.**" in page
+
+
+def test_a_piece_of_one_task_keeps_the_other_task_s_tables(tmp_path):
+    """Two pieces run side by side (--only inverse_dynamics, --only walk) each rewrite the
+    page: the page holds every task with records, not only the piece's own."""
+    for task in ("inverse_dynamics", "walk"):
+        folder = tmp_path / "cells" / task / "base"
+        folder.mkdir(parents=True)
+        rows = [dict(loss=loss, seed=seed, iteration=0, target=0, tracking_mse=1e-3,
+                     diverged=0.0, fell=0.0)
+                for loss in LOSSES for seed in range(2)]  # fmt: skip
+        pd.DataFrame(rows).to_csv(folder / "metrics.csv", index=False)
+        pd.DataFrame([dict(baseline="pd_only", target=0, tracking_mse=1e-2)]).to_csv(
+            folder / "baselines.csv", index=False
+        )
+    for only in (["walk"], ["inverse_dynamics"]):
+        page = select.tables(str(tmp_path), only)
+        assert "## inverse_dynamics" in page and "## walk" in page, only
+        assert "| base | -3.000 |" in page
+    assert set(pd.read_csv(tmp_path / "selection.csv").task) == {"inverse_dynamics", "walk"}
