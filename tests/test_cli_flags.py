@@ -89,13 +89,18 @@ def test_version_is_the_package_metadata(monkeypatch, capsys):
     assert capsys.readouterr().out.strip() == f"cfm-jax {metadata.version('cfm_jax')}"
 
 
-def test_help_has_no_hard_breaks_and_readable_metavars(monkeypatch, capsys):
-    monkeypatch.setattr(sys, "argv", ["cfm-jax", "train", "--help"])
+def help_text(command, monkeypatch, capsys) -> str:
+    """``cfm-jax COMMAND --help`` in-process at 100 columns: it exits 0; the printed text."""
+    monkeypatch.setattr(sys, "argv", ["cfm-jax", *command, "--help"])
     monkeypatch.setenv("COLUMNS", "100")
     with pytest.raises(SystemExit) as exit_info:
         cli.main()
     assert exit_info.value.code == 0
-    text = capsys.readouterr().out
+    return capsys.readouterr().out
+
+
+def test_help_has_no_hard_breaks_and_readable_metavars(monkeypatch, capsys):
+    text = help_text(["train"], monkeypatch, capsys)
     assert "{None}" not in text and "``" not in text and ":data:" not in text
     for flag in ("--forward.learning-rate", "--loop.babbling", "--task.kd", "--seeds"):
         assert flag in text
@@ -114,12 +119,7 @@ def test_every_help_shows_examples_whose_flags_exist(command, monkeypatch, capsy
     """Each command's --help shows its docstring's command lines (tyro drops a docstring's
     Examples section, so they are passed as the description), every flag they use is one
     of that command's flags, and no metavar or default reads as Python."""
-    monkeypatch.setattr(sys, "argv", ["cfm-jax", *command, "--help"])
-    monkeypatch.setenv("COLUMNS", "100")
-    with pytest.raises(SystemExit) as exit_info:
-        cli.main()
-    assert exit_info.value.code == 0
-    text = capsys.readouterr().out
+    text = help_text(command, monkeypatch, capsys)
     assert "{None}" not in text and "(default: )" not in text and "(default: ())" not in text
     lines = text.splitlines()
     start = lines.index("Examples:")
