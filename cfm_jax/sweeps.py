@@ -720,16 +720,12 @@ def _reporter(progress: bool, total: int, done_before: int):
 # ----- files --------------------------------------------------------------------------
 
 
-def _jsonable(config: config_lib.Config) -> dict:
-    return report.config_record(config)
-
-
 def _write_cell(out_dir: str, cell: Cell, output: CellOutput) -> None:
     """``config.json``, ``cell.json``, ``baselines.csv`` and, last, ``metrics.csv`` (its
     presence marks the cell finished); each written whole and renamed into place."""
     directory = os.path.join(out_dir, "cells", cell.id)
     os.makedirs(directory, exist_ok=True)
-    config_text = json.dumps(_jsonable(cell.config), indent=2)
+    config_text = json.dumps(report.config_record(cell.config), indent=2)
     write_text(os.path.join(directory, "config.json"), config_text)
     info = {
         "cell": cell.id,
@@ -761,7 +757,7 @@ def _load_cell(out_dir: str, cell: Cell) -> CellOutput | None:
     directory = os.path.join(out_dir, "cells", cell.id)
     try:
         with open(os.path.join(directory, "config.json")) as f:
-            if json.load(f) != _jsonable(cell.config):
+            if json.load(f) != report.config_record(cell.config):
                 return None
         with open(os.path.join(directory, "cell.json")) as f:
             info = json.load(f)
@@ -870,7 +866,7 @@ def _write_tables(out_dir: str, result: SweepResult, base_config, cells, labels)
         os.path.join(out_dir, "cells.csv"), lambda tmp: result.cells.to_csv(tmp, index=False)
     )
     description = {
-        "base_config": _jsonable(base_config),
+        "base_config": report.config_record(base_config),
         "cells": [{"cell": c.id, "loss": c.loss, "overrides": _plain(c.overrides)} for c in cells],
     }
     write_text(os.path.join(out_dir, "sweep.json"), json.dumps(description, indent=2))

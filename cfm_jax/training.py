@@ -150,10 +150,6 @@ class DivergenceError(RuntimeError):
     """
 
 
-def _jsonable(config: config_lib.Config) -> dict:
-    return report.config_record(config)
-
-
 def _nonfinite(state: TrainState, metrics: dict, n_seeds: int) -> list[str | None]:
     """Per seed, the first quantity of an update that is non-finite (a training loss or
     the parameters of a model), or None. A diverged *rollout* is not in this list: it is an
@@ -259,6 +255,7 @@ def train(
     from cfm_jax import checkpoint as ckpt_lib
 
     start = time.perf_counter()
+    saved_config = report.config_record(config)  # config.json, checkpoints, data set: once
     if experiment is not None:
         knobs = experiment.knobs_for(config)  # refuses a config of another structure
     if resume is not None:
@@ -270,7 +267,7 @@ def train(
             )
         with open(saved_path) as f:
             saved = json.load(f)
-        diff = config_lib.differences(saved, _jsonable(config))
+        diff = config_lib.differences(saved, saved_config)
         if diff:
             raise config_lib.ConfigError(
                 f"resume={resume!r} is not allowed: the run there has a different config in "
@@ -284,7 +281,7 @@ def train(
     checkpointer = None
     if out_dir:
         os.makedirs(out_dir, exist_ok=True)
-        write_text(os.path.join(out_dir, "config.json"), json.dumps(_jsonable(config), indent=2))
+        write_text(os.path.join(out_dir, "config.json"), json.dumps(saved_config, indent=2))
         if config.loop.checkpoint_every > 0:
             checkpointer = ckpt_lib.Checkpointer(
                 os.path.join(resume or out_dir, "checkpoints"), keep=config.loop.checkpoint_keep
@@ -315,7 +312,7 @@ def train(
         if checkpointer is None:
             return
         if final or done % config.loop.checkpoint_every == 0:
-            meta = {"rows": rows, "config": _jsonable(config), "stopped": stopped}
+            meta = {"rows": rows, "config": saved_config, "stopped": stopped}
             checkpointer.save(done, state, meta)
             last_saved[0] = done
 
@@ -373,7 +370,7 @@ def train(
             state.data,
             _segments(config, state, rows, recorded),
             seeds,
-            _jsonable(config),
+            saved_config,
         )
     return TrainResult(
         config=config,
