@@ -16,6 +16,32 @@ from cfm_jax import config as config_lib
 
 QUICK_LOSSES = "joint,task"
 
+BEFORE_SELECTION = {
+    "loop.babbling": "home",
+    "loop.normaliser": "babbling",
+    "task.desired": "pd",
+    "forward.kind": "mlp",
+    "controller.goal": "desired",
+    "controller.loss_form": "squared",
+    "forward.start": "warm",
+    "controller.start": "warm",
+}
+"""The options of every task before the selection run (``select_defaults.py``) chose the
+defaults, as dotted config paths: the studies' cells that ran before it (and the selection
+run's cells, which vary one option at a time from these) pin them, so that a cell's record
+stays reproducible whatever the defaults become."""
+
+
+def with_changes(config: config_lib.Config, changes) -> config_lib.Config:
+    """``config`` with ``changes`` (a mapping or pairs of dotted path ``section.field`` and
+    value, e.g. ``{"loop.babbling": "home"}``) applied in order, validated by
+    :func:`cfm_jax.config.from_dict`."""
+    tree = config_lib.to_dict(config)
+    for path, value in dict(changes).items():
+        section, field = path.split(".")
+        tree[section][field] = value
+    return config_lib.from_dict(tree)
+
 
 def parser(description: str, default_out: str) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=description)

@@ -104,7 +104,7 @@ def _means_text(values: dict[str, pd.Series], unit: str) -> str:
 
 
 def _cell_name(cell) -> str:
-    return f"{cell.babbling}/{cell.gains}"
+    return f"before the selection run, {cell.name}" if cell.before_selection else cell.name
 
 
 def ranking_claim(cells, task, column, unit, over="last", extra=None):

@@ -2,9 +2,10 @@
 reach the same conclusions on both?
 
 For each task (``walk``, ``jump``), simulator (``native``: MuJoCo C, ``mjx``) and loss
-(``joint``, ``task``) one cell: ``cfm_jax.train`` of the robustness study's default cell
-(``experiments/robustness_study.py``: ``for_task`` defaults, ``home`` babbling, no
-feedback in ``s*``, the paper's networks and fits) with ``--seeds`` seeds (0, 1, ...) and
+(``joint``, ``task``) one cell: ``cfm_jax.train`` of the robustness study's cell
+``home-default`` (``experiments/robustness_study.py``: the defaults before the selection
+run, ``home`` babbling, no feedback in ``s*``, the paper's networks and fits; the records
+ran on them) with ``--seeds`` seeds (0, 1, ...) and
 ``--iterations`` iterations, only ``config.simulator`` differing between the simulators.
 The two losses of a (task, simulator) share one ``Experiment`` (its compilations).
 
@@ -69,8 +70,9 @@ def cells(tasks) -> list[Cell]:
 
 
 def config_for(task: str, simulator: str, seeds: int, iterations: int, quick: bool):
-    """The robustness study's default cell of ``task`` on ``simulator``."""
-    config = robustness_study.Cell("solo12", task, "home", "default", seeds).config(iterations)
+    """The robustness study's cell of ``task`` with the defaults before the selection run
+    (``home-default``: this study's records ran on them) on ``simulator``."""
+    config = robustness_study.find(task, "home-default").config(iterations)
     if quick:
         config = _study.quick_config(config)
     return config.replace(simulator=simulator, loop=dataclasses.replace(config.loop, seeds=seeds))

@@ -1,31 +1,37 @@
 """Which controller loss wins where: the paper's four losses under the faithful protocol and
 under the choices the library made before it, with confidence intervals over seeds.
 
-The grid (``CELLS``): for each (robot, task) the initial data ``loop.babbling`` x the ``s*``
-gains, each cell one :func:`cfm_jax.sweep` of the four losses (``joint``, ``task``,
-``distal``, ``supervised``) with the same seeds, 10 iterations:
+The cells (``CELLS``), each one :func:`cfm_jax.sweep` of the four losses (``joint``,
+``task``, ``distal``, ``supervised``) with the same seeds, 10 iterations, each a set of
+``changes`` (dotted config paths) to :func:`cfm_jax.config.for_task`:
 
-* iiwa14 ``inverse_dynamics``: babbling ``home`` (the default, 5 seeds) and
-  ``reference_pd`` (the arm's babbling before, 3 seeds); the arm's gains did not change.
-* Solo12 ``walk`` and ``jump``: babbling ``home`` (default: 2 rollouts per target at
-  torque noise 0.1) or ``oracle`` (before: the reference controller, 4 rollouts at 0.3) x
-  gains ``default`` (no feedback in ``s*``) or ``pilot_tuned`` (``kp = 100``, ``kd = 20``
-  on the base, ``joint_kp = 2000``, ``joint_kd = 50``). The earlier babbling size and noise
-  and gains were chosen on pilots of the joint loss alone; 5 seeds in the default cell, 3
-  in the others.
-* iiwa14 ``opspace``: its default cell, 5 seeds.
+* ``defaults`` of each task (iiwa14 ``inverse_dynamics`` and ``opspace``, Solo12 ``walk``
+  and ``jump``; 5 seeds): the library's defaults, the headline results.
+* One cell per default that the selection run (``select_defaults.py``) changed, with its
+  old value and the other defaults kept (3 seeds, named ``<field>=<old value>``, found by
+  comparing ``for_task`` with ``_study.BEFORE_SELECTION``): what each change is worth.
+* The cells that ran before the selection run, on the options of that time
+  (``BEFORE_SELECTION``, pinned so that their records stay reproducible) and named by
+  their initial data and ``s*`` gains: ``home-default`` of each task (the defaults then,
+  5 seeds); iiwa14 ``reference_pd-default`` (the arm's babbling before the faithful
+  protocol); Solo12 ``walk`` and ``jump`` with babbling ``oracle`` (the reference
+  controller, 4 rollouts at torque noise 0.3) and/or gains ``pilot_tuned`` (``kp = 100``,
+  ``kd = 20`` on the base, ``joint_kp = 2000``, ``joint_kd = 50``), chosen then on pilots
+  of the joint loss alone (3 seeds). Each of their records holds the ``config.json`` it
+  ran (one seed's; every loss the same but ``loss``).
 
-Outputs: the runs in ``--runs`` (``<task>/<babbling>-<gains>/``: what the sweep writes, one
-folder per loss, checkpoints; an interrupted cell resumes from its checkpoints, so run the
-study in pieces with ``--budget``), and in ``--out``:
+Outputs: the runs in ``--runs`` (``<task>/<cell>/``: what the sweep writes, one folder per
+loss, checkpoints; an interrupted cell resumes from its checkpoints, so run the study in
+pieces with ``--budget``), and in ``--out``:
 
-* ``cells/<task>/<babbling>-<gains>/``: the record of each finished cell (its sweep's
-  ``metrics.csv``, ``baselines.csv``, ``summary.md``, ``curves.png`` and ``seconds.txt``,
-  the wall time of each piece it ran in). The tables are made from these; a cell with a
-  record is not run again, also from a fresh clone without the runs.
+* ``cells/<task>/<cell>/``: the record of each finished cell (its sweep's
+  ``metrics.csv``, ``baselines.csv``, ``summary.md``, ``curves.png``, ``seconds.txt``,
+  the wall time of each piece it ran in, and ``config.json``). The tables are made from
+  these; a cell with a record is not run again, also from a fresh clone without the runs.
 
-* ``summary.csv``: one row per (robot, task, babbling, gains, loss) of the finished cells:
-  ``seeds``, ``final_mean``, ``final_std`` (over the seed means), ``ci_low``, ``ci_high``
+* ``summary.csv``: one row per (robot, task, cell, loss) of the finished cells (``label``
+  says what the cell is): ``seeds``, ``final_mean``, ``final_std`` (over the seed means),
+  ``ci_low``, ``ci_high``
   (95% percentile bootstrap over seeds, each seed averaged over its targets) of the task's
   tracking MSE at the last iteration; ``joint_minus``, ``joint_minus_low``,
   ``joint_minus_high`` (the paired comparison over seeds: joint minus this loss, negative =
@@ -48,6 +54,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import os
 import time
 
@@ -58,63 +65,129 @@ import pandas as pd
 from cfm_jax import config as config_lib
 from cfm_jax import losses, report
 
-BABBLING_BEFORE = {"oracle": {"babbling_rollouts": 4, "babbling_noise": 0.3}}
+BEFORE = _study.BEFORE_SELECTION
+"""The options every task had before the selection run chose the defaults: the cells that
+ran then pin them (``before(...)``), so their records stay reproducible."""
+
+ORACLE_BABBLING = {
+    "loop.babbling": "oracle",
+    "loop.babbling_rollouts": 4,
+    "loop.babbling_noise": 0.3,
+}
 """The legged tasks' babbling before the faithful protocol: the reference controller, 4
 rollouts per target at torque noise 0.3 (chosen on pilots of the joint loss)."""
 
-GAINS = {
-    "default": None,  # the task's for_task gains
-    "pilot_tuned": {"kp": 100.0, "kd": 20.0, "joint_kp": 2000.0, "joint_kd": 50.0},
-}
-"""The ``s*`` gains of the cells: the defaults, and the legged gains chosen before on pilots
-of the joint loss alone."""
+PILOT_GAINS = {"task.kp": 100.0, "task.kd": 20.0, "task.joint_kp": 2000.0, "task.joint_kd": 50.0}
+"""The legged ``s*`` gains chosen before on pilots of the joint loss alone."""
+
+DEFAULTS = "defaults"
+"""The name of each task's headline cell: the library's defaults."""
 
 
 @dataclasses.dataclass(frozen=True)
 class Cell:
-    """One cell of the grid: a robot and task, the initial data, the ``s*`` gains, seeds."""
+    """One cell of the study: a robot and task, what differs from the task's defaults
+    (``changes``: pairs of dotted config path and value, applied to
+    :func:`cfm_jax.config.for_task`; none in the headline cell), the number of seeds.
+    ``name`` is the cell's folder under ``cells/<task>/``, ``label`` what the tables say."""
 
     robot: str
     task: str
-    babbling: str
-    gains: str
-    seeds: int
-
-    @property
-    def name(self) -> str:
-        return f"{self.task}/{self.babbling}-{self.gains}"
+    name: str
+    changes: tuple = ()
+    seeds: int = 3
+    label: str = ""
+    before_selection: bool = False
 
     @property
     def default(self) -> bool:
-        return self.babbling == config_lib.for_task(self.task).loop.babbling and (
-            self.gains == "default"
-        )
+        return self.name == DEFAULTS
+
+    @property
+    def path(self) -> str:
+        return f"{self.task}/{self.name}"
+
+    @property
+    def tick(self) -> str:
+        """A short name for a figure's axis."""
+        return f"before:\n{self.name}" if self.before_selection else self.name.replace("=", "=\n")
 
     def config(self, iterations: int) -> config_lib.Config:
         config = config_lib.for_task(self.task, robot=self.robot)
-        task = config.task
-        if GAINS[self.gains] is not None:
-            task = dataclasses.replace(task, **GAINS[self.gains])
-        loop = dataclasses.replace(config.loop, babbling=self.babbling, iterations=iterations)
-        if config.task.name in ("walk", "jump"):
-            loop = dataclasses.replace(loop, **BABBLING_BEFORE.get(self.babbling, {}))
-        return config.replace(task=task, loop=loop)
+        return _study.with_changes(config, {**dict(self.changes), "loop.iterations": iterations})
 
 
+def before(**groups) -> tuple:
+    """The options before the selection run with ``groups`` (dicts of dotted paths) on top."""
+    changes = dict(BEFORE)
+    for group in groups.values():
+        changes.update(group)
+    return tuple(changes.items())
+
+
+def _value(config: config_lib.Config, path: str):
+    section, field = path.split(".")
+    return getattr(getattr(config, section), field)
+
+
+def changed_factors(task: str) -> dict:
+    """The options whose default the selection run changed for ``task``, with their old
+    values (dotted path: value); the fit start of both networks is one factor."""
+    config = config_lib.for_task(task)
+    return {p: v for p, v in BEFORE.items() if _value(config, p) != v}
+
+
+def old_value_cells(task: str, robot: str) -> tuple:
+    """One cell per default the selection run changed, with its old value (3 seeds), the
+    other defaults kept: what each change is worth on the test motions. The two networks'
+    fit starts (``forward.start``, ``controller.start``) are one factor, as in the
+    selection run."""
+    changed = changed_factors(task)
+    starts = {p: changed.pop(p) for p in ("forward.start", "controller.start") if p in changed}
+    groups = [{p: v} for p, v in changed.items()]
+    if starts:
+        groups.append({p: BEFORE[p] for p in ("forward.start", "controller.start")})
+    cells = []
+    for changes in groups:
+        path, value = next(iter(changes.items()))
+        name = f"{path.split('.')[1]}={value}"
+        label = f"defaults with {name} (its value before the selection)"
+        cells.append(Cell(robot, task, name, tuple(changes.items()), 3, label))
+    return tuple(cells)
+
+
+ROBOTS = {"inverse_dynamics": "iiwa14", "opspace": "iiwa14", "walk": "solo12", "jump": "solo12"}
+_BEFORE = {"before_selection": True}
+_ON_BEFORE = "before the selection run: "
 CELLS = (
-    # The default cells first (the headline results), then the choices made before.
-    Cell("iiwa14", "inverse_dynamics", "home", "default", 5),
-    Cell("iiwa14", "opspace", "home", "default", 5),
-    Cell("solo12", "walk", "home", "default", 5),
-    Cell("solo12", "jump", "home", "default", 5),
-    Cell("iiwa14", "inverse_dynamics", "reference_pd", "default", 3),
-    Cell("solo12", "walk", "oracle", "pilot_tuned", 3),
-    Cell("solo12", "jump", "oracle", "pilot_tuned", 3),
-    Cell("solo12", "walk", "home", "pilot_tuned", 3),
-    Cell("solo12", "jump", "home", "pilot_tuned", 3),
-    Cell("solo12", "walk", "oracle", "default", 3),
-    Cell("solo12", "jump", "oracle", "default", 3),
-)
+    # The headline cells (the library's defaults, 5 seeds), then one cell per default the
+    # selection run changed with its old value, then the cells that ran before it (their
+    # records keep the old folder names <babbling>-<gains>).
+    *(Cell(ROBOTS[t], t, DEFAULTS, (), 5, "defaults") for t in ROBOTS),
+    *(c for t in ROBOTS for c in old_value_cells(t, ROBOTS[t])),
+    *(Cell(ROBOTS[t], t, "home-default", before(), 5, _ON_BEFORE + "its defaults", **_BEFORE)
+      for t in ROBOTS),
+    Cell("iiwa14", "inverse_dynamics", "reference_pd-default",
+         before(b={"loop.babbling": "reference_pd"}), 3,
+         _ON_BEFORE + "its defaults with reference_pd babbling", **_BEFORE),
+    *(Cell("solo12", t, f"{b}-{g}", before(b=bb, g=gg), 3,
+           f"{_ON_BEFORE}its defaults with {b} babbling, {g} gains", **_BEFORE)
+      for t in ("walk", "jump")
+      for b, bb, g, gg in (("oracle", ORACLE_BABBLING, "pilot_tuned", PILOT_GAINS),
+                           ("home", {}, "pilot_tuned", PILOT_GAINS),
+                           ("oracle", ORACLE_BABBLING, "default", {}))),
+)  # fmt: skip
+
+
+def find(task: str, name: str) -> Cell:
+    """The cell of ``task`` named ``name`` (its folder name)."""
+    for cell in CELLS:
+        if (cell.task, cell.name) == (task, name):
+            return cell
+    names = [c.name for c in CELLS if c.task == task]
+    raise KeyError(f"no cell {name!r} of task {task!r}; the cells are {names}")
+
+
 TASK_ORDER = ("inverse_dynamics", "opspace", "walk", "jump")
 UNITS = {
     "inverse_dynamics": "rad^2",
@@ -126,13 +199,13 @@ UNITS = {
 
 def run_dir(runs: str, cell: Cell) -> str:
     """Where a cell runs: the sweep's folder (large: checkpoints and data sets)."""
-    return os.path.join(runs, cell.task, f"{cell.babbling}-{cell.gains}")
+    return os.path.join(runs, cell.task, cell.name)
 
 
 def record_dir(out: str, cell: Cell) -> str:
     """The small record of a finished cell next to the tables (``RECORD_FILES``): what the
     tables are made of, kept with them so that a fresh clone skips the cell."""
-    return os.path.join(out, "cells", cell.task, f"{cell.babbling}-{cell.gains}")
+    return os.path.join(out, "cells", cell.task, cell.name)
 
 
 RECORD_FILES = ("metrics.csv", "baselines.csv", "seconds.txt", "summary.md", "curves.png")
@@ -159,6 +232,11 @@ def run_cell(cell: Cell, args) -> float:
         quick = _study.quick_config(config)
         config = quick.replace(loop=dataclasses.replace(quick.loop, iterations=1))
         seeds = 2
+    os.makedirs(record_dir(args.out, cell), exist_ok=True)
+    ran = config.replace(loop=dataclasses.replace(config.loop, seeds=seeds))
+    with open(os.path.join(record_dir(args.out, cell), "config.json"), "w") as f:
+        json.dump(config_lib.to_dict(ran), f, indent=1, sort_keys=True)
+        f.write("\n")
     seconds = _study.timed_sweep(config, seeds, losses_, run_dir(args.runs, cell), args.quiet)
     keep_record(args.runs, args.out, cell)
     return seconds
@@ -185,8 +263,8 @@ def cell_rows(out: str, cell: Cell) -> list[dict]:
         row = {
             "robot": cell.robot,
             "task": cell.task,
-            "babbling": cell.babbling,
-            "gains": cell.gains,
+            "cell": cell.name,
+            "label": cell.label,
             "loss": loss,
             "seeds": int(table.loc[loss, "seeds"]),
             "final_mean": float(table.loc[loss, "tracking_mse_mean"]),
@@ -231,18 +309,14 @@ def who_wins(out: str, cells, summary: pd.DataFrame) -> str:
             continue
         names = list(losses.PAPER_LOSSES)
         lines += ["", f"## {task} ({task_cells[0].robot}; tracking MSE in {UNITS[task]})", ""]
-        header = "| babbling | gains | seeds | " + " | ".join(names) + " | lowest | paired |"
-        lines += [header, "|---|---|---:|" + "---|" * len(names) + "---|---|"]
+        header = "| cell | seeds | " + " | ".join(names) + " | lowest | paired |"
+        lines += [header, "|---|---:|" + "---|" * len(names) + "---|---|"]
         for cell in task_cells:
-            rows = summary[
-                (summary.task == task)
-                & (summary.babbling == cell.babbling)
-                & (summary.gains == cell.gains)
-            ]
-            default = " (default)" if cell.default else ""
+            rows = summary[(summary.task == task) & (summary.cell == cell.name)]
+            label = f"{'**' if cell.default else ''}{cell.label}{'**' if cell.default else ''}"
             if rows.empty:
                 lines.append(
-                    f"| {cell.babbling}{default} | {cell.gains} | {cell.seeds} | "
+                    f"| {label} | {cell.seeds} | "
                     + " | ".join("not run yet" for _ in names)
                     + " | | |"
                 )
@@ -270,7 +344,7 @@ def who_wins(out: str, cells, summary: pd.DataFrame) -> str:
                 for loss, p in paired.iterrows()
             )
             lines.append(
-                f"| {cell.babbling}{default} | {cell.gains} | {int(rows.seeds.iloc[0])} | "
+                f"| {label} | {int(rows.seeds.iloc[0])} | "
                 + " | ".join(cells_text)
                 + f" | **{best}**{' (clear)' if clear else ''} | {paired_text} |"
             )
@@ -287,12 +361,12 @@ def plot(summary: pd.DataFrame, task: str, path: str) -> str | None:
     frame = summary[summary.task == task]
     if frame.empty:
         return None
-    groups = list(dict.fromkeys(zip(frame.babbling, frame.gains, strict=True)))
+    groups = list(dict.fromkeys(frame.cell))
     names = list(losses.PAPER_LOSSES)
     fig, ax = plt.subplots(figsize=(3.0 + 1.9 * len(groups), 3.8))
     width = 0.8 / len(names)
     for k, name in enumerate(names):
-        rows = frame[frame.loss == name].set_index(["babbling", "gains"])
+        rows = frame[frame.loss == name].set_index("cell")
         xs, ys, err = [], [], []
         for g, group in enumerate(groups):
             if group not in rows.index:
@@ -305,7 +379,8 @@ def plot(summary: pd.DataFrame, task: str, path: str) -> str | None:
             ax.errorbar(
                 xs, ys, yerr=np.asarray(err).T, fmt="o", capsize=3, label=name, markersize=4
             )
-    ax.set_xticks(range(len(groups)), [f"{b}\n{g}" for b, g in groups])
+    ticks = {c.name: c.tick for c in CELLS if c.task == task}
+    ax.set_xticks(range(len(groups)), [ticks.get(g, g) for g in groups])
     ax.set_yscale("log")
     ax.set_ylabel(f"final tracking MSE ({UNITS[task]})")
     ax.set_title(f"{task}\nmean and 95% bootstrap CI over seeds", fontsize=10)
@@ -321,7 +396,7 @@ def write_outputs(runs: str, out: str, cells) -> pd.DataFrame:
     os.makedirs(out, exist_ok=True)
     rows = [row for cell in cells if finished(runs, out, cell) for row in cell_rows(out, cell)]
     summary = pd.DataFrame(rows)
-    columns = ["robot", "task", "babbling", "gains", "loss", "seeds", "final_mean", "final_std",
+    columns = ["robot", "task", "cell", "label", "loss", "seeds", "final_mean", "final_std",
                "ci_low", "ci_high"]  # fmt: skip
     if summary.empty:
         summary = pd.DataFrame(columns=columns)

@@ -128,8 +128,10 @@ class Cell:
         return f"{self.factor.replace(' ', '_').replace('*', 'star')}={self.value}"
 
     def changes(self) -> dict:
-        """The dotted-path values of this cell: the base's, then the factor's."""
-        values = dict(BASE[family(self.task)])
+        """The dotted-path values of this cell: the options before the selection
+        (``_study.BEFORE_SELECTION``, so that the cell stays what it was when the defaults
+        change), the base's, then the factor's."""
+        values = {**_study.BEFORE_SELECTION, **BASE[family(self.task)]}
         if self.factor is not None:
             path = dict((n, p) for n, p, _ in FACTORS[family(self.task)])[self.factor]
             if path.startswith("forward+controller."):
@@ -143,13 +145,12 @@ class Cell:
     def config(self, iterations: int | None = None) -> config_lib.Config:
         task = self.task
         config = config_lib.for_task(task, robot=ROBOT[task])
-        tree = config_lib.to_dict(config)
-        tree["loop"]["iterations"] = ITERATIONS[task] if iterations is None else iterations
-        for path, value in self.changes().items():
-            section, field = path.split(".")
-            tree[section][field] = value
-        tree["task"].update(selection_motions(task, config))
-        return config_lib.from_dict(tree)
+        changes = {
+            "loop.iterations": ITERATIONS[task] if iterations is None else iterations,
+            **self.changes(),
+            **{f"task.{k}": v for k, v in selection_motions(task, config).items()},
+        }
+        return _study.with_changes(config, changes)
 
 
 def selection_motions(task: str, config: config_lib.Config) -> dict:

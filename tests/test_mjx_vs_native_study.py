@@ -58,9 +58,11 @@ def _records(out, cells):
             f.write("10.0\n5.5\n")
 
 
-def test_config_is_the_robustness_default_cell_on_either_simulator():
+def test_config_is_the_robustness_cell_of_its_records_on_either_simulator():
+    """The records ran the robustness study's cell home-default (the defaults before the
+    selection run), on either simulator."""
     for task in study.TASKS:
-        default = robustness_study.Cell("solo12", task, "home", "default", 2).config(3)
+        default = robustness_study.find(task, "home-default").config(3)
         for simulator in study.SIMULATORS:
             config = study.config_for(task, simulator, seeds=2, iterations=3, quick=False)
             assert config.simulator == simulator and config.loop.iterations == 3

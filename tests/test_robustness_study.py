@@ -8,6 +8,7 @@ test_report.py). No training runs here; the study's cells are the library's swee
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import shutil
 import sys
@@ -55,19 +56,19 @@ def _fake_run(runs, cell, scale, legged):
 def test_summary_and_who_wins_from_finished_cells(tmp_path):
     runs, out = str(tmp_path / "runs"), str(tmp_path / "out")
     walk = next(c for c in study.CELLS if c.task == "walk" and c.default)
-    arm = next(c for c in study.CELLS if c.task == "inverse_dynamics" and not c.default)
+    arm = study.find("inverse_dynamics", "reference_pd-default")
     _fake_run(runs, walk, scale=(1.0, 2.0, 4.0, 0.5), legged=True)
     _fake_run(runs, arm, scale=(3.0, 1.0, 2.0, 5.0), legged=False)
     summary = study.write_outputs(runs, out, study.CELLS)
     assert set(os.listdir(out)) >= {"summary.csv", "who_wins.md", "walk.png"}
     written = pd.read_csv(os.path.join(out, "summary.csv"))
     assert len(written) == 8 and list(written.columns[:10]) == [
-        "robot", "task", "babbling", "gains", "loss", "seeds", "final_mean", "final_std",
+        "robot", "task", "cell", "label", "loss", "seeds", "final_mean", "final_std",
         "ci_low", "ci_high",
     ]  # fmt: skip
     row = summary[(summary.task == "walk") & (summary.loss == "task")].iloc[0]
     # task on walk: seed means 2 (1 + s) + 0.5 = 2.5, 4.5, 6.5: mean 4.5, sample std 2.
-    assert (row.robot, row.babbling, row.gains, row.seeds) == ("solo12", "home", "default", 3)
+    assert (row.robot, row.cell, row.label, row.seeds) == ("solo12", "defaults", "defaults", 3)
     np.testing.assert_allclose([row.final_mean, row.final_std], [4.5, 2.0])
     np.testing.assert_allclose([row.ci_low, row.ci_high], report.bootstrap_ci([2.5, 4.5, 6.5]))
     # joint minus task per seed: (1 (1 + s) + 0.5) - (2 (1 + s) + 0.5) = -1, -2, -3.
@@ -81,13 +82,13 @@ def test_summary_and_who_wins_from_finished_cells(tmp_path):
     assert row.seconds == pytest.approx(120.5)  # the pieces of an interrupted cell add up
     text = open(os.path.join(out, "who_wins.md")).read()
     # walk: supervised lowest (0.5 (1 + s) + 0.5), below every other loss in every seed.
-    walk_line = next(line for line in text.splitlines() if line.startswith("| home (default)")
+    walk_line = next(line for line in text.splitlines() if line.startswith("| **defaults**")
                      and "falls" in line)  # fmt: skip
     assert "**supervised** (clear)" in walk_line and "falls 1/6" in walk_line
     # the arm's reference_pd cell: task lowest; the default arm cell was not run.
-    arm_line = next(line for line in text.splitlines() if line.startswith("| reference_pd"))
-    assert "**task** (clear)" in arm_line
-    assert "| home (default) | default | 5 | not run yet" in text
+    arm_line = next(line for line in text.splitlines() if "reference_pd" in line)
+    assert arm_line.startswith(f"| {arm.label} | 3 |") and "**task** (clear)" in arm_line
+    assert "| **defaults** | 5 | not run yet" in text
     assert not study.finished(runs, out, study.CELLS[0]) and study.finished(runs, out, walk)
     # From a fresh clone (no runs, only the records next to the tables): the same tables.
     shutil.rmtree(runs)
@@ -96,25 +97,66 @@ def test_summary_and_who_wins_from_finished_cells(tmp_path):
     assert open(os.path.join(out, "who_wins.md")).read() == text
 
 
+RECORDS = os.path.join(os.path.dirname(__file__), "..", "docs", "results", "robustness")
+
+
 def test_cells_configs_follow_the_protocol():
-    cells = {(c.task, c.babbling, c.gains): c for c in study.CELLS}
-    default_walk = cells[("walk", "home", "default")].config(10)
-    assert default_walk == config_lib.for_task("walk").replace(
-        loop=config_lib.for_task("walk").loop.__class__(iterations=10)
-    )
-    assert cells[("walk", "home", "default")].seeds == 5
-    before = cells[("jump", "oracle", "pilot_tuned")].config(10)
+    # The headline cells are the task's defaults, 5 seeds.
+    for task in study.TASK_ORDER:
+        default = study.find(task, study.DEFAULTS)
+        want = config_lib.for_task(task, robot=default.robot)
+        want = want.replace(loop=dataclasses.replace(want.loop, iterations=10))
+        assert default.config(10) == want
+        assert default.seeds == 5 and default.default and not default.changes
+    assert all(c.seeds >= 3 for c in study.CELLS)
+    before = study.find("jump", "oracle-pilot_tuned").config(10)
     assert (before.loop.babbling, before.loop.babbling_rollouts, before.loop.babbling_noise) == (
         "oracle", 4, 0.3)  # fmt: skip
     assert (before.task.kp, before.task.kd, before.task.joint_kp, before.task.joint_kd) == (
         100.0, 20.0, 2000.0, 50.0)  # fmt: skip
-    arm_before = cells[("inverse_dynamics", "reference_pd", "default")].config(10)
-    assert arm_before.task == config_lib.for_task("inverse_dynamics").task
-    assert arm_before.loop.babbling_noise == 0.1 and arm_before.loop.babbling_rollouts == 2
-    # Every task has its default cell with at least 5 seeds, the others at least 3.
-    for task in study.TASK_ORDER:
-        assert any(c.task == task and c.default and c.seeds >= 5 for c in study.CELLS)
-    assert all(c.seeds >= 3 for c in study.CELLS)
+
+
+def test_cells_that_ran_before_the_selection_keep_the_configs_of_their_records():
+    """Oracle: the config.json of each such record, written by the study's code of the time
+    (its cells were then grids of babbling x gains on the defaults of the time)."""
+    old = [c for c in study.CELLS if c.before_selection]
+    assert len(old) == 11
+    for cell in old:
+        with open(os.path.join(study.record_dir(RECORDS, cell), "config.json")) as f:
+            recorded = json.load(f)
+        config = cell.config(recorded["loop"]["iterations"])
+        config = config.replace(loop=dataclasses.replace(config.loop, seeds=cell.seeds))
+        assert json.loads(json.dumps(config_lib.to_dict(config))) == recorded, cell.path
+
+
+def test_one_cell_per_changed_default_with_its_old_value(monkeypatch):
+    """Had the options before the selection differed from today's defaults only in the
+    babbling and the fit start, the study would add two 3-seed cells per task, each with
+    one old value and the other defaults; the two networks' starts are one factor."""
+    defaults = config_lib.for_task("walk")
+    old_babbling = next(b for b in config_lib.BABBLING if b != defaults.loop.babbling)
+    old_start = next(s for s in config_lib.FIT_STARTS if s != defaults.forward.start)
+    before = {p: getattr(getattr(defaults, p.split(".")[0]), p.split(".")[1]) for p in study.BEFORE}
+    before.update({"loop.babbling": old_babbling, "forward.start": old_start,
+                   "controller.start": old_start})  # fmt: skip
+    monkeypatch.setattr(study, "BEFORE", before)
+    assert study.changed_factors("walk") == {
+        "loop.babbling": old_babbling,
+        "forward.start": old_start,
+        "controller.start": old_start,
+    }
+    cells = study.old_value_cells("walk", "solo12")
+    assert [c.name for c in cells] == [f"babbling={old_babbling}", f"start={old_start}"]
+    assert all(c.seeds == 3 and c.robot == "solo12" and not c.default for c in cells)
+    walk = defaults.replace(loop=dataclasses.replace(defaults.loop, iterations=10))
+    walk = config_lib.to_dict(walk)
+    babbling, start = (config_lib.to_dict(c.config(10)) for c in cells)
+    assert babbling["loop"].pop("babbling") == old_babbling
+    assert (start["forward"].pop("start"), start["controller"].pop("start")) == (old_start,) * 2
+    for changed, section, field in ((babbling, "loop", "babbling"), (start, "forward", "start"),
+                                    (start, "controller", "start")):  # fmt: skip
+        changed[section][field] = walk[section][field]
+    assert babbling == walk and start == walk
 
 
 def test_claims_verdicts_follow_the_rule_on_hand_made_seeds():

@@ -8,6 +8,7 @@ No training runs here.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import sys
@@ -55,7 +56,7 @@ def test_every_cell_runs_on_motions_other_than_the_test_ones(task):
             for field, value in values.items()
             if base[section][field] != value
         }
-        base_values = select.BASE[select.family(task)]
+        base_values = cells[0].changes()
         expected = {p for p, v in cell.changes().items() if base_values.get(p) != v}
         assert changed == expected and expected, cell.name
 
@@ -145,3 +146,27 @@ def test_a_piece_of_one_task_keeps_the_other_task_s_tables(tmp_path):
         assert "## inverse_dynamics" in page and "## walk" in page, only
         assert "| base | -3.000 |" in page
     assert set(pd.read_csv(tmp_path / "selection.csv").task) == {"inverse_dynamics", "walk"}
+
+
+def test_finished_cells_keep_the_configs_of_their_records():
+    """Oracle: each finished cell's config.json, written when it ran. A cell pins the options
+    of the time (``_study.BEFORE_SELECTION``) beside its base and factor, so a change of the
+    library's defaults leaves it what it was; keys added to the config since a record was
+    written are not in it."""
+    records = os.path.join(os.path.dirname(__file__), "..", "docs", "results", "selection")
+    checked = 0
+    for task in ("inverse_dynamics", "walk"):
+        for cell in select.cells_of(task):
+            path = os.path.join(select.record_dir(records, cell), "config.json")
+            if not os.path.isfile(os.path.join(select.record_dir(records, cell), "metrics.csv")):
+                continue
+            with open(path) as f:
+                recorded = json.load(f)
+            got = json.loads(json.dumps(config_lib.to_dict(cell.config())))
+            for section, value in recorded.items():
+                if isinstance(value, dict):
+                    assert {k: got[section][k] for k in value} == value, (cell.name, section)
+                else:
+                    assert got[section] == value, (cell.name, section)
+            checked += 1
+    assert checked >= 9
