@@ -886,9 +886,7 @@ def for_task(task: str, **changes) -> Config:
             config,
             robot="solo12",
             task=TaskConfig(name=task, control_dt=0.004, kp=0.0, kd=0.0, desired="next_velocity"),
-            forward=ForwardModelConfig(
-                hidden=(1000, 500, 500), ensemble_size=1, kind="rigid_body"
-            ),
+            forward=ForwardModelConfig(hidden=(1000, 500, 500), ensemble_size=1, kind="rigid_body"),
             controller=ControllerConfig(hidden=(300, 300, 300)),
             loop=LoopConfig(babbling="home", normaliser="robot"),
         )
