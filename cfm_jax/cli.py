@@ -80,7 +80,8 @@ def train(
       site: opspace: the end-effector site of the MJCF (default: "ee", else "flange", else
         "attachment_site").
       babbling: the initial data, loop.babbling (home, reaching, reference_pd, oracle; see
-        cfm_jax.babbling); default: the config's (home).
+        cfm_jax.babbling); default: the config's (the task's default: reaching for the arm
+        tasks, home for the legged ones).
       quiet: no progress bar.
       tensorboard: also write TensorBoard event files to this folder (needs tensorboardX:
         pip install 'cfm_jax[tensorboard]'): after every iteration one scalar per loss and

@@ -162,5 +162,6 @@ def test_standing_forces_carry_the_weight():
 def test_unknown_strategy_is_refused_with_the_allowed_ones():
     with pytest.raises(config_lib.ConfigError, match="loop.babbling='pd'.*'home', 'reaching'"):
         config_lib.LoopConfig(babbling="pd")
+    # The selection run's choices: reaching for the arms, home for the legged tasks.
     assert config_lib.for_task("walk").loop.babbling == "home"
-    assert config_lib.Config().loop.babbling == "home"
+    assert config_lib.Config().loop.babbling == "reaching"

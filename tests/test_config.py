@@ -256,20 +256,29 @@ def test_for_task_defaults():
     assert (walk.robot, walk.task.name, walk.task.control_dt) == ("solo12", "walk", 0.004)
     assert walk.forward.hidden == (1000, 500, 500) and walk.forward.ensemble_size == 1
     assert walk.controller.hidden == (300, 300, 300)  # the paper's quadruped networks
+    # The selection run's choices for the legged tasks (docs/results/selection/).
+    assert (walk.task.desired, walk.forward.kind, walk.loop.normaliser) == (
+        "next_velocity", "rigid_body", "robot")  # fmt: skip
     arm = config_lib.for_task("opspace", seed=3)
     assert arm.task.name == "opspace" and arm.seed == 3
     assert arm.forward == config_lib.ForwardModelConfig()  # the arm defaults
     with pytest.raises(config_lib.ConfigError, match="task.name='swim' is not allowed"):
         config_lib.for_task("swim")
-    # Legged tasks: no feedback in s* (the paper's planned accelerations and forces; the
-    # joints take the base's 0 through joint_kp = None); arms: kp 100, kd 20.
+    # Legged tasks: no PD gains (s* is the desired next velocity, kp 0 and kd 1/control_dt
+    # implied by task.desired; the joints take the base's through joint_kp = None); arms:
+    # kp 100, kd 20.
     assert (walk.task.kp, walk.task.kd, walk.task.joint_kp, walk.task.joint_kd) == (
         0.0, 0.0, None, None)  # fmt: skip
     assert (arm.task.kp, arm.task.kd, arm.task.joint_kp, arm.task.joint_kd) == (
         100.0, 20.0, None, None)  # fmt: skip
-    # Every task's initial data knows nothing of the test references.
+    from cfm_jax import babbling
+
+    # Every task's initial data knows nothing of the test references: the arms reach to
+    # random poses, the legged robot holds its standing pose (the selection run's choices).
     for name in config_lib.TASKS:
-        assert config_lib.for_task(name).loop.babbling == "home"
+        expected = "home" if name in ("walk", "jump") else "reaching"
+        assert config_lib.for_task(name).loop.babbling == expected
+        assert not babbling.uses_reference(config_lib.for_task(name).loop.babbling)
 
 
 @pytest.mark.parametrize("field", ["joint_kp", "joint_kd"])
@@ -294,7 +303,7 @@ def test_a_config_written_before_loop_babbling_reads_as_what_ran():
     # A config that names its strategy keeps it; one without a loop section: the default.
     data = config_lib.to_dict(config_lib.for_task("walk"))
     assert config_lib.from_dict(data).loop.babbling == "home"
-    assert config_lib.from_dict({"robot": "iiwa14"}).loop.babbling == "home"
+    assert config_lib.from_dict({"robot": "iiwa14"}).loop.babbling == "reaching"
 
 
 def test_motions_are_for_the_legged_tasks_only():

@@ -201,16 +201,17 @@ def test_config_of_normaliser_and_desired():
         config.TaskConfig(name="jump", desired="next_velocity", kp=0, kd=0, joint_kd=5.0)
     with pytest.raises(config.ConfigError, match="task.desired"):
         config.TaskConfig(desired="velocity")
-    walk = config.for_task("walk")
+    walk = config.for_task("walk")  # next_velocity and robot: the selection run's choices
     changed = walk.replace(
-        task=dataclasses.replace(walk.task, desired="next_velocity"),
-        loop=dataclasses.replace(walk.loop, normaliser="robot"),
+        task=dataclasses.replace(walk.task, desired="pd"),
+        loop=dataclasses.replace(walk.loop, normaliser="babbling"),
     )
     assert config.from_dict(config.to_dict(changed)) == changed
-    # Old config.json files without the fields read as what ran then.
-    old = config.to_dict(walk)
+    assert config.from_dict(config.to_dict(walk)) == walk
+    # Old config.json files without the fields read as what ran then (pd, babbling).
+    old = config.to_dict(changed)
     del old["loop"]["normaliser"], old["task"]["desired"]
-    assert config.from_dict(old) == walk
+    assert config.from_dict(old) == changed
     # task.desired only changes the gains (compiled once); loop.normaliser is structure.
     assert config.structure(changed.replace(loop=walk.loop)) == config.structure(walk)
     assert config.structure(changed) != config.structure(walk)

@@ -346,7 +346,7 @@ def test_cli_summary_file_has_the_interval_and_the_paired_table(tmp_path):
     cli._write_outputs(str(tmp_path), [metrics], result, config_lib.Config(), task)
     text = (tmp_path / "summary.md").read_text()
     # The protocol line (initial data and s* gains), then the table.
-    protocol = "initial data: `loop.babbling='home'` (2 rollouts per target, torque noise 0.1"
+    protocol = "initial data: `loop.babbling='reaching'` (2 rollouts per target, torque noise 0.1"
     assert text.startswith(protocol)
     table = report.markdown(report.summary(metrics, result.baselines, 1.0))
     assert text.startswith(report.protocol(config_lib.Config()) + "\n\n" + table)

@@ -305,8 +305,10 @@ def _random_states(n, seed=0):
 
 RULES = {  # name: (FallLimits, oracle keywords)
     "fall": (solo12.FALL, {}),  # the library's rule: replay and training
-    "no_knees": (solo12.FallLimits(body_clearance=0.0, knees=False),  # the training's before
-                 {"clearance": 0.0, "knees": False}),  # fmt: skip
+    "no_knees": (
+        solo12.FallLimits(body_clearance=0.0, knees=False),  # the training's before
+        {"clearance": 0.0, "knees": False},
+    ),  # fmt: skip
     "knees_at_floor": (solo12.FallLimits(body_clearance=0.0), {"clearance": 0.0}),
 }
 

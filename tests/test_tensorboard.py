@@ -67,9 +67,7 @@ def test_scalars_read_back_are_the_means_per_loss_and_iteration(tmp_path):
     assert scalars["joint/diverged"][0][1] == 0.25  # one rollout of four diverged
 
 
-def test_a_metric_measured_nowhere_at_a_step_is_not_written_and_nothing_printed(
-    tmp_path, capsys
-):
+def test_a_metric_measured_nowhere_at_a_step_is_not_written_and_nothing_printed(tmp_path, capsys):
     """The fit losses are NaN at the final evaluation (nothing is fitted): that step is
     left out of their curves (the mean skips NaN rows, so only an all-NaN or infinite mean
     is left out), and tensorboardX prints no NaN warning."""
