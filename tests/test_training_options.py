@@ -268,7 +268,7 @@ def test_config_fields_validate_and_round_trip():
         ("controller.full_batch", dict(full_batch=1)),
         ("controller.loss_weights", dict(loss_form="norm", loss_weights=((1.0, ()),))),
         ("controller.loss_weights", dict(loss_form="norm", loss_weights=((-1.0, (0,)),))),
-        ("controller.loss_weights", dict(loss_weights=((1.0, (0,)),))),  # squared form
+        ("controller.loss_weights", dict(loss_form="squared", loss_weights=((1.0, (0,)),))),
     ]
     for field, kwargs in bad:
         with pytest.raises(cfg.ConfigError, match=field):

@@ -15,9 +15,10 @@ from cfm_jax import config as config_lib
 def tiny_config(**loop) -> config_lib.Config:
     """The two-link arm, 0.3 s references, 16-unit networks and a few dozen fit steps.
 
-    Its initial data is ``home`` babbling, the library's default before the selection run:
-    the golden records (tests/golden/) were made with it, so that the tests built on this
-    config keep checking that option bit for bit; tests/learning.py runs the defaults."""
+    Its initial data is ``home`` babbling and its controller loss the ``squared`` form, the
+    library's defaults before the selection run: the golden records (tests/golden/) were
+    made with them, so that the tests built on this config keep checking those options bit
+    for bit; tests/learning.py runs the defaults."""
     return config_lib.Config(
         robot="two_link_arm",
         task=config_lib.TaskConfig(duration=0.3),
@@ -29,8 +30,12 @@ def tiny_config(**loop) -> config_lib.Config:
             batch_size=32,
         ),  # fmt: skip
         controller=config_lib.ControllerConfig(
-            hidden=(16,), initial_steps=20, steps_per_iteration=10, batch_size=32
-        ),
+            hidden=(16,),
+            initial_steps=20,
+            steps_per_iteration=10,
+            batch_size=32,
+            loss_form="squared",
+        ),  # fmt: skip
         loop=config_lib.LoopConfig(
             **{"iterations": 2, "seeds": 2, "babbling_rollouts": 1, "babbling": "home", **loop}
         ),
