@@ -13,8 +13,12 @@ import time
 
 import cfm_jax
 from cfm_jax import config as config_lib
+from cfm_jax import sweeps
 
 QUICK_LOSSES = "joint,task"
+
+ROBOT = {"inverse_dynamics": "iiwa14", "opspace": "iiwa14", "walk": "solo12", "jump": "solo12"}
+"""The robot of each task in the studies: the paper's."""
 
 BEFORE_SELECTION = {
     "loop.babbling": "home",
@@ -34,13 +38,10 @@ stays reproducible whatever the defaults become."""
 
 def with_changes(config: config_lib.Config, changes) -> config_lib.Config:
     """``config`` with ``changes`` (a mapping or pairs of dotted path ``section.field`` and
-    value, e.g. ``{"loop.babbling": "home"}``) applied in order, validated by
-    :func:`cfm_jax.config.from_dict`."""
-    tree = config_lib.to_dict(config)
-    for path, value in dict(changes).items():
-        section, field = path.split(".")
-        tree[section][field] = value
-    return config_lib.from_dict(tree)
+    value, e.g. ``{"loop.babbling": "home"}``): the one cell of :func:`cfm_jax.sweeps.grid`
+    with those overrides, so paths and values are checked as a sweep checks them."""
+    overrides = {path: [value] for path, value in dict(changes).items()}
+    return sweeps.grid(config, overrides=overrides)[0].config
 
 
 def parser(description: str, default_out: str) -> argparse.ArgumentParser:

@@ -117,10 +117,10 @@ class Cell:
         return _study.with_changes(config, {**dict(self.changes), "loop.iterations": iterations})
 
 
-def before(**groups) -> tuple:
+def before(*groups: dict) -> tuple:
     """The options before the selection run with ``groups`` (dicts of dotted paths) on top."""
     changes = dict(BEFORE)
-    for group in groups.values():
+    for group in groups:
         changes.update(group)
     return tuple(changes.items())
 
@@ -132,7 +132,7 @@ def _value(config: config_lib.Config, path: str):
 
 def changed_factors(task: str) -> dict:
     """The options whose default the selection run changed for ``task``, with their old
-    values (dotted path: value); the fit start of both networks is one factor."""
+    values (dotted path: value)."""
     config = config_lib.for_task(task)
     return {p: v for p, v in BEFORE.items() if _value(config, p) != v}
 
@@ -156,7 +156,7 @@ def old_value_cells(task: str, robot: str) -> tuple:
     return tuple(cells)
 
 
-ROBOTS = {"inverse_dynamics": "iiwa14", "opspace": "iiwa14", "walk": "solo12", "jump": "solo12"}
+ROBOTS = _study.ROBOT
 _BEFORE = {"before_selection": True}
 _ON_BEFORE = "before the selection run: "
 CELLS = (
@@ -168,9 +168,9 @@ CELLS = (
     *(Cell(ROBOTS[t], t, "home-default", before(), 5, _ON_BEFORE + "its defaults", **_BEFORE)
       for t in ROBOTS),
     Cell("iiwa14", "inverse_dynamics", "reference_pd-default",
-         before(b={"loop.babbling": "reference_pd"}), 3,
+         before({"loop.babbling": "reference_pd"}), 3,
          _ON_BEFORE + "its defaults with reference_pd babbling", **_BEFORE),
-    *(Cell("solo12", t, f"{b}-{g}", before(b=bb, g=gg), 3,
+    *(Cell("solo12", t, f"{b}-{g}", before(bb, gg), 3,
            f"{_ON_BEFORE}its defaults with {b} babbling, {g} gains", **_BEFORE)
       for t in ("walk", "jump")
       for b, bb, g, gg in (("oracle", ORACLE_BABBLING, "pilot_tuned", PILOT_GAINS),

@@ -79,7 +79,7 @@ ARM = ("inverse_dynamics", "opspace")
 LEGGED = ("walk", "jump")
 SELECTED_ON = {"arm": "inverse_dynamics", "legged": "walk"}
 """The task on which each family's factors are chosen (see ``SIZING``)."""
-ROBOT = {"inverse_dynamics": "iiwa14", "opspace": "iiwa14", "walk": "solo12", "jump": "solo12"}
+ROBOT = _study.ROBOT
 ITERATIONS = {"inverse_dynamics": 10, "opspace": 10, "walk": 30, "jump": 30}
 SEEDS = 3
 
