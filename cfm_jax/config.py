@@ -461,9 +461,9 @@ class ForwardModelConfig:
         units); learned, as in PETS.
       max_log_variance: initial upper soft bound; learned; above ``min_log_variance``.
       start: how each refit in an iteration starts, one of :data:`FIT_STARTS`: ``warm``
-        (default: the parameters and Adam state of the previous fit carry on),
-        ``warm_new_optimizer`` (parameters kept, Adam re-created for each fit: the
-        authors' public Solo12 code) or ``fresh`` (parameters re-initialised each
+        (default; the arm tasks': the parameters and Adam state of the previous fit carry
+        on), ``warm_new_optimizer`` (parameters kept, Adam re-created for each fit: the
+        authors' public Solo12 code; the legged tasks' default, :func:`for_task`) or ``fresh`` (parameters re-initialised each
         iteration from a key derived from the iteration's key, Adam re-created).
       kind: one of :data:`FORWARD_KINDS`: ``"mlp"`` (default; the paper's text: the
         ensemble predicts the output from ``(s, tau)``) or ``"rigid_body"`` (the authors'
@@ -573,7 +573,7 @@ class ControllerConfig:
         vertical and angular velocity, the arm tasks one group of weight 1). Only with
         ``loss_form="norm"``.
       start: how each refit in an iteration starts, one of :data:`FIT_STARTS` (as
-        ``forward.start``; default ``warm``).
+        ``forward.start``; default ``warm``, the legged tasks' ``warm_new_optimizer``).
       full_batch: False (default): each step a minibatch of ``batch_size`` rows; True: each
         step every filled row of the data set (the authors' code: one batch of the whole
         data set), a mean over the fixed-capacity buffer weighted by the filled-row mask
@@ -861,9 +861,11 @@ def for_task(task: str, **changes) -> Config:
     Solo12 code; the PD form with no feedback, the paper's planned accelerations, was
     clearly worse), the ``rigid_body`` forward model (``M^-1 (S tau - h)`` of the robot's
     own MJCF plus a learned residual, as the authors' code; clearly better than the black
-    box) and the ``robot`` normaliser (fixed scales from the MJCF); the controller loss
-    keeps the ``squared`` form (the ``norm`` form, chosen for the arms, failed more walks
-    and scored worse, not clearly). The earlier legged
+    box), the ``robot`` normaliser (fixed scales from the MJCF) and fits started
+    ``warm_new_optimizer`` (both networks keep their parameters across iterations, Adam is
+    re-created for each fit, as the authors' code; better than ``warm`` and ``fresh``, not
+    clearly); the controller loss keeps the ``squared`` form (the ``norm`` form, chosen for
+    the arms, failed more walks and scored worse, not clearly). The earlier legged
     choices, babbling 4 x 0.3 and the gains ``kp = 100``, ``kd = 20`` on the base,
     ``joint_kp = 2000``, ``joint_kd = 50``, were chosen on pilot runs of the joint loss
     alone; they remain cells of ``experiments/robustness_study.py``, not defaults.
@@ -883,6 +885,8 @@ def for_task(task: str, **changes) -> Config:
       >>> walk = for_task("walk", robot="solo12")
       >>> walk.task.control_dt, walk.task.desired, walk.loop.babbling, walk.forward.kind
       (0.004, 'next_velocity', 'home', 'rigid_body')
+      >>> walk.forward.start, walk.controller.start, walk.controller.loss_form
+      ('warm_new_optimizer', 'warm_new_optimizer', 'squared')
       >>> for_task("inverse_dynamics").loop.babbling
       'reaching'
     """
@@ -894,9 +898,14 @@ def for_task(task: str, **changes) -> Config:
             config,
             robot="solo12",
             task=TaskConfig(name=task, control_dt=0.004, kp=0.0, kd=0.0, desired="next_velocity"),
-            forward=ForwardModelConfig(hidden=(1000, 500, 500), ensemble_size=1, kind="rigid_body"),
+            forward=ForwardModelConfig(
+                hidden=(1000, 500, 500), ensemble_size=1, kind="rigid_body",
+                start="warm_new_optimizer",
+            ),
             # The selection run's walk cells kept the squared form here (norm is the arms').
-            controller=ControllerConfig(hidden=(300, 300, 300), loss_form="squared"),
+            controller=ControllerConfig(
+                hidden=(300, 300, 300), loss_form="squared", start="warm_new_optimizer"
+            ),
             loop=LoopConfig(babbling="home", normaliser="robot"),
         )
     return dataclasses.replace(config, **changes)

@@ -259,6 +259,8 @@ def test_for_task_defaults():
     # The selection run's choices for the legged tasks (docs/results/selection/).
     assert (walk.task.desired, walk.forward.kind, walk.loop.normaliser) == (
         "next_velocity", "rigid_body", "robot")  # fmt: skip
+    assert (walk.forward.start, walk.controller.start, walk.controller.loss_form) == (
+        "warm_new_optimizer", "warm_new_optimizer", "squared")  # fmt: skip
     arm = config_lib.for_task("opspace", seed=3)
     assert arm.task.name == "opspace" and arm.seed == 3
     assert arm.forward == config_lib.ForwardModelConfig()  # the arm defaults
