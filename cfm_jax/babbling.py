@@ -5,14 +5,14 @@ Every strategy rolls out ``loop.babbling_rollouts`` times per seed, each rollout
 one rollout of the task (its ``targets x steps`` transitions), with Gaussian torque noise of
 ``loop.babbling_noise`` times each torque limit:
 
-* ``home`` (every task's default): the task's PD feedback (its PD-only baseline
+* ``home`` (the legged tasks' default): the task's PD feedback (its PD-only baseline
   controller) holding the start pose: the arm's start pose (``task.home``, else the MJCF
   keyframe ``home``), the legged robot's standing pose (its keyframe ``home``). The authors'
   Solo12 code collects its initial data this way. It knows neither the test references nor
   the reference controller.
-* ``reaching``: the same PD feedback tracking minimum-jerk reaches of the task's duration
-  from the start pose to random poses of the actuated joints, drawn uniformly inside each
-  joint's range shrunk by 10% at both ends (``start +- pi`` for an unlimited joint), fresh
+* ``reaching`` (the arm tasks' default, chosen by the selection run): the same PD
+  feedback tracking minimum-jerk reaches of the task's duration from the start pose to
+  random poses of the actuated joints, drawn uniformly inside each joint's range shrunk by 10% at both ends (``start +- pi`` for an unlimited joint), fresh
   for every seed and rollout; for ``opspace`` the reaches are straight lines of the site to
   where those poses put it; for a legged robot the base is not commanded and a fall ends
   the rollout's data. Knows neither the test references nor the reference controller.
