@@ -12,9 +12,10 @@ one rollout of the task (its ``targets x steps`` transitions), with Gaussian tor
   the reference controller.
 * ``reaching`` (the arm tasks' default, chosen by the selection run): the same PD
   feedback tracking minimum-jerk reaches of the task's duration from the start pose to
-  random poses of the actuated joints, drawn uniformly inside each joint's range shrunk by 10% at both ends (``start +- pi`` for an unlimited joint), fresh
-  for every seed and rollout; for ``opspace`` the reaches are straight lines of the site to
-  where those poses put it; for a legged robot the base is not commanded and a fall ends
+  random poses of the actuated joints, drawn uniformly inside each joint's range shrunk
+  by 10% at both ends (``start +- pi`` for an unlimited joint), fresh for every seed and
+  rollout; for ``opspace`` the reaches are straight lines of the site to where those poses
+  put it; for a legged robot the base is not commanded and a fall ends
   the rollout's data. Knows neither the test references nor the reference controller.
 * ``reference_pd``: PD tracking of the test references themselves (the arms' babbling
   before the faithful protocol). For studies of its effect only.
