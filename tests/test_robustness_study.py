@@ -109,6 +109,12 @@ def test_cells_configs_follow_the_protocol():
         assert default.config(10) == want
         assert default.seeds == 5 and default.default and not default.changes
     assert all(c.seeds >= 3 for c in study.CELLS)
+    # The legged defaults at the authors' 30 iterations, whatever the study's count.
+    for task in ("walk", "jump"):
+        cell = study.find(task, "iterations=30")
+        want = config_lib.for_task(task, robot=cell.robot)
+        want = want.replace(loop=dataclasses.replace(want.loop, iterations=30))
+        assert cell.config(10) == want and cell.seeds == 5 and not cell.default
     before = study.find("jump", "oracle-pilot_tuned").config(10)
     assert (before.loop.babbling, before.loop.babbling_rollouts, before.loop.babbling_noise) == (
         "oracle", 4, 0.3)  # fmt: skip
