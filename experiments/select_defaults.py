@@ -19,6 +19,10 @@ The rule (``RULE``, also on the page this script writes) is fixed before any cel
   to the base cell over seeds (mean over losses) is given with its 95% bootstrap interval,
   and called *clear* when the interval excludes 0.
 
+After the factors, each task's ``chosen_together`` cell runs every chosen value in one
+config (``CHOSEN`` on the base: the family's defaults) on the same motions, a check that
+choices made one factor at a time also work together (``TOGETHER``); it chooses nothing.
+
 The motions: the arm tasks reach the five targets of
 ``references.default_targets(..., seed=references.SELECTION_SEED)`` (joint space) or the
 end-effector positions of those poses (op-space), never a test target; the legged tasks
@@ -75,6 +79,13 @@ SIZING = (
     "per family (inverse dynamics and walk), and op-space and jumping take their family's "
     "choice; decided before any factor cell ran, on the cost alone."
 )
+TOGETHER = (
+    "The last cell of each task, `chosen_together`, runs every chosen value in one config "
+    "(the family's defaults) on the same motions: a check that the choices, made one factor "
+    "at a time, also work together; it chooses nothing. Added after the rule had chosen, "
+    "when the headline walk cells on the defaults (test motions) fell more often than this "
+    "run's single-factor walk cells."
+)
 ARM = ("inverse_dynamics", "opspace")
 LEGGED = ("walk", "jump")
 SELECTED_ON = {"arm": "inverse_dynamics", "legged": "walk"}
@@ -109,20 +120,39 @@ FACTORS = {
 }
 
 
+CHOSEN = {
+    "arm": {"loop.normaliser": "babbling", "controller.loss_form": "norm"},
+    "legged": {
+        "loop.normaliser": "robot",
+        "forward.kind": "rigid_body",
+        "forward.start": "warm_new_optimizer",
+        "controller.start": "warm_new_optimizer",
+    },
+}
+"""What the rule chose per family where it is not the base's value (the tables' "Chosen per
+factor"; a test recomputes it from the records, and checks that the library's defaults are
+the base with these): the ``chosen_together`` cell runs them in one config."""
+
+
 def family(task: str) -> str:
     return "legged" if task in LEGGED else "arm"
 
 
 @dataclasses.dataclass(frozen=True)
 class Cell:
-    """One cell: a task, and the factor changed from the base (None: the base itself)."""
+    """One cell: a task, and the factor changed from the base (None: the base itself), or
+    (``together``) every factor at its chosen value (:data:`CHOSEN`): a check that the
+    choices made one at a time also work together; it chooses nothing."""
 
     task: str
     factor: str | None = None
     value: str | None = None
+    together: bool = False
 
     @property
     def name(self) -> str:
+        if self.together:
+            return "chosen_together"
         if self.factor is None:
             return "base"
         return f"{self.factor.replace(' ', '_').replace('*', 'star')}={self.value}"
@@ -132,7 +162,9 @@ class Cell:
         (``_study.BEFORE_SELECTION``, so that the cell stays what it was when the defaults
         change), the base's, then the factor's."""
         values = {**_study.BEFORE_SELECTION, **BASE[family(self.task)]}
-        if self.factor is not None:
+        if self.together:
+            values.update(CHOSEN[family(self.task)])
+        elif self.factor is not None:
             path = dict((n, p) for n, p, _ in FACTORS[family(self.task)])[self.factor]
             if path.startswith("forward+controller."):
                 field = path.split(".", 1)[1]
@@ -171,11 +203,12 @@ def selection_motions(task: str, config: config_lib.Config) -> dict:
 
 
 def cells_of(task: str) -> list[Cell]:
-    """The base, then each factor's other values (one at a time)."""
+    """The base, then each factor's other values (one at a time), then the chosen values
+    together."""
     cells = [Cell(task)]
     for name, _, values in FACTORS[family(task)]:
         cells += [Cell(task, name, v) for v in values[1:]]
-    return cells
+    return cells + [Cell(task, together=True)]
 
 
 def run_dir(runs: str, cell: Cell) -> str:
@@ -271,6 +304,28 @@ def load(out: str, cell: Cell) -> pd.DataFrame:
     )
 
 
+def choices(frames: dict, task: str) -> dict:
+    """Per factor of ``task``'s family: ``(chosen value, line)`` under :data:`RULE` from the
+    cells' scored frames (:func:`load`); the value is None while a cell of it is missing."""
+    base = frames.get(Cell(task))
+    chosen = {}
+    for name, _, values in FACTORS[family(task)]:
+        options = [Cell(task) if i == 0 else Cell(task, name, v) for i, v in enumerate(values)]
+        have = [(v, frames[c]) for v, c in zip(values, options, strict=True) if c in frames]
+        if len(have) < len(values):
+            chosen[name] = (None, f"{name}: not all cells finished ({len(have)}/{len(values)})")
+            continue
+        best_value, best = min(have, key=lambda vf: cell_score(vf[1]))
+        if best_value == values[0]:
+            chosen[name] = (best_value, f"{name}: **{best_value}** (the base's value)")
+        else:
+            stats = paired(best, base)
+            clear = ", clear" if stats["high"] < 0 else ", not clear"
+            chosen[name] = (best_value, f"{name}: **{best_value}** ({report.ci_text(stats)} "
+                                        f"against {values[0]}{clear})")  # fmt: skip
+    return chosen
+
+
 def tables(out: str, tasks) -> str:
     """``selection.csv``, ``curves.csv`` and the page ``index.md``; returns the page. The
     page holds ``tasks`` and every other task with records in ``out``, so that two pieces
@@ -290,6 +345,8 @@ def tables(out: str, tasks) -> str:
         f"{references.SELECTION_SEED})`; walks {SELECTION_WALKS} s; jumps {SELECTION_JUMPS} m.",
         "",
         "**Sizing.** " + SIZING,
+        "",
+        "**Together.** " + TOGETHER,
     ]
     for task in tasks:
         cells = [c for c in cells_of(task) if os.path.isfile(
@@ -337,22 +394,16 @@ def tables(out: str, tasks) -> str:
                 })  # fmt: skip
         lines += ["", "Chosen per factor (lowest score; *clear* when the paired interval "
                   "against the base excludes 0):", ""]  # fmt: skip
-        for name, _, values in FACTORS[family(task)]:
-            options = [Cell(task) if i == 0 else Cell(task, name, v) for i, v in enumerate(values)]
-            have = [(v, frames[c]) for v, c in zip(values, options, strict=True) if c in frames]
-            if len(have) < len(values):
-                lines.append(f"* {name}: not all cells finished ({len(have)}/{len(values)})")
-                continue
-            best_value, best = min(have, key=lambda vf: cell_score(vf[1]))
-            if best_value == values[0]:
-                lines.append(f"* {name}: **{best_value}** (the base's value)")
-            else:
-                stats = paired(best, base)
-                clear = stats["high"] < 0
-                lines.append(
-                    f"* {name}: **{best_value}** ({report.ci_text(stats)} against "
-                    f"{values[0]}{', clear' if clear else ', not clear'})"
-                )
+        lines += [f"* {line}" for _, line in choices(frames, task).values()]
+        together = Cell(task, together=True)
+        if together in frames and base is not None:
+            frame = frames[together]
+            last = frame[frame["iteration"] == frame["iteration"].max()]
+            fails = f"{int(last['failed'].sum())}/{len(last)}"
+            lines += ["", f"The chosen values together (`{together.name}`, the family's "
+                      f"defaults on these motions; it chooses nothing): score "
+                      f"{cell_score(frame):.3f}, {report.ci_text(paired(frame, base))} "
+                      f"against the base; {fails} failed."]  # fmt: skip
     os.makedirs(out, exist_ok=True)
     pd.DataFrame(rows).to_csv(os.path.join(out, "selection.csv"), index=False)
     pd.DataFrame(curves).to_csv(os.path.join(out, "curves.csv"), index=False)

@@ -21,6 +21,7 @@ from cfm_jax import config as config_lib
 from cfm_jax import locomotion, references, robots
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
+import _study  # noqa: E402
 import select_defaults as select  # noqa: E402
 
 LOSSES = ("joint", "task", "distal", "supervised")
@@ -170,3 +171,37 @@ def test_finished_cells_keep_the_configs_of_their_records():
                     assert got[section] == value, (cell.name, section)
             checked += 1
     assert checked >= 9
+
+
+def test_the_chosen_values_are_the_rule_s_choices_and_the_library_s_defaults():
+    """Oracle: the committed records, scored by the rule (``choices``), and
+    ``config.for_task``: ``CHOSEN`` is what the rule picked where it left the base, the
+    library's defaults are the base with it, and the ``chosen_together`` cell is those
+    defaults on the selection's motions."""
+    records = os.path.join(os.path.dirname(__file__), "..", "docs", "results", "selection")
+    for fam, task in select.SELECTED_ON.items():
+        done = [
+            c
+            for c in select.cells_of(task)
+            if os.path.isfile(os.path.join(select.record_dir(records, c), "metrics.csv"))
+        ]
+        frames = {c: select.load(records, c) for c in done}
+        chosen = select.choices(frames, task)
+        expected = {**_study.BEFORE_SELECTION, **select.BASE[fam], **select.CHOSEN[fam]}
+        for name, path, _ in select.FACTORS[fam]:
+            value = chosen[name][0]
+            paths = ([f"{p}.start" for p in ("forward", "controller")]
+                     if path.startswith("forward+controller.") else [path])  # fmt: skip
+            for one in paths:
+                assert expected[one] == value, (task, name)
+        for member in (t for t in select.ARM + select.LEGGED if select.family(t) == fam):
+            defaults = config_lib.for_task(member, robot=select.ROBOT[member])
+            for path, value in expected.items():
+                section, field = path.split(".")
+                assert getattr(getattr(defaults, section), field) == value, (member, path)
+            together = select.Cell(member, together=True).config()
+            motions = select.selection_motions(member, defaults)
+            want = _study.with_changes(defaults, {
+                "loop.iterations": select.ITERATIONS[member],
+                **{f"task.{k}": v for k, v in motions.items()}})  # fmt: skip
+            assert together == want, member
