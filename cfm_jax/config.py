@@ -463,8 +463,9 @@ class ForwardModelConfig:
       start: how each refit in an iteration starts, one of :data:`FIT_STARTS`: ``warm``
         (default; the arm tasks': the parameters and Adam state of the previous fit carry
         on), ``warm_new_optimizer`` (parameters kept, Adam re-created for each fit: the
-        authors' public Solo12 code; the legged tasks' default, :func:`for_task`) or ``fresh`` (parameters re-initialised each
-        iteration from a key derived from the iteration's key, Adam re-created).
+        authors' public Solo12 code; the legged tasks' default, :func:`for_task`) or
+        ``fresh`` (parameters re-initialised each iteration from a key derived from the
+        iteration's key, Adam re-created).
       kind: one of :data:`FORWARD_KINDS`: ``"mlp"`` (default; the paper's text: the
         ensemble predicts the output from ``(s, tau)``) or ``"rigid_body"`` (the authors'
         Solo12 code: ``qdd = M(q)^-1 (S tau - h(q, qd)) + residual(s, tau)`` with ``M`` and
@@ -899,7 +900,9 @@ def for_task(task: str, **changes) -> Config:
             robot="solo12",
             task=TaskConfig(name=task, control_dt=0.004, kp=0.0, kd=0.0, desired="next_velocity"),
             forward=ForwardModelConfig(
-                hidden=(1000, 500, 500), ensemble_size=1, kind="rigid_body",
+                hidden=(1000, 500, 500),
+                ensemble_size=1,
+                kind="rigid_body",
                 start="warm_new_optimizer",
             ),
             # The selection run's walk cells kept the squared form here (norm is the arms').
