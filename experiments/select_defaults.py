@@ -138,6 +138,15 @@ def family(task: str) -> str:
     return "legged" if task in LEGGED else "arm"
 
 
+def factor_paths(path: str) -> list[str]:
+    """The dotted config paths a factor's path sets: ``forward+controller.<field>`` is both
+    networks' field (one factor), any other path itself."""
+    if path.startswith("forward+controller."):
+        field = path.split(".", 1)[1]
+        return [f"forward.{field}", f"controller.{field}"]
+    return [path]
+
+
 @dataclasses.dataclass(frozen=True)
 class Cell:
     """One cell: a task, and the factor changed from the base (None: the base itself), or
@@ -166,12 +175,7 @@ class Cell:
             values.update(CHOSEN[family(self.task)])
         elif self.factor is not None:
             path = dict((n, p) for n, p, _ in FACTORS[family(self.task)])[self.factor]
-            if path.startswith("forward+controller."):
-                field = path.split(".", 1)[1]
-                values[f"forward.{field}"] = self.value
-                values[f"controller.{field}"] = self.value
-            else:
-                values[path] = self.value
+            values.update(dict.fromkeys(factor_paths(path), self.value))
         return values
 
     def config(self, iterations: int | None = None) -> config_lib.Config:

@@ -189,11 +189,8 @@ def test_the_chosen_values_are_the_rule_s_choices_and_the_library_s_defaults():
         chosen = select.choices(frames, task)
         expected = {**_study.BEFORE_SELECTION, **select.BASE[fam], **select.CHOSEN[fam]}
         for name, path, _ in select.FACTORS[fam]:
-            value = chosen[name][0]
-            paths = ([f"{p}.start" for p in ("forward", "controller")]
-                     if path.startswith("forward+controller.") else [path])  # fmt: skip
-            for one in paths:
-                assert expected[one] == value, (task, name)
+            for one in select.factor_paths(path):
+                assert expected[one] == chosen[name][0], (task, name)
         for member in (t for t in select.ARM + select.LEGGED if select.family(t) == fam):
             defaults = config_lib.for_task(member, robot=select.ROBOT[member])
             for path, value in expected.items():
