@@ -20,8 +20,11 @@ The rule (``RULE``, also on the page this script writes) is fixed before any cel
   and called *clear* when the interval excludes 0.
 
 After the factors, each task's ``chosen_together`` cell runs every chosen value in one
-config (``CHOSEN`` on the base: the family's defaults) on the same motions, a check that
-choices made one factor at a time also work together (``TOGETHER``); it chooses nothing.
+config on the same motions, a check that choices made one factor at a time also work
+together (``TOGETHER``); it chooses nothing. Where it failed (walk), a second round
+(``SECOND_ROUND``, ``ROUND_TWO``) applies the same rule from round 1's best cell to the
+factors in which that cell and ``chosen_together`` differ; its choices replace round 1's
+for those factors (``CHOSEN``: the family's defaults).
 
 The motions: the arm tasks reach the five targets of
 ``references.default_targets(..., seed=references.SELECTION_SEED)`` (joint space) or the
@@ -86,6 +89,19 @@ TOGETHER = (
     "when the headline walk cells on the defaults (test motions) fell more often than this "
     "run's single-factor walk cells."
 )
+ROUND_TWO = (
+    "Written after `chosen_together` failed on the walk and before any round-2 cell ran. "
+    "Round 1's best walk cell (`forward_model=rigid_body`, score -2.338, 13/48 failed) and "
+    "`chosen_together` (-0.431, 41/48) differ only in the factors whose round-1 choice was not "
+    "the round-2 base's and left the base's value: the normaliser (`robot`) and the fit start "
+    "(`warm_new_optimizer`). Round 2 applies the same rule to these factors from "
+    "`forward_model=rigid_body`, on the same motions, seeds and iterations, all losses alike: "
+    "normaliser `data` (the round-2 base) / `babbling` / `robot`, fit start `warm` (the base) "
+    "/ `warm_new_optimizer`; `fresh` is not rerun (all 48 runs of its round-1 cell failed). "
+    "The factors whose round-1 choice was the base's value stay at it (they are the same in "
+    "both cells). Its choices replace round 1's for these two factors; if both leave the "
+    "round-2 base, a round-2 `chosen_together` checks them together."
+)
 ARM = ("inverse_dynamics", "opspace")
 LEGGED = ("walk", "jump")
 SELECTED_ON = {"arm": "inverse_dynamics", "legged": "walk"}
@@ -120,7 +136,20 @@ FACTORS = {
 }
 
 
-CHOSEN = {
+SECOND_ROUND = {
+    "legged": {
+        "from": ("forward model", "rigid_body"),
+        "factors": (
+            ("fit start", "forward+controller.start", ("warm", "warm_new_optimizer")),
+            ("normaliser", "loop.normaliser", ("data", "robot", "babbling")),
+        ),
+    },
+}
+"""Per family with a second round (``ROUND_TWO``): the round-1 cell it starts from (factor,
+value) and its factors, the round-2 base's value first."""
+
+
+ROUND_ONE_CHOSEN = {
     "arm": {"loop.normaliser": "babbling", "controller.loss_form": "norm"},
     "legged": {
         "loop.normaliser": "robot",
@@ -129,9 +158,18 @@ CHOSEN = {
         "controller.start": "warm_new_optimizer",
     },
 }
-"""What the rule chose per family where it is not the base's value (the tables' "Chosen per
-factor"; a test recomputes it from the records, and checks that the library's defaults are
-the base with these): the ``chosen_together`` cell runs them in one config."""
+"""What round 1 chose per family where it left the base's value (a test recomputes it from
+the records): round 1's ``chosen_together`` cell runs them in one config."""
+
+ROUND_TWO_MOVED: dict = {}
+"""Per family: the second round's factors whose choice left the round-2 base's value (set
+from the round-2 records by hand, checked by a test); a round-2 ``together`` cell runs when
+there is more than one."""
+
+CHOSEN = ROUND_ONE_CHOSEN
+"""The family's defaults where they are not the base's value: round 1's choices, with a
+second round's (``SECOND_ROUND``) in place of round 1's for its factors. A test recomputes
+them from the records and checks that ``config.for_task`` gives the base with these."""
 
 
 def family(task: str) -> str:
@@ -147,35 +185,49 @@ def factor_paths(path: str) -> list[str]:
     return [path]
 
 
+def _factor_values(factors, name: str, value: str) -> dict:
+    """The dotted-path values that set factor ``name`` (of ``factors``) to ``value``."""
+    path = dict((n, p) for n, p, _ in factors)[name]
+    return dict.fromkeys(factor_paths(path), value)
+
+
 @dataclasses.dataclass(frozen=True)
 class Cell:
     """One cell: a task, and the factor changed from the base (None: the base itself), or
-    (``together``) every factor at its chosen value (:data:`CHOSEN`): a check that the
-    choices made one at a time also work together; it chooses nothing."""
+    (``together``) every factor at its chosen value: a check that the choices made one at a
+    time also work together; it chooses nothing. ``round=2``: a cell of the second round
+    (``SECOND_ROUND``), whose base is a round-1 cell; its ``together`` runs :data:`CHOSEN`."""
 
     task: str
     factor: str | None = None
     value: str | None = None
     together: bool = False
+    round: int = 1
 
     @property
     def name(self) -> str:
+        prefix = "" if self.round == 1 else f"round{self.round}_"
         if self.together:
-            return "chosen_together"
+            return prefix + "chosen_together"
         if self.factor is None:
             return "base"
-        return f"{self.factor.replace(' ', '_').replace('*', 'star')}={self.value}"
+        return prefix + f"{self.factor.replace(' ', '_').replace('*', 'star')}={self.value}"
 
     def changes(self) -> dict:
         """The dotted-path values of this cell: the options before the selection
         (``_study.BEFORE_SELECTION``, so that the cell stays what it was when the defaults
-        change), the base's, then the factor's."""
-        values = {**_study.BEFORE_SELECTION, **BASE[family(self.task)]}
+        change), the base's, then (round 2) the round-2 base's factor, then the factor's."""
+        fam = family(self.task)
+        values = {**_study.BEFORE_SELECTION, **BASE[fam]}
         if self.together:
-            values.update(CHOSEN[family(self.task)])
-        elif self.factor is not None:
-            path = dict((n, p) for n, p, _ in FACTORS[family(self.task)])[self.factor]
-            values.update(dict.fromkeys(factor_paths(path), self.value))
+            values.update((ROUND_ONE_CHOSEN if self.round == 1 else CHOSEN)[fam])
+            return values
+        factors = FACTORS[fam]
+        if self.round == 2:
+            values.update(_factor_values(FACTORS[fam], *SECOND_ROUND[fam]["from"]))
+            factors = SECOND_ROUND[fam]["factors"]
+        if self.factor is not None:
+            values.update(_factor_values(factors, self.factor, self.value))
         return values
 
     def config(self, iterations: int | None = None) -> config_lib.Config:
@@ -206,13 +258,30 @@ def selection_motions(task: str, config: config_lib.Config) -> dict:
     return {"targets": tuple(tuple(float(x) for x in t) for t in targets)}
 
 
+def round_two_base(task: str) -> Cell | None:
+    """The round-1 cell a second round starts from (None: the family has no second round)."""
+    second = SECOND_ROUND.get(family(task))
+    return None if second is None else Cell(task, *second["from"])
+
+
+def round_two_cells(task: str) -> list[Cell]:
+    """The second round's factor cells (its base is :func:`round_two_base`), then its
+    ``together`` cell when its choices leave the round-2 base in more than one factor."""
+    second = SECOND_ROUND.get(family(task))
+    if second is None:
+        return []
+    cells = [Cell(task, n, v, round=2) for n, _, values in second["factors"] for v in values[1:]]
+    moved = {n for n, _, _ in second["factors"]} & set(ROUND_TWO_MOVED.get(family(task), ()))
+    return cells + ([Cell(task, together=True, round=2)] if len(moved) > 1 else [])
+
+
 def cells_of(task: str) -> list[Cell]:
     """The base, then each factor's other values (one at a time), then the chosen values
-    together."""
+    together; then the second round's cells, if the family has one."""
     cells = [Cell(task)]
     for name, _, values in FACTORS[family(task)]:
         cells += [Cell(task, name, v) for v in values[1:]]
-    return cells + [Cell(task, together=True)]
+    return cells + [Cell(task, together=True)] + round_two_cells(task)
 
 
 def run_dir(runs: str, cell: Cell) -> str:
@@ -308,13 +377,18 @@ def load(out: str, cell: Cell) -> pd.DataFrame:
     )
 
 
-def choices(frames: dict, task: str) -> dict:
-    """Per factor of ``task``'s family: ``(chosen value, line)`` under :data:`RULE` from the
-    cells' scored frames (:func:`load`); the value is None while a cell of it is missing."""
-    base = frames.get(Cell(task))
+def choices(frames: dict, task: str, round: int = 1) -> dict:
+    """Per factor of ``task``'s family in ``round``: ``(chosen value, line)`` under
+    :data:`RULE` from the cells' scored frames (:func:`load`); the value is None while a cell
+    of it is missing. Round 2 starts from :func:`round_two_base` with ``SECOND_ROUND``'s
+    factors."""
+    if round == 1:
+        base, factors = Cell(task), FACTORS[family(task)]
+    else:
+        base, factors = round_two_base(task), SECOND_ROUND[family(task)]["factors"]
     chosen = {}
-    for name, _, values in FACTORS[family(task)]:
-        options = [Cell(task) if i == 0 else Cell(task, name, v) for i, v in enumerate(values)]
+    for name, _, values in factors:
+        options = [base] + [Cell(task, name, v, round=round) for v in values[1:]]
         have = [(v, frames[c]) for v, c in zip(values, options, strict=True) if c in frames]
         if len(have) < len(values):
             chosen[name] = (None, f"{name}: not all cells finished ({len(have)}/{len(values)})")
@@ -323,11 +397,63 @@ def choices(frames: dict, task: str) -> dict:
         if best_value == values[0]:
             chosen[name] = (best_value, f"{name}: **{best_value}** (the base's value)")
         else:
-            stats = paired(best, base)
+            stats = paired(best, frames[base])
             clear = ", clear" if stats["high"] < 0 else ", not clear"
             chosen[name] = (best_value, f"{name}: **{best_value}** ({report.ci_text(stats)} "
                                         f"against {values[0]}{clear})")  # fmt: skip
     return chosen
+
+
+def final_choices(frames: dict, task: str) -> dict:
+    """``factor -> chosen value``: round 1's choices (None while a cell is missing), with a
+    finished second round's in place of round 1's for its factors (until every round-2 cell
+    has finished, round 1's stand)."""
+    chosen = {name: value for name, (value, _) in choices(frames, task).items()}
+    if family(task) in SECOND_ROUND:
+        second = {n: v for n, (v, _) in choices(frames, task, round=2).items()}
+        if all(v is not None for v in second.values()):
+            chosen.update(second)
+    return chosen
+
+
+def _table(frames, base, task, names, rows, curves, own=None) -> list[str]:
+    """A markdown table of ``frames`` (cell -> scored frame) against ``base``; appends each
+    cell's rows to ``selection.csv``'s ``rows`` and ``curves.csv``'s ``curves``, except for
+    ``own``: a cell of another table shown again here as the base."""
+    lines = [
+        "| cell | score | " + " | ".join(names) + " | failed | vs base [95% CI] |",
+        "|---|---:|" + "---:|" * len(names) + "---:|---|",
+    ]
+    for cell, frame in frames.items():
+        per_loss = seed_scores(frame).mean(axis=0)
+        last = frame[frame["iteration"] == frame["iteration"].max()]
+        fails = int(last["failed"].sum())
+        is_base = base is None or frame is base
+        vs = "" if is_base else report.ci_text(paired(frame, base))
+        lines.append(
+            f"| {cell.name}{' (base)' if cell == own else ''} | {cell_score(frame):.3f} | "
+            + " | ".join(f"{per_loss.get(n, np.nan):.3f}" for n in names)
+            + f" | {fails}/{len(last)} | {vs} |"
+        )
+        if cell == own:
+            continue
+        for loss in names:
+            sub = last[last["loss"] == loss]
+            rows.append({
+                "task": task, "round": cell.round, "cell": cell.name, "factor": cell.factor,
+                "value": cell.value,
+                "loss": loss, "score": float(per_loss.get(loss, np.nan)),
+                "failed": int(sub["failed"].sum()), "runs": len(sub),
+                "median_tracking_mse": float(sub["tracking_mse"].median()),
+            })  # fmt: skip
+        for it in sorted(frame["iteration"].unique()):
+            at = frame[frame["iteration"] == it]
+            curves.append({
+                "task": task, "round": cell.round, "cell": cell.name, "iteration": int(it),
+                "score": cell_score(frame, it), "failed": int(at["failed"].sum()),
+                "runs": len(at),
+            })  # fmt: skip
+    return lines
 
 
 def tables(out: str, tasks) -> str:
@@ -365,49 +491,36 @@ def tables(out: str, tasks) -> str:
             lines.append("No cell finished yet.")
             continue
         frames = {c: load(out, c) for c in cells}
-        base = frames.get(Cell(task))
         names = list(losses.PAPER_LOSSES)
-        lines += [
-            "| cell | score | " + " | ".join(names) + " | failed | vs base [95% CI] |",
-            "|---|---:|" + "---:|" * len(names) + "---:|---|",
-        ]
-        for cell, frame in frames.items():
-            per_loss = seed_scores(frame).mean(axis=0)
-            last = frame[frame["iteration"] == frame["iteration"].max()]
-            fails = int(last["failed"].sum())
-            vs = "" if base is None or cell == Cell(task) else report.ci_text(paired(frame, base))
-            lines.append(
-                f"| {cell.name} | {cell_score(frame):.3f} | "
-                + " | ".join(f"{per_loss.get(n, np.nan):.3f}" for n in names)
-                + f" | {fails}/{len(last)} | {vs} |"
-            )
-            for loss in names:
-                sub = last[last["loss"] == loss]
-                rows.append({
-                    "task": task, "cell": cell.name, "factor": cell.factor, "value": cell.value,
-                    "loss": loss, "score": float(per_loss.get(loss, np.nan)),
-                    "failed": int(sub["failed"].sum()), "runs": len(sub),
-                    "median_tracking_mse": float(sub["tracking_mse"].median()),
-                })  # fmt: skip
-            for it in sorted(frame["iteration"].unique()):
-                at = frame[frame["iteration"] == it]
-                curves.append({
-                    "task": task, "cell": cell.name, "iteration": int(it),
-                    "score": cell_score(frame, it), "failed": int(at["failed"].sum()),
-                    "runs": len(at),
-                })  # fmt: skip
+        first = {c: f for c, f in frames.items() if c.round == 1}
+        lines += _table(first, first.get(Cell(task)), task, names, rows, curves)
         lines += ["", "Chosen per factor (lowest score; *clear* when the paired interval "
                   "against the base excludes 0):", ""]  # fmt: skip
         lines += [f"* {line}" for _, line in choices(frames, task).values()]
         together = Cell(task, together=True)
+        base = frames.get(Cell(task))
         if together in frames and base is not None:
             frame = frames[together]
             last = frame[frame["iteration"] == frame["iteration"].max()]
             fails = f"{int(last['failed'].sum())}/{len(last)}"
-            lines += ["", f"The chosen values together (`{together.name}`, the family's "
-                      f"defaults on these motions; it chooses nothing): score "
+            lines += ["", f"The chosen values together (`{together.name}`, round 1's choices "
+                      f"on these motions; it chooses nothing): score "
                       f"{cell_score(frame):.3f}, {report.ci_text(paired(frame, base))} "
                       f"against the base; {fails} failed."]  # fmt: skip
+        second = round_two_base(task)
+        if second is None or task != chosen_on:
+            continue
+        lines += ["", f"### {task}, round 2 (base: `{second.name}`)", "", ROUND_TWO, ""]
+        later = {c: f for c, f in frames.items() if c.round == 2}
+        if second in frames:
+            later = {second: frames[second], **later}
+        lines += _table(later, frames.get(second), task, names, rows, curves, own=second)
+        lines += ["", "Chosen per factor in round 2 (against the round-2 base):", ""]
+        lines += [f"* {line}" for _, line in choices(frames, task, round=2).values()]
+        final = final_choices(frames, task)
+        if all(v is not None for v in final.values()):
+            lines += ["", "The family's defaults (round 1, with round 2 for its factors): "
+                      + ", ".join(f"{n} **{v}**" for n, v in final.items()) + "."]  # fmt: skip
     os.makedirs(out, exist_ok=True)
     pd.DataFrame(rows).to_csv(os.path.join(out, "selection.csv"), index=False)
     pd.DataFrame(curves).to_csv(os.path.join(out, "curves.csv"), index=False)

@@ -186,11 +186,21 @@ def test_the_chosen_values_are_the_rule_s_choices_and_the_library_s_defaults():
             if os.path.isfile(os.path.join(select.record_dir(records, c), "metrics.csv"))
         ]
         frames = {c: select.load(records, c) for c in done}
-        chosen = select.choices(frames, task)
+        chosen = select.final_choices(frames, task)
         expected = {**_study.BEFORE_SELECTION, **select.BASE[fam], **select.CHOSEN[fam]}
         for name, path, _ in select.FACTORS[fam]:
             for one in select.factor_paths(path):
-                assert expected[one] == chosen[name][0], (task, name)
+                assert expected[one] == chosen[name], (task, name)
+        round_one = {n: v for n, (v, _) in select.choices(frames, task).items()}
+        first = {**_study.BEFORE_SELECTION, **select.BASE[fam], **select.ROUND_ONE_CHOSEN[fam]}
+        for name, path, _ in select.FACTORS[fam]:
+            assert all(first[one] == round_one[name] for one in select.factor_paths(path))
+        if fam in select.SECOND_ROUND:
+            second = select.choices(frames, task, round=2)
+            if all(value is not None for value, _ in second.values()):
+                moved = {n for n, _, values in select.SECOND_ROUND[fam]["factors"]
+                         if second[n][0] != values[0]}  # fmt: skip
+                assert set(select.ROUND_TWO_MOVED.get(fam, ())) == moved, task
         for member in (t for t in select.ARM + select.LEGGED if select.family(t) == fam):
             defaults = config_lib.for_task(member, robot=select.ROBOT[member])
             for path, value in expected.items():
@@ -202,3 +212,47 @@ def test_the_chosen_values_are_the_rule_s_choices_and_the_library_s_defaults():
                 "loop.iterations": select.ITERATIONS[member],
                 **{f"task.{k}": v for k, v in motions.items()}})  # fmt: skip
             assert together == want, member
+
+
+def _frame(score_by_loss):
+    """A scored cell frame whose loss ``i`` scores ``score_by_loss[i]`` on every seed and
+    target (errors 10^score, nothing failed)."""
+    errors = [[[10.0 ** score_by_loss[i]] * 2 for _ in range(2)] for i in range(4)]
+    return select.scores(_metrics(errors), BASELINES)
+
+
+def test_a_second_round_starts_from_its_base_and_replaces_its_factors_choices():
+    """Hand-made cells: round 1 chooses per factor against the base; round 2, from
+    ``round_two_base``, chooses its factors against that cell, and a finished round 2 replaces
+    round 1's choices for them (an unfinished one leaves round 1's)."""
+    task = "walk"
+    second = select.round_two_base(task)
+    assert second == select.Cell(task, *select.SECOND_ROUND["legged"]["from"])
+    # Round-2 cells: the round-2 base's config with the factor's fields changed, nothing else.
+    base2 = config_lib.to_dict(second.config())
+    for cell in select.round_two_cells(task):
+        if cell.together:
+            continue
+        tree = config_lib.to_dict(cell.config())
+        changed = {f"{s}.{k}" for s, v in tree.items() if isinstance(v, dict)
+                   for k, x in v.items() if base2[s][k] != x}  # fmt: skip
+        path = dict((n, p) for n, p, _ in select.SECOND_ROUND["legged"]["factors"])[cell.factor]
+        assert changed == set(select.factor_paths(path)), cell.name
+    # Scores by hand: every round-1 cell -1 except rigid_body -3 and normaliser=robot -2.
+    frames = {c: _frame([-1.0] * 4) for c in select.cells_of(task) if c.round == 1}
+    frames[second] = _frame([-3.0] * 4)
+    frames[select.Cell(task, "normaliser", "robot")] = _frame([-2.0] * 4)
+    frames[select.Cell(task, "fit start", "warm_new_optimizer")] = _frame([-1.5] * 4)
+    first = select.final_choices(frames, task)
+    assert first["forward model"] == "rigid_body" and first["normaliser"] == "robot"
+    assert first["fit start"] == "warm_new_optimizer"
+    # Round 2 half finished: round 1's choices stand.
+    frames[select.Cell(task, "fit start", "warm_new_optimizer", round=2)] = _frame([-2.5] * 4)
+    assert select.final_choices(frames, task) == first
+    # Finished: robot -3.5 beats the round-2 base (-3), warm_new_optimizer (-2.5) does not.
+    frames[select.Cell(task, "normaliser", "robot", round=2)] = _frame([-3.5] * 4)
+    frames[select.Cell(task, "normaliser", "babbling", round=2)] = _frame([-2.0] * 4)
+    final = select.final_choices(frames, task)
+    assert final == {**first, "normaliser": "robot", "fit start": "warm"}
+    line = select.choices(frames, task, round=2)["normaliser"][1]
+    assert line.startswith("normaliser: **robot** (-0.5") and "against data" in line
