@@ -90,7 +90,7 @@ def protocol(config) -> str:
       initial data: `loop.babbling='reaching'` (2 rollouts per target, torque noise 0.1 of the limit); s* gains kp 100, kd 20; `loop.normaliser='babbling'`; `forward.kind='mlp'`
       >>> walk = config.for_task("walk")
       >>> print(protocol(walk).split("; ", 1)[1])
-      s* the desired next velocity (`task.desired='next_velocity'`: kp 0, kd 1/control_dt = 250/s on base and joints); `loop.normaliser='robot'`; `forward.kind='rigid_body'`
+      s* the desired next velocity (`task.desired='next_velocity'`: kp 0, kd 1/control_dt = 250/s on base and joints); `loop.normaliser='data'`; `forward.kind='rigid_body'`
       >>> biased = walk.replace(forward=config.ForwardModelConfig(
       ...     kind="rigid_body", nominal_mass_scale=1.2))
       >>> print(protocol(biased).rsplit("; ", 1)[1])

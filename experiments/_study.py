@@ -36,6 +36,19 @@ run's cells, which vary one option at a time from these) pin them, so that a cel
 stays reproducible whatever the defaults become."""
 
 
+ROUND_ONE_LEGGED = {
+    **BEFORE_SELECTION,
+    "loop.normaliser": "robot",
+    "task.desired": "next_velocity",
+    "forward.kind": "rigid_body",
+    "forward.start": "warm_new_optimizer",
+    "controller.start": "warm_new_optimizer",
+}
+"""The legged tasks' options chosen by the selection run's first round (the legged defaults
+until its second round replaced them), as dotted config paths: the robustness cells that ran
+on them pin them (``round1-*``), so that their records stay reproducible."""
+
+
 def with_changes(config: config_lib.Config, changes) -> config_lib.Config:
     """``config`` with ``changes`` (a mapping or pairs of dotted path ``section.field`` and
     value, e.g. ``{"loop.babbling": "home"}``): the one cell of :func:`cfm_jax.sweeps.grid`

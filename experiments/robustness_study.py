@@ -13,6 +13,9 @@ The cells (``CELLS``), each one :func:`cfm_jax.sweep` of the four losses (``join
 * One cell per default that the selection run (``select_defaults.py``) changed, with its
   old value and the other defaults kept (3 seeds, named ``<field>=<old value>``, found by
   comparing ``for_task`` with ``_study.BEFORE_SELECTION``): what each change is worth.
+* ``round1-defaults`` of ``walk`` and ``jump`` and ``round1-iterations=30`` of ``walk``
+  (5 seeds): the legged defaults of the selection run's first round, which its second
+  round replaced (pinned: ``_study.ROUND_ONE_LEGGED``).
 * The cells that ran before the selection run, on the options of that time
   (``BEFORE_SELECTION``, pinned so that their records stay reproducible) and named by
   their initial data and ``s*`` gains: ``home-default`` of each task (the defaults then,
@@ -165,6 +168,8 @@ def old_value_cells(task: str, robot: str) -> tuple:
 
 
 ROBOTS = _study.ROBOT
+ROUND_ONE = _study.ROUND_ONE_LEGGED
+_ON_ROUND_ONE = "the defaults of the selection's first round (before its second)"
 _BEFORE = {"before_selection": True}
 _ON_BEFORE = "before the selection run: "
 CELLS = (
@@ -179,6 +184,12 @@ CELLS = (
            iterations=30)
       for t in ("walk", "jump")),
     *(c for t in ROBOTS for c in old_value_cells(t, ROBOTS[t])),
+    # The legged cells that ran on the first selection round's defaults, before its second
+    # round changed them (pinned: ``_study.ROUND_ONE_LEGGED``).
+    *(Cell(ROBOTS[t], t, "round1-defaults", tuple(ROUND_ONE.items()), 5, _ON_ROUND_ONE)
+      for t in ("walk", "jump")),
+    Cell("solo12", "walk", "round1-iterations=30", tuple(ROUND_ONE.items()), 5,
+         _ON_ROUND_ONE + ", 30 iterations", iterations=30),
     *(Cell(ROBOTS[t], t, "home-default", before(), 5, _ON_BEFORE + "its defaults", **_BEFORE)
       for t in ROBOTS),
     Cell("iiwa14", "inverse_dynamics", "reference_pd-default",

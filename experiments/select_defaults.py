@@ -83,8 +83,8 @@ SIZING = (
     "choice; decided before any factor cell ran, on the cost alone."
 )
 TOGETHER = (
-    "The last cell of each task, `chosen_together`, runs every chosen value in one config "
-    "(the family's defaults) on the same motions: a check that the choices, made one factor "
+    "The last cell of each task's first round, `chosen_together`, runs every chosen value in "
+    "one config (round 1's choices) on the same motions: a check that the choices, made one factor "
     "at a time, also work together; it chooses nothing. Added after the rule had chosen, "
     "when the headline walk cells on the defaults (test motions) fell more often than this "
     "run's single-factor walk cells."
@@ -161,12 +161,19 @@ ROUND_ONE_CHOSEN = {
 """What round 1 chose per family where it left the base's value (a test recomputes it from
 the records): round 1's ``chosen_together`` cell runs them in one config."""
 
-ROUND_TWO_MOVED: dict = {}
+ROUND_TWO_MOVED = {"legged": ("fit start",)}
 """Per family: the second round's factors whose choice left the round-2 base's value (set
 from the round-2 records by hand, checked by a test); a round-2 ``together`` cell runs when
 there is more than one."""
 
-CHOSEN = ROUND_ONE_CHOSEN
+CHOSEN = {
+    "arm": ROUND_ONE_CHOSEN["arm"],
+    "legged": {
+        "forward.kind": "rigid_body",
+        "forward.start": "warm_new_optimizer",
+        "controller.start": "warm_new_optimizer",
+    },
+}
 """The family's defaults where they are not the base's value: round 1's choices, with a
 second round's (``SECOND_ROUND``) in place of round 1's for its factors. A test recomputes
 them from the records and checks that ``config.for_task`` gives the base with these."""
@@ -273,6 +280,25 @@ def round_two_cells(task: str) -> list[Cell]:
     cells = [Cell(task, n, v, round=2) for n, _, values in second["factors"] for v in values[1:]]
     moved = {n for n, _, _ in second["factors"]} & set(ROUND_TWO_MOVED.get(family(task), ()))
     return cells + ([Cell(task, together=True, round=2)] if len(moved) > 1 else [])
+
+
+def defaults_cell(task: str) -> Cell:
+    """The cell whose config is the family's defaults (:data:`CHOSEN`) on the selection's
+    motions: round 1's ``chosen_together``, or with a second round its ``together`` cell,
+    the cell of its one moved factor, or its base when none moved."""
+    second = SECOND_ROUND.get(family(task))
+    if second is None:
+        return Cell(task, together=True)
+    moved = [n for n, _, _ in second["factors"] if n in ROUND_TWO_MOVED.get(family(task), ())]
+    if len(moved) > 1:
+        return Cell(task, together=True, round=2)
+    if not moved:
+        return round_two_base(task)
+    values = dict((n, v) for n, _, v in second["factors"])[moved[0]]
+    chosen = {**BASE[family(task)], **CHOSEN[family(task)]}
+    path = factor_paths(dict((n, p) for n, p, _ in second["factors"])[moved[0]])[0]
+    value = chosen.get(path, values[0])
+    return Cell(task, moved[0], value, round=2)
 
 
 def cells_of(task: str) -> list[Cell]:
@@ -521,6 +547,13 @@ def tables(out: str, tasks) -> str:
         if all(v is not None for v in final.values()):
             lines += ["", "The family's defaults (round 1, with round 2 for its factors): "
                       + ", ".join(f"{n} **{v}**" for n, v in final.items()) + "."]  # fmt: skip
+            cell = defaults_cell(task)
+            if cell in frames:
+                frame = frames[cell]
+                last = frame[frame["iteration"] == frame["iteration"].max()]
+                lines[-1] += (f" On these motions they are the cell `{cell.name}`: score "
+                              f"{cell_score(frame):.3f}, {int(last['failed'].sum())}/"
+                              f"{len(last)} failed.")  # fmt: skip
     os.makedirs(out, exist_ok=True)
     pd.DataFrame(rows).to_csv(os.path.join(out, "selection.csv"), index=False)
     pd.DataFrame(curves).to_csv(os.path.join(out, "curves.csv"), index=False)

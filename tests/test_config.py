@@ -258,7 +258,7 @@ def test_for_task_defaults():
     assert walk.controller.hidden == (300, 300, 300)  # the paper's quadruped networks
     # The selection run's choices for the legged tasks (docs/results/selection/).
     assert (walk.task.desired, walk.forward.kind, walk.loop.normaliser) == (
-        "next_velocity", "rigid_body", "robot")  # fmt: skip
+        "next_velocity", "rigid_body", "data")  # fmt: skip
     assert (walk.forward.start, walk.controller.start, walk.controller.loss_form) == (
         "warm_new_optimizer", "warm_new_optimizer", "squared")  # fmt: skip
     arm = config_lib.for_task("opspace", seed=3)

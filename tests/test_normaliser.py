@@ -201,7 +201,7 @@ def test_config_of_normaliser_and_desired():
         config.TaskConfig(name="jump", desired="next_velocity", kp=0, kd=0, joint_kd=5.0)
     with pytest.raises(config.ConfigError, match="task.desired"):
         config.TaskConfig(desired="velocity")
-    walk = config.for_task("walk")  # next_velocity and robot: the selection run's choices
+    walk = config.for_task("walk")  # next_velocity and data: the selection run's choices
     changed = walk.replace(
         task=dataclasses.replace(walk.task, desired="pd"),
         loop=dataclasses.replace(walk.loop, normaliser="babbling"),

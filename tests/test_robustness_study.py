@@ -135,6 +135,25 @@ def test_cells_that_ran_before_the_selection_keep_the_configs_of_their_records()
         assert json.loads(json.dumps(config_lib.to_dict(config))) == recorded, cell.path
 
 
+def test_cells_of_the_first_selection_round_keep_the_configs_of_their_records():
+    """Oracle: the config.json of each record, written when the cell ran as the legged
+    ``defaults`` (and ``iterations=30``) of the selection's first round; pinned since
+    (``_study.ROUND_ONE_LEGGED``), they stay those configs whatever the defaults become."""
+    cells = [c for c in study.CELLS if c.name.startswith("round1-")]
+    assert {c.path for c in cells} == {
+        "walk/round1-defaults",
+        "jump/round1-defaults",
+        "walk/round1-iterations=30",
+    }
+    for cell in cells:
+        with open(os.path.join(study.record_dir(RECORDS, cell), "config.json")) as f:
+            recorded = json.load(f)
+        config = cell.config(10)
+        assert config.loop.iterations == recorded["loop"]["iterations"]
+        config = config.replace(loop=dataclasses.replace(config.loop, seeds=cell.seeds))
+        assert json.loads(json.dumps(config_lib.to_dict(config))) == recorded, cell.path
+
+
 def test_one_cell_per_changed_default_with_its_old_value(monkeypatch):
     """Had the options before the selection differed from today's defaults only in the
     babbling and the fit start, the study would add two 3-seed cells per task, each with

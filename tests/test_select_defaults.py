@@ -176,8 +176,8 @@ def test_finished_cells_keep_the_configs_of_their_records():
 def test_the_chosen_values_are_the_rule_s_choices_and_the_library_s_defaults():
     """Oracle: the committed records, scored by the rule (``choices``), and
     ``config.for_task``: ``CHOSEN`` is what the rule picked where it left the base, the
-    library's defaults are the base with it, and the ``chosen_together`` cell is those
-    defaults on the selection's motions."""
+    library's defaults are the base with it, and ``defaults_cell`` (a cell that ran on the
+    selection task) is those defaults on the selection's motions."""
     records = os.path.join(os.path.dirname(__file__), "..", "docs", "results", "selection")
     for fam, task in select.SELECTED_ON.items():
         done = [
@@ -206,7 +206,7 @@ def test_the_chosen_values_are_the_rule_s_choices_and_the_library_s_defaults():
             for path, value in expected.items():
                 section, field = path.split(".")
                 assert getattr(getattr(defaults, section), field) == value, (member, path)
-            together = select.Cell(member, together=True).config()
+            together = select.defaults_cell(member).config()
             motions = select.selection_motions(member, defaults)
             want = _study.with_changes(defaults, {
                 "loop.iterations": select.ITERATIONS[member],
@@ -256,3 +256,12 @@ def test_a_second_round_starts_from_its_base_and_replaces_its_factors_choices():
     assert final == {**first, "normaliser": "robot", "fit start": "warm"}
     line = select.choices(frames, task, round=2)["normaliser"][1]
     assert line.startswith("normaliser: **robot** (-0.5") and "against data" in line
+
+
+def test_the_pinned_first_round_legged_options_are_round_one_s_choices():
+    """``_study.ROUND_ONE_LEGGED`` (what the robustness study's ``round1-*`` cells pin) is
+    the options before the selection with the legged base and round 1's legged choices."""
+    want = {**_study.BEFORE_SELECTION, **select.BASE["legged"], **select.ROUND_ONE_CHOSEN["legged"]}
+    assert _study.ROUND_ONE_LEGGED == want
+    # And it is round 1's chosen_together cell, whose config.json was written when it ran.
+    assert select.Cell("walk", together=True).changes() == want
