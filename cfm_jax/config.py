@@ -872,9 +872,9 @@ def for_task(task: str, **changes) -> Config:
     iterations, Adam is re-created for each fit, as the authors' code; better than ``warm``
     in both rounds, not clearly); the controller loss keeps the ``squared`` form (the
     ``norm`` form, chosen for the arms, failed more walks and scored worse, not clearly).
-    The earlier legged choices, babbling 4 x 0.3 and the gains ``kp = 100``, ``kd = 20`` on the base,
-    ``joint_kp = 2000``, ``joint_kd = 50``, were chosen on pilot runs of the joint loss
-    alone; they remain cells of ``experiments/robustness_study.py``, not defaults.
+    The earlier legged choices, babbling 4 x 0.3 and the gains ``kp = 100``, ``kd = 20``
+    on the base, ``joint_kp = 2000``, ``joint_kd = 50``, were chosen on pilot runs of the
+    joint loss alone; they remain cells of ``experiments/robustness_study.py``, not defaults.
 
     Args:
       task: one of :data:`TASKS`.
