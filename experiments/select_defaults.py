@@ -194,7 +194,7 @@ def factor_paths(path: str) -> list[str]:
 
 def _factor_values(factors, name: str, value: str) -> dict:
     """The dotted-path values that set factor ``name`` (of ``factors``) to ``value``."""
-    path = dict((n, p) for n, p, _ in factors)[name]
+    path = next(p for n, p, _ in factors if n == name)
     return dict.fromkeys(factor_paths(path), value)
 
 
@@ -278,7 +278,7 @@ def round_two_cells(task: str) -> list[Cell]:
     if second is None:
         return []
     cells = [Cell(task, n, v, round=2) for n, _, values in second["factors"] for v in values[1:]]
-    moved = {n for n, _, _ in second["factors"]} & set(ROUND_TWO_MOVED.get(family(task), ()))
+    moved = ROUND_TWO_MOVED.get(family(task), ())
     return cells + ([Cell(task, together=True, round=2)] if len(moved) > 1 else [])
 
 
@@ -289,16 +289,14 @@ def defaults_cell(task: str) -> Cell:
     second = SECOND_ROUND.get(family(task))
     if second is None:
         return Cell(task, together=True)
-    moved = [n for n, _, _ in second["factors"] if n in ROUND_TWO_MOVED.get(family(task), ())]
+    moved = ROUND_TWO_MOVED.get(family(task), ())
     if len(moved) > 1:
         return Cell(task, together=True, round=2)
     if not moved:
         return round_two_base(task)
-    values = dict((n, v) for n, _, v in second["factors"])[moved[0]]
-    chosen = {**BASE[family(task)], **CHOSEN[family(task)]}
-    path = factor_paths(dict((n, p) for n, p, _ in second["factors"])[moved[0]])[0]
-    value = chosen.get(path, values[0])
-    return Cell(task, moved[0], value, round=2)
+    # A moved factor left the round-2 base's value: CHOSEN holds its value.
+    path = next(iter(_factor_values(second["factors"], moved[0], None)))
+    return Cell(task, moved[0], CHOSEN[family(task)][path], round=2)
 
 
 def cells_of(task: str) -> list[Cell]:
