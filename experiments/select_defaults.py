@@ -192,10 +192,14 @@ def factor_paths(path: str) -> list[str]:
     return [path]
 
 
+def _factor_path(factors, name: str) -> str:
+    """The config path of factor ``name`` (of ``factors``)."""
+    return next(p for n, p, _ in factors if n == name)
+
+
 def _factor_values(factors, name: str, value: str) -> dict:
     """The dotted-path values that set factor ``name`` (of ``factors``) to ``value``."""
-    path = next(p for n, p, _ in factors if n == name)
-    return dict.fromkeys(factor_paths(path), value)
+    return dict.fromkeys(factor_paths(_factor_path(factors, name)), value)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -295,7 +299,7 @@ def defaults_cell(task: str) -> Cell:
     if not moved:
         return round_two_base(task)
     # A moved factor left the round-2 base's value: CHOSEN holds its value.
-    path = next(iter(_factor_values(second["factors"], moved[0], None)))
+    path = factor_paths(_factor_path(second["factors"], moved[0]))[0]
     return Cell(task, moved[0], CHOSEN[family(task)][path], round=2)
 
 
