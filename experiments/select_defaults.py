@@ -26,6 +26,11 @@ together (``TOGETHER``); it chooses nothing. Where it failed (walk), a second ro
 factors in which that cell and ``chosen_together`` differ; its choices replace round 1's
 for those factors (``CHOSEN``: the family's defaults).
 
+A task the factors are not chosen on may have a check of its own (``TASK_CHECKS``,
+``TASK_CHECK``): named factors varied, by the same rule, from its family's defaults on its own
+selection motions (``defaults_cell``); a value the rule picks there overrides the family's for
+that task only (``TASK_CHOSEN``).
+
 The motions: the arm tasks reach the five targets of
 ``references.default_targets(..., seed=references.SELECTION_SEED)`` (joint space) or the
 end-effector positions of those poses (op-space), never a test target; the legged tasks
@@ -102,10 +107,25 @@ ROUND_TWO = (
     "both cells). Its choices replace round 1's for these two factors; if both leave the "
     "round-2 base, a round-2 `chosen_together` checks them together."
 )
+TASK_CHECK = (
+    "Written after the headline op-space cell on the defaults (robustness study, test "
+    "targets) missed its goal (seed 3 of 5: no loss below PD-only), and before any op-space "
+    "selection cell ran. The factors were chosen on inverse dynamics only (Sizing), and the "
+    "op-space robustness cells point at the initial data (`babbling=home`, 3 seeds: joint and "
+    "supervised below PD-only in 15/15 runs). So op-space checks that one factor, and only "
+    "it: both values run from the arm's defaults (the base: `chosen_together`, the family's "
+    "choices on op-space's selection targets, the end-effector positions of the selection "
+    "poses), same seeds, iterations and rule, all losses alike. If `home` scores lower, "
+    "op-space's default babbling becomes `home` (for op-space only; inverse dynamics keeps "
+    "its own choice) and the headline op-space cell is rerun; otherwise nothing changes."
+)
 ARM = ("inverse_dynamics", "opspace")
 LEGGED = ("walk", "jump")
 SELECTED_ON = {"arm": "inverse_dynamics", "legged": "walk"}
 """The task on which each family's factors are chosen (see ``SIZING``)."""
+TASK_CHECKS = {"opspace": (("babbling", "loop.babbling", ("reaching", "home")),)}
+"""Per task the factors are not chosen on: factors checked on it from its family's defaults
+(``TASK_CHECK``), the defaults' value first."""
 ROBOT = _study.ROBOT
 ITERATIONS = {"inverse_dynamics": 10, "opspace": 10, "walk": 30, "jump": 30}
 SEEDS = 3
@@ -178,6 +198,11 @@ CHOSEN = {
 second round's (``SECOND_ROUND``) in place of round 1's for its factors. A test recomputes
 them from the records and checks that ``config.for_task`` gives the base with these."""
 
+TASK_CHOSEN: dict[str, dict] = {}
+"""Per task with a check (``TASK_CHECKS``): the values its check chose where they left the
+family's defaults (set from the records by hand, checked by a test); they override
+``CHOSEN`` for that task only."""
+
 
 def family(task: str) -> str:
     return "legged" if task in LEGGED else "arm"
@@ -207,17 +232,20 @@ class Cell:
     """One cell: a task, and the factor changed from the base (None: the base itself), or
     (``together``) every factor at its chosen value: a check that the choices made one at a
     time also work together; it chooses nothing. ``round=2``: a cell of the second round
-    (``SECOND_ROUND``), whose base is a round-1 cell; its ``together`` runs :data:`CHOSEN`."""
+    (``SECOND_ROUND``), whose base is a round-1 cell; its ``together`` runs :data:`CHOSEN`.
+    ``check``: a factor of the task's own check (``TASK_CHECKS``), changed from the family's
+    defaults (:data:`CHOSEN`)."""
 
     task: str
     factor: str | None = None
     value: str | None = None
     together: bool = False
     round: int = 1
+    check: bool = False
 
     @property
     def name(self) -> str:
-        prefix = "" if self.round == 1 else f"round{self.round}_"
+        prefix = "check_" if self.check else "" if self.round == 1 else f"round{self.round}_"
         if self.together:
             return prefix + "chosen_together"
         if self.factor is None:
@@ -230,6 +258,10 @@ class Cell:
         change), the base's, then (round 2) the round-2 base's factor, then the factor's."""
         fam = family(self.task)
         values = {**_study.BEFORE_SELECTION, **BASE[fam]}
+        if self.check:
+            values.update(CHOSEN[fam])
+            values.update(_factor_values(TASK_CHECKS[self.task], self.factor, self.value))
+            return values
         if self.together:
             values.update((ROUND_ONE_CHOSEN if self.round == 1 else CHOSEN)[fam])
             return values
@@ -303,9 +335,21 @@ def defaults_cell(task: str) -> Cell:
     return Cell(task, moved[0], CHOSEN[family(task)][path], round=2)
 
 
+def check_cells(task: str) -> list[Cell]:
+    """The cells of ``task``'s own check (``TASK_CHECKS``; none without one): each checked
+    factor's other values, from the family's defaults."""
+    return [Cell(task, n, v, check=True)
+            for n, _, values in TASK_CHECKS.get(task, ()) for v in values[1:]]  # fmt: skip
+
+
 def cells_of(task: str) -> list[Cell]:
-    """The base, then each factor's other values (one at a time), then the chosen values
-    together; then the second round's cells, if the family has one."""
+    """The cells this script runs for ``task``. On a task the factors are chosen on: the
+    base, then each factor's other values (one at a time), then the chosen values together;
+    then the second round's cells, if the family has one. On another task: its check, if it
+    has one (the family's defaults, :func:`defaults_cell`, then :func:`check_cells`)."""
+    if task != SELECTED_ON[family(task)]:
+        checks = check_cells(task)
+        return [defaults_cell(task)] + checks if checks else []
     cells = [Cell(task)]
     for name, _, values in FACTORS[family(task)]:
         cells += [Cell(task, name, v) for v in values[1:]]
@@ -414,9 +458,22 @@ def choices(frames: dict, task: str, round: int = 1) -> dict:
         base, factors = Cell(task), FACTORS[family(task)]
     else:
         base, factors = round_two_base(task), SECOND_ROUND[family(task)]["factors"]
+    return _choose(frames, base, factors, lambda n, v: Cell(task, n, v, round=round))
+
+
+def check_choices(frames: dict, task: str) -> dict:
+    """Per factor of ``task``'s own check (``TASK_CHECKS``): ``(chosen value, line)`` under
+    :data:`RULE`, against the family's defaults (:func:`defaults_cell`)."""
+    return _choose(frames, defaults_cell(task), TASK_CHECKS.get(task, ()),
+                   lambda n, v: Cell(task, n, v, check=True))  # fmt: skip
+
+
+def _choose(frames: dict, base: Cell, factors, cell) -> dict:
+    """Per factor ``(name, path, values)``: ``(chosen value, line)`` under :data:`RULE`; the
+    first value's cell is ``base``, another value's ``cell(name, value)``."""
     chosen = {}
     for name, _, values in factors:
-        options = [base] + [Cell(task, name, v, round=round) for v in values[1:]]
+        options = [base] + [cell(name, v) for v in values[1:]]
         have = [(v, frames[c]) for v, c in zip(values, options, strict=True) if c in frames]
         if len(have) < len(values):
             chosen[name] = (None, f"{name}: not all cells finished ({len(have)}/{len(values)})")
@@ -515,11 +572,19 @@ def tables(out: str, tasks) -> str:
         if task != chosen_on:
             lines += [f"Not a task the factors are chosen on: takes the choice made on "
                       f"{chosen_on} (see Sizing).", ""]  # fmt: skip
+        if task != chosen_on and task in TASK_CHECKS:
+            lines += [f"### {task}, its own check (base: `{defaults_cell(task).name}`, the "
+                      "family's defaults)", "", TASK_CHECK, ""]  # fmt: skip
         if not cells:
             lines.append("No cell finished yet.")
             continue
         frames = {c: load(out, c) for c in cells}
         names = list(losses.PAPER_LOSSES)
+        if task != chosen_on:
+            lines += _table(frames, frames.get(defaults_cell(task)), task, names, rows, curves)
+            lines += ["", "Chosen per checked factor (against the family's defaults):", ""]
+            lines += [f"* {line}" for _, line in check_choices(frames, task).values()]
+            continue
         first = {c: f for c, f in frames.items() if c.round == 1}
         lines += _table(first, first.get(Cell(task)), task, names, rows, curves)
         lines += ["", "Chosen per factor (lowest score; *clear* when the paired interval "

@@ -27,10 +27,16 @@ import select_defaults as select  # noqa: E402
 LOSSES = ("joint", "task", "distal", "supervised")
 
 
-@pytest.mark.parametrize("task", ["inverse_dynamics", "walk", "jump"])
+@pytest.mark.parametrize("task", ["inverse_dynamics", "opspace", "walk", "jump"])
 def test_every_cell_runs_on_motions_other_than_the_test_ones(task):
     cells = select.cells_of(task)
-    assert cells[0] == select.Cell(task)  # the base first
+    if task in select.SELECTED_ON.values():
+        assert cells[0] == select.Cell(task)  # the base first
+    elif task in select.TASK_CHECKS:
+        assert cells[0] == select.defaults_cell(task)  # a check starts from the defaults
+    else:
+        assert cells == []  # takes its family's choices; its defaults on its motions:
+        cells = [select.defaults_cell(task)]
     for cell in cells:
         config = cell.config()
         assert config.loop.iterations == select.ITERATIONS[task]
@@ -43,9 +49,11 @@ def test_every_cell_runs_on_motions_other_than_the_test_ones(task):
         else:
             robot = robots.load("iiwa14")
             test = references.default_targets(robot.joint_range, robot.home)
+            if task == "opspace":  # end-effector positions of the test poses, metres
+                test = references.default_cartesian_targets(robot, config.task.site, robot.home)
             chosen = np.asarray(config.task.targets)
             assert chosen.shape == test.shape
-            assert np.min(np.abs(test[:, None] - chosen[None]).max(axis=-1)) > 0.1
+            assert np.min(np.abs(test[:, None] - chosen[None]).max(axis=-1)) > 0.05
     # One factor at a time: each cell differs from the base in its factor's fields only.
     base = config_lib.to_dict(cells[0].config())
     for cell in cells[1:]:
@@ -265,3 +273,27 @@ def test_the_pinned_first_round_legged_options_are_round_one_s_choices():
     assert _study.ROUND_ONE_LEGGED == want
     # And it is round 1's chosen_together cell, whose config.json was written when it ran.
     assert select.Cell("walk", together=True).changes() == want
+
+
+def test_a_task_s_own_check_starts_from_its_family_s_defaults_and_chooses_by_the_rule(tmp_path):
+    """Op-space's check (``TASK_CHECKS``): its base is the family's defaults on op-space's
+    selection targets (``for_task`` there), each check cell changes only its factor's fields,
+    and the rule chooses by hand-made scores; the page shows the check's rule text."""
+    task = "opspace"
+    base = select.defaults_cell(task)
+    defaults = config_lib.for_task(task, robot=select.ROBOT[task])
+    motions = select.selection_motions(task, defaults)
+    assert base.config() == _study.with_changes(defaults, {
+        "loop.iterations": select.ITERATIONS[task],
+        **{f"task.{k}": v for k, v in motions.items()}})  # fmt: skip
+    checks = select.check_cells(task)
+    assert [c.name for c in checks] == ["check_babbling=home"]
+    assert checks[0].config() == _study.with_changes(base.config(), {"loop.babbling": "home"})
+    frames = {base: _frame([-1.0] * 4), checks[0]: _frame([-2.0, -1.0, -1.0, -1.0])}
+    value, line = select.check_choices(frames, task)["babbling"]
+    assert value == "home" and line.startswith("babbling: **home** (-0.25")
+    frames[checks[0]] = _frame([-0.5] * 4)
+    assert select.check_choices(frames, task)["babbling"][0] == "reaching"
+    assert select.check_choices({base: frames[base]}, task)["babbling"][0] is None
+    page = select.tables(str(tmp_path), ["opspace"])
+    assert select.TASK_CHECK in page.split("\n## opspace")[1]
