@@ -839,7 +839,8 @@ def for_task(task: str, **changes) -> Config:
     on motions other than the test ones, by a rule written before it ran (the lowest mean
     over the losses of log10 final tracking MSE, a fall or divergence scoring 1000 x
     PD-only), one factor at a time, on inverse dynamics for the arms and walking for the
-    legged robot; op-space and jumping take their family's choice. The legged choices made
+    legged robot; op-space and jumping take their family's choice (a check of op-space's
+    babbling on its own selection targets kept ``reaching``). The legged choices made
     one factor at a time did not work together on the walks, so a second round of the same
     rule, from the first round's best cell (the ``rigid_body`` forward model), chose the
     normaliser and the fit start again.

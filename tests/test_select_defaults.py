@@ -164,7 +164,7 @@ def test_finished_cells_keep_the_configs_of_their_records():
     written are not in it."""
     records = os.path.join(os.path.dirname(__file__), "..", "docs", "results", "selection")
     checked = 0
-    for task in ("inverse_dynamics", "walk"):
+    for task in ("inverse_dynamics", "opspace", "walk"):
         for cell in select.cells_of(task):
             path = os.path.join(select.record_dir(records, cell), "config.json")
             if not os.path.isfile(os.path.join(select.record_dir(records, cell), "metrics.csv")):
@@ -211,7 +211,7 @@ def test_the_chosen_values_are_the_rule_s_choices_and_the_library_s_defaults():
                 assert set(select.ROUND_TWO_MOVED.get(fam, ())) == moved, task
         for member in (t for t in select.ARM + select.LEGGED if select.family(t) == fam):
             defaults = config_lib.for_task(member, robot=select.ROBOT[member])
-            for path, value in expected.items():
+            for path, value in {**expected, **select.TASK_CHOSEN.get(member, {})}.items():
                 section, field = path.split(".")
                 assert getattr(getattr(defaults, section), field) == value, (member, path)
             together = select.defaults_cell(member).config()
@@ -220,6 +220,29 @@ def test_the_chosen_values_are_the_rule_s_choices_and_the_library_s_defaults():
                 "loop.iterations": select.ITERATIONS[member],
                 **{f"task.{k}": v for k, v in motions.items()}})  # fmt: skip
             assert together == want, member
+
+
+def test_a_task_s_own_check_chose_what_task_chosen_says():
+    """Oracle: the committed records of each task's own check (``TASK_CHECKS``), scored by
+    the rule (``check_choices``): ``TASK_CHOSEN`` holds exactly the values that left the
+    family's defaults, and ``config.for_task`` has them."""
+    records = os.path.join(os.path.dirname(__file__), "..", "docs", "results", "selection")
+    checked = 0
+    for task, factors in select.TASK_CHECKS.items():
+        cells = [select.defaults_cell(task), *select.check_cells(task)]
+        if not all(os.path.isfile(os.path.join(select.record_dir(records, c), "metrics.csv"))
+                   for c in cells):  # fmt: skip
+            continue
+        chosen = select.check_choices({c: select.load(records, c) for c in cells}, task)
+        moved = {one: chosen[name][0] for name, path, values in factors
+                 if chosen[name][0] != values[0] for one in select.factor_paths(path)}  # fmt: skip
+        assert select.TASK_CHOSEN.get(task, {}) == moved, task
+        defaults = config_lib.for_task(task, robot=select.ROBOT[task])
+        for path, value in moved.items():
+            section, field = path.split(".")
+            assert getattr(getattr(defaults, section), field) == value, (task, path)
+        checked += 1
+    assert checked == len(select.TASK_CHECKS)
 
 
 def _frame(score_by_loss):
