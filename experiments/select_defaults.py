@@ -45,6 +45,7 @@ cell and loss), ``curves.csv`` (the score per iteration) and ``index.md`` (the t
 Usage:
   python experiments/select_defaults.py --budget 3000            # a resumable piece
   python experiments/select_defaults.py --only walk --budget 0   # tables of finished cells
+  python experiments/select_defaults.py --only opspace           # op-space's own check
   python experiments/select_defaults.py --quick --runs /tmp/s --out /tmp/s  # smoke test
 """
 
