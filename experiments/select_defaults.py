@@ -201,8 +201,8 @@ them from the records and checks that ``config.for_task`` gives the base with th
 
 TASK_CHOSEN: dict[str, dict] = {}
 """Per task with a check (``TASK_CHECKS``): the values its check chose where they left the
-family's defaults (set from the records by hand, checked by a test); they override
-``CHOSEN`` for that task only."""
+family's defaults (set from the records by hand, checked by a test); ``config.for_task``
+gives them in place of ``CHOSEN``'s for that task only (the same test checks it)."""
 
 
 def family(task: str) -> str:
