@@ -565,8 +565,7 @@ def tables(out: str, tasks) -> str:
         "**Together.** " + TOGETHER,
     ]
     for task in tasks:
-        cells = [c for c in cells_of(task) if os.path.isfile(
-            os.path.join(record_dir(out, c), "metrics.csv"))]  # fmt: skip
+        cells = [c for c in cells_of(task) if _study.recorded(record_dir(out, c))]
         base_text = ", ".join(f"`{k}={v}`" for k, v in BASE[family(task)].items())
         lines += ["", f"## {task} ({ROBOT[task]}; base: {base_text})", ""]
         chosen_on = SELECTED_ON[family(task)]
