@@ -6,34 +6,107 @@ vmapped step; the 7-DoF iiwa (depth 8) stepped at ~114 steps/s at batch 16.
 ``--xla_cpu_use_fusion_emitters=false`` brings it to ~1e5 steps/s. The flag is read once,
 when the backend initialises (the first computation), so it must be in ``XLA_FLAGS`` before
 that, even if ``jax`` was already imported.
+
+Which XLA knows the flag. XLA aborts the whole process (a C++ fatal error, no Python
+exception) at the first computation when ``XLA_FLAGS`` holds a flag it does not know, so
+the flag is set only where the running jaxlib is known to accept it, decided from jaxlib's
+version string (read from the installed package's metadata, without starting JAX):
+
+- jaxlib 0.10.0, 0.10.1, 0.10.2 accept it (0.10.2: the whole test suite runs with it;
+  0.10.0: a computation under the flag ran here, 2026-11-26, while an unknown flag aborted
+  the same process);
+- jaxlib 0.11.2 aborts on it ("Unknown flag in XLA_FLAGS: --xla_cpu_use_fusion_emitters=false",
+  on an H100 machine, 2026-11-26; XLA had retired the legacy CPU emitters the flag fell back
+  to, openxla/xla#48001).
+
+So :data:`LAST_SERIES_WITH_FLAG` is 0.10: any later jaxlib, or one whose version cannot be
+read, runs without the flag (never an abort; MJX on CPU may then be slower, unmeasured on
+jaxlib 0.11+). A flag the user put in ``XLA_FLAGS`` themselves is removed, with a warning,
+where the running jaxlib would abort on it.
 """
 
 from __future__ import annotations
 
+import importlib.metadata
 import os
+import re
 import warnings
 
 from cfm_jax import _jax_private
 
 FAST_FLAG = "--xla_cpu_use_fusion_emitters=false"
+_FLAG_NAME = "--xla_cpu_use_fusion_emitters"
+
+# The last jaxlib (major, minor) series whose XLA accepts FAST_FLAG (evidence: module docstring).
+LAST_SERIES_WITH_FLAG = (0, 10)
 
 
 class SlowBackendWarning(UserWarning):
     """JAX started before cfm_jax could set the XLA flag MJX needs on CPU."""
 
 
+class UnknownFlagWarning(UserWarning):
+    """``XLA_FLAGS`` held a flag the running XLA does not know (it would abort the process)."""
+
+
 def _flag_present(flags: str) -> bool:
-    return any(f.startswith("--xla_cpu_use_fusion_emitters") for f in flags.split())
+    return any(f.split("=")[0] == _FLAG_NAME for f in flags.split())
+
+
+def jaxlib_version() -> str | None:
+    """The installed jaxlib's version string, read without importing it; None if not found."""
+    try:
+        return importlib.metadata.version("jaxlib")
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+def flag_known(version: str | None) -> bool:
+    """True when the XLA of jaxlib ``version`` (a version string) accepts :data:`FAST_FLAG`.
+
+    Decided from the (major, minor) series against :data:`LAST_SERIES_WITH_FLAG`; a version
+    that cannot be parsed (or None) counts as not known, the choice that cannot abort.
+
+    Examples:
+      >>> flag_known("0.10.2"), flag_known("0.11.2"), flag_known("0.12.0.dev20261101")
+      (True, False, False)
+      >>> flag_known(None), flag_known("garbage")
+      (False, False)
+    """
+    if version is None:
+        return False
+    match = re.match(r"(\d+)\.(\d+)", version)
+    if match is None:
+        return False
+    series = (int(match.group(1)), int(match.group(2)))
+    return (0, 10) <= series <= LAST_SERIES_WITH_FLAG
 
 
 def configure() -> bool:
-    """Put :data:`FAST_FLAG` into ``XLA_FLAGS`` if JAX's backend has not started yet.
+    """Put :data:`FAST_FLAG` into ``XLA_FLAGS`` where it helps and cannot abort.
 
-    Returns True when the fast configuration is in force (or the user set the flag
-    explicitly), False when JAX's backend was already initialised without it; in that case a
-    :class:`SlowBackendWarning` says what to do. Idempotent.
+    Returns True when nothing slows MJX down that cfm_jax could have helped: the flag is in
+    force (set here or by the user), or the running jaxlib has no such flag (0.11 and later).
+    Returns False when JAX's backend was already initialised without the flag on a jaxlib
+    that knows it; a :class:`SlowBackendWarning` then says what to do. Where the running
+    jaxlib does not know the flag and the user set it, it is removed from ``XLA_FLAGS``
+    (:class:`UnknownFlagWarning`): XLA would abort the process at the first computation.
+    Idempotent.
     """
     flags = os.environ.get("XLA_FLAGS", "")
+    version = jaxlib_version()
+    if not flag_known(version):
+        if _flag_present(flags) and not backend_started():
+            kept = " ".join(f for f in flags.split() if f.split("=")[0] != _FLAG_NAME)
+            os.environ["XLA_FLAGS"] = kept
+            warnings.warn(
+                f"XLA_FLAGS held {_FLAG_NAME}, which the XLA of jaxlib {version} does not "
+                "know: XLA would abort this process at its first computation. cfm_jax "
+                f"removed it (XLA_FLAGS is now {kept!r}); remove it where you set it.",
+                UnknownFlagWarning,
+                stacklevel=3,
+            )
+        return True
     if _flag_present(flags):
         return True
     if backend_started():
@@ -75,5 +148,11 @@ def backend_started() -> bool:
 
 
 def fast_path_active() -> bool:
-    """True when the flag is in the environment and so (if the backend started after) in force."""
+    """True when nothing cfm_jax could set is missing for MJX's speed on CPU.
+
+    On a jaxlib that knows :data:`FAST_FLAG`: the flag is in the environment (and so, if the
+    backend started after, in force). On a later jaxlib, which has no such flag: always True.
+    """
+    if not flag_known(jaxlib_version()):
+        return True
     return _flag_present(os.environ.get("XLA_FLAGS", ""))

@@ -10,19 +10,16 @@ The two-link arm is checked against textbook planar-arm formulas.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
 
-# MJX on the 8-deep iiwa chain needs this XLA:CPU flag (see cfm_jax/_xla.py). It is read when
-# JAX's backend starts, so put it in the environment before any JAX computation; jax itself
-# is imported lazily inside the MJX test.
-_FLAG = "--xla_cpu_use_fusion_emitters=false"
-if "--xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FLAG).strip()
+# MJX on the 8-deep iiwa chain needs an XLA:CPU flag where the running jaxlib knows it; it
+# is read when JAX's backend starts. `import cfm_jax` sets it (cfm_jax/_xla.py decides from
+# jaxlib's version); tests/conftest.py imports cfm_jax before any test runs.
+import cfm_jax  # noqa: E402, F401
 
 ROBOTS = Path(__file__).resolve().parents[1] / "robots"
 IIWA = ROBOTS / "iiwa14.xml"

@@ -74,3 +74,86 @@ def test_user_flag_is_respected(preset):
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == preset  # not duplicated, not reordered
+
+
+# ---- which jaxlib knows the flag: decided from a version string, never an abort ----------
+# The oracle for "knows": jaxlib 0.10.x accepts the flag (the suite runs under it; see
+# cfm_jax/_xla.py), jaxlib 0.11.2 aborts on it (the H100 report). On a jaxlib newer
+# than the 0.10 series no flag may be set, so the running process cannot abort.
+
+# Before cfm_jax is imported, make importlib.metadata report another jaxlib version (what a
+# user with that jaxlib installed would have); the real jaxlib 0.10.2 then runs the
+# computation, which shows that the import left no flag in XLA_FLAGS to abort on.
+_PRETEND = (
+    "import importlib.metadata as md\n"
+    "_real = md.version\n"
+    "md.version = lambda name: {version!r} if name == 'jaxlib' else _real(name)\n"
+)
+
+
+def _versions_case(version: str, code: str, preset: str | None = None):
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env["JAX_PLATFORMS"] = "cpu"
+    if preset is not None:
+        env["XLA_FLAGS"] = preset
+    return subprocess.run(
+        [sys.executable, "-W", "always", "-c", _PRETEND.format(version=version) + code],
+        capture_output=True, text=True, env=env, timeout=300,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "version, known",
+    [
+        ("0.10.0", True), ("0.10.2", True), ("0.10.2.dev20261001", True),
+        ("0.11.0", False), ("0.11.2", False), ("0.12.0", False), ("1.0.0", False),
+        ("0.9.2", False), ("", False), ("not-a-version", False), (None, False),
+    ],
+)  # fmt: skip
+def test_flag_known_from_the_version_string(version, known):
+    from cfm_jax import _xla
+
+    assert _xla.flag_known(version) is known
+
+
+def test_installed_jaxlib_is_read_without_importing_jax():
+    import importlib.metadata
+
+    from cfm_jax import _xla
+
+    assert _xla.jaxlib_version() == importlib.metadata.version("jaxlib")
+
+
+@pytest.mark.parametrize("version", ["0.11.2", "0.12.0"])
+def test_newer_jaxlib_gets_no_flag_and_runs(version):
+    done = _versions_case(
+        version,
+        "import cfm_jax, os\n"
+        "print('flags', repr(os.environ.get('XLA_FLAGS', '')), 'fast', cfm_jax.FAST_XLA)\n"
+        "import jax.numpy as jnp\nprint('sum', float(jnp.ones(3).sum()))\n"
+        "from cfm_jax import _xla\nprint('mjx fast', _xla.fast_path_active())\n",
+    )
+    assert done.returncode == 0, done.stderr
+    assert "flags '' fast True" in done.stdout
+    assert "sum 3.0" in done.stdout and "mjx fast True" in done.stdout
+    assert "Warning" not in done.stderr  # no SlowBackendWarning telling them to set the flag
+
+
+def test_newer_jaxlib_removes_a_user_set_flag_with_a_warning():
+    done = _versions_case(
+        "0.11.2",
+        "import cfm_jax, os\nprint('flags', repr(os.environ['XLA_FLAGS']))\n"
+        "import jax.numpy as jnp\nprint('sum', float(jnp.ones(3).sum()))\n",
+        preset=f"--xla_cpu_enable_fast_math=false {FLAG}",
+    )
+    assert done.returncode == 0, done.stderr
+    assert "flags '--xla_cpu_enable_fast_math=false'" in done.stdout
+    assert "UnknownFlagWarning" in done.stderr and "jaxlib 0.11.2" in done.stderr
+    assert "sum 3.0" in done.stdout
+
+
+def test_jaxlib_0_10_still_gets_the_flag():
+    # The installed 0.10.2 is read for real in the tests above; here the lowest allowed series.
+    done = _versions_case("0.10.0", "import cfm_jax, os\nprint('flags', os.environ['XLA_FLAGS'])\n")
+    assert done.returncode == 0, done.stderr
+    assert f"flags {FLAG}" in done.stdout
