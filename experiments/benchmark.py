@@ -145,8 +145,9 @@ def main() -> None:
     ]
     with open(os.path.join(ROOT, "docs", "benchmarks_notes.md")) as f:
         notes = f.read()
-    # The sections of sweep_benchmark.py and mjx_benchmark.py, kept as they are.
+    # The sections of sweep_benchmark.py, mjx_benchmark.py and gpu_check.py, kept as they are.
     for name, marker in (
+        ("benchmarks_gpu.md", "gpu-check"),
         ("benchmarks_mjx.md", "mjx-benchmark"),
         ("benchmarks_sweep.md", "sweep-benchmark"),
     ):

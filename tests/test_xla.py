@@ -12,7 +12,16 @@ import sys
 
 import pytest
 
+from cfm_jax import _xla
+
 FLAG = "--xla_cpu_use_fusion_emitters=false"
+# Whether the installed jaxlib knows the flag (0.10.x: the CI here; 0.11+: the GPU check's
+# machine, experiments/gpu_check.py). The tests of the flag's effects need a jaxlib that
+# knows it; those of a newer jaxlib below pretend its version and run on any.
+KNOWN = _xla.flag_known(_xla.jaxlib_version())
+needs_flag = pytest.mark.skipif(
+    not KNOWN, reason=f"jaxlib {_xla.jaxlib_version()} has no such flag (see _xla.py)"
+)
 
 
 def run(code: str) -> subprocess.CompletedProcess:
@@ -25,17 +34,21 @@ def run(code: str) -> subprocess.CompletedProcess:
 
 
 def test_import_first_sets_the_flag_before_the_backend_starts():
+    # On the installed jaxlib, whichever it is: the flag where it knows it, none where it does
+    # not; the first computation runs (an unknown flag would abort the process here).
     done = run(
         "import cfm_jax, os; from jax._src import xla_bridge; "
         "assert not xla_bridge.backends_are_initialized(); "
-        "print('flag', os.environ['XLA_FLAGS']); print('fast', cfm_jax.FAST_XLA); "
+        "print('flag', os.environ.get('XLA_FLAGS', '')); print('fast', cfm_jax.FAST_XLA); "
         "import jax.numpy as jnp; jnp.ones(1).block_until_ready()"
     )
     assert done.returncode == 0, done.stderr
-    assert f"flag {FLAG}" in done.stdout and "fast True" in done.stdout
+    assert (f"flag {FLAG}\n" if KNOWN else "flag \n") in done.stdout
+    assert "fast True" in done.stdout
     assert "SlowBackendWarning" not in done.stderr
 
 
+@needs_flag
 def test_jax_imported_but_not_started_is_still_in_time():
     # Importing jax does not start its backend: the flag still takes effect.
     done = run(
@@ -47,6 +60,7 @@ def test_jax_imported_but_not_started_is_still_in_time():
     assert "SlowBackendWarning" not in done.stderr
 
 
+@needs_flag
 def test_backend_already_started_warns_clearly():
     done = run(
         "import jax.numpy as jnp; jnp.ones(1).block_until_ready()\n"
@@ -64,6 +78,7 @@ def test_backend_already_started_warns_clearly():
     assert "simulator='native'" in done.stderr
 
 
+@needs_flag
 @pytest.mark.parametrize("preset", [FLAG, f"--xla_cpu_enable_fast_math=false {FLAG}"])
 def test_user_flag_is_respected(preset):
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
@@ -111,15 +126,11 @@ def _versions_case(version: str, code: str, preset: str | None = None):
     ],
 )  # fmt: skip
 def test_flag_known_from_the_version_string(version, known):
-    from cfm_jax import _xla
-
     assert _xla.flag_known(version) is known
 
 
 def test_installed_jaxlib_is_read_without_importing_jax():
     import importlib.metadata
-
-    from cfm_jax import _xla
 
     assert _xla.jaxlib_version() == importlib.metadata.version("jaxlib")
 
