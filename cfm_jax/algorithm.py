@@ -214,6 +214,9 @@ class Setup:
         Raises:
           ConfigError: ``task.control_dt`` is not a multiple of the robot's time step, or
             the task does not fit the robot (the field and the allowed values are named).
+          RobotError: the robot does not load, or the config needs MJX (``simulator='mjx'``,
+            ``forward.kind='rigid_body'``) and MJX cannot build the model (what it lacks is
+            named).
 
         Examples:
           >>> from cfm_jax import config as cfg
@@ -227,6 +230,16 @@ class Setup:
             actuators=config.robot_actuators,
             torque_limit=config.robot_torque_limit,
         )
+        needs_mjx = [
+            name
+            for name, needed in (
+                ("simulator='mjx'", config.simulator == "mjx"),
+                ("forward.kind='rigid_body'", config.forward.kind == "rigid_body"),
+            )
+            if needed
+        ]
+        if needs_mjx and robot.mjx_error is not None:
+            raise robots.RobotError(f"{robot.mjx_error} (asked for: {', '.join(needs_mjx)})")
         task_config = config.task
         control_dt = (
             task_config.control_dt if task_config.control_dt is not None else robot.timestep

@@ -185,10 +185,34 @@ class Robot:
 
     @cached_property
     def mjx_model(self):
-        """The MJX model (``mujoco.mjx.put_model``); built by :func:`load`, outside any trace."""
+        """The MJX model (``mujoco.mjx.put_model``); built by :func:`load`, outside any trace.
+
+        Raises:
+          RobotError: MJX cannot build this model (for example a collision pair it does not
+            implement, such as cylinder-box); the error names what MJX lacks. The native
+            simulator still runs such a model; ``simulator='mjx'`` and
+            ``forward.kind='rigid_body'`` need MJX.
+        """
         from cfm_jax._mjx import mjx
 
-        return mjx.put_model(self.mj_model)
+        try:
+            return mjx.put_model(self.mj_model)
+        except NotImplementedError as error:
+            raise RobotError(
+                f"robot={self.name!r}: MJX cannot build this model: {error} The native "
+                "simulator (simulator='native', the default) runs it; simulator='mjx' and "
+                "forward.kind='rigid_body' need MJX (remove or exclude those collision "
+                "geoms, e.g. with <contact><exclude>, or use the native simulator)"
+            ) from error
+
+    @property
+    def mjx_error(self) -> str | None:
+        """Why MJX cannot build this model (the :class:`RobotError` text), or None if it can."""
+        try:
+            self.mjx_model  # noqa: B018
+        except RobotError as error:
+            return str(error)
+        return None
 
     def torque_to_ctrl(self, tau):
         """Map joint torques ``(..., action_dim)`` to the ``ctrl`` vector ``(..., nu)``."""
@@ -634,7 +658,9 @@ def load(
             for a, (kind, _, _) in servos.items()
         ),
     )
-    robot.mjx_model  # noqa: B018 -- build the device copy now, never inside a jit trace
+    # Build the device copy now, never inside a jit trace. A model MJX cannot build still
+    # loads: the native simulator runs it, and whatever needs MJX raises the RobotError.
+    robot.mjx_error  # noqa: B018
     return robot
 
 
@@ -681,6 +707,101 @@ def _limit_text(model, a) -> str:
         return "no torque limit"
     value, source = min(limits)
     return f"torque limit {value:g} ({source})"
+
+
+@dataclasses.dataclass(frozen=True)
+class Dynamics:
+    """What the actuated joints of a fixed-base robot can do at its start pose.
+
+    Attributes:
+      joints: names of the actuated joints.
+      effective_inertia: ``1 / (M^-1)_ii`` (kg m^2 or kg): the inertia joint ``i`` feels
+        with the other joints free.
+      limit_acceleration: ``|M^-1| @ limit``: the largest acceleration (rad/s^2) the torque
+        limits can give each joint.
+      noise_acceleration: standard deviation of each joint's acceleration under the
+        babbling's Gaussian torque noise, ``sqrt(diag(M^-1 diag(noise limit)^2 M^-1))``.
+      pd_number: ``kd * control_dt * lambda_max(diag(M) M^-1)``: the task's PD feedback
+        (torque gains ``kd diag M(home)``) held for one control period is stable below 2
+        (a first-order explicit update of the velocity); coupled light links raise it.
+    """
+
+    joints: tuple[str, ...]
+    effective_inertia: np.ndarray
+    limit_acceleration: np.ndarray
+    noise_acceleration: np.ndarray
+    pd_number: float
+
+
+def dynamics(robot: Robot, babbling_noise: float, kd: float, control_dt: float) -> Dynamics:
+    """The :class:`Dynamics` of ``robot``'s actuated joints at ``robot.home`` (MuJoCo C).
+
+    Args:
+      robot: a loaded :class:`Robot`.
+      babbling_noise: ``Config.loop.babbling_noise`` (a fraction of each torque limit).
+      kd: ``Config.task.kd`` (1/s).
+      control_dt: the control period (s).
+
+    Examples:
+      >>> d = dynamics(load("two_link_arm"), babbling_noise=0.1, kd=20.0, control_dt=0.01)
+      >>> d.joints, bool(d.pd_number < 2)
+      (('shoulder', 'elbow'), True)
+    """
+    model = robot.mj_model
+    data = mujoco.MjData(model)
+    data.qpos[:] = robot.home
+    mujoco.mj_forward(model, data)
+    full = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, full)
+    dofs = np.asarray(robot.actuated_dofs)
+    inverse = np.linalg.inv(full)[np.ix_(dofs, dofs)]
+    limit = np.asarray(robot.torque_limit, np.float64)
+    noise = babbling_noise * limit
+    coupling = np.diag(np.diag(full)[dofs]) @ inverse
+    joints = tuple(robot.joint_names[int(model.dof_jntid[d])] for d in dofs)
+    return Dynamics(
+        joints=joints,
+        effective_inertia=1.0 / np.diag(inverse),
+        limit_acceleration=np.abs(inverse) @ limit,
+        noise_acceleration=np.sqrt(np.diag(inverse @ np.diag(noise**2) @ inverse)),
+        pd_number=float(kd * control_dt * np.max(np.abs(np.linalg.eigvals(coupling)))),
+    )
+
+
+def _dynamics_lines(robot: Robot) -> list[str]:
+    """``cfm-jax robot check``'s lines on :func:`dynamics` at the defaults, with warnings."""
+    from cfm_jax import config as config_lib
+
+    task, loop = config_lib.TaskConfig(), config_lib.LoopConfig()
+    dt = task.control_dt if task.control_dt is not None else robot.timestep
+    d = dynamics(robot, loop.babbling_noise, task.kd, dt)
+    lines = [
+        f"dynamics at the start pose (defaults: loop.babbling_noise {loop.babbling_noise:g}, "
+        f"task.kd {task.kd:g} 1/s, control period {dt:g} s):"
+    ]
+    for j, name in enumerate(d.joints):
+        lines.append(
+            f"  {name}: effective inertia {d.effective_inertia[j]:.3g}, torque limit gives "
+            f"{d.limit_acceleration[j]:.3g} rad/s^2, babbling noise {d.noise_acceleration[j]:.3g}"
+            " rad/s^2 (std)"
+        )
+    lines.append(f"  PD feedback number kd * dt * lambda_max(diag(M) M^-1) = {d.pd_number:.2f}")
+    if d.pd_number >= 2:
+        lines.append(
+            "  ! the task's PD feedback is unstable at this control period: its torque gains "
+            "are kd * diag M(home), and the joints' coupling through M^-1 multiplies them "
+            f"(number {d.pd_number:.2f} >= 2). Lower task.kd or task.control_dt."
+        )
+    worst = int(np.argmax(d.noise_acceleration * dt))
+    kick = float(d.noise_acceleration[worst] * dt)
+    if kick > 1.0:
+        lines.append(
+            f"  ! babbling noise changes {d.joints[worst]}'s velocity by about {kick:.3g} "
+            f"rad/s per control period ({d.noise_acceleration[worst]:.3g} rad/s^2): light links "
+            "with large torque limits; the initial data will be dominated by noise that no "
+            "tracking motion asks for. Lower loop.babbling_noise."
+        )
+    return lines
 
 
 def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Check:
@@ -814,6 +935,16 @@ def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Ch
             tasks_site = f" (site {site!r})"
         else:
             tasks_site = ""
+    if robot is not None:
+        mjx_error = robot.mjx_error
+        lines.append(
+            "MJX builds it: yes"
+            if mjx_error is None
+            else "MJX builds it: no (the native simulator runs it): "
+            + mjx_error.replace(f"robot={robot.name!r}: ", "")
+        )
+        if not robot.floating_base:
+            lines += _dynamics_lines(robot)
     lines.append("tasks:")
     for name, reason in tasks.items():
         extra = tasks_site if name == "opspace" and robot is not None else ""

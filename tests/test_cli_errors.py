@@ -9,6 +9,7 @@ of more than one line, or a file in the output directory.
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -153,6 +154,18 @@ CASES = [
         ["task.kp"],
     ),
 ]
+
+
+# A model MJX cannot build (a cylinder-box collision pair) asked for on MJX: the pair named.
+CASES.append(
+    (
+        "model MJX cannot build, on mjx",
+        {},
+        ["train", "--robot", str(Path(__file__).parent / "cylinder_box_arm.xml"),
+         "--simulator", "mjx"],
+        ["MJX cannot build", "CYLINDER", "BOX", "simulator='mjx'", "native"],
+    )
+)  # fmt: skip
 
 
 @pytest.mark.parametrize(("name", "files", "argv", "words"), CASES, ids=[c[0] for c in CASES])

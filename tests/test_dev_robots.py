@@ -1,0 +1,158 @@
+"""The development set of published arms (tests/robots/, MuJoCo Menagerie as published, meshes
+stripped; tests/robots/README.md) and what the library tells about a robot before training.
+
+* Every arm of the set that drives each joint with its own actuator loads with
+  ``robot_actuators="torque"``, and its oracle and PD-only baselines roll out on the native
+  simulator and on MJX: finite, the oracle below PD-only, the two simulators within float32
+  of each other. (The two arms with a gripper, whose fingers are coupled by an equality and
+  driven by one actuator, are refused today: issue 41, item 5.)
+* :func:`cfm_jax.robots.dynamics` against MuJoCo's own forward dynamics (the acceleration a
+  torque gives, ``mj_forward``), not against the matrix inverse it uses, and in closed form
+  on a one-joint pendulum.
+* A model MJX cannot build (a cylinder-box collision pair) runs on the native simulator;
+  asked for on MJX it raises a ``RobotError`` naming the pair.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from cfm_jax import config as config_lib
+from cfm_jax import robots
+from cfm_jax.experiment import Experiment
+
+HERE = Path(__file__).parent
+DEV = HERE / "robots"
+# The arms with one actuator per joint (the grippers, piper and arx_l5, wait for item 5).
+ARMS = ("flexiv_rizon4", "m1013", "lite6", "lite6_continuous")
+GRIPPERS = ("piper", "arx_l5")
+
+
+def test_the_set_is_what_its_readme_lists():
+    listed = {p.stem for p in DEV.glob("*.xml")}
+    assert listed == set(ARMS) | set(GRIPPERS)
+    readme = (DEV / "README.md").read_text()
+    for name in listed:
+        assert f"{name}.xml" in readme or f"`{name}`" in readme or name in readme
+    for path in DEV.glob("*.xml"):
+        head = path.read_text()[:2000]
+        assert "mujoco_menagerie" in head and "Licen" in head, path.name
+
+
+def baselines(arm: str, simulator: str):
+    config = config_lib.Config(
+        robot=str(DEV / f"{arm}.xml"),
+        robot_actuators="torque",
+        simulator=simulator,
+        task=config_lib.TaskConfig(duration=0.3),
+    )
+    table = Experiment(config).baselines()
+    return table.pivot(index="target", columns="baseline", values="tracking_mse")
+
+
+@pytest.fixture(scope="module")
+def native():
+    return {arm: baselines(arm, "native") for arm in ARMS}
+
+
+@pytest.mark.parametrize("arm", ARMS)
+def test_baselines_roll_out_on_both_simulators(native, arm):
+    nat = native[arm]
+    assert np.isfinite(nat.to_numpy()).all()
+    assert nat["oracle"].mean() < nat["pd_only"].mean()
+    mjx = baselines(arm, "mjx")
+    assert np.isfinite(mjx.to_numpy()).all()
+    # MJX in float32 against MuJoCo C in float64: measured within 1e-6 relative (lite6,
+    # m1013); 1e-3 leaves room for float32 and still catches a different model.
+    np.testing.assert_allclose(mjx.to_numpy(), nat.to_numpy(), rtol=1e-3, atol=1e-9)
+
+
+@pytest.mark.parametrize("arm", GRIPPERS)
+def test_gripper_arms_are_refused_with_the_joint_named(arm):
+    with pytest.raises(robots.RobotError, match="have no motor"):
+        robots.load(str(DEV / f"{arm}.xml"), actuators="torque")
+
+
+# ---- dynamics at the start pose, against MuJoCo's forward dynamics ----------------------
+
+
+def _response(robot, torque):
+    """``qacc(torque) - qacc(0)`` of the actuated dofs at rest at home (MuJoCo C): M^-1 torque."""
+    model = robot.mj_model
+    data = mujoco.MjData(model)
+
+    def qacc(tau):
+        data.qpos[:] = robot.home
+        data.qvel[:] = 0.0
+        data.ctrl[:] = 0.0
+        data.ctrl[robot.actuator_of_joint] = tau / robot.gear
+        mujoco.mj_forward(model, data)
+        return data.qacc[robot.actuated_dofs].copy()
+
+    return qacc(torque) - qacc(np.zeros_like(torque))
+
+
+@pytest.mark.parametrize(
+    "name", ["iiwa14", str(HERE / "three_joint_arm.xml"), str(DEV / "m1013.xml")]
+)
+def test_dynamics_against_mujoco_forward_dynamics(name):
+    robot = robots.load(name, actuators="torque")
+    d = robots.dynamics(robot, babbling_noise=0.1, kd=20.0, control_dt=0.01)
+    n = robot.action_dim
+    limit = np.asarray(robot.torque_limit, np.float64)
+    # Column j of M^-1 times a torque on joint j alone, from mj_forward.
+    cols = np.stack([_response(robot, np.eye(n)[j] * limit[j]) for j in range(n)], axis=1)
+    # Gaussian noise of std 0.1 * limit on each joint: acceleration std of joint i is the
+    # root sum of squares of row i of those columns, scaled by 0.1.
+    np.testing.assert_allclose(d.noise_acceleration, 0.1 * np.sqrt((cols**2).sum(1)), rtol=1e-6)
+    np.testing.assert_allclose(d.limit_acceleration, np.abs(cols).sum(1), rtol=1e-6)
+    # Effective inertia: a unit torque on joint i alone accelerates it by (M^-1)_ii.
+    unit = np.array([_response(robot, np.eye(n)[i])[i] for i in range(n)])
+    np.testing.assert_allclose(d.effective_inertia, 1.0 / unit, rtol=1e-6)
+
+
+def test_dynamics_of_a_pendulum_in_closed_form(tmp_path):
+    # One hinge, point mass m at distance r, armature a: M = m r^2 + a; lambda(diag M M^-1)=1.
+    m, r, a, limit = 2.0, 0.5, 0.1, 8.0
+    path = tmp_path / "pendulum.xml"
+    path.write_text(
+        f"""<mujoco><option gravity="0 0 0"/><worldbody><body>
+        <joint name="j" type="hinge" axis="0 1 0" armature="{a}"/>
+        <inertial pos="{r} 0 0" mass="{m}" diaginertia="1e-9 1e-9 1e-9"/></body></worldbody>
+        <actuator><motor joint="j" ctrlrange="-{limit} {limit}"/></actuator></mujoco>"""
+    )
+    d = robots.dynamics(robots.load(str(path)), babbling_noise=0.1, kd=20.0, control_dt=0.01)
+    inertia = m * r**2 + a
+    assert d.effective_inertia[0] == pytest.approx(inertia, rel=1e-6)
+    assert d.limit_acceleration[0] == pytest.approx(limit / inertia, rel=1e-6)
+    assert d.noise_acceleration[0] == pytest.approx(0.1 * limit / inertia, rel=1e-6)
+    assert d.pd_number == pytest.approx(20.0 * 0.01, rel=1e-9)
+
+
+def test_robot_check_warns_where_the_numbers_say_so():
+    light = robots.check(str(DEV / "m1013.xml"), actuators="torque").text
+    assert "PD feedback is unstable" in light and "babbling noise changes" in light
+    shipped = robots.check("iiwa14").text
+    assert "dynamics at the start pose" in shipped and "!" not in shipped.split("dynamics")[1]
+
+
+# ---- a model MJX cannot build ------------------------------------------------------------
+
+
+def test_a_model_mjx_cannot_build_runs_native_and_names_the_pair_on_mjx():
+    path = str(HERE / "cylinder_box_arm.xml")
+    robot = robots.load(path)  # loads: the native simulator runs it
+    assert "CYLINDER" in robot.mjx_error and "BOX" in robot.mjx_error
+    found = robots.check(path)
+    assert "MJX builds it: no (the native simulator runs it)" in found.text
+    short = config_lib.TaskConfig(duration=0.1)
+    table = Experiment(config_lib.Config(robot=path, task=short)).baselines()
+    assert np.isfinite(table.tracking_mse).all()
+    rigid = config_lib.ForwardModelConfig(kind="rigid_body")
+    for changes in ({"simulator": "mjx"}, {"forward": rigid}):
+        with pytest.raises(robots.RobotError, match="MJX cannot build.*CYLINDER"):
+            Experiment(config_lib.Config(robot=path, task=short, **changes))
