@@ -1,0 +1,189 @@
+"""The quickstart protocol on every robot of a folder: one table of final tracking error per
+loss against PD-only and the oracle, diverged counts and wall times.
+
+Not a test: a study. For each ``*.xml`` of ``--robots`` (default ``tests/robots/``, the
+development set of published arms) it runs ``cfm-jax train`` as a user would with the
+library's defaults (inverse dynamics, the four losses, ``--seeds`` seeds, 4 iterations,
+5 reaching targets), each robot in its own process and output folder
+(``--out/ROBOT``). Servos are converted to torque motors (``--robot-actuators torque``:
+motors stay as they are); a ``robots.json`` beside the files may give per file the CLI
+flags of its own (``{"arm.xml": ["--robot-torque-limit", "40", "20"]}``), e.g. torque
+limits for a file that has none. A robot the library refuses, or a run that fails, is a row
+that says why.
+
+Resumable: a robot whose folder already holds a finished run (its ``summary.md``) is read,
+not run again; an interrupted one resumes from its checkpoints (``--resume``). Writes
+``--table`` (default ``docs/results/robots.md``) after every robot.
+
+Usage:
+  python experiments/robot_zoo.py [--robots tests/robots] [--seeds 3]
+      [--out results/robot_zoo] [--table docs/results/robots.md] [--only NAME,...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+LOSSES = ("joint", "task", "distal", "supervised")
+
+
+def flags_of(folder: str) -> dict[str, list[str]]:
+    """``robots.json`` of ``folder``: ``{file name: [extra CLI flags]}`` (none: ``{}``)."""
+    path = os.path.join(folder, "robots.json")
+    if not os.path.exists(path):
+        return {}
+    with open(path) as f:
+        table = json.load(f)
+    for name, flags in table.items():
+        if not isinstance(flags, list) or not all(isinstance(x, str) for x in flags):
+            raise SystemExit(
+                f"robot_zoo: {path}: the value of {name!r} must be a list of strings "
+                f"(CLI flags), got {flags!r}"
+            )
+    return table
+
+
+def run_robot(path: str, out: str, seeds: int, extra: list[str]) -> dict:
+    """``cfm-jax train`` on one robot (or read its finished run); a summary dict."""
+    done = os.path.exists(os.path.join(out, "summary.md"))
+    start = time.perf_counter()
+    error = None
+    if not done:
+        cmd = [sys.executable, "-m", "cfm_jax.cli", "train", "--robot", path,
+               "--robot-actuators", "torque", "--seeds", str(seeds), "--out", out,
+               "--quiet", *extra]  # fmt: skip
+        if os.path.isdir(os.path.join(out)) and os.listdir(out):
+            cmd.append("--resume")
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            lines = (proc.stderr or proc.stdout).strip().splitlines()
+            error = lines[-1] if lines else f"exit status {proc.returncode}"
+    wall = time.perf_counter() - start
+    row = dict(robot=os.path.splitext(os.path.basename(path))[0], error=error)
+    timing = os.path.join(out, "zoo_wall_s.txt")
+    if not done and error is None:
+        with open(timing, "w") as f:
+            f.write(f"{wall:.0f}\n")
+    row["wall_s"] = float(open(timing).read()) if os.path.exists(timing) else float("nan")
+    if error is None:
+        row.update(summarise(out))
+    return row
+
+
+def summarise(out: str) -> dict:
+    """Per loss: seed means of the final tracking MSE (runs that diverged left out), their
+    mean and bootstrap CI, diverged runs, seeds below PD-only; PD-only's and the oracle's
+    means."""
+    from cfm_jax import report
+
+    metrics = pd.read_csv(os.path.join(out, "metrics.csv"))
+    base = pd.read_csv(os.path.join(out, "baselines.csv"))
+    pd_only = float(base[base.baseline == "pd_only"].tracking_mse.mean())
+    oracle = float(base[base.baseline == "oracle"].tracking_mse.mean())
+    result: dict = dict(pd_only=pd_only, oracle=oracle)
+    means = report.seed_means(metrics)
+    for loss in LOSSES:
+        rows = metrics[metrics.loss == loss]
+        if rows.empty:
+            continue
+        last = rows[rows.iteration == rows.iteration.max()]
+        per_seed = means[means.loss == loss].tracking_mse.to_numpy()
+        result[loss] = dict(
+            stats=report.mean_ci(per_seed[np.isfinite(per_seed)]),
+            diverged=int((last.diverged != 0).sum()),
+            runs=len(last),
+            below_pd=int((per_seed < pd_only).sum()),
+            seeds=len(per_seed),
+        )
+    return result
+
+
+def table(rows: list[dict], seeds: int, folder: str) -> str:
+    """The results page (Markdown)."""
+    from cfm_jax import report
+
+    lines = [
+        "# The defaults on published robots",
+        "",
+        f"Written by `python experiments/robot_zoo.py --robots {folder} --seeds {seeds}`, "
+        f"{datetime.date.today().isoformat()} ({platform.machine()}, {os.cpu_count()} cores). "
+        "Each robot: `cfm-jax train --robot FILE --robot-actuators torque` with the library's "
+        "defaults (inverse dynamics, 5 reaching targets, 4 iterations). Cells: final tracking "
+        "MSE (rad^2), mean over seeds of each seed's mean over its targets, with its 95% "
+        "bootstrap interval; runs whose simulation diverged are left out of the mean and "
+        "counted (`div.`); `below PD` is the number of seeds whose mean is below PD-only's.",
+        "",
+        "| robot | " + " | ".join(LOSSES) + " | PD-only | oracle | wall (s) |",
+        "|---|" + "---|" * len(LOSSES) + "---:|---:|---:|",
+    ]
+    for row in rows:
+        if row.get("error"):
+            lines.append(f"| {row['robot']} | {row['error']} " + "| " * (len(LOSSES) + 2) + "|")
+            continue
+        cells = []
+        for loss in LOSSES:
+            r = row.get(loss)
+            if r is None:
+                cells.append("-")
+                continue
+            text = report.ci_text(r["stats"]) if seeds > 1 else f"{r['stats']['mean']:.3g}"
+            text += f"; below PD {r['below_pd']}/{r['seeds']}"
+            if r["diverged"]:
+                text += f"; div. {r['diverged']}/{r['runs']}"
+            cells.append(text)
+        lines.append(
+            f"| {row['robot']} | " + " | ".join(cells) + f" | {row['pd_only']:.3g} | "
+            f"{row['oracle']:.3g} | {row['wall_s']:.0f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--robots", default=os.path.join(ROOT, "tests", "robots"))
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--out", default=os.path.join(ROOT, "results", "robot_zoo"))
+    parser.add_argument("--table", default=os.path.join(ROOT, "docs", "results", "robots.md"))
+    parser.add_argument("--only", default="", help="comma-separated file stems")
+    args = parser.parse_args()
+    if not os.path.isdir(args.robots):
+        raise SystemExit(f"robot_zoo: --robots {args.robots!r} is not a folder")
+    files = sorted(f for f in os.listdir(args.robots) if f.endswith(".xml"))
+    stems = [os.path.splitext(f)[0] for f in files]
+    wanted = set(args.only.split(",")) if args.only else set(stems)
+    unknown = wanted - set(stems)
+    if unknown:
+        raise SystemExit(f"robot_zoo: --only {sorted(unknown)} not in {args.robots}")
+    extra = flags_of(args.robots)
+    rows = []
+    folder = os.path.relpath(args.robots, ROOT)
+    for name, stem in zip(files, stems, strict=True):
+        out = os.path.join(args.out, f"seeds{args.seeds}", stem)
+        if stem not in wanted:
+            # Not asked for this time: its finished run still goes into the table.
+            if os.path.exists(os.path.join(out, "summary.md")):
+                rows.append(run_robot(os.path.join(args.robots, name), out, args.seeds, []))
+            continue
+        print(f"robot_zoo: {name} ...", flush=True)
+        row = run_robot(os.path.join(args.robots, name), out, args.seeds, extra.get(name, []))
+        print(f"robot_zoo: {name}: {row.get('error') or 'done'} ({row['wall_s']:.0f} s)")
+        rows.append(row)
+        os.makedirs(os.path.dirname(os.path.abspath(args.table)), exist_ok=True)
+        with open(args.table, "w") as f:
+            f.write(table(rows, args.seeds, folder))
+    print(f"robot_zoo: wrote {args.table}")
+
+
+if __name__ == "__main__":
+    main()

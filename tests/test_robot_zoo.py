@@ -1,0 +1,45 @@
+"""experiments/robot_zoo.py: its summary of a run against a hand computation, and its
+per-folder flags file (the study itself is not run here: minutes per robot)."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import pytest
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
+import robot_zoo  # noqa: E402
+
+
+def test_summary_of_a_run_by_hand(tmp_path):
+    # Two seeds, two targets, final iteration 1; joint's seed 1 target 1 diverged.
+    rows = ["loss,seed,iteration,target,tracking_mse,diverged"]
+    for loss, values in {"joint": [1.0, 3.0, 5.0, 99.0], "task": [0.1, 0.3, 0.2, 0.4]}.items():
+        for seed in (0, 1):
+            for target in (0, 1):
+                rows.append(f"{loss},{seed},0,{target},50.0,0")
+                v = values[2 * seed + target]
+                rows.append(f"{loss},{seed},1,{target},{v},{int(v == 99.0)}")
+    (tmp_path / "metrics.csv").write_text("\n".join(rows) + "\n")
+    (tmp_path / "baselines.csv").write_text(
+        "baseline,target,tracking_mse\noracle,0,1e-4\noracle,1,3e-4\npd_only,0,2.0\npd_only,1,4.0\n"
+    )
+    s = robot_zoo.summarise(str(tmp_path))
+    assert s["pd_only"] == 3.0 and s["oracle"] == pytest.approx(2e-4)
+    # joint: seed 0 mean (1 + 3) / 2 = 2, seed 1 mean 5 (the diverged run left out).
+    assert s["joint"]["stats"]["mean"] == pytest.approx(3.5)
+    assert (s["joint"]["diverged"], s["joint"]["runs"], s["joint"]["below_pd"]) == (1, 4, 1)
+    assert s["task"]["stats"]["mean"] == pytest.approx(0.25) and s["task"]["below_pd"] == 2
+    text = robot_zoo.table([dict(robot="arm", wall_s=12.0, error=None, **s)], 2, "tests/x")
+    assert "| arm | 3.5 [2, 5]; below PD 1/2; div. 1/4 | 0.25 [0.2, 0.3]; below PD 2/2 |" in text
+
+
+def test_flags_file_is_read_and_checked(tmp_path):
+    assert robot_zoo.flags_of(str(tmp_path)) == {}
+    (tmp_path / "robots.json").write_text(json.dumps({"a.xml": ["--robot-torque-limit", "4"]}))
+    assert robot_zoo.flags_of(str(tmp_path)) == {"a.xml": ["--robot-torque-limit", "4"]}
+    (tmp_path / "robots.json").write_text(json.dumps({"a.xml": "--robot-torque-limit 4"}))
+    with pytest.raises(SystemExit, match="'a.xml' must be a list of strings"):
+        robot_zoo.flags_of(str(tmp_path))
