@@ -109,8 +109,8 @@ def summarise(out: str) -> dict:
     return result
 
 
-def table(rows: list[dict], seeds: int, folder: str) -> str:
-    """The results page (Markdown)."""
+def table(rows: list[dict], seeds: int, folder: str, note: str = "") -> str:
+    """The results page (Markdown); ``note``: a paragraph on a variant run's flags."""
     from cfm_jax import report
 
     lines = [
@@ -123,6 +123,7 @@ def table(rows: list[dict], seeds: int, folder: str) -> str:
         "MSE (rad^2), mean over seeds of each seed's mean over its targets, with its 95% "
         "bootstrap interval; runs whose simulation diverged are left out of the mean and "
         "counted (`div.`); `below PD` is the number of seeds whose mean is below PD-only's.",
+        *(["", note] if note else []),
         "",
         "| robot | " + " | ".join(LOSSES) + " | PD-only | oracle | wall (s) |",
         "|---|" + "---|" * len(LOSSES) + "---:|---:|---:|",
@@ -156,6 +157,17 @@ def main() -> None:
     parser.add_argument("--out", default=os.path.join(ROOT, "results", "robot_zoo"))
     parser.add_argument("--table", default=os.path.join(ROOT, "docs", "results", "robots.md"))
     parser.add_argument("--only", default="", help="comma-separated file stems")
+    parser.add_argument(
+        "--tag",
+        default="",
+        help="a name for a variant run (its own output folder): with --flags-file, e.g. a "
+        "diagnosis with other babbling noise; the defaults' run has none",
+    )
+    parser.add_argument(
+        "--flags-file",
+        default="",
+        help="a JSON file like robots.json whose flags are added for this run (per file)",
+    )
     args = parser.parse_args()
     if not os.path.isdir(args.robots):
         raise SystemExit(f"robot_zoo: --robots {args.robots!r} is not a folder")
@@ -166,10 +178,14 @@ def main() -> None:
     if unknown:
         raise SystemExit(f"robot_zoo: --only {sorted(unknown)} not in {args.robots}")
     extra = flags_of(args.robots)
+    if args.flags_file:
+        with open(args.flags_file) as f:
+            for name, flags in json.load(f).items():
+                extra[name] = extra.get(name, []) + list(flags)
     rows = []
     folder = os.path.relpath(args.robots, ROOT)
     for name, stem in zip(files, stems, strict=True):
-        out = os.path.join(args.out, f"seeds{args.seeds}", stem)
+        out = os.path.join(args.out, f"seeds{args.seeds}{args.tag and '_' + args.tag}", stem)
         if stem not in wanted:
             # Not asked for this time: its finished run still goes into the table.
             if os.path.exists(os.path.join(out, "summary.md")):
@@ -181,7 +197,12 @@ def main() -> None:
         rows.append(row)
         os.makedirs(os.path.dirname(os.path.abspath(args.table)), exist_ok=True)
         with open(args.table, "w") as f:
-            f.write(table(rows, args.seeds, folder))
+            note = ""
+            if args.tag:
+                note = f"Variant `{args.tag}`: added flags per file " + ", ".join(
+                    f"{k}: `{' '.join(v)}`" for k, v in sorted(extra.items())
+                )
+            f.write(table(rows, args.seeds, folder, note))
     print(f"robot_zoo: wrote {args.table}")
 
 
