@@ -11,9 +11,9 @@ flags of its own (``{"arm.xml": ["--robot-torque-limit", "40", "20"]}``), e.g. t
 limits for a file that has none. A robot the library refuses, or a run that fails, is a row
 that says why.
 
-Resumable: a robot whose folder already holds a finished run (its ``summary.md``) is read,
-not run again; an interrupted one resumes from its checkpoints (``--resume``). Writes
-``--table`` (default ``docs/results/robots.md``) after every robot.
+Resumable: a robot whose folder already holds a finished run (every loss at its last
+iteration) is read, not run again; an interrupted one resumes from its checkpoints
+(``--resume``). Writes ``--table`` (default ``docs/results/robots.md``) after every robot.
 
 Usage:
   python experiments/robot_zoo.py [--robots tests/robots] [--seeds 3]
@@ -54,9 +54,22 @@ def flags_of(folder: str) -> dict[str, list[str]]:
     return table
 
 
+def finished(out: str) -> bool:
+    """Whether ``out`` holds a finished run: every loss has the metrics of its last
+    iteration (``summary.md`` alone is written after each loss)."""
+    try:
+        with open(os.path.join(out, "config.json")) as f:
+            iterations = json.load(f)["loop"]["iterations"]
+        metrics = pd.read_csv(os.path.join(out, "metrics.csv"))
+    except (OSError, KeyError, ValueError):
+        return False
+    last = metrics.groupby("loss").iteration.max()
+    return all(last.get(loss, -1) >= iterations for loss in LOSSES)
+
+
 def run_robot(path: str, out: str, seeds: int, extra: list[str]) -> dict:
     """``cfm-jax train`` on one robot (or read its finished run); a summary dict."""
-    done = os.path.exists(os.path.join(out, "summary.md"))
+    done = finished(out)
     start = time.perf_counter()
     error = None
     if not done:
@@ -188,7 +201,7 @@ def main() -> None:
         out = os.path.join(args.out, f"seeds{args.seeds}{args.tag and '_' + args.tag}", stem)
         if stem not in wanted:
             # Not asked for this time: its finished run still goes into the table.
-            if os.path.exists(os.path.join(out, "summary.md")):
+            if finished(out):
                 rows.append(run_robot(os.path.join(args.robots, name), out, args.seeds, []))
             continue
         print(f"robot_zoo: {name} ...", flush=True)

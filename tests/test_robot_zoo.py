@@ -43,3 +43,18 @@ def test_flags_file_is_read_and_checked(tmp_path):
     (tmp_path / "robots.json").write_text(json.dumps({"a.xml": "--robot-torque-limit 4"}))
     with pytest.raises(SystemExit, match="'a.xml' must be a list of strings"):
         robot_zoo.flags_of(str(tmp_path))
+
+
+def test_a_run_is_finished_when_every_loss_reached_its_last_iteration(tmp_path):
+    (tmp_path / "config.json").write_text(json.dumps({"loop": {"iterations": 2}}))
+    rows = ["loss,seed,iteration,target,tracking_mse,diverged"]
+    rows += [f"{loss},0,{i},0,1.0,0" for loss in robot_zoo.LOSSES[:3] for i in range(3)]
+    (tmp_path / "metrics.csv").write_text("\n".join(rows) + "\n")
+    assert not robot_zoo.finished(str(tmp_path))  # supervised missing
+    rows += [f"supervised,0,{i},0,1.0,0" for i in range(2)]
+    (tmp_path / "metrics.csv").write_text("\n".join(rows) + "\n")
+    assert not robot_zoo.finished(str(tmp_path))  # supervised stopped at iteration 1
+    rows.append("supervised,0,2,0,1.0,0")
+    (tmp_path / "metrics.csv").write_text("\n".join(rows) + "\n")
+    assert robot_zoo.finished(str(tmp_path))
+    assert not robot_zoo.finished(str(tmp_path / "nothing"))
