@@ -12,9 +12,9 @@ exception) at the first computation when ``XLA_FLAGS`` holds a flag it does not 
 the flag is set only where the running jaxlib is known to accept it, decided from jaxlib's
 version string (read from the installed package's metadata, without starting JAX):
 
-- jaxlib 0.10.0, 0.10.1, 0.10.2 accept it (0.10.2: the whole test suite runs with it;
-  0.10.0: a computation under the flag ran here, 2026-11-26, while an unknown flag aborted
-  the same process);
+- jaxlib 0.10.0 and 0.10.2 accept it (0.10.2: the whole test suite runs with it; 0.10.0: a
+  computation under the flag ran here, 2026-11-26, while an unknown flag aborted the same
+  way); 0.10.1 lies between them and is taken to accept it too;
 - jaxlib 0.11.2 aborts on it ("Unknown flag in XLA_FLAGS: --xla_cpu_use_fusion_emitters=false",
   on an H100 machine, 2026-11-26; XLA had retired the legacy CPU emitters the flag fell back
   to, openxla/xla#48001).
