@@ -82,6 +82,8 @@ def run_robot(path: str, out: str, seeds: int, extra: list[str]) -> dict:
         if proc.returncode != 0:
             lines = (proc.stderr or proc.stdout).strip().splitlines()
             error = lines[-1] if lines else f"exit status {proc.returncode}"
+            # The CLI names the file by its absolute path: keep the reason, not the machine.
+            error = "refused: " + error.removeprefix("cfm-jax: error: ").split("): ", 1)[-1]
     wall = time.perf_counter() - start
     row = dict(robot=os.path.splitext(os.path.basename(path))[0], error=error)
     timing = os.path.join(out, "zoo_wall_s.txt")
