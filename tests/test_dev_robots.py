@@ -15,6 +15,7 @@ stripped; tests/robots/README.md) and what the library tells about a robot befor
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import mujoco
@@ -28,7 +29,7 @@ from cfm_jax.experiment import Experiment
 HERE = Path(__file__).parent
 DEV = HERE / "robots"
 # The arms with one actuator per joint (the grippers, piper and arx_l5, wait for item 5).
-ARMS = ("flexiv_rizon4", "m1013", "lite6", "lite6_continuous")
+ARMS = ("flexiv_rizon4", "m1013", "lite6", "lite6_continuous", "kuka_iiwa_14")
 GRIPPERS = ("piper", "arx_l5")
 
 
@@ -43,10 +44,20 @@ def test_the_set_is_what_its_readme_lists():
         assert "mujoco_menagerie" in head and "Licen" in head, path.name
 
 
+def torque_limit(arm: str):
+    """The ``--robot-torque-limit`` of ``arm`` in tests/robots/robots.json (a file without
+    limits of its own: the published iiwa 14, data-sheet limits), or None."""
+    flags = json.loads((DEV / "robots.json").read_text()).get(f"{arm}.xml", [])
+    if "--robot-torque-limit" not in flags:
+        return None
+    return tuple(float(x) for x in flags[flags.index("--robot-torque-limit") + 1 :])
+
+
 def baselines(arm: str, simulator: str):
     config = config_lib.Config(
         robot=str(DEV / f"{arm}.xml"),
         robot_actuators="torque",
+        robot_torque_limit=torque_limit(arm),
         simulator=simulator,
         task=config_lib.TaskConfig(duration=0.3),
     )
