@@ -37,7 +37,9 @@ from cfm_jax import _jax_private
 FAST_FLAG = "--xla_cpu_use_fusion_emitters=false"
 _FLAG_NAME = "--xla_cpu_use_fusion_emitters"
 
-# The last jaxlib (major, minor) series whose XLA accepts FAST_FLAG (evidence: module docstring).
+# The jaxlib (major, minor) series whose XLA accepts FAST_FLAG (evidence: module docstring);
+# the first is the oldest pyproject allows.
+FIRST_SERIES_WITH_FLAG = (0, 10)
 LAST_SERIES_WITH_FLAG = (0, 10)
 
 
@@ -49,8 +51,13 @@ class UnknownFlagWarning(UserWarning):
     """``XLA_FLAGS`` held a flag the running XLA does not know (it would abort the process)."""
 
 
+def _is_flag(entry: str) -> bool:
+    """Whether one entry of ``XLA_FLAGS`` sets :data:`FAST_FLAG`'s flag (any value)."""
+    return entry.split("=")[0] == _FLAG_NAME
+
+
 def _flag_present(flags: str) -> bool:
-    return any(f.split("=")[0] == _FLAG_NAME for f in flags.split())
+    return any(_is_flag(f) for f in flags.split())
 
 
 def jaxlib_version() -> str | None:
@@ -79,7 +86,7 @@ def flag_known(version: str | None) -> bool:
     if match is None:
         return False
     series = (int(match.group(1)), int(match.group(2)))
-    return (0, 10) <= series <= LAST_SERIES_WITH_FLAG
+    return FIRST_SERIES_WITH_FLAG <= series <= LAST_SERIES_WITH_FLAG
 
 
 def configure() -> bool:
@@ -97,7 +104,7 @@ def configure() -> bool:
     version = jaxlib_version()
     if not flag_known(version):
         if _flag_present(flags) and not backend_started():
-            kept = " ".join(f for f in flags.split() if f.split("=")[0] != _FLAG_NAME)
+            kept = " ".join(f for f in flags.split() if not _is_flag(f))
             os.environ["XLA_FLAGS"] = kept
             warnings.warn(
                 f"XLA_FLAGS held {_FLAG_NAME}, which the XLA of jaxlib {version} does not "

@@ -221,14 +221,18 @@ class Robot:
         ctrl = jnp.zeros(tau.shape[:-1] + (self.mj_model.nu,), tau.dtype)
         return ctrl.at[..., self.actuator_of_joint].set(tau / self.gear)
 
-    def mass_matrix_diagonal(self, qpos) -> np.ndarray:
-        """Diagonal of the joint-space inertia ``M(q)`` (MuJoCo C), shape ``(nv,)``."""
+    def mass_matrix(self, qpos) -> np.ndarray:
+        """The joint-space inertia ``M(q)`` (MuJoCo C, armature included), ``(nv, nv)``."""
         data = mujoco.MjData(self.mj_model)
         data.qpos[:] = qpos
         mujoco.mj_forward(self.mj_model, data)
         full = np.zeros((self.nv, self.nv))
         mujoco.mj_fullM(self.mj_model, data, full)
-        return np.diag(full).copy()
+        return full
+
+    def mass_matrix_diagonal(self, qpos) -> np.ndarray:
+        """Diagonal of the joint-space inertia ``M(q)`` (MuJoCo C), shape ``(nv,)``."""
+        return np.diag(self.mass_matrix(qpos)).copy()
 
 
 def _servo_kind(model, a) -> str | None:
@@ -753,11 +757,7 @@ def dynamics(robot: Robot, babbling_noise: float, kd: float, control_dt: float) 
       (('shoulder', 'elbow'), True)
     """
     model = robot.mj_model
-    data = mujoco.MjData(model)
-    data.qpos[:] = robot.home
-    mujoco.mj_forward(model, data)
-    full = np.zeros((model.nv, model.nv))
-    mujoco.mj_fullM(model, data, full)
+    full = robot.mass_matrix(robot.home)
     dofs = np.asarray(robot.actuated_dofs)
     inverse = np.linalg.inv(full)[np.ix_(dofs, dofs)]
     limit = np.asarray(robot.torque_limit, np.float64)
