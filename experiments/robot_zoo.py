@@ -165,7 +165,7 @@ def table(rows: list[dict], seeds: int, folder: str, note: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--robots", default=os.path.join(ROOT, "tests", "robots"))
     parser.add_argument("--seeds", type=int, default=3)
@@ -183,7 +183,7 @@ def main() -> None:
         default="",
         help="a JSON file like robots.json whose flags are added for this run (per file)",
     )
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if not os.path.isdir(args.robots):
         raise SystemExit(f"robot_zoo: --robots {args.robots!r} is not a folder")
     files = sorted(f for f in os.listdir(args.robots) if f.endswith(".xml"))
@@ -197,27 +197,33 @@ def main() -> None:
         with open(args.flags_file) as f:
             for name, flags in json.load(f).items():
                 extra[name] = extra.get(name, []) + list(flags)
-    rows = []
+    rows: list[dict] = []
     folder = os.path.relpath(args.robots, ROOT)
+
+    def write() -> None:
+        note = ""
+        if args.tag:
+            ran = {f"{row['robot']}.xml" for row in rows}
+            note = f"Variant `{args.tag}`: added flags per file " + ", ".join(
+                f"{k}: `{' '.join(v)}`" for k, v in sorted(extra.items()) if k in ran
+            )
+        os.makedirs(os.path.dirname(os.path.abspath(args.table)), exist_ok=True)
+        with open(args.table, "w") as f:
+            f.write(table(rows, args.seeds, folder, note))
+
     for name, stem in zip(files, stems, strict=True):
         out = os.path.join(args.out, f"seeds{args.seeds}{args.tag and '_' + args.tag}", stem)
         if stem not in wanted:
             # Not asked for this time: its finished run still goes into the table.
             if finished(out):
                 rows.append(run_robot(os.path.join(args.robots, name), out, args.seeds, []))
+                write()
             continue
         print(f"robot_zoo: {name} ...", flush=True)
         row = run_robot(os.path.join(args.robots, name), out, args.seeds, extra.get(name, []))
         print(f"robot_zoo: {name}: {row.get('error') or 'done'} ({row['wall_s']:.0f} s)")
         rows.append(row)
-        os.makedirs(os.path.dirname(os.path.abspath(args.table)), exist_ok=True)
-        with open(args.table, "w") as f:
-            note = ""
-            if args.tag:
-                note = f"Variant `{args.tag}`: added flags per file " + ", ".join(
-                    f"{k}: `{' '.join(v)}`" for k, v in sorted(extra.items())
-                )
-            f.write(table(rows, args.seeds, folder, note))
+        write()
     print(f"robot_zoo: wrote {args.table}")
 
 

@@ -58,3 +58,28 @@ def test_a_run_is_finished_when_every_loss_reached_its_last_iteration(tmp_path):
     (tmp_path / "metrics.csv").write_text("\n".join(rows) + "\n")
     assert robot_zoo.finished(str(tmp_path))
     assert not robot_zoo.finished(str(tmp_path / "nothing"))
+
+
+def _finished_run(out, mse: float) -> None:
+    out.mkdir(parents=True)
+    (out / "config.json").write_text(json.dumps({"loop": {"iterations": 1}}))
+    rows = ["loss,seed,iteration,target,tracking_mse,diverged"]
+    rows += [f"{loss},0,{i},0,{mse},0" for loss in robot_zoo.LOSSES for i in range(2)]
+    (out / "metrics.csv").write_text("\n".join(rows) + "\n")
+    base = "baseline,target,tracking_mse\noracle,0,1e-6\npd_only,0,1.0\n"
+    (out / "baselines.csv").write_text(base)
+
+
+def test_only_one_robot_still_tables_every_finished_run(tmp_path):
+    # Finished runs are read, never run again: --only a must keep b's row (alphabetically
+    # after a) in the table it writes.
+    robots = tmp_path / "robots"
+    robots.mkdir()
+    for stem in ("a", "b"):
+        (robots / f"{stem}.xml").write_text("<mujoco/>")
+        _finished_run(tmp_path / "out" / "seeds1" / stem, {"a": 0.5, "b": 0.25}[stem])
+    page = tmp_path / "robots.md"
+    robot_zoo.main(["--robots", str(robots), "--seeds", "1", "--out", str(tmp_path / "out"),
+                    "--table", str(page), "--only", "a"])  # fmt: skip
+    text = page.read_text()
+    assert "| a | 0.5; below PD 1/1 |" in text and "| b | 0.25; below PD 1/1 |" in text
