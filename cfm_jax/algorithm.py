@@ -129,7 +129,9 @@ class Knobs:
       controller_learning_rate: ``controller.learning_rate``.
       forward_log_variance_bounds: ``(forward.min_log_variance,
         forward.max_log_variance)``, the initial soft bounds of the forward model.
-      babbling_noise_std: ``loop.babbling_noise`` times each torque limit, ``(action_dim,)``.
+      babbling_noise_std: ``loop.babbling_noise`` times each joint's torque scale
+        (``loop.torque_scale``: :meth:`cfm_jax.robots.Robot.torque_scale` or the torque
+        limit), ``(action_dim,)``.
       babbling: ``loop.babbling`` as its index in :data:`cfm_jax.config.BABBLING` (int32).
       task: the task's values, ``values()`` of the task built for ``config.task``: the
         gains (``task.kp``, ``task.kd``, ... and what the task derives from them) and, for
@@ -156,14 +158,16 @@ class Knobs:
     def of(cls, config: config_lib.Config, robot, task) -> Knobs:
         """The knobs of ``config`` on ``robot``, with the values of ``task`` (the task built
         for ``config.task``)."""
-        limit = np.asarray(robot.torque_limit, np.float64)
+        scale = torque_scale(config, robot)
+        if scale is None:
+            scale = np.asarray(robot.torque_limit, np.float64)
         return cls(
             forward_learning_rate=jnp.asarray(config.forward.learning_rate, jnp.float32),
             controller_learning_rate=jnp.asarray(config.controller.learning_rate, jnp.float32),
             forward_log_variance_bounds=jnp.asarray(
                 [config.forward.min_log_variance, config.forward.max_log_variance], jnp.float32
             ),
-            babbling_noise_std=jnp.asarray(config.loop.babbling_noise * limit, jnp.float32),
+            babbling_noise_std=jnp.asarray(config.loop.babbling_noise * scale, jnp.float32),
             babbling=jnp.asarray(config_lib.BABBLING.index(config.loop.babbling), jnp.int32),
             task=task.values(),
         )
@@ -185,6 +189,8 @@ class Setup:
         the ensemble :func:`cfm_jax.networks.forward_model` by default).
       controller: the controller (:func:`cfm_jax.networks.controller`).
       capacity: rows of the data set (babbling and every iteration's rollout).
+      torque_scale: ``(action_dim,)`` the torque scale of ``loop.torque_scale = "inertia"``
+        (:meth:`cfm_jax.robots.Robot.torque_scale`), or None (``"limit"``: the limits).
 
     Examples:
       >>> from cfm_jax import config as cfg
@@ -200,6 +206,7 @@ class Setup:
     forward: Any
     controller: Any
     capacity: int
+    torque_scale: np.ndarray | None = None
 
     @classmethod
     def of(cls, config: config_lib.Config) -> Setup:
@@ -252,7 +259,16 @@ class Setup:
         )
         per_rollout = task.targets * task.steps
         capacity = per_rollout * (config.loop.babbling_rollouts + config.loop.iterations)
-        setup = cls(config, robot, control_dt, task, forward, controller, capacity)
+        setup = cls(
+            config,
+            robot,
+            control_dt,
+            task,
+            forward,
+            controller,
+            capacity,
+            torque_scale(config, robot),
+        )
         loss_groups(setup)  # validates controller.loss_weights against the task's output
         return setup
 
@@ -260,6 +276,29 @@ class Setup:
     def transitions_per_rollout(self) -> int:
         """Transitions of one rollout of the task: ``targets * steps``."""
         return self.task.targets * self.task.steps
+
+
+def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:
+    """The torque scale of ``config.loop.torque_scale``: for ``"inertia"``
+    :meth:`cfm_jax.robots.Robot.torque_scale` of ``robot`` (float64), for ``"limit"`` None
+    (the torque limits scale the torques).
+
+    Args:
+      config: a :class:`cfm_jax.config.Config`.
+      robot: its :class:`cfm_jax.robots.Robot`.
+
+    Returns:
+      ``(action_dim,)`` float64, or None.
+
+    Examples:
+      >>> from cfm_jax import config as cfg, robots
+      >>> arm = robots.load("two_link_arm")
+      >>> torque_scale(cfg.Config(loop=cfg.LoopConfig(torque_scale="limit")), arm) is None
+      True
+    """
+    if config.loop.torque_scale == "limit":
+        return None
+    return robot.torque_scale()
 
 
 # ----- the listing ----------------------------------------------------------------------
@@ -453,13 +492,13 @@ def _babble(
         functools.partial(task.babbling_reference, strategy, key_goals)
         for strategy in config_lib.BABBLING
     ]
-    return _run(setup, task.with_reference(jax.lax.switch(knobs.babbling, references)), policy, key)
+    return _run(setup, task.for_babbling(jax.lax.switch(knobs.babbling, references)), policy, key)
 
 
 def babbling_policy(setup: Setup, knobs: Knobs) -> rollout_lib.MixedPolicy:
     """The babbling controller of ``loop.babbling`` (the task's PD feedback, or its oracle
     for ``oracle``; :mod:`cfm_jax.babbling`) plus Gaussian torque noise
-    (``loop.babbling_noise`` of each limit).
+    (``loop.babbling_noise`` of each joint's torque scale, ``loop.torque_scale``).
 
     Args:
       setup: the run's :class:`Setup`.
@@ -513,12 +552,14 @@ def _start(
             setup.robot.torque_limit,
             weights=valid,
             desired_index=task.desired_index,
+            torque_scale=setup.torque_scale,
         )
     elif cfg.loop.normaliser == "robot":
         normaliser = networks.Normaliser.from_scales(
             **scales.robot_scales(task),
             torque_limit=setup.robot.torque_limit,
             desired_index=task.desired_index,
+            torque_scale=setup.torque_scale,
         )
     else:  # "data"
         normaliser = data_normaliser(setup, data)
@@ -567,6 +608,7 @@ def data_normaliser(setup: Setup, data: dataset.Dataset) -> networks.Normaliser:
         setup.robot.torque_limit,
         weights=filled,
         desired_index=setup.task.desired_index,
+        torque_scale=setup.torque_scale,
     )
 
 
@@ -823,7 +865,11 @@ def mixed_policy(setup: Setup, **weights) -> rollout_lib.MixedPolicy:
     task = setup.task
     dummy = setup.controller.init(jax.random.key(0), task.state_dim)
     norm = networks.Normaliser.identity(
-        task.state_dim, task.output_dim, setup.robot.torque_limit, task.desired_index
+        task.state_dim,
+        task.output_dim,
+        setup.robot.torque_limit,
+        task.desired_index,
+        torque_scale=setup.torque_scale,
     )
     return rollout_lib.MixedPolicy.of(dummy, norm, task.action_dim, **weights)
 

@@ -202,6 +202,44 @@ def joint_pd_gains(robot, kp: float, kd: float, home) -> tuple[np.ndarray, np.nd
     return kp * inertia, kd * inertia
 
 
+def babbling_joint_gains(robot, kp: float, kd: float, poses) -> tuple[np.ndarray, np.ndarray]:
+    """Torque PD gains of the babbling's joint feedback: ``K = (kp, kd) * I_j``, with
+    ``I_j`` the joint's smallest effective inertia over ``poses``
+    (:meth:`cfm_jax.robots.Robot.lightest_inertia`),
+    for example every pose the babbling may visit.
+
+    The PD-only baseline's gains, ``diag M(q_home)`` (:func:`joint_pd_gains`), fit the home
+    pose; the babbling reaches far from it, and on an arm with light links and no armature
+    the coupled inertia there makes those gains unstable at the control period (the
+    published KUKA iiwa 14: ``kd dt lambda_max(M(q)^-1 K_d)`` up to 20 over its range, 2
+    being the limit of a held torque), so that the babbling data is a noise-driven
+    oscillation of tens of rad/s. With ``K_d = kd I``, ``I_jj <= 1 / (M(q)^-1)_jj`` at
+    every pose, so the matrix ``K_d^(1/2) M(q)^-1 K_d^(1/2) / kd`` has a diagonal of at
+    most 1 wherever the babbling goes: each joint alone is damped at the rate ``kd`` or
+    less, and the loop's number ``kd dt lambda_max(M^-1 K_d)`` is at most ``kd dt nv``
+    (in practice about ``kd dt``). On an arm whose inertia changes little with the pose
+    (armature) the gains are close to the baseline's.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      kp: acceleration stiffness (1/s^2).
+      kd: acceleration damping (1/s).
+      poses: ``(n, nq)`` the poses the babbling may visit.
+
+    Returns:
+      ``(K_p, K_d)``, each ``(action_dim,)``.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> k_p, k_d = babbling_joint_gains(arm, 100.0, 20.0, arm.home[None])
+      >>> bool(np.all(k_d <= joint_pd_gains(arm, 100.0, 20.0, arm.home)[1]))
+      True
+    """
+    inertia = robot.lightest_inertia(poses)
+    return kp * inertia, kd * inertia
+
+
 # ---- operational space: the Khatib oracle -----------------------------------------------
 
 

@@ -115,6 +115,20 @@ nor the reference controller; ``reference_pd`` and ``oracle`` use them and exist
 study their effect."""
 
 
+TORQUE_SCALES = ("inertia", "limit")
+"""How torques are scaled, for ``Config.loop.torque_scale``
+(:meth:`cfm_jax.robots.Robot.torque_scale`): ``inertia`` (the arm tasks' default) scales
+joint ``j``'s torque by ``S_j = M_jj(home) min_k (tau_max_k / M_kk(home))``, the torque that
+gives it, alone at the start pose, the acceleration that the least of the joints' limits
+gives: the babbling noise is that fraction of ``S``, the forward model takes ``tau / S`` and
+the controller puts out ``tau_max tanh(S u / tau_max)``. ``limit`` (the legged tasks'
+default) scales every torque by its limit ``tau_max`` (noise, inputs, and
+``tau_max tanh(u)``). The two agree on a robot whose joints all reach the same acceleration
+at their limits; on a published arm with light distal links the wrist's limit gives 100x
+the acceleration of the shoulder's, and scaled by its limit the wrist's torques that the
+tracking needs are 1e-4 of the controller's range and 1e-3 of the babbling noise."""
+
+
 NORMALISERS = ("babbling", "data", "robot")
 """Input and output scaling of both networks for ``Config.loop.normaliser``
 (:class:`cfm_jax.networks.Normaliser`): ``babbling`` (statistics of the initial data, fitted
@@ -654,7 +668,13 @@ class LoopConfig:
       babbling_rollouts: motor-babbling rollouts per target (each as wide as one rollout of
         the task: ``targets x steps`` transitions).
       babbling_noise: standard deviation of the babbling torque noise, as a fraction of each
-        torque limit.
+        joint's torque scale (``torque_scale``).
+      torque_scale: how torques are scaled, one of :data:`TORQUE_SCALES`: ``inertia``
+        (default, the arm tasks'; by the joint's inertia at the start pose, so that every
+        joint's scale gives it the same acceleration) or ``limit`` (the legged tasks'
+        default, :func:`for_task`; by the torque limits): the babbling noise, the forward
+        model's torque input and the controller's output range
+        (:meth:`cfm_jax.robots.Robot.torque_scale`).
       normaliser: the input and output scaling of both networks, one of
         :data:`NORMALISERS`: ``babbling`` (default, the arm tasks'; statistics of the
         initial data, fitted once), ``data`` (the legged tasks' default, :func:`for_task`;
@@ -681,8 +701,13 @@ class LoopConfig:
     babbling: str = "reaching"
     # Motor-babbling rollouts per target, each with Gaussian torque noise.
     babbling_rollouts: int = 2
-    # Standard deviation of the babbling torque noise, as a fraction of each torque limit.
+    # Standard deviation of the babbling torque noise, as a fraction of each joint's torque
+    # scale (torque_scale).
     babbling_noise: float = 0.1
+    # How torques are scaled (babbling noise, forward-model input, controller output); one
+    # of TORQUE_SCALES. "inertia": by each joint's inertia at the start pose (every joint's
+    # scale gives it the same acceleration); "limit": by the torque limits.
+    torque_scale: str = "inertia"
     # Input and output scaling of both networks; one of NORMALISERS. "babbling": statistics
     # of the initial data, frozen; "data": statistics of the whole data set before every
     # refit; "robot": fixed scales from the MJCF and the task (cfm_jax.tasks.scales).
@@ -700,6 +725,8 @@ class LoopConfig:
             _fail("loop.babbling", self.babbling, f"one of {BABBLING}")
         _positive_int("loop.babbling_rollouts", self.babbling_rollouts)
         _nonnegative_float("loop.babbling_noise", self.babbling_noise)
+        if not isinstance(self.torque_scale, str) or self.torque_scale not in TORQUE_SCALES:
+            _fail("loop.torque_scale", self.torque_scale, f"one of {TORQUE_SCALES}")
         if not isinstance(self.normaliser, str) or self.normaliser not in NORMALISERS:
             _fail("loop.normaliser", self.normaliser, f"one of {NORMALISERS}")
         _nonnegative_int("loop.checkpoint_every", self.checkpoint_every)
@@ -915,7 +942,7 @@ def for_task(task: str, **changes) -> Config:
             controller=ControllerConfig(
                 hidden=(300, 300, 300), loss_form="squared", start="warm_new_optimizer"
             ),
-            loop=LoopConfig(babbling="home", normaliser="data"),
+            loop=LoopConfig(babbling="home", normaliser="data", torque_scale="limit"),
         )
     return dataclasses.replace(config, **changes)
 

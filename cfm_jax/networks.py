@@ -45,7 +45,13 @@ class Normaliser:
         outputs, the observed quantity and (by ``desired_index``) the desired quantity are
         normalised with it and ``output_std``.
       output_std: ``(output_dim,)`` standard deviation of the same quantity.
-      torque_limit: ``(action_dim,)`` scale of the torques.
+      torque_limit: ``(action_dim,)`` the torque limits: the bound of the controller's
+        output, and the scale of the torques where ``torque_scale`` is None.
+      torque_scale: ``(action_dim,)`` scale of the torques
+        (:meth:`cfm_jax.robots.Robot.torque_scale`), or None: the torque limits. The
+        forward model takes ``tau / scale``; the controller puts out
+        ``torque_limit tanh(u)`` (None) or ``torque_limit tanh(torque_scale u /
+        torque_limit)``, whose slope at 0 is ``torque_scale``.
       desired_index: static tuple, the entries of the output the desired quantity specifies
         (``None``: all of them, in order).
 
@@ -62,10 +68,11 @@ class Normaliser:
     output_std: jax.Array
     torque_limit: jax.Array
     desired_index: tuple[int, ...] | None = struct.field(pytree_node=False, default=None)
+    torque_scale: jax.Array | None = None
 
     @classmethod
     def identity(
-        cls, state_dim: int, output_dim: int, torque_limit, desired_index=None
+        cls, state_dim: int, output_dim: int, torque_limit, desired_index=None, torque_scale=None
     ) -> Normaliser:
         return cls(
             jnp.zeros(state_dim),
@@ -74,11 +81,12 @@ class Normaliser:
             jnp.ones(output_dim),
             jnp.asarray(torque_limit, jnp.float32),
             _index(desired_index, output_dim),
+            _scale(torque_scale),
         )
 
     @classmethod
     def from_data(
-        cls, states, observed, torque_limit, weights=None, desired_index=None
+        cls, states, observed, torque_limit, weights=None, desired_index=None, torque_scale=None
     ) -> Normaliser:
         """Statistics of ``states (n, state_dim)`` and ``observed (n, output_dim)``.
 
@@ -105,11 +113,19 @@ class Normaliser:
             output_std,
             jnp.asarray(torque_limit, jnp.float32),
             _index(desired_index, observed.shape[-1]),
+            _scale(torque_scale),
         )
 
     @classmethod
     def from_scales(
-        cls, state_mean, state_std, output_mean, output_std, torque_limit, desired_index=None
+        cls,
+        state_mean,
+        state_std,
+        output_mean,
+        output_std,
+        torque_limit,
+        desired_index=None,
+        torque_scale=None,
     ) -> Normaliser:
         """A normaliser of given centres and scales (for example the robot's fixed
         physical scales, :func:`cfm_jax.tasks.scales.robot_scales`), as float32.
@@ -130,10 +146,24 @@ class Normaliser:
             output_std,
             torque_limit,
             _index(desired_index, output_mean.shape[-1]),
+            _scale(torque_scale),
         )
 
     def state(self, s):
         return (s - self.state_mean) / self.state_std
+
+    def torque(self, tau):
+        """Scaled torque ``(..., action_dim)``: ``tau / torque_scale`` (None: the limits)."""
+        scale = self.torque_limit if self.torque_scale is None else self.torque_scale
+        return tau / scale
+
+    def torque_output(self, u):
+        """The controller's torque for its network's output ``u``: ``torque_limit tanh(u)``,
+        or with a ``torque_scale`` ``torque_limit tanh(torque_scale u / torque_limit)``
+        (slope ``torque_scale`` at 0, bounded by the limits)."""
+        if self.torque_scale is None:
+            return self.torque_limit * jnp.tanh(u)
+        return self.torque_limit * jnp.tanh(self.torque_scale * u / self.torque_limit)
 
     def output(self, y):
         """Normalised observed / predicted quantity ``(..., output_dim)``."""
@@ -150,6 +180,11 @@ class Normaliser:
         """Normalised desired quantity ``(..., desired_dim)`` (the output's statistics at
         ``desired_index``)."""
         return (d - self.select(self.output_mean)) / self.select(self.output_std)
+
+
+def _scale(torque_scale):
+    """None, or the torque scale as float32."""
+    return None if torque_scale is None else jnp.asarray(torque_scale, jnp.float32)
 
 
 def _index(desired_index, output_dim: int):
@@ -253,7 +288,7 @@ def forward_model(
 
     def apply(params, normaliser: Normaliser, state, tau, per_member: bool = False, terms=None):
         del terms  # the ensemble needs nothing but (s, tau)
-        x = jnp.concatenate([normaliser.state(state), tau / normaliser.torque_limit], -1)
+        x = jnp.concatenate([normaliser.state(state), normaliser.torque(tau)], -1)
         in_axes = (0, 0) if per_member else (0, None)
         out = jax.vmap(mlp.apply, in_axes=in_axes)(params["members"], x)
         mean, raw = jnp.split(out, 2, axis=-1)
@@ -353,6 +388,6 @@ def controller(hidden: tuple[int, ...], nv: int, desired_dim: int | None = None)
 
     def apply(params, normaliser: Normaliser, state, desired):
         x = jnp.concatenate([normaliser.state(state), normaliser.desired(desired)], -1)
-        return normaliser.torque_limit * jnp.tanh(mlp.apply(params, x))
+        return normaliser.torque_output(mlp.apply(params, x))
 
     return Model(init, apply)

@@ -234,6 +234,49 @@ class Robot:
         """Diagonal of the joint-space inertia ``M(q)`` (MuJoCo C), shape ``(nv,)``."""
         return np.diag(self.mass_matrix(qpos)).copy()
 
+    def lightest_inertia(self, poses) -> np.ndarray:
+        """Each actuated joint's smallest effective inertia over ``poses (n, nq)``: the
+        minimum over the poses of ``1 / (M(q)^-1)_jj``, the inertia joint ``j`` feels when
+        every other joint moves freely (MuJoCo C, armature included), ``(action_dim,)``.
+
+        Examples:
+          >>> arm = load("two_link_arm")
+          >>> lightest = arm.lightest_inertia(np.stack([arm.home, arm.home + 0.5]))
+          >>> bool(np.all(lightest <= arm.mass_matrix_diagonal(arm.home)))
+          True
+        """
+        model, dofs = self.mj_model, np.asarray(self.actuated_dofs)
+        data = mujoco.MjData(model)
+        full = np.zeros((len(poses), model.nv, model.nv))
+        for i, q in enumerate(np.asarray(poses)):
+            data.qpos[:] = q
+            mujoco.mj_fwdPosition(model, data)
+            mujoco.mj_fullM(model, data, full[i])
+        effective = 1.0 / np.diagonal(np.linalg.inv(full), axis1=1, axis2=2)[:, dofs]
+        return effective.min(axis=0)
+
+    def torque_scale(self) -> np.ndarray:
+        """The torque scale of every actuated joint (``Config.loop.torque_scale =
+        "inertia"``), ``(action_dim,)``: ``S_j = M_jj(home) min_k (tau_max_k / M_kk(home))``,
+        the torque that gives joint ``j``, alone at the home pose, the least acceleration
+        that any joint's limit gives it alone (``tau_max_k / M_kk(home)``, the acceleration
+        scales of :mod:`cfm_jax.tasks.scales`). Every joint's scale gives it the same
+        acceleration; the joint whose limit gives the least is scaled by its limit, the
+        others by less.
+
+        Examples:
+          >>> arm = load("iiwa14")
+          >>> scale = arm.torque_scale()
+          >>> bool(np.all(scale <= arm.torque_limit)), bool(np.any(scale == arm.torque_limit))
+          (True, True)
+        """
+        inertia = self.mass_matrix_diagonal(self.home)[np.asarray(self.actuated_dofs)]
+        limit = np.asarray(self.torque_limit, np.float64)
+        weakest = int(np.argmin(limit / inertia))
+        scale = inertia * (limit[weakest] / inertia[weakest])
+        scale[weakest] = limit[weakest]
+        return np.minimum(scale, limit)
+
 
 def _servo_kind(model, a) -> str | None:
     """None for a torque motor; else what actuator ``a`` is: ``position``, ``velocity``,
@@ -724,10 +767,15 @@ class Dynamics:
       limit_acceleration: ``|M^-1| @ limit``: the largest acceleration (rad/s^2) the torque
         limits can give each joint.
       noise_acceleration: standard deviation of each joint's acceleration under the
-        babbling's Gaussian torque noise, ``sqrt(diag(M^-1 diag(noise limit)^2 M^-1))``.
-      pd_number: ``kd * control_dt * lambda_max(diag(M) M^-1)``: the task's PD feedback
-        (torque gains ``kd diag M(home)``) held for one control period is stable below 2
-        (a first-order explicit update of the velocity); coupled light links raise it.
+        babbling's Gaussian torque noise (``babbling_noise`` of each joint's torque scale),
+        ``sqrt(diag(M^-1 diag(noise)^2 M^-1))``.
+      pd_number: ``kd * control_dt * lambda_max(diag(M) M^-1)``: the PD-only baseline's
+        feedback (torque gains ``kd diag M(home)``) held for one control period is stable
+        below 2 (a first-order explicit update of the velocity); coupled light links raise
+        it.
+      babbling_pd_number: the same number for the babbling's feedback
+        (:func:`cfm_jax.baselines.babbling_joint_gains`), the largest over the poses the
+        babbling may visit (:func:`cfm_jax.babbling.pose_sample`).
 
     Examples:
       >>> d = dynamics(load("iiwa14"), babbling_noise=0.1, kd=20.0, control_dt=0.01)
@@ -740,36 +788,56 @@ class Dynamics:
     limit_acceleration: np.ndarray
     noise_acceleration: np.ndarray
     pd_number: float
+    babbling_pd_number: float
 
 
-def dynamics(robot: Robot, babbling_noise: float, kd: float, control_dt: float) -> Dynamics:
+def dynamics(
+    robot: Robot,
+    babbling_noise: float,
+    kd: float,
+    control_dt: float,
+    torque_scale: str = "inertia",
+) -> Dynamics:
     """The :class:`Dynamics` of ``robot``'s actuated joints at ``robot.home`` (MuJoCo C).
 
     Args:
       robot: a loaded :class:`Robot`.
-      babbling_noise: ``Config.loop.babbling_noise`` (a fraction of each torque limit).
+      babbling_noise: ``Config.loop.babbling_noise`` (a fraction of each joint's torque
+        scale).
       kd: ``Config.task.kd`` (1/s).
       control_dt: the control period (s).
+      torque_scale: ``Config.loop.torque_scale``: ``inertia`` (:meth:`Robot.torque_scale`)
+        or ``limit`` (the torque limits).
 
     Examples:
       >>> d = dynamics(load("two_link_arm"), babbling_noise=0.1, kd=20.0, control_dt=0.01)
-      >>> d.joints, bool(d.pd_number < 2)
-      (('shoulder', 'elbow'), True)
+      >>> d.joints, bool(d.pd_number < 2), bool(d.babbling_pd_number < 2)
+      (('shoulder', 'elbow'), True, True)
     """
+    from cfm_jax import babbling
+
     model = robot.mj_model
     full = robot.mass_matrix(robot.home)
     dofs = np.asarray(robot.actuated_dofs)
     inverse = np.linalg.inv(full)[np.ix_(dofs, dofs)]
     limit = np.asarray(robot.torque_limit, np.float64)
-    noise = babbling_noise * limit
+    scale = robot.torque_scale() if torque_scale == "inertia" else limit
+    noise = babbling_noise * scale
     coupling = np.diag(np.diag(full)[dofs]) @ inverse
     joints = tuple(robot.joint_names[int(model.dof_jntid[d])] for d in dofs)
+    poses = babbling.pose_sample(robot, robot.home)
+    lightest = np.diag(robot.lightest_inertia(poses))
+    babbling_number = max(
+        np.max(np.abs(np.linalg.eigvals(lightest @ np.linalg.inv(m)[np.ix_(dofs, dofs)])))
+        for m in (robot.mass_matrix(q) for q in poses)
+    )
     return Dynamics(
         joints=joints,
         effective_inertia=1.0 / np.diag(inverse),
         limit_acceleration=np.abs(inverse) @ limit,
         noise_acceleration=np.sqrt(np.diag(inverse @ np.diag(noise**2) @ inverse)),
         pd_number=float(kd * control_dt * np.max(np.abs(np.linalg.eigvals(coupling)))),
+        babbling_pd_number=float(kd * control_dt * babbling_number),
     )
 
 
@@ -779,10 +847,11 @@ def _dynamics_lines(robot: Robot) -> list[str]:
 
     task, loop = config_lib.TaskConfig(), config_lib.LoopConfig()
     dt = task.control_dt if task.control_dt is not None else robot.timestep
-    d = dynamics(robot, loop.babbling_noise, task.kd, dt)
+    d = dynamics(robot, loop.babbling_noise, task.kd, dt, loop.torque_scale)
     lines = [
-        f"dynamics at the start pose (defaults: loop.babbling_noise {loop.babbling_noise:g}, "
-        f"task.kd {task.kd:g} 1/s, control period {dt:g} s):"
+        f"dynamics at the start pose (defaults: loop.babbling_noise {loop.babbling_noise:g} "
+        f"of the torque scale, loop.torque_scale {loop.torque_scale}, task.kd {task.kd:g} "
+        f"1/s, control period {dt:g} s):"
     ]
     for j, name in enumerate(d.joints):
         lines.append(
@@ -790,21 +859,31 @@ def _dynamics_lines(robot: Robot) -> list[str]:
             f"{d.limit_acceleration[j]:.3g} rad/s^2, babbling noise {d.noise_acceleration[j]:.3g}"
             " rad/s^2 (std)"
         )
-    lines.append(f"  PD feedback number kd * dt * lambda_max(diag(M) M^-1) = {d.pd_number:.2f}")
+    lines.append(
+        "  PD-only baseline's feedback number kd * dt * lambda_max(diag(M) M^-1) = "
+        f"{d.pd_number:.2f}; the babbling's, largest over its poses = {d.babbling_pd_number:.2f}"
+    )
     if d.pd_number >= 2:
         lines.append(
-            "  ! the task's PD feedback is unstable at this control period: its torque gains "
-            "are kd * diag M(home), and the joints' coupling through M^-1 multiplies them "
-            f"(number {d.pd_number:.2f} >= 2). Lower task.kd or task.control_dt."
+            "  ! the PD-only baseline's feedback is unstable at this control period: its "
+            "torque gains are kd * diag M(home), and the joints' coupling through M^-1 "
+            f"multiplies them (number {d.pd_number:.2f} >= 2). The baseline is what it is; "
+            "lower task.kd or task.control_dt for a stable one."
+        )
+    if d.babbling_pd_number >= 2:
+        lines.append(
+            "  ! the babbling's feedback is unstable at some of the poses it visits (number "
+            f"{d.babbling_pd_number:.2f} >= 2): the initial data will oscillate. Lower "
+            "task.kd or task.control_dt."
         )
     worst = int(np.argmax(d.noise_acceleration * dt))
     kick = float(d.noise_acceleration[worst] * dt)
     if kick > 1.0:
         lines.append(
             f"  ! babbling noise changes {d.joints[worst]}'s velocity by about {kick:.3g} "
-            f"rad/s per control period ({d.noise_acceleration[worst]:.3g} rad/s^2): light links "
-            "with large torque limits; the initial data will be dominated by noise that no "
-            "tracking motion asks for. Lower loop.babbling_noise."
+            f"rad/s per control period ({d.noise_acceleration[worst]:.3g} rad/s^2): the "
+            "initial data will be dominated by noise that no tracking motion asks for. Lower "
+            "loop.babbling_noise."
         )
     return lines
 

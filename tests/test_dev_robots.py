@@ -18,12 +18,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import jax
 import mujoco
 import numpy as np
 import pytest
 
+from cfm_jax import algorithm, babbling, robots, tasks
 from cfm_jax import config as config_lib
-from cfm_jax import robots
 from cfm_jax.experiment import Experiment
 
 HERE = Path(__file__).parent
@@ -91,13 +92,14 @@ def test_gripper_arms_are_refused_with_the_joint_named(arm):
 # ---- dynamics at the start pose, against MuJoCo's forward dynamics ----------------------
 
 
-def _response(robot, torque):
-    """``qacc(torque) - qacc(0)`` of the actuated dofs at rest at home (MuJoCo C): M^-1 torque."""
+def _response(robot, torque, qpos=None):
+    """``qacc(torque) - qacc(0)`` of the actuated dofs at rest at ``qpos`` (default: home;
+    MuJoCo C): M^-1 torque."""
     model = robot.mj_model
     data = mujoco.MjData(model)
 
     def qacc(tau):
-        data.qpos[:] = robot.home
+        data.qpos[:] = robot.home if qpos is None else qpos
         data.qvel[:] = 0.0
         data.ctrl[:] = 0.0
         data.ctrl[robot.actuator_of_joint] = tau / robot.gear
@@ -113,13 +115,23 @@ def _response(robot, torque):
 def test_dynamics_against_mujoco_forward_dynamics(name):
     robot = robots.load(name, actuators="torque")
     d = robots.dynamics(robot, babbling_noise=0.1, kd=20.0, control_dt=0.01)
+    by_limit = robots.dynamics(
+        robot, babbling_noise=0.1, kd=20.0, control_dt=0.01, torque_scale="limit"
+    )
     n = robot.action_dim
     limit = np.asarray(robot.torque_limit, np.float64)
+    scale = robot.torque_scale()
     # Column j of M^-1 times a torque on joint j alone, from mj_forward.
     cols = np.stack([_response(robot, np.eye(n)[j] * limit[j]) for j in range(n)], axis=1)
     # Gaussian noise of std 0.1 * limit on each joint: acceleration std of joint i is the
-    # root sum of squares of row i of those columns, scaled by 0.1.
-    np.testing.assert_allclose(d.noise_acceleration, 0.1 * np.sqrt((cols**2).sum(1)), rtol=1e-6)
+    # root sum of squares of row i of those columns, scaled by 0.1; of std 0.1 * scale, the
+    # same with each column scaled by scale / limit.
+    np.testing.assert_allclose(
+        by_limit.noise_acceleration, 0.1 * np.sqrt((cols**2).sum(1)), rtol=1e-6
+    )
+    np.testing.assert_allclose(
+        d.noise_acceleration, 0.1 * np.sqrt(((cols * scale / limit) ** 2).sum(1)), rtol=1e-6
+    )
     np.testing.assert_allclose(d.limit_acceleration, np.abs(cols).sum(1), rtol=1e-6)
     # Effective inertia: a unit torque on joint i alone accelerates it by (M^-1)_ii.
     unit = np.array([_response(robot, np.eye(n)[i])[i] for i in range(n)])
@@ -142,13 +154,100 @@ def test_dynamics_of_a_pendulum_in_closed_form(tmp_path):
     assert d.limit_acceleration[0] == pytest.approx(limit / inertia, rel=1e-6)
     assert d.noise_acceleration[0] == pytest.approx(0.1 * limit / inertia, rel=1e-6)
     assert d.pd_number == pytest.approx(20.0 * 0.01, rel=1e-9)
+    # One joint: its inertia does not change with the pose, so the babbling's gains are
+    # the baseline's and so is the number.
+    assert d.babbling_pd_number == pytest.approx(20.0 * 0.01, rel=1e-9)
 
 
-def test_robot_check_warns_where_the_numbers_say_so():
-    light = robots.check(str(DEV / "m1013.xml"), actuators="torque").text
-    assert "PD feedback is unstable" in light and "babbling noise changes" in light
+def test_robot_check_warns_where_the_numbers_say_so(tmp_path):
+    coupled = robots.check(str(DEV / "m1013.xml"), actuators="torque").text
+    assert "PD-only baseline's feedback is unstable" in coupled
+    assert "babbling's feedback is unstable" not in coupled
+    # A pendulum whose only limit gives it 1e5 rad/s^2: noise 0.1 of it, 100 rad/s a period.
+    path = tmp_path / "strong.xml"
+    path.write_text(
+        """<mujoco><option gravity="0 0 0"/><worldbody><body>
+        <joint name="j" type="hinge" axis="0 1 0"/>
+        <inertial pos="0.5 0 0" mass="0.4" diaginertia="1e-9 1e-9 1e-9"/></body></worldbody>
+        <actuator><motor joint="j" ctrlrange="-1e4 1e4"/></actuator></mujoco>"""
+    )
+    strong = robots.check(str(path)).text
+    assert "babbling noise changes j's velocity by about 100 rad/s" in strong
     shipped = robots.check("iiwa14").text
     assert "dynamics at the start pose" in shipped and "!" not in shipped.split("dynamics")[1]
+
+
+# ---- the babbling's gains and noise on an arm with light links ---------------------------
+
+
+def _kuka():
+    return robots.load(
+        str(DEV / "kuka_iiwa_14.xml"), actuators="torque", torque_limit=torque_limit("kuka_iiwa_14")
+    )
+
+
+def test_lightest_inertia_against_mujoco_forward_dynamics():
+    robot = _kuka()
+    poses = babbling.pose_sample(robot, robot.home, count=6)
+    n = robot.action_dim
+    # A unit torque on joint j alone, at rest, accelerates it by (M^-1)_jj (mj_forward).
+    effective = [[1.0 / _response(robot, np.eye(n)[j], q)[j] for j in range(n)] for q in poses]
+    np.testing.assert_allclose(robot.lightest_inertia(poses), np.min(effective, 0), rtol=1e-6)
+
+
+def test_babbling_gains_are_stable_wherever_the_babbling_goes():
+    """The published iiwa 14 (no armature): the baseline's gains ``kd diag M(home)`` make a
+    held-torque PD loop unstable (``kd dt lambda_max(M^-1 K_d) >= 2``) at many poses the
+    babbling visits; the babbling's own gains keep it below 1 at poses drawn apart from the
+    sample they were sized on."""
+    robot, kd, dt = _kuka(), 20.0, 0.01
+    task = tasks.make(robot, config_lib.TaskConfig(), dt)
+    start = np.asarray(task.reference_np.q[0, 0])
+    poses = np.asarray(babbling.random_poses(jax.random.key(7), robot, np.tile(start, (200, 1))))
+
+    def number(gain_d):
+        return max(
+            dt
+            * np.abs(
+                np.linalg.eigvals(np.linalg.solve(robot.mass_matrix(q), np.diag(gain_d)))
+            ).max()
+            for q in poses
+        )
+
+    assert number(np.asarray(task.gain_d, np.float64)) > 2.0
+    assert number(np.asarray(task.babbling_gain_d, np.float64)) < 1.0
+    # The baseline keeps its gains; the babbling's copy of the task uses its own.
+    babbling_task = task.for_babbling(task.reference)
+    np.testing.assert_array_equal(babbling_task.gain_d, task.babbling_gain_d)
+    np.testing.assert_array_equal(task.gain_d, np.float32(kd * robot.mass_matrix_diagonal(start)))
+
+
+def test_babbling_data_of_a_light_arm_moves_as_its_reaches_do():
+    """With the defaults (torque noise of the inertia's scale, the babbling's own gains) the
+    published iiwa 14's babbling velocities stay within a few times those of the reaches it
+    follows; with noise of the torque limits the wrist is shaken at tens of times them."""
+
+    def spread(torque_scale):
+        config = config_lib.Config(
+            robot=str(DEV / "kuka_iiwa_14.xml"),
+            robot_actuators="torque",
+            robot_torque_limit=torque_limit("kuka_iiwa_14"),
+            loop=config_lib.LoopConfig(babbling_rollouts=1, torque_scale=torque_scale),
+        )
+        setup = algorithm.Setup.of(config)
+        knobs = algorithm.Knobs.of(config, setup.robot, setup.task)
+        key = jax.random.key(0)
+        data, _ = algorithm.collected(algorithm.babble_all(setup, key, knobs))
+        goals_key = jax.random.fold_in(jax.random.split(key, 1)[0], babbling.GOAL_STREAM)
+        reach = setup.task.babbling_reference("reaching", goals_key)
+        nq = setup.robot.nq
+        moved = np.asarray(data.state)[..., nq:].reshape(-1, nq).std(0)
+        return moved / np.asarray(reach.qd).reshape(-1, nq).std(0)
+
+    # Measured: 1.3-5.8 times the reaches' spread with the defaults (the most on joints 1
+    # and 3, coaxial at the upright start pose), 81 times on the wrist with the limits' noise.
+    assert spread("inertia").max() < 8.0
+    assert spread("limit").max() > 40.0
 
 
 # ---- a model MJX cannot build ------------------------------------------------------------

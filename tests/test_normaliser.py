@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from tiny import tiny_config
 
-from cfm_jax import algorithm, config, dataset, robots, tasks
+from cfm_jax import algorithm, config, dataset, networks, robots, tasks
 from cfm_jax.tasks import scales
 
 ARM3 = str(Path(__file__).parent / "three_joint_arm.xml")
@@ -44,6 +44,8 @@ def hand_scales():
         "output_mean": np.zeros(3),
         "output_std": limits / np.array([m11, m22, m33]),
         "torque_limit": limits,
+        # loop.torque_scale "inertia": each M_jj times the least of limit / M_jj.
+        "torque_scale": np.array([m11, m22, m33]) * np.min(limits / np.array([m11, m22, m33])),
     }
 
 
@@ -73,6 +75,41 @@ def test_robot_scales_of_a_held_out_arm_equal_the_hand_computation():
     np.testing.assert_array_equal(centre, 0.0)
     with pytest.raises(ValueError, match="'torque' is not allowed"):
         scales.scales_of(arm, [("torque", 0)], 0.01)
+
+
+def test_torque_scale_of_the_held_out_arm_equals_the_hand_computation():
+    arm = robots.load(ARM3)
+    expected = hand_scales()
+    np.testing.assert_allclose(arm.torque_scale(), expected["torque_scale"], rtol=1e-9)
+    # The weakest joint (the least limit / M_jj) is scaled by its own limit, exactly.
+    weakest = np.argmin(expected["output_std"])
+    assert arm.torque_scale()[weakest] == expected["torque_limit"][weakest]
+    # The babbling noise is loop.babbling_noise of the scale, or of the limits.
+    for torque_scale, of in (
+        ("inertia", expected["torque_scale"]),
+        ("limit", expected["torque_limit"]),
+    ):
+        cfg = config.Config(robot=ARM3, loop=config.LoopConfig(torque_scale=torque_scale))
+        setup = algorithm.Setup.of(cfg)
+        knobs = algorithm.Knobs.of(cfg, setup.robot, setup.task)
+        np.testing.assert_allclose(knobs.babbling_noise_std, 0.1 * of, rtol=1e-6)
+
+
+def test_torque_maps_of_the_normaliser():
+    limit, scale = jnp.array([10.0, 2.0]), jnp.array([0.5, 2.0])
+    norm = networks.Normaliser.identity(2, 2, limit, torque_scale=scale)
+    plain = networks.Normaliser.identity(2, 2, limit)
+    u = jnp.array([0.3, -1.7])
+    # Without a scale: tau_max tanh(u) and tau / tau_max, as before the option existed.
+    np.testing.assert_array_equal(plain.torque_output(u), limit * jnp.tanh(u))
+    np.testing.assert_array_equal(plain.torque(u), u / limit)
+    np.testing.assert_allclose(norm.torque(u), u / scale, rtol=1e-7)
+    # Slope at 0 is the scale; the output never passes the limit.
+    _, slope = jax.jvp(norm.torque_output, (jnp.zeros(2),), (jnp.ones(2),))
+    np.testing.assert_allclose(slope, scale, rtol=1e-6)
+    huge = norm.torque_output(jnp.array([1e6, -1e6]))
+    np.testing.assert_allclose(huge, [10.0, -2.0], rtol=1e-6)
+    np.testing.assert_allclose(norm.torque_output(u), limit * np.tanh(scale * u / limit), rtol=1e-6)
 
 
 def test_robot_normaliser_is_what_the_loop_uses_on_the_held_out_arm():

@@ -75,7 +75,8 @@ class JointSpaceTask:
     * ``babbling_reference(strategy, key)``: the reference the initial data's controller
       follows (:mod:`cfm_jax.babbling`), of the shapes of ``reference``, and
       ``with_reference(reference)``: a copy that follows another reference.
-    * ``feedback(step) -> tau``: the PD-only baseline (and babbling) feedback;
+    * ``feedback(step) -> tau``: the PD-only baseline feedback (and, with the babbling's
+      own gains, the babbling's: ``for_babbling(reference)``);
       ``oracle_policy(simulator)``: the model-based oracle.
     * ``value_names``, ``values() -> dict`` and ``with_values(values)``: the attributes
       that hold values of the config rather than its structure (here the reference and the
@@ -129,17 +130,35 @@ class JointSpaceTask:
         """The torque gains of :meth:`feedback` for the acceleration gains ``kp``, ``kd``."""
         return baselines.joint_pd_gains(self.robot, kp, kd, self.reference_np.q[0, 0])
 
+    def _babbling_gains(self, kp: float, kd: float):
+        """The torque gains of the babbling's feedback: sized for the lightest inertia of
+        each joint over the poses the babbling may visit
+        (:func:`cfm_jax.baselines.babbling_joint_gains`)."""
+        poses = babbling.pose_sample(self.robot, self.reference_np.q[0, 0])
+        return baselines.babbling_joint_gains(self.robot, kp, kd, poses)
+
     def _gains(self, kp: float, kd: float) -> dict:
         gain_p, gain_d = self._pd_gains(kp, kd)
+        babbling_p, babbling_d = self._babbling_gains(kp, kd)
         return {
             "kp": jnp.asarray(kp, jnp.float32),
             "kd": jnp.asarray(kd, jnp.float32),
             "gain_p": jnp.asarray(gain_p, jnp.float32),
             "gain_d": jnp.asarray(gain_d, jnp.float32),
+            "babbling_gain_p": jnp.asarray(babbling_p, jnp.float32),
+            "babbling_gain_d": jnp.asarray(babbling_d, jnp.float32),
         }
 
     # The attributes that hold values of the config (reference and gains), not structure.
-    value_names: tuple[str, ...] = ("reference", "kp", "kd", "gain_p", "gain_d")
+    value_names: tuple[str, ...] = (
+        "reference",
+        "kp",
+        "kd",
+        "gain_p",
+        "gain_d",
+        "babbling_gain_p",
+        "babbling_gain_d",
+    )
 
     def values(self) -> dict:
         """The attributes :attr:`value_names`: the reference (float32 JAX arrays) and the
@@ -202,6 +221,16 @@ class JointSpaceTask:
 
         task = copy.copy(self)
         task.reference = reference
+        return task
+
+    def for_babbling(self, reference):
+        """A shallow copy of this task that follows the babbling ``reference``
+        (:meth:`with_reference`) with the babbling's feedback gains in place of the PD-only
+        baseline's: :meth:`feedback` then uses ``babbling_gain_p``, ``babbling_gain_d``
+        (:func:`cfm_jax.baselines.babbling_joint_gains`, stable wherever the babbling
+        goes), while the baseline keeps ``gain_p``, ``gain_d``."""
+        task = self.with_reference(reference)
+        task.gain_p, task.gain_d = self.babbling_gain_p, self.babbling_gain_d
         return task
 
     def babbling_reference(self, strategy: str, key):

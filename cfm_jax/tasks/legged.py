@@ -161,6 +161,11 @@ class LeggedTask(JointSpaceTask):
     # The references are recordings of the model, structure; the values are the s* gains.
     value_names = ("desired_kp", "desired_kd")
 
+    def for_babbling(self, reference):
+        """The babbling follows ``reference`` with the references' own joint gains
+        (:meth:`with_reference`)."""
+        return self.with_reference(reference)
+
     def _desired_gains(self, task: TaskConfig) -> dict:
         """The gains of the PD correction in ``s*``: ``desired_kp`` and ``desired_kd``,
         ``(6 + joints,)`` float32 (``task.kp``, ``task.kd`` on the 6 base coordinates, then

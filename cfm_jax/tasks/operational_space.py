@@ -94,6 +94,10 @@ class OperationalSpaceTask(JointSpaceTask):
         """Task-space torque gains at home (:func:`cfm_jax.baselines.opspace_pd_gains`)."""
         return baselines.opspace_pd_gains(self.robot, kp, kd, self.site, self._home_np)
 
+    def _babbling_gains(self, kp: float, kd: float):
+        """The babbling's feedback keeps the task-space gains of :meth:`_pd_gains`."""
+        return self._pd_gains(kp, kd)
+
     def _site(self, qpos, qvel):
         kin = opspace.kinematics(self.robot, qpos, qvel, self.site, self.simulator)
         return jnp.concatenate([kin.position, kin.velocity], -1)

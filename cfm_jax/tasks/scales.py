@@ -27,8 +27,9 @@ that into a centre and a scale per entry for any robot:
   ``sqrt(sum_kj (J_kj(home) A_j)^2 / 3)`` (``J`` the site's translational Jacobian).
 * ``force`` (a component of a contact force, the legged tasks' foot forces): centred at
   0, scaled by the robot's weight ``m g`` (total mass of the MJCF times ``|g|``).
-* torques (not an entry: :attr:`cfm_jax.networks.Normaliser.torque_limit`): the torque
-  limits, for every normaliser.
+* torques (not an entry: :attr:`cfm_jax.networks.Normaliser.torque_limit` and
+  ``torque_scale``): by ``Config.loop.torque_scale``, :meth:`cfm_jax.robots.Robot.torque_scale` or
+  the torque limits, for every normaliser.
 
 ``|g|`` is the MJCF's gravity, or :data:`STANDARD_GRAVITY` where the MJCF has none.
 
