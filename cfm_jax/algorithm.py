@@ -133,7 +133,8 @@ class Knobs:
         (``loop.torque_scale``: :meth:`cfm_jax.robots.Robot.torque_scale` or the torque
         limit), ``(action_dim,)``.
       babbling: ``loop.babbling`` as its index in :data:`cfm_jax.config.BABBLING` (int32).
-      task: the task's values, ``values()`` of the task built for ``config.task``: the
+      task: the task's values, ``values()`` of the task built for ``config.task`` (with
+        ``loop.babbling_gains = "baseline"``, the babbling's gains are the baseline's): the
         gains (``task.kp``, ``task.kd``, ... and what the task derives from them) and, for
         the arm tasks, the reference trajectories (``task.targets``; ``task.home`` for
         ``inverse_dynamics``).
@@ -169,7 +170,7 @@ class Knobs:
             ),
             babbling_noise_std=jnp.asarray(config.loop.babbling_noise * scale, jnp.float32),
             babbling=jnp.asarray(config_lib.BABBLING.index(config.loop.babbling), jnp.int32),
-            task=task.values(),
+            task=_babbling_gains(config, task.values()),
         )
 
 
@@ -276,6 +277,18 @@ class Setup:
     def transitions_per_rollout(self) -> int:
         """Transitions of one rollout of the task: ``targets * steps``."""
         return self.task.targets * self.task.steps
+
+
+def _babbling_gains(config: config_lib.Config, values: dict) -> dict:
+    """The task's values with the babbling's feedback gains of ``loop.babbling_gains``: the
+    task's own (``lightest``) or the PD-only baseline's (``baseline``)."""
+    if config.loop.babbling_gains == "baseline" and "babbling_gain_p" in values:
+        values = {
+            **values,
+            "babbling_gain_p": values["gain_p"],
+            "babbling_gain_d": values["gain_d"],
+        }
+    return values
 
 
 def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:

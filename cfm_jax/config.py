@@ -129,6 +129,16 @@ the acceleration of the shoulder's, and scaled by its limit the wrist's torques 
 tracking needs are 1e-4 of the controller's range and 1e-3 of the babbling noise."""
 
 
+BABBLING_GAINS = ("lightest", "baseline")
+"""The torque gains of the babbling's joint PD feedback, for ``Config.loop.babbling_gains``
+(:func:`cfm_jax.baselines.babbling_joint_gains`): ``lightest`` (default) ``kp``, ``kd``
+times each joint's lightest effective inertia over the poses the babbling may visit,
+stable wherever it goes; ``baseline`` the PD-only baseline's ``kp``, ``kd`` times
+``diag M(home)`` (the babbling before issue 41), which coupled light links without armature
+make unstable away from home. The legged tasks' feedback has the references' own gains
+either way, and op-space's task-space gains."""
+
+
 NORMALISERS = ("babbling", "data", "robot")
 """Input and output scaling of both networks for ``Config.loop.normaliser``
 (:class:`cfm_jax.networks.Normaliser`): ``babbling`` (statistics of the initial data, fitted
@@ -675,6 +685,10 @@ class LoopConfig:
         default, :func:`for_task`; by the torque limits): the babbling noise, the forward
         model's torque input and the controller's output range
         (:meth:`cfm_jax.robots.Robot.torque_scale`).
+      babbling_gains: the torque gains of the babbling's joint PD feedback, one of
+        :data:`BABBLING_GAINS`: ``lightest`` (default; sized for each joint's lightest
+        effective inertia over the poses the babbling visits, stable wherever it goes) or
+        ``baseline`` (the PD-only baseline's gains).
       normaliser: the input and output scaling of both networks, one of
         :data:`NORMALISERS`: ``babbling`` (default, the arm tasks'; statistics of the
         initial data, fitted once), ``data`` (the legged tasks' default, :func:`for_task`;
@@ -708,6 +722,10 @@ class LoopConfig:
     # of TORQUE_SCALES. "inertia": by each joint's inertia at the start pose (every joint's
     # scale gives it the same acceleration); "limit": by the torque limits.
     torque_scale: str = "inertia"
+    # Torque gains of the babbling's joint PD feedback; one of BABBLING_GAINS. "lightest":
+    # kp, kd times each joint's lightest effective inertia over the babbling's poses;
+    # "baseline": the PD-only baseline's gains (kp, kd times diag M(home)).
+    babbling_gains: str = "lightest"
     # Input and output scaling of both networks; one of NORMALISERS. "babbling": statistics
     # of the initial data, frozen; "data": statistics of the whole data set before every
     # refit; "robot": fixed scales from the MJCF and the task (cfm_jax.tasks.scales).
@@ -727,6 +745,8 @@ class LoopConfig:
         _nonnegative_float("loop.babbling_noise", self.babbling_noise)
         if not isinstance(self.torque_scale, str) or self.torque_scale not in TORQUE_SCALES:
             _fail("loop.torque_scale", self.torque_scale, f"one of {TORQUE_SCALES}")
+        if not isinstance(self.babbling_gains, str) or self.babbling_gains not in BABBLING_GAINS:
+            _fail("loop.babbling_gains", self.babbling_gains, f"one of {BABBLING_GAINS}")
         if not isinstance(self.normaliser, str) or self.normaliser not in NORMALISERS:
             _fail("loop.normaliser", self.normaliser, f"one of {NORMALISERS}")
         _nonnegative_int("loop.checkpoint_every", self.checkpoint_every)
@@ -1046,12 +1066,13 @@ RUNTIME_FIELDS = (
     "forward.max_log_variance",
     "loop.babbling",
     "loop.babbling_noise",
+    "loop.babbling_gains",
     "loop.checkpoint_every",
     "loop.checkpoint_keep",
 )
 """Fields whose values do not change the compiled program: the seed and the checkpoint
 settings are not part of it; the learning rates, the initial log-variance bounds, the
-babbling strategy and noise, the task gains (and ``task.desired``, which sets the legged
+babbling strategy, noise and gains, the task gains (and ``task.desired``, which sets the legged
 gains) and the reference trajectories are arguments of it
 (:class:`cfm_jax.algorithm.Knobs`). Configs that differ only in these and in ``loss`` share
 one :class:`cfm_jax.experiment.Experiment` and its compilations (a sweep over them compiles

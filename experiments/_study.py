@@ -20,7 +20,13 @@ QUICK_LOSSES = "joint,task"
 ROBOT = {"inverse_dynamics": "iiwa14", "opspace": "iiwa14", "walk": "solo12", "jump": "solo12"}
 """The robot of each task in the studies: the paper's."""
 
+BEFORE_TORQUE_SCALING = {"loop.torque_scale": "limit", "loop.babbling_gains": "baseline"}
+"""The arms' torque scaling and babbling gains before issue 41 made them robot-aware (every
+record made before it ran on these; the legged defaults still are): pinned with
+:data:`BEFORE_SELECTION`, not a choice of the selection run."""
+
 BEFORE_SELECTION = {
+    **BEFORE_TORQUE_SCALING,
     "loop.babbling": "home",
     "loop.normaliser": "babbling",
     "task.desired": "pd",

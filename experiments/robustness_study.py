@@ -145,7 +145,8 @@ def changed_factors(task: str) -> dict:
     """The options whose default the selection run changed for ``task``, with their old
     values (dotted path: value)."""
     config = config_lib.for_task(task)
-    return {p: v for p, v in BEFORE.items() if _value(config, p) != v}
+    chosen = {p: v for p, v in BEFORE.items() if p not in _study.BEFORE_TORQUE_SCALING}
+    return {p: v for p, v in chosen.items() if _value(config, p) != v}
 
 
 def old_value_cells(task: str, robot: str) -> tuple:

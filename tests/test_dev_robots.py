@@ -220,6 +220,16 @@ def test_babbling_gains_are_stable_wherever_the_babbling_goes():
     babbling_task = task.for_babbling(task.reference)
     np.testing.assert_array_equal(babbling_task.gain_d, task.babbling_gain_d)
     np.testing.assert_array_equal(task.gain_d, np.float32(kd * robot.mass_matrix_diagonal(start)))
+    # loop.babbling_gains="baseline" (the babbling before issue 41) gives it the baseline's.
+    config = config_lib.Config(
+        robot=str(DEV / "kuka_iiwa_14.xml"),
+        robot_actuators="torque",
+        robot_torque_limit=torque_limit("kuka_iiwa_14"),
+    )
+    for gains, expected in (("lightest", task.babbling_gain_d), ("baseline", task.gain_d)):
+        config = config.replace(loop=config_lib.LoopConfig(babbling_gains=gains))
+        knobs = algorithm.Knobs.of(config, robot, task)
+        np.testing.assert_array_equal(knobs.task["babbling_gain_d"], expected)
 
 
 def test_babbling_data_of_a_light_arm_moves_as_its_reaches_do():
