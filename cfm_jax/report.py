@@ -75,7 +75,9 @@ def protocol(config) -> str:
     (:mod:`cfm_jax.babbling`), its rollouts and noise, the ``s*`` gains (or
     ``task.desired='next_velocity'``), ``loop.normaliser`` and ``forward.kind`` (with
     ``forward.nominal`` and ``forward.nominal_mass_scale`` where they are not the default),
-    and with ``robot_actuators='torque'`` the servos converted and each torque limit's
+    (the noise a fraction of the limits or of the torque scales, ``loop.torque_scale``, and
+    for inverse dynamics the babbling's gains), and with ``robot_actuators='torque'`` the
+    servos converted and each torque limit's
     source (:func:`cfm_jax.robots.conversion_note`).
 
     Args:
@@ -87,7 +89,7 @@ def protocol(config) -> str:
     Examples:
       >>> from cfm_jax import config
       >>> print(protocol(config.Config()))
-      initial data: `loop.babbling='reaching'` (2 rollouts per target, torque noise 0.1 of the limit); s* gains kp 100, kd 20; `loop.normaliser='babbling'`; `forward.kind='mlp'`
+      initial data: `loop.babbling='reaching'` (2 rollouts per target, torque noise 0.1 of each joint's torque scale, `loop.babbling_gains='lightest'`); s* gains kp 100, kd 20; `loop.normaliser='babbling'`; `forward.kind='mlp'`
       >>> walk = config.for_task("walk")
       >>> print(protocol(walk).split("; ", 1)[1])
       s* the desired next velocity (`task.desired='next_velocity'`: kp 0, kd 1/control_dt = 250/s on base and joints); `loop.normaliser='data'`; `forward.kind='rigid_body'`
@@ -121,10 +123,15 @@ def protocol(config) -> str:
         from cfm_jax import robots
 
         model += "; " + robots.conversion_note(config.robot, config.robot_torque_limit)
+    scale = getattr(loop, "torque_scale", "limit")
+    noise_of = "the limit" if scale == "limit" else "each joint's torque scale"
+    babbling_gains = getattr(loop, "babbling_gains", "baseline")
+    if task.name == "inverse_dynamics" and babbling_gains != "baseline":
+        noise_of += f", `loop.babbling_gains={babbling_gains!r}`"
     return (
         f"initial data: `loop.babbling={loop.babbling!r}` ({loop.babbling_rollouts} rollout"
         f"{'s' if loop.babbling_rollouts != 1 else ''} "
-        f"per target, torque noise {loop.babbling_noise:g} of the limit); {gains}; "
+        f"per target, torque noise {loop.babbling_noise:g} of {noise_of}); {gains}; "
         f"`loop.normaliser={loop.normaliser!r}`; {model}"
     )
 
