@@ -245,15 +245,22 @@ class Robot:
           >>> bool(np.all(lightest <= arm.mass_matrix_diagonal(arm.home)))
           True
         """
-        model, dofs = self.mj_model, np.asarray(self.actuated_dofs)
+        dofs = np.asarray(self.actuated_dofs)
+        inverse = np.linalg.inv(self.mass_matrices(poses))
+        effective = 1.0 / np.diagonal(inverse, axis1=1, axis2=2)[:, dofs]
+        return effective.min(axis=0)
+
+    def mass_matrices(self, poses) -> np.ndarray:
+        """``M(q)`` at each of ``poses (n, nq)`` (MuJoCo C, armature included; one
+        ``MjData``, position stage only), ``(n, nv, nv)``."""
+        model = self.mj_model
         data = mujoco.MjData(model)
         full = np.zeros((len(poses), model.nv, model.nv))
         for i, q in enumerate(np.asarray(poses)):
             data.qpos[:] = q
             mujoco.mj_fwdPosition(model, data)
             mujoco.mj_fullM(model, data, full[i])
-        effective = 1.0 / np.diagonal(np.linalg.inv(full), axis1=1, axis2=2)[:, dofs]
-        return effective.min(axis=0)
+        return full
 
     def torque_scale(self) -> np.ndarray:
         """The torque scale of every actuated joint (``Config.loop.torque_scale =
@@ -827,10 +834,8 @@ def dynamics(
     joints = tuple(robot.joint_names[int(model.dof_jntid[d])] for d in dofs)
     poses = babbling.pose_sample(robot, robot.home)
     lightest = np.diag(robot.lightest_inertia(poses))
-    babbling_number = max(
-        np.max(np.abs(np.linalg.eigvals(lightest @ np.linalg.inv(m)[np.ix_(dofs, dofs)])))
-        for m in (robot.mass_matrix(q) for q in poses)
-    )
+    inverses = np.linalg.inv(robot.mass_matrices(poses))[:, dofs][:, :, dofs]
+    babbling_number = np.abs(np.linalg.eigvals(lightest @ inverses)).max()
     return Dynamics(
         joints=joints,
         effective_inertia=1.0 / np.diag(inverse),
