@@ -10,6 +10,8 @@ acceleration, observed quantity, tracking error), and a tiny end-to-end training
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import mujoco
 import numpy as np
@@ -105,6 +107,10 @@ def test_opspace_trains_end_to_end_and_oracle_beats_pd(tmp_path):
     config = tiny_config(iterations=1).replace(
         robot="iiwa14",
         task=config_lib.TaskConfig(name="opspace", duration=0.2),
+    )
+    # The torque scaling before issue 41, on which the golden records were made.
+    config = config.replace(
+        loop=dataclasses.replace(config.loop, torque_scale="limit", babbling_gains="baseline")
     )
     experiment = training.Experiment(config)
     result = cfm_jax.train(config, progress=False, experiment=experiment, out_dir=str(tmp_path))
