@@ -121,6 +121,18 @@ def actuated_joints(robot) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(model.jnt_qposadr)[joint], np.asarray(robot.joint_range)[joint]
 
 
+def _goal_ranges(robot):
+    """``(qpos index, limited, low, high)`` of the actuated joints' goal ranges: each
+    limited range shrunk by :data:`RANGE_MARGIN` at both ends, ``-pi, pi`` (about the
+    start) for an unlimited joint."""
+    index, limits = actuated_joints(robot)
+    width = limits[:, 1] - limits[:, 0]
+    limited = np.isfinite(width)
+    low = np.where(limited, limits[:, 0] + RANGE_MARGIN * np.where(limited, width, 0), -np.pi)
+    high = np.where(limited, limits[:, 1] - RANGE_MARGIN * np.where(limited, width, 0), np.pi)
+    return index, limited, low, high
+
+
 def random_poses(key, robot, start):
     """Random goal poses: every actuated joint uniform inside its range shrunk by
     :data:`RANGE_MARGIN` at both ends (``start +- pi`` when unlimited); other coordinates
@@ -141,12 +153,8 @@ def random_poses(key, robot, start):
       >>> goals.shape, bool(jnp.all(jnp.abs(goals) <= arm.joint_range[:, 1]))
       ((5, 2), True)
     """
-    index, limits = actuated_joints(robot)
+    index, limited, low, high = _goal_ranges(robot)
     start = jnp.asarray(start, jnp.float32)
-    width = limits[:, 1] - limits[:, 0]
-    limited = np.isfinite(width)
-    low = np.where(limited, limits[:, 0] + RANGE_MARGIN * np.where(limited, width, 0), -np.pi)
-    high = np.where(limited, limits[:, 1] - RANGE_MARGIN * np.where(limited, width, 0), np.pi)
     offset = jnp.where(jnp.asarray(limited), 0.0, start[..., index])
     u = jax.random.uniform(key, start.shape[:-1] + (index.shape[0],), jnp.float32)
     goal = offset + jnp.asarray(low, jnp.float32) + u * jnp.asarray(high - low, jnp.float32)
@@ -175,12 +183,8 @@ def pose_sample(robot, start, count: int = POSE_SAMPLE) -> np.ndarray:
       >>> poses.shape, bool(np.all(np.abs(poses) <= arm.joint_range[:, 1]))
       ((4, 2), True)
     """
-    index, limits = actuated_joints(robot)
+    index, limited, low, high = _goal_ranges(robot)
     start = np.asarray(start, np.float64)
-    width = limits[:, 1] - limits[:, 0]
-    limited = np.isfinite(width)
-    low = np.where(limited, limits[:, 0] + RANGE_MARGIN * np.where(limited, width, 0), -np.pi)
-    high = np.where(limited, limits[:, 1] - RANGE_MARGIN * np.where(limited, width, 0), np.pi)
     offset = np.where(limited, 0.0, start[index])
     u = np.random.default_rng(0).uniform(size=(count - 1, index.shape[0]))
     poses = np.repeat(start[None], count, axis=0)
