@@ -88,26 +88,32 @@ def test_vmapped_seeds_equal_a_loop_over_seeds():
     (``home``) initial data.
 
     XLA:CPU may pick different kernels for batched (vmapped) and unbatched matrix products,
-    so float32 results agree to rounding, not bitwise, and each fit-and-rollout iteration
-    amplifies the difference. Measured on this config extended to 6 iterations (max
-    relative difference over targets of seed 0, iterations 0..6; seed 1 was bit-identical
-    up to iteration 2 and <= 1e-4 after):
-      prediction_error      7.0e-6, 5.0e-4, 1.6e-5, 6.5e-3, 2.9e-4, 5.1e-3, 1.3e-3
-      tracking_mse          1.9e-7, 4.6e-5, 7.9e-7, 4.3e-4, 1.7e-4, 5.4e-4, 1.8e-4
-      predicted_task_error  1.5e-7, 6.0e-5, 6.3e-6, 1.4e-3, 1.8e-4, 1.4e-3, 2.2e-4
-    (final controller parameters 1.2e-4, forward model 5.1e-5). The differences do not
-    compound from one iteration to the next (parameters stay within ~1e-4) but one
-    iteration can amplify them ~100x in the prediction error of the models fitted at home
-    (errors ~2e4 (rad/s^2)^2). Tolerances: iteration 0, after the initial fits only,
-    rtol 1e-4 (measured 7e-6); iterations 1-2, rtol 5e-3 (10x the measured 5e-4; longer
-    runs reach 6.5e-3, so this tolerance holds for this 2-iteration config only). The
-    tolerance still tells seeds apart: the two seeds' metrics differ by >= 17 % (checked
-    below), so a mixed-up or shared seed fails by a factor > 30.
+    and which it picks depends on the CPU's instruction set, so float32 results agree to
+    rounding, not bitwise, and each fit-and-rollout iteration amplifies the difference.
+    Measured on this config extended to 6 iterations (max relative difference over targets
+    of seed 0, iterations 0..6), on the two machines of the golden records:
+      AMD EPYC with AVX-512:
+        prediction_error      7.0e-6, 5.0e-4, 1.6e-5, 6.5e-3, 2.9e-4, 5.1e-3, 1.3e-3
+        tracking_mse          1.9e-7, 4.6e-5, 7.9e-7, 4.3e-4, 1.7e-4, 5.4e-4, 1.8e-4
+        predicted_task_error  1.5e-7, 6.0e-5, 6.3e-6, 1.4e-3, 1.8e-4, 1.4e-3, 2.2e-4
+      AMD EPYC with AVX2 only:
+        prediction_error      1.4e-4, 1.5e-3, 1.1e-4, 2.8e-2, 1.2e-3, 5.3e-3, 1.6e-1
+        tracking_mse          2.8e-6, 1.3e-4, 8.1e-6, 1.6e-3, 6.6e-4, 9.7e-4, 1.4e-2
+        predicted_task_error  9.1e-6, 1.8e-4, 2.3e-5, 5.3e-3, 7.1e-4, 1.6e-3, 9.5e-3
+    (seed 1: <= 1e-4 up to iteration 2 on both; AVX-512's final controller parameters
+    1.2e-4, forward model 5.1e-5). One iteration can amplify the differences ~100x in the
+    prediction error of the models fitted at home (errors ~2e4 (rad/s^2)^2). Tolerances:
+    iteration 0, after the initial fits only, rtol 1e-3 (7x the larger measured 1.4e-4;
+    the first tolerance, 1e-4, was set from the AVX-512 machine alone and failed on the
+    AVX2 one); iterations 1-2, rtol 5e-3 (3x the larger measured 1.5e-3; longer runs
+    reach 0.16, so this tolerance holds for this 2-iteration config only). The tolerance
+    still tells seeds apart: the two seeds' metrics differ by >= 17 % (checked below), so a
+    mixed-up or shared seed fails by a factor > 30.
     """
     together = cfm_jax.train(TINY, progress=False)
     frame = together.metrics.set_index(["seed", "iteration", "target"]).sort_index()
     columns = ("tracking_mse", "prediction_error", "predicted_task_error")
-    rtol = {0: 1e-4, 1: 5e-3, 2: 5e-3}
+    rtol = {0: 1e-3, 1: 5e-3, 2: 5e-3}
     assert sorted(frame.index.get_level_values("iteration").unique()) == sorted(rtol)
     for seed in (0, 1):
         single = TINY.replace(seed=seed, loop=dataclasses.replace(TINY.loop, seeds=1))
