@@ -281,6 +281,8 @@ class Robot:
         limit = np.asarray(self.torque_limit, np.float64)
         weakest = int(np.argmin(limit / inertia))
         scale = inertia * (limit[weakest] / inertia[weakest])
+        # Exact where the formula gives the limit up to rounding: the weakest joint is
+        # scaled by its limit, and a joint that ties with it never by more than its own.
         scale[weakest] = limit[weakest]
         return np.minimum(scale, limit)
 
