@@ -128,6 +128,16 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
     _print_train(base, experiment, frames, result, notes, out, wall)
 
 
+def _has_checkpoint_steps(run_dir: str) -> bool:
+    """Whether ``run_dir/checkpoints`` holds a checkpoint step (a folder named by its
+    iteration). A loss killed before its first checkpoint leaves the folder empty; with
+    ``--resume`` it starts fresh, as a loss without the folder does."""
+    folder = os.path.join(run_dir, "checkpoints")
+    return os.path.isdir(folder) and any(
+        name.isdigit() and os.path.isdir(os.path.join(folder, name)) for name in os.listdir(folder)
+    )
+
+
 def _train_losses(base, names, out, resume, data, quiet, experiment, progress_fn=None):
     """Train each loss in turn: the top-level metrics.csv is rewritten after every iteration
     (the finished losses' rows and this loss's rows so far), the other combined files after
@@ -137,7 +147,7 @@ def _train_losses(base, names, out, resume, data, quiet, experiment, progress_fn
     frames, result, notes = [], None, []
     for name in names:
         run_dir = os.path.join(out, name)
-        can_resume = resume and os.path.isdir(os.path.join(run_dir, "checkpoints"))
+        can_resume = resume and _has_checkpoint_steps(run_dir)
 
         def iteration_done(iteration, rows, run_dir=run_dir):
             # train wrote run_dir/metrics.csv (every row of this loss so far, restored ones

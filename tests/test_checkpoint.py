@@ -286,6 +286,20 @@ def test_cli_resume_continues_each_loss(tmp_path):
     pd.testing.assert_frame_equal(
         pd.read_csv(out / "task" / "metrics.csv"), task_complete, check_exact=True
     )
+    # A kill before the task loss's first checkpoint leaves its checkpoint folder empty
+    # (seen in a study): --resume starts that loss fresh, as it does a loss without the
+    # folder, and gives the same tables (same seed, deterministic).
+    shutil.rmtree(out / "task" / "checkpoints")
+    (out / "task" / "checkpoints").mkdir()
+    (out / "task" / "metrics.csv").unlink()
+    complete[complete.loss == "joint"].to_csv(out / "metrics.csv", index=False)
+    fresh = subprocess.run(command + ["--resume"], capture_output=True, text=True, timeout=600)
+    assert fresh.returncode == 0, fresh.stderr[-3000:]
+    assert stamps(out / "joint" / "checkpoints") == joint_before
+    pd.testing.assert_frame_equal(pd.read_csv(out / "metrics.csv"), complete, check_exact=True)
+    pd.testing.assert_frame_equal(
+        pd.read_csv(out / "task" / "metrics.csv"), task_complete, check_exact=True
+    )
     refused = subprocess.run(
         command[:-1] + ["--seed", "3", "--quiet", "--resume"], capture_output=True, text=True
     )
