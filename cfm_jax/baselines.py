@@ -217,9 +217,9 @@ def babbling_joint_gains(robot, kp: float, kd: float, poses) -> tuple[np.ndarray
     every pose of the sample, so the matrix ``K_d^(1/2) M(q)^-1 K_d^(1/2) / kd`` has a
     diagonal of at most 1 wherever the babbling goes: each joint alone is damped at the
     rate ``kd`` or less, and the loop's number ``kd dt lambda_max(M^-1 K_d)`` is at most
-    ``kd dt nv``
-    (on the development set of published arms at most ``2.6 kd dt``). On an arm whose
-    inertia changes little with the pose (armature) the gains are close to the baseline's.
+    ``kd dt nv`` (on the development set of published arms at most ``2.6 kd dt``). On an
+    arm whose inertia changes little with the pose (armature) the gains are close to the
+    baseline's.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.

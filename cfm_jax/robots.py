@@ -245,10 +245,7 @@ class Robot:
           >>> bool(np.all(lightest <= arm.mass_matrix_diagonal(arm.home)))
           True
         """
-        dofs = np.asarray(self.actuated_dofs)
-        inverse = np.linalg.inv(self.mass_matrices(poses))
-        effective = 1.0 / np.diagonal(inverse, axis1=1, axis2=2)[:, dofs]
-        return effective.min(axis=0)
+        return _lightest(np.linalg.inv(self.mass_matrices(poses)), self.actuated_dofs)
 
     def mass_matrices(self, poses) -> np.ndarray:
         """``M(q)`` at each of ``poses (n, nq)`` (MuJoCo C, armature included; one
@@ -285,6 +282,12 @@ class Robot:
         # scaled by its limit, and a joint that ties with it never by more than its own.
         scale[weakest] = limit[weakest]
         return np.minimum(scale, limit)
+
+
+def _lightest(inverses: np.ndarray, dofs) -> np.ndarray:
+    """``min over poses of 1 / (M(q)^-1)_jj`` of the dofs ``dofs``, from the inverse
+    mass matrices ``(n, nv, nv)`` (:meth:`Robot.lightest_inertia`)."""
+    return (1.0 / np.diagonal(inverses, axis1=1, axis2=2)[:, np.asarray(dofs)]).min(axis=0)
 
 
 def _servo_kind(model, a) -> str | None:
@@ -835,9 +838,11 @@ def dynamics(
     coupling = np.diag(np.diag(full)[dofs]) @ inverse
     joints = tuple(robot.joint_names[int(model.dof_jntid[d])] for d in dofs)
     poses = babbling.pose_sample(robot, robot.home)
-    lightest = np.diag(robot.lightest_inertia(poses))
-    inverses = np.linalg.inv(robot.mass_matrices(poses))[:, dofs][:, :, dofs]
-    babbling_number = np.abs(np.linalg.eigvals(lightest @ inverses)).max()
+    # M(q)^-1 at the babbling's poses, inverted once for both the lightest inertia and
+    # the loop's number.
+    inverses = np.linalg.inv(robot.mass_matrices(poses))
+    lightest = np.diag(_lightest(inverses, dofs))
+    babbling_number = np.abs(np.linalg.eigvals(lightest @ inverses[:, dofs][:, :, dofs])).max()
     return Dynamics(
         joints=joints,
         effective_inertia=1.0 / np.diag(inverse),
