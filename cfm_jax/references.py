@@ -193,7 +193,8 @@ def reaching(robot, task: TaskConfig, control_dt: float) -> Reference:
     """Reference trajectories of the configured targets for a robot.
 
     One :func:`quintic` per target, from ``task.home`` (None: ``robot.home``) to each of
-    ``task.targets`` (None: :func:`default_targets`) in ``task.duration`` seconds.
+    ``task.targets`` (None: :func:`default_targets`, with the joints the controller does
+    not drive, held or passive, kept at home) in ``task.duration`` seconds.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
@@ -217,11 +218,13 @@ def reaching(robot, task: TaskConfig, control_dt: float) -> Reference:
     check_duration(task.duration, control_dt)
     home = robot.home if task.home is None else np.asarray(task.home)
     check_positions("task.home", home[None], robot)
-    targets = (
-        default_targets(robot.joint_range, home)
-        if task.targets is None
-        else np.asarray(task.targets, dtype=np.float64)
-    )
+    if task.targets is None:
+        targets = default_targets(robot.joint_range, home)
+        # Joints the controller does not drive (held, passive) are not given targets.
+        still = np.setdiff1d(np.arange(robot.nq), robot.actuated_qpos)
+        targets[:, still] = home[still]
+    else:
+        targets = np.asarray(task.targets, dtype=np.float64)
     check_positions("task.targets", targets, robot)
     parts = [quintic(home, target, task.duration, control_dt) for target in targets]
     return Reference(*(np.concatenate(arrays) for arrays in zip(*parts, strict=True)))

@@ -137,6 +137,13 @@ class Robot:
         ``actuatorfrcrange`` (of the joint) or ``robot_torque_limit`` (given by the user).
       converted: ``(name, kind)`` of each servo replaced by a torque motor
         (``actuators="torque"``), in actuator order; empty for a file of motors.
+      held_joints: names of the joints the controller does not drive because an equality
+        constraint couples them (a gripper's fingers, :func:`held_joints`): simulated as
+        published, their own actuators kept as published and held at :attr:`hold_ctrl`.
+      passive_joints: names of the hinge/slide joints with no actuator and no coupling,
+        left passive as published (their damping, springs and limits act).
+      hold_ctrl: ``(nu,)`` the ``ctrl`` of the held joints' actuators (the ``home``
+        keyframe's, else 0), zero for the controller's motors; None when nothing is held.
 
     Examples:
       >>> arm = load("two_link_arm")
@@ -160,6 +167,9 @@ class Robot:
     actuators: str = "strict"
     limit_source: tuple[str, ...] = ()
     converted: tuple[tuple[str, str], ...] = ()
+    held_joints: tuple[str, ...] = ()
+    passive_joints: tuple[str, ...] = ()
+    hold_ctrl: np.ndarray | None = None
 
     @property
     def nq(self) -> int:
@@ -178,6 +188,19 @@ class Robot:
     def action_dim(self) -> int:
         """Number of actuated joints (torques)."""
         return int(self.actuated_dofs.shape[0])
+
+    @property
+    def actuated_qpos(self) -> np.ndarray:
+        """``(action_dim,)`` ``qpos`` index of each actuated joint (hinge and slide joints
+        have one position coordinate per dof)."""
+        joints = np.asarray(self.mj_model.dof_jntid)[np.asarray(self.actuated_dofs)]
+        return np.asarray(self.mj_model.jnt_qposadr)[joints].astype(np.int32)
+
+    @property
+    def drives_every_dof(self) -> bool:
+        """Whether the controller drives every dof (a fixed-base arm without held or
+        passive joints: ``nq == nv == action_dim``)."""
+        return self.nq == self.nv == self.action_dim
 
     @property
     def timestep(self) -> float:
@@ -218,7 +241,11 @@ class Robot:
         """Map joint torques ``(..., action_dim)`` to the ``ctrl`` vector ``(..., nu)``."""
         import jax.numpy as jnp
 
-        ctrl = jnp.zeros(tau.shape[:-1] + (self.mj_model.nu,), tau.dtype)
+        shape = tau.shape[:-1] + (self.mj_model.nu,)
+        if self.hold_ctrl is None:
+            ctrl = jnp.zeros(shape, tau.dtype)
+        else:  # the held joints' actuators keep their set points
+            ctrl = jnp.broadcast_to(jnp.asarray(self.hold_ctrl, jnp.float32), shape).astype(tau.dtype)
         return ctrl.at[..., self.actuator_of_joint].set(tau / self.gear)
 
     def mass_matrix(self, qpos) -> np.ndarray:
@@ -325,7 +352,64 @@ def _joint_name(model, j) -> str:
     return mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}"
 
 
-def servo_limits(model, torque_limit=None, where: str = "robot"):
+def held_joints(model) -> tuple[set[int], set[int]]:
+    """The joints the controller does not drive, and the actuators that move only them.
+
+    A joint is *held* when an active equality constraint couples it to another joint or a
+    tendon (``<equality><joint>``, or a ``<equality><tendon>`` on a tendon through it), as
+    the fingers of most published grippers are: the controller outputs one independent
+    torque per joint, and coupled joints are not independent. They are simulated as
+    published; an actuator whose transmission moves only held joints (a joint, or a tendon
+    through held joints only) is kept as published and holds its set point.
+
+    Args:
+      model: a ``mujoco.MjModel``.
+
+    Returns:
+      ``(joints, actuators)``: the held joints' ids and those actuators' ids.
+
+    Examples:
+      >>> import mujoco
+      >>> model = mujoco.MjModel.from_xml_string(
+      ...     '<mujoco><worldbody><body><joint name="arm" axis="0 0 1"/><geom size=".1"/>'
+      ...     '<body><joint name="f1" type="slide"/><geom size=".01"/></body>'
+      ...     '<body><joint name="f2" type="slide"/><geom size=".01"/></body></body>'
+      ...     '</worldbody><equality><joint joint1="f1" joint2="f2"/></equality>'
+      ...     '<actuator><motor joint="arm"/><position joint="f1" kp="10"/></actuator>'
+      ...     '</mujoco>')
+      >>> held_joints(model)
+      ({1, 2}, {1})
+    """
+    tendon_joints = []
+    for t in range(model.ntendon):
+        adr, num = int(model.tendon_adr[t]), int(model.tendon_num[t])
+        types = model.wrap_type[adr : adr + num]
+        ids = model.wrap_objid[adr : adr + num]
+        joint_wrap = int(mujoco.mjtWrap.mjWRAP_JOINT)
+        tendon_joints.append({int(i) for w, i in zip(types, ids, strict=True) if w == joint_wrap})
+    joints: set[int] = set()
+    for e in range(model.neq):
+        if not model.eq_active0[e]:
+            continue
+        objects = [int(model.eq_obj1id[e]), int(model.eq_obj2id[e])]
+        if int(model.eq_type[e]) == int(mujoco.mjtEq.mjEQ_JOINT):
+            joints.update(o for o in objects if o >= 0)
+        elif int(model.eq_type[e]) == int(mujoco.mjtEq.mjEQ_TENDON):
+            for o in objects:
+                if o >= 0:
+                    joints.update(tendon_joints[o])
+    actuators = set()
+    for a in range(model.nu):
+        trn, target = int(model.actuator_trntype[a]), int(model.actuator_trnid[a, 0])
+        if trn == int(mujoco.mjtTrn.mjTRN_JOINT) and target in joints:
+            actuators.add(a)
+        elif trn == int(mujoco.mjtTrn.mjTRN_TENDON) and tendon_joints[target]:
+            if tendon_joints[target] <= joints:
+                actuators.add(a)
+    return joints, actuators
+
+
+def servo_limits(model, torque_limit=None, where: str = "robot", keep=()):
     """Torque limit of each servo on a joint, and where it comes from: the actuator's
     ``forcerange`` (times ``|gear|``), else the joint's ``actuatorfrcrange``, else
     ``torque_limit`` (the user's).
@@ -335,9 +419,11 @@ def servo_limits(model, torque_limit=None, where: str = "robot"):
       torque_limit: None, or a tuple of limits (N m or N): one for every servo, or one per
         hinge/slide joint in model order (``Robot.joint_names`` without a free joint).
       where: the robot, for the messages.
+      keep: actuators left as published (those of held joints, :func:`held_joints`).
 
     Returns:
-      ``{actuator index: (kind, limit, source)}`` for each servo with a joint transmission.
+      ``{actuator index: (kind, limit, source)}`` for each servo with a joint transmission
+      that is not in ``keep``.
 
     Raises:
       RobotError: a servo without a limit from any of the three (the message names the
@@ -364,8 +450,8 @@ def servo_limits(model, torque_limit=None, where: str = "robot"):
         )
     found, missing = {}, []
     for a in range(model.nu):
-        if int(model.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
-            continue  # reported by load()
+        if int(model.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT) or a in keep:
+            continue  # reported by load(), or held as published
         kind = _servo_kind(model, a)
         if kind is None:
             continue
@@ -397,7 +483,7 @@ def servo_limits(model, torque_limit=None, where: str = "robot"):
     return found
 
 
-def convert(path: str, model, torque_limit=None, where: str = "robot"):
+def convert(path: str, model, torque_limit=None, where: str = "robot", keep=()):
     """The model of ``path`` with each servo on a joint replaced by a torque motor.
 
     Each servo (:func:`servo_limits`) becomes a motor on the same joint and gear: unit fixed
@@ -412,6 +498,8 @@ def convert(path: str, model, torque_limit=None, where: str = "robot"):
       model: its ``mujoco.MjModel`` as compiled from the file.
       torque_limit: the user's limits (see :func:`servo_limits`), or None.
       where: the robot, for the messages.
+      keep: actuators left as published, their keyframe ``ctrl`` kept (those of held
+        joints, :func:`held_joints`).
 
     Returns:
       ``(model, servos)``: the converted ``mujoco.MjModel`` (``model`` itself when there is
@@ -432,7 +520,7 @@ def convert(path: str, model, torque_limit=None, where: str = "robot"):
       >>> motor.actuator_biastype.tolist(), motor.actuator_ctrlrange.tolist(), servos
       ([0], [[-9.0, 9.0]], {0: ('position', 9.0, 'forcerange')})
     """
-    servos = servo_limits(model, torque_limit, where)
+    servos = servo_limits(model, torque_limit, where, keep)
     if not servos:
         return model, servos
     spec = mujoco.MjSpec.from_file(path)
@@ -600,8 +688,9 @@ def load(
     name = os.path.splitext(os.path.basename(path))[0]
     where = f"robot={name_or_path!r} ({path})"
     servos = {}
+    held, keep = held_joints(model)
     if actuators == "torque":
-        model, servos = convert(path, model, torque_limit, where)
+        model, servos = convert(path, model, torque_limit, where, keep)
     floating_base = False
     unactuated = set()
     for j in range(model.njnt):
@@ -629,6 +718,8 @@ def load(
     torque_limit = np.full(model.nv, np.inf)
     limit_source = [""] * model.nv
     for a in range(model.nu):
+        if a in keep:
+            continue  # moves only held joints: kept as published
         aname = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"#{a}"
         if int(model.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
             trn = mujoco.mjtTrn(int(model.actuator_trntype[a])).name[len("mjTRN_") :].lower()
@@ -667,15 +758,21 @@ def load(
         if limits:
             torque_limit[dof] = min(limits)
             limit_source[dof] = ("ctrlrange", "forcerange")[int(np.argmin(limits))]
-    actuated = np.array([d for d in range(model.nv) if d not in unactuated], dtype=np.int32)
     if np.any(actuator_of_joint[sorted(unactuated)] >= 0):
         raise RobotError(f"{where}: the floating base (free joint) cannot be actuated")
-    missing = actuated[actuator_of_joint[actuated] < 0]
-    if missing.size:
-        names = [
-            mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, model.dof_jntid[d]) for d in missing
-        ]
-        raise RobotError(f"{where}: joints {names} have no motor; every joint needs one")
+    held_dofs = {int(model.jnt_dofadr[j]) for j in held}
+    actuated = np.array(
+        [d for d in range(model.nv) if d not in unactuated | held_dofs and actuator_of_joint[d] >= 0],
+        dtype=np.int32,
+    )
+    passive = [
+        d for d in range(model.nv) if d not in unactuated | held_dofs and actuator_of_joint[d] < 0
+    ]
+    if actuated.size == 0:
+        raise RobotError(
+            f"{where}: no joint is driven by a torque motor of its own; the controller needs "
+            "at least one (joints coupled by an equality constraint are held, not driven)"
+        )
     if not np.all(np.isfinite(torque_limit[actuated])):
         unlimited = [
             mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, model.dof_jntid[d])
@@ -698,6 +795,11 @@ def load(
         mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}"
         for j in range(model.njnt)
     )
+    hold_ctrl = None
+    if keep:
+        hold_ctrl = np.zeros(model.nu)
+        if key >= 0:
+            hold_ctrl[sorted(keep)] = model.key_ctrl[key][sorted(keep)]
     robot = Robot(
         name=name,
         path=path,
@@ -716,6 +818,9 @@ def load(
             (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"#{a}", kind)
             for a, (kind, _, _) in servos.items()
         ),
+        held_joints=tuple(joint_names[j] for j in sorted(held)),
+        passive_joints=tuple(joint_names[int(model.dof_jntid[d])] for d in passive),
+        hold_ctrl=hold_ctrl,
     )
     # Build the device copy now, never inside a jit trace. A model MJX cannot build still
     # loads: the native simulator runs it, and whatever needs MJX raises the RobotError.
@@ -943,14 +1048,18 @@ def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Ch
         limited = bool(raw.jnt_limited[j])
         rng = f"range [{raw.jnt_range[j, 0]:g}, {raw.jnt_range[j, 1]:g}]" if limited else "no range"
         lines.append(f"  {_joint_name(raw, j)}: {kind}, {rng}")
+    held, keep = held_joints(raw)
     try:
-        servos = servo_limits(raw, torque_limit, where)
+        servos = servo_limits(raw, torque_limit, where, keep)
         servo_error = None
     except RobotError as error:
         servos, servo_error = {}, str(error)
     lines.append(f"actuators ({raw.nu}):")
     for a in range(raw.nu):
         aname = mujoco.mj_id2name(raw, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"#{a}"
+        if a in keep:
+            lines.append(f"  {aname}: moves only held joints; kept as published, held")
+            continue
         if int(raw.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
             trn = mujoco.mjtTrn(int(raw.actuator_trntype[a])).name[len("mjTRN_") :].lower()
             lines.append(f"  {aname}: {trn} transmission (not usable: no joint of its own)")
@@ -986,6 +1095,18 @@ def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Ch
     try:
         robot = load(name_or_path, actuators=actuators, torque_limit=torque_limit)
         lines.append(f"loads with robot_actuators={actuators!r}: yes")
+        if robot.held_joints:
+            lines.append(
+                f"held joints: {', '.join(robot.held_joints)} (coupled by an equality "
+                "constraint: not trained; simulated as published, their own actuators hold "
+                "the home keyframe's ctrl)"
+            )
+        if robot.passive_joints:
+            lines.append(
+                f"  ! passive joints: {', '.join(robot.passive_joints)} (no actuator, no "
+                "coupling: not trained, left to swing as published); if they should be "
+                "driven, give each a <motor>"
+            )
     except RobotError as error:
         reason = str(error).replace(where + ": ", "").replace(where + " ", "")
         if actuators == "strict" and servos and servo_error is None:
@@ -1010,7 +1131,7 @@ def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Ch
         attempt(
             "opspace",
             lambda: (
-                inverse_dynamics.require_fixed_base(robot, "opspace"),
+                inverse_dynamics.require_fixed_base(robot, "opspace", every_joint=True),
                 opspace.ee_site(robot),
             ),
         )

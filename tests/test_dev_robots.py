@@ -1,11 +1,12 @@
 """The development set of published arms (tests/robots/, MuJoCo Menagerie as published, meshes
 stripped; tests/robots/README.md) and what the library tells about a robot before training.
 
-* Every arm of the set that drives each joint with its own actuator loads with
-  ``robot_actuators="torque"``, and its oracle and PD-only baselines roll out on the native
-  simulator and on MJX: finite, the oracle below PD-only, the two simulators within float32
-  of each other. (The two arms with a gripper, whose fingers are coupled by an equality and
-  driven by one actuator, are refused today: issue 41, item 5.)
+* Every arm of the set loads with ``robot_actuators="torque"``, and its oracle and PD-only
+  baselines roll out on the native simulator and on MJX: finite, the two simulators within
+  float32 of each other, the oracle below PD-only. The
+  two arms with a gripper (fingers coupled by an equality, moved by one servo) train their
+  six arm joints and hold the fingers with the gripper's servo as published
+  (tests/test_held_joints.py checks that mechanism against MuJoCo C).
 * :func:`cfm_jax.robots.dynamics` against MuJoCo's own forward dynamics (the acceleration a
   torque gives, ``mj_forward``), not against the matrix inverse it uses, and in closed form
   on a one-joint pendulum.
@@ -29,7 +30,7 @@ from cfm_jax.experiment import Experiment
 
 HERE = Path(__file__).parent
 DEV = HERE / "robots"
-# The arms with one actuator per joint (the grippers, piper and arx_l5, wait for item 5).
+# The arms with one actuator per joint, and those with a gripper.
 ARMS = ("flexiv_rizon4", "m1013", "lite6", "lite6_continuous", "kuka_iiwa_14")
 GRIPPERS = ("piper", "arx_l5")
 
@@ -68,10 +69,10 @@ def baselines(arm: str, simulator: str):
 
 @pytest.fixture(scope="module")
 def native():
-    return {arm: baselines(arm, "native") for arm in ARMS}
+    return {arm: baselines(arm, "native") for arm in ARMS + GRIPPERS}
 
 
-@pytest.mark.parametrize("arm", ARMS)
+@pytest.mark.parametrize("arm", ARMS + GRIPPERS)
 def test_baselines_roll_out_on_both_simulators(native, arm):
     nat = native[arm]
     assert np.isfinite(nat.to_numpy()).all()
@@ -84,9 +85,12 @@ def test_baselines_roll_out_on_both_simulators(native, arm):
 
 
 @pytest.mark.parametrize("arm", GRIPPERS)
-def test_gripper_arms_are_refused_with_the_joint_named(arm):
-    with pytest.raises(robots.RobotError, match="have no motor"):
-        robots.load(str(DEV / f"{arm}.xml"), actuators="torque")
+def test_gripper_arms_drive_the_arm_and_hold_the_fingers(arm):
+    robot = robots.load(str(DEV / f"{arm}.xml"), actuators="torque")
+    assert robot.action_dim == 6
+    assert robot.held_joints == ("joint7", "joint8") and robot.passive_joints == ()
+    # The gripper's servo is not converted; the six arm servos are.
+    assert [name for name, _ in robot.converted] == [f"joint{i}" for i in range(1, 7)]
 
 
 # ---- dynamics at the start pose, against MuJoCo's forward dynamics ----------------------

@@ -286,11 +286,15 @@ def test_ball_joint_rejected(tmp_path):
         robots.load(path)
 
 
-def test_joint_without_motor(tmp_path):
+def test_joint_without_motor_is_passive_and_named(tmp_path):
+    # A joint with no actuator and no coupling is left passive (not trained), and
+    # `robot check` says so with a warning; tasks that need every joint refuse it.
     path = write(tmp_path, mjcf(TWO_HINGES, '<motor joint="j1" ctrlrange="-1 1"/>'))
-    with pytest.raises(RobotError) as info:
-        robots.load(path)
-    assert "joints ['j2'] have no motor" in str(info.value)
+    robot = robots.load(path)
+    assert robot.passive_joints == ("j2",) and robot.action_dim == 1
+    assert robot.actuated_dofs.tolist() == [0]
+    text = robots.check(path).text
+    assert "! passive joints: j2" in text
 
 
 def test_joint_with_two_motors(tmp_path):

@@ -115,20 +115,31 @@ class JointSpaceTask:
         self.reference = as_jax(reference)
         self.control_dt = float(control_dt)
         self.__dict__.update(self._gains(float(kp), float(kd)))
-        nv = robot.nv
+        k = robot.action_dim
         self.targets, self.steps = reference.q.shape[0], reference.steps
-        self.state_dim, self.desired_dim, self.output_dim = robot.nq + nv, nv, nv
-        self.action_dim, self.feature_dim = nv, 0
-        self.desired_index = tuple(range(nv))
+        self.state_dim, self.desired_dim, self.output_dim = 2 * k, k, k
+        self.action_dim, self.feature_dim = k, 0
+        self.desired_index = tuple(range(k))
+
+    # The controller's joints. An arm whose every joint it drives uses qpos and qvel as they
+    # are; one with held or passive joints (a gripper) the entries of the actuated joints.
+    def _q(self, qpos):
+        return qpos if self.robot.drives_every_dof else qpos[..., self.robot.actuated_qpos]
+
+    def _v(self, qvel):
+        return qvel if self.robot.drives_every_dof else qvel[..., self.robot.actuated_dofs]
 
     @property
     def tracking_scale(self) -> float:
-        """RMS reaching distance (rad), the scale of the tracking error."""
-        return rms_reach(self.reference_np)
+        """RMS reaching distance (rad) of the actuated joints, the scale of the tracking
+        error."""
+        q = self._q(self.reference_np.q)
+        return rms_reach(Reference(q, q, q))
 
     def _pd_gains(self, kp: float, kd: float):
         """The torque gains of :meth:`feedback` for the acceleration gains ``kp``, ``kd``."""
-        return baselines.joint_pd_gains(self.robot, kp, kd, self.reference_np.q[0, 0])
+        gain_p, gain_d = baselines.joint_pd_gains(self.robot, kp, kd, self.reference_np.q[0, 0])
+        return self._v(gain_p), self._v(gain_d)
 
     def _babbling_gains(self, kp: float, kd: float):
         """The torque gains of the babbling's feedback: sized for the lightest inertia of
@@ -259,11 +270,12 @@ class JointSpaceTask:
           >>> task.entries()["state"]
           (('position', 0), ('position', 1), ('velocity', 0), ('velocity', 1))
         """
-        nq, nv = self.robot.nq, self.robot.nv
+        positions = self._q(np.arange(self.robot.nq)).tolist()
+        dofs = self._v(np.arange(self.robot.nv)).tolist()
         return {
-            "state": tuple(("position", i) for i in range(nq))
-            + tuple(("velocity", i) for i in range(nv)),
-            "output": tuple(("acceleration", i) for i in range(nv)),
+            "state": tuple(("position", i) for i in positions)
+            + tuple(("velocity", i) for i in dofs),
+            "output": tuple(("acceleration", i) for i in dofs),
         }
 
     def start(self, reference):
@@ -275,11 +287,12 @@ class JointSpaceTask:
 
     def state(self, qpos, qvel, features):
         del features
-        return jnp.concatenate([qpos, qvel])
+        return jnp.concatenate([self._q(qpos), self._v(qvel)])
 
     def desired(self, ref_t, qpos, qvel, features):
         del features
-        return desired_acceleration(ref_t.q, ref_t.qd, ref_t.qdd, qpos, qvel, self.kp, self.kd)
+        q, qd, qdd = (self._q(x) for x in (ref_t.q, ref_t.qd, ref_t.qdd))
+        return desired_acceleration(q, qd, qdd, self._q(qpos), self._v(qvel), self.kp, self.kd)
 
     def features(self, qpos, qvel, sensors):
         del qpos, qvel, sensors
@@ -287,14 +300,24 @@ class JointSpaceTask:
 
     def observed(self, step, qpos_next, qvel_next, features_next):
         del qpos_next, features_next
-        return (qvel_next - step.qvel) / self.control_dt
+        return self._v(qvel_next - step.qvel) / self.control_dt
 
     def configuration(self, state):
         """``(qpos, qvel)`` of learning states ``(..., state_dim)``: every task's state
         starts with ``qpos`` and ends with ``qvel`` (a task whose state does not overrides
-        this). Used by the ``rigid_body`` forward model (:mod:`cfm_jax.rigid_body`)."""
-        nq, nv = self.robot.nq, self.robot.nv
-        return state[..., :nq], state[..., state.shape[-1] - nv :]
+        this). Used by the ``rigid_body`` forward model (:mod:`cfm_jax.rigid_body`). With
+        held or passive joints (not in the state) they are taken at rest at ``home``."""
+        robot = self.robot
+        if robot.drives_every_dof:
+            nq, nv = robot.nq, robot.nv
+            return state[..., :nq], state[..., state.shape[-1] - nv :]
+        k, shape = robot.action_dim, state.shape[:-1]
+        qpos = jnp.broadcast_to(jnp.asarray(robot.home, state.dtype), shape + (robot.nq,))
+        qvel = jnp.zeros(shape + (robot.nv,), state.dtype)
+        return (
+            qpos.at[..., robot.actuated_qpos].set(state[..., :k]),
+            qvel.at[..., robot.actuated_dofs].set(state[..., k:]),
+        )
 
     def acceleration_output(self):
         """How the joint accelerations enter the forward model's output ``y``: an
@@ -310,11 +333,20 @@ class JointSpaceTask:
           >>> tasks.make(arm, config.TaskConfig(duration=0.1), 0.01).acceleration_output()
           AccelerationOutput(entries=(0, 1), scale=1.0, affine=None)
         """
-        return AccelerationOutput(tuple(range(self.robot.nv)), 1.0)
+        robot = self.robot
+        if robot.drives_every_dof:
+            return AccelerationOutput(tuple(range(robot.nv)), 1.0)
+        select = np.eye(robot.nv, dtype=np.float32)[robot.actuated_dofs]
+
+        def affine(qpos, qvel):  # the actuated joints' accelerations
+            del qpos, qvel
+            return jnp.asarray(select), jnp.zeros(robot.action_dim, jnp.float32)
+
+        return AccelerationOutput(tuple(range(robot.action_dim)), 1.0, affine)
 
     def tracking_error(self, ref_next, qpos_next, qvel_next, features_next):
         del qvel_next, features_next
-        return qpos_next - ref_next.q
+        return self._q(qpos_next - ref_next.q)
 
     def record(self, step, tau, qpos_next, qvel_next, features_next):
         return {}
@@ -343,23 +375,37 @@ class JointSpaceTask:
     def feedback(self, step):
         """``K_p (q_ref - q) + K_d (qd_ref - qd)`` with :func:`cfm_jax.baselines.joint_pd_gains`."""
         ref = step.reference
-        return self.gain_p * (ref.q - step.qpos) + self.gain_d * (ref.qd - step.qvel)
+        return self.gain_p * self._q(ref.q - step.qpos) + self.gain_d * self._v(ref.qd - step.qvel)
 
     def oracle_policy(self, simulator: str):
         """MuJoCo's inverse dynamics of the desired acceleration
-        (:func:`cfm_jax.baselines.inverse_dynamics_oracle`)."""
-        return baselines.inverse_dynamics_oracle(self.robot, simulator)
+        (:func:`cfm_jax.baselines.inverse_dynamics_oracle`); with held or passive joints,
+        those held at rest (zero desired acceleration) and the actuated joints' torques."""
+        oracle = baselines.inverse_dynamics_oracle(self.robot, simulator)
+        robot = self.robot
+        if robot.drives_every_dof:
+            return oracle
+
+        def policy(step, key):
+            qacc = jnp.zeros(step.desired.shape[:-1] + (robot.nv,), step.desired.dtype)
+            full = step._replace(desired=qacc.at[..., robot.actuated_dofs].set(step.desired))
+            return self._v(oracle(full, key))
+
+        return policy
 
 
-def require_fixed_base(robot, name: str) -> None:
-    """The arm tasks need a fixed-base arm with every joint actuated.
+def require_fixed_base(robot, name: str, every_joint: bool = False) -> None:
+    """The arm tasks need a fixed-base arm; ``every_joint``: with every joint actuated
+    (no held or passive joint, :class:`cfm_jax.robots.Robot`).
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       name: the task's name, for the message.
+      every_joint: whether the task also needs every joint driven by the controller.
 
     Raises:
-      ConfigError: ``robot`` has a floating base (a free joint).
+      ConfigError: ``robot`` has a floating base (a free joint), or with ``every_joint``
+        held or passive joints (they are named).
 
     Examples:
       >>> from cfm_jax import robots
@@ -368,8 +414,15 @@ def require_fixed_base(robot, name: str) -> None:
     if robot.floating_base:
         raise ConfigError(
             f"task.name={name!r} is not allowed for robot {robot.name!r}: it has a "
-            "floating base (a free joint), and this task needs a fixed-base arm with every "
-            "joint actuated"
+            "floating base (a free joint), and this task needs a fixed-base arm"
+        )
+    others = tuple(robot.held_joints) + tuple(robot.passive_joints)
+    if every_joint and others:
+        raise ConfigError(
+            f"task.name={name!r} is not allowed for robot {robot.name!r}: its joints "
+            f"{list(others)} are held or passive (no torque motor of their own), and this "
+            "task needs every joint driven by the controller; task.name='inverse_dynamics' "
+            "trains the driven joints and holds the others"
         )
 
 

@@ -103,6 +103,13 @@ class LeggedTask(JointSpaceTask):
                 "legged robot with a floating base (for example robot='solo12')"
             )
         solo12.check_model(robot.mj_model, robot.name)
+        others = getattr(robot, "held_joints", ()) + getattr(robot, "passive_joints", ())
+        if others:
+            raise ConfigError(
+                f"task.name={task.name!r} is not allowed for robot {robot.name!r}: its joints "
+                f"{list(others)} have no torque motor of "
+                "their own; the legged tasks need every joint below the base driven"
+            )
         if getattr(robot, "converted", ()):
             from cfm_jax.robots import _LEGGED_CONVERTED
 

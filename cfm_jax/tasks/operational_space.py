@@ -226,5 +226,5 @@ def make(
       >>> task.desired_dim, task.steps
       (3, 50)
     """
-    require_fixed_base(robot, task.name)
+    require_fixed_base(robot, task.name, every_joint=True)
     return OperationalSpaceTask(robot, task, control_dt, simulator)
