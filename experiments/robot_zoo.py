@@ -36,6 +36,7 @@ import pandas as pd
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LOSSES = ("joint", "task", "distal", "supervised")
+REFUSED = "zoo_refused.txt"  # in a robot's output folder: why its last run failed
 
 
 def flags_of(folder: str) -> dict[str, list[str]]:
@@ -84,6 +85,12 @@ def run_robot(path: str, out: str, seeds: int, extra: list[str]) -> dict:
             error = lines[-1] if lines else f"exit status {proc.returncode}"
             # The CLI names the file by its absolute path: keep the reason, not the machine.
             error = "refused: " + error.removeprefix("cfm-jax: error: ").split("): ", 1)[-1]
+            # Kept beside the runs, so that a later --only run of other robots still shows it.
+            os.makedirs(out, exist_ok=True)
+            with open(os.path.join(out, REFUSED), "w") as f:
+                f.write(error + "\n")
+        elif os.path.exists(os.path.join(out, REFUSED)):
+            os.remove(os.path.join(out, REFUSED))
     wall = time.perf_counter() - start
     row = dict(robot=os.path.splitext(os.path.basename(path))[0], error=error)
     timing = os.path.join(out, "zoo_wall_s.txt")
@@ -214,10 +221,16 @@ def main(argv: list[str] | None = None) -> None:
     for name, stem in zip(files, stems, strict=True):
         out = os.path.join(args.out, f"seeds{args.seeds}{args.tag and '_' + args.tag}", stem)
         if stem not in wanted:
-            # Not asked for this time: its finished run still goes into the table.
+            # Not asked for this time: its finished run or its refusal still goes into the
+            # table, and a robot not yet run says so.
             if finished(out):
                 rows.append(run_robot(os.path.join(args.robots, name), out, args.seeds, []))
-                write()
+            elif os.path.exists(os.path.join(out, REFUSED)):
+                with open(os.path.join(out, REFUSED)) as f:
+                    rows.append(dict(robot=stem, error=f.read().strip(), wall_s=float("nan")))
+            else:
+                rows.append(dict(robot=stem, error="not run yet", wall_s=float("nan")))
+            write()
             continue
         print(f"robot_zoo: {name} ...", flush=True)
         row = run_robot(os.path.join(args.robots, name), out, args.seeds, extra.get(name, []))

@@ -83,3 +83,23 @@ def test_only_one_robot_still_tables_every_finished_run(tmp_path):
                     "--table", str(page), "--only", "a"])  # fmt: skip
     text = page.read_text()
     assert "| a | 0.5; below PD 1/1 |" in text and "| b | 0.25; below PD 1/1 |" in text
+
+
+def test_a_refusal_and_a_robot_not_yet_run_stay_in_the_table(tmp_path):
+    # c is refused by the library (no actuators); a later --only a run keeps c's reason
+    # and says that d was not run, instead of dropping their rows.
+    robots = tmp_path / "robots"
+    robots.mkdir()
+    for stem in ("a", "c", "d"):
+        (robots / f"{stem}.xml").write_text("<mujoco/>")
+    _finished_run(tmp_path / "out" / "seeds1" / "a", 0.5)
+    page = tmp_path / "robots.md"
+    common = ["--robots", str(robots), "--seeds", "1", "--out", str(tmp_path / "out"),
+              "--table", str(page)]  # fmt: skip
+    robot_zoo.main([*common, "--only", "c"])
+    assert "| c | refused: " in page.read_text() and "has no actuators" in page.read_text()
+    robot_zoo.main([*common, "--only", "a"])
+    text = page.read_text()
+    assert "| a | 0.5; below PD 1/1 |" in text
+    assert "| c | refused: " in text and "has no actuators" in text
+    assert "| d | not run yet |" in text
