@@ -1,14 +1,17 @@
 """Robots as data: MJCF file -> :class:`Robot` (MuJoCo model, MJX model, state map, limits).
 
 A robot is loaded by registered name (``"iiwa14"``, ``"two_link_arm"``: files shipped in the
-package, from the repository's ``robots/`` folder) or by a path to any MJCF whose every
-hinge or slide joint is driven by exactly one torque motor; the robot may have a floating
-base (one free joint at the root of the tree, not actuated), as legged robots do.
+package, from the repository's ``robots/`` folder) or by a path to any MJCF of hinge and
+slide joints, each driven by one torque motor, held (coupled by an equality constraint, as
+a gripper's fingers: :func:`held_joints`) or passive (no actuator); the robot may have a
+floating base (one free joint at the root of the tree, not actuated), as legged robots do.
 
-The action is the torque ``tau`` of the actuated joints (``action_dim`` of them, in dof
-order), which becomes ``ctrl = tau / gear``. Fixed-base arms have ``nq == nv == action_dim``
-and the arm tasks use the state ``s = [q, qdot]``; which tasks fit which robot is checked
-by the task (:func:`cfm_jax.tasks.make`).
+The action is the torque ``tau`` of the actuated (driven) joints (``action_dim`` of them, in
+dof order), which becomes ``ctrl = tau / gear``; held joints' actuators keep their set
+points (:attr:`Robot.hold_ctrl`). Fixed-base arms without held or passive joints have
+``nq == nv == action_dim`` and the arm tasks use the state ``s = [q, qdot]`` (with such
+joints, the driven joints' entries); which tasks fit which robot is checked by the task
+(:func:`cfm_jax.tasks.make`).
 
 Examples:
   >>> robot = load("iiwa14")
@@ -245,7 +248,9 @@ class Robot:
         if self.hold_ctrl is None:
             ctrl = jnp.zeros(shape, tau.dtype)
         else:  # the held joints' actuators keep their set points
-            ctrl = jnp.broadcast_to(jnp.asarray(self.hold_ctrl, jnp.float32), shape).astype(tau.dtype)
+            ctrl = jnp.broadcast_to(jnp.asarray(self.hold_ctrl, jnp.float32), shape).astype(
+                tau.dtype
+            )
         return ctrl.at[..., self.actuator_of_joint].set(tau / self.gear)
 
     def mass_matrix(self, qpos) -> np.ndarray:
@@ -666,7 +671,8 @@ def load(
       RobotError: the file does not exist, does not parse, has ball joints or a free joint
         other than a single floating base, no actuators, non-torque actuators (with
         ``strict``), servos without a torque limit (with ``torque``), actuators that do not
-        drive a joint, or hinge / slide joints without exactly one motor.
+        drive a joint, a joint driven by more than one motor, or no joint driven by a motor
+        of its own (held and passive joints are not errors, see :func:`held_joints`).
 
     Returns:
       The :class:`Robot` (its MJX model already built).
@@ -762,7 +768,11 @@ def load(
         raise RobotError(f"{where}: the floating base (free joint) cannot be actuated")
     held_dofs = {int(model.jnt_dofadr[j]) for j in held}
     actuated = np.array(
-        [d for d in range(model.nv) if d not in unactuated | held_dofs and actuator_of_joint[d] >= 0],
+        [
+            d
+            for d in range(model.nv)
+            if d not in unactuated | held_dofs and actuator_of_joint[d] >= 0
+        ],
         dtype=np.int32,
     )
     passive = [

@@ -132,8 +132,12 @@ def test_tasks_that_need_every_joint_name_the_held_ones(arm):
 def test_an_arm_with_no_driven_joint_is_refused(tmp_path):
     path = tmp_path / "only_fingers.xml"
     text = Path(ARM).read_text()
-    text = text.replace('<motor name="shoulder" joint="shoulder" ctrlrange="-40 40" ctrllimited="true"/>', "")
-    text = text.replace('<motor name="elbow" joint="elbow" ctrlrange="-20 20" ctrllimited="true"/>', "")
+    text = text.replace(
+        '<motor name="shoulder" joint="shoulder" ctrlrange="-40 40" ctrllimited="true"/>', ""
+    )
+    text = text.replace(
+        '<motor name="elbow" joint="elbow" ctrlrange="-20 20" ctrllimited="true"/>', ""
+    )
     text = text.replace('ctrl="0 0 0.02"', 'ctrl="0.02"')
     path.write_text(text)
     with pytest.raises(robots.RobotError, match="no joint is driven by a torque motor"):
