@@ -189,6 +189,32 @@ def default_targets(joint_range: np.ndarray, home: np.ndarray, seed: int = 0) ->
     return np.clip(home + reach * directions, lower, upper)
 
 
+def driven_targets(robot, home, seed: int = 0) -> np.ndarray:
+    """:func:`default_targets` of a robot: the joints the controller drives move, the
+    others (held or passive, :func:`cfm_jax.robots.held_joints`) stay at ``home``.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      home: ``(nq,)`` start pose.
+      seed: as :func:`default_targets` (0: the test targets).
+
+    Returns:
+      ``(5, nq)`` target joint positions.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> bool(np.array_equal(driven_targets(arm, arm.home),
+      ...                     default_targets(arm.joint_range, arm.home)))
+      True
+    """
+    home = np.asarray(home, np.float64)
+    targets = default_targets(robot.joint_range, home, seed)
+    still = np.setdiff1d(np.arange(robot.nq), robot.actuated_qpos)
+    targets[:, still] = home[still]
+    return targets
+
+
 def reaching(robot, task: TaskConfig, control_dt: float) -> Reference:
     """Reference trajectories of the configured targets for a robot.
 
@@ -219,10 +245,7 @@ def reaching(robot, task: TaskConfig, control_dt: float) -> Reference:
     home = robot.home if task.home is None else np.asarray(task.home)
     check_positions("task.home", home[None], robot)
     if task.targets is None:
-        targets = default_targets(robot.joint_range, home)
-        # Joints the controller does not drive (held, passive) are not given targets.
-        still = np.setdiff1d(np.arange(robot.nq), robot.actuated_qpos)
-        targets[:, still] = home[still]
+        targets = driven_targets(robot, home)
     else:
         targets = np.asarray(task.targets, dtype=np.float64)
     check_positions("task.targets", targets, robot)

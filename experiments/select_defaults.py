@@ -294,7 +294,7 @@ def selection_motions(task: str, config: config_lib.Config) -> dict:
     robot = robots.load(config.robot)
     home = robot.home if config.task.home is None else np.asarray(config.task.home)
     if task == "inverse_dynamics":
-        targets = references.default_targets(robot.joint_range, home, references.SELECTION_SEED)
+        targets = references.driven_targets(robot, home, references.SELECTION_SEED)
     else:
         targets = references.default_cartesian_targets(
             robot, config.task.site, home, references.SELECTION_SEED
