@@ -255,12 +255,7 @@ class Robot:
 
     def mass_matrix(self, qpos) -> np.ndarray:
         """The joint-space inertia ``M(q)`` (MuJoCo C, armature included), ``(nv, nv)``."""
-        data = mujoco.MjData(self.mj_model)
-        data.qpos[:] = qpos
-        mujoco.mj_forward(self.mj_model, data)
-        full = np.zeros((self.nv, self.nv))
-        mujoco.mj_fullM(self.mj_model, data, full)
-        return full
+        return self.mass_matrices(np.asarray(qpos)[None])[0]
 
     def mass_matrix_diagonal(self, qpos) -> np.ndarray:
         """Diagonal of the joint-space inertia ``M(q)`` (MuJoCo C), shape ``(nv,)``."""
