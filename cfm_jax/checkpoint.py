@@ -33,6 +33,26 @@ MANIFEST = "cfm_manifest.json"
 _ORBAX_TIMING = "Waiting for previous save to complete"
 
 
+def has_steps(run_dir: str) -> bool:
+    """Whether ``run_dir/checkpoints`` holds a checkpoint step (a folder named by its
+    iteration). A run killed before its first checkpoint leaves the folder empty, which
+    counts as none.
+
+    Examples:
+      >>> import tempfile
+      >>> run = tempfile.mkdtemp()
+      >>> has_steps(run)
+      False
+      >>> os.makedirs(os.path.join(run, "checkpoints", "2"))
+      >>> has_steps(run)
+      True
+    """
+    folder = os.path.join(run_dir, "checkpoints")
+    return os.path.isdir(folder) and any(
+        name.isdigit() and os.path.isdir(os.path.join(folder, name)) for name in os.listdir(folder)
+    )
+
+
 class _DropOrbaxTiming(logging.Filter):
     """Drops Orbax's timing note "Waiting for previous save to complete took N seconds",
     logged as an absl WARNING when a save waits on the one before it (on busy cores): a

@@ -107,6 +107,7 @@ def train(
 
 def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
     """Train every loss of ``names`` on ``base`` into ``out`` and print the tables."""
+    from cfm_jax import checkpoint
     from cfm_jax import tensorboard as tensorboard_lib
     from cfm_jax import training as train_lib
 
@@ -114,6 +115,15 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
         config_lib._fail("--tensorboard", tensorboard, tensorboard_lib.MISSING)
     start = time.perf_counter()
     experiment = train_lib.Experiment(base)  # checks robot and config: nothing written yet
+    if not resume:  # a new run would meet the old one's checkpoints after its babbling
+        held = [name for name in names if checkpoint.has_steps(os.path.join(out, name))]
+        if held:
+            config_lib._fail(
+                "--out",
+                out,
+                f"it already holds checkpoints of a run (losses {held}); add --resume to "
+                "continue that run, or give another --out",
+            )
     if data is not None:  # a bad --data is refused before anything is written
         train_lib._recorded_for(experiment, base, data)
     with _removed_if_empty(out), contextlib.ExitStack() as stack:
@@ -128,26 +138,17 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
     _print_train(base, experiment, frames, result, notes, out, wall)
 
 
-def _has_checkpoint_steps(run_dir: str) -> bool:
-    """Whether ``run_dir/checkpoints`` holds a checkpoint step (a folder named by its
-    iteration). A loss killed before its first checkpoint leaves the folder empty; with
-    ``--resume`` it starts fresh, as a loss without the folder does."""
-    folder = os.path.join(run_dir, "checkpoints")
-    return os.path.isdir(folder) and any(
-        name.isdigit() and os.path.isdir(os.path.join(folder, name)) for name in os.listdir(folder)
-    )
-
-
 def _train_losses(base, names, out, resume, data, quiet, experiment, progress_fn=None):
     """Train each loss in turn: the top-level metrics.csv is rewritten after every iteration
     (the finished losses' rows and this loss's rows so far), the other combined files after
     each loss. ``progress_fn`` (e.g. the TensorBoard writer) is called as train calls it."""
+    from cfm_jax import checkpoint
     from cfm_jax import training as train_lib
 
     frames, result, notes = [], None, []
     for name in names:
         run_dir = os.path.join(out, name)
-        can_resume = resume and _has_checkpoint_steps(run_dir)
+        can_resume = resume and checkpoint.has_steps(run_dir)
 
         def iteration_done(iteration, rows, run_dir=run_dir):
             # train wrote run_dir/metrics.csv (every row of this loss so far, restored ones

@@ -258,6 +258,11 @@ def train(
     saved_config = report.config_record(config)  # config.json, checkpoints, data set: once
     if experiment is not None:
         knobs = experiment.knobs_for(config)  # refuses a config of another structure
+    if resume is None and out_dir and ckpt_lib.has_steps(out_dir):
+        raise config_lib.ConfigError(
+            f"out_dir={out_dir!r} is not allowed: it already holds checkpoints of a run; "
+            f"pass resume={out_dir!r} to continue it, or give another out_dir"
+        )
     if resume is not None:
         out_dir = out_dir or resume
         saved_path = os.path.join(resume, "config.json")

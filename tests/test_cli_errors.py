@@ -198,3 +198,28 @@ def test_python_api_raises_the_same_typed_errors(tmp_path):
     (tmp_path / "ball.xml").write_text(BALL)
     with pytest.raises(robots.RobotError, match="mjJNT_BALL"):
         robots.load(str(tmp_path / "ball.xml"))
+
+
+def test_a_new_run_into_a_folder_with_checkpoints_is_refused_up_front(
+    tmp_path, monkeypatch, capsys
+):
+    # Without --resume, a run into a folder that holds a run's checkpoints failed only
+    # after its babbling, with Orbax's StepAlreadyExistsError traceback. Now: one error
+    # line naming the losses and --resume before anything is computed or written; the
+    # Python API raises a ConfigError naming resume=.
+    from cfm_jax import training
+
+    out = tmp_path / "out"
+    (out / "task" / "checkpoints" / "3").mkdir(parents=True)
+    before = sorted(str(p) for p in out.rglob("*"))
+    argv = ["cfm-jax", "train", "--robot", "two_link_arm", "--loss", "joint,task"]
+    monkeypatch.setattr(sys, "argv", [*argv, "--out", str(out), "--quiet"])
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main()
+    assert exit_info.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("cfm-jax: error: --out="), lines
+    assert "['task']" in lines[0] and "--resume" in lines[0]
+    assert sorted(str(p) for p in out.rglob("*")) == before
+    with pytest.raises(config_lib.ConfigError, match="resume="):
+        training.train(config_lib.Config(robot="two_link_arm"), out_dir=str(out / "task"))
