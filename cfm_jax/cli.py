@@ -343,7 +343,14 @@ def _run_sweep(base, names, override, out, backend, address, max_retries, quiet)
     """Run the sweep of ``base`` over ``names`` and the ``override`` axes; print its table."""
     from cfm_jax import sweeps
 
-    grid_axes = dict(_override(text) for text in override)
+    grid_axes: dict = {}
+    for text in override:
+        path, values = _override(text)
+        if path in grid_axes:
+            config_lib._fail(
+                "--override", text, f"{path} is already an axis of this sweep; give each path once"
+            )
+        grid_axes[path] = values
     start = time.perf_counter()
     with _removed_if_empty(out):
         result = sweeps.sweep(
@@ -731,10 +738,12 @@ def _sweep_command(argv: list[str]) -> None:
          "joint, task, distal, supervised), or a comma-separated list of controller losses "
          "(those and distal_literal).")], "all"),
         ("out", Annotated[str, tyro_arg(metavar="DIR", help=_OUT_HELP)], "results/sweep"),
-        ("override", Annotated[tuple[str, ...], tyro_arg(metavar="PATH=VALUES [...]", help=
+        ("override", Annotated[tuple[tuple[str, ...], ...], tyro.conf.UseAppendAction,
+         tyro_arg(metavar="PATH=VALUES [...]", help=
          "grid axes, each PATH=V1,V2,... (values parsed as JSON numbers, true/false, null, "
          "else text) or PATH=[JSON list] for values that contain commas (see the examples "
-         "above); default: no axis, one cell.", help_behavior_hint="")], ()),
+         "above); several after one --override or one per --override, the grid is every "
+         "combination; default: no axis, one cell.", help_behavior_hint="")], ()),
         ("backend", Annotated[str, tyro_arg(metavar="{local,ray}", help="local (this process) "
          "or ray (each cell a Ray task; pip install 'cfm_jax[ray]').")], "local"),
         ("address", Annotated[str | None, tyro_arg(metavar="HOST:PORT", help_behavior_hint="",
@@ -747,7 +756,8 @@ def _sweep_command(argv: list[str]) -> None:
     flags_cls = _flags_class("sweep", base, extra)
     flags = _parse(flags_cls, argv, "sweep", _description(sweep))
     names = _losses(flags.losses, flag="--losses")
-    _run_sweep(_config_of(flags, base, names[0]), names, flags.override, flags.out,
+    axes = tuple(text for group in flags.override for text in group)  # each --override
+    _run_sweep(_config_of(flags, base, names[0]), names, axes, flags.out,
                flags.backend, flags.address, flags.max_retries, flags.quiet)  # fmt: skip
 
 

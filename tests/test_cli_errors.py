@@ -153,7 +153,14 @@ CASES = [
         ["sweep", "--robot", "two_link_arm", "--override", "task.kp"],
         ["task.kp"],
     ),
-]
+    (
+        "override of one path twice",
+        {},
+        ["sweep", "--robot", "two_link_arm", "--override", "task.kp=1,2", "--override",
+         "task.kp=3"],
+        ["task.kp=3", "already an axis"],
+    ),
+]  # fmt: skip
 
 
 # A model MJX cannot build (a cylinder-box collision pair) asked for on MJX: the pair named.

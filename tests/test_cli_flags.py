@@ -177,3 +177,21 @@ def test_importing_every_module_and_the_cli_prints_nothing(tmp_path):
 
 # A CLI run on the default simulator prints only the library's own lines: checked on the
 # default run's real CLI subprocess, tests/test_train.py::test_cli_train_end_to_end.
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--override", "task.kp=50,100", "--override", "task.kd=1,2"],
+        ["--override", "task.kp=50,100", "task.kd=1,2"],
+    ],
+)
+def test_every_override_is_an_axis_of_the_grid(argv, monkeypatch):
+    # A repeated --override kept only the last axis (2 cells instead of 4); one flag with
+    # two axes and two flags with one each now give the same grid.
+    seen = {}
+    monkeypatch.setattr(cli, "_run_sweep", lambda base, names, override, *rest: seen.update(
+        override=override))  # fmt: skip
+    monkeypatch.setattr(sys, "argv", ["cfm-jax", "sweep", "--robot", "two_link_arm", *argv])
+    cli.main()
+    assert seen["override"] == ("task.kp=50,100", "task.kd=1,2")
