@@ -114,6 +114,7 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
     if tensorboard is not None and not tensorboard_lib.available():
         config_lib._fail("--tensorboard", tensorboard, tensorboard_lib.MISSING)
     start = time.perf_counter()
+    _check_out(out)
     experiment = train_lib.Experiment(base)  # checks robot and config: nothing written yet
     if not resume:  # a new run would meet the old one's checkpoints after its babbling
         held = [name for name in names if checkpoint.has_steps(os.path.join(out, name))]
@@ -237,6 +238,20 @@ def _base_config(
 
 
 @contextlib.contextmanager
+def _check_out(out: str) -> None:
+    """One ``cfm-jax: error:`` line, before any work, for an ``--out`` that is a file or a
+    folder that cannot be created (a file on its path, no write permission)."""
+    if os.path.exists(out) and not os.path.isdir(out):
+        config_lib._fail("--out", out, "it is a file; give a folder (new or existing)")
+    above = os.path.abspath(out)
+    while not os.path.exists(above):
+        above = os.path.dirname(above)
+    if not os.path.isdir(above):
+        config_lib._fail("--out", out, f"the folder cannot be created: {above} is a file")
+    if not os.path.isdir(out) and not os.access(above, os.W_OK | os.X_OK):
+        config_lib._fail("--out", out, f"the folder cannot be created: {above} is not writable")
+
+
 def _removed_if_empty(out: str):
     """Remove the directory ``out`` if it did not exist before and the block failed with it
     still empty (a failed run leaves no empty output directory behind)."""
@@ -351,6 +366,7 @@ def _run_sweep(base, names, override, out, backend, address, max_retries, quiet)
                 "--override", text, f"{path} is already an axis of this sweep; give each path once"
             )
         grid_axes[path] = values
+    _check_out(out)
     start = time.perf_counter()
     with _removed_if_empty(out):
         result = sweeps.sweep(

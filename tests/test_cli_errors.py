@@ -230,3 +230,26 @@ def test_a_new_run_into_a_folder_with_checkpoints_is_refused_up_front(
     assert sorted(str(p) for p in out.rglob("*")) == before
     with pytest.raises(config_lib.ConfigError, match="resume="):
         training.train(config_lib.Config(robot="two_link_arm"), out_dir=str(out / "task"))
+
+
+@pytest.mark.parametrize("command", ["train", "sweep"])
+@pytest.mark.parametrize(
+    ("out", "words"),
+    [("file.txt", ["it is a file"]), ("file.txt/sub", ["cannot be created", "is a file"])],
+)
+def test_an_out_that_is_a_file_or_cannot_be_made_is_one_error_line(
+    command, out, words, tmp_path, monkeypatch, capsys
+):
+    # Both ended in a Python traceback (FileExistsError, NotADirectoryError) after the
+    # robot and config were checked; now one error line before any work.
+    (tmp_path / "file.txt").write_text("a user's file\n")
+    argv = ["cfm-jax", command, "--robot", "two_link_arm", "--out", str(tmp_path / out)]
+    monkeypatch.setattr(sys, "argv", [*argv, "--quiet"])
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main()
+    assert exit_info.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("cfm-jax: error: --out="), lines
+    for word in words:
+        assert word in lines[0], (word, lines[0])
+    assert (tmp_path / "file.txt").read_text() == "a user's file\n"
