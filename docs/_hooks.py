@@ -1,8 +1,10 @@
 """MkDocs hooks: README sections in pages, and equations typeset at build time.
 
-README sections: a page line ``<!-- include-readme: NAME -->`` is replaced by the part of
-README.md between ``<!-- docs:NAME -->`` and ``<!-- /docs:NAME -->``, so the README stays
-the single source of the quickstart, the Python example and the library table.
+README sections: a page line ``TEXT <!-- include-readme: NAME -->`` is replaced by the
+part of README.md between ``<!-- docs:NAME -->`` and ``<!-- /docs:NAME -->``, so the
+README stays the single source of the quickstart, the Python example and the library
+table; ``TEXT`` (a link to that README section) is what a reader of the page on GitHub
+sees instead.
 README links into ``docs/`` are rewritten relative to the including page; any other
 relative link would point outside the site and fails ``mkdocs build --strict`` (as does an
 unknown section name).
@@ -27,7 +29,9 @@ from latex2mathml.converter import convert as latex_to_mathml
 from mkdocs.exceptions import PluginError
 
 README = Path(__file__).resolve().parent.parent / "README.md"
-INCLUDE = re.compile(r"^<!-- include-readme: ([\w-]+) -->$", re.MULTILINE)
+# What GitHub shows (a link to the README's section; it hides the comment), then the
+# marker, on one line: the whole line is replaced on the site.
+INCLUDE = re.compile(r"^.*<!-- include-readme: ([\w-]+) -->$", re.MULTILINE)
 LINK = re.compile(r"\]\(docs/([^)]*)\)")
 
 

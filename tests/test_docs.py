@@ -178,3 +178,24 @@ def test_a_broken_link_fails_the_build(tmp_path):
     done = build(copy, tmp_path / "site")
     assert done.returncode != 0
     assert "no-such-page.md" in done.stdout + done.stderr
+
+
+def test_pages_that_include_the_readme_point_to_it_on_github():
+    # GitHub shows a page as written, the comment hidden: each line that the site replaces
+    # by a README section must itself link to that section, by a heading README.md has.
+    readme = (ROOT / "README.md").read_text()
+    slugs = {
+        re.sub(r"[^\w\- ]", "", line.lstrip("#").strip().lower()).replace(" ", "-")
+        for line in readme.splitlines()
+        if line.startswith("## ")
+    }
+    marked = [
+        (page, line)
+        for page in (ROOT / "docs").rglob("*.md")
+        for line in page.read_text().splitlines()
+        if "<!-- include-readme:" in line
+    ]
+    assert len(marked) >= 3
+    for page, line in marked:
+        link = re.search(r"\]\((?:\.\./)+README\.md#([\w-]+)\)", line)
+        assert link and link.group(1) in slugs, (page.name, line)
