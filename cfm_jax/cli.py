@@ -237,7 +237,6 @@ def _base_config(
     return config_lib.from_dict(data)
 
 
-@contextlib.contextmanager
 def _check_out(out: str) -> None:
     """One ``cfm-jax: error:`` line, before any work, for an ``--out`` that is a file or a
     folder that cannot be created (a file on its path, no write permission)."""
@@ -252,6 +251,7 @@ def _check_out(out: str) -> None:
         config_lib._fail("--out", out, f"the folder cannot be created: {above} is not writable")
 
 
+@contextlib.contextmanager
 def _removed_if_empty(out: str):
     """Remove the directory ``out`` if it did not exist before and the block failed with it
     still empty (a failed run leaves no empty output directory behind)."""
