@@ -669,26 +669,38 @@ def print_summary(
     table: pd.DataFrame,
     title: str = "Final tracking error",
     tracking: str = "joint-position tracking MSE (rad^2)",
+    console=None,
 ) -> None:
     """Print a :func:`summary` table with rich (short column headers, explained below it):
     ``ci_low`` and ``ci_high`` as one column ``95% CI`` (``[low, high]``), the caption says
     what the interval is (percentile bootstrap of the mean over seeds, each seed averaged
-    over its targets).
+    over its targets). No number or name is ever cut: a table wider than the console is
+    printed in parts, each with the controller column, the most read columns (MSE mean,
+    95% CI, seeds, diverged) first.
 
     Args:
       table: the output of :func:`summary`.
       title: the table's title.
       tracking: what the table's metric (``summary(column=...)``) is and its unit, for
         the caption.
+      console: a ``rich.console.Console`` (None: the terminal's, or 200 columns for a file
+        or a pipe).
 
     Examples:
+      >>> import io
       >>> import pandas as pd
-      >>> metrics = pd.DataFrame({"loss": ["task"], "iteration": [0], "tracking_mse": [0.5]})
-      >>> # not run: rich lays the table out to the terminal's width
-      >>> print_summary(summary(metrics))  # doctest: +SKIP
+      >>> from rich.console import Console
+      >>> metrics = pd.DataFrame({"loss": ["supervised"], "iteration": [0],
+      ...                         "tracking_mse": [3.8e-7]})
+      >>> narrow = Console(width=40, file=io.StringIO())
+      >>> print_summary(summary(metrics), console=narrow)
+      >>> text = narrow.file.getvalue()
+      >>> "supervised" in text and "3.80e-07" in text
+      True
     """
     from rich.table import Table
 
+    console = console or _console()
     column = table.attrs.get("column", "tracking_mse")
     short = "MSE" if column.endswith("mse") else column
     headers = {
@@ -697,24 +709,49 @@ def print_summary(
         f"{column}_std": f"{short} std",
         "ci": _ci_header(table),
     }
-    out = Table(
-        title=title,
-        caption=f"{short}: {tracking}, mean/std over seeds x targets; seed std: sample std over "
+    caption = (
+        f"{short}: {tracking}, mean/std over seeds x targets; seed std: sample std over "
         f"seeds of each seed's mean over its targets; {_ci_header(table)}: percentile "
         f"bootstrap ({table.attrs.get('resamples', RESAMPLES)} resamples) of the mean over "
         "seeds, each seed averaged over its targets (-: fewer than two seeds, or a "
         "baseline); pred. err / pred. task err: forward-model prediction error and "
         "predicted task error (squared units of the predicted quantities); RMSE/reach: "
         "sqrt(MSE mean) / RMS reaching distance; diverged / div. frac.: count and fraction "
-        "of the runs whose simulation diverged (failed runs; every mean is over the others)",
+        "of the runs whose simulation diverged (failed runs; every mean is over the others)"
     )
-    out.add_column("controller")
+    names = [str(name) for name in table.index]
     columns = _table_columns(table)
-    for name in columns:
-        out.add_column(headers.get(name, name), justify="right", no_wrap=name == "ci")
-    for name, row in table.iterrows():
-        out.add_row(str(name), *(_cell(row, c) for c in columns))
-    _console().print(out)
+    first = [f"{column}_mean", "ci", "seeds", "diverged"]
+    columns = [c for c in first if c in columns] + [c for c in columns if c not in first]
+    cells = {c: [_cell(row, c) for _, row in table.iterrows()] for c in columns}
+
+    def width(values, header):  # a column's width: its longest cell, or its header
+        return max([len(v) for v in values] + [len(header)]) + 3  # padding and border
+
+    parts, part, used = [], [], width(names, "controller") + 1
+    for c in columns:
+        need = width(cells[c], headers.get(c, c))
+        if part and used + need > console.width:
+            parts.append(part)
+            part, used = [], width(names, "controller") + 1
+        part.append(c)
+        used += need
+    parts.append(part)
+    for k, part in enumerate(parts):
+        suffix = f" ({k + 1}/{len(parts)})" if len(parts) > 1 else ""
+        out = Table(title=title + suffix)
+        out.add_column("controller", no_wrap=True, min_width=max(map(len, names)))
+        for c in part:
+            out.add_column(
+                headers.get(c, c),
+                justify="right",
+                no_wrap=True,
+                min_width=max([len(v) for v in cells[c]] + [len(headers.get(c, c))]),
+            )
+        for i, name in enumerate(names):
+            out.add_row(name, *(cells[c][i] for c in part))
+        console.print(out)
+    console.print(caption)  # below, at the console's width (a caption wraps narrow)
 
 
 def print_paired(table: pd.DataFrame, title: str | None = None) -> None:
@@ -752,7 +789,7 @@ def _console():
 
     console = Console()
     if not console.is_terminal:  # files and pipes: do not squeeze the table into 80 columns
-        console = Console(width=130)
+        console = Console(width=200)
     return console
 
 

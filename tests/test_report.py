@@ -423,3 +423,24 @@ def test_intervals_take_the_seed_means_in_seed_order():
     np.testing.assert_allclose(paired.loc["task", ["ci_low", "ci_high"]], negated, rtol=1e-12)
     scrambled = report.paired_difference(means, {s: 0.0 for s in reversed(sorted(means))})
     np.testing.assert_allclose([scrambled["low"], scrambled["high"]], expected, rtol=1e-12)
+
+
+@pytest.mark.parametrize("width", [100, 60])
+def test_a_narrow_console_cuts_no_number_and_no_name(width):
+    # On a 100-column terminal the MSE mean showed as "3.70e…" and RMSE/reach vanished;
+    # through a pipe, loss names were clipped ("supervis…"). Every cell must be whole.
+    import io
+
+    from rich.console import Console
+
+    frame = _hand_frame()
+    frame = pd.concat([frame, frame.assign(loss="supervised_long_name")])
+    table = report.summary(frame, rms_reach=0.35)
+    console = Console(width=width, file=io.StringIO())
+    report.print_summary(table, title="t", console=console)
+    out = console.file.getvalue()
+    assert "…" not in out
+    for name, row in table.iterrows():
+        assert str(name) in out
+        for column in report._table_columns(table):
+            assert report._cell(row, column) in out, (name, column)
