@@ -553,6 +553,10 @@ def _restore(checkpointer, template: TrainState):
 
 
 def _progress(enabled: bool):
+    """A rich progress bar on a terminal or in a notebook; in a file or a pipe (a log), one
+    plain line per step instead (:class:`_PlainProgress`): a bar there shows only at the
+    end."""
+    from rich.console import Console
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -561,6 +565,9 @@ def _progress(enabled: bool):
         TimeElapsedColumn,
     )
 
+    console = Console()
+    if enabled and not console.is_terminal and not console.is_jupyter:
+        return _PlainProgress()
     return Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -568,3 +575,28 @@ def _progress(enabled: bool):
         TimeElapsedColumn(),
         disable=not enabled,
     )
+
+
+class _PlainProgress:
+    """The part of ``rich.progress.Progress`` that :func:`train` uses, printing one line
+    per step, e.g. ``iiwa14 joint: iteration 2: 3/6 (41 s)``, flushed at once."""
+
+    def __enter__(self):
+        self.start, self.tasks = time.perf_counter(), {}
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def add_task(self, description: str, total: int) -> int:
+        self.tasks[len(self.tasks)] = [description, 0, total]
+        return len(self.tasks) - 1
+
+    def update(self, task: int, description: str) -> None:
+        self.tasks[task][0] = description
+
+    def advance(self, task: int, steps: int = 1) -> None:
+        entry = self.tasks[task]
+        entry[1] += steps
+        elapsed = time.perf_counter() - self.start
+        print(f"{entry[0]}: {entry[1]}/{entry[2]} ({elapsed:.0f} s)", flush=True)

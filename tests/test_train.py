@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import subprocess
 import sys
 
@@ -381,3 +382,22 @@ def test_user_mjcf_arm_trains_without_code_changes(tmp_path):
     oracle = base[base.baseline == "oracle"].tracking_mse.mean()
     pd_only = base[base.baseline == "pd_only"].tracking_mse.mean()
     assert oracle < 0.01 * pd_only  # the exact inverse dynamics of the user's arm
+
+
+def test_progress_in_a_log_is_one_line_per_step(capsys):
+    # Redirected to a file, a run printed its progress bar once, at the end of each loss:
+    # nothing to follow in the log of a long run. Under pytest stdout is not a terminal.
+    from cfm_jax import training
+
+    with training._progress(True) as bar:
+        task = bar.add_task("arm joint: babbling + initial fit", total=4)
+        bar.advance(task)
+        bar.update(task, description="arm joint: iteration 1")
+        bar.advance(task)
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 2
+    assert re.fullmatch(r"arm joint: babbling \+ initial fit: 1/4 \(\d+ s\)", lines[0])
+    assert re.fullmatch(r"arm joint: iteration 1: 2/4 \(\d+ s\)", lines[1])
+    with training._progress(False) as bar:  # --quiet: nothing
+        bar.advance(bar.add_task("x", total=1))
+    assert capsys.readouterr().out == ""
