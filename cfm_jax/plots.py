@@ -221,10 +221,12 @@ def _plot_series(
     from matplotlib.ticker import MaxNLocator
 
     panels = _panels(tracking_label, output_unit)
-    fig = _figure((15, 4.2))
+    fig = _figure((15, 5.2))
     axes = fig.subplots(1, 3)
+    banded = False  # whether any band has a width (one seed: none)
     for ax, (column, label) in zip(axes, panels, strict=True):
         positive = False  # a log scale needs a positive value (every run may have diverged)
+        recorded = any(column in stats for _, stats in series)
         for name, stats in series:
             if column not in stats:
                 continue
@@ -233,6 +235,7 @@ def _plot_series(
             (line,) = ax.plot(mean.index, mean.values, marker="o", ms=3, label=name)
             lower = np.maximum(low.values, mean.values * 1e-2)  # log scale: keep it positive
             ax.fill_between(mean.index, lower, high.values, alpha=0.2, color=line.get_color())
+            banded |= bool(np.any(np.asarray(high.values) > np.asarray(low.values)))
         if column == "tracking_mse" and baselines is not None:
             styles = {"oracle": ":", "pd_only": "--"}
             for name, frame in baselines.groupby("baseline", sort=False):
@@ -247,27 +250,35 @@ def _plot_series(
         if positive:
             ax.set_yscale("log")
         else:
-            ax.text(0.5, 0.5, "no values: every run diverged", ha="center",
-                    transform=ax.transAxes)  # fmt: skip
+            empty = "no values: every run diverged" if recorded else "not in these metrics"
+            ax.text(0.5, 0.5, empty, ha="center", transform=ax.transAxes)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        first, last = ax.get_xlim()
+        if last - first < 2:  # one or two iterations (0 only: no fractional ticks)
+            low, high = np.floor(first + 0.5), np.ceil(last - 0.5)
+            ax.set_xlim(low - 0.5, high + 0.5)
+            ax.set_xticks(np.arange(low, high + 1))
         ax.set_xlabel("iteration")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     handles, labels = axes[0].get_legend_handles_labels()
-    if band_label:
+    if band_label and banded:
         handles.append(Patch(facecolor="0.5", alpha=0.3, label=band_label))
         labels.append(band_label)
-    axes[0].legend(
+    # Below the panels, never over a curve.
+    fig.legend(
         handles,
         labels,
+        loc="lower center",
+        ncol=min(len(labels), 4),
         fontsize="small",
-        framealpha=0.8,
-        title="line: mean over seeds,\neach seed averaged over its targets",
+        title="line: mean over seeds, each seed averaged over its targets",
         title_fontsize="small",
     )
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
+    rows = -(-len(labels) // 4)
+    fig.tight_layout(rect=(0, 0.06 + 0.045 * rows, 1, 1))
     _save(fig, path, dpi=120)
     return fig
 

@@ -166,3 +166,48 @@ def test_a_failed_save_leaves_the_previous_image(tmp_path, monkeypatch):
         plots.plot_learning_curves(_metrics(), path, title="new")
     assert path.read_bytes() == previous
     assert os.listdir(tmp_path) == ["curves.png"]
+
+
+def _one_seed(iterations: int) -> pd.DataFrame:
+    rows = [
+        dict(loss=loss, seed=0, iteration=i, target=0, tracking_mse=v * (i + 1))
+        for loss, v in (("joint", 1.0), ("task", 2.0), ("distal", 3.0), ("supervised", 4.0))
+        for i in range(iterations + 1)
+    ]
+    return pd.DataFrame(rows)
+
+
+@pytest.mark.parametrize("iterations", [0, 1, 4])
+def test_legend_below_the_curves_no_band_without_one_and_whole_iterations(iterations):
+    # The legend sat on the tracking panel's curves; with one seed it named a "95%
+    # bootstrap CI" band that is not drawn; a 0-iteration run had ticks at 0.02, 0.04...
+    baselines = pd.DataFrame({"baseline": ["oracle", "pd_only"], "tracking_mse": [1e-3, 0.5]})
+    figure = plots.plot_learning_curves(_one_seed(iterations), baselines=baselines)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(figure)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    (legend,) = figure.legends
+    assert all(ax.get_legend() is None for ax in figure.axes)
+    box = legend.get_window_extent(renderer)
+    for ax in figure.axes:
+        assert not box.overlaps(ax.get_window_extent(renderer))
+    texts = [t.get_text() for t in legend.get_texts()]
+    assert texts == ["joint", "task", "distal", "supervised", "oracle", "pd_only"]
+    ticks = [t for t in figure.axes[0].get_xticks() if figure.axes[0].get_xlim()[0] <= t]
+    ticks = [t for t in ticks if t <= figure.axes[0].get_xlim()[1]]
+    assert ticks and all(float(t).is_integer() for t in ticks)
+    assert set(range(iterations + 1)) <= {int(t) for t in ticks} or iterations > 2
+    # These metrics have no prediction columns: said so, not "every run diverged".
+    words = [t.get_text() for t in figure.axes[1].texts]
+    assert words == ["not in these metrics"]
+
+
+def test_legend_names_the_band_when_there_is_one(tmp_path):
+    frame = pd.concat(
+        [_one_seed(2), _one_seed(2).assign(seed=1, tracking_mse=lambda f: 2 * f.tracking_mse)]
+    )
+    figure = plots.plot_learning_curves(frame)
+    texts = [t.get_text() for t in figure.legends[0].get_texts()]
+    assert any("bootstrap CI" in t for t in texts)
