@@ -456,7 +456,8 @@ def summary(
       the seed means, as above; NaN for the baselines); ``diverged`` and
       ``diverged_fraction`` (the runs whose simulation diverged, when ``metrics`` has a
       ``diverged`` column: every mean is over the others, :func:`without_diverged`);
-      ``prediction_error_mean``,
+      ``fell`` (the runs in which the robot fell, when ``metrics`` has a ``fell``
+      column: the legged tasks); ``prediction_error_mean``,
       ``predicted_task_error_mean`` (when in ``metrics``); ``rmse_over_reach``. The
       frame's ``attrs`` hold ``column``, ``confidence`` and ``resamples``.
 
@@ -501,6 +502,8 @@ def summary(
             count = int(np.sum(diverged_runs(final)))
             rows[loss]["diverged"] = count
             rows[loss]["diverged_fraction"] = count / len(final) if len(final) else np.nan
+        if "fell" in final:  # the legged tasks: runs in which the robot fell
+            rows[loss]["fell"] = int(np.sum(final["fell"].fillna(0) == 1))
         for extra in ("prediction_error", "predicted_task_error"):
             if extra in final and extra != column:
                 rows[loss][f"{extra}_mean"] = without_diverged(final, extra).mean()
@@ -626,6 +629,7 @@ SHORT_HEADERS = {
     "rmse_over_reach": "RMSE/reach",
     "diverged": "diverged",
     "diverged_fraction": "div. frac.",
+    "fell": "fell",
 }
 
 
@@ -718,6 +722,7 @@ def print_summary(
         "predicted task error (squared units of the predicted quantities); RMSE/reach: "
         "sqrt(MSE mean) / RMS reaching distance; diverged / div. frac.: count and fraction "
         "of the runs whose simulation diverged (failed runs; every mean is over the others)"
+        + ("; fell: runs in which the robot fell" if "fell" in table.columns else "")
     )
     names = [str(name) for name in table.index]
     columns = _table_columns(table)

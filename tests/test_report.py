@@ -444,3 +444,24 @@ def test_a_narrow_console_cuts_no_number_and_no_name(width):
         assert str(name) in out
         for column in report._table_columns(table):
             assert report._cell(row, column) in out, (name, column)
+
+
+def test_falls_are_counted_in_the_summary_and_its_printouts(capsys):
+    # The walk's printed table and summary.md did not show falls (only metrics.csv had them).
+    metrics = pd.DataFrame(
+        {
+            "loss": ["joint"] * 4 + ["task"] * 4,
+            "seed": [0, 0, 1, 1] * 2,
+            "iteration": [2] * 8,
+            "target": [0, 1] * 4,
+            "tracking_mse": [1.0, 2.0, 3.0, 4.0, 1.0, 1.0, 1.0, 1.0],
+            "fell": [0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, np.nan],
+        }
+    )
+    table = report.summary(metrics)
+    assert table.loc["joint", "fell"] == 2 and table.loc["task", "fell"] == 0
+    text = report.markdown(table)
+    assert "fell" in [h.strip() for h in text.splitlines()[0].split("|")]
+    report.print_summary(table, title="walk")
+    out = " ".join(capsys.readouterr().out.split())
+    assert " fell " in out and "fell: runs in which the robot fell" in out
