@@ -169,7 +169,7 @@ def _train_losses(base, names, out, resume, data, quiet, experiment, progress_fn
         )
         frames.append(result.metrics)
         notes += _notes(name, result)
-        _write_outputs(out, frames, result, base, experiment.task, notes)
+        _write_outputs(out, frames, result, base, experiment.task, notes, names)
     return frames, result, notes
 
 
@@ -463,15 +463,18 @@ def _notes(loss: str, result) -> list[str]:
     return lines
 
 
-def _write_outputs(out, frames, result, base, task, notes=()) -> None:
+def _write_outputs(out, frames, result, base, task, notes=(), names=None) -> None:
     """Write the combined files after every loss, so finished losses are never lost; each
-    is written whole and renamed into place (cfm_jax._files)."""
+    is written whole and renamed into place (cfm_jax._files). The top-level config.json
+    is the run's shared config with ``"loss"`` the run's losses (``names``, comma-separated:
+    ``cfm-jax train --config`` takes it), each loss's own in OUT/<loss>/config.json."""
     metrics = _concat(frames)
     _write_metrics(out, frames)
     baselines = result.baselines
     write_atomic(os.path.join(out, "baselines.csv"), lambda tmp: baselines.to_csv(tmp, index=False))
-    # per-loss configs: OUT/<loss>/config.json
-    write_text(os.path.join(out, "config.json"), json.dumps(report.config_record(base), indent=2))
+    record = report.config_record(base)  # per-loss configs: OUT/<loss>/config.json
+    record["loss"] = ",".join(names or [base.loss])
+    write_text(os.path.join(out, "config.json"), json.dumps(record, indent=2))
     table = report.summary(metrics, result.baselines, result.rms_reach)
     text = report.protocol(base) + "\n\n" + report.markdown(table)
     if metrics["loss"].nunique() > 1:  # the joint loss (else the first) against the others
@@ -680,15 +683,24 @@ def _flags_class(command: str, base: config_lib.Config, extra: list):
     return flags
 
 
-def _prescan(argv: list[str]) -> config_lib.Config:
+def _prescan(argv: list[str], losses: list | None = None) -> config_lib.Config:
     """The base config of a command line: the --config file, else the defaults of its
-    --task (cfm_jax.config.for_task) with the CLI's 4 iterations."""
+    --task (cfm_jax.config.for_task) with the CLI's 4 iterations. A file of a several-loss
+    run (``"loss": "joint,task"``, the top-level config.json) gives its first loss, and its
+    list is appended to ``losses`` (the default of --loss)."""
     parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     parser.add_argument("--config")
     parser.add_argument("--task", "--task.name", dest="task")
     known, _ = parser.parse_known_args(argv)
     if known.config is not None:
-        return config_lib.from_dict(_read_config(known.config))
+        data = _read_config(known.config)
+        loss = data.get("loss") if isinstance(data, dict) else None
+        if isinstance(loss, str) and "," in loss:
+            names = _losses(loss)
+            data = {**data, "loss": names[0]}
+            if losses is not None:
+                losses.append(",".join(names))
+        return config_lib.from_dict(data)
     task = known.task or "inverse_dynamics"
     if task not in config_lib.TASKS:
         config_lib._fail("task.name", task, f"one of {config_lib.TASKS}")
@@ -719,11 +731,13 @@ _QUIET_HELP = "no progress output."
 
 
 def _train_command(argv: list[str]) -> None:
-    base = _prescan(argv)
+    listed: list[str] = []  # the losses of a --config file of a several-loss run
+    base = _prescan(argv, listed)
     extra = [
         ("loss", Annotated[str, tyro_arg(metavar="NAMES", help="a controller loss (joint, "
          "task, distal, supervised, distal_literal), a comma-separated list of them, or all "
-         "(the paper's four).")], "all"),
+         "(the paper's four); default: all, or the losses a --config file lists.")],
+         listed[0] if listed else "all"),
         ("out", Annotated[str, tyro_arg(metavar="DIR", help=_OUT_HELP)], "results/train"),
         ("resume", Annotated[bool, tyro_arg(help="continue an interrupted run in --out (same "
          "flags and config): every loss resumes from its newest valid checkpoint in "
@@ -748,11 +762,13 @@ def _train_command(argv: list[str]) -> None:
 
 
 def _sweep_command(argv: list[str]) -> None:
-    base = _prescan(argv)
+    listed: list[str] = []  # the losses of a --config file of a several-loss run
+    base = _prescan(argv, listed)
     extra = [
         ("losses", Annotated[str, tyro_arg(metavar="NAMES", help="all (the paper's four: "
          "joint, task, distal, supervised), or a comma-separated list of controller losses "
-         "(those and distal_literal).")], "all"),
+         "(those and distal_literal); default: all, or the losses a --config file lists.")],
+         listed[0] if listed else "all"),
         ("out", Annotated[str, tyro_arg(metavar="DIR", help=_OUT_HELP)], "results/sweep"),
         ("override", Annotated[tuple[tuple[str, ...], ...], tyro.conf.UseAppendAction,
          tyro_arg(metavar="PATH=VALUES [...]", help=

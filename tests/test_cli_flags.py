@@ -195,3 +195,22 @@ def test_every_override_is_an_axis_of_the_grid(argv, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["cfm-jax", "sweep", "--robot", "two_link_arm", *argv])
     cli.main()
     assert seen["override"] == ("task.kp=50,100", "task.kd=1,2")
+
+
+def test_a_several_loss_config_file_gives_its_losses(tmp_path, monkeypatch):
+    # The top-level config.json of a several-loss run lists its losses; --config FILE
+    # then trains those losses (unless --loss says otherwise), and Python's from_dict
+    # refuses it with a message that says where each loss's own config is.
+    data = config_lib.to_dict(cli_default())
+    data["loss"] = "task,supervised"
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps(data))
+    seen = {}
+    monkeypatch.setattr(cli, "_run_train", lambda base, names, *rest: seen.update(
+        base=base, names=names))  # fmt: skip
+    for extra, names in (([], ["task", "supervised"]), (["--loss", "joint"], ["joint"])):
+        monkeypatch.setattr(sys, "argv", ["cfm-jax", "train", "--config", str(path), *extra])
+        cli.main()
+        assert seen["names"] == names and seen["base"].loss == names[0]
+    with pytest.raises(config_lib.ConfigError, match="OUT/<loss>/config.json"):
+        config_lib.from_dict(data)

@@ -229,6 +229,7 @@ def test_cli_train_end_to_end(tmp_path):
     assert len(metrics) == 2 * 1 * 2 * TARGETS  # losses x seeds x (iterations + 1) x targets
     saved = json.loads((out / "config.json").read_text())
     assert saved["loop"]["iterations"] == 1 and saved["loop"]["seeds"] == 1
+    assert saved["loss"] == "joint,supervised"  # the run's losses (it said "joint")
     assert (out / "learning_curves.png").stat().st_size > 10_000
     assert "supervised" in (out / "summary.md").read_text()
     assert "pd_only" in done.stdout and "oracle" in done.stdout  # the printed table
