@@ -38,6 +38,12 @@ def has_steps(run_dir: str) -> bool:
     iteration). A run killed before its first checkpoint leaves the folder empty, which
     counts as none.
 
+    Args:
+      run_dir: a run's output folder (``out_dir``, or ``OUT/<loss>`` of the CLI).
+
+    Returns:
+      True if it holds at least one checkpoint step.
+
     Examples:
       >>> import tempfile
       >>> run = tempfile.mkdtemp()

@@ -835,10 +835,10 @@ def robot_check(
     Examples:
       cfm-jax robot check path/to/ur5e.xml --robot-actuators torque
     """
-    from cfm_jax import robots
+    from cfm_jax import robot_check as checker
 
     config_lib.Config(robot_actuators=robot_actuators, robot_torque_limit=robot_torque_limit)
-    found = robots.check(file, robot_actuators, robot_torque_limit)
+    found = checker.check(file, robot_actuators, robot_torque_limit)
     print(found.text)
     if not found.ok:
         raise SystemExit(1)

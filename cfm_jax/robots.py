@@ -317,10 +317,23 @@ def _lightest(inverses: np.ndarray, dofs) -> np.ndarray:
     return (1.0 / np.diagonal(inverses, axis1=1, axis2=2)[:, np.asarray(dofs)]).min(axis=0)
 
 
-def _servo_kind(model, a) -> str | None:
+def servo_kind(model, a) -> str | None:
     """None for a torque motor; else what actuator ``a`` is: ``position``, ``velocity``,
     ``intvelocity`` or ``general`` (a servo :func:`convert` replaces) or ``other`` (a
-    muscle or user actuator, which it does not)."""
+    muscle or user actuator, which it does not).
+
+    Args:
+      model: a ``mujoco.MjModel``.
+      a: the actuator's index.
+
+    Returns:
+      None or the kind, a str.
+
+    Examples:
+      >>> arm = load("two_link_arm")
+      >>> servo_kind(arm.mj_model, 0) is None
+      True
+    """
     dyn = int(model.actuator_dyntype[a])
     gain = int(model.actuator_gaintype[a])
     bias = int(model.actuator_biastype[a])
@@ -348,7 +361,20 @@ def _servo_kind(model, a) -> str | None:
     return "general"
 
 
-def _joint_name(model, j) -> str:
+def joint_name(model, j) -> str:
+    """The name of joint ``j`` of a ``mujoco.MjModel`` (``joint<j>`` for an unnamed one).
+
+    Args:
+      model: a ``mujoco.MjModel``.
+      j: the joint's index.
+
+    Returns:
+      The name.
+
+    Examples:
+      >>> joint_name(load("two_link_arm").mj_model, 1)
+      'elbow'
+    """
     return mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}"
 
 
@@ -446,20 +472,20 @@ def servo_limits(model, torque_limit=None, where: str = "robot", keep=()):
         raise RobotError(
             f"{where}: robot_torque_limit={tuple(torque_limit)!r} has {len(torque_limit)} "
             f"values; give one for all joints or one per joint ({len(joints)}: "
-            f"{[_joint_name(model, j) for j in joints]})"
+            f"{[joint_name(model, j) for j in joints]})"
         )
     found, missing = {}, []
     for a in range(model.nu):
         if int(model.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT) or a in keep:
             continue  # reported by load(), or held as published
-        kind = _servo_kind(model, a)
+        kind = servo_kind(model, a)
         if kind is None:
             continue
         j = int(model.actuator_trnid[a, 0])
         if kind == "other":
             aname = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"#{a}"
             raise RobotError(
-                f"{where}: actuator {aname!r} on joint {_joint_name(model, j)!r} is a muscle or "
+                f"{where}: actuator {aname!r} on joint {joint_name(model, j)!r} is a muscle or "
                 "user actuator (gain or bias type other than fixed/affine); only motors and "
                 "servos can be taken as torque motors"
             )
@@ -472,7 +498,7 @@ def servo_limits(model, torque_limit=None, where: str = "robot", keep=()):
             value = torque_limit[0] if len(torque_limit) == 1 else torque_limit[position[j]]
             found[a] = (kind, float(value), "robot_torque_limit")
         else:
-            missing.append(_joint_name(model, j))
+            missing.append(joint_name(model, j))
     if missing:
         raise RobotError(
             f"{where}: the servos of joints {missing} have no torque limit; give one as the "
@@ -552,9 +578,23 @@ def convert(path: str, model, torque_limit=None, where: str = "robot", keep=()):
         raise RobotError(f"{where}: the converted model does not compile: {error}") from error
 
 
-def _compile(path: str):
+def compile_file(path: str):
     """``mujoco.MjModel`` of the file; a keyframe whose ``ctrl`` or ``act`` does not fit the
-    actuators (written for servos since removed) has them dropped instead of failing."""
+    actuators (written for servos since removed) has them dropped instead of failing.
+
+    Args:
+      path: an MJCF file.
+
+    Returns:
+      The ``mujoco.MjModel``.
+
+    Raises:
+      ValueError: MuJoCo's, when the file does not compile for another reason.
+
+    Examples:
+      >>> compile_file(resolve("two_link_arm")).nq
+      2
+    """
     try:
         return mujoco.MjModel.from_xml_path(path)
     except ValueError as error:
@@ -588,10 +628,10 @@ def conversion(name_or_path: str, torque_limit=None) -> list[dict]:
       []
     """
     path = resolve(name_or_path)
-    model = _compile(path)
+    model = compile_file(path)
     servos = servo_limits(model, torque_limit, f"robot={name_or_path!r} ({path})")
     return [
-        {"joint": _joint_name(model, int(model.actuator_trnid[a, 0])), "servo": kind,
+        {"joint": joint_name(model, int(model.actuator_trnid[a, 0])), "servo": kind,
          "torque_limit": float(limit), "source": source}
         for a, (kind, limit, source) in servos.items()
     ]  # fmt: skip
@@ -640,7 +680,7 @@ def fresh_model(robot: Robot) -> mujoco.MjModel:
       >>> fresh_model(arm).nu == arm.mj_model.nu
       True
     """
-    model = _compile(robot.path)
+    model = compile_file(robot.path)
     if robot.actuators == "torque":
         model, _ = convert(robot.path, model, tuple(robot.torque_limit.tolist()), robot.name)
     return model
@@ -681,7 +721,7 @@ def load(
         raise RobotError(f"actuators={actuators!r} is not allowed: one of {ACTUATORS}")
     path = resolve(name_or_path)
     try:
-        model = _compile(path)
+        model = compile_file(path)
     except Exception as error:  # mujoco raises ValueError with the parser's message
         raise RobotError(
             f"robot={name_or_path!r}: MJCF file {path} does not parse: {error}"
@@ -834,51 +874,6 @@ def load(
 
 
 @dataclasses.dataclass(frozen=True)
-class Check:
-    """What :func:`check` found in an MJCF file.
-
-    Attributes:
-      text: the report, one screen of plain text (what ``cfm-jax robot check`` prints).
-      tasks: ``{task: None or the reason it cannot run}`` for ``inverse_dynamics``,
-        ``opspace``, ``walk`` and ``jump``.
-      robot: the :class:`Robot` as the library loads it with the given options, or None.
-
-    Examples:
-      >>> found = check("iiwa14")
-      >>> found.ok, found.tasks["opspace"], found.robot.action_dim
-      (True, None, 7)
-    """
-
-    text: str
-    tasks: dict
-    robot: Robot | None
-
-    @property
-    def ok(self) -> bool:
-        """Whether at least the ``inverse_dynamics`` task can run."""
-        return self.tasks["inverse_dynamics"] is None
-
-
-_LEGGED_CONVERTED = (
-    "the legged tasks simulate their references from the MJCF file itself, so its servos "
-    "must be motors in the file (robot_actuators='torque' converts only the loaded model)"
-)
-
-
-def _limit_text(model, a) -> str:
-    gear = abs(float(model.actuator_gear[a, 0]))
-    limits = []
-    if model.actuator_ctrllimited[a]:
-        limits.append((np.max(np.abs(model.actuator_ctrlrange[a])) * gear, "ctrlrange"))
-    if model.actuator_forcelimited[a]:
-        limits.append((np.max(np.abs(model.actuator_forcerange[a])), "forcerange"))
-    if not limits:
-        return "no torque limit"
-    value, source = min(limits)
-    return f"torque limit {value:g} ({source})"
-
-
-@dataclasses.dataclass(frozen=True)
 class Dynamics:
     """What the actuated joints of a fixed-base robot can do at its start pose.
 
@@ -961,214 +956,3 @@ def dynamics(
         pd_number=float(kd * control_dt * np.max(np.abs(np.linalg.eigvals(coupling)))),
         babbling_pd_number=float(kd * control_dt * babbling_number),
     )
-
-
-def _dynamics_lines(robot: Robot) -> list[str]:
-    """``cfm-jax robot check``'s lines on :func:`dynamics` at the defaults, with warnings."""
-    from cfm_jax import config as config_lib
-
-    task, loop = config_lib.TaskConfig(), config_lib.LoopConfig()
-    dt = task.control_dt if task.control_dt is not None else robot.timestep
-    d = dynamics(robot, loop.babbling_noise, task.kd, dt, loop.torque_scale)
-    lines = [
-        f"dynamics at the start pose (defaults: loop.babbling_noise {loop.babbling_noise:g} "
-        f"of the torque scale, loop.torque_scale {loop.torque_scale}, task.kd {task.kd:g} "
-        f"1/s, control period {dt:g} s):"
-    ]
-    for j, name in enumerate(d.joints):
-        lines.append(
-            f"  {name}: effective inertia {d.effective_inertia[j]:.3g}, torque limit gives "
-            f"{d.limit_acceleration[j]:.3g} rad/s^2, babbling noise {d.noise_acceleration[j]:.3g}"
-            " rad/s^2 (std)"
-        )
-    lines.append(
-        "  PD-only baseline's feedback number kd * dt * lambda_max(diag(M) M^-1) = "
-        f"{d.pd_number:.2f}; the babbling's, largest over its poses = {d.babbling_pd_number:.2f}"
-    )
-    if d.pd_number >= 2:
-        lines.append(
-            "  ! the PD-only baseline's feedback is unstable at this control period: its "
-            "torque gains are kd * diag M(home), and the joints' coupling through M^-1 "
-            f"multiplies them (number {d.pd_number:.2f} >= 2). The baseline is what it is; "
-            "lower task.kd or task.control_dt for a stable one."
-        )
-    if d.babbling_pd_number >= 2:
-        lines.append(
-            "  ! the babbling's feedback is unstable at some of the poses it visits (number "
-            f"{d.babbling_pd_number:.2f} >= 2): the initial data will oscillate. Lower "
-            "task.kd or task.control_dt."
-        )
-    worst = int(np.argmax(d.noise_acceleration * dt))
-    kick = float(d.noise_acceleration[worst] * dt)
-    if kick > 1.0:
-        lines.append(
-            f"  ! babbling noise changes {d.joints[worst]}'s velocity by about {kick:.3g} "
-            f"rad/s per control period ({d.noise_acceleration[worst]:.3g} rad/s^2): the "
-            "initial data will be dominated by noise that no tracking motion asks for. Lower "
-            "loop.babbling_noise."
-        )
-    return lines
-
-
-def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Check:
-    """Load a file as the library would and say what it found and which tasks can run.
-
-    Lists the joints with their ranges, each actuator's kind and torque limit with its
-    source, whether the base floats, the sites, the keyframes, and for ``inverse_dynamics``,
-    ``opspace``, ``walk`` and ``jump`` whether the robot can run it and if not why.
-
-    Args:
-      name_or_path: registered name or MJCF path.
-      actuators: ``Config.robot_actuators`` (one of :data:`ACTUATORS`).
-      torque_limit: ``Config.robot_torque_limit``.
-
-    Returns:
-      A :class:`Check` (its ``text`` is the report, ``ok`` whether inverse dynamics can run).
-
-    Raises:
-      RobotError: the file does not exist or does not parse.
-
-    Examples:
-      >>> found = check("two_link_arm")
-      >>> found.ok, found.tasks["opspace"] is None
-      (True, False)
-      >>> print(found.text.splitlines()[2])
-        shoulder: hinge, range [-2.5, 2.5]
-    """
-    from cfm_jax import opspace, solo12
-    from cfm_jax.config import ConfigError
-    from cfm_jax.tasks import inverse_dynamics
-
-    path = resolve(name_or_path)
-    try:
-        raw = _compile(path)
-    except Exception as error:
-        raise RobotError(
-            f"robot={name_or_path!r}: MJCF file {path} does not parse: {error}"
-        ) from error
-    where = f"robot={name_or_path!r} ({path})"
-    lines = [f"robot {name_or_path} ({path})", f"joints ({raw.njnt}):"]
-    for j in range(raw.njnt):
-        kind = mujoco.mjtJoint(int(raw.jnt_type[j])).name[len("mjJNT_") :].lower()
-        limited = bool(raw.jnt_limited[j])
-        rng = f"range [{raw.jnt_range[j, 0]:g}, {raw.jnt_range[j, 1]:g}]" if limited else "no range"
-        lines.append(f"  {_joint_name(raw, j)}: {kind}, {rng}")
-    held, keep = held_joints(raw)
-    try:
-        servos = servo_limits(raw, torque_limit, where, keep)
-        servo_error = None
-    except RobotError as error:
-        servos, servo_error = {}, str(error)
-    lines.append(f"actuators ({raw.nu}):")
-    for a in range(raw.nu):
-        aname = mujoco.mj_id2name(raw, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"#{a}"
-        if a in keep:
-            lines.append(f"  {aname}: moves only held joints; kept as published, held")
-            continue
-        if int(raw.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
-            trn = mujoco.mjtTrn(int(raw.actuator_trntype[a])).name[len("mjTRN_") :].lower()
-            lines.append(f"  {aname}: {trn} transmission (not usable: no joint of its own)")
-            continue
-        joint = _joint_name(raw, int(raw.actuator_trnid[a, 0]))
-        kind = _servo_kind(raw, a)
-        if kind is None:
-            lines.append(f"  {aname}: motor on {joint}, {_limit_text(raw, a)}")
-        elif a in servos:
-            _, limit, source = servos[a]
-            lines.append(
-                f"  {aname}: {kind} servo on {joint}; as a torque motor: torque limit "
-                f"{limit:g} ({source})"
-            )
-        else:
-            lines.append(f"  {aname}: {kind} servo on {joint}; no torque limit found")
-    if servo_error:
-        lines.append(f"  ! {servo_error}")
-    free = raw.njnt > 0 and int(raw.jnt_type[0]) == int(mujoco.mjtJoint.mjJNT_FREE)
-    lines.append(f"floating base: {'yes' if free else 'no'}")
-    sites = [
-        mujoco.mj_id2name(raw, mujoco.mjtObj.mjOBJ_SITE, i) or f"#{i}" for i in range(raw.nsite)
-    ]
-    lines.append(f"sites: {', '.join(sites) if sites else 'none'}")
-    keys = [mujoco.mj_id2name(raw, mujoco.mjtObj.mjOBJ_KEY, i) or f"#{i}" for i in range(raw.nkey)]
-    home = "home" in keys
-    lines.append(
-        f"keyframes: {', '.join(keys) if keys else 'none'} "
-        f"(start pose: {'keyframe home' if home else 'qpos0'})"
-    )
-    tasks: dict = {}
-    robot = None
-    try:
-        robot = load(name_or_path, actuators=actuators, torque_limit=torque_limit)
-        lines.append(f"loads with robot_actuators={actuators!r}: yes")
-        if robot.held_joints:
-            lines.append(
-                f"held joints: {', '.join(robot.held_joints)} (coupled by an equality "
-                "constraint: not trained; simulated as published, their own actuators hold "
-                "the home keyframe's ctrl)"
-            )
-        if robot.passive_joints:
-            lines.append(
-                f"  ! passive joints: {', '.join(robot.passive_joints)} (no actuator, no "
-                "coupling: not trained, left to swing as published); if they should be "
-                "driven, give each a <motor>"
-            )
-    except RobotError as error:
-        reason = str(error).replace(where + ": ", "").replace(where + " ", "")
-        if actuators == "strict" and servos and servo_error is None:
-            reason += " -- with robot_actuators='torque' it loads"
-        lines.append(f"loads with robot_actuators={actuators!r}: no: {reason}")
-        tasks = dict.fromkeys(("inverse_dynamics", "opspace", "walk", "jump"), reason)
-        lines.append("tasks: none (the file does not load, see above)")
-        return Check("\n".join(lines), tasks, None)
-    if robot is not None:
-
-        def attempt(name, test):
-            try:
-                test()
-                tasks[name] = None
-            except ConfigError as error:
-                tasks[name] = str(error)
-
-        attempt(
-            "inverse_dynamics",
-            lambda: inverse_dynamics.require_fixed_base(robot, "inverse_dynamics"),
-        )
-        attempt(
-            "opspace",
-            lambda: (
-                inverse_dynamics.require_fixed_base(robot, "opspace", every_joint=True),
-                opspace.ee_site(robot),
-            ),
-        )
-
-        def legged():
-            if not robot.floating_base:
-                raise ConfigError(
-                    "the legged tasks need a floating base (a free joint at the root)"
-                )
-            solo12.check_model(robot.mj_model, robot.name)
-            if robot.converted:
-                raise ConfigError(_LEGGED_CONVERTED)
-
-        attempt("walk", legged)
-        tasks["jump"] = tasks["walk"]
-        if tasks["opspace"] is None:
-            site = opspace.site_names(robot)[opspace.ee_site(robot)]
-            tasks_site = f" (site {site!r})"
-        else:
-            tasks_site = ""
-    if robot is not None:
-        mjx_error = robot.mjx_error
-        lines.append(
-            "MJX builds it: yes"
-            if mjx_error is None
-            else "MJX builds it: no (the native simulator runs it): "
-            + mjx_error.replace(f"robot={robot.name!r}: ", "")
-        )
-        if not robot.floating_base:
-            lines += _dynamics_lines(robot)
-    lines.append("tasks:")
-    for name, reason in tasks.items():
-        extra = tasks_site if name == "opspace" and robot is not None else ""
-        lines.append(f"  {name}: " + ("yes" + extra if reason is None else f"no: {reason}"))
-    return Check("\n".join(lines), tasks, robot)

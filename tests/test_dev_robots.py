@@ -24,7 +24,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import algorithm, babbling, robots, tasks
+from cfm_jax import algorithm, babbling, robot_check, robots, tasks
 from cfm_jax import config as config_lib
 from cfm_jax.experiment import Experiment
 
@@ -164,7 +164,7 @@ def test_dynamics_of_a_pendulum_in_closed_form(tmp_path):
 
 
 def test_robot_check_warns_where_the_numbers_say_so(tmp_path):
-    coupled = robots.check(str(DEV / "m1013.xml"), actuators="torque").text
+    coupled = robot_check.check(str(DEV / "m1013.xml"), actuators="torque").text
     assert "PD-only baseline's feedback is unstable" in coupled
     assert "babbling's feedback is unstable" not in coupled
     # A pendulum whose only limit gives it 1e5 rad/s^2: noise 0.1 of it, 100 rad/s a period.
@@ -175,9 +175,9 @@ def test_robot_check_warns_where_the_numbers_say_so(tmp_path):
         <inertial pos="0.5 0 0" mass="0.4" diaginertia="1e-9 1e-9 1e-9"/></body></worldbody>
         <actuator><motor joint="j" ctrlrange="-1e4 1e4"/></actuator></mujoco>"""
     )
-    strong = robots.check(str(path)).text
+    strong = robot_check.check(str(path)).text
     assert "babbling noise changes j's velocity by about 100 rad/s" in strong
-    shipped = robots.check("iiwa14").text
+    shipped = robot_check.check("iiwa14").text
     assert "dynamics at the start pose" in shipped and "!" not in shipped.split("dynamics")[1]
 
 
@@ -271,7 +271,7 @@ def test_a_model_mjx_cannot_build_runs_native_and_names_the_pair_on_mjx():
     path = str(HERE / "cylinder_box_arm.xml")
     robot = robots.load(path)  # loads: the native simulator runs it
     assert "CYLINDER" in robot.mjx_error and "BOX" in robot.mjx_error
-    found = robots.check(path)
+    found = robot_check.check(path)
     assert "MJX builds it: no (the native simulator runs it)" in found.text
     short = config_lib.TaskConfig(duration=0.1)
     table = Experiment(config_lib.Config(robot=path, task=short)).baselines()

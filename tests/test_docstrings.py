@@ -45,6 +45,7 @@ DOCTEST_MODULES = (
     "report",
     "rigid_body",
     "robots",
+    "robot_check",
     "rollout",
     "solo12",
     "sweeps",

@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import robots, tasks
+from cfm_jax import robot_check, robots, tasks
 from cfm_jax.config import ConfigError, TaskConfig
 from cfm_jax.robots import RobotError
 
@@ -293,7 +293,7 @@ def test_joint_without_motor_is_passive_and_named(tmp_path):
     robot = robots.load(path)
     assert robot.passive_joints == ("j2",) and robot.action_dim == 1
     assert robot.actuated_dofs.tolist() == [0]
-    text = robots.check(path).text
+    text = robot_check.check(path).text
     assert "! passive joints: j2" in text
 
 

@@ -26,6 +26,13 @@ def _quat_error(target, quat):
     return v * (2.0 * jnp.arctan2(norm, w) / norm)
 
 
+# Why a robot whose servos were converted at load time cannot run a legged task.
+CONVERTED_REFUSED = (
+    "the legged tasks simulate their references from the MJCF file itself, so its servos "
+    "must be motors in the file (robot_actuators='torque' converts only the loaded model)"
+)
+
+
 class LeggedTask(JointSpaceTask):
     """Legged locomotion (``walk``, ``jump``; paper section IV-B) for a floating-base robot
     with one MuJoCo contact sensor per foot (data ``found force normal tangent``, as in
@@ -111,9 +118,7 @@ class LeggedTask(JointSpaceTask):
                 "their own; the legged tasks need every joint below the base driven"
             )
         if getattr(robot, "converted", ()):
-            from cfm_jax.robots import _LEGGED_CONVERTED
-
-            raise ConfigError(f"robot {robot.name!r} is not allowed: {_LEGGED_CONVERTED}")
+            raise ConfigError(f"robot {robot.name!r} is not allowed: {CONVERTED_REFUSED}")
         if control_dt > self.MAX_CONTROL_DT + 1e-12:
             raise ConfigError(
                 f"task.control_dt={control_dt!r} is not allowed for task {task.name!r}: the "
