@@ -116,6 +116,8 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
     start = time.perf_counter()
     _check_out(out)
     experiment = train_lib.Experiment(base)  # checks robot and config: nothing written yet
+    if data is not None:  # a bad --data is refused before anything is written
+        train_lib._recorded_for(experiment, base, data)
     if not resume:  # a new run would meet the old one's checkpoints after its babbling
         held = [name for name in names if checkpoint.has_steps(os.path.join(out, name))]
         if held:
@@ -125,8 +127,6 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
                 f"it already holds checkpoints of a run (losses {held}); add --resume to "
                 "continue that run, or give another --out",
             )
-    if data is not None:  # a bad --data is refused before anything is written
-        train_lib._recorded_for(experiment, base, data)
     with _removed_if_empty(out), contextlib.ExitStack() as stack:
         os.makedirs(out, exist_ok=True)
         writer = None
