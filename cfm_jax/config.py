@@ -848,19 +848,14 @@ class Config:
                     "file (containing a path separator or ending in .xml)",
                 )
         if self.loss not in CONTROLLER_LOSSES:
-            several = isinstance(self.loss, str) and "," in self.loss
-            _fail(
-                "loss",
-                self.loss,
-                f"one of {CONTROLLER_LOSSES}"
-                + (
+            allowed = f"one of {CONTROLLER_LOSSES}"
+            if isinstance(self.loss, str) and "," in self.loss:
+                allowed += (
                     " (a config holds one loss: the config.json of a several-loss run lists "
                     "them, each loss's own is OUT/<loss>/config.json; cfm-jax train --config "
                     "takes the list)"
-                    if several
-                    else ""
-                ),
-            )
+                )
+            _fail("loss", self.loss, allowed)
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             _fail("seed", self.seed, "an integer >= 0")
         if self.simulator not in SIMULATORS:

@@ -801,18 +801,10 @@ def load(
             limit_source[dof] = ("ctrlrange", "forcerange")[int(np.argmin(limits))]
     if np.any(actuator_of_joint[sorted(unactuated)] >= 0):
         raise RobotError(f"{where}: the floating base (free joint) cannot be actuated")
-    held_dofs = {int(model.jnt_dofadr[j]) for j in held}
-    actuated = np.array(
-        [
-            d
-            for d in range(model.nv)
-            if d not in unactuated | held_dofs and actuator_of_joint[d] >= 0
-        ],
-        dtype=np.int32,
-    )
-    passive = [
-        d for d in range(model.nv) if d not in unactuated | held_dofs and actuator_of_joint[d] < 0
-    ]
+    not_driven = unactuated | {int(model.jnt_dofadr[j]) for j in held}  # base, held joints
+    others = [d for d in range(model.nv) if d not in not_driven]
+    actuated = np.array([d for d in others if actuator_of_joint[d] >= 0], dtype=np.int32)
+    passive = [d for d in others if actuator_of_joint[d] < 0]
     if actuated.size == 0:
         raise RobotError(
             f"{where}: no joint is driven by a torque motor of its own; the controller needs "
