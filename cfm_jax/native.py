@@ -357,7 +357,11 @@ def host_step(stepper: Stepper, qpos, qvel, ctrl, fast: bool = True):
     import jax.numpy as jnp
 
     qpos, qvel, ctrl = (jnp.asarray(x, jnp.float32) for x in (qpos, qvel, ctrl))
-    prim = _primitive() if fast and jax.default_backend() == "cpu" else None
+    global FAST_CALLBACK
+    on_cpu = jax.default_backend() == "cpu"
+    prim = _primitive() if fast and on_cpu else None
+    if not on_cpu and FAST_CALLBACK is None:
+        FAST_CALLBACK = False  # the direct host callback is registered for XLA:CPU only
     if prim is not None:
         return tuple(prim.bind(qpos, qvel, ctrl, stepper=stepper))
     shapes = (

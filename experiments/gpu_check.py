@@ -40,6 +40,7 @@ import glob
 import json
 import os
 import platform
+import re
 import shlex
 import subprocess
 import sys
@@ -72,6 +73,8 @@ QUICK_TESTS = ("tests/test_xla.py", "tests/test_jax_private.py", "tests/test_nat
                "tests/test_rollout.py", "tests/test_imports.py")  # fmt: skip
 # One learning run per simulator (each file asserts that all four losses learn).
 LEARNING_TESTS = ("tests/test_learning.py", "tests/test_learning_mjx.py")
+# No cache folder in the tree; pytest-benchmark (in the GPU image) only warns under xdist.
+PYTEST_FLAGS = ("-q", "-p", "no:cacheprovider", "-p", "no:benchmark")
 
 
 def pins() -> dict[str, str]:
@@ -139,7 +142,23 @@ def _step(cmd: list[str], cap: float, log, cwd: str | None = None) -> dict:
         rc = "timeout"
     log.write(out)
     log.flush()
-    return dict(wall_s=time.perf_counter() - start, rc=rc, tail=out[-2000:])
+    step = dict(wall_s=time.perf_counter() - start, rc=rc, tail=out[-2000:])
+    if summary := pytest_summary(out):
+        step["summary"] = [summary]
+    return step
+
+
+def pytest_summary(out: str) -> str:
+    """pytest's result line in ``out`` ('2 failed, 46 passed, ...'); for a run cut before
+    it, the counts of its progress lines ('progress: 2 passed, 0 failed'); else ''."""
+    lines = out.splitlines()
+    for line in reversed(lines):
+        if re.search(r"\d+ (passed|failed|error)", line) and " in " in line:
+            return line.strip("= ").strip()
+    marks = "".join(m.group(1) for line in lines if (m := re.match(r"^([.FEsxX]+)\s+\[", line)))
+    if not marks:
+        return ""
+    return f"progress: {marks.count('.')} passed, {marks.count('F') + marks.count('E')} failed"
 
 
 def _json_line(text: str, key: str) -> dict | None:
@@ -217,11 +236,10 @@ def run(out: str, budget: float, train_args: str, tests: bool) -> dict:
                                      ("tests (learning)", LEARNING_TESTS, 150)):  # fmt: skip
                 n = str(min(len(files), 4))
                 step = _step(
-                    [py, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", n, *files],
+                    [py, "-m", "pytest", *PYTEST_FLAGS, "-n", n, *files],
                     min(cap, left()),
                     log,
                 )
-                step["summary"] = step["tail"].strip().splitlines()[-1:] or [""]
                 record["steps"][name] = step
         step = _step(
             [py, "-m", "cfm_jax.bench", "--robot", "iiwa14", "--batch", "16", "--no-torch",

@@ -49,3 +49,18 @@ def test_json_line_is_the_last_json_object_with_the_key():
     text = 'noise\n{"a": 1, "iteration_s": 2}\nwarning {not json iteration_s\n{"b": 3}\n'
     assert gpu_check._json_line(text, "iteration_s") == {"a": 1, "iteration_s": 2}
     assert gpu_check._json_line("nothing here", "iteration_s") is None
+
+
+def test_pytest_summary_finds_the_result_line_among_warnings_and_counts_a_cut_run():
+    # As on the H100 (2026-11-27): the result line on stdout, pytest-benchmark's warnings after
+    # it on stderr; the first table showed a warning as the result.
+    done = (
+        "............FF.ssss......   [100%]\n=== FAILURES ===\n"
+        "FAILED tests/test_native.py::test_x\n2 failed, 46 passed, 4 skipped in 49.71s\n"
+        "logger.py:44: PytestBenchmarkWarning: Benchmarks are automatically disabled\n"
+        "  warner(PytestBenchmarkWarning(text))\n"
+    )
+    assert gpu_check.pytest_summary(done) == "2 failed, 46 passed, 4 skipped in 49.71s"
+    cut = "bringing up nodes...\n\n..F.   [ 80%]\n..   [100%]  warner(x)\n"
+    assert gpu_check.pytest_summary(cut) == "progress: 5 passed, 1 failed"
+    assert gpu_check.pytest_summary("no pytest here\n") == ""
