@@ -293,7 +293,8 @@ def _babbling_gains(config: config_lib.Config, values: dict) -> dict:
 
 def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:
     """The torque scale of ``config.loop.torque_scale``: for ``"inertia"``
-    :meth:`cfm_jax.robots.Robot.torque_scale` of ``robot`` (float64), for ``"limit"`` None
+    :meth:`cfm_jax.robots.Robot.torque_scale` of ``robot`` at the task's feedback frequency
+    (:meth:`cfm_jax.config.TaskConfig.feedback_frequency`; float64), for ``"limit"`` None
     (the torque limits scale the torques).
 
     Args:
@@ -311,7 +312,8 @@ def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:
     """
     if config.loop.torque_scale == "limit":
         return None
-    return robot.torque_scale()
+    dt = config.task.control_dt if config.task.control_dt is not None else robot.timestep
+    return robot.torque_scale(config.task.feedback_frequency(dt))
 
 
 # ----- the listing ----------------------------------------------------------------------

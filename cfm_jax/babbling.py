@@ -3,7 +3,8 @@ follows and which controller it is (``Config.loop.babbling``, :data:`STRATEGIES`
 
 Every strategy rolls out ``loop.babbling_rollouts`` times per seed, each rollout as wide as
 one rollout of the task (its ``targets x steps`` transitions), with Gaussian torque noise of
-``loop.babbling_noise`` times each torque limit:
+``loop.babbling_noise`` times each joint's torque scale (``loop.torque_scale``:
+:meth:`cfm_jax.robots.Robot.torque_scale`, or the torque limit):
 
 * ``home`` (the legged tasks' default): the task's PD feedback (its PD-only baseline
   controller) holding the start pose: the arm's start pose (``task.home``, else the MJCF

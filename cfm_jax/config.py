@@ -118,11 +118,14 @@ study their effect."""
 TORQUE_SCALES = ("inertia", "limit")
 """How torques are scaled, for ``Config.loop.torque_scale``
 (:meth:`cfm_jax.robots.Robot.torque_scale`): ``inertia`` (the arm tasks' default) scales
-joint ``j``'s torque by ``S_j = M_jj(home) min_k (tau_max_k / M_kk(home))``, the torque that
-gives it, alone at the start pose, the acceleration that the least of the joints' limits
-gives: the babbling noise is that fraction of ``S``, the forward model takes ``tau / S`` and
-the controller puts out ``tau_max tanh(S u / tau_max)``. ``limit`` (the legged tasks'
-default) scales every torque by its limit ``tau_max`` (noise, inputs, and
+joint ``j``'s torque by ``S_j = F_j + I_j min_k (tau_max_k - F_k) / I_k`` with ``I_j =
+hypot(M_jj(home), D_j / w)`` (``D`` damping, ``F`` dry friction, ``w`` the task's feedback
+frequency, :meth:`TaskConfig.feedback_frequency`): the torque amplitude that gives it,
+alone at the start pose, the acceleration amplitude at ``w`` that the least of the joints'
+limits gives (without damping and friction: ``M_jj(home) min_k (tau_max_k / M_kk(home))``,
+the same acceleration): the babbling noise is that fraction of ``S``, the forward model
+takes ``tau / S`` and the controller puts out ``tau_max tanh(S u / tau_max)``. ``limit`` (the
+legged tasks' default) scales every torque by its limit ``tau_max`` (noise, inputs, and
 ``tau_max tanh(u)``). The two agree on a robot whose joints all reach the same acceleration
 at their limits; on a published arm with light distal links the wrist's limit gives 100x
 the acceleration of the shoulder's, and scaled by its limit the wrist's torques that the
@@ -375,6 +378,27 @@ class TaskConfig:
     # above; "next_velocity": the authors' Solo12 code, the desired next velocity
     # (kp = 0, kd = 1 / control_dt on base and joints; kp, kd must be 0, joint gains None).
     desired: str = "pd"
+
+    def feedback_frequency(self, control_dt: float) -> float:
+        """The angular frequency (rad/s) of the joints' feedback in ``s*``: ``sqrt`` of the
+        joints' ``kp`` (``joint_kp``, else ``kp``); where that is 0, the joints' ``kd`` (the
+        rate of a first-order loop); where both are 0 (pure feed-forward), ``1 /
+        control_dt``. The frequency at which :meth:`cfm_jax.robots.Robot.torque_scale`
+        weighs damping against inertia.
+
+        Examples:
+          >>> TaskConfig().feedback_frequency(0.01)  # kp 100
+          10.0
+          >>> TaskConfig(kp=0.0, kd=0.0).feedback_frequency(0.004)  # pure feed-forward
+          250.0
+        """
+        kp = self.joint_kp if self.joint_kp is not None else self.kp
+        kd = self.joint_kd if self.joint_kd is not None else self.kd
+        if kp > 0:
+            return math.sqrt(kp)
+        if kd > 0:
+            return float(kd)
+        return 1.0 / control_dt
 
     def __post_init__(self):
         if not isinstance(self.name, str) or self.name not in TASKS:
@@ -719,8 +743,9 @@ class LoopConfig:
     # scale (torque_scale).
     babbling_noise: float = 0.1
     # How torques are scaled (babbling noise, forward-model input, controller output); one
-    # of TORQUE_SCALES. "inertia": by each joint's inertia at the start pose (every joint's
-    # scale gives it the same acceleration); "limit": by the torque limits.
+    # of TORQUE_SCALES. "inertia": by each joint's inertia at the start pose, its damping
+    # at the task's feedback frequency and its dry friction (every joint's scale gives it
+    # the same acceleration amplitude); "limit": by the torque limits.
     torque_scale: str = "inertia"
     # Torque gains of the babbling's joint PD feedback; one of BABBLING_GAINS. "lightest":
     # kp, kd times each joint's lightest effective inertia over the babbling's poses;

@@ -66,7 +66,9 @@ def _dynamics_lines(robot: Robot) -> list[str]:
 
     task, loop = config_lib.TaskConfig(), config_lib.LoopConfig()
     dt = task.control_dt if task.control_dt is not None else robot.timestep
-    d = robots.dynamics(robot, loop.babbling_noise, task.kd, dt, loop.torque_scale)
+    d = robots.dynamics(
+        robot, loop.babbling_noise, task.kd, dt, loop.torque_scale, task.feedback_frequency(dt)
+    )
     lines = [
         f"dynamics at the start pose (defaults: loop.babbling_noise {loop.babbling_noise:g} "
         f"of the torque scale, loop.torque_scale {loop.torque_scale}, task.kd {task.kd:g} "

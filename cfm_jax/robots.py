@@ -286,25 +286,51 @@ class Robot:
             mujoco.mj_fullM(model, data, full[i])
         return full
 
-    def torque_scale(self) -> np.ndarray:
+    def torque_scale(self, frequency: float = np.inf) -> np.ndarray:
         """The torque scale of every actuated joint (``Config.loop.torque_scale =
-        "inertia"``), ``(action_dim,)``: ``S_j = M_jj(home) min_k (tau_max_k / M_kk(home))``,
-        the torque that gives joint ``j``, alone at the home pose, the least acceleration
-        that any joint's limit gives it alone (``tau_max_k / M_kk(home)``, the acceleration
-        scales of :mod:`cfm_jax.tasks.scales`). Every joint's scale gives it the same
-        acceleration; the joint whose limit gives the least is scaled by its limit, the
-        others by less.
+        "inertia"``), ``(action_dim,)``: the torque amplitude that, at the angular frequency
+        ``w`` of the task's feedback, gives joint ``j`` (alone, at the home pose) the
+        acceleration amplitude that the weakest joint's limit gives its own:
+
+            S_j = F_j + I_j min_k (tau_max_k - F_k) / I_k,    I_j = |M_jj + D_j / (i w)|
+                                                                 = hypot(M_jj, D_j / w)
+
+        with ``M`` the joint-space inertia at home (armature included), ``D`` the joints'
+        damping and ``F`` their dry friction (``dof_frictionloss``, which a torque must
+        overcome before it moves the joint): ``I_j`` is the joint's impedance per unit
+        acceleration at ``w`` (for ``tau = M qdd + D qd`` and a motion ``e^(iwt)``). Without
+        damping (or at ``w = inf``) and friction ``S_j = M_jj min_k (tau_max_k / M_kk)``:
+        every joint's scale gives it the same acceleration, the acceleration scales of
+        :mod:`cfm_jax.tasks.scales`. The joint whose limit gives the least is scaled by its
+        limit, the others by less. On a joint whose damping outweighs its inertia (a
+        published arm with damping 20 N m s and a wrist inertia of 0.006 kg m^2, at
+        ``w = 10``: ``I = 2.0``) the damping sets the scale; by inertia alone the wrist's
+        babbling noise would be 1e-3 of the torque that moves it.
+
+        Args:
+          frequency: ``w`` in rad/s, for example the task's ``sqrt(kp)``
+            (:func:`cfm_jax.algorithm.torque_scale`); ``inf`` leaves damping out.
 
         Examples:
           >>> arm = load("iiwa14")
-          >>> scale = arm.torque_scale()
+          >>> scale = arm.torque_scale(10.0)
           >>> bool(np.all(scale <= arm.torque_limit)), bool(np.any(scale == arm.torque_limit))
           (True, True)
         """
-        inertia = self.mass_matrix_diagonal(self.home)[np.asarray(self.actuated_dofs)]
+        if not frequency > 0:  # also NaN
+            raise ValueError(
+                f"frequency={frequency!r}: must be a number > 0 (rad/s; inf: no damping)"
+            )
+        dofs = np.asarray(self.actuated_dofs)
+        model = self.mj_model
+        friction = model.dof_frictionloss[dofs].astype(np.float64)
+        inertia = np.hypot(self.mass_matrix_diagonal(self.home)[dofs],
+                           model.dof_damping[dofs] / frequency)  # fmt: skip
         limit = np.asarray(self.torque_limit, np.float64)
-        weakest = int(np.argmin(limit / inertia))
-        scale = inertia * (limit[weakest] / inertia[weakest])
+        # A joint whose friction its limit cannot overcome gets its limit: it cannot move.
+        moving = np.maximum(limit - friction, 0.0)
+        weakest = int(np.argmin(moving / inertia))
+        scale = friction + inertia * (moving[weakest] / inertia[weakest])
         # Exact where the formula gives the limit up to rounding: the weakest joint is
         # scaled by its limit, and a joint that ties with it never by more than its own.
         scale[weakest] = limit[weakest]
@@ -906,6 +932,7 @@ def dynamics(
     kd: float,
     control_dt: float,
     torque_scale: str = "inertia",
+    frequency: float = np.inf,
 ) -> Dynamics:
     """The :class:`Dynamics` of ``robot``'s actuated joints at ``robot.home`` (MuJoCo C).
 
@@ -915,8 +942,11 @@ def dynamics(
         scale).
       kd: ``Config.task.kd`` (1/s).
       control_dt: the control period (s).
-      torque_scale: ``Config.loop.torque_scale``: ``inertia`` (:meth:`Robot.torque_scale`)
-        or ``limit`` (the torque limits).
+      torque_scale: ``Config.loop.torque_scale``: ``inertia`` (:meth:`Robot.torque_scale`
+        at ``frequency``) or ``limit`` (the torque limits).
+      frequency: the task's feedback frequency (rad/s,
+        :meth:`cfm_jax.config.TaskConfig.feedback_frequency`); ``inf`` leaves damping out
+        of the torque scale.
 
     Examples:
       >>> d = dynamics(load("two_link_arm"), babbling_noise=0.1, kd=20.0, control_dt=0.01)
@@ -930,7 +960,7 @@ def dynamics(
     dofs = np.asarray(robot.actuated_dofs)
     inverse = np.linalg.inv(full)[np.ix_(dofs, dofs)]
     limit = np.asarray(robot.torque_limit, np.float64)
-    scale = robot.torque_scale() if torque_scale == "inertia" else limit
+    scale = robot.torque_scale(frequency) if torque_scale == "inertia" else limit
     noise = babbling_noise * scale
     coupling = np.diag(np.diag(full)[dofs]) @ inverse
     joints = tuple(robot.joint_names[int(model.dof_jntid[d])] for d in dofs)

@@ -37,6 +37,25 @@ import pandas as pd
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LOSSES = ("joint", "task", "distal", "supervised")
 REFUSED = "zoo_refused.txt"  # in a robot's output folder: why its last run failed
+CODE = "zoo_code.txt"  # in a robot's output folder: the commit of the code that ran it
+
+
+def code_version(root: str = ROOT) -> str:
+    """The commit of the code in ``root`` (short hash; ``+changes`` where tracked files
+    differ from it), or ``unknown`` outside a git checkout."""
+
+    def git(*args: str) -> str:
+        done = subprocess.run(["git", "-C", root, *args], capture_output=True, text=True)
+        if done.returncode != 0:
+            raise OSError(done.stderr)
+        return done.stdout.strip()
+
+    try:
+        head = git("rev-parse", "--short", "HEAD")
+        dirty = git("status", "--porcelain", "--untracked-files=no")
+    except OSError:
+        return "unknown"
+    return head + ("+changes" if dirty else "")
 
 
 def flags_of(folder: str) -> dict[str, list[str]]:
@@ -94,10 +113,14 @@ def run_robot(path: str, out: str, seeds: int, extra: list[str]) -> dict:
     wall = time.perf_counter() - start
     row = dict(robot=os.path.splitext(os.path.basename(path))[0], error=error)
     timing = os.path.join(out, "zoo_wall_s.txt")
+    code = os.path.join(out, CODE)
     if not done and error is None:
         with open(timing, "w") as f:
             f.write(f"{wall:.0f}\n")
+        with open(code, "w") as f:
+            f.write(code_version() + "\n")
     row["wall_s"] = float(open(timing).read()) if os.path.exists(timing) else float("nan")
+    row["code"] = open(code).read().strip() if os.path.exists(code) else "not recorded"
     if error is None:
         row.update(summarise(out))
     return row
@@ -144,15 +167,16 @@ def table(rows: list[dict], seeds: int, folder: str, note: str = "") -> str:
         "defaults (inverse dynamics, 5 reaching targets, 4 iterations). Cells: final tracking "
         "MSE (rad^2), mean over seeds of each seed's mean over its targets, with its 95% "
         "bootstrap interval; runs whose simulation diverged are left out of the mean and "
-        "counted (`div.`); `below PD` is the number of seeds whose mean is below PD-only's.",
+        "counted (`div.`); `below PD` is the number of seeds whose mean is below PD-only's; "
+        "`code`: the commit that ran the robot (a resumed run: the commit that finished it).",
         *(["", note] if note else []),
         "",
-        "| robot | " + " | ".join(LOSSES) + " | PD-only | oracle | wall (s) |",
-        "|---|" + "---|" * len(LOSSES) + "---:|---:|---:|",
+        "| robot | " + " | ".join(LOSSES) + " | PD-only | oracle | wall (s) | code |",
+        "|---|" + "---|" * len(LOSSES) + "---:|---:|---:|---|",
     ]
     for row in rows:
         if row.get("error"):
-            lines.append(f"| {row['robot']} | {row['error']} " + "| " * (len(LOSSES) + 2) + "|")
+            lines.append(f"| {row['robot']} | {row['error']} " + "| " * (len(LOSSES) + 3) + "|")
             continue
         cells = []
         for loss in LOSSES:
@@ -167,7 +191,7 @@ def table(rows: list[dict], seeds: int, folder: str, note: str = "") -> str:
             cells.append(text)
         lines.append(
             f"| {row['robot']} | " + " | ".join(cells) + f" | {row['pd_only']:.3g} | "
-            f"{row['oracle']:.3g} | {row['wall_s']:.0f} |"
+            f"{row['oracle']:.3g} | {row['wall_s']:.0f} | {row.get('code', 'not recorded')} |"
         )
     return "\n".join(lines) + "\n"
 

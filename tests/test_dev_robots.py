@@ -118,13 +118,13 @@ def _response(robot, torque, qpos=None):
 )
 def test_dynamics_against_mujoco_forward_dynamics(name):
     robot = robots.load(name, actuators="torque")
-    d = robots.dynamics(robot, babbling_noise=0.1, kd=20.0, control_dt=0.01)
+    d = robots.dynamics(robot, babbling_noise=0.1, kd=20.0, control_dt=0.01, frequency=10.0)
     by_limit = robots.dynamics(
         robot, babbling_noise=0.1, kd=20.0, control_dt=0.01, torque_scale="limit"
     )
     n = robot.action_dim
     limit = np.asarray(robot.torque_limit, np.float64)
-    scale = robot.torque_scale()
+    scale = robot.torque_scale(10.0)  # the defaults' feedback: sqrt(kp = 100)
     # Column j of M^-1 times a torque on joint j alone, from mj_forward.
     cols = np.stack([_response(robot, np.eye(n)[j] * limit[j]) for j in range(n)], axis=1)
     # Gaussian noise of std 0.1 * limit on each joint: acceleration std of joint i is the
@@ -161,6 +161,52 @@ def test_dynamics_of_a_pendulum_in_closed_form(tmp_path):
     # One joint: its inertia does not change with the pose, so the babbling's gains are
     # the baseline's and so is the number.
     assert d.babbling_pd_number == pytest.approx(20.0 * 0.01, rel=1e-9)
+
+
+def test_torque_scale_with_damping_and_friction_in_closed_form(tmp_path):
+    # Three separate pendulums (gravity off, no coupling): M_jj = m r^2 + armature. Joint
+    # "damped" has damping 20 and inertia 0.006, as the M1013's wrist; "dry" has dry
+    # friction 0.3 N m, as the PiPER's joints; "free" neither.
+    joints = (  # name, mass, r, armature, damping, frictionloss, limit
+        ("free", 2.0, 0.5, 0.1, 0.0, 0.0, 30.0),
+        ("damped", 0.1, 0.2, 0.002, 20.0, 0.0, 50.0),
+        ("dry", 0.5, 0.3, 0.01, 0.0, 0.3, 4.0),
+    )
+    bodies = "".join(
+        f"""<body><joint name="{n}" type="hinge" axis="0 1 0" armature="{a}" damping="{d}"
+        frictionloss="{f}"/><inertial pos="{r} 0 0" mass="{m}" diaginertia="1e-9 1e-9 1e-9"/>
+        </body>"""
+        for n, m, r, a, d, f, _ in joints
+    )
+    motors = "".join(f'<motor joint="{j[0]}" ctrlrange="-{j[6]} {j[6]}"/>' for j in joints)
+    path = tmp_path / "three.xml"
+    path.write_text(f"""<mujoco><option gravity="0 0 0"/><worldbody>{bodies}</worldbody>
+        <actuator>{motors}</actuator></mujoco>""")
+    arm = robots.load(str(path))
+    w = 10.0  # rad/s, sqrt(kp = 100)
+    # m r^2 + armature + the body's own 1e-9 about the axis.
+    mass = np.array([m * r**2 + a + 1e-9 for _, m, r, a, *_ in joints])
+    damping = np.array([j[4] for j in joints])
+    friction = np.array([j[5] for j in joints])
+    limit = np.array([j[6] for j in joints])
+    # Impedance per unit acceleration of tau = M qdd + D qd for q = e^(iwt): |M - i D / w|.
+    # By hand: free 0.6 kg m^2, limit 30 -> 50 rad/s^2; damped |0.006 - 2i| = 2.000009
+    # -> 25 rad/s^2; dry 0.055, (4 - 0.3) / 0.055 = 67. The damped joint is the weakest.
+    impedance = np.abs(mass - 1j * damping / w)
+    assert impedance[1] == pytest.approx(np.sqrt(0.006**2 + 2.0**2), rel=1e-6)
+    rate = (limit[1] - friction[1]) / impedance[1]
+    want = friction + impedance * rate
+    got = arm.torque_scale(w)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    assert got[1] == 50.0  # the weakest joint: its limit
+    # By inertia alone (w = inf) the damped joint looked the strongest (8333 rad/s^2) and
+    # got a scale of 0.006 * 50 = 0.3 N m: the free joint is the weakest there.
+    alone = arm.torque_scale()
+    assert alone[0] == 30.0 and alone[1] == pytest.approx(0.006 * 50.0, rel=1e-6)
+    # The dry joint's scale includes its friction: 0.3 + 0.055 * rate.
+    assert got[2] == pytest.approx(0.3 + 0.055 * 50.0 / np.sqrt(0.006**2 + 4.0), rel=1e-6)
+    with pytest.raises(ValueError, match="frequency=0.0"):
+        arm.torque_scale(0.0)
 
 
 def test_robot_check_warns_where_the_numbers_say_so(tmp_path):

@@ -103,3 +103,25 @@ def test_a_refusal_and_a_robot_not_yet_run_stay_in_the_table(tmp_path):
     assert "| a | 0.5; below PD 1/1 |" in text
     assert "| c | refused: " in text and "has no actuators" in text
     assert "| d | not run yet |" in text
+
+
+def test_code_version_is_the_commit_and_says_when_tracked_files_changed(tmp_path):
+    import subprocess
+
+    def git(*args):
+        return subprocess.run(["git", "-C", str(tmp_path), *args], check=True,
+                              capture_output=True, text=True).stdout.strip()  # fmt: skip
+
+    assert robot_zoo.code_version(str(tmp_path)) == "unknown"  # not a checkout
+    git("init", "-q")
+    (tmp_path / "a.py").write_text("x = 1\n")
+    git("add", "a.py")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "a")
+    head = git("rev-parse", "--short", "HEAD")
+    assert robot_zoo.code_version(str(tmp_path)) == head
+    (tmp_path / "b.py").write_text("untracked\n")  # untracked files are not the code's
+    assert robot_zoo.code_version(str(tmp_path)) == head
+    (tmp_path / "a.py").write_text("x = 2\n")
+    assert robot_zoo.code_version(str(tmp_path)) == head + "+changes"
+    text = robot_zoo.table([dict(robot="arm", error="refused: no", wall_s=float("nan"))], 1, "t")
+    assert text.rstrip().splitlines()[-1].count("|") == text.splitlines()[-2].count("|")
