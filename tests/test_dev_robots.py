@@ -209,6 +209,26 @@ def test_torque_scale_with_damping_and_friction_in_closed_form(tmp_path):
         arm.torque_scale(0.0)
 
 
+@pytest.mark.parametrize("arm", ARMS + GRIPPERS)
+def test_torque_scale_without_damping_and_friction_is_the_acceleration_scale(arm):
+    # Where no driven joint has damping or friction the feedback frequency changes nothing,
+    # bit for bit: those arms' zoo runs made before the damping term stand. Elsewhere the
+    # scale is by hand from M(home) (MuJoCo C), the damping and the friction.
+    robot = robots.load(str(DEV / f"{arm}.xml"), actuators="torque",
+                        torque_limit=torque_limit(arm))  # fmt: skip
+    dofs = np.asarray(robot.actuated_dofs)
+    damping = robot.mj_model.dof_damping[dofs]
+    friction = robot.mj_model.dof_frictionloss[dofs]
+    got = robot.torque_scale(10.0)
+    if not damping.any() and not friction.any():
+        np.testing.assert_array_equal(got, robot.torque_scale())
+        return
+    limit = np.asarray(robot.torque_limit, np.float64)
+    impedance = np.sqrt(robot.mass_matrix_diagonal(robot.home)[dofs] ** 2 + (damping / 10) ** 2)
+    want = friction + impedance * np.min((limit - friction) / impedance)
+    np.testing.assert_allclose(got, np.minimum(want, limit), rtol=1e-9)
+
+
 def test_robot_check_warns_where_the_numbers_say_so(tmp_path):
     coupled = robot_check.check(str(DEV / "m1013.xml"), actuators="torque").text
     assert "PD-only baseline's feedback is unstable" in coupled
