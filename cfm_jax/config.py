@@ -346,37 +346,17 @@ class TaskConfig:
       (((0.2, -0.3),), 100.0)
     """
 
-    # Task name; one of TASKS.
     name: str = "inverse_dynamics"
-    # Duration of each reaching trajectory in seconds (home pose to target, quintic).
     duration: float = 2.0
-    # Control period in seconds; a multiple of the MJCF timestep (the torque is held for
-    # control_dt / timestep physics steps). None: the MJCF timestep.
     control_dt: float | None = 0.01
-    # Reaching targets, one tuple per target: joint positions (inverse_dynamics) or
-    # end-effector positions (x, y, z) in metres (opspace); None: the robot's 5 default
-    # targets (derived from its joint ranges, see references.py).
     targets: tuple[tuple[float, ...], ...] | None = None
-    # Start pose (joint positions); None: the MJCF keyframe named "home", else qpos0.
     home: tuple[float, ...] | None = None
-    # Proportional gain (1/s^2) of the PD correction in the desired acceleration
-    # qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd). 0 and 0 give pure feed-forward.
     kp: float = 100.0
-    # Derivative gain (1/s) of the same PD correction.
     kd: float = 20.0
-    # Legged tasks: PD gains on the actuated joints (1/s^2, 1/s) in the desired
-    # acceleration, kp/kd then act on the base pose; None: kp and kd. Arm tasks: must be None.
     joint_kp: float | None = None
     joint_kd: float | None = None
-    # opspace: name of the end-effector site of the MJCF; None: the site "ee", else "flange",
-    # else "attachment_site".
     site: str | None = None
-    # Legged tasks: walk durations (s) or jump foot clearances (m) of the references to
-    # follow; None: the 5 test references. Arm tasks: must be None (they take targets).
     motions: tuple[float, ...] | None = None
-    # Legged tasks: how s* is built; one of DESIRED. "pd": the PD correction with the gains
-    # above; "next_velocity": the authors' Solo12 code, the desired next velocity
-    # (kp = 0, kd = 1 / control_dt on base and joints; kp, kd must be 0, joint gains None).
     desired: str = "pd"
 
     def feedback_frequency(self, control_dt: float) -> float:
@@ -530,32 +510,17 @@ class ForwardModelConfig:
       (64, 64)
     """
 
-    # Hidden layer widths (ReLU). Paper: three layers of 400.
     hidden: tuple[int, ...] = (400, 400, 400)
-    # Number of ensemble members. Paper: 3.
     ensemble_size: int = 3
-    # Adam learning rate.
     learning_rate: float = 1e-3
-    # Gradient steps on the whole data set before the first iteration (after babbling).
     initial_steps: int = 1000
-    # Gradient steps per iteration of Algorithm 1.
     steps_per_iteration: int = 200
-    # Minibatch size (sampled uniformly from the data set, per member).
     batch_size: int = 256
-    # Initial soft bounds of the predicted log-variance (normalised units); both bounds are
-    # learned, as in PETS.
     min_log_variance: float = -10.0
     max_log_variance: float = 0.5
-    # How each refit in an iteration starts; one of FIT_STARTS. "warm": parameters and Adam
-    # state carry on (today); "warm_new_optimizer": parameters kept, Adam re-created (the
-    # authors' code); "fresh": parameters re-initialised from a derived key, Adam re-created.
     start: str = "warm"
-    # "mlp" (the PETS ensemble; default) or "rigid_body" (M^-1 (S tau - h) of a nominal
-    # MuJoCo model plus the ensemble as a residual; cfm_jax.rigid_body).
     kind: str = "mlp"
-    # rigid_body: MJCF path or robot name of the nominal model (None: the robot's own).
     nominal: str | None = None
-    # rigid_body: factor on every body mass and inertia of the nominal model.
     nominal_mass_scale: float = 1.0
 
     def __post_init__(self):
@@ -607,7 +572,8 @@ class ControllerConfig:
         initial fit).
       steps_per_iteration: gradient steps per iteration of Algorithm 1.
       batch_size: minibatch size (rows drawn uniformly with replacement per step).
-      goal: the controller's goal input while it is trained, one of
+      goal: the controller's goal input while it is trained (at run time it is always
+        ``s*``), one of
         :data:`CONTROLLER_GOALS`: ``desired`` (default, the paper's eq. 4:
         ``f(s, g(s, s*))``) or ``observed`` (the authors' public Solo12 code: ``g(s, P s_a)``,
         the observed next state in the desired quantity's coordinates; each loss keeps its
@@ -633,28 +599,15 @@ class ControllerConfig:
       200
     """
 
-    # Hidden layer widths (ReLU). Paper: 300, 200, 100.
     hidden: tuple[int, ...] = (300, 200, 100)
-    # Adam learning rate.
     learning_rate: float = 1e-3
-    # Gradient steps before the first iteration (after the forward model's initial fit).
     initial_steps: int = 1000
-    # Gradient steps per iteration of Algorithm 1.
     steps_per_iteration: int = 200
-    # Minibatch size.
     batch_size: int = 256
-    # The goal g is given in training; one of CONTROLLER_GOALS. "desired": g(s, s*) (paper
-    # eq. 4, today); "observed": g(s, P s_a) (the authors' code). Run time: always s*.
     goal: str = "desired"
-    # Form of the controller loss; one of LOSS_FORMS. "norm" (default, the selection run's
-    # choice on the arm): per-sample Euclidean norms of weighted coordinate groups (the
-    # authors' code); "squared": sums of squares (the paper's text).
     loss_form: str = "norm"
-    # Groups ((weight, (output index, ...)), ...) of the "norm" form; None: the task's default.
     loss_weights: tuple | None = None
-    # How each refit in an iteration starts; one of FIT_STARTS (as forward.start).
     start: str = "warm"
-    # True: every step on every filled row (mask-weighted mean); False: minibatches (today).
     full_batch: bool = False
 
     def __post_init__(self):
@@ -728,37 +681,15 @@ class LoopConfig:
       2
     """
 
-    # Iterations of Algorithm 1 (each: roll out g on every target, add data, refit f, g).
     iterations: int = 10
-    # Number of independent runs (seeds 0..seeds-1 offset by Config.seed), a vmap axis.
     seeds: int = 1
-    # Strategy of the initial data; one of BABBLING. "reaching" (the arms' default, chosen
-    # by the selection run): PD tracking of reaches to random poses inside the joint limits;
-    # "home" (the legged tasks' default, for_task): the task's PD feedback holding the start
-    # pose; "reference_pd" / "oracle": PD / the oracle on the test references (studies).
     babbling: str = "reaching"
-    # Motor-babbling rollouts per target, each with Gaussian torque noise.
     babbling_rollouts: int = 2
-    # Standard deviation of the babbling torque noise, as a fraction of each joint's torque
-    # scale (torque_scale).
     babbling_noise: float = 0.1
-    # How torques are scaled (babbling noise, forward-model input, controller output); one
-    # of TORQUE_SCALES. "inertia": by each joint's inertia at the start pose, its damping
-    # at the task's feedback frequency and its dry friction (every joint's scale gives it
-    # the same acceleration amplitude); "limit": by the torque limits.
     torque_scale: str = "inertia"
-    # Torque gains of the babbling's joint PD feedback; one of BABBLING_GAINS. "lightest":
-    # kp, kd times each joint's lightest effective inertia over the babbling's poses;
-    # "baseline": the PD-only baseline's gains (kp, kd times diag M(home)).
     babbling_gains: str = "lightest"
-    # Input and output scaling of both networks; one of NORMALISERS. "babbling": statistics
-    # of the initial data, frozen; "data": statistics of the whole data set before every
-    # refit; "robot": fixed scales from the MJCF and the task (cfm_jax.tasks.scales).
     normaliser: str = "babbling"
-    # Save a checkpoint every this many iterations (and after the initial fit and the last
-    # iteration) when train() has an output directory; 0: no checkpoints.
     checkpoint_every: int = 1
-    # Number of most recent checkpoints kept on disk.
     checkpoint_keep: int = 3
 
     def __post_init__(self):
@@ -786,7 +717,8 @@ class Config:
       robot: a registered robot name (``"iiwa14"``, ``"two_link_arm"``, ``"solo12"``) or a
         path to an MJCF file (see :func:`cfm_jax.robots.load`).
       loss: the controller loss, one of ``CONTROLLER_LOSSES``: ``joint``, ``task``,
-        ``distal``, ``supervised``.
+        ``distal``, ``supervised`` (the paper's four) and ``distal_literal`` (the distal
+        teacher written literally).
       seed: base seed; run ``k`` of ``loop.seeds`` uses ``seed + k``.
       simulator: physics back end of the rollouts, one of :data:`SIMULATORS`: ``native``
         (MuJoCo's C engine through a host callback; exact, fast on CPU) or ``mjx`` (MuJoCo
@@ -814,26 +746,15 @@ class Config:
       cfm_jax.config.ConfigError: loss='l1' is not allowed: one of ('joint', 'task', ...)
     """
 
-    # Robot: a registered name ("iiwa14", "two_link_arm") or a path to a fixed-base MJCF
-    # with one torque motor per joint.
     robot: str = "iiwa14"
-    # Controller loss; one of CONTROLLER_LOSSES: joint, task, distal, supervised
-    # (the paper's four) and distal_literal (the distal teacher written literally).
     loss: str = "joint"
-    # Base seed; run k of loop.seeds uses seed + k.
     seed: int = 0
-    # Physics back end of the rollouts; one of SIMULATORS. "native": MuJoCo C through
-    # jax.pure_callback (fast on CPU, exact MuJoCo); "mjx": MuJoCo MJX in JAX (on device).
     simulator: str = "native"
     task: TaskConfig = dataclasses.field(default_factory=TaskConfig)
     forward: ForwardModelConfig = dataclasses.field(default_factory=ForwardModelConfig)
     controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
     loop: LoopConfig = dataclasses.field(default_factory=LoopConfig)
-    # How the robot's actuators are taken; one of ROBOT_ACTUATORS. "strict": torque motors
-    # only; "torque": each joint servo replaced by a torque motor (cfm_jax.robots.convert).
     robot_actuators: str = "strict"
-    # Torque limits of converted servos whose file has none: None, one number for all
-    # joints, or one per hinge/slide joint (model order).
     robot_torque_limit: tuple[float, ...] | None = None
 
     def __post_init__(self):

@@ -8,6 +8,7 @@ Oracle: the documented rules of each field (comments in config.py), written out 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -317,3 +318,33 @@ def test_motions_are_for_the_legged_tasks_only():
     for bad in ((), (0.0,), (-1.0,), (float("nan"),), ("a",), 3.0):
         with pytest.raises(config.ConfigError, match="task.motions=.*positive numbers"):
             config.TaskConfig(name="jump", motions=bad)
+
+
+@pytest.mark.parametrize(
+    "cls",
+    [
+        config.TaskConfig,
+        config.ForwardModelConfig,
+        config.ControllerConfig,
+        config.LoopConfig,
+        config.Config,
+    ],
+)
+def test_each_field_is_documented_once_where_the_cli_help_comes_from(cls):
+    # The docstring's Attributes section is the one description of a field: the API page
+    # shows it and the CLI builds its --help from it (cli._attribute_help). No second
+    # description (a comment above the field) to drift from it.
+    import inspect
+
+    from cfm_jax import cli
+
+    fields = [f.name for f in dataclasses.fields(cls)]
+    documented = cli._attribute_help(cls)
+    assert list(documented) == fields  # every field, in order, once
+    assert all(len(text) > 10 for text in documented.values())
+    body = inspect.getsource(cls).split('"""')[2]  # after the docstring
+    lines = body.splitlines()
+    for i, line in enumerate(lines):
+        name = line.strip().split(":")[0]
+        if name in fields and i > 0:
+            assert not lines[i - 1].strip().startswith("#"), f"{cls.__name__}.{name}"
