@@ -32,6 +32,7 @@ DOCTEST_MODULES = (
     "bench",
     "config",
     "dataset",
+    "envs",
     "experiment",
     "forward_models",
     "locomotion",

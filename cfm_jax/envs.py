@@ -1,0 +1,212 @@
+"""The library's arm tracking tasks as Gymnasium environments, for the methods researchers
+would otherwise use (SAC, PPO; issue 42's comparison of robot-seconds).
+
+:class:`TrackingEnv` is made from the library's own task object (:func:`cfm_jax.tasks.make`
+through :class:`cfm_jax.experiment.Experiment`), not a second definition of the task: the
+same robot file and servo conversion, references, control period, torque limits, start
+state, physics (MuJoCo C, :class:`cfm_jax.native.Stepper`, as the ``native`` simulator) and
+per-step tracking error. One episode is one reference of the task's duration.
+
+* **Observation**: what the controller ``g`` sees, the learning state ``s_t`` and the
+  desired quantity ``s*_t``, each normalised by the robot's own scales
+  (:func:`cfm_jax.tasks.scales.robot_scales`, the ``robot`` normaliser: from the MJCF and
+  the task, never from data), float32.
+* **Action**: ``a`` in ``[-1, 1]`` per actuated joint, the torque ``a * tau_max``.
+* **Reward**: minus the mean square of the task's tracking error of the next state (for
+  inverse dynamics the mean over the joints of the squared position error, rad^2), so that
+  the mean of ``-reward`` over an episode is the library's tracking MSE of that rollout
+  (:func:`cfm_jax.rollout.tracking_mse`).
+* **Episodes**: ``references="training"`` (default) draws each episode's reference as the
+  ``reaching`` babbling does (a minimum-jerk reach from the start pose to a random pose
+  inside the joint ranges, :mod:`cfm_jax.babbling`), from the environment's seed: it knows
+  nothing of the test references. ``references="test"`` follows the task's test
+  references, one per episode in turn (``reset(options={"target": k})`` picks one), for
+  evaluation only.
+* **End**: truncated after the reference's steps; terminated when the simulation diverges
+  (a state beyond MuJoCo's bounds, as :func:`cfm_jax.rollout.run` flags it), with
+  ``info["diverged"] = True`` and the reward of the last good state.
+
+The legged tasks (falls, contact features) are not wrapped yet.
+
+Needs ``gymnasium`` (``pip install "cfm_jax[peers]"``).
+
+Examples:
+  >>> import numpy as np
+  >>> from cfm_jax import config
+  >>> env = TrackingEnv(config.Config(robot="two_link_arm", task=config.TaskConfig(duration=0.1)))
+  >>> obs, info = env.reset(seed=0)
+  >>> obs.shape, env.action_space.shape
+  ((6,), (2,))
+  >>> obs, reward, terminated, truncated, info = env.step(np.zeros(2, np.float32))
+  >>> bool(reward <= 0), terminated, truncated
+  (True, False, False)
+"""
+
+from __future__ import annotations
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cfm_jax import config as config_lib
+from cfm_jax import native, networks, rollout
+from cfm_jax.tasks import scales
+
+REFERENCES = ("training", "test")
+"""Where :class:`TrackingEnv`'s episodes get their references (see the module)."""
+
+
+class TrackingEnv(gymnasium.Env):
+    """An arm tracking task of the library as a Gymnasium environment (see the module).
+
+    Args:
+      config: a :class:`cfm_jax.config.Config` (its robot, task and servo conversion; the
+        learner's fields are not used). ``simulator`` must be ``native``.
+      references: one of :data:`REFERENCES`.
+      experiment: an :class:`cfm_jax.experiment.Experiment` of ``config`` to take the robot
+        and task from (saves building them again), or None.
+
+    Attributes:
+      task: the library's task object.
+      robot: its :class:`cfm_jax.robots.Robot`.
+      control_dt: the control period (s); an episode is ``task.steps`` of them.
+
+    Raises:
+      ConfigError: a legged task, the ``mjx`` simulator, or an unknown ``references``.
+
+    Examples:
+      >>> from cfm_jax import config
+      >>> env = TrackingEnv(config.Config(robot="two_link_arm"), references="test")
+      >>> env.task.steps, env.control_dt
+      (200, 0.01)
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, config: config_lib.Config, references: str = "training", experiment=None):
+        from cfm_jax.experiment import Experiment
+
+        if references not in REFERENCES:
+            _refuse("references", references, f"one of {REFERENCES}")
+        if config.simulator != "native":
+            _refuse("simulator", config.simulator, "'native' (the environment steps MuJoCo C on "
+                    "the host)")  # fmt: skip
+        if config.task.name not in ("inverse_dynamics", "opspace"):
+            _refuse("task.name", config.task.name, "an arm task ('inverse_dynamics', 'opspace'): "
+                    "the legged tasks are not wrapped yet")  # fmt: skip
+        experiment = experiment or Experiment(config)
+        self.task, self.robot = experiment.task, experiment.robot
+        self.control_dt = self.task.control_dt
+        self.references = references
+        task, robot = self.task, self.robot
+        self._stepper = native.Stepper(robot.mj_model, rollout.substeps(robot, self.control_dt))
+        self._limit = np.asarray(robot.torque_limit, np.float32)
+        normaliser = networks.Normaliser.from_scales(
+            **scales.robot_scales(task),
+            torque_limit=robot.torque_limit,
+            desired_index=task.desired_index,
+        )
+        # The task's own functions, compiled once; the same float32 operations as inside
+        # rollout.run, so the same actions give the same states and errors.
+        self._observe = jax.jit(
+            lambda ref_t, q, qd, f: (task.state(q, qd, f), task.desired(ref_t, q, qd, f))
+        )
+        self._normalise = jax.jit(
+            lambda s, d: jnp.concatenate([normaliser.state(s), normaliser.desired(d)])
+        )
+        self._ctrl = jax.jit(robot.torque_to_ctrl)
+        self._features = jax.jit(task.features)
+        self._error = jax.jit(task.tracking_error)
+        self._start = jax.jit(task.start)
+        self._training = jax.jit(lambda key: task.babbling_reference("reaching", key))
+        size = task.state_dim + task.desired_dim
+        self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (size,), np.float32)
+        self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (task.action_dim,), np.float32)
+        self._next_target = 0
+        self._reference = None
+
+    def _pick(self, seed_target: int | None):
+        """One reference ``(steps + 1, ...)``: a drawn training reach or a test target."""
+        if self.references == "test":
+            k = self._next_target if seed_target is None else int(seed_target)
+            if not 0 <= k < self.task.targets:
+                _refuse("target", k, f"0 to {self.task.targets - 1}")
+            self._next_target = (k + 1) % self.task.targets
+            return jax.tree.map(lambda x: x[k], self.task.reference)
+        key = jax.random.key(int(self.np_random.integers(2**31)))
+        return jax.tree.map(lambda x: x[0], self._training(key))
+
+    def _observation(self):
+        ref_t = jax.tree.map(lambda x: x[self._t], self._reference)
+        state, desired = self._observe(ref_t, self._qpos, self._qvel, self._feat)
+        return np.asarray(self._normalise(state, desired))
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode at the task's start state of a new reference.
+
+        Args:
+          seed: seeds the environment's generator (``gymnasium.Env.reset``); with
+            ``references="test"`` the references start again at the first.
+          options: ``{"target": k}`` with ``references="test"``: follow test reference
+            ``k`` (else the next in turn).
+
+        Returns:
+          ``(observation, info)``; ``info["target"]`` the test reference followed (None for
+          a training reach).
+        """
+        super().reset(seed=seed)
+        if seed is not None:  # a seeded environment starts its test references again
+            self._next_target = 0
+        target = (options or {}).get("target")
+        self._reference = self._pick(target)
+        self._qpos, self._qvel, self._feat = self._start(self._reference)
+        self._t = 0
+        shown = (self._next_target - 1) % self.task.targets
+        info = {"target": shown if self.references == "test" else None}
+        return self._observation(), info
+
+    def step(self, action):
+        """One control period with the torque ``action * tau_max`` held.
+
+        Args:
+          action: ``(action_dim,)`` in ``[-1, 1]`` (clipped).
+
+        Returns:
+          ``(observation, reward, terminated, truncated, info)``; ``info["tracking_error"]``
+          the task's error vector of the next state (float32, as the library's rollout
+          records it), ``info["diverged"]`` whether the simulation diverged at this step.
+        """
+        if self._reference is None:
+            raise RuntimeError("TrackingEnv.step before reset")
+        tau = np.clip(np.asarray(action, np.float32), -1.0, 1.0) * self._limit
+        ctrl = self._ctrl(jnp.asarray(tau))
+        qpos, qvel, sensors = self._stepper(
+            np.asarray(self._qpos, np.float32),
+            np.asarray(self._qvel, np.float32),
+            np.asarray(ctrl, np.float32),
+        )
+        diverged = not (_good(qpos) and _good(qvel))
+        ref_next = jax.tree.map(lambda x: x[self._t + 1], self._reference)
+        if diverged:
+            qpos, qvel = np.asarray(self._qpos), np.asarray(self._qvel)
+            features = self._feat
+        else:
+            features = self._features(qpos, qvel, sensors)
+        error = np.asarray(self._error(ref_next, qpos, qvel, features))
+        reward = -float(np.mean(np.square(error, dtype=np.float64)))
+        self._qpos, self._qvel, self._feat = jnp.asarray(qpos), jnp.asarray(qvel), features
+        self._t += 1
+        truncated = self._t >= self.task.steps and not diverged
+        info = {"tracking_error": error, "diverged": diverged}
+        # After the last step the goal is the reference's last point (index steps).
+        return self._observation(), reward, diverged, truncated, info
+
+
+def _refuse(field: str, value, allowed: str) -> None:
+    raise config_lib.ConfigError(f"{field}={value!r} is not allowed: {allowed}")
+
+
+def _good(x) -> bool:
+    """As :func:`cfm_jax.rollout.run`'s test: finite and within MuJoCo's ``mjMAXVAL``."""
+    return bool(np.all(np.abs(np.asarray(x)) <= rollout.MAXVAL))
