@@ -133,6 +133,9 @@ class Knobs:
         (``loop.torque_scale``: :meth:`cfm_jax.robots.Robot.torque_scale` or the torque
         limit), ``(action_dim,)``.
       babbling: ``loop.babbling`` as its index in :data:`cfm_jax.config.BABBLING` (int32).
+      torque_scale: ``(action_dim,)`` float32, the torque scale of ``loop.torque_scale =
+        "inertia"`` (:func:`torque_scale`: it depends on the task's gains, so it is a value
+        of the config, not of its structure), or None (``"limit"``: the limits).
       task: the task's values, ``values()`` of the task built for ``config.task`` (with
         ``loop.babbling_gains = "baseline"``, the babbling's gains are the baseline's): the
         gains (``task.kp``, ``task.kd``, ... and what the task derives from them) and, for
@@ -153,15 +156,15 @@ class Knobs:
     forward_log_variance_bounds: jax.Array
     babbling_noise_std: jax.Array
     babbling: jax.Array
+    torque_scale: jax.Array | None
     task: dict
 
     @classmethod
     def of(cls, config: config_lib.Config, robot, task) -> Knobs:
         """The knobs of ``config`` on ``robot``, with the values of ``task`` (the task built
         for ``config.task``)."""
-        scale = torque_scale(config, robot)
-        if scale is None:
-            scale = np.asarray(robot.torque_limit, np.float64)
+        own = torque_scale(config, robot)
+        scale = np.asarray(robot.torque_limit, np.float64) if own is None else own
         return cls(
             forward_learning_rate=jnp.asarray(config.forward.learning_rate, jnp.float32),
             controller_learning_rate=jnp.asarray(config.controller.learning_rate, jnp.float32),
@@ -170,6 +173,7 @@ class Knobs:
             ),
             babbling_noise_std=jnp.asarray(config.loop.babbling_noise * scale, jnp.float32),
             babbling=jnp.asarray(config_lib.BABBLING.index(config.loop.babbling), jnp.int32),
+            torque_scale=None if own is None else jnp.asarray(own, jnp.float32),
             task=_babbling_gains(config, task.values()),
         )
 
@@ -190,8 +194,6 @@ class Setup:
         the ensemble :func:`cfm_jax.networks.forward_model` by default).
       controller: the controller (:func:`cfm_jax.networks.controller`).
       capacity: rows of the data set (babbling and every iteration's rollout).
-      torque_scale: ``(action_dim,)`` the torque scale of ``loop.torque_scale = "inertia"``
-        (:meth:`cfm_jax.robots.Robot.torque_scale`), or None (``"limit"``: the limits).
 
     Examples:
       >>> from cfm_jax import config as cfg
@@ -207,7 +209,6 @@ class Setup:
     forward: Any
     controller: Any
     capacity: int
-    torque_scale: np.ndarray | None = None
 
     @classmethod
     def of(cls, config: config_lib.Config) -> Setup:
@@ -268,7 +269,6 @@ class Setup:
             forward,
             controller,
             capacity,
-            torque_scale(config, robot),
         )
         loss_groups(setup)  # validates controller.loss_weights against the task's output
         return setup
@@ -407,7 +407,8 @@ def iteration(
     chunk = with_terms(setup, chunk)
     state = state.replace(data=dataset.add(state.data, chunk, valid))
     if cfg.loop.normaliser == "data":  # statistics of all data, before both refits
-        state = state.replace(normaliser=data_normaliser(setup, state.data))
+        norm = data_normaliser(setup, state.data, state.normaliser.torque_scale)
+        state = state.replace(normaliser=norm)
     state = restart_fits(setup, state, key_fit_fm, key_fit_ctrl, knobs)
     state, forward_loss = _fit_forward(
         setup, state, key_fit_fm, cfg.forward.steps_per_iteration, knobs
@@ -567,17 +568,17 @@ def _start(
             setup.robot.torque_limit,
             weights=valid,
             desired_index=task.desired_index,
-            torque_scale=setup.torque_scale,
+            torque_scale=knobs.torque_scale,
         )
     elif cfg.loop.normaliser == "robot":
         normaliser = networks.Normaliser.from_scales(
             **scales.robot_scales(task),
             torque_limit=setup.robot.torque_limit,
             desired_index=task.desired_index,
-            torque_scale=setup.torque_scale,
+            torque_scale=knobs.torque_scale,
         )
     else:  # "data"
-        normaliser = data_normaliser(setup, data)
+        normaliser = data_normaliser(setup, data, knobs.torque_scale)
     forward_params = setup.forward.init(key_fm, task.state_dim)
     lower, upper = knobs.forward_log_variance_bounds
     forward_params = {
@@ -600,7 +601,7 @@ def _start(
     return state, key_fit_ctrl
 
 
-def data_normaliser(setup: Setup, data: dataset.Dataset) -> networks.Normaliser:
+def data_normaliser(setup: Setup, data: dataset.Dataset, torque_scale=None) -> networks.Normaliser:
     """The ``data`` normaliser (``loop.normaliser = "data"``): the statistics of the filled
     rows of the data set (:func:`cfm_jax.networks.Normaliser.from_data`), recomputed before
     every refit of both models.
@@ -608,13 +609,15 @@ def data_normaliser(setup: Setup, data: dataset.Dataset) -> networks.Normaliser:
     Args:
       setup: the run's :class:`Setup`.
       data: the :class:`cfm_jax.dataset.Dataset`.
+      torque_scale: the run's torque scale (:attr:`Knobs.torque_scale`, kept in the
+        normaliser it replaces), or None (the limits).
 
     Returns:
       A :class:`cfm_jax.networks.Normaliser`.
 
     Examples:
       >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
-      >>> norm = data_normaliser(setup, state.data)  # doctest: +SKIP
+      >>> norm = data_normaliser(setup, state.data, knobs.torque_scale)  # doctest: +SKIP
     """
     filled = jnp.arange(data.capacity) < data.size
     return networks.Normaliser.from_data(
@@ -623,7 +626,7 @@ def data_normaliser(setup: Setup, data: dataset.Dataset) -> networks.Normaliser:
         setup.robot.torque_limit,
         weights=filled,
         desired_index=setup.task.desired_index,
-        torque_scale=setup.torque_scale,
+        torque_scale=torque_scale,
     )
 
 
@@ -879,12 +882,14 @@ def mixed_policy(setup: Setup, **weights) -> rollout_lib.MixedPolicy:
     """
     task = setup.task
     dummy = setup.controller.init(jax.random.key(0), task.state_dim)
+    # A placeholder controller (weight 0 here; a learned one takes its place with its own
+    # normaliser): its normaliser has the run's structure, a torque scale or None.
     norm = networks.Normaliser.identity(
         task.state_dim,
         task.output_dim,
         setup.robot.torque_limit,
         task.desired_index,
-        torque_scale=setup.torque_scale,
+        torque_scale=torque_scale(setup.config, setup.robot),
     )
     return rollout_lib.MixedPolicy.of(dummy, norm, task.action_dim, **weights)
 

@@ -10,6 +10,7 @@ inertia at home is ``sum m d^2 + I_yy + armature`` over the links beyond each jo
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from pathlib import Path
 
@@ -252,3 +253,25 @@ def test_config_of_normaliser_and_desired():
     # task.desired only changes the gains (compiled once); loop.normaliser is structure.
     assert config.structure(changed.replace(loop=walk.loop)) == config.structure(walk)
     assert config.structure(changed) != config.structure(walk)
+
+
+def test_the_torque_scale_is_a_value_of_the_config_that_follows_the_gains():
+    # The torque scale weighs damping at the feedback's frequency sqrt(kp), and task.kp is a
+    # runtime field (a sweep over it compiles once): the scale travels in the knobs, and the
+    # normaliser the loop builds carries the cell's own. Oracle: Robot.torque_scale at
+    # sqrt(kp), from the two-link arm's damping 0.1 and M(home).
+    arm = robots.load("two_link_arm")
+    for kp in (25.0, 100.0):
+        cfg = tiny_config(normaliser="robot").replace(task=config.TaskConfig(duration=0.1, kp=kp))
+        setup = algorithm.Setup.of(cfg)
+        knobs = algorithm.Knobs.of(cfg, setup.robot, setup.task)
+        want = arm.torque_scale(np.sqrt(kp))
+        np.testing.assert_array_equal(knobs.torque_scale, want.astype(np.float32))
+        np.testing.assert_allclose(knobs.babbling_noise_std, 0.1 * want, rtol=1e-6)
+        prepare = functools.partial(algorithm.prepare, setup)
+        state, _ = jax.jit(prepare)(jax.random.key(0), knobs)
+        np.testing.assert_array_equal(state.normaliser.torque_scale, knobs.torque_scale)
+    # The damping (0.1 N m s) makes the scales of the two gains differ.
+    assert not np.array_equal(arm.torque_scale(5.0), arm.torque_scale(10.0))
+    limit = tiny_config(torque_scale="limit")
+    assert algorithm.Knobs.of(limit, arm, algorithm.Setup.of(limit).task).torque_scale is None
