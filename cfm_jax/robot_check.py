@@ -66,19 +66,18 @@ def _dynamics_lines(robot: Robot) -> list[str]:
 
     task, loop = config_lib.TaskConfig(), config_lib.LoopConfig()
     dt = task.control_dt if task.control_dt is not None else robot.timestep
-    d = robots.dynamics(
-        robot, loop.babbling_noise, task.kd, dt, loop.torque_scale, task.feedback_frequency(dt)
-    )
+    frequency = task.feedback_frequency(dt)
+    d = robots.dynamics(robot, loop.babbling_noise, task.kd, dt, loop.torque_scale, frequency)
     lines = [
         f"dynamics at the start pose (defaults: loop.babbling_noise {loop.babbling_noise:g} "
-        f"of the torque scale, loop.torque_scale {loop.torque_scale}, task.kd {task.kd:g} "
-        f"1/s, control period {dt:g} s):"
+        f"of the torque scale, loop.torque_scale {loop.torque_scale} at the feedback's "
+        f"{frequency:g} rad/s, task.kd {task.kd:g} 1/s, control period {dt:g} s):"
     ]
     for j, name in enumerate(d.joints):
         lines.append(
             f"  {name}: effective inertia {d.effective_inertia[j]:.3g}, torque limit gives "
             f"{d.limit_acceleration[j]:.3g} rad/s^2, babbling noise {d.noise_acceleration[j]:.3g}"
-            " rad/s^2 (std)"
+            f" rad/s^2 at rest, {d.noise_velocity[j]:.3g} rad/s per control period (std)"
         )
     lines.append(
         "  PD-only baseline's feedback number kd * dt * lambda_max(diag(M) M^-1) = "
@@ -97,14 +96,15 @@ def _dynamics_lines(robot: Robot) -> list[str]:
             f"{d.babbling_pd_number:.2f} >= 2): the initial data will oscillate. Lower "
             "task.kd or task.control_dt."
         )
-    worst = int(np.argmax(d.noise_acceleration * dt))
-    kick = float(d.noise_acceleration[worst] * dt)
+    worst = int(np.argmax(d.noise_velocity))
+    kick = float(d.noise_velocity[worst])
     if kick > 1.0:
         lines.append(
             f"  ! babbling noise changes {d.joints[worst]}'s velocity by about {kick:.3g} "
-            f"rad/s per control period ({d.noise_acceleration[worst]:.3g} rad/s^2): the "
-            "initial data will be dominated by noise that no tracking motion asks for. Lower "
-            "loop.babbling_noise."
+            f"rad/s per control period ({d.noise_acceleration[worst]:.3g} rad/s^2 at rest): "
+            "the initial data will be dominated by noise that no tracking motion asks for. "
+            "Lowering loop.babbling_noise is not a known cure (on the development set's ARX "
+            "L5 a tenth of it made every loss worse; docs/how-to/own-robot.md)."
         )
     return lines
 

@@ -904,6 +904,10 @@ class Dynamics:
       noise_acceleration: standard deviation of each joint's acceleration under the
         babbling's Gaussian torque noise (``babbling_noise`` of each joint's torque scale),
         ``sqrt(diag(M^-1 diag(noise)^2 M^-1))``.
+      noise_velocity: standard deviation of each joint's velocity change over one control
+        period ``h`` under that noise, from rest, with the joints' damping ``D`` (implicit,
+        as MuJoCo's integrators treat it): ``h sqrt(diag(A diag(noise)^2 A))``, ``A = (M +
+        h D)^-1``; ``h`` times ``noise_acceleration`` without damping.
       pd_number: ``kd * control_dt * lambda_max(diag(M) M^-1)``: the PD-only baseline's
         feedback (torque gains ``kd diag M(home)``) held for one control period is stable
         below 2 (a first-order explicit update of the velocity); coupled light links raise
@@ -922,6 +926,7 @@ class Dynamics:
     effective_inertia: np.ndarray
     limit_acceleration: np.ndarray
     noise_acceleration: np.ndarray
+    noise_velocity: np.ndarray
     pd_number: float
     babbling_pd_number: float
 
@@ -970,11 +975,15 @@ def dynamics(
     inverses = np.linalg.inv(robot.mass_matrices(poses))
     lightest = np.diag(_lightest(inverses, dofs))
     babbling_number = np.abs(np.linalg.eigvals(lightest @ inverses[:, dofs][:, :, dofs])).max()
+    # Over a control period the joints' damping acts as (M + h D)^-1 (MuJoCo's implicit
+    # damping): the velocity a held torque gives in one period.
+    damped = np.linalg.inv(full + control_dt * np.diag(model.dof_damping))[np.ix_(dofs, dofs)]
     return Dynamics(
         joints=joints,
         effective_inertia=1.0 / np.diag(inverse),
         limit_acceleration=np.abs(inverse) @ limit,
         noise_acceleration=np.sqrt(np.diag(inverse @ np.diag(noise**2) @ inverse)),
+        noise_velocity=control_dt * np.sqrt(np.diag(damped @ np.diag(noise**2) @ damped)),
         pd_number=float(kd * control_dt * np.max(np.abs(np.linalg.eigvals(coupling)))),
         babbling_pd_number=float(kd * control_dt * babbling_number),
     )

@@ -229,6 +229,33 @@ def test_torque_scale_without_damping_and_friction_is_the_acceleration_scale(arm
     np.testing.assert_allclose(got, np.minimum(want, limit), rtol=1e-9)
 
 
+def test_noise_velocity_of_a_damped_pendulum_against_one_mujoco_step(tmp_path):
+    # One hinge, M = m r^2 + 1e-9 = 0.006, damping 20, Euler with the control period as
+    # its timestep: MuJoCo's implicit damping gives qvel = tau h / (M + h D) after one step.
+    path = tmp_path / "damped.xml"
+    path.write_text(
+        """<mujoco><option gravity="0 0 0" timestep="0.01" integrator="Euler"/>
+        <worldbody><body><joint name="j" type="hinge" axis="0 1 0" damping="20"/>
+        <inertial pos="0.2 0 0" mass="0.15" diaginertia="1e-9 1e-9 1e-9"/></body></worldbody>
+        <actuator><motor joint="j" ctrlrange="-50 50"/></actuator></mujoco>"""
+    )
+    robot = robots.load(str(path))
+    d = robots.dynamics(robot, babbling_noise=0.1, kd=20.0, control_dt=0.01, frequency=10.0)
+    noise = 0.1 * robot.torque_scale(10.0)[0]  # one joint: its limit, 5 N m
+    assert noise == pytest.approx(5.0)
+    inertia = 0.15 * 0.2**2 + 1e-9
+    assert d.noise_velocity[0] == pytest.approx(0.01 * noise / (inertia + 0.01 * 20.0), rel=1e-9)
+    data = mujoco.MjData(robot.mj_model)
+    data.ctrl[0] = noise
+    mujoco.mj_step(robot.mj_model, data)
+    assert d.noise_velocity[0] == pytest.approx(data.qvel[0], rel=1e-9)
+    # At rest the damping does not act: the acceleration is the undamped one, 833 rad/s^2,
+    # whose velocity over a period (8.3 rad/s) the check no longer reports as the kick.
+    assert d.noise_acceleration[0] == pytest.approx(noise / inertia, rel=1e-6)
+    text = robot_check.check(str(path)).text
+    assert "babbling noise changes" not in text and "0.243 rad/s per control period" in text
+
+
 def test_robot_check_warns_where_the_numbers_say_so(tmp_path):
     coupled = robot_check.check(str(DEV / "m1013.xml"), actuators="torque").text
     assert "PD-only baseline's feedback is unstable" in coupled
