@@ -250,9 +250,7 @@ class Setup:
         if needs_mjx and robot.mjx_error is not None:
             raise robots.RobotError(f"{robot.mjx_error} (asked for: {', '.join(needs_mjx)})")
         task_config = config.task
-        control_dt = (
-            task_config.control_dt if task_config.control_dt is not None else robot.timestep
-        )
+        control_dt = task_config.control_period(robot.timestep)
         rollout_lib.substeps(robot, control_dt)  # validates control_dt
         task = tasks.make(robot, task_config, control_dt, config.simulator)
         forward = forward_models.make(config.forward, robot, task)
@@ -312,7 +310,7 @@ def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:
     """
     if config.loop.torque_scale == "limit":
         return None
-    dt = config.task.control_dt if config.task.control_dt is not None else robot.timestep
+    dt = config.task.control_period(robot.timestep)
     return robot.torque_scale(config.task.feedback_frequency(dt))
 
 
@@ -883,13 +881,15 @@ def mixed_policy(setup: Setup, **weights) -> rollout_lib.MixedPolicy:
     task = setup.task
     dummy = setup.controller.init(jax.random.key(0), task.state_dim)
     # A placeholder controller (weight 0 here; a learned one takes its place with its own
-    # normaliser): its normaliser has the run's structure, a torque scale or None.
+    # normaliser): its normaliser has the run's structure, a torque scale (its value
+    # unused) or None.
+    own = setup.config.loop.torque_scale != "limit"
     norm = networks.Normaliser.identity(
         task.state_dim,
         task.output_dim,
         setup.robot.torque_limit,
         task.desired_index,
-        torque_scale=torque_scale(setup.config, setup.robot),
+        torque_scale=np.ones(task.action_dim) if own else None,
     )
     return rollout_lib.MixedPolicy.of(dummy, norm, task.action_dim, **weights)
 

@@ -112,7 +112,7 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
     from cfm_jax import training as train_lib
 
     if tensorboard is not None and not tensorboard_lib.available():
-        config_lib._fail("--tensorboard", tensorboard, tensorboard_lib.MISSING)
+        config_lib.fail("--tensorboard", tensorboard, tensorboard_lib.MISSING)
     start = time.perf_counter()
     _check_out(out)
     experiment = train_lib.Experiment(base)  # checks robot and config: nothing written yet
@@ -121,7 +121,7 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
     if not resume:  # a new run would meet the old one's checkpoints after its babbling
         held = [name for name in names if checkpoint.has_steps(os.path.join(out, name))]
         if held:
-            config_lib._fail(
+            config_lib.fail(
                 "--out",
                 out,
                 f"it already holds checkpoints of a run (losses {held}); add --resume to "
@@ -241,14 +241,14 @@ def _check_out(out: str) -> None:
     """One ``cfm-jax: error:`` line, before any work, for an ``--out`` that is a file or a
     folder that cannot be created (a file on its path, no write permission)."""
     if os.path.exists(out) and not os.path.isdir(out):
-        config_lib._fail("--out", out, "it is a file; give a folder (new or existing)")
+        config_lib.fail("--out", out, "it is a file; give a folder (new or existing)")
     above = os.path.abspath(out)
     while not os.path.exists(above):
         above = os.path.dirname(above)
     if not os.path.isdir(above):
-        config_lib._fail("--out", out, f"the folder cannot be created: {above} is a file")
+        config_lib.fail("--out", out, f"the folder cannot be created: {above} is a file")
     if not os.path.isdir(out) and not os.access(above, os.W_OK | os.X_OK):
-        config_lib._fail("--out", out, f"the folder cannot be created: {above} is not writable")
+        config_lib.fail("--out", out, f"the folder cannot be created: {above} is not writable")
 
 
 @contextlib.contextmanager
@@ -272,13 +272,13 @@ def _read_config(path: str) -> dict:
         with open(path) as f:
             return json.load(f)
     except FileNotFoundError:
-        config_lib._fail("--config", path, f"{allowed}; there is no such file")
+        config_lib.fail("--config", path, f"{allowed}; there is no such file")
     except IsADirectoryError:
-        config_lib._fail("--config", path, f"{allowed}; it is a directory")
+        config_lib.fail("--config", path, f"{allowed}; it is a directory")
     except (OSError, UnicodeDecodeError) as error:
-        config_lib._fail("--config", path, f"{allowed}; it cannot be read ({error})")
+        config_lib.fail("--config", path, f"{allowed}; it cannot be read ({error})")
     except json.JSONDecodeError as error:
-        config_lib._fail("--config", path, f"{allowed}; it is not JSON ({error})")
+        config_lib.fail("--config", path, f"{allowed}; it is not JSON ({error})")
 
 
 def sweep(
@@ -362,7 +362,7 @@ def _run_sweep(base, names, override, out, backend, address, max_retries, quiet)
     for text in override:
         path, values = _override(text)
         if path in grid_axes:
-            config_lib._fail(
+            config_lib.fail(
                 "--override", text, f"{path} is already an axis of this sweep; give each path once"
             )
         grid_axes[path] = values
@@ -636,7 +636,7 @@ def _value(path: str, type_text: str, given):
         try:
             return json.loads(given)
         except json.JSONDecodeError as error:
-            config_lib._fail(path, given, f"None or a JSON list, e.g. [[0.5, 0.5]] ({error})")
+            config_lib.fail(path, given, f"None or a JSON list, e.g. [[0.5, 0.5]] ({error})")
     if type_text.startswith("str"):
         return given
     return _number(given, type_text.startswith("float"))
@@ -703,7 +703,7 @@ def _prescan(argv: list[str], losses: list | None = None) -> config_lib.Config:
         return config_lib.from_dict(data)
     task = known.task or "inverse_dynamics"
     if task not in config_lib.TASKS:
-        config_lib._fail("task.name", task, f"one of {config_lib.TASKS}")
+        config_lib.fail("task.name", task, f"one of {config_lib.TASKS}")
     base = config_lib.for_task(task)
     return base.replace(loop=dataclasses.replace(base.loop, iterations=4))
 

@@ -193,18 +193,32 @@ class ConfigError(ValueError):
     """
 
 
-def _fail(field: str, value: Any, allowed: str) -> None:
+def fail(field: str, value: Any, allowed: str) -> None:
+    """Raise the library's error for a bad input: the field, the bad value and what is
+    allowed, in the words every check of the library (config, CLI, sweeps, environments)
+    uses.
+
+    Raises:
+      ConfigError: ``"{field}={value!r} is not allowed: {allowed}"``.
+
+    Examples:
+      >>> try:
+      ...     fail("loop.seeds", 0, "a positive integer")
+      ... except ConfigError as error:
+      ...     print(error)
+      loop.seeds=0 is not allowed: a positive integer
+    """
     raise ConfigError(f"{field}={value!r} is not allowed: {allowed}")
 
 
 def _positive_int(field: str, value: Any) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        _fail(field, value, "a positive integer")
+        fail(field, value, "a positive integer")
 
 
 def _nonnegative_int(field: str, value: Any) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        _fail(field, value, "an integer >= 0")
+        fail(field, value, "an integer >= 0")
 
 
 def _positive_float(field: str, value: Any) -> None:
@@ -214,7 +228,7 @@ def _positive_float(field: str, value: Any) -> None:
         or not math.isfinite(value)
         or value <= 0
     ):
-        _fail(field, value, "a finite number > 0")
+        fail(field, value, "a finite number > 0")
 
 
 def _nonnegative_float(field: str, value: Any) -> None:
@@ -224,7 +238,7 @@ def _nonnegative_float(field: str, value: Any) -> None:
         or not math.isfinite(value)
         or value < 0
     ):
-        _fail(field, value, "a finite number >= 0")
+        fail(field, value, "a finite number >= 0")
 
 
 def _layer_sizes(field: str, value: Any) -> None:
@@ -233,7 +247,7 @@ def _layer_sizes(field: str, value: Any) -> None:
         or len(value) == 0
         or any(isinstance(v, bool) or not isinstance(v, int) or v <= 0 for v in value)
     ):
-        _fail(field, value, "a non-empty tuple of positive integers, e.g. (400, 400, 400)")
+        fail(field, value, "a non-empty tuple of positive integers, e.g. (400, 400, 400)")
 
 
 def _loss_weights(field: str, value: Any) -> Any:
@@ -246,11 +260,11 @@ def _loss_weights(field: str, value: Any) -> Any:
         "weight a finite number >= 0, indices distinct integers >= 0"
     )
     if not isinstance(value, tuple | list) or len(value) == 0:
-        _fail(field, value, allowed)
+        fail(field, value, allowed)
     groups = []
     for group in value:
         if not isinstance(group, tuple | list) or len(group) != 2:
-            _fail(field, value, allowed)
+            fail(field, value, allowed)
         weight, index = group
         if (
             isinstance(weight, bool)
@@ -258,14 +272,14 @@ def _loss_weights(field: str, value: Any) -> Any:
             or not math.isfinite(weight)
             or weight < 0
         ):
-            _fail(field, value, allowed)
+            fail(field, value, allowed)
         if (
             not isinstance(index, tuple | list)
             or len(index) == 0
             or any(isinstance(i, bool) or not isinstance(i, int) or i < 0 for i in index)
             or len(set(index)) != len(index)
         ):
-            _fail(field, value, allowed)
+            fail(field, value, allowed)
         groups.append((float(weight), tuple(int(i) for i in index)))
     return tuple(groups)
 
@@ -359,6 +373,16 @@ class TaskConfig:
     motions: tuple[float, ...] | None = None
     desired: str = "pd"
 
+    def control_period(self, timestep: float) -> float:
+        """Seconds between controller steps: ``control_dt``, or ``timestep`` (the robot's
+        physics timestep) where it is None.
+
+        Examples:
+          >>> TaskConfig().control_period(0.002), TaskConfig(control_dt=0.02).control_period(0.002)
+          (0.01, 0.02)
+        """
+        return self.control_dt if self.control_dt is not None else timestep
+
     def feedback_frequency(self, control_dt: float) -> float:
         """The angular frequency (rad/s) of the joints' feedback in ``s*``: ``sqrt`` of the
         joints' ``kp`` (``joint_kp``, else ``kp``); where that is 0, the joints' ``kd`` (the
@@ -382,7 +406,7 @@ class TaskConfig:
 
     def __post_init__(self):
         if not isinstance(self.name, str) or self.name not in TASKS:
-            _fail("task.name", self.name, f"one of {TASKS}")
+            fail("task.name", self.name, f"one of {TASKS}")
         _positive_float("task.duration", self.duration)
         if self.control_dt is not None:
             _positive_float("task.control_dt", self.control_dt)
@@ -394,7 +418,7 @@ class TaskConfig:
             if value is None:
                 continue
             if self.name not in ("walk", "jump"):
-                _fail(
+                fail(
                     f"task.{field}",
                     value,
                     f"None for task {self.name!r} (joint gains of the legged tasks 'walk' and "
@@ -402,10 +426,10 @@ class TaskConfig:
                 )
             _nonnegative_float(f"task.{field}", value)
         if not isinstance(self.desired, str) or self.desired not in DESIRED:
-            _fail("task.desired", self.desired, f"one of {DESIRED}")
+            fail("task.desired", self.desired, f"one of {DESIRED}")
         if self.desired == "next_velocity":
             if self.name not in ("walk", "jump"):
-                _fail(
+                fail(
                     "task.desired",
                     self.desired,
                     f"'pd' for task {self.name!r} (the desired next velocity is an s* of the "
@@ -418,7 +442,7 @@ class TaskConfig:
                 ("joint_kd", None),
             ):
                 if getattr(self, field) != allowed:
-                    _fail(
+                    fail(
                         f"task.{field}",
                         getattr(self, field),
                         f"{allowed!r} with task.desired='next_velocity' (its gains are fixed: "
@@ -426,14 +450,14 @@ class TaskConfig:
                         "config.for_task('walk') has kp = kd = 0)",
                     )
         if self.site is not None and (not isinstance(self.site, str) or not self.site):
-            _fail("task.site", self.site, "None or the name of a site of the robot's MJCF")
+            fail("task.site", self.site, "None or the name of a site of the robot's MJCF")
         if self.motions is not None:
             allowed = (
                 "None, or a non-empty tuple of positive numbers: walk durations (s) for "
                 "'walk', jump foot clearances (m) for 'jump'"
             )
             if self.name not in ("walk", "jump"):
-                _fail(
+                fail(
                     "task.motions",
                     self.motions,
                     f"None for task {self.name!r} (the arm tasks follow task.targets)",
@@ -441,35 +465,35 @@ class TaskConfig:
             try:
                 motions = tuple(float(x) for x in self.motions)
             except (TypeError, ValueError):
-                _fail("task.motions", self.motions, allowed)
+                fail("task.motions", self.motions, allowed)
             if not motions or not all(math.isfinite(x) and x > 0 for x in motions):
-                _fail("task.motions", self.motions, allowed)
+                fail("task.motions", self.motions, allowed)
             object.__setattr__(self, "motions", motions)
         if self.targets is not None:
             try:
                 targets = tuple(tuple(float(x) for x in t) for t in self.targets)
             except (TypeError, ValueError):
-                _fail(
+                fail(
                     "task.targets",
                     self.targets,
                     "a non-empty tuple of joint-position tuples of numbers",
                 )
             if len(targets) == 0 or len({len(t) for t in targets}) != 1:
-                _fail(
+                fail(
                     "task.targets",
                     self.targets,
                     "a non-empty tuple of joint-position tuples of equal length",
                 )
             if not all(math.isfinite(x) for t in targets for x in t):
-                _fail("task.targets", self.targets, "finite joint positions")
+                fail("task.targets", self.targets, "finite joint positions")
             object.__setattr__(self, "targets", targets)
         if self.home is not None:
             try:
                 home = tuple(float(x) for x in self.home)
             except (TypeError, ValueError):
-                _fail("task.home", self.home, "a tuple of joint positions (numbers)")
+                fail("task.home", self.home, "a tuple of joint positions (numbers)")
             if not all(math.isfinite(x) for x in home):
-                _fail("task.home", self.home, "finite joint positions")
+                fail("task.home", self.home, "finite joint positions")
             object.__setattr__(self, "home", home)
 
 
@@ -534,26 +558,26 @@ class ForwardModelConfig:
         for name in ("min_log_variance", "max_log_variance"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float):
-                _fail(f"forward.{name}", value, "a finite number")
+                fail(f"forward.{name}", value, "a finite number")
             if not math.isfinite(value):
-                _fail(f"forward.{name}", value, "a finite number")
+                fail(f"forward.{name}", value, "a finite number")
         if self.min_log_variance >= self.max_log_variance:
-            _fail(
+            fail(
                 "forward.min_log_variance",
                 self.min_log_variance,
                 f"a number below forward.max_log_variance={self.max_log_variance}",
             )
         if self.start not in FIT_STARTS:
-            _fail("forward.start", self.start, f"one of {FIT_STARTS}")
+            fail("forward.start", self.start, f"one of {FIT_STARTS}")
         if self.kind not in FORWARD_KINDS:
-            _fail("forward.kind", self.kind, f"one of {FORWARD_KINDS}")
+            fail("forward.kind", self.kind, f"one of {FORWARD_KINDS}")
         if self.nominal is not None and (not isinstance(self.nominal, str) or not self.nominal):
-            _fail("forward.nominal", self.nominal, "None or an MJCF path / robot name")
+            fail("forward.nominal", self.nominal, "None or an MJCF path / robot name")
         _positive_float("forward.nominal_mass_scale", self.nominal_mass_scale)
         if self.kind != "rigid_body":
             for name, default in (("nominal", None), ("nominal_mass_scale", 1.0)):
                 if getattr(self, name) != default:
-                    _fail(
+                    fail(
                         f"forward.{name}",
                         getattr(self, name),
                         f"{default!r} unless forward.kind='rigid_body' (forward.kind="
@@ -618,12 +642,12 @@ class ControllerConfig:
         _nonnegative_int("controller.steps_per_iteration", self.steps_per_iteration)
         _positive_int("controller.batch_size", self.batch_size)
         if self.goal not in CONTROLLER_GOALS:
-            _fail("controller.goal", self.goal, f"one of {CONTROLLER_GOALS}")
+            fail("controller.goal", self.goal, f"one of {CONTROLLER_GOALS}")
         if self.loss_form not in LOSS_FORMS:
-            _fail("controller.loss_form", self.loss_form, f"one of {LOSS_FORMS}")
+            fail("controller.loss_form", self.loss_form, f"one of {LOSS_FORMS}")
         weights = _loss_weights("controller.loss_weights", self.loss_weights)
         if weights is not None and self.loss_form != "norm":
-            _fail(
+            fail(
                 "controller.loss_weights",
                 self.loss_weights,
                 'None unless controller.loss_form="norm" (the squared form weights every '
@@ -631,9 +655,9 @@ class ControllerConfig:
             )
         object.__setattr__(self, "loss_weights", weights)
         if self.start not in FIT_STARTS:
-            _fail("controller.start", self.start, f"one of {FIT_STARTS}")
+            fail("controller.start", self.start, f"one of {FIT_STARTS}")
         if not isinstance(self.full_batch, bool):
-            _fail("controller.full_batch", self.full_batch, "True or False")
+            fail("controller.full_batch", self.full_batch, "True or False")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -696,15 +720,15 @@ class LoopConfig:
         _nonnegative_int("loop.iterations", self.iterations)
         _positive_int("loop.seeds", self.seeds)
         if self.babbling not in BABBLING:
-            _fail("loop.babbling", self.babbling, f"one of {BABBLING}")
+            fail("loop.babbling", self.babbling, f"one of {BABBLING}")
         _positive_int("loop.babbling_rollouts", self.babbling_rollouts)
         _nonnegative_float("loop.babbling_noise", self.babbling_noise)
         if not isinstance(self.torque_scale, str) or self.torque_scale not in TORQUE_SCALES:
-            _fail("loop.torque_scale", self.torque_scale, f"one of {TORQUE_SCALES}")
+            fail("loop.torque_scale", self.torque_scale, f"one of {TORQUE_SCALES}")
         if not isinstance(self.babbling_gains, str) or self.babbling_gains not in BABBLING_GAINS:
-            _fail("loop.babbling_gains", self.babbling_gains, f"one of {BABBLING_GAINS}")
+            fail("loop.babbling_gains", self.babbling_gains, f"one of {BABBLING_GAINS}")
         if not isinstance(self.normaliser, str) or self.normaliser not in NORMALISERS:
-            _fail("loop.normaliser", self.normaliser, f"one of {NORMALISERS}")
+            fail("loop.normaliser", self.normaliser, f"one of {NORMALISERS}")
         _nonnegative_int("loop.checkpoint_every", self.checkpoint_every)
         _positive_int("loop.checkpoint_keep", self.checkpoint_keep)
 
@@ -759,7 +783,7 @@ class Config:
 
     def __post_init__(self):
         if self.robot_actuators not in ROBOT_ACTUATORS:
-            _fail("robot_actuators", self.robot_actuators, f"one of {ROBOT_ACTUATORS}")
+            fail("robot_actuators", self.robot_actuators, f"one of {ROBOT_ACTUATORS}")
         limit = self.robot_torque_limit
         if isinstance(limit, int | float) and not isinstance(limit, bool):
             limit = (float(limit),)
@@ -774,7 +798,7 @@ class Config:
                 for v in limit
             )
         ):  # fmt: skip
-            _fail(
+            fail(
                 "robot_torque_limit",
                 self.robot_torque_limit,
                 "None, a finite number > 0 (all joints) or a tuple of them (one per joint)",
@@ -783,11 +807,11 @@ class Config:
             limit = tuple(float(v) for v in limit)
         object.__setattr__(self, "robot_torque_limit", limit)
         if not isinstance(self.robot, str) or not self.robot:
-            _fail("robot", self.robot, "a registered robot name or a path to an MJCF file")
+            fail("robot", self.robot, "a registered robot name or a path to an MJCF file")
         if not (os.path.sep in self.robot or self.robot.endswith(".xml")):
             # A name (not a path, which is read lazily): one of the shipped robots.
             if self.robot not in _shipped.registered():
-                _fail(
+                fail(
                     "robot",
                     self.robot,
                     f"a registered robot name {_shipped.registered()} or a path to an MJCF "
@@ -801,11 +825,11 @@ class Config:
                     "them, each loss's own is OUT/<loss>/config.json; cfm-jax train --config "
                     "takes the list)"
                 )
-            _fail("loss", self.loss, allowed)
+            fail("loss", self.loss, allowed)
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            _fail("seed", self.seed, "an integer >= 0")
+            fail("seed", self.seed, "an integer >= 0")
         if self.simulator not in SIMULATORS:
-            _fail("simulator", self.simulator, f"one of {SIMULATORS}")
+            fail("simulator", self.simulator, f"one of {SIMULATORS}")
         for name, cls in (
             ("task", TaskConfig),
             ("forward", ForwardModelConfig),
@@ -813,7 +837,7 @@ class Config:
             ("loop", LoopConfig),
         ):
             if not isinstance(getattr(self, name), cls):
-                _fail(name, getattr(self, name), f"a {cls.__name__}")
+                fail(name, getattr(self, name), f"a {cls.__name__}")
 
     def replace(self, **changes) -> Config:
         """A copy with top-level fields replaced (validated again).
@@ -898,7 +922,7 @@ def for_task(task: str, **changes) -> Config:
       'reaching'
     """
     if task not in TASKS:
-        _fail("task.name", task, f"one of {TASKS}")
+        fail("task.name", task, f"one of {TASKS}")
     config = Config(task=TaskConfig(name=task))
     if task in ("walk", "jump"):
         config = dataclasses.replace(
@@ -973,21 +997,21 @@ def from_dict(data: dict) -> Config:
     }
     top_fields = {f.name for f in dataclasses.fields(Config)}
     if not isinstance(data, dict):
-        _fail("config", data, "a JSON object of the fields of Config (as config.json)")
+        fail("config", data, "a JSON object of the fields of Config (as config.json)")
     data = {k: v for k, v in data.items() if k not in DERIVED}
     unknown = set(data) - top_fields
     if unknown:
-        _fail("config", sorted(unknown), f"known top-level fields are {sorted(top_fields)}")
+        fail("config", sorted(unknown), f"known top-level fields are {sorted(top_fields)}")
     kwargs = {}
     for key, value in data.items():
         if key in sections:
             cls = sections[key]
             fields = {f.name for f in dataclasses.fields(cls)}
             if not isinstance(value, dict):
-                _fail(key, value, f"an object of the fields {sorted(fields)}")
+                fail(key, value, f"an object of the fields {sorted(fields)}")
             bad = set(value) - fields
             if bad:
-                _fail(key, sorted(bad), f"known fields of {key} are {sorted(fields)}")
+                fail(key, sorted(bad), f"known fields of {key} are {sorted(fields)}")
             value = dict(value)
             if key == "task" and value.get("targets") is not None:
                 value["targets"] = tuple(tuple(t) for t in value["targets"])

@@ -44,6 +44,9 @@ Examples:
 
 from __future__ import annotations
 
+import functools
+from typing import Any, NamedTuple
+
 import gymnasium
 import jax
 import jax.numpy as jnp
@@ -88,13 +91,19 @@ class TrackingEnv(gymnasium.Env):
         from cfm_jax.experiment import Experiment
 
         if references not in REFERENCES:
-            _refuse("references", references, f"one of {REFERENCES}")
+            config_lib.fail("references", references, f"one of {REFERENCES}")
         if config.simulator != "native":
-            _refuse("simulator", config.simulator, "'native' (the environment steps MuJoCo C on "
-                    "the host)")  # fmt: skip
+            config_lib.fail(
+                "simulator",
+                config.simulator,
+                "'native' (the environment steps MuJoCo C on the host)",
+            )
         if config.task.name not in ("inverse_dynamics", "opspace"):
-            _refuse("task.name", config.task.name, "an arm task ('inverse_dynamics', 'opspace'): "
-                    "the legged tasks are not wrapped yet")  # fmt: skip
+            config_lib.fail(
+                "task.name",
+                config.task.name,
+                "an arm task ('inverse_dynamics', 'opspace'): the legged tasks are not wrapped yet",
+            )
         experiment = experiment or Experiment(config)
         self.task, self.robot = experiment.task, experiment.robot
         self.control_dt = self.task.control_dt
@@ -102,24 +111,7 @@ class TrackingEnv(gymnasium.Env):
         task, robot = self.task, self.robot
         self._stepper = native.Stepper(robot.mj_model, rollout.substeps(robot, self.control_dt))
         self._limit = np.asarray(robot.torque_limit, np.float32)
-        normaliser = networks.Normaliser.from_scales(
-            **scales.robot_scales(task),
-            torque_limit=robot.torque_limit,
-            desired_index=task.desired_index,
-        )
-        # The task's own functions, compiled once; the same float32 operations as inside
-        # rollout.run, so the same actions give the same states and errors.
-        self._observe = jax.jit(
-            lambda ref_t, q, qd, f: (task.state(q, qd, f), task.desired(ref_t, q, qd, f))
-        )
-        self._normalise = jax.jit(
-            lambda s, d: jnp.concatenate([normaliser.state(s), normaliser.desired(d)])
-        )
-        self._ctrl = jax.jit(robot.torque_to_ctrl)
-        self._features = jax.jit(task.features)
-        self._error = jax.jit(task.tracking_error)
-        self._start = jax.jit(task.start)
-        self._training = jax.jit(lambda key: task.babbling_reference("reaching", key))
+        self._fns = _compiled(task, robot)
         size = task.state_dim + task.desired_dim
         self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (size,), np.float32)
         self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (task.action_dim,), np.float32)
@@ -131,16 +123,16 @@ class TrackingEnv(gymnasium.Env):
         if self.references == "test":
             k = self._next_target if seed_target is None else int(seed_target)
             if not 0 <= k < self.task.targets:
-                _refuse("target", k, f"0 to {self.task.targets - 1}")
+                config_lib.fail("target", k, f"0 to {self.task.targets - 1}")
             self._next_target = (k + 1) % self.task.targets
             return jax.tree.map(lambda x: x[k], self.task.reference)
         key = jax.random.key(int(self.np_random.integers(2**31)))
-        return jax.tree.map(lambda x: x[0], self._training(key))
+        return jax.tree.map(lambda x: x[0], self._fns.training(key))
 
     def _observation(self):
         ref_t = jax.tree.map(lambda x: x[self._t], self._reference)
-        state, desired = self._observe(ref_t, self._qpos, self._qvel, self._feat)
-        return np.asarray(self._normalise(state, desired))
+        state, desired = self._fns.observe(ref_t, self._qpos, self._qvel, self._feat)
+        return np.asarray(self._fns.normalise(state, desired))
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode at the task's start state of a new reference.
@@ -160,7 +152,7 @@ class TrackingEnv(gymnasium.Env):
             self._next_target = 0
         target = (options or {}).get("target")
         self._reference = self._pick(target)
-        self._qpos, self._qvel, self._feat = self._start(self._reference)
+        self._qpos, self._qvel, self._feat = self._fns.start(self._reference)
         self._t = 0
         shown = (self._next_target - 1) % self.task.targets
         info = {"target": shown if self.references == "test" else None}
@@ -180,20 +172,20 @@ class TrackingEnv(gymnasium.Env):
         if self._reference is None:
             raise RuntimeError("TrackingEnv.step before reset")
         tau = np.clip(np.asarray(action, np.float32), -1.0, 1.0) * self._limit
-        ctrl = self._ctrl(jnp.asarray(tau))
+        ctrl = self._fns.ctrl(jnp.asarray(tau))
         qpos, qvel, sensors = self._stepper(
             np.asarray(self._qpos, np.float32),
             np.asarray(self._qvel, np.float32),
             np.asarray(ctrl, np.float32),
         )
-        diverged = not (_good(qpos) and _good(qvel))
+        diverged = not (rollout.good(np.asarray(qpos)) and rollout.good(np.asarray(qvel)))
         ref_next = jax.tree.map(lambda x: x[self._t + 1], self._reference)
         if diverged:
             qpos, qvel = np.asarray(self._qpos), np.asarray(self._qvel)
             features = self._feat
         else:
-            features = self._features(qpos, qvel, sensors)
-        error = np.asarray(self._error(ref_next, qpos, qvel, features))
+            features = self._fns.features(qpos, qvel, sensors)
+        error = np.asarray(self._fns.error(ref_next, qpos, qvel, features))
         reward = -float(np.mean(np.square(error, dtype=np.float64)))
         self._qpos, self._qvel, self._feat = jnp.asarray(qpos), jnp.asarray(qvel), features
         self._t += 1
@@ -203,10 +195,38 @@ class TrackingEnv(gymnasium.Env):
         return self._observation(), reward, diverged, truncated, info
 
 
-def _refuse(field: str, value, allowed: str) -> None:
-    raise config_lib.ConfigError(f"{field}={value!r} is not allowed: {allowed}")
+class _Compiled(NamedTuple):
+    """The task's own functions, compiled once per task: the same float32 operations as
+    inside :func:`cfm_jax.rollout.run`, so the same actions give the same states and errors."""
+
+    observe: Any
+    normalise: Any
+    ctrl: Any
+    features: Any
+    error: Any
+    start: Any
+    training: Any
 
 
-def _good(x) -> bool:
-    """As :func:`cfm_jax.rollout.run`'s test: finite and within MuJoCo's ``mjMAXVAL``."""
-    return bool(np.all(np.abs(np.asarray(x)) <= rollout.MAXVAL))
+@functools.lru_cache(maxsize=16)
+def _compiled(task, robot) -> _Compiled:
+    """:class:`_Compiled` of ``task`` on ``robot``, shared by every environment of the same
+    task object (a vector of environments made from one experiment compiles once)."""
+    normaliser = networks.Normaliser.from_scales(
+        **scales.robot_scales(task),
+        torque_limit=robot.torque_limit,
+        desired_index=task.desired_index,
+    )
+    return _Compiled(
+        observe=jax.jit(
+            lambda ref_t, q, qd, f: (task.state(q, qd, f), task.desired(ref_t, q, qd, f))
+        ),
+        normalise=jax.jit(
+            lambda s, d: jnp.concatenate([normaliser.state(s), normaliser.desired(d)])
+        ),
+        ctrl=jax.jit(robot.torque_to_ctrl),
+        features=jax.jit(task.features),
+        error=jax.jit(task.tracking_error),
+        start=jax.jit(task.start),
+        training=jax.jit(lambda key: task.babbling_reference("reaching", key)),
+    )

@@ -65,7 +65,7 @@ def _dynamics_lines(robot: Robot) -> list[str]:
     from cfm_jax import config as config_lib
 
     task, loop = config_lib.TaskConfig(), config_lib.LoopConfig()
-    dt = task.control_dt if task.control_dt is not None else robot.timestep
+    dt = task.control_period(robot.timestep)
     frequency = task.feedback_frequency(dt)
     d = robots.dynamics(robot, loop.babbling_noise, task.kd, dt, loop.torque_scale, frequency)
     lines = [

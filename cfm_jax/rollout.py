@@ -192,7 +192,7 @@ def run(task, policy, key, simulator="native") -> Rollout:
             # simulators return NaN without computing anything from it.
             ctrl = jnp.where(alive, robot.torque_to_ctrl(tau), jnp.nan)
             qpos_next, qvel_next, sensors = physics(qpos, qvel, ctrl)
-            finite = alive & _good(qpos_next) & _good(qvel_next)
+            finite = alive & good(qpos_next) & good(qvel_next)
             features_next = task.features(qpos_next, qvel_next, sensors)
             out = (
                 dataset.Transitions(
@@ -237,10 +237,16 @@ MAXVAL = native.MAXVAL
 """MuJoCo's ``mjMAXVAL`` (1e10): the bound of a good simulator state (see :func:`run`)."""
 
 
-def _good(x):
+def good(x):
     """All entries of ``x`` finite and at most :data:`MAXVAL` in magnitude (MuJoCo's
-    ``mju_isBad`` negated; NaN compares false)."""
-    return jnp.all(jnp.abs(x) <= MAXVAL)
+    ``mju_isBad`` negated; NaN compares false): the test of a diverged simulation, for a
+    JAX array (traced or not) or a NumPy array alike.
+
+    Examples:
+      >>> bool(good(jnp.array([0.0, -1e9]))), bool(good(jnp.array([1.0, jnp.nan])))
+      (True, False)
+    """
+    return (abs(x) <= MAXVAL).all()
 
 
 def mjx_physics(robot, n_sub: int):
@@ -273,14 +279,14 @@ def mjx_physics(robot, n_sub: int):
 
         def substep(data, _):
             data = mjx.step(model, data)
-            good = _good(data.qpos) & _good(data.qvel) & _good(data.qacc)
-            return data, (data.sensordata, good)
+            fine = good(data.qpos) & good(data.qvel) & good(data.qacc)
+            return data, (data.sensordata, fine)
 
-        data, (sensors, good) = jax.lax.scan(substep, data, None, length=n_sub)
+        data, (sensors, fine) = jax.lax.scan(substep, data, None, length=n_sub)
         # As the native stepper: a state that was bad after any physics step is NaN.
-        good = jnp.all(good)
-        qpos, qvel = (jnp.where(good, x, jnp.nan) for x in (data.qpos, data.qvel))
-        return qpos, qvel, jnp.where(good, sensors, jnp.nan)
+        fine = jnp.all(fine)
+        qpos, qvel = (jnp.where(fine, x, jnp.nan) for x in (data.qpos, data.qvel))
+        return qpos, qvel, jnp.where(fine, sensors, jnp.nan)
 
     return physics
 

@@ -263,7 +263,7 @@ def grid(
       [('joint', 50.0, 3), ('task', 50.0, 3), ('joint', 100.0, 3), ('task', 100.0, 3)]
     """
     if not isinstance(base_config, config_lib.Config):
-        config_lib._fail("base_config", base_config, "a cfm_jax.Config")
+        config_lib.fail("base_config", base_config, "a cfm_jax.Config")
     first, count = _seeds(base_config, seeds)
     names = _losses(base_config, losses)
     paths, value_lists = _overrides(base_config, overrides)
@@ -304,19 +304,19 @@ def _seeds(base: config_lib.Config, seeds) -> tuple[int, int]:
         return base.seed, base.loop.seeds
     if isinstance(seeds, numbers.Integral) and not isinstance(seeds, bool):
         if seeds <= 0:
-            config_lib._fail("seeds", seeds, "a positive number of seeds or consecutive seeds")
+            config_lib.fail("seeds", seeds, "a positive number of seeds or consecutive seeds")
         return base.seed, int(seeds)
     try:
         values = [int(s) for s in seeds]
     except (TypeError, ValueError):
-        config_lib._fail("seeds", seeds, "a positive number of seeds or consecutive seeds")
+        config_lib.fail("seeds", seeds, "a positive number of seeds or consecutive seeds")
     if (
         not values
         or values[0] < 0
         or values != list(range(values[0], values[0] + len(values)))
         or any(isinstance(s, bool) or int(s) != s for s in seeds)
     ):
-        config_lib._fail(
+        config_lib.fail(
             "seeds",
             seeds,
             "consecutive integers >= 0 in increasing order (they are one vmap axis), "
@@ -333,7 +333,7 @@ def _losses(base: config_lib.Config, losses) -> list[str]:
     names = [losses] if isinstance(losses, str) else list(losses)
     bad = [n for n in names if n not in losses_lib.CONTROLLER_LOSSES]
     if not names or bad or len(set(names)) != len(names):
-        config_lib._fail(
+        config_lib.fail(
             "losses",
             losses,
             f"'all' or distinct names from {losses_lib.CONTROLLER_LOSSES}",
@@ -345,24 +345,24 @@ def _overrides(base: config_lib.Config, overrides) -> tuple[list[str], list[list
     if overrides is None:
         return [], []
     if not isinstance(overrides, Mapping):
-        config_lib._fail("overrides", overrides, "a dict {dotted config path: [values]}")
+        config_lib.fail("overrides", overrides, "a dict {dotted config path: [values]}")
     tree = config_lib.to_dict(base)
     paths, value_lists = [], []
     for path, values in overrides.items():
         field = f"overrides[{path!r}]"
         if not isinstance(path, str):
-            config_lib._fail("overrides", path, "dotted config paths (strings) as keys")
+            config_lib.fail("overrides", path, "dotted config paths (strings) as keys")
         if path in RESERVED:
-            config_lib._fail(
+            config_lib.fail(
                 field, values, f"{path} is an axis of the sweep: use sweep's {RESERVED[path]}="
             )
         current = _get_path(tree, path)
         if isinstance(values, str | bytes) or not isinstance(values, Sequence) or not values:
-            config_lib._fail(field, values, "a non-empty list of values, e.g. [1e-3, 3e-4]")
+            config_lib.fail(field, values, "a non-empty list of values, e.g. [1e-3, 3e-4]")
         normal = [_normalise(current, v) for v in values]
         texts = [json.dumps(v) for v in normal]
         if len(set(texts)) != len(texts):
-            config_lib._fail(field, values, "distinct values (a value appears twice)")
+            config_lib.fail(field, values, "distinct values (a value appears twice)")
         paths.append(path)
         value_lists.append(normal)
     return paths, value_lists
@@ -375,14 +375,14 @@ def _get_path(tree: dict, path: str):
         here = ".".join(parts[:depth]) or "the config"
         if not isinstance(node, dict) or part not in node:
             known = sorted(node) if isinstance(node, dict) else []
-            config_lib._fail(
+            config_lib.fail(
                 f"overrides[{path!r}]",
                 path,
                 f"a dotted path to a config field; the fields of {here} are {known}",
             )
         node = node[part]
     if isinstance(node, dict):
-        config_lib._fail(
+        config_lib.fail(
             f"overrides[{path!r}]",
             path,
             f"a path to a single field, not a section; its fields are {sorted(node)}",
@@ -595,15 +595,15 @@ def sweep(
     start = time.perf_counter()
     cells = grid(base_config, seeds, losses, overrides)
     if backend not in BACKENDS:
-        config_lib._fail("backend", backend, f"one of {BACKENDS}")
+        config_lib.fail("backend", backend, f"one of {BACKENDS}")
     if backend == "local" and address is not None:
-        config_lib._fail("address", address, "None with backend='local' (ray only)")
+        config_lib.fail("address", address, "None with backend='local' (ray only)")
     if isinstance(max_retries, bool) or not isinstance(max_retries, int) or max_retries < 0:
-        config_lib._fail("max_retries", max_retries, "an integer >= 0")
+        config_lib.fail("max_retries", max_retries, "an integer >= 0")
     if isinstance(cpus_per_cell, bool) or not isinstance(cpus_per_cell, int | float):
-        config_lib._fail("cpus_per_cell", cpus_per_cell, "a number > 0")
+        config_lib.fail("cpus_per_cell", cpus_per_cell, "a number > 0")
     if cpus_per_cell <= 0:
-        config_lib._fail("cpus_per_cell", cpus_per_cell, "a number > 0")
+        config_lib.fail("cpus_per_cell", cpus_per_cell, "a number > 0")
     paths = tuple(cells[0].overrides)
     outputs: dict[str, CellOutput] = {}
     done_before: set[str] = set()
@@ -657,14 +657,14 @@ def _run_ray(todo, runner, run_dir, address, max_retries, cpus_per_cell, finishe
     try:
         import ray
     except ImportError:
-        config_lib._fail(
+        config_lib.fail(
             "backend", "ray", "'local' here: Ray is not installed (pip install 'cfm_jax[ray]')"
         )
     started = False
     if ray.is_initialized() and address not in (None, "auto"):
         current = ray.get_runtime_context().gcs_address
         if address != current:
-            config_lib._fail(
+            config_lib.fail(
                 "address",
                 address,
                 f"None or {current!r}: this process is already connected to the Ray cluster "

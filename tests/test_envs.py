@@ -119,3 +119,21 @@ def test_refused_configs_name_the_field(change, field):
         envs.TrackingEnv(CONFIG.replace(**change))
     with pytest.raises(config_lib.ConfigError, match="references='eval'"):
         envs.TrackingEnv(CONFIG, references="eval")
+
+
+def test_environments_of_one_experiment_share_compilation_not_state(experiment):
+    # A vector of environments (SAC/PPO run several) compiles the task's functions once;
+    # stepping two of them in turn gives each the trajectory it has alone.
+    alone = envs.TrackingEnv(CONFIG, references="test", experiment=experiment)
+    first = envs.TrackingEnv(CONFIG, references="test", experiment=experiment)
+    second = envs.TrackingEnv(CONFIG, experiment=experiment)
+    assert first._fns is second._fns is alone._fns
+    actions = np.random.default_rng(1).uniform(-0.5, 0.5, (20, experiment.task.action_dim))
+    expected = [alone.reset(options={"target": 2})[0]]
+    expected += [alone.step(a)[0] for a in actions]
+    got = [first.reset(options={"target": 2})[0]]
+    second.reset(seed=0)
+    for a in actions:
+        second.step(-a)
+        got.append(first.step(a)[0])
+    np.testing.assert_array_equal(np.stack(got), np.stack(expected))
