@@ -151,7 +151,9 @@ class TrackingEnv(gymnasium.Env):
         if seed is not None:  # a seeded environment starts its test references again
             self._next_target = 0
         target = (options or {}).get("target")
-        self._reference = self._pick(target)
+        # As NumPy arrays: indexing them each step costs nothing (a JAX array's index is
+        # a dispatched operation, 60% of a step's time).
+        self._reference = jax.tree.map(np.asarray, self._pick(target))
         self._qpos, self._qvel, self._feat = self._fns.start(self._reference)
         self._t = 0
         shown = (self._next_target - 1) % self.task.targets
@@ -172,27 +174,30 @@ class TrackingEnv(gymnasium.Env):
         if self._reference is None:
             raise RuntimeError("TrackingEnv.step before reset")
         tau = np.clip(np.asarray(action, np.float32), -1.0, 1.0) * self._limit
-        ctrl = self._fns.ctrl(jnp.asarray(tau))
+        ctrl = self._fns.ctrl(tau)
         qpos, qvel, sensors = self._stepper(
             np.asarray(self._qpos, np.float32),
             np.asarray(self._qvel, np.float32),
             np.asarray(ctrl, np.float32),
         )
-        diverged = not (rollout.good(np.asarray(qpos)) and rollout.good(np.asarray(qvel)))
+        diverged = not (rollout.good(qpos) and rollout.good(qvel))
         ref_next = jax.tree.map(lambda x: x[self._t + 1], self._reference)
         if diverged:
-            qpos, qvel = np.asarray(self._qpos), np.asarray(self._qvel)
-            features = self._feat
+            qpos, qvel, features = self._qpos, self._qvel, self._feat
+            error = np.asarray(self._fns.error(ref_next, qpos, qvel, features))
+            observation = None
         else:
-            features = self._fns.features(qpos, qvel, sensors)
-        error = np.asarray(self._fns.error(ref_next, qpos, qvel, features))
+            features, error, observation = self._fns.after(ref_next, qpos, qvel, sensors)
+            error = np.asarray(error)
         reward = -float(np.mean(np.square(error, dtype=np.float64)))
-        self._qpos, self._qvel, self._feat = jnp.asarray(qpos), jnp.asarray(qvel), features
+        self._qpos, self._qvel, self._feat = qpos, qvel, features
         self._t += 1
         truncated = self._t >= self.task.steps and not diverged
         info = {"tracking_error": error, "diverged": diverged}
         # After the last step the goal is the reference's last point (index steps).
-        return self._observation(), reward, diverged, truncated, info
+        if observation is None:
+            observation = self._observation()
+        return np.asarray(observation), reward, diverged, truncated, info
 
 
 class _Compiled(NamedTuple):
@@ -201,6 +206,7 @@ class _Compiled(NamedTuple):
 
     observe: Any
     normalise: Any
+    after: Any
     ctrl: Any
     features: Any
     error: Any
@@ -217,13 +223,22 @@ def _compiled(task, robot) -> _Compiled:
         torque_limit=robot.torque_limit,
         desired_index=task.desired_index,
     )
+
+    def observe(ref_t, q, qd, f):
+        return task.state(q, qd, f), task.desired(ref_t, q, qd, f)
+
+    def normalise(s, d):
+        return jnp.concatenate([normaliser.state(s), normaliser.desired(d)])
+
+    def after(ref_next, q, qd, sensors):
+        """A step's features, tracking error and next observation, in one call."""
+        f = task.features(q, qd, sensors)
+        return f, task.tracking_error(ref_next, q, qd, f), normalise(*observe(ref_next, q, qd, f))
+
     return _Compiled(
-        observe=jax.jit(
-            lambda ref_t, q, qd, f: (task.state(q, qd, f), task.desired(ref_t, q, qd, f))
-        ),
-        normalise=jax.jit(
-            lambda s, d: jnp.concatenate([normaliser.state(s), normaliser.desired(d)])
-        ),
+        observe=jax.jit(observe),
+        normalise=jax.jit(normalise),
+        after=jax.jit(after),
         ctrl=jax.jit(robot.torque_to_ctrl),
         features=jax.jit(task.features),
         error=jax.jit(task.tracking_error),
