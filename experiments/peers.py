@@ -1,0 +1,544 @@
+"""Robot-seconds to a working controller: cfm_jax's four losses against SAC and PPO on the
+same tracking task, one command (issue 42).
+
+Not a test: a study. It runs
+
+* **cfm_jax**: ``cfm-jax train --loss LOSS --seeds N`` for each of the four losses, as a user
+  would (the quickstart: the iiwa14's inverse-dynamics task, 4 iterations; ``--train-flags``
+  passes other flags), each loss in its own process and folder (``OUT/cfm_LOSS``). Its
+  controller of iteration ``i`` was fitted on the babbling and ``i`` iterations' rollouts:
+  ``babbling_rollouts x targets x duration + i x targets x duration`` robot-seconds
+  (20 + 10 i s on the quickstart);
+* **the peers**, SAC and PPO of Stable-Baselines3 (PyTorch, CPU; SB3's own defaults for
+  continuous control, :data:`HYPERPARAMETERS`), on :class:`cfm_jax.envs.TrackingEnv` of the
+  very config the cfm_jax run recorded: the same robot, control period, torque limits, start
+  state and references. Their episodes follow the task's references in turn, the references
+  every iteration of Algorithm 1 rolls out on (the babbling knows none of them; neither
+  method sees the reference controller). Every peer is evaluated at fixed robot-second
+  checkpoints (``--checkpoints``; robot-seconds = environment steps x control period) with
+  its deterministic policy on each test reference; evaluation episodes are not learning
+  data. The tracking MSE is the library's metric (``tests/test_envs.py``);
+
+then writes ``--page`` (``docs/results/peers.md``): a log-log figure of test tracking MSE
+against robot-seconds (mean over seeds and its 95% bootstrap band; PD-only and oracle as
+lines) and a table per method: robot-seconds to PD-only's MSE and to 10x below it (median
+over the seeds that reach it, and how many do), the MSE at cfm_jax's budget and at the
+peers' largest, and the wall-clock time. A seed's MSE at a checkpoint is its mean over the
+test references; a rollout that diverged makes that checkpoint a failure for the seed.
+
+Resumable: a finished cfm_jax loss or peer seed is read, not run again; an interrupted
+cfm_jax loss resumes from its checkpoints; an interrupted peer resumes from its last
+robot-second checkpoint (its model, optimiser and replay buffer as SB3 saves them; a resumed
+peer is not bit-identical to an uninterrupted one: SB3 does not save its random state).
+``--records`` (the page's data, committed) is rewritten after every finished piece.
+
+Usage:
+  python experiments/peers.py [--seeds 5] [--methods joint,task,distal,supervised,sac,ppo]
+      [--budget 2000] [--out results/peers] [--page docs/results/peers.md]
+      [--records docs/results/peers_records.csv] [--train-flags "..."] [--page-only]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+LOSSES = ("joint", "task", "distal", "supervised")
+PEERS = ("sac", "ppo")
+METHODS = LOSSES + PEERS
+HYPERPARAMETERS = {"sac": {}, "ppo": {}}
+"""Arguments given to SB3's ``SAC`` / ``PPO`` beyond ``"MlpPolicy"``, the environment and
+the seed: none, SB3's own defaults for continuous control (SAC: learning rate 3e-4, batch 256,
+buffer 1e6, automatic entropy with target ``-action_dim``; PPO: learning rate 3e-4, 2048 steps
+per update, 10 epochs of batches of 64)."""
+COLUMNS = ["method", "seed", "robot_s", "target", "tracking_mse", "diverged", "wall_s"]
+"""The records: one row per method, seed, robot-second checkpoint and test reference;
+``wall_s`` the method's wall-clock seconds (this seed) up to that checkpoint (cfm_jax: the
+whole run of the loss, all seeds, on every row)."""
+
+
+def default_checkpoints(budget: float) -> list[float]:
+    """Robot-second checkpoints: 1, 2, 5 times powers of ten from 10 s up to ``budget``.
+
+    Examples:
+      >>> default_checkpoints(2000)
+      [10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 2000.0]
+    """
+    points, scale = [], 10.0
+    while scale <= budget:
+        points += [x * scale for x in (1, 2, 5) if x * scale <= budget]
+        scale *= 10
+    return points
+
+
+# ----- cfm_jax --------------------------------------------------------------------------
+
+
+def _cfm_finished(out: str) -> bool:
+    return os.path.exists(os.path.join(out, "peers_wall_s.txt"))
+
+
+def run_cfm(loss: str, seeds: int, out: str, flags: list[str]) -> None:
+    """``cfm-jax train --loss LOSS --seeds N --out OUT`` (resumed where ``out`` holds a run),
+    its wall-clock seconds written to ``OUT/peers_wall_s.txt`` when it finishes."""
+    if _cfm_finished(out):
+        return
+    resume = ["--resume"] if os.path.exists(os.path.join(out, "config.json")) else []
+    command = [sys.executable, "-m", "cfm_jax.cli", "train", "--loss", loss, "--seeds",
+               str(seeds), "--out", out, "--quiet", *flags, *resume]  # fmt: skip
+    start = time.perf_counter()
+    subprocess.run(command, check=True, cwd=ROOT)
+    with open(os.path.join(out, "peers_wall_s.txt"), "w") as f:
+        f.write(f"{time.perf_counter() - start:.1f}\n")
+
+
+def cfm_seconds(config) -> tuple[float, float]:
+    """``(babbling, per iteration)`` robot-seconds of a cfm_jax run of ``config``: the
+    babbling's ``loop.babbling_rollouts`` rollouts and each iteration's rollout, each
+    ``targets x steps x control_dt``."""
+    from cfm_jax.experiment import Experiment
+
+    task = Experiment(config).task
+    rollout = task.targets * task.steps * task.control_dt
+    return config.loop.babbling_rollouts * rollout, rollout
+
+
+def cfm_records(loss: str, out: str) -> pd.DataFrame:
+    """The records of a finished cfm_jax loss: iteration ``i`` at ``babbling + i x
+    per-iteration`` robot-seconds."""
+    from cfm_jax import config as config_lib
+
+    with open(os.path.join(out, loss, "config.json")) as f:
+        config = config_lib.from_dict(json.load(f))
+    babbling, per_iteration = cfm_seconds(config)
+    metrics = pd.read_csv(os.path.join(out, "metrics.csv"))
+    with open(os.path.join(out, "peers_wall_s.txt")) as f:
+        wall = float(f.read())
+    return pd.DataFrame({
+        "method": loss,
+        "seed": metrics.seed,
+        "robot_s": babbling + metrics.iteration * per_iteration,
+        "target": metrics.target,
+        "tracking_mse": metrics.tracking_mse,
+        "diverged": (metrics.diverged != 0).astype(int),
+        "wall_s": wall,
+    })[COLUMNS]  # fmt: skip
+
+
+# ----- the peers ------------------------------------------------------------------------
+
+
+def evaluate(model, env) -> list[tuple[int, float, int]]:
+    """``(target, tracking MSE, diverged)`` of the deterministic policy on each test
+    reference of ``env`` (a ``references="test"`` :class:`cfm_jax.envs.TrackingEnv`): the
+    mean over the episode's steps of the squared tracking error (the library's metric);
+    NaN for an episode that diverged."""
+    rows = []
+    for k in range(env.task.targets):
+        obs, _ = env.reset(options={"target": k})
+        errors, diverged = [], False
+        while True:
+            action, _ = model.predict(obs, deterministic=True)
+            obs, _, terminated, truncated, info = env.step(action)
+            errors.append(np.mean(np.square(info["tracking_error"], dtype=np.float64)))
+            if terminated or truncated:
+                diverged = bool(info["diverged"])
+                break
+        rows.append((k, float("nan") if diverged else float(np.mean(errors)), int(diverged)))
+    return rows
+
+
+def run_peer(method: str, seed: int, config, out: str, checkpoints: list[float]) -> None:
+    """Train ``method`` (SAC or PPO) with ``seed`` up to the last checkpoint, evaluating at
+    each; ``OUT/records.csv`` gains the rows of each checkpoint as it is reached, and the
+    model (and SAC's replay buffer) is saved there, so an interruption loses at most the
+    piece since the last checkpoint."""
+    import stable_baselines3
+    import torch
+
+    from cfm_jax import envs
+    from cfm_jax.experiment import Experiment
+
+    torch.set_num_threads(1)
+    os.makedirs(out, exist_ok=True)
+    experiment = Experiment(config)
+    env = envs.TrackingEnv(config, references="test", experiment=experiment)
+    probe = envs.TrackingEnv(config, references="test", experiment=experiment)
+    algorithm = {"sac": stable_baselines3.SAC, "ppo": stable_baselines3.PPO}[method]
+    records = os.path.join(out, "records.csv")
+    state_path = os.path.join(out, "state.json")
+    model_path = os.path.join(out, "model.zip")
+    buffer_path = os.path.join(out, "buffer.pkl")
+    if os.path.exists(state_path):
+        with open(state_path) as f:
+            state = json.load(f)
+        model = algorithm.load(model_path, env=env, device="cpu")
+        if method == "sac":
+            model.load_replay_buffer(buffer_path)
+    else:
+        state = {"wall_s": 0.0, "done": []}
+        model = algorithm("MlpPolicy", env, seed=seed, device="cpu", verbose=0,
+                          **HYPERPARAMETERS[method])  # fmt: skip
+        pd.DataFrame(columns=COLUMNS).to_csv(records, index=False)
+    dt = env.control_dt
+    for point in checkpoints:
+        if point in state["done"]:
+            continue
+        start = time.perf_counter()
+        remaining = int(round(point / dt)) - model.num_timesteps
+        if remaining > 0:
+            model.learn(remaining, reset_num_timesteps=False)
+        state["wall_s"] += time.perf_counter() - start
+        if model.num_timesteps == state.get("evaluated"):
+            # PPO learns in whole rollouts (2048 steps): it may pass several checkpoints in
+            # one; a model is evaluated once.
+            state["done"].append(point)
+            continue
+        state["evaluated"] = model.num_timesteps
+        rows = [
+            (method, seed, model.num_timesteps * dt, k, mse, diverged, state["wall_s"])
+            for k, mse, diverged in evaluate(model, probe)
+        ]
+        pd.DataFrame(rows, columns=COLUMNS).to_csv(records, mode="a", header=False, index=False)
+        model.save(model_path)
+        if method == "sac":
+            model.save_replay_buffer(buffer_path)
+        state["done"].append(point)
+        with open(state_path, "w") as f:
+            json.dump(state, f)
+    with open(state_path, "w") as f:
+        json.dump(state, f)
+
+
+def _peer_finished(out: str, checkpoints: list[float]) -> bool:
+    try:
+        with open(os.path.join(out, "state.json")) as f:
+            return set(checkpoints) <= set(json.load(f)["done"])
+    except FileNotFoundError:
+        return False
+
+
+# ----- the page -------------------------------------------------------------------------
+
+
+def seed_curves(records: pd.DataFrame) -> pd.DataFrame:
+    """Per method, seed and checkpoint: the mean tracking MSE over the test references
+    (inf where one diverged) and the wall-clock seconds."""
+    grouped = records.groupby(["method", "seed", "robot_s"])
+    curves = grouped.agg(tracking_mse=("tracking_mse", "mean"), diverged=("diverged", "max"),
+                         wall_s=("wall_s", "max")).reset_index()  # fmt: skip
+    curves.loc[curves.diverged > 0, "tracking_mse"] = np.inf
+    return curves
+
+
+def time_to(curves: pd.DataFrame, level: float) -> tuple[float | None, int, int]:
+    """``(median robot-seconds, seeds that reach it, seeds)``: per seed the first checkpoint
+    whose MSE is at or below ``level``; the median over the seeds that reach it (None if
+    none does)."""
+    firsts = []
+    for _, seed in curves.groupby("seed"):
+        reached = seed[seed.tracking_mse <= level].robot_s
+        if len(reached):
+            firsts.append(float(reached.min()))
+    seeds = curves.seed.nunique()
+    return (float(np.median(firsts)) if firsts else None), len(firsts), seeds
+
+
+def _mse_at(curves: pd.DataFrame, budget: float):
+    """Mean and CI over seeds of the MSE at the last checkpoint at or below ``budget``
+    (diverged seeds left out and counted), and that checkpoint."""
+    from cfm_jax import report
+
+    before = curves[curves.robot_s <= budget + 1e-9]
+    if before.empty:
+        return None, None, 0
+    point = before.robot_s.max()
+    at = before[before.robot_s == point].tracking_mse.to_numpy()
+    finite = at[np.isfinite(at)]
+    stats = dict(report.mean_ci(finite), n=len(finite)) if len(finite) else None
+    return stats, point, int((~np.isfinite(at)).sum())
+
+
+def summary_rows(records: pd.DataFrame, pd_only: float) -> list[dict]:
+    """One row per method (in :data:`METHODS` order) of the page's table."""
+    curves = seed_curves(records)
+    cfm_budget = curves[curves.method.isin(LOSSES)].robot_s.max()
+    peer_budget = curves[curves.method.isin(PEERS)].robot_s.max()
+    rows = []
+    for method in METHODS:
+        mine = curves[curves.method == method]
+        if mine.empty:
+            continue
+        wall = mine.groupby("seed").wall_s.max()
+        rows.append(dict(
+            method=method,
+            to_pd=time_to(mine, pd_only),
+            to_tenth=time_to(mine, pd_only / 10),
+            at_cfm=_mse_at(mine, cfm_budget) if np.isfinite(cfm_budget) else (None, None, 0),
+            at_peer=(
+                _mse_at(mine, peer_budget)
+                if method in PEERS and np.isfinite(peer_budget)
+                else (None, None, 0)
+            ),
+            last=float(mine.robot_s.max()),
+            wall=float(wall.iloc[0]) if method in LOSSES else float(wall.mean()),
+        ))  # fmt: skip
+    return rows
+
+
+def _time_text(result, last: float) -> str:
+    median, reached, seeds = result
+    if median is None:
+        return f"not reached within {last:.3g} s (0/{seeds})"
+    return f"{median:.3g} s ({reached}/{seeds})"
+
+
+def _mse_text(result) -> str:
+    from cfm_jax import report
+
+    stats, point, diverged = result
+    if point is None:
+        return "-"
+    text = (report.ci_text(stats) if stats["n"] > 1 else f"{stats['mean']:.3g}") if stats else "-"
+    text += f" at {point:.3g} s"
+    return text + (f"; {diverged} diverged" if diverged else "")
+
+
+def table(records: pd.DataFrame, pd_only: float, oracle: float) -> str:
+    """The page's table (Markdown) from the records: the same records give the same text."""
+    lines = [
+        "| method | robot-s to PD-only | robot-s to 10x below PD-only | MSE at cfm_jax's budget "
+        "| MSE at the peers' budget | wall-clock (s; cfm_jax: all seeds in one run, a peer: "
+        "per seed) |",
+        "|---|---|---|---|---|---:|",
+    ]
+    for row in summary_rows(records, pd_only):
+        lines.append(
+            f"| {row['method']} | {_time_text(row['to_pd'], row['last'])} | "
+            f"{_time_text(row['to_tenth'], row['last'])} | {_mse_text(row['at_cfm'])} | "
+            f"{_mse_text(row['at_peer'])} | {row['wall']:.0f} |"
+        )
+    lines += ["", f"PD-only: {pd_only:.3g} rad^2; oracle: {oracle:.3g} rad^2."]
+    return "\n".join(lines) + "\n"
+
+
+def figure(records: pd.DataFrame, pd_only: float, oracle: float, path: str) -> None:
+    """Log-log test tracking MSE against robot-seconds: per method the mean over the seeds
+    that did not diverge and its 95% bootstrap band; PD-only and oracle as lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cfm_jax import report
+
+    curves = seed_curves(records)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for method in METHODS:
+        mine = curves[(curves.method == method) & np.isfinite(curves.tracking_mse)]
+        if mine.empty:
+            continue
+        points = sorted(mine.robot_s.unique())
+        stats = [report.mean_ci(mine[mine.robot_s == p].tracking_mse.to_numpy()) for p in points]
+        mean = [s["mean"] for s in stats]
+        line = ax.plot(points, mean, marker="o", ms=3, label=method)[0]
+        low = [s["low"] if np.isfinite(s["low"]) else s["mean"] for s in stats]
+        high = [s["high"] if np.isfinite(s["high"]) else s["mean"] for s in stats]
+        ax.fill_between(points, low, high, color=line.get_color(), alpha=0.2)
+    ax.axhline(pd_only, color="k", ls="--", lw=1, label="PD-only")
+    ax.axhline(oracle, color="k", ls=":", lw=1, label="oracle")
+    ax.set(xscale="log", yscale="log", xlabel="robot-seconds of learning data",
+           ylabel="test tracking MSE (rad$^2$)")  # fmt: skip
+    ax.legend(fontsize=8, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def describe(config, command: str, checkpoints: list[float]) -> dict:
+    """What the page says of a run, kept beside the records (``RECORDS`` with ``.json``):
+    the command, date, machine, the task and the peers' versions and settings."""
+    import stable_baselines3
+    import torch
+
+    from cfm_jax.experiment import Experiment
+
+    task = Experiment(config).task
+    return {
+        "command": command,
+        "date": datetime.date.today().isoformat(),
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "task": (
+            f"{os.path.splitext(os.path.basename(config.robot))[0]}, {config.task.name}, "
+            f"{task.targets} test motions of {task.steps * task.control_dt:g} s at "
+            f"{1 / task.control_dt:g} Hz; cfm_jax {config.loop.iterations} iterations"
+        ),
+        "control_dt": task.control_dt,
+        "peers": (
+            f"stable-baselines3 {stable_baselines3.__version__}, torch {torch.__version__} "
+            f"(CPU, 1 thread), SB3's default hyperparameters {HYPERPARAMETERS}"
+        ),
+        "checkpoints": checkpoints,
+    }
+
+
+def page(records: pd.DataFrame, meta: dict, figure_name: str) -> str:
+    """The results page (Markdown) from the records and their description: the same
+    records give the same page."""
+    pd_only, oracle = levels(records)
+    seeds = records[records.method.isin(METHODS)].seed.nunique()
+    return "\n".join([
+        "# Robot-seconds to a working controller: cfm_jax against SAC and PPO",
+        "",
+        f"Written by `{meta['command']}`, {meta['date']} ({meta['machine']}), from its records "
+        f"(`{RECORDS}`). The task: {meta['task']}. Peers: {meta['peers']}. Robot-seconds: "
+        "simulated time of all data a method learned from (cfm_jax: babbling and every "
+        "iteration's rollouts; a peer: its environment steps x "
+        f"{meta['control_dt']:g} s); the peers' evaluation rollouts on the test references "
+        f"are not counted. Seeds per method: {seeds}. A seed's MSE at a checkpoint is its "
+        "mean over the test motions (a diverged motion fails the checkpoint); `robot-s to "
+        "...`: the median, over the seeds that reach the level, of their first checkpoint "
+        "at or below it (and how many seeds do); MSE cells: the mean over seeds with its "
+        "95% bootstrap interval, at the last checkpoint within the budget. How to read it: "
+        "[the comparison](../peers.md).",
+        "",
+        f"![test tracking MSE against robot-seconds]({figure_name})",
+        "",
+        table(records, pd_only, oracle),
+    ])  # fmt: skip
+
+
+RECORDS = "docs/results/peers_records.csv"
+
+
+def baseline_records(out: str) -> pd.DataFrame:
+    """PD-only's and the oracle's rows (``method`` ``pd_only`` / ``oracle``, no
+    robot-seconds) from a cfm_jax run's ``baselines.csv``: they learn nothing."""
+    base = pd.read_csv(os.path.join(out, "baselines.csv"))
+    return pd.DataFrame({
+        "method": base.baseline, "seed": 0, "robot_s": np.nan, "target": base.target,
+        "tracking_mse": base.tracking_mse, "diverged": 0, "wall_s": np.nan,
+    })[COLUMNS]  # fmt: skip
+
+
+def levels(records: pd.DataFrame) -> tuple[float, float]:
+    """PD-only's and the oracle's mean tracking MSE in the records."""
+    means = records.groupby("method").tracking_mse.mean()
+    return float(means["pd_only"]), float(means["oracle"])
+
+
+def meta_path(records_path: str) -> str:
+    """The description's file beside the records: ``.csv`` replaced by ``.json``."""
+    return os.path.splitext(records_path)[0] + ".json"
+
+
+def write_page(records_path: str, page_path: str) -> None:
+    """The page and its figure (beside it, same name, ``.png``) from the records and their
+    description."""
+    records = pd.read_csv(records_path)
+    with open(meta_path(records_path)) as f:
+        meta = json.load(f)
+    pd_only, oracle = levels(records)
+    folder = os.path.dirname(os.path.abspath(page_path))
+    name = os.path.splitext(os.path.basename(page_path))[0] + ".png"
+    figure(records, pd_only, oracle, os.path.join(folder, name))
+    with open(page_path, "w") as f:
+        f.write(page(records, meta, name))
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--methods", default=",".join(METHODS))
+    parser.add_argument(
+        "--budget",
+        type=float,
+        default=2000.0,
+        help="the peers' robot-seconds (default 2000: 2e5 steps)",
+    )
+    parser.add_argument(
+        "--checkpoints",
+        default=None,
+        help="comma-separated robot-seconds (default 1-2-5 from 10 s)",
+    )
+    parser.add_argument("--out", default="results/peers")
+    parser.add_argument("--page", default="docs/results/peers.md")
+    parser.add_argument("--records", default=RECORDS)
+    parser.add_argument("--train-flags", default="", help="more flags for cfm-jax train")
+    parser.add_argument(
+        "--page-only",
+        action="store_true",
+        help="write the page from --records alone (nothing is run)",
+    )
+    args = parser.parse_args(argv)
+    methods = [m for m in args.methods.split(",") if m]
+    unknown = sorted(set(methods) - set(METHODS))
+    if unknown:
+        parser.error(f"--methods: {unknown} not allowed; choose from {list(METHODS)}")
+    if args.seeds < 1:
+        parser.error(f"--seeds={args.seeds}: a positive number")
+    checkpoints = (
+        [float(x) for x in args.checkpoints.split(",")] if args.checkpoints
+        else default_checkpoints(args.budget)
+    )  # fmt: skip
+    command = " ".join(["python experiments/peers.py", *(shlex.quote(a) for a in argv)])
+    if not args.page_only:
+        from cfm_jax import config as config_lib
+
+        flags = shlex.split(args.train_flags)
+        # Every method's config and the baselines: the cfm_jax runs' (without a loss among
+        # the methods, the joint loss's run still gives them).
+        runs = [m for m in methods if m in LOSSES] or ["joint"]
+        for loss in runs:
+            run_cfm(loss, args.seeds, os.path.join(args.out, f"cfm_{loss}"), flags)
+        first = os.path.join(args.out, f"cfm_{runs[0]}")
+        with open(os.path.join(first, runs[0], "config.json")) as f:
+            config = config_lib.from_dict(json.load(f))
+        meta = describe(config, command, checkpoints)
+        peers = [m for m in methods if m in PEERS]
+        for seed in range(args.seeds):
+            for method in peers:
+                out = os.path.join(args.out, method, f"seed{seed}")
+                if not _peer_finished(out, checkpoints):
+                    print(f"peers: {method} seed {seed} ...", flush=True)
+                    run_peer(method, seed, config, out, checkpoints)
+                # The page after every piece: a study cut short still shows what it has.
+                collect(args.out, first, methods, args.seeds, args.records, meta)
+                write_page(args.records, args.page)
+        collect(args.out, first, methods, args.seeds, args.records, meta)
+    write_page(args.records, args.page)
+    print(f"peers: wrote {args.page} and {args.records}")
+
+
+def collect(out: str, first: str, methods, seeds: int, records_path: str, meta: dict) -> None:
+    """The records of every finished cfm_jax loss and every peer seed begun, with the
+    baselines of ``first`` (a cfm_jax run), into ``records_path``; ``meta`` beside them."""
+    parts = [baseline_records(first)]
+    parts += [cfm_records(loss, os.path.join(out, f"cfm_{loss}"))
+              for loss in methods if loss in LOSSES]  # fmt: skip
+    for method in [m for m in methods if m in PEERS]:
+        for seed in range(seeds):
+            path = os.path.join(out, method, f"seed{seed}", "records.csv")
+            if os.path.exists(path):
+                parts.append(pd.read_csv(path))
+    records = pd.concat(parts, ignore_index=True)[COLUMNS]
+    os.makedirs(os.path.dirname(os.path.abspath(records_path)), exist_ok=True)
+    records.to_csv(records_path, index=False, float_format="%.9g")
+    with open(meta_path(records_path), "w") as f:
+        json.dump(meta, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,126 @@
+"""experiments/peers.py (issue 42): a tiny run of each peer (SAC and PPO of Stable-Baselines3
+on the two-link arm's tracking environment, seconds) with its checkpoints, resumption and
+records; the robot-seconds of a cfm_jax run by hand; the table's numbers by hand; and the
+committed page regenerated from its committed records (the study itself is not run here:
+hours)."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+pytest.importorskip("stable_baselines3")
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
+import peers  # noqa: E402
+
+from cfm_jax import config as config_lib  # noqa: E402
+from cfm_jax import envs  # noqa: E402
+
+ROOT = os.path.join(os.path.dirname(__file__), "..")
+CONFIG = config_lib.Config(robot="two_link_arm", task=config_lib.TaskConfig(duration=0.2))
+
+
+def test_cfm_robot_seconds_by_hand():
+    # The quickstart: 2 babbling rollouts of 5 reaches of 2 s, then 5 reaches an iteration.
+    assert peers.cfm_seconds(config_lib.Config()) == pytest.approx((20.0, 10.0))
+    # The two-link arm, 0.2 s reaches, 3 babbling rollouts: 3 x 5 x 0.2 and 5 x 0.2.
+    loop = config_lib.LoopConfig(babbling_rollouts=3)
+    assert peers.cfm_seconds(config_lib.Config(robot="two_link_arm", task=CONFIG.task,
+                                               loop=loop)) == pytest.approx((3.0, 1.0))  # fmt: skip
+
+
+def test_sac_checkpoints_resume_and_records(tmp_path):
+    out = str(tmp_path / "sac")
+    peers.run_peer("sac", 0, CONFIG, out, [0.3, 0.6])
+    first = pd.read_csv(os.path.join(out, "records.csv"))
+    # Each checkpoint: the 5 test references, at steps x control period robot-seconds.
+    assert list(first.robot_s.unique()) == pytest.approx([0.3, 0.6])
+    assert sorted(first.target.unique()) == [0, 1, 2, 3, 4] and len(first) == 10
+    assert (first.tracking_mse > 0).all() and (first.diverged == 0).all()
+    # A longer budget later resumes from the saved model and replay buffer: the first
+    # checkpoints' rows stay, the new one follows after 60 + 30 steps in all.
+    peers.run_peer("sac", 0, CONFIG, out, [0.3, 0.6, 0.9])
+    again = pd.read_csv(os.path.join(out, "records.csv"))
+    pd.testing.assert_frame_equal(again.iloc[:10], first)
+    assert list(again.robot_s.unique()) == pytest.approx([0.3, 0.6, 0.9])
+    import stable_baselines3
+
+    model = stable_baselines3.SAC.load(os.path.join(out, "model.zip"))
+    model.load_replay_buffer(os.path.join(out, "buffer.pkl"))
+    assert model.num_timesteps == 90 and model.replay_buffer.size() == 90
+
+
+def test_ppo_evaluates_each_model_once(tmp_path):
+    # PPO learns in rollouts of 2048 steps (SB3's default): both checkpoints fall inside
+    # the first, so one evaluation, at 2048 steps.
+    out = str(tmp_path / "ppo")
+    peers.run_peer("ppo", 1, CONFIG, out, [0.2, 0.4])
+    records = pd.read_csv(os.path.join(out, "records.csv"))
+    assert list(records.robot_s.unique()) == pytest.approx([20.48]) and len(records) == 5
+    assert peers._peer_finished(out, [0.2, 0.4]) and not peers._peer_finished(out, [0.2, 30])
+
+
+def test_evaluation_is_the_library_metric_of_the_policy_actions(tmp_path):
+    # The evaluation's MSE of a policy is the mean squared joint-position error of the
+    # rollout its actions make, computed here from the states and the references.
+    class Constant:
+        def predict(self, obs, deterministic):
+            assert deterministic
+            return np.full(2, 0.05, np.float32), None
+
+    env = envs.TrackingEnv(CONFIG, references="test")
+    rows = peers.evaluate(Constant(), env)
+    task = env.task
+    for k, mse, diverged in rows:
+        env.reset(options={"target": k})
+        errors = []
+        for t in range(task.steps):
+            env.step(np.full(2, 0.05, np.float32))
+            # The joint-position error of the next state (rad^2), by hand.
+            errors.append((np.asarray(env._qpos) - np.asarray(task.reference.q[k, t + 1])) ** 2)
+        assert not diverged
+        np.testing.assert_allclose(mse, np.mean(errors), rtol=1e-5)
+
+
+def _records(tmp_path):
+    # Two seeds, one target: PD-only 1.0. "a" reaches 1.0 at 20 s (seed 0) and 30 s (seed 1),
+    # 0.1 at 30 s on seed 0 only; "sac" diverges at 10 s on seed 1.
+    rows = [("pd_only", 0, np.nan, 0, 1.0, 0, np.nan), ("oracle", 0, np.nan, 0, 1e-3, 0, np.nan)]
+    for seed, values in enumerate([(2.0, 0.9, 0.05), (3.0, 1.5, 0.5)]):
+        for robot_s, v in zip((10.0, 20.0, 30.0), values, strict=True):
+            rows.append(("joint", seed, robot_s, 0, v, 0, 7.0))
+    for seed, (v, d) in enumerate([(0.5, 0), (np.nan, 1)]):
+        rows.append(("sac", seed, 10.0, 0, v, d, 3.0 + seed))
+        rows.append(("sac", seed, 100.0, 0, 0.2, 0, 13.0 + seed))
+    return pd.DataFrame(rows, columns=peers.COLUMNS)
+
+
+def test_table_numbers_by_hand(tmp_path):
+    records = _records(tmp_path)
+    curves = peers.seed_curves(records)
+    joint, sac = curves[curves.method == "joint"], curves[curves.method == "sac"]
+    assert peers.time_to(joint, 1.0) == (25.0, 2, 2)  # median of 20 and 30
+    assert peers.time_to(joint, 0.1) == (30.0, 1, 2)
+    assert peers.time_to(sac, 1.0) == (55.0, 2, 2)  # seed 0 at 10, seed 1 (diverged) at 100
+    stats, point, diverged = peers._mse_at(sac, 30.0)  # cfm_jax's budget: the 10 s point
+    assert (stats["mean"], stats["n"], point, diverged) == (0.5, 1, 10.0, 1)
+    text = peers.table(records, *peers.levels(records))
+    assert "| joint | 25 s (2/2) | 30 s (1/2) | 0.275 [0.05, 0.5] at 30 s | - | 7 |" in text
+    assert "| sac | 55 s (2/2) | not reached within 100 s (0/2) | 0.5 at 10 s; 1 diverged |" in text
+
+
+def test_committed_page_is_its_records():
+    records = os.path.join(ROOT, peers.RECORDS)
+    if not os.path.exists(records):
+        pytest.skip("no committed records yet")
+    committed = open(os.path.join(ROOT, "docs", "results", "peers.md")).read()
+    records_frame = pd.read_csv(records)
+    import json
+
+    with open(peers.meta_path(records)) as f:
+        meta = json.load(f)
+    assert peers.page(records_frame, meta, "peers.png") == committed
