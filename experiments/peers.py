@@ -32,6 +32,13 @@ robot-second checkpoint (its model, optimiser and replay buffer as SB3 saves the
 peer is not bit-identical to an uninterrupted one: SB3 does not save its random state).
 ``--records`` (the page's data, committed) is rewritten after every finished piece.
 
+The peers' hyperparameters: SB3's defaults for continuous control, changed where a small
+selection says so (:data:`SELECTION_GRID`, :data:`SELECTION_RULE`): each candidate runs
+``--select-seeds`` seeds for ``--select-budget`` robot-seconds on the *selection motions*
+(five reaches to other targets, never a test motion), the same rule for both peers; the
+choice and every candidate's score go to ``--selection`` (committed) and are reused while the
+grid, seeds and budget stay the same.
+
 Usage:
   python experiments/peers.py [--seeds 5] [--methods joint,task,distal,supervised,sac,ppo]
       [--budget 2000] [--out results/peers] [--page docs/results/peers.md]
@@ -159,11 +166,14 @@ def evaluate(model, env) -> list[tuple[int, float, int]]:
     return rows
 
 
-def run_peer(method: str, seed: int, config, out: str, checkpoints: list[float]) -> None:
+def run_peer(
+    method: str, seed: int, config, out: str, checkpoints: list[float], hyper: dict | None = None
+) -> None:
     """Train ``method`` (SAC or PPO) with ``seed`` up to the last checkpoint, evaluating at
     each; ``OUT/records.csv`` gains the rows of each checkpoint as it is reached, and the
     model (and SAC's replay buffer) is saved there, so an interruption loses at most the
-    piece since the last checkpoint."""
+    piece since the last checkpoint. ``hyper``: arguments for SB3's constructor (None:
+    :data:`HYPERPARAMETERS`); a resumed run must have the ones it began with."""
     import stable_baselines3
     import torch
 
@@ -171,6 +181,7 @@ def run_peer(method: str, seed: int, config, out: str, checkpoints: list[float])
     from cfm_jax.experiment import Experiment
 
     torch.set_num_threads(1)
+    hyper = dict(HYPERPARAMETERS[method] if hyper is None else hyper)
     os.makedirs(out, exist_ok=True)
     experiment = Experiment(config)
     env = envs.TrackingEnv(config, references="test", experiment=experiment)
@@ -183,13 +194,18 @@ def run_peer(method: str, seed: int, config, out: str, checkpoints: list[float])
     if os.path.exists(state_path):
         with open(state_path) as f:
             state = json.load(f)
+        if state.get("hyper", {}) != hyper:
+            raise SystemExit(
+                f"peers: {out} began with hyperparameters {state.get('hyper', {})}, not "
+                f"{hyper}: give another --out, or remove the folder to start again"
+            )
         model = algorithm.load(model_path, env=env, device="cpu")
         if method == "sac":
             model.load_replay_buffer(buffer_path)
     else:
-        state = {"wall_s": 0.0, "done": []}
+        state = {"wall_s": 0.0, "done": [], "hyper": hyper}
         model = algorithm("MlpPolicy", env, seed=seed, device="cpu", verbose=0,
-                          **HYPERPARAMETERS[method])  # fmt: skip
+                          **_arguments(hyper, env))  # fmt: skip
         pd.DataFrame(columns=COLUMNS).to_csv(records, index=False)
     dt = env.control_dt
     for point in checkpoints:
@@ -227,6 +243,109 @@ def _peer_finished(out: str, checkpoints: list[float]) -> bool:
             return set(checkpoints) <= set(json.load(f)["done"])
     except FileNotFoundError:
         return False
+
+
+def _arguments(hyper: dict, env) -> dict:
+    """SB3's constructor arguments of ``hyper``: ``target_entropy_per_action`` (the
+    selection's form, a multiple of the action dimension) becomes SAC's ``target_entropy``."""
+    arguments = dict(hyper)
+    per_action = arguments.pop("target_entropy_per_action", None)
+    if per_action is not None:
+        arguments["target_entropy"] = float(per_action * env.action_space.shape[0])
+    return arguments
+
+
+# ----- the peers' hyperparameters -----------------------------------------------------
+
+SELECTION_GRID = {
+    "sac": [
+        {},
+        {"learning_rate": 1e-4},
+        {"learning_rate": 1e-3},
+        {"target_entropy_per_action": -2.0},
+        {"target_entropy_per_action": -4.0},
+    ],
+    "ppo": [{}, {"learning_rate": 1e-4}, {"learning_rate": 1e-3}],
+}
+"""The candidates of the selection (``--select``), each a change of SB3's defaults: the
+learning rate a factor of 3 either side of SB3's 3e-4, for both peers; for SAC also the
+entropy target at 2 and 4 times SB3's ``-action_dim`` (a tracking task wants precise
+actions). One factor at a time; the rule picks per factor, then the picks together."""
+SELECTION_RULE = (
+    "Score of a run: log10 of the mean tracking MSE over the five selection motions at the "
+    "selection budget (a diverged motion, or an MSE above 1000 x PD-only's: log10(1000 x "
+    "PD-only)). Score of a candidate: mean over seeds. Per factor the candidate with the "
+    "lowest score is chosen if its score is lower than SB3's default's; the chosen values "
+    "together are the study's hyperparameters. The same rule for SAC and PPO; the "
+    "selection motions are five reaches to other targets (references.SELECTION_SEED), never "
+    "a test motion."
+)
+
+
+def selection_config(config):
+    """``config`` on the selection motions: the targets of
+    :func:`cfm_jax.references.driven_targets` with ``SELECTION_SEED``."""
+    import dataclasses
+
+    from cfm_jax import references, robots
+
+    robot = robots.load(config.robot, actuators=config.robot_actuators,
+                        torque_limit=config.robot_torque_limit)  # fmt: skip
+    home = robot.home if config.task.home is None else np.asarray(config.task.home)
+    targets = references.driven_targets(robot, home, references.SELECTION_SEED)
+    task = dataclasses.replace(
+        config.task, targets=tuple(tuple(float(x) for x in t) for t in targets)
+    )
+    return dataclasses.replace(config, task=task)
+
+
+def _name(hyper: dict) -> str:
+    return "defaults" if not hyper else "-".join(f"{k}={v:g}" for k, v in sorted(hyper.items()))
+
+
+def select(config, out: str, seeds: int, budget: float, pd_only: float) -> dict:
+    """Run every candidate of :data:`SELECTION_GRID` for ``seeds`` seeds up to ``budget``
+    robot-seconds on the selection motions (resumable, as the study) and apply
+    :data:`SELECTION_RULE`; returns ``{peer: {"chosen": hyper, "scores": {name: score}}}``.
+    ``pd_only``: PD-only's MSE on the selection motions."""
+    chosen = {}
+    cap = np.log10(1000 * pd_only)
+    for method, grid in SELECTION_GRID.items():
+        scores = {}
+        for hyper in grid:
+            runs = []
+            for seed in range(seeds):
+                cell = os.path.join(out, "select", method, _name(hyper), f"seed{seed}")
+                if not _peer_finished(cell, [budget]):
+                    print(f"peers: select {method} {_name(hyper)} seed {seed} ...", flush=True)
+                    run_peer(method, 100 + seed, config, cell, [budget], hyper)
+                rows = pd.read_csv(os.path.join(cell, "records.csv"))
+                last = rows[rows.robot_s == rows.robot_s.max()]
+                mse = last.tracking_mse.mean()
+                bad = last.diverged.any() or not np.isfinite(mse)
+                runs.append(cap if bad else min(float(np.log10(mse)), cap))
+            scores[_name(hyper)] = float(np.mean(runs))
+        chosen[method] = {"chosen": choose(grid, scores), "scores": scores}
+    return chosen
+
+
+def choose(grid: list[dict], scores: dict) -> dict:
+    """:data:`SELECTION_RULE` on candidate scores (``{_name(hyper): score}``, lower is
+    better): per factor the best candidate if it beats the defaults; the picks together.
+
+    Examples:
+      >>> grid = [{}, {"learning_rate": 1e-4}, {"learning_rate": 1e-3}, {"gamma": 0.9}]
+      >>> choose(grid, {"defaults": -3.0, "learning_rate=0.0001": -3.5,
+      ...               "learning_rate=0.001": -4.0, "gamma=0.9": -2.0})
+      {'learning_rate': 0.001}
+    """
+    picked = {}
+    for factor in sorted({k for hyper in grid for k in hyper}):
+        candidates = [h for h in grid if set(h) == {factor}]
+        best = min(candidates, key=lambda h: scores[_name(h)])
+        if scores[_name(best)] < scores["defaults"]:
+            picked.update(best)
+    return picked
 
 
 # ----- the page -------------------------------------------------------------------------
@@ -366,7 +485,7 @@ def figure(records: pd.DataFrame, pd_only: float, oracle: float, path: str) -> N
     plt.close(fig)
 
 
-def describe(config, command: str, checkpoints: list[float]) -> dict:
+def describe(config, command: str, checkpoints: list[float], hypers: dict) -> dict:
     """What the page says of a run, kept beside the records (``RECORDS`` with ``.json``):
     the command, date, machine, the task and the peers' versions and settings."""
     import stable_baselines3
@@ -387,7 +506,8 @@ def describe(config, command: str, checkpoints: list[float]) -> dict:
         "control_dt": task.control_dt,
         "peers": (
             f"stable-baselines3 {stable_baselines3.__version__}, torch {torch.__version__} "
-            f"(CPU, 1 thread), SB3's default hyperparameters {HYPERPARAMETERS}"
+            f"(CPU, 1 thread); changes of SB3's default hyperparameters chosen by the "
+            f"selection (`peers_selection.json`): {hypers}"
         ),
         "checkpoints": checkpoints,
     }
@@ -476,6 +596,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", default="results/peers")
     parser.add_argument("--page", default="docs/results/peers.md")
     parser.add_argument("--records", default=RECORDS)
+    parser.add_argument(
+        "--select-seeds",
+        type=int,
+        default=2,
+        help="seeds per candidate of the peers' selection (0: SB3's defaults)",
+    )
+    parser.add_argument(
+        "--select-budget", type=float, default=300.0, help="robot-seconds of each selection run"
+    )
+    parser.add_argument("--selection", default="docs/results/peers_selection.json")
     parser.add_argument("--train-flags", default="", help="more flags for cfm-jax train")
     parser.add_argument(
         "--page-only",
@@ -506,20 +636,46 @@ def main(argv: list[str] | None = None) -> None:
         first = os.path.join(args.out, f"cfm_{runs[0]}")
         with open(os.path.join(first, runs[0], "config.json")) as f:
             config = config_lib.from_dict(json.load(f))
-        meta = describe(config, command, checkpoints)
         peers = [m for m in methods if m in PEERS]
+        hypers = {m: HYPERPARAMETERS[m] for m in PEERS}
+        if peers and args.select_seeds > 0:
+            hypers = selected(config, args)
+        meta = describe(config, command, checkpoints, hypers)
         for seed in range(args.seeds):
             for method in peers:
                 out = os.path.join(args.out, method, f"seed{seed}")
                 if not _peer_finished(out, checkpoints):
                     print(f"peers: {method} seed {seed} ...", flush=True)
-                    run_peer(method, seed, config, out, checkpoints)
+                    run_peer(method, seed, config, out, checkpoints, hypers[method])
                 # The page after every piece: a study cut short still shows what it has.
                 collect(args.out, first, methods, args.seeds, args.records, meta)
                 write_page(args.records, args.page)
         collect(args.out, first, methods, args.seeds, args.records, meta)
     write_page(args.records, args.page)
     print(f"peers: wrote {args.page} and {args.records}")
+
+
+def selected(config, args) -> dict:
+    """The peers' hyperparameters: read from ``--selection`` where it holds a selection of
+    the same grid, seeds and budget, else chosen by :func:`select` (resumable) and written
+    there with a page beside it (``.md``)."""
+    from cfm_jax.experiment import Experiment
+
+    wanted = {"grid": SELECTION_GRID, "seeds": args.select_seeds, "budget": args.select_budget}
+    if os.path.exists(args.selection):
+        with open(args.selection) as f:
+            record = json.load(f)
+        if all(record.get(k) == json.loads(json.dumps(v)) for k, v in wanted.items()):
+            return {m: record["peers"][m]["chosen"] for m in PEERS}
+    chosen_config = selection_config(config)
+    base = Experiment(chosen_config).baselines()
+    pd_only = float(base[base.baseline == "pd_only"].tracking_mse.mean())
+    peers = select(chosen_config, args.out, args.select_seeds, args.select_budget, pd_only)
+    record = {**wanted, "pd_only": pd_only, "rule": SELECTION_RULE, "peers": peers}
+    os.makedirs(os.path.dirname(os.path.abspath(args.selection)), exist_ok=True)
+    with open(args.selection, "w") as f:
+        json.dump(record, f, indent=1)
+    return {m: peers[m]["chosen"] for m in PEERS}
 
 
 def collect(out: str, first: str, methods, seeds: int, records_path: str, meta: dict) -> None:

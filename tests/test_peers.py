@@ -124,3 +124,36 @@ def test_committed_page_is_its_records():
     with open(peers.meta_path(records)) as f:
         meta = json.load(f)
     assert peers.page(records_frame, meta, "peers.png") == committed
+
+
+def test_selection_rule_by_hand():
+    grid = [
+        {},
+        {"learning_rate": 1e-4},
+        {"learning_rate": 1e-3},
+        {"target_entropy_per_action": -2.0},
+    ]
+    scores = {"defaults": -3.0, "learning_rate=0.0001": -3.5, "learning_rate=0.001": -3.2,
+              "target_entropy_per_action=-2": -2.9}  # fmt: skip
+    # The best learning rate beats the defaults; the entropy target does not.
+    assert peers.choose(grid, scores) == {"learning_rate": 1e-4}
+    assert peers.choose(grid, {**scores, "target_entropy_per_action=-2": -4}) == {
+        "learning_rate": 1e-4, "target_entropy_per_action": -2.0}  # fmt: skip
+    assert peers.choose(grid, {k: 0.0 for k in scores}) == {}  # a tie keeps the default
+
+
+def test_selection_runs_on_other_motions_and_scores_each_candidate(tmp_path, monkeypatch):
+    config = peers.selection_config(CONFIG)
+    test_targets = np.asarray(envs.TrackingEnv(CONFIG, references="test").task.reference.q[:, -1])
+    chosen = np.asarray(envs.TrackingEnv(config, references="test").task.reference.q[:, -1])
+    assert not any(np.allclose(c, t) for c in chosen for t in test_targets)
+    grid = {"sac": [{}, {"target_entropy_per_action": -2.0}], "ppo": []}
+    monkeypatch.setattr(peers, "SELECTION_GRID", grid)
+    result = peers.select(config, str(tmp_path), seeds=1, budget=0.3, pd_only=1.0)
+    # Each candidate's score: log10 of its mean MSE over the five motions at 0.3 s.
+    for name in ("defaults", "target_entropy_per_action=-2"):
+        rows = pd.read_csv(tmp_path / "select" / "sac" / name / "seed0" / "records.csv")
+        assert len(rows) == 5
+        assert result["sac"]["scores"][name] == pytest.approx(np.log10(rows.tracking_mse.mean()))
+    # 30 steps, before SAC's first update (100): the same seed acts alike, a tie, no change.
+    assert result["sac"]["chosen"] == {}
