@@ -56,6 +56,7 @@ import shlex
 import subprocess
 import sys
 import time
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -255,6 +256,51 @@ def _arguments(hyper: dict, env) -> dict:
     return arguments
 
 
+class Piece(NamedTuple):
+    """One peer run of the study or the selection (the arguments of :func:`run_peer`)."""
+
+    method: str
+    seed: int
+    config: object
+    out: str
+    checkpoints: tuple
+    hyper: dict
+
+
+def _run_piece(piece: Piece) -> Piece:
+    run_peer(piece.method, piece.seed, piece.config, piece.out, list(piece.checkpoints),
+             piece.hyper)  # fmt: skip
+    return piece
+
+
+def run_pieces(pieces: list[Piece], jobs: int):
+    """Run the unfinished ``pieces``, ``jobs`` at once (each its own process: PyTorch and
+    JAX one thread each); yields each piece as it finishes, finished ones first."""
+    todo = []
+    for piece in pieces:
+        if _peer_finished(piece.out, list(piece.checkpoints)):
+            yield piece
+        else:
+            todo.append(piece)
+    if jobs <= 1:
+        for piece in todo:
+            print(f"peers: {piece.method} {_name(piece.hyper)} seed {piece.seed} ...", flush=True)
+            yield _run_piece(piece)
+        return
+    import concurrent.futures
+    import multiprocessing
+
+    context = multiprocessing.get_context("spawn")  # no fork of a process that ran JAX
+    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context) as pool:
+        futures = [pool.submit(_run_piece, piece) for piece in todo]
+        for piece in todo:
+            print(
+                f"peers: {piece.method} {_name(piece.hyper)} seed {piece.seed} queued", flush=True
+            )
+        for future in concurrent.futures.as_completed(futures):
+            yield future.result()
+
+
 # ----- the peers' hyperparameters -----------------------------------------------------
 
 SELECTION_GRID = {
@@ -303,11 +349,23 @@ def _name(hyper: dict) -> str:
     return "defaults" if not hyper else "-".join(f"{k}={v:g}" for k, v in sorted(hyper.items()))
 
 
-def select(config, out: str, seeds: int, budget: float, pd_only: float) -> dict:
+def select(config, out: str, seeds: int, budget: float, pd_only: float, jobs: int = 1) -> dict:
     """Run every candidate of :data:`SELECTION_GRID` for ``seeds`` seeds up to ``budget``
-    robot-seconds on the selection motions (resumable, as the study) and apply
-    :data:`SELECTION_RULE`; returns ``{peer: {"chosen": hyper, "scores": {name: score}}}``.
-    ``pd_only``: PD-only's MSE on the selection motions."""
+    robot-seconds on the selection motions (resumable, as the study; ``jobs`` pieces at
+    once) and apply :data:`SELECTION_RULE`; returns ``{peer: {"chosen": hyper, "scores":
+    {name: score}}}``. ``pd_only``: PD-only's MSE on the selection motions."""
+
+    def cell(method, hyper, seed):
+        return os.path.join(out, "select", method, _name(hyper), f"seed{seed}")
+
+    pieces = [
+        Piece(method, 100 + seed, config, cell(method, hyper, seed), (budget,), hyper)
+        for method, grid in SELECTION_GRID.items()
+        for hyper in grid
+        for seed in range(seeds)
+    ]
+    for _ in run_pieces(pieces, jobs):
+        pass
     chosen = {}
     cap = np.log10(1000 * pd_only)
     for method, grid in SELECTION_GRID.items():
@@ -315,11 +373,7 @@ def select(config, out: str, seeds: int, budget: float, pd_only: float) -> dict:
         for hyper in grid:
             runs = []
             for seed in range(seeds):
-                cell = os.path.join(out, "select", method, _name(hyper), f"seed{seed}")
-                if not _peer_finished(cell, [budget]):
-                    print(f"peers: select {method} {_name(hyper)} seed {seed} ...", flush=True)
-                    run_peer(method, 100 + seed, config, cell, [budget], hyper)
-                rows = pd.read_csv(os.path.join(cell, "records.csv"))
+                rows = pd.read_csv(os.path.join(cell(method, hyper, seed), "records.csv"))
                 last = rows[rows.robot_s == rows.robot_s.max()]
                 mse = last.tracking_mse.mean()
                 bad = last.diverged.any() or not np.isfinite(mse)
@@ -641,15 +695,22 @@ def main(argv: list[str] | None = None) -> None:
         if peers and args.select_seeds > 0:
             hypers = selected(config, args)
         meta = describe(config, command, checkpoints, hypers)
-        for seed in range(args.seeds):
-            for method in peers:
-                out = os.path.join(args.out, method, f"seed{seed}")
-                if not _peer_finished(out, checkpoints):
-                    print(f"peers: {method} seed {seed} ...", flush=True)
-                    run_peer(method, seed, config, out, checkpoints, hypers[method])
-                # The page after every piece: a study cut short still shows what it has.
-                collect(args.out, first, methods, args.seeds, args.records, meta)
-                write_page(args.records, args.page)
+        pieces = [
+            Piece(
+                method,
+                seed,
+                config,
+                os.path.join(args.out, method, f"seed{seed}"),
+                tuple(checkpoints),
+                hypers[method],
+            )  # fmt: skip
+            for seed in range(args.seeds)
+            for method in peers
+        ]
+        for _ in run_pieces(pieces, args.jobs):
+            # The page after every piece: a study cut short still shows what it has.
+            collect(args.out, first, methods, args.seeds, args.records, meta)
+            write_page(args.records, args.page)
         collect(args.out, first, methods, args.seeds, args.records, meta)
     write_page(args.records, args.page)
     print(f"peers: wrote {args.page} and {args.records}")
@@ -670,7 +731,8 @@ def selected(config, args) -> dict:
     chosen_config = selection_config(config)
     base = Experiment(chosen_config).baselines()
     pd_only = float(base[base.baseline == "pd_only"].tracking_mse.mean())
-    peers = select(chosen_config, args.out, args.select_seeds, args.select_budget, pd_only)
+    peers = select(chosen_config, args.out, args.select_seeds, args.select_budget, pd_only,
+                   args.jobs)  # fmt: skip
     record = {**wanted, "pd_only": pd_only, "rule": SELECTION_RULE, "peers": peers}
     os.makedirs(os.path.dirname(os.path.abspath(args.selection)), exist_ok=True)
     with open(args.selection, "w") as f:
