@@ -274,8 +274,8 @@ def _run_piece(piece: Piece) -> Piece:
 
 
 def run_pieces(pieces: list[Piece], jobs: int):
-    """Run the unfinished ``pieces``, ``jobs`` at once (each its own process: PyTorch and
-    JAX one thread each); yields each piece as it finishes, finished ones first."""
+    """Run the unfinished ``pieces``, ``jobs`` at once (each its own spawned process,
+    PyTorch on one thread); yields each piece as it finishes, finished ones first."""
     todo = []
     for piece in pieces:
         if _peer_finished(piece.out, list(piece.checkpoints)):
