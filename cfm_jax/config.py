@@ -198,6 +198,11 @@ def fail(field: str, value: Any, allowed: str) -> None:
     allowed, in the words every check of the library (config, CLI, sweeps, environments)
     uses.
 
+    Args:
+      field: the input's name as the user wrote it (``loop.seeds``, ``--out``).
+      value: the value given.
+      allowed: what is allowed, in words.
+
     Raises:
       ConfigError: ``"{field}={value!r} is not allowed: {allowed}"``.
 

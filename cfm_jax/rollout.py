@@ -242,6 +242,12 @@ def good(x):
     ``mju_isBad`` negated; NaN compares false): the test of a diverged simulation, for a
     JAX array (traced or not) or a NumPy array alike.
 
+    Args:
+      x: an array of simulator values (positions, velocities, accelerations).
+
+    Returns:
+      A boolean scalar (of ``x``'s array kind).
+
     Examples:
       >>> bool(good(jnp.array([0.0, -1e9]))), bool(good(jnp.array([1.0, jnp.nan])))
       (True, False)
