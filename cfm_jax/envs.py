@@ -208,7 +208,6 @@ class _Compiled(NamedTuple):
     normalise: Any
     after: Any
     ctrl: Any
-    features: Any
     error: Any
     start: Any
     training: Any
@@ -240,7 +239,6 @@ def _compiled(task, robot) -> _Compiled:
         normalise=jax.jit(normalise),
         after=jax.jit(after),
         ctrl=jax.jit(robot.torque_to_ctrl),
-        features=jax.jit(task.features),
         error=jax.jit(task.tracking_error),
         start=jax.jit(task.start),
         training=jax.jit(lambda key: task.babbling_reference("reaching", key)),
