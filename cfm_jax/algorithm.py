@@ -131,11 +131,13 @@ class Knobs:
         forward.max_log_variance)``, the initial soft bounds of the forward model.
       babbling_noise_std: ``loop.babbling_noise`` times each joint's torque scale
         (``loop.torque_scale``: :meth:`cfm_jax.robots.Robot.torque_scale` or the torque
-        limit), ``(action_dim,)``.
+        limit), ``(action_dim,)``; for ``"coupled"`` times the matrix scale ``T``,
+        ``(action_dim, action_dim)`` (the noise is ``T n``).
       babbling: ``loop.babbling`` as its index in :data:`cfm_jax.config.BABBLING` (int32).
       torque_scale: ``(action_dim,)`` float32, the torque scale of ``loop.torque_scale =
-        "inertia"`` (:func:`torque_scale`: it depends on the task's gains, so it is a value
-        of the config, not of its structure), or None (``"limit"``: the limits).
+        "inertia"`` (``(action_dim, action_dim)`` for ``"coupled"``; :func:`torque_scale`:
+        it depends on the task's gains, so it is a value of the config, not of its
+        structure), or None (``"limit"``: the limits).
       task: the task's values, ``values()`` of the task built for ``config.task`` (with
         ``loop.babbling_gains = "baseline"``, the babbling's gains are the baseline's): the
         gains (``task.kp``, ``task.kd``, ... and what the task derives from them) and, for
@@ -292,6 +294,8 @@ def _babbling_gains(config: config_lib.Config, values: dict) -> dict:
 def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:
     """The torque scale of ``config.loop.torque_scale``: for ``"inertia"``
     :meth:`cfm_jax.robots.Robot.torque_scale` of ``robot`` at the task's feedback frequency
+    (for ``"coupled"`` the ``(action_dim, action_dim)`` matrix
+    :meth:`cfm_jax.robots.Robot.coupled_torque_scale`)
     (:meth:`cfm_jax.config.TaskConfig.feedback_frequency`; float64), for ``"limit"`` None
     (the torque limits scale the torques).
 
@@ -310,8 +314,10 @@ def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:
     """
     if config.loop.torque_scale == "limit":
         return None
-    dt = config.task.control_period(robot.timestep)
-    return robot.torque_scale(config.task.feedback_frequency(dt))
+    frequency = config.task.feedback_frequency(config.task.control_period(robot.timestep))
+    if config.loop.torque_scale == "coupled":
+        return robot.coupled_torque_scale(frequency)
+    return robot.torque_scale(frequency)
 
 
 # ----- the listing ----------------------------------------------------------------------
@@ -883,13 +889,14 @@ def mixed_policy(setup: Setup, **weights) -> rollout_lib.MixedPolicy:
     # A placeholder controller (weight 0 here; a learned one takes its place with its own
     # normaliser): its normaliser has the run's structure, a torque scale (its value
     # unused) or None.
-    own = setup.config.loop.torque_scale != "limit"
+    structure = {"limit": None, "inertia": np.ones(task.action_dim),
+                 "coupled": np.eye(task.action_dim)}  # fmt: skip
     norm = networks.Normaliser.identity(
         task.state_dim,
         task.output_dim,
         setup.robot.torque_limit,
         task.desired_index,
-        torque_scale=np.ones(task.action_dim) if own else None,
+        torque_scale=structure[setup.config.loop.torque_scale],
     )
     return rollout_lib.MixedPolicy.of(dummy, norm, task.action_dim, **weights)
 

@@ -115,7 +115,7 @@ nor the reference controller; ``reference_pd`` and ``oracle`` use them and exist
 study their effect."""
 
 
-TORQUE_SCALES = ("inertia", "limit")
+TORQUE_SCALES = ("inertia", "limit", "coupled")
 """How torques are scaled, for ``Config.loop.torque_scale``
 (:meth:`cfm_jax.robots.Robot.torque_scale`): ``inertia`` (the arm tasks' default) scales
 joint ``j``'s torque by ``S_j = F_j + I_j min_k (tau_max_k - F_k) / I_k`` with ``I_j =
@@ -129,7 +129,11 @@ legged tasks' default) scales every torque by its limit ``tau_max`` (noise, inpu
 ``tau_max tanh(u)``). The two agree on a robot whose joints all reach the same acceleration
 at their limits; on a published arm with light distal links the wrist's limit gives 100x
 the acceleration of the shoulder's, and scaled by its limit the wrist's torques that the
-tracking needs are 1e-4 of the controller's range and 1e-3 of the babbling noise."""
+tracking needs are 1e-4 of the controller's range and 1e-3 of the babbling noise.
+``coupled`` (:meth:`cfm_jax.robots.Robot.coupled_torque_scale`, a candidate for the arms,
+issue 41) adds the joints' coupling: the matrix ``T = diag(S) + a (M - diag(M_jj))``, so that
+a scaled torque moves every joint alike at home even where light links hang on heavy ones
+(noise ``T n``, inputs ``T^-1 tau``, outputs ``tau_max tanh(T u / tau_max)``)."""
 
 
 BABBLING_GAINS = ("lightest", "baseline")
@@ -688,9 +692,10 @@ class LoopConfig:
       torque_scale: how torques are scaled, one of :data:`TORQUE_SCALES`: ``inertia``
         (default, the arm tasks'; by the joint's inertia at the start pose, so that every
         joint's scale gives it the same acceleration) or ``limit`` (the legged tasks'
-        default, :func:`for_task`; by the torque limits): the babbling noise, the forward
-        model's torque input and the controller's output range
-        (:meth:`cfm_jax.robots.Robot.torque_scale`).
+        default, :func:`for_task`; by the torque limits) or ``coupled`` (a matrix with the
+        joints' coupling at the start pose): the babbling noise, the forward model's torque
+        input and the controller's output range (:meth:`cfm_jax.robots.Robot.torque_scale`,
+        :meth:`cfm_jax.robots.Robot.coupled_torque_scale`).
       babbling_gains: the torque gains of the babbling's joint PD feedback, one of
         :data:`BABBLING_GAINS`: ``lightest`` (default; sized for each joint's lightest
         effective inertia over the poses the babbling visits, stable wherever it goes) or

@@ -153,8 +153,11 @@ class Normaliser:
         return (s - self.state_mean) / self.state_std
 
     def torque(self, tau):
-        """Scaled torque ``(..., action_dim)``: ``tau / torque_scale`` (None: the limits)."""
+        """Scaled torque ``(..., action_dim)``: ``tau / torque_scale`` (None: the limits;
+        a matrix scale ``T``: ``T^-1 tau``)."""
         scale = self.torque_limit if self.torque_scale is None else self.torque_scale
+        if scale.ndim == 2:  # a coupled scale T: T^-1 tau
+            return jnp.linalg.solve(scale, tau[..., None])[..., 0]
         return tau / scale
 
     def torque_output(self, u):
@@ -163,6 +166,8 @@ class Normaliser:
         (slope ``torque_scale`` at 0, bounded by the limits)."""
         if self.torque_scale is None:
             return self.torque_limit * jnp.tanh(u)
+        if self.torque_scale.ndim == 2:  # a coupled scale T
+            return self.torque_limit * jnp.tanh((u @ self.torque_scale.T) / self.torque_limit)
         return self.torque_limit * jnp.tanh(self.torque_scale * u / self.torque_limit)
 
     def output(self, y):

@@ -124,7 +124,9 @@ def protocol(config) -> str:
 
         model += "; " + robots.conversion_note(config.robot, config.robot_torque_limit)
     scale = getattr(loop, "torque_scale", "limit")
-    noise_of = "the limit" if scale == "limit" else "each joint's torque scale"
+    noise_of = {"limit": "the limit", "coupled": "the coupled torque scale, T n"}.get(
+        scale, "each joint's torque scale"
+    )
     babbling_gains = getattr(loop, "babbling_gains", "baseline")
     if task.name == "inverse_dynamics" and babbling_gains != "baseline":
         noise_of += f", `loop.babbling_gains={babbling_gains!r}`"

@@ -317,6 +317,11 @@ class Robot:
           >>> bool(np.all(scale <= arm.torque_limit)), bool(np.any(scale == arm.torque_limit))
           (True, True)
         """
+        return self._torque_scale(frequency)[0]
+
+    def _torque_scale(self, frequency: float) -> tuple[np.ndarray, float]:
+        """:meth:`torque_scale` and the common acceleration ``a = min_k (tau_max_k - F_k) /
+        I_k`` it gives every joint."""
         if not frequency > 0:  # also NaN
             raise ValueError(
                 f"frequency={frequency!r}: must be a number > 0 (rad/s; inf: no damping)"
@@ -330,11 +335,43 @@ class Robot:
         # A joint whose friction its limit cannot overcome gets its limit: it cannot move.
         moving = np.maximum(limit - friction, 0.0)
         weakest = int(np.argmin(moving / inertia))
-        scale = friction + inertia * (moving[weakest] / inertia[weakest])
+        acceleration = moving[weakest] / inertia[weakest]
+        scale = friction + inertia * acceleration
         # Exact where the formula gives the limit up to rounding: the weakest joint is
         # scaled by its limit, and a joint that ties with it never by more than its own.
         scale[weakest] = limit[weakest]
-        return np.minimum(scale, limit)
+        return np.minimum(scale, limit), float(acceleration)
+
+    def coupled_torque_scale(self, frequency: float = np.inf) -> np.ndarray:
+        """The torque scale with the joints' coupling (``Config.loop.torque_scale =
+        "coupled"``), ``(action_dim, action_dim)``:
+
+            T = diag(S) + a (M - diag(M_jj)),   a = min_k (tau_max_k - F_k) / I_k
+
+        with ``S`` :meth:`torque_scale`, ``a`` the acceleration it gives every joint and
+        ``M`` the joint-space inertia at home over the actuated joints. Without damping and
+        friction ``T = a M``: a scaled torque ``u`` gives the accelerations ``M^-1 T u = a u``
+        at home, every joint alike whatever the coupling, where the diagonal scale gives
+        ``a M^-1 diag(M) u`` (on a published arm whose light wrist hangs on heavy links,
+        8-15x ``a u`` on the wrist). Symmetric positive definite (``T - a M`` is a diagonal
+        of ``S_j - a M_jj >= 0``). The babbling noise is ``T n`` (``n`` Gaussian, of
+        standard deviation ``loop.babbling_noise``), the forward model takes ``T^-1 tau``
+        and the controller puts out ``tau_max tanh(T u / tau_max)``.
+
+        Args:
+          frequency: as :meth:`torque_scale`.
+
+        Examples:
+          >>> arm = load("two_link_arm")
+          >>> T = arm.coupled_torque_scale(10.0)
+          >>> bool(np.allclose(np.diag(T), arm.torque_scale(10.0))), bool(np.allclose(T, T.T))
+          (True, True)
+        """
+        scale, acceleration = self._torque_scale(frequency)
+        dofs = np.asarray(self.actuated_dofs)
+        inertia = self.mass_matrix(self.home)[np.ix_(dofs, dofs)]
+        coupled = acceleration * (inertia - np.diag(np.diag(inertia)))
+        return coupled + np.diag(scale)
 
 
 def _lightest(inverses: np.ndarray, dofs) -> np.ndarray:
@@ -902,12 +939,13 @@ class Dynamics:
       limit_acceleration: ``|M^-1| @ limit``: the largest acceleration (rad/s^2) the torque
         limits can give each joint.
       noise_acceleration: standard deviation of each joint's acceleration under the
-        babbling's Gaussian torque noise (``babbling_noise`` of each joint's torque scale),
-        ``sqrt(diag(M^-1 diag(noise)^2 M^-1))``.
+        babbling's Gaussian torque noise ``N n`` (``N`` ``babbling_noise`` times the
+        diagonal of the joints' torque scales, or times the coupled scale ``T``),
+        ``sqrt(diag(M^-1 N N^T M^-1))``.
       noise_velocity: standard deviation of each joint's velocity change over one control
         period ``h`` under that noise, from rest, with the joints' damping ``D`` (implicit,
-        as MuJoCo's integrators treat it): ``h sqrt(diag(A diag(noise)^2 A))``, ``A = (M +
-        h D)^-1``; ``h`` times ``noise_acceleration`` without damping.
+        as MuJoCo's integrators treat it): ``h sqrt(diag(A N N^T A^T))``, ``A = (M + h
+        D)^-1``; ``h`` times ``noise_acceleration`` without damping.
       pd_number: ``kd * control_dt * lambda_max(diag(M) M^-1)``: the PD-only baseline's
         feedback (torque gains ``kd diag M(home)``) held for one control period is stable
         below 2 (a first-order explicit update of the velocity); coupled light links raise
@@ -948,7 +986,8 @@ def dynamics(
       kd: ``Config.task.kd`` (1/s).
       control_dt: the control period (s).
       torque_scale: ``Config.loop.torque_scale``: ``inertia`` (:meth:`Robot.torque_scale`
-        at ``frequency``) or ``limit`` (the torque limits).
+        at ``frequency``), ``coupled`` (:meth:`Robot.coupled_torque_scale`: the noise is
+        ``T n``) or ``limit`` (the torque limits).
       frequency: the task's feedback frequency (rad/s,
         :meth:`cfm_jax.config.TaskConfig.feedback_frequency`); ``inf`` leaves damping out
         of the torque scale.
@@ -965,8 +1004,11 @@ def dynamics(
     dofs = np.asarray(robot.actuated_dofs)
     inverse = np.linalg.inv(full)[np.ix_(dofs, dofs)]
     limit = np.asarray(robot.torque_limit, np.float64)
-    scale = robot.torque_scale(frequency) if torque_scale == "inertia" else limit
-    noise = babbling_noise * scale
+    if torque_scale == "coupled":
+        noise = babbling_noise * robot.coupled_torque_scale(frequency)  # torque T n
+    else:
+        scale = robot.torque_scale(frequency) if torque_scale == "inertia" else limit
+        noise = np.diag(babbling_noise * scale)
     coupling = np.diag(np.diag(full)[dofs]) @ inverse
     joints = tuple(robot.joint_names[int(model.dof_jntid[d])] for d in dofs)
     poses = babbling.pose_sample(robot, robot.home)
@@ -982,8 +1024,8 @@ def dynamics(
         joints=joints,
         effective_inertia=1.0 / np.diag(inverse),
         limit_acceleration=np.abs(inverse) @ limit,
-        noise_acceleration=np.sqrt(np.diag(inverse @ np.diag(noise**2) @ inverse)),
-        noise_velocity=control_dt * np.sqrt(np.diag(damped @ np.diag(noise**2) @ damped)),
+        noise_acceleration=np.sqrt(np.diag(inverse @ noise @ noise.T @ inverse)),
+        noise_velocity=control_dt * np.sqrt(np.diag(damped @ noise @ noise.T @ damped.T)),
         pd_number=float(kd * control_dt * np.max(np.abs(np.linalg.eigvals(coupling)))),
         babbling_pd_number=float(kd * control_dt * babbling_number),
     )

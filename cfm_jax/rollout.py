@@ -382,7 +382,8 @@ class MixedPolicy(NamedTuple):
       controller_weight: scalar (0 or 1).
       oracle_weight: scalar (0 or 1).
       feedback_weight: scalar (0 or 1).
-      noise_std: ``(action_dim,)`` standard deviation of the added torque noise.
+      noise_std: ``(action_dim,)`` standard deviation of the added torque noise, or an
+        ``(action_dim, action_dim)`` matrix ``N`` (the noise ``N n``, ``n ~ N(0, I)``).
 
     Examples:
       >>> import jax.numpy as jnp
@@ -459,7 +460,11 @@ def mixed_policy(task, controller, parameters: MixedPolicy, simulator="native"):
     def policy(step, key):
         tau = parameters.controller_weight * learned(step, key)
         tau = tau + parameters.feedback_weight * task.feedback(step)
-        tau = tau + parameters.noise_std * jax.random.normal(key, tau.shape)
+        noise = jax.random.normal(key, tau.shape)
+        if parameters.noise_std.ndim == 2:  # a coupled torque scale: the noise is T n
+            tau = tau + parameters.noise_std @ noise
+        else:
+            tau = tau + parameters.noise_std * noise
         tau_oracle = jax.lax.cond(
             parameters.oracle_weight != 0,
             lambda: oracle(step, key),
