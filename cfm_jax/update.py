@@ -130,10 +130,13 @@ def controller_objective(
     if loss == "supervised":
         achieved = normaliser.select(batch.observed)
         predicted = controller.apply(controller_params, normaliser, batch.state, achieved)
-        scale = normaliser.torque_limit
+        # In the scaled torque space the forward model's input uses (tau / S, T^-1 tau, or
+        # the limits): a unit error there moves every joint alike, so the wrist's small
+        # torques weigh as much as the shoulder's large ones.
+        predicted, executed = normaliser.torque(predicted), normaliser.torque(batch.action)
         if groups is not None:
-            return _mean(losses.safe_norm(predicted / scale - batch.action / scale), weights)
-        return _mean(losses.supervised(predicted / scale, batch.action / scale), weights)
+            return _mean(losses.safe_norm(predicted - executed), weights)
+        return _mean(losses.supervised(predicted, executed), weights)
     goal_input = batch.desired if goal == "desired" else normaliser.select(batch.observed)
     tau = controller.apply(controller_params, normaliser, batch.state, goal_input)
     predicted = networks.ensemble_mean(

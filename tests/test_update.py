@@ -3,7 +3,8 @@
 Oracles:
 * the chain rule built by hand: ``dL/dbeta = (ds_p/dbeta)^T dL/ds_p`` with ``dL/ds_p`` the
   paper's formulas (task ``2 (s_p - s_d)``, joint ``2 (2 s_p - s_d - s_a)``, distal
-  ``2 (s_a - s_d)``; supervised ``2 (g - tau) / limit`` in the scaled torque), and
+  ``2 (s_a - s_d)``; supervised ``2 (g - tau) / limit`` in the scaled torque; with a
+  torque scale the residual in its space, checked against NumPy), and
   ``ds_p/dbeta`` a vector-Jacobian product of the plain composition ``f(s, g(s, s*))``;
 * a data-generating linear map for the forward fit.
 Networks are tiny (hidden=(16,)) so the compiles are fast.
@@ -11,6 +12,7 @@ Networks are tiny (hidden=(16,)) so the compiles are fast.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -114,6 +116,26 @@ def test_supervised_gradient_matches_hand_built_chain_rule(setup):
         cp, fp, "supervised", fm, ctrl, norm, batch
     )
     assert all(np.all(np.asarray(x) == 0) for x in jax.tree.leaves(g_fp))
+
+
+@pytest.mark.parametrize("kind", ["per_joint", "coupled"])
+def test_supervised_objective_in_the_torque_scale_space(setup, kind):
+    # With a torque scale the residual is measured where the forward model's input is: per
+    # joint (tau - tau_run) / S, coupled T^-1 (tau - tau_run), so that a unit error moves
+    # every joint alike (the light wrist's small torques weigh as the shoulder's large ones).
+    # Oracle: the controller's torques, then the residual and its mean in float64 NumPy.
+    ctrl, cp, batch = setup["ctrl"], setup["cp"], setup["batch"]
+    scale = np.array([8.0, 0.05]) if kind == "per_joint" else np.array([[8.0, 0.3], [0.3, 0.05]])
+    norm = dataclasses.replace(setup["norm"], torque_scale=jnp.asarray(scale, jnp.float32))
+    got = float(update.controller_objective(cp, setup["fp"], "supervised", setup["fm"], ctrl,
+                                            norm, batch))  # fmt: skip
+    tau = np.asarray(ctrl.apply(cp, norm, batch.state, batch.observed), np.float64)
+    error = tau - np.asarray(batch.action, np.float64)
+    scaled = error / scale if kind == "per_joint" else np.linalg.solve(scale, error.T).T
+    expected = np.mean(np.sum(scaled**2, axis=-1))
+    # and not the residual in units of the limits (what the loss was before issue 41)
+    assert abs(np.mean(np.sum((error / LIMIT) ** 2, axis=-1)) - expected) > 0.5 * expected
+    np.testing.assert_allclose(got, expected, rtol=1e-4)
 
 
 def test_distal_objective_value(setup):
