@@ -16,6 +16,7 @@ import inspect
 import json
 import os
 import re
+import tempfile
 import time
 from typing import Annotated
 
@@ -249,6 +250,11 @@ def _check_out(out: str) -> None:
         config_lib.fail("--out", out, f"the folder cannot be created: {above} is a file")
     if not os.path.isdir(out) and not os.access(above, os.W_OK | os.X_OK):
         config_lib.fail("--out", out, f"the folder cannot be created: {above} is not writable")
+    if not os.path.isdir(out):  # what os.access cannot see (root; a read-only or virtual
+        try:  # file system): make a folder there and take it away again, nothing left
+            os.rmdir(tempfile.mkdtemp(dir=above))
+        except OSError as error:
+            config_lib.fail("--out", out, f"the folder cannot be created: {error.strerror}")
 
 
 @contextlib.contextmanager
