@@ -26,7 +26,6 @@ import argparse
 import datetime
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -38,6 +37,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LOSSES = ("joint", "task", "distal", "supervised")
 REFUSED = "zoo_refused.txt"  # in a robot's output folder: why its last run failed
 CODE = "zoo_code.txt"  # in a robot's output folder: the commit of the code that ran it
+MACHINE = "zoo_machine.txt"  # and the machine that ran it: JAX's device, cores, JAX version
 
 
 def code_version(root: str = ROOT) -> str:
@@ -87,6 +87,18 @@ def finished(out: str) -> bool:
     return all(last.get(loss, -1) >= iterations for loss in LOSSES)
 
 
+def machine() -> str:
+    """JAX's first device, the processor, its cores and JAX's version, as ``cfm-jax train``
+    sees them (asked of a child process, so that this one never takes the GPU's memory)."""
+    probe = (
+        "import os, platform, jax; d = jax.devices()[0]; "
+        "print(f'{d.device_kind} ({platform.machine()}, {os.cpu_count()} cores), "
+        "jax {jax.__version__}')"
+    )
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+    return done.stdout.strip() if done.returncode == 0 else "unknown"
+
+
 def run_robot(path: str, out: str, seeds: int, extra: list[str]) -> dict:
     """``cfm-jax train`` on one robot (or read its finished run); a summary dict."""
     done = finished(out)
@@ -119,8 +131,12 @@ def run_robot(path: str, out: str, seeds: int, extra: list[str]) -> dict:
             f.write(f"{wall:.0f}\n")
         with open(code, "w") as f:
             f.write(code_version() + "\n")
+        with open(os.path.join(out, MACHINE), "w") as f:
+            f.write(machine() + "\n")
     row["wall_s"] = float(open(timing).read()) if os.path.exists(timing) else float("nan")
     row["code"] = open(code).read().strip() if os.path.exists(code) else "not recorded"
+    where = os.path.join(out, MACHINE)
+    row["machine"] = open(where).read().strip() if os.path.exists(where) else "not recorded"
     if error is None:
         row.update(summarise(out))
     return row
@@ -162,21 +178,23 @@ def table(rows: list[dict], seeds: int, folder: str, note: str = "") -> str:
         "# The defaults on published robots",
         "",
         f"Written by `python experiments/robot_zoo.py --robots {folder} --seeds {seeds}`, "
-        f"{datetime.date.today().isoformat()} ({platform.machine()}, {os.cpu_count()} cores). "
+        f"{datetime.date.today().isoformat()}. "
         "Each robot: `cfm-jax train --robot FILE --robot-actuators torque` with the library's "
         "defaults (inverse dynamics, 5 reaching targets, 4 iterations). Cells: final tracking "
         "MSE (rad^2), mean over seeds of each seed's mean over its targets, with its 95% "
         "bootstrap interval; runs whose simulation diverged are left out of the mean and "
         "counted (`div.`); `below PD` is the number of seeds whose mean is below PD-only's; "
-        "`code`: the commit that ran the robot (a resumed run: the commit that finished it).",
+        "`code`: the commit that ran the robot (a resumed run: the commit that finished it); "
+        "`machine`: JAX's device, the processor and JAX's version where it ran (wall times "
+        "compare only on the same machine).",
         *(["", note] if note else []),
         "",
-        "| robot | " + " | ".join(LOSSES) + " | PD-only | oracle | wall (s) | code |",
-        "|---|" + "---|" * len(LOSSES) + "---:|---:|---:|---|",
+        "| robot | " + " | ".join(LOSSES) + " | PD-only | oracle | wall (s) | code | machine |",
+        "|---|" + "---|" * len(LOSSES) + "---:|---:|---:|---|---|",
     ]
     for row in rows:
         if row.get("error"):
-            lines.append(f"| {row['robot']} | {row['error']} " + "| " * (len(LOSSES) + 3) + "|")
+            lines.append(f"| {row['robot']} | {row['error']} " + "| " * (len(LOSSES) + 4) + "|")
             continue
         cells = []
         for loss in LOSSES:
@@ -191,7 +209,8 @@ def table(rows: list[dict], seeds: int, folder: str, note: str = "") -> str:
             cells.append(text)
         lines.append(
             f"| {row['robot']} | " + " | ".join(cells) + f" | {row['pd_only']:.3g} | "
-            f"{row['oracle']:.3g} | {row['wall_s']:.0f} | {row.get('code', 'not recorded')} |"
+            f"{row['oracle']:.3g} | {row['wall_s']:.0f} | {row.get('code', 'not recorded')} | "
+            f"{row.get('machine', 'not recorded')} |"
         )
     return "\n".join(lines) + "\n"
 

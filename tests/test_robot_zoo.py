@@ -125,3 +125,28 @@ def test_code_version_is_the_commit_and_says_when_tracked_files_changed(tmp_path
     assert robot_zoo.code_version(str(tmp_path)) == head + "+changes"
     text = robot_zoo.table([dict(robot="arm", error="refused: no", wall_s=float("nan"))], 1, "t")
     assert text.rstrip().splitlines()[-1].count("|") == text.splitlines()[-2].count("|")
+
+
+def test_the_machine_that_ran_a_robot_is_in_its_row(tmp_path):
+    # The table mixes runs of several machines (a GPU's and a laptop's): each row names its
+    # own, read from the run's folder; a run from before the record says so.
+    import platform
+
+    import jax
+
+    robots = tmp_path / "robots"
+    robots.mkdir()
+    for stem in ("a", "b"):
+        (robots / f"{stem}.xml").write_text("<mujoco/>")
+        _finished_run(tmp_path / "out" / "seeds1" / stem, 0.5)
+    (tmp_path / "out" / "seeds1" / "a" / robot_zoo.MACHINE).write_text("Some GPU, jax 9\n")
+    page = tmp_path / "robots.md"
+    robot_zoo.main(["--robots", str(robots), "--seeds", "1", "--out", str(tmp_path / "out"),
+                    "--table", str(page), "--only", "a"])  # fmt: skip
+    rows = {line.split(" | ")[0]: line for line in page.read_text().splitlines()}
+    assert rows["| a"].endswith("| Some GPU, jax 9 |")
+    assert rows["| b"].endswith("| not recorded |")
+    # What a new run records: the device and JAX that this interpreter's child sees.
+    kind = jax.devices()[0].device_kind
+    want = f"{kind} ({platform.machine()}, {os.cpu_count()} cores), jax {jax.__version__}"
+    assert robot_zoo.machine() == want
