@@ -149,8 +149,8 @@ class Knobs:
       >>> config = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3))
       >>> setup = Setup.of(config)
       >>> knobs = Knobs.of(config, setup.robot, setup.task)
-      >>> float(knobs.task["kp"]), knobs.babbling_noise_std.shape
-      (100.0, (2,))
+      >>> float(knobs.task["kp"]), knobs.babbling_noise_std.shape  # the coupled scale
+      (100.0, (2, 2))
     """
 
     forward_learning_rate: jax.Array

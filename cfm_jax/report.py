@@ -89,7 +89,7 @@ def protocol(config) -> str:
     Examples:
       >>> from cfm_jax import config
       >>> print(protocol(config.Config()))
-      initial data: `loop.babbling='reaching'` (2 rollouts per target, torque noise 0.1 of each joint's torque scale, `loop.babbling_gains='lightest'`); s* gains kp 100, kd 20; `loop.normaliser='babbling'`; `forward.kind='mlp'`
+      initial data: `loop.babbling='reaching'` (2 rollouts per target, torque noise 0.1 of the coupled torque scale, T n, `loop.babbling_gains='lightest'`); s* gains kp 100, kd 20; `loop.normaliser='babbling'`; `forward.kind='mlp'`
       >>> walk = config.for_task("walk")
       >>> print(protocol(walk).split("; ", 1)[1])
       s* the desired next velocity (`task.desired='next_velocity'`: kp 0, kd 1/control_dt = 250/s on base and joints); `loop.normaliser='data'`; `forward.kind='rigid_body'`

@@ -114,7 +114,8 @@ def test_torque_maps_of_the_normaliser():
 
 
 def test_robot_normaliser_is_what_the_loop_uses_on_the_held_out_arm():
-    cfg = tiny_config(normaliser="robot").replace(
+    # The hand values are the per-joint scale's (the coupled one: tests/test_coupled_scale.py).
+    cfg = tiny_config(normaliser="robot", torque_scale="inertia").replace(
         robot=ARM3, task=config.TaskConfig(duration=0.1, targets=((0.5, 0.1, 0.2),))
     )
     cfg = cfg.replace(forward=dataclasses.replace(cfg.forward, initial_steps=0))
@@ -259,18 +260,22 @@ def test_the_torque_scale_is_a_value_of_the_config_that_follows_the_gains():
     # The torque scale weighs damping at the feedback's frequency sqrt(kp), and task.kp is a
     # runtime field (a sweep over it compiles once): the scale travels in the knobs, and the
     # normaliser the loop builds carries the cell's own. Oracle: Robot.torque_scale at
-    # sqrt(kp), from the two-link arm's damping 0.1 and M(home).
+    # sqrt(kp), from the two-link arm's damping 0.1 and M(home); for the coupled scale (the
+    # default) Robot.coupled_torque_scale at sqrt(kp), whose diagonal is that scale.
     arm = robots.load("two_link_arm")
-    for kp in (25.0, 100.0):
-        cfg = tiny_config(normaliser="robot").replace(task=config.TaskConfig(duration=0.1, kp=kp))
-        setup = algorithm.Setup.of(cfg)
-        knobs = algorithm.Knobs.of(cfg, setup.robot, setup.task)
-        want = arm.torque_scale(np.sqrt(kp))
-        np.testing.assert_array_equal(knobs.torque_scale, want.astype(np.float32))
-        np.testing.assert_allclose(knobs.babbling_noise_std, 0.1 * want, rtol=1e-6)
-        prepare = functools.partial(algorithm.prepare, setup)
-        state, _ = jax.jit(prepare)(jax.random.key(0), knobs)
-        np.testing.assert_array_equal(state.normaliser.torque_scale, knobs.torque_scale)
+    for scale, of in (("inertia", arm.torque_scale), ("coupled", arm.coupled_torque_scale)):
+        for kp in (25.0, 100.0):
+            cfg = tiny_config(normaliser="robot", torque_scale=scale)
+            cfg = cfg.replace(task=config.TaskConfig(duration=0.1, kp=kp))
+            setup = algorithm.Setup.of(cfg)
+            knobs = algorithm.Knobs.of(cfg, setup.robot, setup.task)
+            want = of(np.sqrt(kp))
+            np.testing.assert_array_equal(knobs.torque_scale, want.astype(np.float32))
+            np.testing.assert_allclose(knobs.babbling_noise_std, 0.1 * want, rtol=1e-6)
+            prepare = functools.partial(algorithm.prepare, setup)
+            state, _ = jax.jit(prepare)(jax.random.key(0), knobs)
+            np.testing.assert_array_equal(state.normaliser.torque_scale, knobs.torque_scale)
+    assert config.LoopConfig().torque_scale == "coupled"  # the arm tasks' default
     # The damping (0.1 N m s) makes the scales of the two gains differ.
     assert not np.array_equal(arm.torque_scale(5.0), arm.torque_scale(10.0))
     limit = tiny_config(torque_scale="limit")
