@@ -255,7 +255,8 @@ def runs(programs):
                 controller_weight=jnp.float32(0.0),
                 oracle_weight=jnp.float32(oracle),
                 feedback_weight=jnp.float32(feedback),
-                noise_std=jnp.zeros(task.action_dim, jnp.float32),
+                # The placeholder's own shape: (nv,) per joint, (nv, nv) for the coupled scale.
+                noise_std=jnp.zeros_like(programs(name, simulator).policy.noise_std),
             )
             result = jax.device_get(run(mixed))
             cache[name, simulator, policy] = Run(
