@@ -10,8 +10,9 @@ Examples:
   >>> result = cfm_jax.train(config)  # doctest: +SKIP
   >>> result.metrics.groupby("iteration").tracking_mse.mean()  # doctest: +SKIP
 
-Public names (imported on first use, so ``import cfm_jax`` stays cheap and sets the XLA
-flag before JAX's backend starts): :func:`train`, :class:`TrainResult` (from
+Importing the package sets the XLA flags before JAX's backend starts, then imports
+:mod:`cfm_jax.tasks`, which registers each task's defaults (seconds: it imports JAX and
+MuJoCo). Public names (imported on first use): :func:`train`, :class:`TrainResult` (from
 :mod:`cfm_jax.training`); :class:`Experiment` (from :mod:`cfm_jax.experiment`);
 :data:`METRIC_COLUMNS` (from :mod:`cfm_jax.algorithm`); :class:`Config`,
 :class:`TaskConfig`, :class:`ForwardModelConfig`, :class:`ControllerConfig`,
@@ -26,6 +27,11 @@ Submodules: ``robots``, ``tasks``, ``references``, ``babbling``, ``opspace``, ``
 from cfm_jax import _xla
 
 FAST_XLA = _xla.configure()  # must run before any JAX computation; see cfm_jax/_xla.py
+
+# The tasks register their names and defaults (cfm_jax.config.TASK_DEFAULTS), which every
+# config of them takes: done here, so that a config made after `import cfm_jax` or any
+# `from cfm_jax... import` is the task's experiment.
+from cfm_jax import tasks as _tasks  # noqa: E402, F401
 
 __version__ = "0.1.0"
 

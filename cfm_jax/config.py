@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from cfm_jax import _shipped
@@ -26,21 +26,93 @@ TASKS = ("inverse_dynamics", "opspace", "walk", "jump")
 """Tasks available for ``Config.task.name``: the library's four, then those added by
 :func:`cfm_jax.tasks.register` (:func:`add_task_name`)."""
 
+_BUILT_IN_TASKS = TASKS
 
-def add_task_name(name: str) -> None:
-    """Let ``Config.task.name`` take ``name`` (:func:`cfm_jax.tasks.register` calls this; the
-    config knows the names only, the task modules know what they mean).
+
+def add_task_name(name: str, default_config: Callable[[], Config] | None = None) -> None:
+    """Let ``Config.task.name`` take ``name``, with the task's own defaults
+    (:func:`cfm_jax.tasks.register` calls this; the config knows the names and where their
+    defaults come from, the task modules know what they mean).
 
     Args:
-      name: the new task's name; a name already in :data:`TASKS` changes nothing.
+      name: the new task's name; a name already in :data:`TASKS` keeps its place.
+      default_config: ``default_config() -> Config``, the task's defaults (its module's
+        ``default_config``): what every field left at :data:`TASK_DEFAULT` takes in a
+        :class:`Config` or :class:`TaskConfig` naming this task. Inside it, such fields take
+        the generic values of :data:`GENERIC` (so it states only what differs). None: the
+        generic values.
 
     Examples:
-      >>> add_task_name("walk"); TASKS
+      >>> add_task_name("walk", TASK_DEFAULTS["walk"]); TASKS
       ('inverse_dynamics', 'opspace', 'walk', 'jump')
     """
     global TASKS
     if name not in TASKS:
         TASKS = TASKS + (name,)
+    if default_config is None:
+        TASK_DEFAULTS.pop(name, None)
+    else:
+        TASK_DEFAULTS[name] = default_config
+    _DEFAULTS_OF.pop(name, None)
+
+
+class _TaskDefault:
+    """The type of :data:`TASK_DEFAULT` (one instance)."""
+
+    def __repr__(self) -> str:
+        return "TASK_DEFAULT"
+
+    def __reduce__(self):
+        return "TASK_DEFAULT"
+
+
+TASK_DEFAULT = _TaskDefault()
+"""The default of every field whose value depends on the task (the top-level ``robot``,
+``forward``, ``controller`` and ``loop``, and every field of :class:`TaskConfig` but its
+``name``): a field left at it takes the value of the task's own ``default_config()``
+(:data:`TASK_DEFAULTS`), so ``Config(robot="solo12", task=TaskConfig(name="walk"))``
+is the walk's experiment, the same as :func:`for_task` and the CLI's ``--task walk``. A
+section given explicitly is taken as given (its own fields' defaults are the generic ones):
+to change one field of a task's section, start from :func:`for_task` and replace it."""
+
+TASK_DEFAULTS: dict[str, Callable[[], Config]] = {}
+"""The ``default_config`` of each registered task (:func:`add_task_name`, called by
+:func:`cfm_jax.tasks.register`; importing :mod:`cfm_jax` registers the library's four)."""
+
+_DEFAULTS_OF: dict[str, Config] = {}  # each task's default_config(), made once
+_BUILDING: set[str] = set()  # the tasks whose default_config() runs now
+
+
+def _task_default(name: str, section: str | None, field: str) -> Any:
+    """The value of a field left at :data:`TASK_DEFAULT` in a config of task ``name``:
+    the task's ``default_config()``'s (``section`` None: a top-level field), or, while that
+    default config itself is made and for a task registered without one, :data:`GENERIC`'s."""
+    generic = GENERIC[section or "config"][field]
+    if name in _BUILDING:
+        return generic() if callable(generic) else generic
+    if name not in _DEFAULTS_OF:
+        if name not in TASK_DEFAULTS:
+            if name in _BUILT_IN_TASKS:
+                raise ConfigError(
+                    f"task.name={name!r}: its defaults are not registered yet (import "
+                    "cfm_jax, which registers the library's tasks, before making a config)"
+                )
+            return generic() if callable(generic) else generic
+        _BUILDING.add(name)
+        try:
+            _DEFAULTS_OF[name] = TASK_DEFAULTS[name]()
+        finally:
+            _BUILDING.discard(name)
+    defaults = _DEFAULTS_OF[name]
+    return getattr(getattr(defaults, section) if section else defaults, field)
+
+
+def _resolve(obj: Any, name: str, section: str | None) -> None:
+    """Replace every field of the frozen dataclass ``obj`` left at :data:`TASK_DEFAULT` by
+    task ``name``'s value (:func:`_task_default`)."""
+    for field in dataclasses.fields(obj):
+        if getattr(obj, field.name) is TASK_DEFAULT:
+            object.__setattr__(obj, field.name, _task_default(name, section, field.name))
 
 
 FORWARD_KINDS = ("mlp", "rigid_body")
@@ -375,17 +447,17 @@ class TaskConfig:
     """
 
     name: str = "inverse_dynamics"
-    duration: float = 2.0
-    control_dt: float | None = 0.01
-    targets: tuple[tuple[float, ...], ...] | None = None
-    home: tuple[float, ...] | None = None
-    kp: float = 100.0
-    kd: float = 20.0
-    joint_kp: float | None = None
-    joint_kd: float | None = None
-    site: str | None = None
-    motions: tuple[float, ...] | None = None
-    desired: str = "pd"
+    duration: float = TASK_DEFAULT
+    control_dt: float | None = TASK_DEFAULT
+    targets: tuple[tuple[float, ...], ...] | None = TASK_DEFAULT
+    home: tuple[float, ...] | None = TASK_DEFAULT
+    kp: float = TASK_DEFAULT
+    kd: float = TASK_DEFAULT
+    joint_kp: float | None = TASK_DEFAULT
+    joint_kd: float | None = TASK_DEFAULT
+    site: str | None = TASK_DEFAULT
+    motions: tuple[float, ...] | None = TASK_DEFAULT
+    desired: str = TASK_DEFAULT
 
     def control_period(self, timestep: float) -> float:
         """Seconds between controller steps: ``control_dt``, or ``timestep`` (the robot's
@@ -421,6 +493,7 @@ class TaskConfig:
     def __post_init__(self):
         if not isinstance(self.name, str) or self.name not in TASKS:
             fail("task.name", self.name, f"one of {TASKS}")
+        _resolve(self, self.name, "task")
         _positive_float("task.duration", self.duration)
         if self.control_dt is not None:
             _positive_float("task.control_dt", self.control_dt)
@@ -460,8 +533,8 @@ class TaskConfig:
                         f"task.{field}",
                         getattr(self, field),
                         f"{allowed!r} with task.desired='next_velocity' (its gains are fixed: "
-                        "kp = 0 and kd = 1 / control_dt on the base and the joints; "
-                        "config.for_task('walk') has kp = kd = 0)",
+                        "kp = 0 and kd = 1 / control_dt on the base and the joints; for PD "
+                        "gains in s* set task.desired='pd')",
                     )
         if self.site is not None and (not isinstance(self.site, str) or not self.site):
             fail("task.site", self.site, "None or the name of a site of the robot's MJCF")
@@ -786,18 +859,21 @@ class Config:
       cfm_jax.config.ConfigError: loss='l1' is not allowed: one of ('joint', 'task', ...)
     """
 
-    robot: str = "iiwa14"
+    robot: str = TASK_DEFAULT
     loss: str = "joint"
     seed: int = 0
     simulator: str = "native"
     task: TaskConfig = dataclasses.field(default_factory=TaskConfig)
-    forward: ForwardModelConfig = dataclasses.field(default_factory=ForwardModelConfig)
-    controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
-    loop: LoopConfig = dataclasses.field(default_factory=LoopConfig)
+    forward: ForwardModelConfig = TASK_DEFAULT
+    controller: ControllerConfig = TASK_DEFAULT
+    loop: LoopConfig = TASK_DEFAULT
     robot_actuators: str = "strict"
     robot_torque_limit: tuple[float, ...] | None = None
 
     def __post_init__(self):
+        if not isinstance(self.task, TaskConfig):
+            fail("task", self.task, "a TaskConfig")
+        _resolve(self, self.task.name, None)
         if self.robot_actuators not in ROBOT_ACTUATORS:
             fail("robot_actuators", self.robot_actuators, f"one of {ROBOT_ACTUATORS}")
         limit = self.robot_torque_limit
@@ -872,53 +948,12 @@ class Config:
 
 
 def for_task(task: str, **changes) -> Config:
-    """The default :class:`Config` of a task, with top-level ``changes``.
-
-    The learner's options were chosen by the selection run (``experiments/select_defaults.py``,
-    docs/results/selection/): every option compared with all four losses alike, 3 seeds,
-    on motions other than the test ones, by a rule written before it ran (the lowest mean
-    over the losses of log10 final tracking MSE, a fall or divergence scoring 1000 x
-    PD-only), one factor at a time, on inverse dynamics for the arms and walking for the
-    legged robot; op-space and jumping take their family's choice (a check of op-space's
-    babbling on its own selection targets kept ``reaching``). The legged choices made
-    one factor at a time did not work together on the walks, so a second round of the same
-    rule, from the first round's best cell (the ``rigid_body`` forward model), chose the
-    normaliser and the fit start again.
-
-    The arm tasks (``inverse_dynamics``, ``opspace``) use the defaults of the dataclasses:
-    the paper's arm networks, 100 Hz control, ``kp = 100``, ``kd = 20`` in ``s*`` (set
-    before any loss was run), and, chosen by the selection run, ``reaching`` initial data
-    (the task's PD feedback tracking reaches to random poses inside the joint limits: it
-    knows neither the test references nor the reference controller; ``home``, holding the
-    start pose, was clearly worse) with the ``babbling`` normaliser (statistics of that
-    data, fitted once) and the ``mlp`` forward model (``rigid_body`` was clearly worse on
-    the arm), the controller loss in the ``norm`` form (per-sample Euclidean norms, the
-    authors' code; clearly better than the squares of the paper's text) and the goal
-    ``desired`` (the paper's eq. 4; ``observed`` was clearly worse). Babbling size and
-    noise, 2 rollouts per target at torque noise 0.1 of the limit, were set before any loss
-    was run; every task uses them. Torques are scaled by the ``coupled`` scale, except on
-    ``opspace``, which keeps the per-joint ``inertia`` scale: on the shipped iiwa14's op-space
-    task the coupled scale's joint loss was worse on every one of 3 seeds (issue 41,
-    docs/how-to/own-robot.md), while on the development set's inverse dynamics it won.
-
-    The legged tasks (``walk``, ``jump``) use the paper's quadruped networks (forward model
-    1000-500-500, a single member; controller 3 x 300), the Solo12, 250 Hz control
-    (``task.control_dt = 0.004``) and ``home`` initial data (the task's PD feedback holding
-    the standing pose plus torque noise, as the authors' Solo12 code collects it), and,
-    chosen by the selection run: ``s*`` the desired next velocity (``task.desired =
-    "next_velocity"``: ``kp = 0``, ``kd = 1 / control_dt`` on base and joints, the authors'
-    Solo12 code; the PD form with no feedback, the paper's planned accelerations, was
-    clearly worse), the ``rigid_body`` forward model (``M^-1 (S tau - h)`` of the robot's
-    own MJCF plus a learned residual, as the authors' code; clearly better than the black
-    box), the ``data`` normaliser (statistics of the whole data set, recomputed before every
-    refit; in round 2 the ``robot`` and ``babbling`` normalisers failed far more walks) and
-    fits started ``warm_new_optimizer`` (both networks keep their parameters across
-    iterations, Adam is re-created for each fit, as the authors' code; better than ``warm``
-    in both rounds, not clearly); the controller loss keeps the ``squared`` form (the
-    ``norm`` form, chosen for the arms, failed more walks and scored worse, not clearly).
-    The earlier legged choices, babbling 4 x 0.3 and the gains ``kp = 100``, ``kd = 20``
-    on the base, ``joint_kp = 2000``, ``joint_kd = 50``, were chosen on pilot runs of the
-    joint loss alone; they remain cells of ``experiments/robustness_study.py``, not defaults.
+    """The default :class:`Config` of a task, with top-level ``changes``: the same as
+    ``Config(task=TaskConfig(name=task)).replace(**changes)``, the defaults the task's module
+    states in its ``default_config()`` (:data:`TASK_DEFAULTS`; how each was chosen is
+    written there: :func:`cfm_jax.tasks.inverse_dynamics.default_config`,
+    :func:`cfm_jax.tasks.operational_space.default_config`,
+    :func:`cfm_jax.tasks.legged.default_config`). The CLI's ``--task`` starts from it.
 
     Args:
       task: one of :data:`TASKS`.
@@ -932,41 +967,43 @@ def for_task(task: str, **changes) -> Config:
       ConfigError: an unknown task or a bad value in ``changes``.
 
     Examples:
-      >>> walk = for_task("walk", robot="solo12")
-      >>> walk.task.control_dt, walk.task.desired, walk.loop.babbling, walk.forward.kind
-      (0.004, 'next_velocity', 'home', 'rigid_body')
-      >>> walk.forward.start, walk.controller.start, walk.controller.loss_form
-      ('warm_new_optimizer', 'warm_new_optimizer', 'squared')
-      >>> for_task("inverse_dynamics").loop.babbling
-      'reaching'
+      >>> walk = for_task("walk")
+      >>> walk.robot, walk.task.control_dt, walk.task.desired, walk.forward.kind
+      ('solo12', 0.004, 'next_velocity', 'rigid_body')
+      >>> walk == Config(robot="solo12", task=TaskConfig(name="walk"))
+      True
       >>> for_task("inverse_dynamics").loop.torque_scale, for_task("opspace").loop.torque_scale
       ('coupled', 'inertia')
     """
     if task not in TASKS:
         fail("task.name", task, f"one of {TASKS}")
-    config = Config(task=TaskConfig(name=task))
-    if task in ("walk", "jump"):
-        config = dataclasses.replace(
-            config,
-            robot="solo12",
-            task=TaskConfig(name=task, control_dt=0.004, kp=0.0, kd=0.0, desired="next_velocity"),
-            forward=ForwardModelConfig(
-                hidden=(1000, 500, 500),
-                ensemble_size=1,
-                kind="rigid_body",
-                start="warm_new_optimizer",
-            ),
-            # The selection run's walk cells kept the squared form here (norm is the arms').
-            controller=ControllerConfig(
-                hidden=(300, 300, 300), loss_form="squared", start="warm_new_optimizer"
-            ),
-            loop=LoopConfig(babbling="home", normaliser="data", torque_scale="limit"),
-        )
-    elif task == "opspace":
-        # The coupled scale lost to the per-joint one on the shipped iiwa14's op-space task
-        # (joint loss, 3 seeds paired, worse on every seed; docs/how-to/own-robot.md).
-        config = dataclasses.replace(config, loop=LoopConfig(torque_scale="inertia"))
-    return dataclasses.replace(config, **changes)
+    return Config(task=TaskConfig(name=task)).replace(**changes)
+
+
+GENERIC: dict[str, dict[str, Any]] = {
+    "config": {
+        "robot": "iiwa14",
+        "forward": ForwardModelConfig,
+        "controller": ControllerConfig,
+        "loop": LoopConfig,
+    },
+    "task": {
+        "duration": 2.0,
+        "control_dt": 0.01,
+        "targets": None,
+        "home": None,
+        "kp": 100.0,
+        "kd": 20.0,
+        "joint_kp": None,
+        "joint_kd": None,
+        "site": None,
+        "motions": None,
+        "desired": "pd",
+    },
+}
+"""The generic value of each field left at :data:`TASK_DEFAULT` (a class: its defaults), by
+section (``"config"``: the top-level fields): what a task's ``default_config`` does not
+state, and every value of a task registered without one."""
 
 
 def to_dict(config: Config) -> dict:
@@ -1043,10 +1080,14 @@ def from_dict(data: dict) -> Config:
             for tuple_field in ("hidden", "home", "motions"):
                 if isinstance(value.get(tuple_field), list):
                     value[tuple_field] = tuple(value[tuple_field])
-            if key == "loop" and "babbling" not in value:
+            task = data.get("task", {}).get("name", TaskConfig.name)
+            if key == "loop" and "babbling" not in value and task in BABBLING_BEFORE:
                 # Written before loop.babbling existed: it babbled as BABBLING_BEFORE says.
-                task = data.get("task", {}).get("name", TaskConfig.name)
                 value["babbling"] = BABBLING_BEFORE[task]
+            if key == "task" and "desired" not in value:
+                # Written before task.desired existed: every task's s* was the PD form then
+                # (today a task's default may differ: the walk's is next_velocity).
+                value["desired"] = "pd"
             kwargs[key] = cls(**value)
         else:
             kwargs[key] = value

@@ -292,8 +292,8 @@ def test_joint_gains_are_for_the_legged_tasks_only(field):
     assert message.startswith(f"task.{field}=500.0 is not allowed"), message
     assert "'walk' and 'jump'" in message and "task.kp and task.kd" in message
     with pytest.raises(ConfigError, match=rf"task.{field}=-1.0 .* >= 0"):
-        TaskConfig(name="jump", control_dt=0.004, **{field: -1.0})
-    assert getattr(TaskConfig(name="jump", control_dt=0.004, **{field: 0}), field) == 0
+        TaskConfig(name="jump", desired="pd", **{field: -1.0})
+    assert getattr(TaskConfig(name="jump", desired="pd", **{field: 0}), field) == 0
 
 
 def test_a_config_written_before_loop_babbling_reads_as_what_ran():

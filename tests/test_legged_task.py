@@ -24,7 +24,10 @@ from cfm_jax import config as config_lib
 
 @pytest.fixture(scope="module")
 def walk(solo):
-    return tasks.make(solo, config_lib.TaskConfig(name="walk", control_dt=0.004), 0.004)
+    # s* with PD gains (the walk's default is the desired next velocity): the reference
+    # controller then reproduces the recording with desired == observed.
+    pd = config_lib.TaskConfig(name="walk", desired="pd", kp=100.0, kd=20.0)
+    return tasks.make(solo, pd, 0.004)
 
 
 def test_sizes_and_padding(walk, solo):
@@ -66,7 +69,7 @@ def test_desired_acceleration_has_base_gains_on_the_base_and_joint_gains_on_the_
     import mujoco
 
     cfg = config_lib.TaskConfig(
-        name="walk", control_dt=0.004, kp=100.0, kd=20.0, joint_kp=2000.0, joint_kd=50.0
+        name="walk", desired="pd", kp=100.0, kd=20.0, joint_kp=2000.0, joint_kd=50.0
     )
     task = tasks.make(solo, cfg, 0.004)
     k, t = 2, 40
@@ -91,7 +94,8 @@ def test_desired_acceleration_has_base_gains_on_the_base_and_joint_gains_on_the_
     np.testing.assert_allclose(desired[:18], expected, rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(desired[18:], ref.force, atol=1e-6)
     # joint_kp / joint_kd None: the base gains on the joints too.
-    same = tasks.make(solo, config_lib.TaskConfig(name="walk", control_dt=0.004), 0.004)
+    pd = config_lib.TaskConfig(name="walk", desired="pd", kp=100.0, kd=20.0)
+    same = tasks.make(solo, pd, 0.004)
     np.testing.assert_allclose(np.asarray(same.desired_kp), 100.0)
     np.testing.assert_allclose(np.asarray(same.desired_kd), 20.0)
     # The values of the task built for cfg given to that task (as the compiled functions
@@ -215,7 +219,8 @@ def test_legged_task_trains_end_to_end_with_masked_metrics(name):
     from tiny import tiny_config
 
     config = tiny_config(iterations=1, seeds=1).replace(
-        robot="solo12", task=config_lib.TaskConfig(name=name, control_dt=0.004)
+        robot="solo12",
+        task=config_lib.TaskConfig(name=name, desired="pd", kp=100.0, kd=20.0),
     )
     # The legged tasks' torque scaling (for_task's), on which the golden record was made.
     config = config.replace(loop=dataclasses.replace(config.loop, torque_scale="limit"))

@@ -235,7 +235,7 @@ def test_config_of_normaliser_and_desired():
     with pytest.raises(config.ConfigError, match="task.desired='next_velocity'.*'pd' for task"):
         config.TaskConfig(desired="next_velocity")
     with pytest.raises(config.ConfigError, match=r"task.kp=100.0 is not allowed: 0.0 with"):
-        config.TaskConfig(name="walk", desired="next_velocity", kd=0.0)
+        config.TaskConfig(name="walk", desired="next_velocity", kp=100.0)
     with pytest.raises(config.ConfigError, match=r"task.joint_kd=5.0 is not allowed: None"):
         config.TaskConfig(name="jump", desired="next_velocity", kp=0, kd=0, joint_kd=5.0)
     with pytest.raises(config.ConfigError, match="task.desired"):

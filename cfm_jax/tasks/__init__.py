@@ -28,6 +28,7 @@ Examples:
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -82,8 +83,11 @@ def register(name: str, make: Callable, default_config: Callable | None = None) 
     Args:
       name: the task's name; it also becomes a name ``Config.task.name`` accepts.
       make: ``make(robot, task_config, control_dt, simulator) -> task``.
-      default_config: ``default_config() -> Config``; None:
-        ``Config(task=TaskConfig(name=name))``.
+      default_config: ``default_config() -> Config``, the task's defaults: every field a
+        config of this task leaves at :data:`cfm_jax.config.TASK_DEFAULT` takes its value
+        (:func:`cfm_jax.config.add_task_name`); inside it such fields take the generic
+        values (:data:`cfm_jax.config.GENERIC`), so it states only what differs. None: the
+        generic values.
 
     Returns:
       The :class:`TaskSpec`.
@@ -99,12 +103,12 @@ def register(name: str, make: Callable, default_config: Callable | None = None) 
         raise ValueError(f"name={name!r} is not allowed: a non-empty string")
     if name in REGISTRY:
         raise ValueError(f"name={name!r} is not allowed: a task of that name is registered")
+    config_lib.add_task_name(name, default_config)
     if default_config is None:
 
         def default_config():
             return config_lib.Config(task=TaskConfig(name=name))
 
-    config_lib.add_task_name(name)
     REGISTRY[name] = TaskSpec(name, make, default_config)
     return REGISTRY[name]
 
@@ -159,11 +163,7 @@ def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native"):
     return load(task.name).make(robot, task, control_dt, simulator)
 
 
-for _name, _module in (
-    ("inverse_dynamics", inverse_dynamics),
-    ("opspace", operational_space),
-    ("walk", legged),
-    ("jump", legged),
-):
-    register(_name, _module.make, lambda name=_name: config_lib.for_task(name))
-del _name, _module
+register("inverse_dynamics", inverse_dynamics.make, inverse_dynamics.default_config)
+register("opspace", operational_space.make, operational_space.default_config)
+register("walk", legged.make, functools.partial(legged.default_config, "walk"))
+register("jump", legged.make, functools.partial(legged.default_config, "jump"))

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from cfm_jax import babbling, baselines, opspace
-from cfm_jax.config import TaskConfig, check_duration
+from cfm_jax.config import Config, LoopConfig, TaskConfig, check_duration
 from cfm_jax.references import (
     as_jax_cartesian,
     cartesian_reaching,
@@ -228,3 +228,22 @@ def make(
     """
     require_fixed_base(robot, task.name, every_joint=True)
     return OperationalSpaceTask(robot, task, control_dt, simulator)
+
+
+def default_config() -> Config:
+    """The task's defaults (what ``Config(task=TaskConfig(name="opspace"))``, the CLI's
+    ``--task opspace`` and :func:`cfm_jax.config.for_task` give): those of the arms'
+    inverse-dynamics task (:func:`cfm_jax.tasks.inverse_dynamics.default_config`; a check of
+    this task's babbling on its own selection targets kept ``reaching``), except the torque
+    scale: the per-joint ``inertia`` scale, not ``coupled``, which lost on the shipped
+    iiwa14's op-space task (joint loss worse on every one of 3 seeds paired; issue 41,
+    docs/how-to/own-robot.md).
+
+    Returns:
+      A :class:`cfm_jax.config.Config`.
+
+    Examples:
+      >>> default_config().loop.torque_scale
+      'inertia'
+    """
+    return Config(task=TaskConfig(name="opspace"), loop=LoopConfig(torque_scale="inertia"))
