@@ -29,7 +29,11 @@ TASKS = ("inverse_dynamics", "opspace", "walk", "jump")
 _BUILT_IN_TASKS = TASKS
 
 
-def add_task_name(name: str, default_config: Callable[[], Config] | None = None) -> None:
+def add_task_name(
+    name: str,
+    default_config: Callable[[], Config] | None = None,
+    check: Callable[[TaskConfig], None] | None = None,
+) -> None:
     """Let ``Config.task.name`` take ``name``, with the task's own defaults
     (:func:`cfm_jax.tasks.register` calls this; the config knows the names and where their
     defaults come from, the task modules know what they mean).
@@ -41,18 +45,22 @@ def add_task_name(name: str, default_config: Callable[[], Config] | None = None)
         :class:`Config` or :class:`TaskConfig` naming this task. Inside it, such fields take
         the generic values of :data:`GENERIC` (so it states only what differs). None: the
         generic values.
+      check: ``check(task_config)``, what the task refuses of a :class:`TaskConfig` of its
+        name (raises :class:`ConfigError`, :func:`fail`), run after the fields' own checks
+        of type and range; None: nothing more.
 
     Examples:
-      >>> add_task_name("walk", TASK_DEFAULTS["walk"]); TASKS
+      >>> add_task_name("walk", TASK_DEFAULTS["walk"], TASK_CHECKS.get("walk")); TASKS
       ('inverse_dynamics', 'opspace', 'walk', 'jump')
     """
     global TASKS
     if name not in TASKS:
         TASKS = TASKS + (name,)
-    if default_config is None:
-        TASK_DEFAULTS.pop(name, None)
-    else:
-        TASK_DEFAULTS[name] = default_config
+    for registry, value in ((TASK_DEFAULTS, default_config), (TASK_CHECKS, check)):
+        if value is None:
+            registry.pop(name, None)
+        else:
+            registry[name] = value
     _DEFAULTS_OF.pop(name, None)
 
 
@@ -78,6 +86,11 @@ to change one field of a task's section, start from :func:`for_task` and replace
 TASK_DEFAULTS: dict[str, Callable[[], Config]] = {}
 """The ``default_config`` of each registered task (:func:`add_task_name`, called by
 :func:`cfm_jax.tasks.register`; importing :mod:`cfm_jax` registers the library's four)."""
+
+TASK_CHECKS: dict[str, Callable[[TaskConfig], None]] = {}
+"""What each registered task refuses of a :class:`TaskConfig` of its name (:func:`add_task_name`):
+the fields only other tasks take (the arms refuse the legged tasks' joint gains and
+motions, for example)."""
 
 _DEFAULTS_OF: dict[str, Config] = {}  # each task's default_config(), made once
 _BUILDING: set[str] = set()  # the tasks whose default_config() runs now
@@ -501,27 +514,13 @@ class TaskConfig:
         _nonnegative_float("task.kp", self.kp)
         _nonnegative_float("task.kd", self.kd)
         for field in ("joint_kp", "joint_kd"):
-            value = getattr(self, field)
-            if value is None:
-                continue
-            if self.name not in ("walk", "jump"):
-                fail(
-                    f"task.{field}",
-                    value,
-                    f"None for task {self.name!r} (joint gains of the legged tasks 'walk' and "
-                    "'jump'; the arm tasks use task.kp and task.kd for their joints)",
-                )
-            _nonnegative_float(f"task.{field}", value)
+            if getattr(self, field) is not None:
+                _nonnegative_float(f"task.{field}", getattr(self, field))
         if not isinstance(self.desired, str) or self.desired not in DESIRED:
             fail("task.desired", self.desired, f"one of {DESIRED}")
+        if self.name in TASK_CHECKS:
+            TASK_CHECKS[self.name](self)
         if self.desired == "next_velocity":
-            if self.name not in ("walk", "jump"):
-                fail(
-                    "task.desired",
-                    self.desired,
-                    f"'pd' for task {self.name!r} (the desired next velocity is an s* of the "
-                    "legged tasks 'walk' and 'jump')",
-                )
             for field, allowed in (
                 ("kp", 0.0),
                 ("kd", 0.0),
@@ -543,12 +542,6 @@ class TaskConfig:
                 "None, or a non-empty tuple of positive numbers: walk durations (s) for "
                 "'walk', jump foot clearances (m) for 'jump'"
             )
-            if self.name not in ("walk", "jump"):
-                fail(
-                    "task.motions",
-                    self.motions,
-                    f"None for task {self.name!r} (the arm tasks follow task.targets)",
-                )
             try:
                 motions = tuple(float(x) for x in self.motions)
             except (TypeError, ValueError):

@@ -76,7 +76,7 @@ def test_a_task_config_written_before_desired_existed_reads_as_what_ran():
     assert (task.desired, task.kp, task.kd, task.control_dt) == ("pd", 100.0, 20.0, 0.004)
 
 
-def test_a_task_registered_outside_the_library_brings_its_defaults():
+def test_a_task_registered_outside_the_library_brings_its_defaults_and_checks():
     # In a fresh interpreter: registering adds to the process's registries for good.
     code = """
 from cfm_jax import config, tasks
@@ -89,15 +89,27 @@ def hover_defaults():
 
 tasks.register("hover", inverse_dynamics.make, hover_defaults)
 tasks.register("plain", inverse_dynamics.make)
+
+def gentle(task):
+    if task.kp > 60:
+        config.fail("task.kp", task.kp, "at most 60 for task 'gentle'")
+
+tasks.register("gentle", inverse_dynamics.make, check=gentle)
 hover = Config(task=TaskConfig(name="hover"))
-plain = Config(task=TaskConfig(name="plain", kp=50.0))
+plain = Config(task=TaskConfig(name="plain", kp=50.0, joint_kp=5.0))  # no check: taken
+try:
+    TaskConfig(name="gentle", kp=70.0)
+except config.ConfigError as error:
+    refused = str(error).replace(" ", "_")
 print(hover.robot, hover.task.duration, hover.task.kp, hover.loop.seeds,
       hover == config.for_task("hover"), plain.robot, plain.task.kp, plain.task.duration,
-      plain.loop == LoopConfig())
+      plain.loop == LoopConfig(), plain.task.joint_kp, TaskConfig(name="gentle", kp=50.0).kp,
+      refused)
 """
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=300)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == [
-        "two_link_arm", "1.0", "100.0", "2", "True", "iiwa14", "50.0", "2.0", "True",
+        "two_link_arm", "1.0", "100.0", "2", "True", "iiwa14", "50.0", "2.0", "True", "5.0",
+        "50.0", "task.kp=70.0_is_not_allowed:_at_most_60_for_task_'gentle'",
     ]  # fmt: skip

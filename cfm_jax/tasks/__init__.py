@@ -77,7 +77,12 @@ REGISTRY: dict[str, TaskSpec] = {}
 """Every registered task by name (:func:`register`)."""
 
 
-def register(name: str, make: Callable, default_config: Callable | None = None) -> TaskSpec:
+def register(
+    name: str,
+    make: Callable,
+    default_config: Callable | None = None,
+    check: Callable | None = None,
+) -> TaskSpec:
     """Register a task under ``name``, so that configs may name it.
 
     Args:
@@ -88,6 +93,10 @@ def register(name: str, make: Callable, default_config: Callable | None = None) 
         (:func:`cfm_jax.config.add_task_name`); inside it such fields take the generic
         values (:data:`cfm_jax.config.GENERIC`), so it states only what differs. None: the
         generic values.
+      check: ``check(task_config)``, what the task refuses of a
+        :class:`cfm_jax.config.TaskConfig` of its name (raises
+        :class:`cfm_jax.config.ConfigError`), run when such a config is made; None:
+        nothing more than the fields' own checks.
 
     Returns:
       The :class:`TaskSpec`.
@@ -103,7 +112,7 @@ def register(name: str, make: Callable, default_config: Callable | None = None) 
         raise ValueError(f"name={name!r} is not allowed: a non-empty string")
     if name in REGISTRY:
         raise ValueError(f"name={name!r} is not allowed: a task of that name is registered")
-    config_lib.add_task_name(name, default_config)
+    config_lib.add_task_name(name, default_config, check)
     if default_config is None:
 
         def default_config():
@@ -163,7 +172,17 @@ def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native"):
     return load(task.name).make(robot, task, control_dt, simulator)
 
 
-register("inverse_dynamics", inverse_dynamics.make, inverse_dynamics.default_config)
-register("opspace", operational_space.make, operational_space.default_config)
+register(
+    "inverse_dynamics",
+    inverse_dynamics.make,
+    inverse_dynamics.default_config,
+    inverse_dynamics.check_config,
+)
+register(
+    "opspace",
+    operational_space.make,
+    operational_space.default_config,
+    inverse_dynamics.check_config,
+)
 register("walk", legged.make, functools.partial(legged.default_config, "walk"))
 register("jump", legged.make, functools.partial(legged.default_config, "jump"))

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from cfm_jax import babbling, baselines
-from cfm_jax.config import Config, ConfigError, TaskConfig
+from cfm_jax.config import Config, ConfigError, TaskConfig, fail
 from cfm_jax.references import (
     Reference,
     as_jax,
@@ -486,3 +486,43 @@ def default_config() -> Config:
       ('iiwa14', 'reaching', 'mlp', 'coupled')
     """
     return Config(task=TaskConfig(name="inverse_dynamics"))
+
+
+def check_config(task: TaskConfig) -> None:
+    """What the arm tasks (this one and ``opspace``) refuse of a :class:`TaskConfig`: the
+    legged tasks' joint gains (the arms take ``kp`` and ``kd`` for their joints), their
+    desired next velocity and their motions (the arms follow ``targets``).
+
+    Args:
+      task: a :class:`cfm_jax.config.TaskConfig` of an arm task (its fields' types checked).
+
+    Raises:
+      ConfigError: naming the field, its value and what the task takes.
+
+    Examples:
+      >>> TaskConfig(name="opspace", joint_kd=5.0)
+      Traceback (most recent call last):
+      ...
+      cfm_jax.config.ConfigError: task.joint_kd=5.0 is not allowed: None for task 'opspace' ...
+    """
+    for field in ("joint_kp", "joint_kd"):
+        if getattr(task, field) is not None:
+            fail(
+                f"task.{field}",
+                getattr(task, field),
+                f"None for task {task.name!r} (joint gains of the legged tasks 'walk' and "
+                "'jump'; the arm tasks use task.kp and task.kd for their joints)",
+            )
+    if task.desired != "pd":
+        fail(
+            "task.desired",
+            task.desired,
+            f"'pd' for task {task.name!r} (the desired next velocity is an s* of the legged "
+            "tasks 'walk' and 'jump')",
+        )
+    if task.motions is not None:
+        fail(
+            "task.motions",
+            task.motions,
+            f"None for task {task.name!r} (the arm tasks follow task.targets)",
+        )
