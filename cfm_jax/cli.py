@@ -118,7 +118,7 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
     _check_out(out)
     experiment = train_lib.Experiment(base)  # checks robot and config: nothing written yet
     if data is not None:  # a bad --data is refused before anything is written
-        train_lib._recorded_for(experiment, base, data)
+        train_lib.recorded_for(experiment, base, data)
     if not resume:  # a new run would meet the old one's checkpoints after its babbling
         held = [name for name in names if checkpoint.has_steps(os.path.join(out, name))]
         if held:

@@ -1,9 +1,9 @@
 """Algorithm 1's impure shell: :func:`train` runs the compiled functions of an
 :class:`cfm_jax.experiment.Experiment` (the pure :mod:`cfm_jax.algorithm`, vmapped over seeds)
-and does everything around them that touches the world: the progress display, the
-``progress_fn`` callback, the result files (metrics after every iteration, config,
-baselines, data set), Orbax checkpoints and resume, the divergence checks, and the replay
-of a recorded data set.
+in a loop around a :class:`cfm_jax.recorder.Recorder`, which keeps what touches the world
+(result files after every iteration, Orbax checkpoints and resume, the seeds stopped by a
+non-finite update, the ``progress_fn`` callback); here also the progress display and the
+replay of a recorded data set.
 
 Examples:
   >>> from cfm_jax import config as cfg
@@ -17,7 +17,6 @@ Examples:
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import time
 from collections.abc import Callable
@@ -27,15 +26,15 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from cfm_jax import algorithm, dataset, report
+from cfm_jax import algorithm, dataset
 from cfm_jax import config as config_lib
-from cfm_jax._files import write_atomic, write_text
 from cfm_jax.algorithm import METRIC_COLUMNS, Knobs, TrainState  # noqa: F401 (Knobs: re-export)
 from cfm_jax.experiment import Experiment
+from cfm_jax.recorder import Recorder, progress_bar
 
 # Experiment, TrainState, Knobs and METRIC_COLUMNS are imported here for the shell's use
 # and as the names a user of train() reaches for; their home is experiment and algorithm.
-__all__ = ["DivergenceError", "TrainResult", "rollout_qpos", "train"]
+__all__ = ["TrainResult", "recorded_for", "rollout_qpos", "train"]
 
 
 @dataclasses.dataclass
@@ -119,73 +118,6 @@ class TrainResult:
         return report.summary(self.metrics, self.baselines, self.rms_reach, **options)
 
 
-def _rows(loss, seeds, iteration, metrics, columns=METRIC_COLUMNS) -> list[dict]:
-    metrics = jax.tree.map(np.asarray, metrics)
-    targets = metrics["tracking_mse"].shape[1]
-    rows = []
-    for s, seed in enumerate(seeds):
-        for k in range(targets):
-            row = {"loss": loss, "seed": seed, "iteration": iteration, "target": k}
-            for name in columns[4:]:
-                value = metrics[name][s]
-                row[name] = float(value[k] if np.ndim(value) else value)
-            rows.append(row)
-    return rows
-
-
-class DivergenceError(RuntimeError):
-    """Training produced a non-finite quantity.
-
-    :func:`train` no longer raises it: a diverged rollout is recorded in the metrics
-    (``diverged``) and a non-finite loss or parameter stops one seed
-    (:attr:`TrainResult.stopped`). Kept for code that catches it.
-
-    Examples:
-      >>> # not run: it trains (minutes) and writes results/run
-      >>> try:
-      ...     result = cfm_jax.train(config, out_dir="results/run")  # doctest: +SKIP
-      ... except DivergenceError as error:
-      ...     print(error)  # doctest: +SKIP
-      iteration 3, seed 1: controller_loss became non-finite (NaN or Inf). The last good ...
-    """
-
-
-def _nonfinite(state: TrainState, metrics: dict, n_seeds: int) -> list[str | None]:
-    """Per seed, the first quantity of an update that is non-finite (a training loss or
-    the parameters of a model), or None. A diverged *rollout* is not in this list: it is an
-    outcome of the controller, recorded in the metrics (``diverged``)."""
-    checks = [
-        ("forward_loss", ~np.isfinite(np.asarray(metrics["forward_loss"]))),
-        ("controller_loss", ~np.isfinite(np.asarray(metrics["controller_loss"]))),
-    ]
-    for name, params in (
-        ("forward-model parameters", state.forward_params),
-        ("controller parameters", state.controller_params),
-    ):
-        finite = [
-            np.asarray(jnp.all(jnp.isfinite(x.reshape(x.shape[0], -1)), axis=1))
-            for x in jax.tree.leaves(params)
-        ]
-        checks.append((name, ~np.all(np.stack(finite), axis=0)))
-    out: list[str | None] = [None] * n_seeds
-    for name, bad in checks:
-        bad = np.asarray(bad).reshape(n_seeds, -1)
-        for s in range(n_seeds):
-            if out[s] is None and np.any(bad[s]):
-                out[s] = name
-    return out
-
-
-def _keep_seeds(new: TrainState, old: TrainState, keep_old: np.ndarray) -> TrainState:
-    """``new`` with the seeds where ``keep_old`` is True taken from ``old``."""
-    index = np.flatnonzero(keep_old)
-
-    def pick(a, b):
-        return a.at[index].set(b[index])
-
-    return jax.tree.map(pick, new, old)
-
-
 def train(
     config: config_lib.Config,
     progress: bool = True,
@@ -252,140 +184,52 @@ def train(
       >>> result.metrics.groupby("iteration").tracking_mse.agg(["mean", "std"])  # doctest: +SKIP
       >>> result = cfm_jax.train(config, resume="results/run")  # doctest: +SKIP
     """
-    from cfm_jax import checkpoint as ckpt_lib
-
     start = time.perf_counter()
-    saved_config = report.config_record(config)  # config.json, checkpoints, data set: once
+    recorder = Recorder(config, out_dir, resume, progress_fn)  # checks out_dir and resume
     if experiment is not None:
         knobs = experiment.knobs_for(config)  # refuses a config of another structure
-    if resume is None and out_dir and ckpt_lib.has_steps(out_dir):
-        raise config_lib.ConfigError(
-            f"out_dir={out_dir!r} is not allowed: it already holds checkpoints of a run; "
-            f"pass resume={out_dir!r} to continue it, or give another out_dir"
-        )
-    if resume is not None:
-        out_dir = out_dir or resume
-        saved_path = os.path.join(resume, "config.json")
-        if not os.path.isfile(saved_path):
-            raise config_lib.ConfigError(
-                f"resume={resume!r} is not allowed: no config.json there (not a run directory)"
-            )
-        with open(saved_path) as f:
-            saved = json.load(f)
-        diff = config_lib.differences(saved, saved_config)
-        if diff:
-            raise config_lib.ConfigError(
-                f"resume={resume!r} is not allowed: the run there has a different config in "
-                + "; ".join(diff)
-            )
     exp = experiment if experiment is not None else Experiment(config)
-    if experiment is None:
-        knobs = exp.knobs
-    seeds = config_lib.seeds_of(config)
-    recorded = None if data is None else _recorded_for(exp, config, data)
-    checkpointer = None
-    if out_dir:
-        os.makedirs(out_dir, exist_ok=True)
-        write_text(os.path.join(out_dir, "config.json"), json.dumps(saved_config, indent=2))
-        if config.loop.checkpoint_every > 0:
-            checkpointer = ckpt_lib.Checkpointer(
-                os.path.join(resume or out_dir, "checkpoints"), keep=config.loop.checkpoint_keep
-            )
-    rows: list[dict] = []
-
-    def write_metrics():
-        if out_dir:
-            frame = pd.DataFrame(rows, columns=list(exp.metric_columns))
-            write_atomic(
-                os.path.join(out_dir, "metrics.csv"), lambda tmp: frame.to_csv(tmp, index=False)
-            )
-
-    stopped: list[dict] = []
-
-    def record(iteration, metrics):
-        new = _rows(config.loss, seeds, iteration, metrics, exp.metric_columns)
-        gone = {entry["seed"] for entry in stopped}
-        new = [row for row in new if row["seed"] not in gone]
-        rows.extend(new)
-        write_metrics()
-        if progress_fn is not None:
-            progress_fn(iteration, pd.DataFrame(new, columns=list(exp.metric_columns)))
-
-    last_saved = [None]
-
-    def save(state, done: int, final: bool = False):
-        if checkpointer is None:
-            return
-        if final or done % config.loop.checkpoint_every == 0:
-            meta = {"rows": rows, "config": saved_config, "stopped": stopped}
-            checkpointer.save(done, state, meta)
-            last_saved[0] = done
-
-    with _progress(progress) as bar:
-        total = config.loop.iterations + 2
-        task = bar.add_task(f"{config.robot} {config.loss}: babbling + initial fit", total=total)
-        keys = jax.vmap(jax.random.key)(jnp.asarray(seeds, jnp.uint32))
+    knobs = exp.knobs if experiment is None else knobs
+    recorded = None if data is None else recorded_for(exp, config, data)
+    recorder.open(exp.metric_columns)
+    with progress_bar(progress) as bar:
+        label = f"{config.robot} {config.loss}"
+        task = bar.add_task(f"{label}: babbling + initial fit", total=config.loop.iterations + 2)
+        keys = jax.vmap(jax.random.key)(jnp.asarray(recorder.seeds, jnp.uint32))
         if recorded is None:
             state = exp.init(config.loss, keys, knobs)
         else:
-            babbling_rows = config.loop.babbling_rollouts * exp.transitions_per_rollout
-            chunk = recorded.chunk(0, babbling_rows)
+            chunk = recorded.chunk(0, config.loop.babbling_rollouts * exp.transitions_per_rollout)
             state = exp.init_from_data(config.loss, keys, *chunk, knobs=knobs)
-        jax.block_until_ready(state)
-        first = 0
-        if resume is not None and checkpointer is not None:
-            state, rows, first, stopped[:] = _restore(checkpointer, state)
-            last_saved[0] = first
-            write_metrics()
-        elif first == 0:
-            save(state, 0, final=config.loop.iterations == 0)
+        state, first = recorder.start(jax.block_until_ready(state))
         bar.advance(task, 1 + first)
         compile_seconds = float("nan")
         for i in range(first, config.loop.iterations):
-            bar.update(task, description=f"{config.robot} {config.loss}: iteration {i + 1}")
+            bar.update(task, description=f"{label}: iteration {i + 1}")
             t0 = time.perf_counter()
-            previous = state
             if recorded is None:
-                state, metrics = exp.iteration(config.loss, state, knobs)
+                new, metrics = exp.iteration(config.loss, state, knobs)
             else:
                 chunk = recorded.chunk(i + 1, exp.transitions_per_rollout)
-                state, metrics = exp.replay_iteration(config.loss, state, *chunk, knobs=knobs)
+                new, metrics = exp.replay_iteration(config.loss, state, *chunk, knobs=knobs)
             metrics = jax.device_get(metrics)
-            if i == first:
-                compile_seconds = time.perf_counter() - t0
-            state = _stop_nonfinite(state, previous, metrics, i, config.loss, seeds, stopped)
-            record(i, metrics)
-            save(state, i + 1, final=i + 1 == config.loop.iterations)
+            compile_seconds = time.perf_counter() - t0 if i == first else compile_seconds
+            state = recorder.iteration(i, new, state, metrics)
             bar.advance(task)
-        bar.update(task, description=f"{config.robot} {config.loss}: final evaluation")
-        final_metrics = jax.device_get(exp.evaluate(state, knobs))
-        record(config.loop.iterations, final_metrics)
+        bar.update(task, description=f"{label}: final evaluation")
+        recorder.record(config.loop.iterations, jax.device_get(exp.evaluate(state, knobs)))
         baselines = exp.baselines(knobs)
         bar.advance(task)
-    if checkpointer is not None:
-        checkpointer.close()
-    if out_dir:
-        write_atomic(
-            os.path.join(out_dir, "baselines.csv"), lambda tmp: baselines.to_csv(tmp, index=False)
-        )
-        if stopped:
-            write_text(os.path.join(out_dir, "stopped.json"), json.dumps(stopped, indent=2))
-        dataset.save(
-            os.path.join(out_dir, "dataset.npz"),
-            state.data,
-            _segments(config, state, rows, recorded),
-            seeds,
-            saved_config,
-        )
+    recorder.finish(state, baselines, recorded)
     return TrainResult(
         config=config,
-        metrics=pd.DataFrame(rows, columns=list(exp.metric_columns)),
+        metrics=recorder.metrics(),
         baselines=baselines,
         state=state,
         rms_reach=exp.task_for(config).tracking_scale,
         seconds=time.perf_counter() - start,
         compile_seconds=compile_seconds,
-        stopped=list(stopped),
+        stopped=list(recorder.stopped),
         warnings=_take_warnings(),
     )
 
@@ -394,21 +238,6 @@ def _take_warnings() -> dict:
     from cfm_jax import native
 
     return native.take_warnings()
-
-
-def _stop_nonfinite(state, previous, metrics, iteration, loss, seeds, stopped) -> TrainState:
-    """Stop the seeds whose update produced a non-finite loss or parameter: they keep
-    ``previous`` (their last good state) from now on and are listed in ``stopped``."""
-    n = len(seeds)
-    gone = {entry["seed"] for entry in stopped}
-    for s, quantity in enumerate(_nonfinite(state, metrics, n)):
-        if quantity is not None and seeds[s] not in gone:
-            stopped.append(
-                {"loss": loss, "seed": int(seeds[s]), "iteration": iteration, "quantity": quantity}
-            )
-    gone = {entry["seed"] for entry in stopped}
-    keep_old = np.array([seed in gone for seed in seeds])
-    return _keep_seeds(state, previous, keep_old) if keep_old.any() else state
 
 
 def rollout_qpos(result, *, seed: int = 0, experiment=None) -> np.ndarray:
@@ -452,30 +281,30 @@ def rollout_qpos(result, *, seed: int = 0, experiment=None) -> np.ndarray:
     return np.asarray(out.transitions.state[0, :, :, : exp.robot.nq])
 
 
-def _segments(
-    config: config_lib.Config, state: TrainState, rows: list[dict], recorded
-) -> np.ndarray:
-    """Rows added to each seed's data set by babbling and by each iteration,
-    ``(seeds, 1 + iterations)``: an iteration adds its rollout's ``transitions_added``, in
-    a replay the recorded segment; babbling the rest."""
-    iterations = config.loop.iterations
-    size = np.asarray(state.data.size)
-    if recorded is not None:
-        added = np.asarray(recorded.segments[:, 1 : iterations + 1])
-    else:
-        frame = pd.DataFrame(rows, columns=["seed", "iteration", "transitions_added"])
-        frame = frame[frame.iteration < iterations]
-        frame = frame.assign(added=np.round(frame.transitions_added).astype(np.int64))
-        table = frame.pivot_table(index="seed", columns="iteration", values="added", aggfunc="sum")
-        # A stopped seed has no rows from its stop on: it added nothing more.
-        table = table.reindex(index=list(config_lib.seeds_of(config)), columns=range(iterations))
-        added = table.fillna(0).to_numpy(np.int64)
-        added = added.reshape(size.shape[0], iterations)
-    return np.concatenate([(size - added.sum(1))[:, None], added], axis=1)
+def recorded_for(exp: Experiment, config: config_lib.Config, data) -> dataset.Recorded:
+    """Load ``data`` and check that ``config`` (on ``exp``) can replay it (``train(...,
+    data=...)``, ``cfm-jax train --data``).
 
+    Args:
+      exp: the :class:`cfm_jax.experiment.Experiment` of ``config``.
+      config: the config that would replay the data.
+      data: a path to a run's ``dataset.npz``, or a :class:`cfm_jax.dataset.Recorded`.
 
-def _recorded_for(exp: Experiment, config: config_lib.Config, data) -> dataset.Recorded:
-    """Load ``data`` and check that ``config`` (on ``exp``) can replay it."""
+    Returns:
+      The :class:`cfm_jax.dataset.Recorded`.
+
+    Raises:
+      ConfigError: the file cannot be read, or its seeds, iterations, sizes or babbling do
+        not fit ``config`` (the message names the field and what would fit).
+
+    Examples:
+      >>> from cfm_jax import config as cfg
+      >>> arm = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.1))
+      >>> recorded_for(Experiment(arm), arm, "no_such_run/dataset.npz")
+      Traceback (most recent call last):
+      ...
+      cfm_jax.config.ConfigError: ...no_such_run/dataset.npz...
+    """
     if isinstance(data, str | os.PathLike):
         try:
             recorded = dataset.load(str(data))
@@ -527,76 +356,3 @@ def _recorded_for(exp: Experiment, config: config_lib.Config, data) -> dataset.R
             "run's task settings (targets, duration, control_dt)"
         )
     return recorded
-
-
-def _restore(checkpointer, template: TrainState):
-    """Newest usable checkpoint: ``(state, rows, completed iterations)``. Steps left
-    incomplete by a kill (no manifest) are skipped with a warning; a corrupt step raises
-    :class:`cfm_jax.checkpoint.CheckpointError` offering the previous valid one."""
-    import warnings
-
-    from cfm_jax import checkpoint as ckpt_lib
-
-    for step in reversed(checkpointer.steps()):
-        problem = checkpointer.problem(step)
-        if problem is not None and "is incomplete" in problem:
-            warnings.warn(f"skipping checkpoint step {step}: {problem}; removed it", stacklevel=3)
-            checkpointer.delete(step)
-            continue
-        state, meta = checkpointer.restore(step, template)
-        rows = [r for r in meta["rows"] if r["iteration"] < step]
-        stopped = [e for e in meta.get("stopped", []) if e["iteration"] < step]
-        return state, rows, step, stopped
-    raise ckpt_lib.CheckpointError(
-        f"no usable checkpoint in {checkpointer.directory}: start the run again without resume"
-    )
-
-
-def _progress(enabled: bool):
-    """A rich progress bar on a terminal or in a notebook; in a file or a pipe (a log), one
-    plain line per step instead (:class:`_PlainProgress`): a bar there shows only at the
-    end."""
-    from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-    )
-
-    console = Console()
-    if enabled and not console.is_terminal and not console.is_jupyter:
-        return _PlainProgress()
-    return Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        disable=not enabled,
-    )
-
-
-class _PlainProgress:
-    """The part of ``rich.progress.Progress`` that :func:`train` uses, printing one line
-    per step, e.g. ``iiwa14 joint: iteration 2: 3/6 (41 s)``, flushed at once."""
-
-    def __enter__(self):
-        self.start, self.tasks = time.perf_counter(), {}
-        return self
-
-    def __exit__(self, *exc):
-        return False
-
-    def add_task(self, description: str, total: int) -> int:
-        self.tasks[len(self.tasks)] = [description, 0, total]
-        return len(self.tasks) - 1
-
-    def update(self, task: int, description: str) -> None:
-        self.tasks[task][0] = description
-
-    def advance(self, task: int, steps: int = 1) -> None:
-        entry = self.tasks[task]
-        entry[1] += steps
-        elapsed = time.perf_counter() - self.start
-        print(f"{entry[0]}: {entry[1]}/{entry[2]} ({elapsed:.0f} s)", flush=True)

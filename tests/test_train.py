@@ -388,9 +388,9 @@ def test_user_mjcf_arm_trains_without_code_changes(tmp_path):
 def test_progress_in_a_log_is_one_line_per_step(capsys):
     # Redirected to a file, a run printed its progress bar once, at the end of each loss:
     # nothing to follow in the log of a long run. Under pytest stdout is not a terminal.
-    from cfm_jax import training
+    from cfm_jax import recorder
 
-    with training._progress(True) as bar:
+    with recorder.progress_bar(True) as bar:
         task = bar.add_task("arm joint: babbling + initial fit", total=4)
         bar.advance(task)
         bar.update(task, description="arm joint: iteration 1")
@@ -399,6 +399,6 @@ def test_progress_in_a_log_is_one_line_per_step(capsys):
     assert len(lines) == 2
     assert re.fullmatch(r"arm joint: babbling \+ initial fit: 1/4 \(\d+ s\)", lines[0])
     assert re.fullmatch(r"arm joint: iteration 1: 2/4 \(\d+ s\)", lines[1])
-    with training._progress(False) as bar:  # --quiet: nothing
+    with recorder.progress_bar(False) as bar:  # --quiet: nothing
         bar.advance(bar.add_task("x", total=1))
     assert capsys.readouterr().out == ""
