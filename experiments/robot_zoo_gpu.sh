@@ -13,8 +13,8 @@ set -u
 cd "$(dirname "$0")/.."
 PY=${PY:-python3}
 if [ -z "${NO_INSTALL:-}" ]; then
-  $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
-  export PYTHONPATH=/tmp/site
+  # shellcheck source=experiments/device_env.sh
+  source experiments/device_env.sh || exit 1
 fi
 export XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
