@@ -127,8 +127,9 @@ class Knobs:
     Attributes:
       forward_learning_rate: ``forward.learning_rate``.
       controller_learning_rate: ``controller.learning_rate``.
-      forward_log_variance_bounds: ``(forward.min_log_variance,
-        forward.max_log_variance)``, the initial soft bounds of the forward model.
+      forward: the forward section's other runtime values, ``{field: float32}`` of the
+        ``forward.*`` fields of :data:`cfm_jax.config.RUNTIME_FIELDS` but the learning rate
+        (the ensemble's initial log-variance bounds), for the forward model's ``start``.
       babbling_noise_std: ``loop.babbling_noise`` times each joint's torque scale
         (``loop.torque_scale``: :meth:`cfm_jax.robots.Robot.torque_scale` or the torque
         limit), ``(action_dim,)``; for ``"coupled"`` times the matrix scale ``T``,
@@ -155,7 +156,7 @@ class Knobs:
 
     forward_learning_rate: jax.Array
     controller_learning_rate: jax.Array
-    forward_log_variance_bounds: jax.Array
+    forward: dict
     babbling_noise_std: jax.Array
     babbling: jax.Array
     torque_scale: jax.Array | None
@@ -170,9 +171,13 @@ class Knobs:
         return cls(
             forward_learning_rate=jnp.asarray(config.forward.learning_rate, jnp.float32),
             controller_learning_rate=jnp.asarray(config.controller.learning_rate, jnp.float32),
-            forward_log_variance_bounds=jnp.asarray(
-                [config.forward.min_log_variance, config.forward.max_log_variance], jnp.float32
-            ),
+            forward={
+                path.split(".", 1)[1]: jnp.asarray(
+                    getattr(config.forward, path.split(".", 1)[1]), jnp.float32
+                )
+                for path in config_lib.RUNTIME_FIELDS
+                if path.startswith("forward.") and path != "forward.learning_rate"
+            },
             babbling_noise_std=jnp.asarray(config.loop.babbling_noise * scale, jnp.float32),
             babbling=jnp.asarray(config_lib.BABBLING.index(config.loop.babbling), jnp.int32),
             torque_scale=None if own is None else jnp.asarray(own, jnp.float32),
@@ -583,13 +588,7 @@ def _start(
         )
     else:  # "data"
         normaliser = data_normaliser(setup, data, knobs.torque_scale)
-    forward_params = setup.forward.init(key_fm, task.state_dim)
-    lower, upper = knobs.forward_log_variance_bounds
-    forward_params = {
-        **forward_params,
-        "min_log_variance": jnp.full_like(forward_params["min_log_variance"], lower),
-        "max_log_variance": jnp.full_like(forward_params["max_log_variance"], upper),
-    }
+    forward_params = setup.forward.start(setup.forward.init(key_fm, task.state_dim), knobs.forward)
     controller_params = setup.controller.init(key_ctrl, task.state_dim)
     state = TrainState(
         forward_params,
@@ -721,13 +720,7 @@ def fresh_forward_params(setup: Setup, key, knobs: Knobs):
       >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> params = fresh_forward_params(setup, jax.random.key(0), knobs)  # doctest: +SKIP
     """
-    params = setup.forward.init(key, setup.task.state_dim)
-    lower, upper = knobs.forward_log_variance_bounds
-    return {
-        **params,
-        "min_log_variance": jnp.full_like(params["min_log_variance"], lower),
-        "max_log_variance": jnp.full_like(params["max_log_variance"], upper),
-    }
+    return setup.forward.start(setup.forward.init(key, setup.task.state_dim), knobs.forward)
 
 
 def loss_groups(setup: Setup):
@@ -1009,14 +1002,12 @@ def metrics(setup: Setup, state: TrainState, result: rollout_lib.Rollout) -> dic
     norm = state.normaliser
     forward, controller = setup.forward, setup.controller
     predicted = norm.output_inverse(
-        networks.ensemble_mean(
-            forward, state.forward_params, norm, t.state, t.action, terms=t.terms
-        )
+        forward.predict(state.forward_params, norm, t.state, t.action, terms=t.terms)
     )
     tau = controller.apply(state.controller_params, norm, t.state, t.desired)
     predicted_task = norm.select(
         norm.output_inverse(
-            networks.ensemble_mean(forward, state.forward_params, norm, t.state, tau, terms=t.terms)
+            forward.predict(state.forward_params, norm, t.state, tau, terms=t.terms)
         )
     )
     step_mean = _step_mean(result, before_terminal=True)

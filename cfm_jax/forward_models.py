@@ -8,11 +8,15 @@ task)`` and registered here under its name:
 * ``rigid_body``: ``M^-1 (S tau - h)`` of a nominal MuJoCo model plus the ensemble as a
   residual, as in the authors' Solo12 code (:mod:`cfm_jax.rigid_body`).
 
-A kind whose ``apply`` needs more than ``(s, tau)`` per transition gives the model a
-``terms(state)`` function: the learning loop stores its output with each transition when
-it enters the data set and passes it to ``apply`` as ``terms=``
-(:attr:`cfm_jax.dataset.Transitions.terms`). A new kind is one module with a ``make`` and
-one call of :func:`register`.
+A kind owns its contract with the learning loop (the fields of
+:class:`cfm_jax.networks.Model`: ``init``, ``objective``, ``predict``, ``batches``,
+``start``; :func:`cfm_jax.networks.pets` gives the ensemble's); the shared update and
+algorithm code call them and know none of its parameters. A kind that needs more than
+``(s, tau)`` per transition gives the model a ``terms(state)`` function: the learning loop
+stores its output with each transition when it enters the data set and passes it on as
+``terms=`` (:attr:`cfm_jax.dataset.Transitions.terms`). A new kind is one module with a
+``make`` and one call of :func:`register`, in the library or outside it
+(``tests/test_forward_kinds.py``).
 
 Examples:
   >>> from cfm_jax import config

@@ -29,6 +29,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from cfm_jax import losses
+
 
 @struct.dataclass
 class Normaliser:
@@ -211,19 +213,45 @@ class _MLP(nn.Module):
         return nn.Dense(self.out)(x)
 
 
+def _one_batch(params) -> int:
+    del params
+    return 1
+
+
+def _unchanged(params, runtime):
+    del runtime
+    return params
+
+
 class Model(NamedTuple):
-    """An ``(init, apply)`` pair of pure functions.
+    """A network as pure functions: ``(init, apply)``, and for a forward model its whole
+    contract with the learning loop, which calls these and knows nothing of the
+    parameters (a new kind of forward model is a :class:`Model` and one
+    :func:`cfm_jax.forward_models.register`).
 
     Attributes:
       init: ``init(key, state_dim) -> params``.
       apply: ``apply(params, normaliser, state, other) -> output`` (see
-        :func:`forward_model` and :func:`controller`); a forward model's also takes
-        ``per_member`` and ``terms`` (keywords).
+        :func:`forward_model` and :func:`controller`).
       terms: forward models only: ``terms(state (..., state_dim)) -> pytree (..., ...)``,
-        what ``apply`` needs per transition besides ``(s, tau)``, computed once when a
+        what the model needs per transition besides ``(s, tau)``, computed once when a
         transition enters the data set (:attr:`cfm_jax.dataset.Transitions.terms`) and
-        passed to ``apply`` as ``terms=``; None (the ``mlp`` ensemble, the controller):
-        none.
+        passed on as ``terms=``; None (the ``mlp`` ensemble, the controller): none.
+      objective: forward models: ``objective(params, normaliser, batch) -> scalar``, the
+        training loss of a fit step on ``batch`` (:class:`cfm_jax.dataset.Transitions`
+        with a leading axis of ``batches(params)`` minibatches, each of ``(rows, ...)``);
+        None for a controller.
+      predict: forward models: ``predict(params, normaliser, state (..., state_dim), tau
+        (..., action_dim), terms=None) -> (..., output_dim)``, the prediction in normalised
+        output units (``normaliser.output_inverse`` gives physical units) that the
+        controller losses and the metrics use; None for a controller.
+      batches: forward models: ``batches(params) -> int``, the minibatches drawn for each
+        fit step (the ensemble: one per member); default 1.
+      start: forward models: ``start(params, runtime) -> params``, the parameters a fit
+        starts from (called on fresh ``init`` parameters), given the forward section's
+        runtime values (``runtime``: ``{field: float32}`` of the ``forward.*`` fields of
+        :data:`cfm_jax.config.RUNTIME_FIELDS` but the learning rate; the ensemble sets its
+        log-variance bounds from them); default: unchanged.
 
     Examples:
       >>> g = controller(hidden=(8,), nv=2)
@@ -236,6 +264,71 @@ class Model(NamedTuple):
     init: Any
     apply: Any
     terms: Any = None
+    objective: Any = None
+    predict: Any = None
+    batches: Any = _one_batch
+    start: Any = _unchanged
+
+
+LOG_VARIANCE_BOUND_PENALTY = 0.01
+"""Weight of the PETS penalty on the ensemble's learned log-variance bounds."""
+
+
+def pets(init, apply, terms=None) -> Model:
+    """The forward :class:`Model` of a PETS-style ensemble: ``apply(params, normaliser,
+    state, tau, per_member=False, terms=None) -> (mean, log_variance)``, each ``(members,
+    ..., output)``, over parameters ``{"members": (members, ...) leaves, "min_log_variance",
+    "max_log_variance"}`` (:func:`forward_model`; the ``rigid_body`` kind adds physics to
+    its mean). The contract it gets: ``objective`` the mean Gaussian NLL of the observed
+    quantity over members and rows, member ``e`` scored on minibatch ``e`` only, plus
+    :data:`LOG_VARIANCE_BOUND_PENALTY` times the learned bounds (PETS); ``predict`` the mean
+    over members; ``batches`` the members; ``start`` sets both bounds to the runtime's
+    ``min_log_variance`` and ``max_log_variance``.
+
+    Args:
+      init: ``init(key, state_dim) -> params``.
+      apply: the ensemble's ``apply`` (above).
+      terms: ``terms(state)``, what ``apply`` needs per transition, or None.
+
+    Returns:
+      A :class:`Model`.
+
+    Examples:
+      >>> fm = forward_model(hidden=(8,), ensemble_size=3, nv=2)  # pets(...) of the MLPs
+      >>> params = fm.init(jax.random.key(0), state_dim=4)
+      >>> fm.batches(params)
+      3
+      >>> bounds = {"min_log_variance": -5.0, "max_log_variance": 1.0}
+      >>> fm.start(params, bounds)["min_log_variance"].tolist()
+      [-5.0, -5.0]
+    """
+
+    def objective(params, normaliser: Normaliser, batch):
+        extra = {} if batch.terms is None else {"terms": batch.terms}
+        mean, log_var = apply(
+            params, normaliser, batch.state, batch.action, per_member=True, **extra
+        )
+        nll = losses.gaussian_nll(mean, log_var, normaliser.output(batch.observed))
+        bounds = jnp.sum(params["max_log_variance"]) - jnp.sum(params["min_log_variance"])
+        return jnp.mean(nll) + LOG_VARIANCE_BOUND_PENALTY * bounds
+
+    def predict(params, normaliser: Normaliser, state, tau, terms=None):
+        extra = {} if terms is None else {"terms": terms}
+        mean, _ = apply(params, normaliser, state, tau, **extra)
+        return jnp.mean(mean, axis=0)
+
+    def batches(params) -> int:
+        return jax.tree.leaves(params["members"])[0].shape[0]
+
+    def start(params, runtime):
+        lower, upper = runtime["min_log_variance"], runtime["max_log_variance"]
+        return {
+            **params,
+            "min_log_variance": jnp.full_like(params["min_log_variance"], lower),
+            "max_log_variance": jnp.full_like(params["max_log_variance"], upper),
+        }
+
+    return Model(init, apply, terms, objective, predict, batches, start)
 
 
 def forward_model(
@@ -302,7 +395,7 @@ def forward_model(
         log_variance = lower + jax.nn.softplus(log_variance - lower)
         return mean, log_variance
 
-    return Model(init, apply)
+    return pets(init, apply)
 
 
 def ensemble(forward, output_dim: int, action_dim: int) -> Model:
@@ -333,33 +426,6 @@ def ensemble(forward, output_dim: int, action_dim: int) -> Model:
         forward.max_log_variance,
         action_dim=action_dim,
     )
-
-
-def ensemble_mean(forward: Model, params, normaliser: Normaliser, state, tau, terms=None):
-    """Prediction of the ensemble in normalised units: the mean over members.
-
-    Args:
-      forward: the forward :class:`Model`.
-      params: its parameters.
-      normaliser: the :class:`Normaliser`.
-      state: ``(..., state_dim)``.
-      tau: ``(..., action_dim)``.
-      terms: the per-transition terms of ``state`` (``forward.terms``), or None (a model
-        without terms).
-
-    Returns:
-      ``(..., nv)`` (use ``normaliser.output_inverse`` for physical units).
-
-    Examples:
-      >>> norm = Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
-      >>> fm = forward_model(hidden=(8,), ensemble_size=3, nv=2)
-      >>> params = fm.init(jax.random.key(0), state_dim=4)
-      >>> ensemble_mean(fm, params, norm, jnp.zeros((5, 4)), jnp.zeros((5, 2))).shape
-      (5, 2)
-    """
-    extra = {} if terms is None else {"terms": terms}
-    mean, _ = forward.apply(params, normaliser, state, tau, **extra)
-    return jnp.mean(mean, axis=0)
 
 
 def controller(hidden: tuple[int, ...], nv: int, desired_dim: int | None = None) -> Model:

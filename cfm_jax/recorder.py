@@ -51,6 +51,17 @@ class Recorder:
       rows: the metric rows so far (dicts, one per seed and target).
       stopped: the seeds stopped by a non-finite update (dicts: loss, seed, iteration,
         quantity).
+
+    Examples:
+      >>> import numpy as np, pandas as pd
+      >>> from cfm_jax import config as cfg
+      >>> seen = []
+      >>> recorder = Recorder(cfg.Config(robot="two_link_arm", loop=cfg.LoopConfig(seeds=2)),
+      ...                     out_dir=None, progress_fn=lambda i, rows: seen.append(len(rows)))
+      >>> recorder.open(["loss", "seed", "iteration", "target", "tracking_mse"])
+      >>> recorder.record(0, {"tracking_mse": np.array([[0.5, 0.25], [0.1, 0.2]])})
+      >>> recorder.metrics().tracking_mse.tolist(), seen  # 2 seeds x 2 targets
+      ([0.5, 0.25, 0.1, 0.2], [4])
     """
 
     def __init__(
@@ -330,6 +341,10 @@ def progress_bar(enabled: bool):
 
     Returns:
       A context manager with ``add_task``, ``update`` and ``advance`` (rich's).
+
+    Examples:
+      >>> with progress_bar(False) as bar:  # --quiet: nothing is shown
+      ...     bar.advance(bar.add_task("arm joint: babbling", total=1))
     """
     from rich.console import Console
     from rich.progress import (

@@ -269,7 +269,8 @@ def structured(residual: networks.Model, terms, output_dim: int, entries, scale:
         legged tasks).
 
     Returns:
-      The :class:`cfm_jax.networks.Model` (with ``terms``).
+      The :class:`cfm_jax.networks.Model` (with ``terms``; the ensemble's contract,
+      :func:`cfm_jax.networks.pets`).
 
     Examples:
       >>> residual = networks.forward_model(hidden=(4,), ensemble_size=2, nv=3, action_dim=1)
@@ -297,7 +298,7 @@ def structured(residual: networks.Model, terms, output_dim: int, entries, scale:
         physics = physics.at[..., index].set(scale * qacc)
         return mean + jnp.where(mask, normaliser.output(physics), 0.0), log_variance
 
-    return networks.Model(residual.init, apply, terms)
+    return networks.pets(residual.init, apply, terms)
 
 
 def make(forward: ForwardModelConfig, robot, task) -> networks.Model:

@@ -1,7 +1,8 @@
 """Model updates: minibatch gradient steps under ``lax.scan`` with Optax.
 
-* :func:`fit_forward`: the forward ensemble by Gaussian NLL (PETS), every member on its own
-  minibatches, in normalised acceleration units.
+* :func:`fit_forward`: the forward model by its own training objective (``forward.objective``;
+  the ensemble's: Gaussian NLL, PETS, every member on its own minibatches, in normalised
+  units).
 * :func:`fit_controller`: the controller with the chosen controller loss. The gradient is
   taken with respect to the controller parameters only (``jax.grad`` of
   :func:`controller_objective` in its first argument), so the forward model is never
@@ -16,48 +17,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from cfm_jax import dataset, losses, networks
-
-# Weight of the PETS penalty on the learned log-variance bounds.
-LOG_VARIANCE_BOUND_PENALTY = 0.01
-
-
-def forward_objective(forward_params, forward, normaliser, batch: dataset.Transitions):
-    """Mean Gaussian NLL of the observed quantity over members and minibatch rows.
-
-    Plus ``LOG_VARIANCE_BOUND_PENALTY`` times the learned log-variance bounds (PETS).
-
-    Args:
-      forward_params: the ensemble's parameters (leaves ``(ensemble, ...)``).
-      forward: the forward :class:`cfm_jax.networks.Model`.
-      normaliser: the :class:`cfm_jax.networks.Normaliser`.
-      batch: :class:`cfm_jax.dataset.Transitions` with a leading member axis
-        ``(ensemble, batch, ...)``: member ``e`` is scored on ``batch[e]`` only.
-
-    Returns:
-      The scalar loss.
-
-    Examples:
-      >>> import jax, jax.numpy as jnp, optax
-      >>> from cfm_jax import dataset, networks
-      >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
-      >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
-      >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))
-      >>> data = dataset.add(dataset.empty(16, state_dim=4, nv=2), rows)
-      >>> batch = jax.tree.map(lambda x: jnp.stack([x[:4], x[4:8]]), rows)  # 2 members x 4 rows
-      >>> forward_objective(fm.init(jax.random.key(0), 4), fm, norm, batch).shape
-      ()
-    """
-
-    extra = {} if batch.terms is None else {"terms": batch.terms}
-    mean, log_var = forward.apply(
-        forward_params, normaliser, batch.state, batch.action, per_member=True, **extra
-    )
-    nll = losses.gaussian_nll(mean, log_var, normaliser.output(batch.observed))
-    bounds = jnp.sum(forward_params["max_log_variance"]) - jnp.sum(
-        forward_params["min_log_variance"]
-    )
-    return jnp.mean(nll) + LOG_VARIANCE_BOUND_PENALTY * bounds
+from cfm_jax import dataset, losses
 
 
 def controller_objective(
@@ -139,13 +99,11 @@ def controller_objective(
         return _mean(losses.supervised(predicted, executed), weights)
     goal_input = batch.desired if goal == "desired" else normaliser.select(batch.observed)
     tau = controller.apply(controller_params, normaliser, batch.state, goal_input)
-    predicted = networks.ensemble_mean(
-        forward, forward_params, normaliser, batch.state, tau, terms=batch.terms
-    )
+    predicted = forward.predict(forward_params, normaliser, batch.state, tau, terms=batch.terms)
     predicted_run = None
     if loss == "distal":  # f(s, tau_run): no controller parameter in it
-        predicted_run = networks.ensemble_mean(
-            forward, forward_params, normaliser, batch.state, batch.action, terms=batch.terms
+        predicted_run = forward.predict(
+            forward_params, normaliser, batch.state, batch.action, terms=batch.terms
         )
     per_sample = losses.controller_loss(
         loss,
@@ -169,20 +127,21 @@ def _mean(per_sample, weights):
 
 
 def fit_forward(forward, optimizer, params, opt_state, normaliser, data, key, steps, batch_size):
-    """``steps`` Adam steps of :func:`forward_objective` under ``lax.scan``.
+    """``steps`` optimiser steps of the forward model's ``objective`` under ``lax.scan``.
 
-    Every member draws its own minibatch of ``batch_size`` rows per step.
+    Each step draws ``forward.batches(params)`` minibatches of ``batch_size`` rows (the
+    ensemble: one per member).
 
     Args:
       forward: the forward :class:`cfm_jax.networks.Model`.
       optimizer: an ``optax`` optimiser.
-      params: the ensemble's parameters.
+      params: its parameters.
       opt_state: ``optimizer``'s state for them.
       normaliser: the :class:`cfm_jax.networks.Normaliser`.
       data: the :class:`cfm_jax.dataset.Dataset` to sample from.
       key: PRNG key.
       steps: number of steps (static; 0 returns the inputs and a NaN loss).
-      batch_size: rows per member and step (static).
+      batch_size: rows per minibatch (static).
 
     Returns:
       ``(params, opt_state, mean loss over the steps)``.
@@ -203,13 +162,13 @@ def fit_forward(forward, optimizer, params, opt_state, normaliser, data, key, st
       >>> bool(later < first)
       True
     """
-    members = jax.tree.leaves(params["members"])[0].shape[0]
+    batches = forward.batches(params)
 
     def one_step(carry, step_key):
         params, opt_state = carry
-        keys = jax.random.split(step_key, members)
+        keys = jax.random.split(step_key, batches)
         batch = jax.vmap(lambda k: dataset.sample(data, k, batch_size))(keys)
-        value, grads = jax.value_and_grad(forward_objective)(params, forward, normaliser, batch)
+        value, grads = jax.value_and_grad(forward.objective)(params, normaliser, batch)
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), value
 

@@ -115,7 +115,7 @@ def pictures(out: str, config, loss: str, run_dir: str | None = None) -> dict:
     target = task.targets - 1  # the longest walk, the highest jump
     ref = task.references[target]
     n = ref.horizon
-    from cfm_jax import algorithm, networks
+    from cfm_jax import algorithm
 
     # The forward model's per-transition terms where its kind has them (rigid_body: M^-1 S
     # and -M^-1 h of each state), as the library's metrics compute them.
@@ -123,9 +123,7 @@ def pictures(out: str, config, loss: str, run_dir: str | None = None) -> dict:
     t = jax.tree.map(lambda x: x[target], t)
     norm = state.normaliser
     predicted = norm.output_inverse(
-        networks.ensemble_mean(
-            experiment.forward, state.forward_params, norm, t.state, t.action, terms=t.terms
-        )
+        experiment.forward.predict(state.forward_params, norm, t.state, t.action, terms=t.terms)
     )
     feet = task.feet
     observed = np.asarray(t.observed[:n, -3 * feet :]).reshape(n, feet, 3)

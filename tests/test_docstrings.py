@@ -41,6 +41,7 @@ DOCTEST_MODULES = (
     "networks",
     "opspace",
     "plots",
+    "recorder",
     "references",
     "render",
     "report",

@@ -117,14 +117,14 @@ def test_forward_per_member_equals_members_applied_separately():
     assert not np.allclose(np.asarray(shared_mean[1]), np.asarray(mean[1]))
 
 
-def test_forward_members_differ_and_ensemble_mean():
+def test_forward_members_differ_and_predict_is_their_mean():
     fm = networks.forward_model(hidden=(8,), ensemble_size=4, nv=NV)
     params = fm.init(jax.random.key(6), STATE_DIM)
     s, t = jnp.ones((5, STATE_DIM)), jnp.ones((5, NV))
     mean, _ = fm.apply(params, normaliser(), s, t)
     assert not np.allclose(np.asarray(mean[0]), np.asarray(mean[1]))  # independent inits
     np.testing.assert_allclose(
-        np.asarray(networks.ensemble_mean(fm, params, normaliser(), s, t)),
+        np.asarray(fm.predict(params, normaliser(), s, t)),
         np.asarray(mean).mean(axis=0),
         rtol=1e-6,
         atol=1e-7,  # float32 mean of 4 numbers

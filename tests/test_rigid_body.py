@@ -84,7 +84,7 @@ def _normaliser(task, robot, rng):
 def _predict(fm, params, norm, state, tau):
     """The model's prediction in physical units, terms computed from the state."""
     terms = fm.terms(state)
-    return norm.output_inverse(networks.ensemble_mean(fm, params, norm, state, tau, terms))
+    return norm.output_inverse(fm.predict(params, norm, state, tau, terms))
 
 
 @pytest.fixture(scope="module")

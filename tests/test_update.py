@@ -255,16 +255,16 @@ def test_fit_forward_learns_linear_map(setup):
     s32, t32 = jnp.asarray(test_s, jnp.float32), jnp.asarray(test_tau, jnp.float32)
 
     def rmse(params):
-        pred = norm.output_inverse(networks.ensemble_mean(fm, params, norm, s32, t32))
+        pred = norm.output_inverse(fm.predict(params, norm, s32, t32))
         return np.sqrt(np.mean(np.square(np.asarray(pred) - test_qdd), axis=0))
 
     # objective on a fixed per-member batch of the whole data set
     full = jax.tree.map(lambda x: jnp.stack([x, x]), setup["batch"])
-    before = float(update.forward_objective(fp, fm, norm, full))
+    before = float(fm.objective(fp, norm, full))
     params, _, mean_loss = fit(
         fm, optimizer, fp, optimizer.init(fp), norm, data, jax.random.key(8), 1000, 64
     )
-    after = float(update.forward_objective(params, fm, norm, full))
+    after = float(fm.objective(params, norm, full))
     assert after < before - 5.0, (before, after)  # NLL drops from ~1 to about -10
     assert np.isfinite(float(mean_loss))
     target_std = test_qdd.std(axis=0)
