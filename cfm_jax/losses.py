@@ -20,6 +20,8 @@ per-sample Euclidean norms of coordinate groups, ``sum_k w_k |x[I_k] - y[I_k]|``
 
 from __future__ import annotations
 
+from typing import Any, NamedTuple
+
 import jax.numpy as jnp
 
 # The loss names live with the other names of choices in the config, the bottom of the
@@ -190,36 +192,73 @@ def controller_loss(
       >>> float(controller_loss("joint", p, d, o, select=lambda y: y[..., :1]))
       5.0
     """
-    if groups is not None:
-        in_desired = desired_groups(groups, desired_index)
-        return _controller_loss_norm(
-            name,
-            predicted_next,
-            desired_next,
-            observed_next,
-            select,
-            predicted_run,
-            groups,
-            in_desired,
+    if name not in MODEL_BASED:
+        raise ValueError(
+            f"loss={name!r} is not a model-based controller loss; allowed: 'task', 'joint', "
+            "'distal', 'distal_literal' ('supervised' is computed by losses.supervised)"
         )
+    if name == "distal" and predicted_run is None:
+        raise ValueError("loss='distal' needs predicted_run = f(s, tau_run)")
     if select is None:
         select = lambda y: y  # noqa: E731
-    if name == "task":
-        return task(select(predicted_next), desired_next)
-    if name == "joint":
-        return task(select(predicted_next), desired_next) + task(predicted_next, observed_next)
-    if name == "distal":
-        if predicted_run is None:
-            raise ValueError("loss='distal' needs predicted_run = f(s, tau_run)")
-        return distal(
-            select(predicted_next), select(predicted_run), desired_next, select(observed_next)
-        )
-    if name == "distal_literal":
-        return distal_literal(select(predicted_next), desired_next, select(observed_next))
-    raise ValueError(
-        f"loss={name!r} is not a model-based controller loss; allowed: 'task', 'joint', "
-        "'distal', 'distal_literal' ('supervised' is computed by losses.supervised)"
+    if groups is None:  # squared: every distance a sum of squares
+        d_desired = d_output = task
+    else:  # norm: weighted sums of per-group Euclidean norms
+        in_desired = desired_groups(groups, desired_index)
+
+        def d_desired(x, y):
+            return grouped(x - y, in_desired)
+
+        def d_output(x, y):
+            return grouped(x - y, groups)
+
+    quantities = _Quantities(
+        predicted=select(predicted_next),
+        predicted_next=predicted_next,
+        desired=desired_next,
+        observed_next=observed_next,
+        observed=select(observed_next),
+        run=None if predicted_run is None else select(predicted_run),
     )
+    return MODEL_BASED[name](quantities, d_desired, d_output)
+
+
+class _Quantities(NamedTuple):
+    """What a model-based loss is made of: ``P s_p``, ``s_p``, ``s_d``, ``s_a``, ``P s_a``
+    and ``P s_p,run`` (``P`` the selection of the desired quantity's entries)."""
+
+    predicted: Any
+    predicted_next: Any
+    desired: Any
+    observed_next: Any
+    observed: Any
+    run: Any
+
+
+def _task(q, d_desired, d_output):
+    del d_output
+    return d_desired(q.predicted, q.desired)
+
+
+def _joint(q, d_desired, d_output):
+    return d_desired(q.predicted, q.desired) + d_output(q.predicted_next, q.observed_next)
+
+
+def _distal(q, d_desired, d_output):
+    del d_output
+    return d_desired(q.predicted - q.run + q.observed, q.desired)
+
+
+def _distal_literal(q, d_desired, d_output):
+    del d_output
+    return d_desired(q.predicted, q.desired) - d_desired(q.predicted, q.observed)
+
+
+MODEL_BASED = {"task": _task, "joint": _joint, "distal": _distal, "distal_literal": _distal_literal}
+"""Each model-based controller loss, defined once for both forms
+(``controller.loss_form``): ``loss(quantities, d_desired, d_output)`` with the distances
+of the form (``squared``: sums of squares; ``norm``: :func:`grouped` norms), used by
+:func:`controller_loss` (the update's and the 1-D theory's)."""
 
 
 def safe_norm(x):
@@ -332,32 +371,3 @@ def gaussian_nll(mean, log_variance, target):
       4.0
     """
     return jnp.sum(jnp.square(target - mean) * jnp.exp(-log_variance) + log_variance, axis=-1)
-
-
-def _controller_loss_norm(
-    name, predicted_next, desired_next, observed_next, select, predicted_run, groups, in_desired
-):
-    """:func:`controller_loss` in the ``norm`` form (``groups`` over the output,
-    ``in_desired`` over the desired quantity)."""
-    if select is None:
-        select = lambda y: y  # noqa: E731
-
-    def d_desired(x, y):
-        return grouped(x - y, in_desired)
-
-    predicted = select(predicted_next)
-    if name == "task":
-        return d_desired(predicted, desired_next)
-    if name == "joint":
-        return d_desired(predicted, desired_next) + grouped(predicted_next - observed_next, groups)
-    if name == "distal":
-        if predicted_run is None:
-            raise ValueError("loss='distal' needs predicted_run = f(s, tau_run)")
-        outcome = predicted - select(predicted_run) + select(observed_next)
-        return d_desired(outcome, desired_next)
-    if name == "distal_literal":
-        return d_desired(predicted, desired_next) - d_desired(predicted, select(observed_next))
-    raise ValueError(
-        f"loss={name!r} is not a model-based controller loss; allowed: 'task', 'joint', "
-        "'distal', 'distal_literal' ('supervised' is computed by losses.supervised)"
-    )
