@@ -733,6 +733,8 @@ def _config_of(flags, base: config_lib.Config, loss: str) -> config_lib.Config:
 
 
 _OUT_HELP = "output directory."
+_LOSS_NAMES = ", ".join(config_lib.CONTROLLER_LOSSES)  # the loss names, said once (config)
+_PAPER_NAMES = ", ".join(config_lib.PAPER_LOSSES)
 _QUIET_HELP = "no progress output."
 
 
@@ -740,9 +742,9 @@ def _train_command(argv: list[str]) -> None:
     listed: list[str] = []  # the losses of a --config file of a several-loss run
     base = _prescan(argv, listed)
     extra = [
-        ("loss", Annotated[str, tyro_arg(metavar="NAMES", help="a controller loss (joint, "
-         "task, distal, supervised, distal_literal), a comma-separated list of them, or all "
-         "(the paper's four); default: all, or the losses a --config file lists.")],
+        ("loss", Annotated[str, tyro_arg(metavar="NAMES", help="a controller loss "
+         f"({_LOSS_NAMES}), a comma-separated list of them, or all (the paper's four); "
+         "default: all, or the losses a --config file lists.")],
          listed[0] if listed else "all"),
         ("out", Annotated[str, tyro_arg(metavar="DIR", help=_OUT_HELP)], "results/train"),
         ("resume", Annotated[bool, tyro_arg(help="continue an interrupted run in --out (same "
@@ -772,8 +774,8 @@ def _sweep_command(argv: list[str]) -> None:
     base = _prescan(argv, listed)
     extra = [
         ("losses", Annotated[str, tyro_arg(metavar="NAMES", help="all (the paper's four: "
-         "joint, task, distal, supervised), or a comma-separated list of controller losses "
-         "(those and distal_literal); default: all, or the losses a --config file lists.")],
+         f"{_PAPER_NAMES}), or a comma-separated list of controller losses ({_LOSS_NAMES}); "
+         "default: all, or the losses a --config file lists.")],
          listed[0] if listed else "all"),
         ("out", Annotated[str, tyro_arg(metavar="DIR", help=_OUT_HELP)], "results/sweep"),
         ("override", Annotated[tuple[tuple[str, ...], ...], tyro.conf.UseAppendAction,
@@ -802,8 +804,8 @@ def _sweep_command(argv: list[str]) -> None:
 def _config_command(argv: list[str]) -> None:
     base = _prescan(argv)
     extra = [
-        ("loss", Annotated[str, tyro_arg(metavar="NAME", help="the controller loss (joint, "
-         "task, distal, supervised, distal_literal).")], base.loss),
+        ("loss", Annotated[str, tyro_arg(metavar="NAME",
+         help=f"the controller loss ({_LOSS_NAMES}).")], base.loss),
     ]  # fmt: skip
     flags_cls = _flags_class("config", base, extra)
     flags = _parse(flags_cls, argv, "config", _description(print_config))
