@@ -33,6 +33,7 @@ def add_task_name(
     name: str,
     default_config: Callable[[], Config] | None = None,
     check: Callable[[TaskConfig], None] | None = None,
+    structural: tuple[str, ...] = (),
 ) -> None:
     """Let ``Config.task.name`` take ``name``, with the task's own defaults
     (:func:`cfm_jax.tasks.register` calls this; the config knows the names and where their
@@ -48,6 +49,9 @@ def add_task_name(
       check: ``check(task_config)``, what the task refuses of a :class:`TaskConfig` of its
         name (raises :class:`ConfigError`, :func:`fail`), run after the fields' own checks
         of type and range; None: nothing more.
+      structural: the ``task.*`` fields of :data:`RUNTIME_FIELDS` whose values this task
+        builds into its compiled program (``opspace``: ``home``, its oracle's null-space
+        posture): :func:`structure` keeps them.
 
     Examples:
       >>> add_task_name("walk", TASK_DEFAULTS["walk"], TASK_CHECKS.get("walk")); TASKS
@@ -61,6 +65,7 @@ def add_task_name(
             registry.pop(name, None)
         else:
             registry[name] = value
+    TASK_STRUCTURAL[name] = tuple(structural)
     _DEFAULTS_OF.pop(name, None)
 
 
@@ -91,6 +96,10 @@ TASK_CHECKS: dict[str, Callable[[TaskConfig], None]] = {}
 """What each registered task refuses of a :class:`TaskConfig` of its name (:func:`add_task_name`):
 the fields only other tasks take (the arms refuse the legged tasks' joint gains and
 motions, for example)."""
+
+TASK_STRUCTURAL: dict[str, tuple[str, ...]] = {}
+"""The runtime ``task.*`` fields each registered task builds into its program
+(:func:`add_task_name`; :func:`structure` keeps them)."""
 
 _DEFAULTS_OF: dict[str, Config] = {}  # each task's default_config(), made once
 _BUILDING: set[str] = set()  # the tasks whose default_config() runs now
@@ -1122,8 +1131,9 @@ counts, batch sizes, iterations, seeds, babbling rollouts) builds its own."""
 def structure(config: Config) -> dict:
     """The part of ``config`` that shapes its compiled program: :func:`to_dict` without
     ``loss`` and :data:`RUNTIME_FIELDS`, but with the number of ``task.targets`` (None when
-    the default targets are used) and, for ``opspace``, ``task.home``. Two configs with
-    equal structures can share an :class:`cfm_jax.experiment.Experiment`.
+    the default targets are used) and the fields the task builds into its program
+    (:data:`TASK_STRUCTURAL`: ``opspace``'s ``task.home``). Two configs with equal structures
+    can share an :class:`cfm_jax.experiment.Experiment`.
 
     Args:
       config: a :class:`Config`.
@@ -1151,8 +1161,8 @@ def structure(config: Config) -> dict:
         del node[name]
     task = config.task
     tree["task"]["targets"] = None if task.targets is None else len(task.targets)
-    if task.name == "opspace":
-        tree["task"]["home"] = task.home
+    for field in TASK_STRUCTURAL.get(task.name, ()):
+        tree["task"][field] = getattr(task, field)
     return tree
 
 

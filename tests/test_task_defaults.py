@@ -94,7 +94,9 @@ def gentle(task):
     if task.kp > 60:
         config.fail("task.kp", task.kp, "at most 60 for task 'gentle'")
 
-tasks.register("gentle", inverse_dynamics.make, check=gentle)
+tasks.register("gentle", inverse_dynamics.make, check=gentle, structural=("kp",))
+shape = [config.structure(Config(task=TaskConfig(name=n, kp=k)))
+         for n in ("plain", "gentle") for k in (10.0, 20.0)]  # kp: runtime, unless structural
 hover = Config(task=TaskConfig(name="hover"))
 plain = Config(task=TaskConfig(name="plain", kp=50.0, joint_kp=5.0))  # no check: taken
 try:
@@ -104,12 +106,22 @@ except config.ConfigError as error:
 print(hover.robot, hover.task.duration, hover.task.kp, hover.loop.seeds,
       hover == config.for_task("hover"), plain.robot, plain.task.kp, plain.task.duration,
       plain.loop == LoopConfig(), plain.task.joint_kp, TaskConfig(name="gentle", kp=50.0).kp,
-      refused)
+      refused, shape[0] == shape[1], shape[2] == shape[3])
 """
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=300)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == [
         "two_link_arm", "1.0", "100.0", "2", "True", "iiwa14", "50.0", "2.0", "True", "5.0",
-        "50.0", "task.kp=70.0_is_not_allowed:_at_most_60_for_task_'gentle'",
+        "50.0", "task.kp=70.0_is_not_allowed:_at_most_60_for_task_'gentle'", "True", "False",
     ]  # fmt: skip
+
+
+def test_a_field_a_task_builds_into_its_program_is_structure():
+    # opspace's home (its oracle's null-space posture) is compiled in; inverse dynamics's
+    # is a runtime value: two configs differing only there share a program or not.
+    for name, shared in (("opspace", False), ("inverse_dynamics", True)):
+        base = config.for_task(name)
+        moved = base.replace(task=TaskConfig(name=name, home=(0.1,) * 7))
+        assert (config.structure(base) == config.structure(moved)) is shared, name
+    assert config.structure(config.for_task("opspace"))["task"]["home"] is None

@@ -82,6 +82,7 @@ def register(
     make: Callable,
     default_config: Callable | None = None,
     check: Callable | None = None,
+    structural: tuple[str, ...] = (),
 ) -> TaskSpec:
     """Register a task under ``name``, so that configs may name it.
 
@@ -97,6 +98,9 @@ def register(
         :class:`cfm_jax.config.TaskConfig` of its name (raises
         :class:`cfm_jax.config.ConfigError`), run when such a config is made; None:
         nothing more than the fields' own checks.
+      structural: the runtime ``task.*`` fields (:data:`cfm_jax.config.RUNTIME_FIELDS`)
+        whose values the task builds into its compiled program; configs that differ in them
+        do not share one (:func:`cfm_jax.config.structure`).
 
     Returns:
       The :class:`TaskSpec`.
@@ -112,7 +116,7 @@ def register(
         raise ValueError(f"name={name!r} is not allowed: a non-empty string")
     if name in REGISTRY:
         raise ValueError(f"name={name!r} is not allowed: a task of that name is registered")
-    config_lib.add_task_name(name, default_config, check)
+    config_lib.add_task_name(name, default_config, check, structural)
     if default_config is None:
 
         def default_config():
@@ -183,6 +187,7 @@ register(
     operational_space.make,
     operational_space.default_config,
     inverse_dynamics.check_config,
+    structural=("home",),  # the Khatib oracle's null-space posture, in its host callback
 )
 register("walk", legged.make, functools.partial(legged.default_config, "walk"))
 register("jump", legged.make, functools.partial(legged.default_config, "jump"))
