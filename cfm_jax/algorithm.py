@@ -493,9 +493,12 @@ def babble_all(setup: Setup, key, knobs: Knobs) -> rollout_lib.Rollout:
       A :class:`cfm_jax.rollout.Rollout` with leading axes ``(rollouts, targets, steps)``.
 
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
-      >>> result = babble_all(setup, jax.random.key(0), knobs)  # doctest: +SKIP
-      >>> result.finite.shape  # (babbling_rollouts, targets, steps)  # doctest: +SKIP
+      >>> from cfm_jax import config as cfg
+      >>> arm = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3))
+      >>> setup = Setup.of(arm)
+      >>> knobs = Knobs.of(arm, setup.robot, setup.task)
+      >>> result = babble_all(setup, jax.random.key(0), knobs)
+      >>> result.finite.shape  # (babbling_rollouts, targets, steps)
       (2, 5, 30)
     """
     count = setup.config.loop.babbling_rollouts
@@ -717,8 +720,13 @@ def fresh_forward_params(setup: Setup, key, knobs: Knobs):
       The parameters.
 
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
-      >>> params = fresh_forward_params(setup, jax.random.key(0), knobs)  # doctest: +SKIP
+      >>> from cfm_jax import config as cfg
+      >>> arm = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3))
+      >>> setup = Setup.of(arm)
+      >>> knobs = Knobs.of(arm, setup.robot, setup.task)
+      >>> params = fresh_forward_params(setup, jax.random.key(0), knobs)
+      >>> params["min_log_variance"].tolist(), params["max_log_variance"].tolist()
+      ([-10.0, -10.0], [0.5, 0.5])
     """
     return setup.forward.start(setup.forward.init(key, setup.task.state_dim), knobs.forward)
 
@@ -832,9 +840,12 @@ def rollout(
       A :class:`cfm_jax.rollout.Rollout`, leading axes ``(targets, steps)``.
 
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
-      >>> oracle = mixed_policy(setup, oracle=1.0)  # doctest: +SKIP
-      >>> rollout(setup, oracle, jax.random.key(0), knobs).finite.shape  # doctest: +SKIP
+      >>> from cfm_jax import config as cfg
+      >>> arm = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3))
+      >>> setup = Setup.of(arm)
+      >>> knobs = Knobs.of(arm, setup.robot, setup.task)
+      >>> oracle = mixed_policy(setup, oracle=1.0)
+      >>> rollout(setup, oracle, jax.random.key(0), knobs).finite.shape  # 5 targets, 0.3 s
       (5, 30)
     """
     return _run(setup, _task_of(setup, knobs), policy, key)
@@ -928,9 +939,11 @@ def with_terms(setup: Setup, transitions: dataset.Transitions) -> dataset.Transi
       The transitions with ``terms`` set (or the same transitions).
 
     Examples:
+      >>> from cfm_jax import config as cfg
+      >>> arm = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3))
+      >>> setup = Setup.of(arm)
       >>> rows = dataset.Transitions(*(jnp.zeros((3, d)) for d in (4, 2, 2, 2)))
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
-      >>> with_terms(setup, rows).terms is None  # the mlp kind  # doctest: +SKIP
+      >>> with_terms(setup, rows).terms is None  # the mlp kind
       True
     """
     if setup.forward.terms is None or transitions.terms is not None:
@@ -951,9 +964,12 @@ def collected(result: rollout_lib.Rollout) -> tuple[dataset.Transitions, jax.Arr
       row axis, and the ``(rows,)`` bool mask.
 
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
-      >>> rows, valid = collected(babble_all(setup, key, knobs))  # doctest: +SKIP
-      >>> rows.state.shape, valid.shape  # 2 rollouts x 5 targets x 30 steps  # doctest: +SKIP
+      >>> from cfm_jax import config as cfg
+      >>> arm = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3))
+      >>> setup = Setup.of(arm)
+      >>> knobs = Knobs.of(arm, setup.robot, setup.task)
+      >>> rows, valid = collected(babble_all(setup, jax.random.key(0), knobs))
+      >>> rows.state.shape, valid.shape  # 2 rollouts x 5 targets x 30 steps
       ((300, 4), (300,))
     """
     lead = result.finite.ndim
