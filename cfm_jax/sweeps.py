@@ -356,6 +356,14 @@ def _overrides(base: config_lib.Config, overrides) -> tuple[list[str], list[list
             config_lib.fail(
                 field, values, f"{path} is an axis of the sweep: use sweep's {RESERVED[path]}="
             )
+        if path == "task.name":  # an override keeps the base's sections: another task's
+            config_lib.fail(
+                field,
+                values,
+                "one sweep per task: a task brings its own defaults (its default_config), "
+                "which an override of task.name would not take; sweep each task from "
+                "cfm_jax.for_task(name) (the CLI: cfm-jax sweep --task NAME)",
+            )
         current = _get_path(tree, path)
         if isinstance(values, str | bytes) or not isinstance(values, Sequence) or not values:
             config_lib.fail(field, values, "a non-empty list of values, e.g. [1e-3, 3e-4]")

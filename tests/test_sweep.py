@@ -106,6 +106,8 @@ def test_grid_is_the_product_of_overrides_and_losses():
         (dict(overrides={"task": [1]}), r"not a section"),
         (dict(overrides={"loss": ["task"]}), r"axis of the sweep: use sweep's losses="),
         (dict(overrides={"loop.seeds": [2]}), r"use sweep's seeds="),
+        # An override keeps the base's sections: opspace would run the arm's torque scale.
+        (dict(overrides={"task.name": ["inverse_dynamics", "opspace"]}), r"one sweep per task"),
         (dict(overrides={"task.kp": 50.0}), r"overrides\['task.kp'\]=50.0 .*non-empty list"),
         (dict(overrides={"task.kp": []}), r"non-empty list"),
         (dict(overrides={"task.kp": [50, 50.0]}), r"distinct values"),
