@@ -172,11 +172,9 @@ class Knobs:
             forward_learning_rate=jnp.asarray(config.forward.learning_rate, jnp.float32),
             controller_learning_rate=jnp.asarray(config.controller.learning_rate, jnp.float32),
             forward={
-                path.split(".", 1)[1]: jnp.asarray(
-                    getattr(config.forward, path.split(".", 1)[1]), jnp.float32
-                )
-                for path in config_lib.RUNTIME_FIELDS
-                if path.startswith("forward.") and path != "forward.learning_rate"
+                name: jnp.asarray(getattr(config.forward, name), jnp.float32)
+                for section, _, name in (p.partition(".") for p in config_lib.RUNTIME_FIELDS)
+                if section == "forward" and name != "learning_rate"
             },
             babbling_noise_std=jnp.asarray(config.loop.babbling_noise * scale, jnp.float32),
             babbling=jnp.asarray(config_lib.BABBLING.index(config.loop.babbling), jnp.int32),

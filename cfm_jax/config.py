@@ -109,17 +109,15 @@ def _task_default(name: str, section: str | None, field: str) -> Any:
     """The value of a field left at :data:`TASK_DEFAULT` in a config of task ``name``:
     the task's ``default_config()``'s (``section`` None: a top-level field), or, while that
     default config itself is made and for a task registered without one, :data:`GENERIC`'s."""
-    generic = GENERIC[section or "config"][field]
-    if name in _BUILDING:
+    if name not in TASK_DEFAULTS and name in _BUILT_IN_TASKS:
+        raise ConfigError(
+            f"task.name={name!r}: its defaults are not registered yet (import cfm_jax, "
+            "which registers the library's tasks, before making a config)"
+        )
+    if name in _BUILDING or name not in TASK_DEFAULTS:
+        generic = GENERIC[section or "config"][field]
         return generic() if callable(generic) else generic
     if name not in _DEFAULTS_OF:
-        if name not in TASK_DEFAULTS:
-            if name in _BUILT_IN_TASKS:
-                raise ConfigError(
-                    f"task.name={name!r}: its defaults are not registered yet (import "
-                    "cfm_jax, which registers the library's tasks, before making a config)"
-                )
-            return generic() if callable(generic) else generic
         _BUILDING.add(name)
         try:
             _DEFAULTS_OF[name] = TASK_DEFAULTS[name]()

@@ -186,10 +186,11 @@ def train(
     """
     start = time.perf_counter()
     recorder = Recorder(config, out_dir, resume, progress_fn)  # checks out_dir and resume
-    if experiment is not None:
-        knobs = experiment.knobs_for(config)  # refuses a config of another structure
-    exp = experiment if experiment is not None else Experiment(config)
-    knobs = exp.knobs if experiment is None else knobs
+    if experiment is None:
+        exp = Experiment(config)
+        knobs = exp.knobs
+    else:
+        exp, knobs = experiment, experiment.knobs_for(config)  # refuses another structure
     recorded = None if data is None else recorded_for(exp, config, data)
     recorder.open(exp.metric_columns)
     with progress_bar(progress) as bar:
