@@ -42,7 +42,8 @@ grid, seeds and budget stay the same.
 Usage:
   python experiments/peers.py [--seeds 5] [--methods joint,task,distal,supervised,sac,ppo]
       [--budget 2000] [--out results/peers] [--page docs/results/peers.md]
-      [--records docs/results/peers_records.csv] [--train-flags "..."] [--page-only]
+      [--records docs/results/peers_records.csv] [--train-flags "..."] [--jobs 2]
+      [--page-only]
 """
 
 from __future__ import annotations
@@ -660,6 +661,12 @@ def main(argv: list[str] | None = None) -> None:
         "--select-budget", type=float, default=300.0, help="robot-seconds of each selection run"
     )
     parser.add_argument("--selection", default="docs/results/peers_selection.json")
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="peer runs at once, each its own process (one core each)",
+    )
     parser.add_argument("--train-flags", default="", help="more flags for cfm-jax train")
     parser.add_argument(
         "--page-only",
@@ -673,6 +680,8 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--methods: {unknown} not allowed; choose from {list(METHODS)}")
     if args.seeds < 1:
         parser.error(f"--seeds={args.seeds}: a positive number")
+    if args.jobs < 1:
+        parser.error(f"--jobs={args.jobs}: a positive number")
     checkpoints = (
         [float(x) for x in args.checkpoints.split(",")] if args.checkpoints
         else default_checkpoints(args.budget)

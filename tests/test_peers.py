@@ -157,3 +157,22 @@ def test_selection_runs_on_other_motions_and_scores_each_candidate(tmp_path, mon
         assert result["sac"]["scores"][name] == pytest.approx(np.log10(rows.tracking_mse.mean()))
     # 30 steps, before SAC's first update (100): the same seed acts alike, a tie, no change.
     assert result["sac"]["chosen"] == {}
+
+
+def test_command_line_takes_jobs(tmp_path, capsys):
+    # --jobs (peer runs at once) is a flag of the command: the study's page says to run
+    # with --jobs 2, and main() passes args.jobs on (it was used but never defined).
+    records = str(tmp_path / "records.csv")
+    _records(tmp_path).to_csv(records, index=False)
+    meta = {"command": "c", "date": "d", "machine": "m", "task": "t", "control_dt": 0.01,
+            "peers": "p", "checkpoints": [10.0]}  # fmt: skip
+    with open(peers.meta_path(records), "w") as f:
+        import json
+
+        json.dump(meta, f)
+    page = str(tmp_path / "peers.md")
+    peers.main(["--page-only", "--jobs", "2", "--records", records, "--page", page])
+    assert "| joint | 25 s (2/2) |" in open(page).read()
+    with pytest.raises(SystemExit) as exit_info:
+        peers.main(["--page-only", "--jobs", "0", "--records", records, "--page", page])
+    assert exit_info.value.code == 2 and "--jobs=0" in capsys.readouterr().err
