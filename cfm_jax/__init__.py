@@ -1,27 +1,12 @@
 """cfm_jax: coupled forward and inverse models for learning robot controllers.
 
 JAX + MuJoCo implementation of Bechtle et al., "Leveraging Forward Model Prediction Error
-for Learning Control" (ICRA 2021).
+for Learning Control" (ICRA 2021). Importing it sets the XLA flags (:mod:`cfm_jax._xla`)
+and registers the tasks' defaults; ``__all__``'s names are imported on first use.
 
 Examples:
   >>> import cfm_jax
-  >>> config = cfm_jax.Config(robot="iiwa14", loss="joint")
-  >>> # not run: it trains the iiwa on the default config (minutes)
-  >>> result = cfm_jax.train(config)  # doctest: +SKIP
-  >>> result.metrics.groupby("iteration").tracking_mse.mean()  # doctest: +SKIP
-
-Importing the package sets the XLA flags before JAX's backend starts, then imports
-:mod:`cfm_jax.tasks`, which registers each task's defaults (seconds: it imports JAX and
-MuJoCo). Public names (imported on first use): :func:`train`, :class:`TrainResult` (from
-:mod:`cfm_jax.training`); :class:`Experiment` (from :mod:`cfm_jax.experiment`);
-:data:`METRIC_COLUMNS` (from :mod:`cfm_jax.algorithm`); :class:`Config`,
-:class:`TaskConfig`, :class:`ForwardModelConfig`, :class:`ControllerConfig`,
-:class:`LoopConfig`, :class:`ConfigError`, :func:`for_task` (from :mod:`cfm_jax.config`);
-:func:`sweep`, :class:`SweepResult`, :class:`SweepError` (from :mod:`cfm_jax.sweeps`).
-Submodules: ``robots``, ``tasks``, ``references``, ``babbling``, ``opspace``, ``solo12``,
-``locomotion``, ``networks``, ``losses``, ``dataset``, ``native``, ``rollout``,
-``baselines``, ``update``, ``algorithm``, ``experiment``, ``training``, ``checkpoint``,
-``report``, ``plots``, ``render``, ``bench``, ``theory``, ``sweeps``.
+  >>> result = cfm_jax.train(cfm_jax.Config(robot="iiwa14"))  # doctest: +SKIP
 """
 
 from cfm_jax import _xla

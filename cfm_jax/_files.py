@@ -1,21 +1,12 @@
-"""Atomic file writes: the one way the library writes a file that a crash must not leave
-half written (metrics, data sets, checkpoint manifests, sweep cells, cached references).
-
-The content goes to a temporary file next to the target (``<path>.tmp<pid>``: the same
-folder, so the same file system, and a name no other process uses), which then replaces
-the target with :func:`os.replace`, atomic on POSIX and Windows. A reader sees the old
-file or the new one, never a part. On an error the temporary file is removed and the
-target is untouched.
+"""Atomic file writes, for files a crash must not leave half written: the content goes to
+``<path>.tmp<pid>`` in the same folder, which then replaces the target (:func:`os.replace`).
 
 Examples:
   >>> import os, tempfile
   >>> path = os.path.join(tempfile.mkdtemp(), "a.txt")
   >>> write_text(path, "one")
-  >>> with atomic_path(path) as tmp:
-  ...     with open(tmp, "w") as f:
-  ...         _ = f.write("two")
   >>> open(path).read(), os.listdir(os.path.dirname(path))
-  ('two', ['a.txt'])
+  ('one', ['a.txt'])
 """
 
 from __future__ import annotations
@@ -29,19 +20,9 @@ from collections.abc import Callable, Iterator
 def atomic_path(
     path: str | os.PathLike, *, durable: bool = False, suffix: str = ""
 ) -> Iterator[str]:
-    """A temporary path to write; on leaving the block it replaces ``path``.
-
-    Args:
-      path: the file to write.
-      durable: also flush the temporary file to the disk (``fsync``) before the rename, so
-        that the new content survives a power cut, not only a crash of the process.
-      suffix: appended to the temporary name, for writers that pick the format from the
-        file's extension (``".mp4"`` for ffmpeg).
-
-    Yields:
-      The temporary path (``<path>.tmp<pid><suffix>``). Writers that add an extension to a
-      name (``np.savez``) must be given an open file instead.
-    """
+    """A temporary path to write, which replaces ``path`` on leaving the block (``durable``:
+    ``fsync`` first; ``suffix`` ends the name). Writers that add an extension (``np.savez``)
+    need an open file instead."""
     path = os.fspath(path)
     tmp = f"{path}.tmp{os.getpid()}{suffix}"
     try:

@@ -1,10 +1,5 @@
-"""``mujoco.mjx``, imported without the lines its optional Warp back end prints.
-
-``import mujoco.mjx`` tries ``import warp`` and, when the optional NVIDIA Warp packages are
-not installed, prints ``Failed to import warp: ...`` and ``Failed to import mujoco_warp:
-...`` to stdout (mujoco-mjx 3.x). The library never uses that back end, so those two lines
-are dropped here; anything else printed while importing is printed as it was. Every module
-of the library imports MJX as ``from cfm_jax._mjx import mjx``.
+"""``mujoco.mjx``, imported without the two ``Failed to import warp`` lines it prints when
+the optional Warp back end (never used here) is missing; import MJX from here.
 """
 
 from __future__ import annotations

@@ -1,6 +1,5 @@
-"""Where the shipped robot files are and their names: the lowest layer, so that both
-:mod:`cfm_jax.config` (which checks ``Config.robot`` against the names) and
-:mod:`cfm_jax.robots` (which loads the files) use it without importing each other."""
+"""Where the shipped robot files are and their names: the lowest layer, so that
+:mod:`cfm_jax.config` and :mod:`cfm_jax.robots` use it without importing each other."""
 
 from __future__ import annotations
 
@@ -11,8 +10,7 @@ ROBOT_PACKAGE = "cfm_jax._robot_files"
 
 
 def robot_dir():
-    """The installed package data ``cfm_jax._robot_files``, else ``robots/`` of the source
-    checkout (see :func:`cfm_jax.robots.robot_dir`)."""
+    """The package data ``cfm_jax._robot_files``, else the source checkout's ``robots/``."""
     try:
         return importlib.resources.files(ROBOT_PACKAGE)
     except ModuleNotFoundError:

@@ -1,28 +1,7 @@
 """XLA:CPU configuration that MJX needs to be fast, applied before JAX's backend starts.
 
-Measured on a 2-core CPU (mujoco-mjx 3.17, jax 0.10): with XLA:CPU's fusion emitters (the
-default) the cost of MJX kinematics grows exponentially with kinematic-chain depth inside a
-vmapped step; the 7-DoF iiwa (depth 8) stepped at ~114 steps/s at batch 16.
-``--xla_cpu_use_fusion_emitters=false`` brings it to ~1e5 steps/s. The flag is read once,
-when the backend initialises (the first computation), so it must be in ``XLA_FLAGS`` before
-that, even if ``jax`` was already imported.
-
-Which XLA knows the flag. XLA aborts the whole process (a C++ fatal error, no Python
-exception) at the first computation when ``XLA_FLAGS`` holds a flag it does not know, so
-the flag is set only where the running jaxlib is known to accept it, decided from jaxlib's
-version string (read from the installed package's metadata, without starting JAX):
-
-- jaxlib 0.10.0 and 0.10.2 accept it (0.10.2: the whole test suite runs with it; 0.10.0: a
-  computation under the flag ran here, 2026-11-26, while an unknown flag aborted the same
-  way); 0.10.1 lies between them and is taken to accept it too;
-- jaxlib 0.11.2 aborts on it ("Unknown flag in XLA_FLAGS: --xla_cpu_use_fusion_emitters=false",
-  on an H100 machine, 2026-11-26; XLA had retired the legacy CPU emitters the flag fell back
-  to, openxla/xla#48001).
-
-So :data:`LAST_SERIES_WITH_FLAG` is 0.10: any later jaxlib, or one whose version cannot be
-read, runs without the flag (never an abort; MJX on CPU may then be slower, unmeasured on
-jaxlib 0.11+). A flag the user put in ``XLA_FLAGS`` themselves is removed, with a warning,
-where the running jaxlib would abort on it.
+:data:`FAST_FLAG` keeps MJX kinematics from slowing exponentially with chain depth. XLA
+aborts on a flag it does not know: it is set only on jaxlib 0.10 (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -69,17 +48,8 @@ def jaxlib_version() -> str | None:
 
 
 def flag_known(version: str | None) -> bool:
-    """True when the XLA of jaxlib ``version`` (a version string) accepts :data:`FAST_FLAG`.
-
-    Decided from the (major, minor) series against :data:`LAST_SERIES_WITH_FLAG`; a version
-    that cannot be parsed (or None) counts as not known, the choice that cannot abort.
-
-    Examples:
-      >>> flag_known("0.10.2"), flag_known("0.11.2"), flag_known("0.12.0.dev20261101")
-      (True, False, False)
-      >>> flag_known(None), flag_known("garbage")
-      (False, False)
-    """
+    """Whether the XLA of jaxlib ``version`` (a version string) accepts :data:`FAST_FLAG`;
+    None or an unparsable version counts as not (the choice that cannot abort)."""
     if version is None:
         return False
     match = re.match(r"(\d+)\.(\d+)", version)
@@ -90,16 +60,8 @@ def flag_known(version: str | None) -> bool:
 
 
 def configure() -> bool:
-    """Put :data:`FAST_FLAG` into ``XLA_FLAGS`` where it helps and cannot abort.
-
-    Returns True when nothing slows MJX down that cfm_jax could have helped: the flag is in
-    force (set here or by the user), or the running jaxlib has no such flag (0.11 and later).
-    Returns False when JAX's backend was already initialised without the flag on a jaxlib
-    that knows it; a :class:`SlowBackendWarning` then says what to do. Where the running
-    jaxlib does not know the flag and the user set it, it is removed from ``XLA_FLAGS``
-    (:class:`UnknownFlagWarning`): XLA would abort the process at the first computation.
-    Idempotent.
-    """
+    """Set :data:`FAST_FLAG` where it helps and cannot abort (else remove a user's); False if
+    JAX already started without it (:class:`SlowBackendWarning`). Idempotent."""
     flags = os.environ.get("XLA_FLAGS", "")
     version = jaxlib_version()
     if not flag_known(version):
@@ -155,11 +117,7 @@ def backend_started() -> bool:
 
 
 def fast_path_active() -> bool:
-    """True when nothing cfm_jax could set is missing for MJX's speed on CPU.
-
-    On a jaxlib that knows :data:`FAST_FLAG`: the flag is in the environment (and so, if the
-    backend started after, in force). On a later jaxlib, which has no such flag: always True.
-    """
+    """True unless a jaxlib that knows :data:`FAST_FLAG` runs without it in the environment."""
     if not flag_known(jaxlib_version()):
         return True
     return _flag_present(os.environ.get("XLA_FLAGS", ""))

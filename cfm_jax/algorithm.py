@@ -1,34 +1,12 @@
-"""Algorithm 1 of the paper as pure functions of one seed.
+"""Algorithm 1 of the paper as pure functions of one seed (docs/concepts/method.md).
 
-The paper's listing and the functions that carry out each line (``setup`` holds what does
-not change during a run, :class:`Setup`; ``knobs`` the config's runtime values,
-:class:`Knobs`)::
-
-    init(setup, loss, key, knobs, data=None)                       -> TrainState
-      D <- motor babbling (loop.babbling_rollouts rollouts)         babble_all
-      normaliser (loop.normaliser); new f and g; fit f on D         start
-      fit g on D with the loss through f                            fit_initial_controller
-    iteration(setup, loss, state, knobs, data=None)                 -> (TrainState, metrics)
-      roll g out on every target                                    rollout
-      measure, before any refit                                     metrics
-      D <- D + the rollout's transitions                            collected, dataset.add
-      normaliser of D (loop.normaliser "data" only)                 data_normaliser
-      refit f on D                                                  fit_forward
-      refit g on D with the loss through f                          fit_controller
-
-With ``data`` given, :func:`init` and :func:`iteration` add those transitions instead of
-the ones they collect: that is the replay of a recorded data set (the controller is still
-rolled out in an iteration, for its metrics); given the data a run collected, with the same
-seed and loss, it is that run exactly.
-
-Everything here is a pure function of its arguments, for one seed.
+:func:`init` (babbling, normaliser, fresh models, fit f, fit g) and :func:`iteration`
+(rollout, :func:`metrics` before any refit, add the data, refit f, refit g) follow the
+paper's listing; given ``data`` instead of collecting it, they replay a recorded data set.
 :class:`cfm_jax.experiment.Experiment` vmaps them over seeds and compiles them;
-:func:`cfm_jax.train` is the impure shell around them (progress, files, checkpoints,
-divergence checks).
+:func:`cfm_jax.train` is the impure shell around them.
 
 Examples:
-  A tiny run of the listing, one seed, compiled as a whole:
-
   >>> from cfm_jax import config as cfg
   >>> fit = dict(hidden=(8,), initial_steps=5, steps_per_iteration=5, batch_size=16)
   >>> config = cfg.Config(
@@ -78,34 +56,26 @@ METRIC_COLUMNS = (
     "forward_loss",
     "controller_loss",
 )
-"""Columns of every metrics table, in order: the run's ``loss``, ``seed``, ``iteration`` and
-``target``, then the metrics of every task (see :func:`metrics`); a task adds its own after
-them (``Experiment.metric_columns``)."""
+"""Columns of every metrics table, in order (:func:`metrics`); a task's own follow them."""
 
 
 @struct.dataclass
 class TrainState:
-    """Everything one run carries from iteration to iteration (a pytree).
-
-    With several seeds every leaf has a leading seed axis ``(seeds, ...)``.
+    """What one run carries from iteration to iteration (a pytree; seeds: a leading axis).
 
     Attributes:
       forward_params: the forward ensemble's parameters (leaves ``(ensemble_size, ...)``).
       forward_opt_state: its Adam state.
       controller_params: the controller's parameters.
       controller_opt_state: its Adam state.
-      normaliser: the :class:`cfm_jax.networks.Normaliser` the models were last fitted
-        with (``loop.normaliser``: of the babbling data, of the whole data set at the last
-        refit, or the robot's fixed scales).
+      normaliser: the :class:`cfm_jax.networks.Normaliser` of the last fit (``loop.normaliser``).
       data: the :class:`cfm_jax.dataset.Dataset` collected so far.
       key: the PRNG key of the next iteration.
       iteration: completed iterations of Algorithm 1 (int32 scalar).
 
     Examples:
-      >>> # not run: it trains (minutes)
-      >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
-      >>> int(result.state.iteration[0]), result.state.data.size  # doctest: +SKIP
-      (10, Array([3000], dtype=int32))
+      >>> int(cfm_jax.train(config).state.iteration[0])  # doctest: +SKIP
+      10
     """
 
     forward_params: Any
@@ -120,34 +90,22 @@ class TrainState:
 
 @struct.dataclass
 class Knobs:
-    """The values of a config that the compiled functions take as arguments (a pytree of
-    float32 arrays; see :data:`cfm_jax.config.RUNTIME_FIELDS`). Configs that differ only
-    in these share an :class:`cfm_jax.experiment.Experiment` and its compilations.
+    """The config's runtime values (:data:`cfm_jax.config.RUNTIME_FIELDS`) as float32 arrays,
+    arguments of the compiled functions: configs that differ only in them share compilations.
 
     Attributes:
       forward_learning_rate: ``forward.learning_rate``.
       controller_learning_rate: ``controller.learning_rate``.
-      forward: the forward section's other runtime values, ``{field: float32}`` of the
-        ``forward.*`` fields of :data:`cfm_jax.config.RUNTIME_FIELDS` but the learning rate
-        (the ensemble's initial log-variance bounds), for the forward model's ``start``.
-      babbling_noise_std: ``loop.babbling_noise`` times each joint's torque scale
-        (``loop.torque_scale``: :meth:`cfm_jax.robots.Robot.torque_scale` or the torque
-        limit), ``(action_dim,)``; for ``"coupled"`` times the matrix scale ``T``,
-        ``(action_dim, action_dim)`` (the noise is ``T n``).
-      babbling: ``loop.babbling`` as its index in :data:`cfm_jax.config.BABBLING` (int32).
-      torque_scale: ``(action_dim,)`` float32, the torque scale of ``loop.torque_scale =
-        "inertia"`` (``(action_dim, action_dim)`` for ``"coupled"``; :func:`torque_scale`:
-        it depends on the task's gains, so it is a value of the config, not of its
-        structure), or None (``"limit"``: the limits).
-      task: the task's values, ``values()`` of the task built for ``config.task`` (with
-        ``loop.babbling_gains = "baseline"``, the babbling's gains are the baseline's): the
-        gains (``task.kp``, ``task.kd``, ... and what the task derives from them) and, for
-        the arm tasks, the reference trajectories (``task.targets``; ``task.home`` for
-        ``inverse_dynamics``).
+      forward: the other runtime ``forward.*`` fields (the initial log-variance bounds).
+      babbling_noise_std: ``loop.babbling_noise`` times the torque scale ``T``,
+        ``(action_dim,)`` (``"coupled"``: ``(action_dim, action_dim)``, the noise is ``T n``).
+      babbling: the index of ``loop.babbling`` in :data:`cfm_jax.config.BABBLING` (int32).
+      torque_scale: :func:`torque_scale`, or None (``"limit"``).
+      task: the task's ``values()`` (gains, references); with ``loop.babbling_gains =
+        "baseline"`` the babbling's gains are the baseline's.
 
     Examples:
-      >>> from cfm_jax import config as cfg
-      >>> config = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3))
+      >>> config = cfm_jax.Config(robot="two_link_arm", task=cfm_jax.TaskConfig(duration=0.3))
       >>> setup = Setup.of(config)
       >>> knobs = Knobs.of(config, setup.robot, setup.task)
       >>> float(knobs.task["kp"]), knobs.babbling_noise_std.shape  # the coupled scale
@@ -164,8 +122,7 @@ class Knobs:
 
     @classmethod
     def of(cls, config: config_lib.Config, robot, task) -> Knobs:
-        """The knobs of ``config`` on ``robot``, with the values of ``task`` (the task built
-        for ``config.task``)."""
+        """The knobs of ``config`` on ``robot``, with the values of ``task`` (built for it)."""
         own = torque_scale(config, robot)
         scale = np.asarray(robot.torque_limit, np.float64) if own is None else own
         return cls(
@@ -185,26 +142,21 @@ class Knobs:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Setup:
-    """What Algorithm 1 needs of a config that does not change during a run: the robot,
-    the task (its structure; its values come in :class:`Knobs`), the two networks and the
-    sizes of the data set and of the fits.
+    """What Algorithm 1 needs of a config that a run does not change (values: :class:`Knobs`).
 
     Attributes:
-      config: the :class:`cfm_jax.config.Config` (its structural fields are used; the
-        runtime ones come in :class:`Knobs`).
+      config: the :class:`cfm_jax.config.Config`.
       robot: the :class:`cfm_jax.robots.Robot`.
       control_dt: seconds between controller steps.
-      task: the task object (:func:`cfm_jax.tasks.make`).
-      forward: the forward model of ``forward.kind`` (:func:`cfm_jax.forward_models.make`;
-        the ensemble :func:`cfm_jax.networks.forward_model` by default).
+      task: the task (:func:`cfm_jax.tasks.make`).
+      forward: the forward model (:func:`cfm_jax.forward_models.make`).
       controller: the controller (:func:`cfm_jax.networks.controller`).
       capacity: rows of the data set (babbling and every iteration's rollout).
 
     Examples:
-      >>> from cfm_jax import config as cfg
-      >>> setup = Setup.of(cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3)))
-      >>> setup.capacity  # 150 transitions per rollout, 2 babbling rollouts + 10 iterations
-      1800
+      >>> setup = Setup.of(cfm_jax.Config(robot="two_link_arm"))
+      >>> setup.capacity, setup.transitions_per_rollout  # 2 babbling rollouts + 10 iterations
+      (12000, 1000)
     """
 
     config: config_lib.Config
@@ -217,27 +169,13 @@ class Setup:
 
     @classmethod
     def of(cls, config: config_lib.Config) -> Setup:
-        """Build the setup of ``config`` (loads the robot, builds the task and networks).
-
-        Args:
-          config: a :class:`cfm_jax.config.Config`.
-
-        Returns:
-          Its :class:`Setup`.
+        """The setup of ``config``: loads the robot, builds the task and the networks.
 
         Raises:
-          ConfigError: ``task.control_dt`` is not a multiple of the robot's time step, or
-            the task does not fit the robot (the field and the allowed values are named).
-          RobotError: the robot does not load, or the config needs MJX (``simulator='mjx'``,
-            ``forward.kind='rigid_body'``) and MJX cannot build the model (what it lacks is
-            named).
-
-        Examples:
-          >>> from cfm_jax import config as cfg
-          >>> setup = Setup.of(cfg.Config(robot="two_link_arm",
-          ...                             task=cfg.TaskConfig(duration=0.3)))
-          >>> setup.task.targets, setup.task.steps, setup.transitions_per_rollout
-          (5, 30, 150)
+          ConfigError: ``task.control_dt`` is not a multiple of the robot's time step, or the
+            task does not fit the robot.
+          RobotError: the robot does not load, or MJX (``simulator='mjx'``,
+            ``forward.kind='rigid_body'``) cannot build it (what it lacks is named).
         """
         robot = robots.load(
             config.robot,
@@ -283,8 +221,7 @@ class Setup:
 
 
 def _babbling_gains(config: config_lib.Config, values: dict) -> dict:
-    """The task's values with the babbling's feedback gains of ``loop.babbling_gains``: the
-    task's own (``lightest``) or the PD-only baseline's (``baseline``)."""
+    """``values`` with the babbling gains of ``loop.babbling_gains`` (``baseline``: the PD's)."""
     if config.loop.babbling_gains == "baseline" and "babbling_gain_p" in values:
         values = {
             **values,
@@ -295,24 +232,19 @@ def _babbling_gains(config: config_lib.Config, values: dict) -> dict:
 
 
 def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:
-    """The torque scale of ``config.loop.torque_scale``: for ``"inertia"``
-    :meth:`cfm_jax.robots.Robot.torque_scale` of ``robot`` at the task's feedback frequency
-    (for ``"coupled"`` the ``(action_dim, action_dim)`` matrix
-    :meth:`cfm_jax.robots.Robot.coupled_torque_scale`)
-    (:meth:`cfm_jax.config.TaskConfig.feedback_frequency`; float64), for ``"limit"`` None
-    (the torque limits scale the torques).
+    """The torque scale of ``config.loop.torque_scale`` at the task's feedback frequency
+    (float64): ``"inertia"`` :meth:`cfm_jax.robots.Robot.torque_scale`, ``(action_dim,)``;
+    ``"coupled"`` :meth:`cfm_jax.robots.Robot.coupled_torque_scale`, ``(action_dim,
+    action_dim)``; ``"limit"`` None (the torque limits scale the torques).
 
     Args:
       config: a :class:`cfm_jax.config.Config`.
       robot: its :class:`cfm_jax.robots.Robot`.
 
-    Returns:
-      ``(action_dim,)`` float64, or None.
-
     Examples:
-      >>> from cfm_jax import config as cfg, robots
-      >>> arm = robots.load("two_link_arm")
-      >>> torque_scale(cfg.Config(loop=cfg.LoopConfig(torque_scale="limit")), arm) is None
+      >>> from cfm_jax import robots
+      >>> limit = cfm_jax.Config(loop=cfm_jax.LoopConfig(torque_scale="limit"))
+      >>> torque_scale(limit, robots.load("two_link_arm")) is None
       True
     """
     if config.loop.torque_scale == "limit":
@@ -327,50 +259,35 @@ def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:
 
 
 def init(setup: Setup, loss: str, key, knobs: Knobs, data=None) -> TrainState:
-    """The start of Algorithm 1 for one seed: motor babbling, the normaliser, fresh models,
-    the initial fit of f, then of g with ``loss``.
+    """The start of Algorithm 1 for one seed: :func:`prepare`, then :func:`fit_initial_controller`.
 
     Args:
       setup: the run's :class:`Setup`.
       loss: the controller's loss (:data:`cfm_jax.config.LOSSES`).
       key: the seed's PRNG key.
-      knobs: the runtime values (:class:`Knobs`).
+      knobs: the runtime values.
       data: ``(transitions, valid)`` to start from instead of babbling (a replay), or None.
 
-    Returns:
-      The :class:`TrainState` after the initial fits (``iteration`` 0).
-
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> state = init(setup, "joint", jax.random.key(0), knobs)  # doctest: +SKIP
-      >>> int(state.iteration), int(state.data.size)  # doctest: +SKIP
-      (0, 1500)
-
-      See the module's example for a run.
     """
     state, key_controller = prepare(setup, key, knobs, data)
     return fit_initial_controller(setup, loss, state, key_controller, knobs)
 
 
 def prepare(setup: Setup, key, knobs: Knobs, data=None) -> tuple[TrainState, jax.Array]:
-    """The loss-independent part of :func:`init`: babbling (unless ``data`` is given) and
-    :func:`_start`. Every loss of a comparison starts from this state, so losses are
-    compared on the same data and the same initial forward model.
+    """The loss-independent part of :func:`init` (babbling unless ``data`` is given, normaliser,
+    fit of f): every loss of a comparison starts from it. Returns the state and the key of
+    :func:`fit_initial_controller`.
 
     Args:
       setup: the run's :class:`Setup`.
-      key: the seed's PRNG key (split into the babbling's and the fits').
+      key: the seed's PRNG key.
       knobs: the runtime values.
       data: ``(transitions, valid)`` to start from instead of babbling, or None.
 
-    Returns:
-      The state (controller initialised, not yet fitted) and the key of the controller's
-      initial fit (:func:`fit_initial_controller`).
-
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> state, key_fit = prepare(setup, jax.random.key(0), knobs)  # doctest: +SKIP
-      >>> state = fit_initial_controller(setup, "joint", state, key_fit, knobs)  # doctest: +SKIP
     """
     key_babble, key_fit = jax.random.split(key, 2)
     if data is None:
@@ -381,29 +298,18 @@ def prepare(setup: Setup, key, knobs: Knobs, data=None) -> tuple[TrainState, jax
 def iteration(
     setup: Setup, loss: str, state: TrainState, knobs: Knobs, data=None
 ) -> tuple[TrainState, dict]:
-    """One iteration of Algorithm 1 for one seed: roll the controller out on every target,
-    measure (:func:`metrics`, before any refit), add the rollout's transitions (or ``data``,
-    ``(transitions, valid)``, in a replay), refit f, refit g with ``loss``.
+    """One iteration of Algorithm 1 for one seed: roll g out, measure, add the data, refit f and g.
+    Returns the next state and the :func:`metrics`, with the refits' losses.
 
     Args:
       setup: the run's :class:`Setup`.
       loss: the controller's loss.
       state: the seed's :class:`TrainState`.
       knobs: the runtime values.
-      data: ``(transitions, valid)`` rows to add instead of the rollout's (a replay: the
-        rollout is still run, for the metrics), or None.
-
-    Returns:
-      The next state and the metrics of the rollout (:func:`metrics`, per target), with
-      ``forward_loss`` and ``controller_loss`` of the refits.
+      data: ``(transitions, valid)`` to add instead of the rollout's (a replay), or None.
 
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> state, measured = iteration(setup, "joint", state, knobs)  # doctest: +SKIP
-      >>> measured["tracking_mse"].shape  # one value per target  # doctest: +SKIP
-      (5,)
-
-      See the module's example for a run.
     """
     cfg = setup.config
     key, key_rollout, key_fit_fm, key_fit_ctrl = jax.random.split(state.key, 4)
@@ -429,21 +335,14 @@ def iteration(
 
 
 def evaluate(setup: Setup, state: TrainState, result: rollout_lib.Rollout) -> dict:
-    """The metrics of a rollout of the current controller with no refit (the final
-    evaluation; ``forward_loss`` and ``controller_loss`` are NaN).
+    """The :func:`metrics` of a rollout with no refit after it (the final evaluation: NaN losses).
 
     Args:
       setup: the run's :class:`Setup`.
       state: the seed's :class:`TrainState`.
       result: the rollout of :func:`learned_policy` with :func:`evaluation_key`.
 
-    Returns:
-      :func:`metrics` with NaN losses.
-
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
-      >>> policy = learned_policy(setup, state)  # doctest: +SKIP
-      >>> result = rollout(setup, policy, evaluation_key(state), knobs)  # doctest: +SKIP
       >>> evaluate(setup, state, result)["forward_loss"]  # doctest: +SKIP
       Array(nan, dtype=float32)
     """
@@ -454,14 +353,10 @@ def evaluate(setup: Setup, state: TrainState, result: rollout_lib.Rollout) -> di
 
 
 def evaluation_key(state: TrainState):
-    """The key of the final evaluation's rollout, derived from ``state.key`` without
-    consuming it.
+    """The final evaluation's key, ``fold_in(state.key, 1)`` (``state.key`` is not consumed).
 
     Args:
       state: a :class:`TrainState` (or anything with a ``key``).
-
-    Returns:
-      ``fold_in(state.key, 1)``.
 
     Examples:
       >>> from types import SimpleNamespace
@@ -477,26 +372,18 @@ def evaluation_key(state: TrainState):
 
 
 def babble_all(setup: Setup, key, knobs: Knobs) -> rollout_lib.Rollout:
-    """``loop.babbling_rollouts`` rollouts of the babbling controller
-    (:func:`babbling_policy`) following the task's babbling reference of the strategy
-    ``knobs.babbling`` (a runtime value: one compilation serves every strategy).
+    """``loop.babbling_rollouts`` rollouts of :func:`babbling_policy` on the babbling reference
+    of ``knobs.babbling`` (a runtime value: one compilation serves every strategy).
 
     Args:
       setup: the run's :class:`Setup`.
-      key: the babbling's key (one per rollout is split from it; ``reaching`` draws its
-        goals from a key folded out of each).
+      key: the babbling's key (one per rollout is split from it).
       knobs: the runtime values.
 
-    Returns:
-      A :class:`cfm_jax.rollout.Rollout` with leading axes ``(rollouts, targets, steps)``.
-
     Examples:
-      >>> from cfm_jax import config as cfg
-      >>> arm = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3))
+      >>> arm = cfm_jax.Config(robot="two_link_arm", task=cfm_jax.TaskConfig(duration=0.3))
       >>> setup = Setup.of(arm)
-      >>> knobs = Knobs.of(arm, setup.robot, setup.task)
-      >>> result = babble_all(setup, jax.random.key(0), knobs)
-      >>> result.finite.shape  # (babbling_rollouts, targets, steps)
+      >>> babble_all(setup, jax.random.key(0), Knobs.of(arm, setup.robot, setup.task)).finite.shape
       (2, 5, 30)
     """
     count = setup.config.loop.babbling_rollouts
@@ -508,10 +395,7 @@ def babble_all(setup: Setup, key, knobs: Knobs) -> rollout_lib.Rollout:
 def _babble(
     setup: Setup, policy: rollout_lib.MixedPolicy, key, knobs: Knobs
 ) -> rollout_lib.Rollout:
-    """One babbling rollout: ``policy`` following the task's babbling reference of the
-    strategy ``knobs.babbling`` (a runtime value: one compilation serves every strategy;
-    ``reaching`` draws its goals from a key folded out of ``key``, the torque noise uses
-    ``key`` itself)."""
+    """One babbling rollout (``reaching`` draws its goals from a key folded out of ``key``)."""
     task = _task_of(setup, knobs)
     key_goals = jax.random.fold_in(key, babbling.GOAL_STREAM)
     references = [
@@ -522,20 +406,15 @@ def _babble(
 
 
 def babbling_policy(setup: Setup, knobs: Knobs) -> rollout_lib.MixedPolicy:
-    """The babbling controller of ``loop.babbling`` (the task's PD feedback, or its oracle
-    for ``oracle``; :mod:`cfm_jax.babbling`) plus Gaussian torque noise
-    (``loop.babbling_noise`` of each joint's torque scale, ``loop.torque_scale``).
+    """The babbling controller of ``loop.babbling`` (:mod:`cfm_jax.babbling`) plus Gaussian
+    torque noise of std ``knobs.babbling_noise_std``.
 
     Args:
       setup: the run's :class:`Setup`.
       knobs: the runtime values (``knobs.babbling`` may be traced).
 
-    Returns:
-      A :class:`cfm_jax.rollout.MixedPolicy`.
-
     Examples:
-      >>> from cfm_jax import config as cfg
-      >>> config = cfg.Config(robot="two_link_arm", loop=cfg.LoopConfig(babbling="oracle"))
+      >>> config = cfm_jax.Config(robot="two_link_arm", loop=cfm_jax.LoopConfig(babbling="oracle"))
       >>> setup = Setup.of(config)
       >>> policy = babbling_policy(setup, Knobs.of(config, setup.robot, setup.task))
       >>> float(policy.oracle_weight), float(policy.feedback_weight)
@@ -553,12 +432,8 @@ def babbling_policy(setup: Setup, knobs: Knobs) -> rollout_lib.MixedPolicy:
 def _start(
     setup: Setup, chunk: dataset.Transitions, valid, key, knobs: Knobs
 ) -> tuple[TrainState, jax.Array]:
-    """The normaliser of the initial data ``chunk`` (rows where ``valid``), the data set,
-    fresh parameters and the initial fit of the forward model.
-
-    Returns:
-      The state and the key of the controller's initial fit.
-    """
+    """The data set and normaliser of the initial ``chunk``, fresh parameters and the initial
+    fit of f; returns the state and the key of the controller's initial fit."""
     cfg, task = setup.config, setup.task
     key, key_fm, key_ctrl, key_fit_fm, key_fit_ctrl = jax.random.split(key, 5)
     chunk = with_terms(setup, chunk)
@@ -606,21 +481,15 @@ def _start(
 
 
 def data_normaliser(setup: Setup, data: dataset.Dataset, torque_scale=None) -> networks.Normaliser:
-    """The ``data`` normaliser (``loop.normaliser = "data"``): the statistics of the filled
-    rows of the data set (:func:`cfm_jax.networks.Normaliser.from_data`), recomputed before
-    every refit of both models.
+    """The ``loop.normaliser = "data"`` normaliser: statistics of the data set's filled rows
+    (:func:`cfm_jax.networks.Normaliser.from_data`), recomputed before every refit.
 
     Args:
       setup: the run's :class:`Setup`.
       data: the :class:`cfm_jax.dataset.Dataset`.
-      torque_scale: the run's torque scale (:attr:`Knobs.torque_scale`, kept in the
-        normaliser it replaces), or None (the limits).
-
-    Returns:
-      A :class:`cfm_jax.networks.Normaliser`.
+      torque_scale: the run's torque scale (:attr:`Knobs.torque_scale`), or None (the limits).
 
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> norm = data_normaliser(setup, state.data, knobs.torque_scale)  # doctest: +SKIP
     """
     filled = jnp.arange(data.capacity) < data.size
@@ -637,8 +506,7 @@ def data_normaliser(setup: Setup, data: dataset.Dataset, torque_scale=None) -> n
 def fit_initial_controller(
     setup: Setup, loss: str, state: TrainState, key, knobs: Knobs
 ) -> TrainState:
-    """The controller's initial fit with ``loss`` on the initial data
-    (``controller.initial_steps`` updates).
+    """The controller's initial fit with ``loss`` (``controller.initial_steps`` updates).
 
     Args:
       setup: the run's :class:`Setup`.
@@ -647,12 +515,7 @@ def fit_initial_controller(
       key: the key :func:`prepare` returned.
       knobs: the runtime values.
 
-    Returns:
-      The state with the fitted controller.
-
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
-      >>> state, key_fit = prepare(setup, key, knobs)  # doctest: +SKIP
       >>> state = fit_initial_controller(setup, "task", state, key_fit, knobs)  # doctest: +SKIP
     """
     steps = setup.config.controller.initial_steps
@@ -661,11 +524,9 @@ def fit_initial_controller(
 
 
 def restart_fits(setup: Setup, state: TrainState, key_forward, key_controller, knobs: Knobs):
-    """How the iteration's refits start (``forward.start``, ``controller.start``):
-    ``warm`` leaves the parameters and the Adam state of the previous fit (the state is
-    returned unchanged); ``warm_new_optimizer`` re-creates Adam for the kept parameters;
-    ``fresh`` re-initialises the parameters from a key folded out of the fit's key (the
-    fit's own sampling key is unchanged) and re-creates Adam.
+    """Start the iteration's refits as ``forward.start`` and ``controller.start`` say: ``warm``
+    keeps parameters and Adam state, ``warm_new_optimizer`` re-creates Adam, ``fresh`` also
+    re-initialises the parameters (from the fit's key folded with :data:`FRESH_SALT`).
 
     Args:
       setup: the run's :class:`Setup`.
@@ -674,11 +535,7 @@ def restart_fits(setup: Setup, state: TrainState, key_forward, key_controller, k
       key_controller: the controller refit's key.
       knobs: the runtime values.
 
-    Returns:
-      The state the refits start from.
-
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> restart_fits(setup, state, key_fm, key_ctrl, knobs) is state  # warm  # doctest: +SKIP
       True
     """
@@ -701,25 +558,19 @@ def restart_fits(setup: Setup, state: TrainState, key_forward, key_controller, k
 
 
 FRESH_SALT = 0x5EED
-"""Folded into a refit's key (``jax.random.fold_in``) for the key of its ``fresh``
-parameters, so the re-initialisation is deterministic and the fit's own key is unchanged."""
+"""Folded into a refit's key for its ``fresh`` parameters (the fit's own key is unchanged)."""
 
 
 def fresh_forward_params(setup: Setup, key, knobs: Knobs):
-    """Newly initialised forward-model parameters with the initial log-variance bounds of
-    ``knobs`` (as :func:`prepare` starts them).
+    """New forward-model parameters with the initial log-variance bounds of ``knobs``.
 
     Args:
       setup: the run's :class:`Setup`.
       key: the PRNG key of the initialisation.
       knobs: the runtime values.
 
-    Returns:
-      The parameters.
-
     Examples:
-      >>> from cfm_jax import config as cfg
-      >>> arm = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3))
+      >>> arm = cfm_jax.Config(robot="two_link_arm", task=cfm_jax.TaskConfig(duration=0.3))
       >>> setup = Setup.of(arm)
       >>> knobs = Knobs.of(arm, setup.robot, setup.task)
       >>> params = fresh_forward_params(setup, jax.random.key(0), knobs)
@@ -730,26 +581,19 @@ def fresh_forward_params(setup: Setup, key, knobs: Knobs):
 
 
 def loss_groups(setup: Setup):
-    """The coordinate groups of the controller loss: None for ``controller.loss_form =
-    "squared"``; for ``"norm"`` ``controller.loss_weights``, or when that is None the
-    task's default (``task.loss_weights()``; a task without that method: one group of
-    weight 1 over every output entry).
+    """The controller loss's groups ``((weight, (output index, ...)), ...)``: None for
+    ``controller.loss_form = "squared"``; for ``"norm"`` ``controller.loss_weights``, else
+    the task's ``loss_weights()``, else one group of weight 1 over the whole output.
 
     Args:
       setup: the run's :class:`Setup`.
 
-    Returns:
-      None or ``((weight, (output index, ...)), ...)``.
-
     Raises:
-      ConfigError: an index of ``controller.loss_weights`` is not an entry of the
-        task's output (``0 .. output_dim - 1``).
+      ConfigError: an index of ``controller.loss_weights`` is not in ``0 .. output_dim - 1``.
 
     Examples:
-      >>> from cfm_jax import config as cfg
-      >>> config = cfg.Config(robot="two_link_arm",
-      ...                     controller=cfg.ControllerConfig(loss_form="norm"))
-      >>> loss_groups(Setup.of(config))
+      >>> norm = cfm_jax.ControllerConfig(loss_form="norm")
+      >>> loss_groups(Setup.of(cfm_jax.Config(robot="two_link_arm", controller=norm)))
       ((1.0, (0, 1)),)
     """
     cfg, task = setup.config.controller, setup.task
@@ -789,8 +633,7 @@ def _fit_forward(
 def _fit_controller(
     setup: Setup, loss: str, state: TrainState, key, steps: int, knobs: Knobs
 ) -> tuple[TrainState, jax.Array]:
-    """``steps`` controller updates with ``loss`` through ``state``'s forward model;
-    returns the state and mean loss."""
+    """``steps`` controller updates with ``loss`` through f; returns the state and mean loss."""
     params, opt_state, mean_loss = update.fit_controller(
         loss,
         setup.forward,
@@ -812,46 +655,38 @@ def _fit_controller(
 
 
 def _forward_optimizer(knobs: Knobs):
-    """Adam at ``knobs.forward_learning_rate`` (the optimiser state does not hold the rate,
-    so states of configs that differ in it are interchangeable)."""
+    """Adam at ``knobs.forward_learning_rate`` (its state does not hold the rate, so states of
+    configs that differ in it are interchangeable)."""
     return optax.adam(knobs.forward_learning_rate)
 
 
 def _controller_optimizer(knobs: Knobs):
-    """Adam at ``knobs.controller_learning_rate``."""
     return optax.adam(knobs.controller_learning_rate)
 
 
 def rollout(
     setup: Setup, policy: rollout_lib.MixedPolicy, key, knobs: Knobs
 ) -> rollout_lib.Rollout:
-    """Roll a :class:`cfm_jax.rollout.MixedPolicy` out on every target, with the task
-    values of ``knobs`` and the config's simulator.
+    """Roll ``policy`` out on every target (task values of ``knobs``, the config's simulator).
 
     Args:
       setup: the run's :class:`Setup`.
-      policy: the policy's parameters (:func:`learned_policy`, :func:`mixed_policy`).
+      policy: a :class:`cfm_jax.rollout.MixedPolicy` (:func:`learned_policy`, :func:`mixed_policy`).
       key: the rollout's key (its torque noise).
       knobs: the runtime values.
 
-    Returns:
-      A :class:`cfm_jax.rollout.Rollout`, leading axes ``(targets, steps)``.
-
     Examples:
-      >>> from cfm_jax import config as cfg
-      >>> arm = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3))
+      >>> arm = cfm_jax.Config(robot="two_link_arm", task=cfm_jax.TaskConfig(duration=0.3))
       >>> setup = Setup.of(arm)
       >>> knobs = Knobs.of(arm, setup.robot, setup.task)
-      >>> oracle = mixed_policy(setup, oracle=1.0)
-      >>> rollout(setup, oracle, jax.random.key(0), knobs).finite.shape  # 5 targets, 0.3 s
+      >>> rollout(setup, mixed_policy(setup, oracle=1.0), jax.random.key(0), knobs).finite.shape
       (5, 30)
     """
     return _run(setup, _task_of(setup, knobs), policy, key)
 
 
 def _run(setup: Setup, task, policy: rollout_lib.MixedPolicy, key) -> rollout_lib.Rollout:
-    """Roll ``policy`` out on ``task`` (a task of ``setup``'s structure) with the config's
-    simulator."""
+    """Roll ``policy`` out on ``task`` (of ``setup``'s structure) with the config's simulator."""
     simulator = setup.config.simulator
     return rollout_lib.run(
         task,
@@ -862,27 +697,19 @@ def _run(setup: Setup, task, policy: rollout_lib.MixedPolicy, key) -> rollout_li
 
 
 def _task_of(setup: Setup, knobs: Knobs):
-    """The task with the values of ``knobs`` (traced inside the compiled functions)."""
     return setup.task.with_values(knobs.task)
 
 
 def mixed_policy(setup: Setup, **weights) -> rollout_lib.MixedPolicy:
-    """A non-learned :class:`cfm_jax.rollout.MixedPolicy`: its controller part is a
-    placeholder with weight 0.
+    """A :class:`cfm_jax.rollout.MixedPolicy` with no learned controller (a placeholder, weight 0).
 
     Args:
       setup: the run's :class:`Setup`.
-      weights: keyword arguments ``oracle``, ``feedback`` (weights of the task's oracle
-        and PD feedback) and ``noise_std`` (``(action_dim,)`` torque noise), as
+      weights: ``oracle``, ``feedback`` and ``noise_std``, as
         :meth:`cfm_jax.rollout.MixedPolicy.of` takes them.
 
-    Returns:
-      A :class:`cfm_jax.rollout.MixedPolicy`.
-
     Examples:
-      >>> from cfm_jax import config as cfg
-      >>> setup = Setup.of(cfg.Config(robot="two_link_arm"))
-      >>> pd_only = mixed_policy(setup, feedback=1.0)
+      >>> pd_only = mixed_policy(Setup.of(cfm_jax.Config(robot="two_link_arm")), feedback=1.0)
       >>> float(pd_only.feedback_weight), float(pd_only.controller_weight)
       (1.0, 0.0)
     """
@@ -904,17 +731,13 @@ def mixed_policy(setup: Setup, **weights) -> rollout_lib.MixedPolicy:
 
 
 def learned_policy(setup: Setup, state: TrainState) -> rollout_lib.MixedPolicy:
-    """The learned controller of ``state`` alone (weight 1, no oracle, feedback or noise).
+    """The learned controller of ``state`` alone (weight 1; no oracle, feedback or noise).
 
     Args:
       setup: the run's :class:`Setup`.
       state: one seed's :class:`TrainState`.
 
-    Returns:
-      A :class:`cfm_jax.rollout.MixedPolicy`.
-
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> float(learned_policy(setup, state).controller_weight)  # doctest: +SKIP
       1.0
     """
@@ -924,22 +747,16 @@ def learned_policy(setup: Setup, state: TrainState) -> rollout_lib.MixedPolicy:
 
 
 def with_terms(setup: Setup, transitions: dataset.Transitions) -> dataset.Transitions:
-    """``transitions`` with the forward model's per-transition terms (``setup.forward.terms``
-    of their states, :attr:`cfm_jax.dataset.Transitions.terms`), computed once where they
-    enter the data set or the metrics; unchanged when the model has no terms (``mlp``) or
-    they are there already.
+    """``transitions`` with the forward model's per-transition ``terms`` of their states,
+    computed once where they enter the data set or the metrics (unchanged when the model has
+    none, as ``mlp``, or they are set).
 
     Args:
       setup: the run's :class:`Setup`.
       transitions: :class:`cfm_jax.dataset.Transitions` with any leading axes.
 
-    Returns:
-      The transitions with ``terms`` set (or the same transitions).
-
     Examples:
-      >>> from cfm_jax import config as cfg
-      >>> arm = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3))
-      >>> setup = Setup.of(arm)
+      >>> setup = Setup.of(cfm_jax.Config(robot="two_link_arm"))
       >>> rows = dataset.Transitions(*(jnp.zeros((3, d)) for d in (4, 2, 2, 2)))
       >>> with_terms(setup, rows).terms is None  # the mlp kind
       True
@@ -950,20 +767,14 @@ def with_terms(setup: Setup, transitions: dataset.Transitions) -> dataset.Transi
 
 
 def collected(result: rollout_lib.Rollout) -> tuple[dataset.Transitions, jax.Array]:
-    """The transitions of a rollout as data-set rows and which of them are data
-    (:func:`data_mask`), whatever the leading axes (``(targets, steps)``, or
-    ``(rollouts, targets, steps)`` for babbling).
+    """A rollout's transitions as data-set rows, one leading axis, and the mask of those that
+    are data (:func:`data_mask`), ``(transitions, valid)``.
 
     Args:
-      result: a :class:`cfm_jax.rollout.Rollout`.
-
-    Returns:
-      ``(transitions, valid)``: :class:`cfm_jax.dataset.Transitions` with one leading
-      row axis, and the ``(rows,)`` bool mask.
+      result: a :class:`cfm_jax.rollout.Rollout`, leading axes ``([rollouts,] targets, steps)``.
 
     Examples:
-      >>> from cfm_jax import config as cfg
-      >>> arm = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3))
+      >>> arm = cfm_jax.Config(robot="two_link_arm", task=cfm_jax.TaskConfig(duration=0.3))
       >>> setup = Setup.of(arm)
       >>> knobs = Knobs.of(arm, setup.robot, setup.task)
       >>> rows, valid = collected(babble_all(setup, jax.random.key(0), knobs))
@@ -979,36 +790,16 @@ def collected(result: rollout_lib.Rollout) -> tuple[dataset.Transitions, jax.Arr
 
 
 def metrics(setup: Setup, state: TrainState, result: rollout_lib.Rollout) -> dict:
-    """Per-target metrics of a rollout of the current models (before any refit).
-
-    * ``tracking_mse``: mean over steps and components of the task's tracking error
-      squared (joint-space task: ``(q - q_ref)^2``, rad^2).
-    * ``prediction_error``: mean of ``(f(s, tau_run) - y_obs)^2`` over the forward
-      model's outputs (joint-space task: accelerations, (rad/s^2)^2).
-    * ``predicted_task_error``: mean of ``(P f(s, g(s, s*)) - s*)^2`` over the desired
-      entries ``P``.
-    * ``finite_fraction``: share of steps whose simulator state stayed finite.
-    * ``transitions_added``: the rollout's steps that are data (finite, and inside the
-      target's horizon for tasks with horizons of different lengths).
-    * ``diverged``: 1 when the simulation diverged (:func:`cfm_jax.rollout.run`), else 0;
-      ``diverged_step``: the control step it diverged at, -1 when it did not. A diverged
-      rollout's ``tracking_mse`` is NaN: a failed run (see :func:`cfm_jax.report.rule`).
-    * the task's own metrics (``task.metric_names``).
-
-    Means are over the steps inside each target's horizon (all steps for the arms);
-    ``prediction_error`` and ``predicted_task_error`` only over the steps before the
-    first terminal step (a legged robot's fall), the steps that become data.
+    """Per-target metrics ``{name: (targets,) array}`` of a rollout of the current models:
+    ``prediction_error`` and ``predicted_task_error`` (over the steps before the first terminal
+    step) and :func:`rollout_metrics`; the columns: docs/how-to/metrics.md.
 
     Args:
       setup: the run's :class:`Setup`.
       state: the seed's :class:`TrainState` (the models that were rolled out).
       result: their rollout.
 
-    Returns:
-      ``{name: (targets,) array}``.
-
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
       >>> sorted(metrics(setup, state, result))[:3]  # doctest: +SKIP
       ['finite_fraction', 'prediction_error', 'predicted_task_error']
     """
@@ -1033,19 +824,15 @@ def metrics(setup: Setup, state: TrainState, result: rollout_lib.Rollout) -> dic
 
 
 def rollout_metrics(setup: Setup, result: rollout_lib.Rollout) -> dict:
-    """Per-target metrics of a rollout that need no model: ``tracking_mse``,
-    ``finite_fraction``, ``transitions_added`` and the task's own (the baselines' table).
+    """The per-target metrics of a rollout that need no model (the baselines' table):
+    ``tracking_mse``, ``finite_fraction``, ``transitions_added``, :func:`divergence` and the
+    task's own; means over the steps inside each target's horizon.
 
     Args:
       setup: the run's :class:`Setup`.
       result: a rollout.
 
-    Returns:
-      ``{name: (targets,) array}``.
-
     Examples:
-      >>> # not run: it needs a run's setup, knobs and state (cfm_jax.train builds them)
-      >>> result = rollout(setup, mixed_policy(setup, oracle=1.0), key, knobs)  # doctest: +SKIP
       >>> rollout_metrics(setup, result)["tracking_mse"].shape  # doctest: +SKIP
       (5,)
     """
@@ -1059,17 +846,13 @@ def rollout_metrics(setup: Setup, result: rollout_lib.Rollout) -> dict:
 
 
 def divergence(result: rollout_lib.Rollout) -> dict:
-    """``diverged`` (1.0 or 0.0) and ``diverged_step`` (the first control step whose state
-    was bad, -1.0 when none) per rollout, from ``result.finite``.
+    """``diverged`` (1.0 or 0.0) and ``diverged_step`` (the first bad control step, -1.0 when
+    none) per rollout, float32.
 
     Args:
       result: a :class:`cfm_jax.rollout.Rollout` (its ``finite``, ``(..., steps)``).
 
-    Returns:
-      ``{"diverged": (...,), "diverged_step": (...,)}`` float32 arrays.
-
     Examples:
-      >>> import jax.numpy as jnp
       >>> from types import SimpleNamespace
       >>> result = SimpleNamespace(finite=jnp.array([[True, True, True], [True, False, False]]))
       >>> {k: v.tolist() for k, v in divergence(result).items()}
@@ -1084,21 +867,16 @@ def divergence(result: rollout_lib.Rollout) -> dict:
 
 
 def data_mask(result: rollout_lib.Rollout):
-    """Steps that become data: finite, inside the horizon when the task has one, and before
-    the first terminal step when the task has those (a legged robot's fall).
+    """Steps that become data: finite, inside the horizon and before the first terminal step (a
+    legged robot's fall), where the task marks those.
 
     Args:
       result: a :class:`cfm_jax.rollout.Rollout`.
 
-    Returns:
-      A bool mask of the shape of ``result.finite``.
-
     Examples:
-      >>> import jax.numpy as jnp
       >>> from types import SimpleNamespace
       >>> fell = jnp.array([[False, True, False]])
-      >>> result = SimpleNamespace(finite=jnp.ones((1, 3), bool),
-      ...                          extras={"terminal": fell})
+      >>> result = SimpleNamespace(finite=jnp.ones((1, 3), bool), extras={"terminal": fell})
       >>> data_mask(result).tolist()  # no data from the step of the fall on
       [[True, False, False]]
     """
@@ -1107,8 +885,8 @@ def data_mask(result: rollout_lib.Rollout):
 
 
 def _step_mean(result: rollout_lib.Rollout, before_terminal: bool = False):
-    """``x (targets, steps, k) -> (targets,)``: mean of ``x^2`` over components and over the
-    steps of :func:`_steps` (every step when the task masks none)."""
+    """``x (targets, steps, k) -> (targets,)``: mean of ``x^2`` over components and the steps of
+    :func:`_steps` (every step when the task masks none)."""
     steps = _steps(result, before_terminal)
     if steps is None:
         return lambda x: jnp.mean(jnp.square(x), axis=(-2, -1))
@@ -1118,14 +896,10 @@ def _step_mean(result: rollout_lib.Rollout, before_terminal: bool = False):
 
 
 def _steps(result: rollout_lib.Rollout, before_terminal: bool):
-    """``(targets, steps)`` mask of the steps inside each target's horizon
-    (``extras["active"]``) and, with ``before_terminal``, before the first terminal step;
-    None when the task marks neither (every step counts).
-
-    A task marks a step terminal (``extras["terminal"]``, for example a legged robot that
-    fell) when what follows it is not the dynamics the models should learn: the legged
-    models have foot-floor contacts only, so a fallen body sinks through the floor.
-    """
+    """``(targets, steps)`` mask of the steps inside each target's horizon and, with
+    ``before_terminal``, before the first terminal step; None when the task marks neither.
+    After a terminal step (a fall) the dynamics are not the models' to learn: the legged
+    models have foot-floor contacts only, so a fallen body sinks through the floor."""
     extras = result.extras if isinstance(result.extras, dict) else {}
     masks = [extras["active"]] if "active" in extras else []
     if before_terminal and "terminal" in extras:
@@ -1134,5 +908,4 @@ def _steps(result: rollout_lib.Rollout, before_terminal: bool):
 
 
 def _broadcast(tree, n: int):
-    """Every leaf of ``tree`` repeated along a new leading axis of size ``n``."""
     return jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + jnp.shape(x)), tree)

@@ -1,38 +1,9 @@
-"""The initial data of Algorithm 1 ("motor babbling data"): what the babbling controller
-follows and which controller it is (``Config.loop.babbling``, :data:`STRATEGIES`).
+"""Motor babbling, the initial data of Algorithm 1: the strategies of ``loop.babbling``.
 
-Every strategy rolls out ``loop.babbling_rollouts`` times per seed, each rollout as wide as
-one rollout of the task (its ``targets x steps`` transitions), with Gaussian torque noise of
-``loop.babbling_noise`` times each joint's torque scale (``loop.torque_scale``:
-:meth:`cfm_jax.robots.Robot.torque_scale`, or the torque limit):
-
-* ``home`` (the legged tasks' default): the task's PD feedback (its PD-only baseline
-  controller) holding the start pose: the arm's start pose (``task.home``, else the MJCF
-  keyframe ``home``), the legged robot's standing pose (its keyframe ``home``). The authors'
-  Solo12 code collects its initial data this way. It knows neither the test references nor
-  the reference controller.
-* ``reaching`` (the arm tasks' default, chosen by the selection run): the same PD
-  feedback tracking minimum-jerk reaches of the task's duration from the start pose to
-  random poses of the actuated joints, drawn uniformly inside each joint's range shrunk
-  by 10% at both ends (``start +- pi`` for an unlimited joint), fresh for every seed and
-  rollout; for ``opspace`` the reaches are straight lines of the site to where those poses
-  put it; for a legged robot the base is not commanded and a fall ends
-  the rollout's data. Knows neither the test references nor the reference controller.
-* ``reference_pd``: PD tracking of the test references themselves (the arms' babbling
-  before the faithful protocol). For studies of its effect only.
-* ``oracle``: the task's oracle on the test references (the legged tasks' babbling before
-  the faithful protocol: feed-forward torque plus joint PD, which reproduces the
-  reference). For studies of its effect only.
-
-The desired quantity ``s*`` stored with the babbling data is the one of the motion that was
-babbled (for ``home`` the held pose: zero desired acceleration and, for a legged robot, the
-static standing forces ``m g / feet`` on each foot).
-
-Examples:
-  >>> policy_weights("home"), policy_weights("oracle")
-  ({'feedback': 1.0}, {'oracle': 1.0})
-  >>> uses_reference("reaching"), uses_reference("reference_pd")
-  (False, True)
+:data:`STRATEGIES` are ``home`` (hold the start pose with the task's PD feedback),
+``reaching`` (the same PD tracking minimum-jerk reaches to :func:`random_poses`), and, for
+studies only, ``reference_pd`` and ``oracle`` on the test references; noise, widths and the
+stored ``s*`` are in docs/concepts/method.md ("Initial data").
 """
 
 from __future__ import annotations
@@ -64,15 +35,12 @@ def policy_weights(strategy: str) -> dict:
     Args:
       strategy: one of :data:`STRATEGIES`.
 
-    Returns:
-      ``{"oracle": 1.0}`` for ``oracle``, else ``{"feedback": 1.0}`` (the task's PD).
-
     Raises:
       ConfigError: an unknown strategy.
 
     Examples:
-      >>> policy_weights("reaching")
-      {'feedback': 1.0}
+      >>> policy_weights("home"), policy_weights("oracle")
+      ({'feedback': 1.0}, {'oracle': 1.0})
     """
     _check(strategy)
     return {"oracle": 1.0} if strategy == "oracle" else {"feedback": 1.0}
@@ -84,8 +52,8 @@ def uses_reference(strategy: str) -> bool:
     Args:
       strategy: one of :data:`STRATEGIES`.
 
-    Returns:
-      True for ``reference_pd`` and ``oracle``.
+    Raises:
+      ConfigError: an unknown strategy.
 
     Examples:
       >>> [uses_reference(name) for name in STRATEGIES]
@@ -103,13 +71,10 @@ def _check(strategy: str) -> None:
 
 
 def actuated_joints(robot) -> tuple[np.ndarray, np.ndarray]:
-    """The ``qpos`` index and the ``(low, high)`` range of each actuated joint.
+    """``(qpos index (action_dim,), (low, high) range (action_dim, 2))`` of the actuated joints.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
-
-    Returns:
-      ``(qpos_index (action_dim,), joint_range (action_dim, 2))``.
 
     Examples:
       >>> from cfm_jax import robots
@@ -123,9 +88,7 @@ def actuated_joints(robot) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _goal_ranges(robot):
-    """``(qpos index, limited, low, high)`` of the actuated joints' goal ranges: each
-    limited range shrunk by :data:`RANGE_MARGIN` at both ends, ``-pi, pi`` (about the
-    start) for an unlimited joint."""
+    """``(qpos index, limited, low, high)`` of the goal ranges (:func:`random_poses`)."""
     index, limits = actuated_joints(robot)
     width = limits[:, 1] - limits[:, 0]
     limited = np.isfinite(width)
@@ -135,17 +98,15 @@ def _goal_ranges(robot):
 
 
 def random_poses(key, robot, start):
-    """Random goal poses: every actuated joint uniform inside its range shrunk by
-    :data:`RANGE_MARGIN` at both ends (``start +- pi`` when unlimited); other coordinates
-    (a floating base) stay at ``start``.
+    """Random float32 goal poses, one per start pose, for the ``reaching`` babbling.
+
+    Each actuated joint is uniform in its range shrunk by :data:`RANGE_MARGIN` at both ends
+    (``start +- pi`` if unlimited); other coordinates (a floating base) keep ``start``.
 
     Args:
       key: PRNG key.
       robot: a :class:`cfm_jax.robots.Robot`.
-      start: ``(..., nq)`` start poses (one goal is drawn for each).
-
-    Returns:
-      ``(..., nq)`` float32 goal poses.
+      start: ``(..., nq)`` start poses; the goals have the same shape.
 
     Examples:
       >>> from cfm_jax import robots
@@ -163,26 +124,21 @@ def random_poses(key, robot, start):
 
 
 def pose_sample(robot, start, count: int = POSE_SAMPLE) -> np.ndarray:
-    """A fixed sample of the poses the ``reaching`` babbling may visit: ``start`` and
-    ``count - 1`` poses with every actuated joint uniform in the ranges of
-    :func:`random_poses` (NumPy's generator of seed 0, the same for every run and seed).
-    The babbling's feedback gains are sized over it
-    (:func:`cfm_jax.baselines.babbling_joint_gains`).
+    """A fixed float64 ``(count, nq)`` sample of the poses the ``reaching`` babbling may visit.
+
+    ``start`` and ``count - 1`` poses drawn as :func:`random_poses` does, with NumPy's seed 0
+    (the same for every run); :func:`cfm_jax.baselines.babbling_joint_gains` uses it.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       start: ``(nq,)`` the start pose.
       count: poses in the sample, ``start`` included.
 
-    Returns:
-      ``(count, nq)`` float64 poses.
-
     Examples:
       >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> poses = pose_sample(arm, arm.home, count=4)
-      >>> poses.shape, bool(np.all(np.abs(poses) <= arm.joint_range[:, 1]))
-      ((4, 2), True)
+      >>> poses = pose_sample(robots.load("two_link_arm"), np.zeros(2), count=4)
+      >>> poses.shape, poses[0].tolist()  # start first
+      ((4, 2), [0.0, 0.0])
     """
     index, limited, low, high = _goal_ranges(robot)
     start = np.asarray(start, np.float64)
@@ -194,19 +150,15 @@ def pose_sample(robot, start, count: int = POSE_SAMPLE) -> np.ndarray:
 
 
 def standing_forces(robot, feet: int) -> np.ndarray:
-    """Static standing forces: ``m g / feet`` upwards on each foot (world frame, N).
+    """Static standing forces, ``[0, 0, m g / feet]`` per foot: ``(feet * 3,)`` float32 (N).
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot` (its total mass and gravity).
       feet: the number of feet.
 
-    Returns:
-      ``(feet * 3,)`` float32, ``[0, 0, m g / feet]`` per foot.
-
     Examples:
       >>> from cfm_jax import robots
-      >>> solo = robots.load("solo12")
-      >>> np.round(standing_forces(solo, 4)[:3].astype(float), 2).tolist()  # 2.501 kg g / 4
+      >>> np.round(standing_forces(robots.load("solo12"), 4)[:3].astype(float), 2).tolist()
       [0.0, 0.0, 6.13]
     """
     import mujoco

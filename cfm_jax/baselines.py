@@ -1,34 +1,10 @@
-"""Baselines: the non-learned controllers that the learned controller is compared against.
+"""Baselines: the non-learned controllers the learned one is compared against.
 
-Each task has a model-based *oracle* (an analytic controller with the true model) and a
-*PD-only* feedback controller; the training loop rolls both out next to the learned
-controller (``TrainResult.baselines``).
-
-* Joint space (the ``inverse_dynamics`` task): MuJoCo's inverse dynamics at the current
-  state, ``tau = M qdd* + c - passive`` (:func:`inverse_dynamics_oracle`), and the PD gains
-  ``kp diag M(q_home)``, ``kd diag M(q_home)`` (:func:`joint_pd_gains`; the task applies
-  them).
-* Operational space (the ``opspace`` task): the analytic operational-space controller of
-  Khatib (1987) (:class:`HostOpspaceOracle` with MuJoCo C on the host, float64;
-  :func:`opspace_oracle` as a JAX function through a host callback, or computed by MJX,
-  :func:`mjx_opspace_oracle`), and task-space PD ``J^T (K_p e + K_d ed)``
-  (:func:`opspace_pd_gains`, :func:`opspace_pd_policy`).
-* :func:`host_rollout`: the plain NumPy closed loop of an op-space policy with MuJoCo C
-  (the reference the compiled rollout is tested against), and :func:`site_tracking_mse`.
-
-Both oracles account for MuJoCo's implicit joint damping (:func:`implicit_damping`), so
-that one Euler step realises the desired acceleration exactly. The legged tasks' oracle
-replays recorded torques (:meth:`cfm_jax.tasks.LeggedTask.oracle_policy`).
-
-Examples:
-  >>> import jax, numpy as np
-  >>> from cfm_jax import references, robots, rollout, tasks
-  >>> arm = robots.load("two_link_arm")
-  >>> ref = references.quintic(arm.home, arm.home + 0.1, duration=0.2, control_dt=0.01)
-  >>> task = tasks.JointSpaceTask(arm, ref, kp=100.0, kd=20.0, control_dt=0.01)
-  >>> out = rollout.run(task, inverse_dynamics_oracle(arm), key=jax.random.key(0))
-  >>> bool(rollout.tracking_mse(out)[0] < 1e-5)  # the oracle tracks the reference
-  True
+Each task has a model-based *oracle* and a *PD-only* controller (``TrainResult.baselines``):
+in joint space :func:`inverse_dynamics_oracle` and :func:`joint_pd_gains`; in operational
+space the Khatib controller (:class:`HostOpspaceOracle`, :func:`opspace_oracle`,
+:func:`mjx_opspace_oracle`; docs/opspace.md) and :func:`opspace_pd_policy`.
+:func:`host_rollout` is the NumPy closed loop the compiled op-space rollout is tested against.
 """
 
 from __future__ import annotations
@@ -66,33 +42,21 @@ RCOND_FLOAT32 = 10 * 3 * float(np.finfo(np.float32).eps)
 
 
 def inverse_dynamics_oracle(robot, simulator="native"):
-    """MuJoCo's inverse dynamics at the current state: ``tau = M qdd* + c - passive``,
-    with ``qdd* = step.desired`` (the joint-space task's desired acceleration).
+    """The joint-space oracle ``policy(step, key) -> tau (nv,)``: MuJoCo's inverse dynamics.
 
-    ``c`` is MuJoCo's bias force (Coriolis, centrifugal, gravity), ``passive`` the joint
-    damping and spring forces. With the Euler integrator and implicit damping, the
-    integrator's extra ``h D qdd`` term (``h`` the timestep, ``D`` the joint damping) is
-    added so that one physics step realises ``qdd*`` exactly (up to torque limits); with
-    several physics steps per control step the torque is held and tracking is approximate.
-
-    ``simulator="native"`` computes it with MuJoCo C (``mj_fwdPosition``,
-    ``mj_fwdVelocity``, ``mj_mulM``) through ``jax.pure_callback``; ``"mjx"`` with the
-    corresponding MJX functions.
+    ``tau = M qdd* + h D qdd* + bias - passive`` with ``qdd* = step.desired``; the
+    :func:`implicit_damping` term ``h D qdd*`` makes one Euler step realise ``qdd*`` exactly.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot` with a fixed base.
-      simulator: ``"native"`` or ``"mjx"``.
-
-    Returns:
-      ``policy(step, key) -> tau (nv,)``.
+      simulator: ``"native"`` (MuJoCo C through ``jax.pure_callback``) or ``"mjx"``.
 
     Examples:
-      >>> import jax, numpy as np
       >>> from cfm_jax import references, robots, rollout, tasks
-      >>> robot = robots.load("two_link_arm")
-      >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
-      >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
-      >>> out = rollout.run(task, inverse_dynamics_oracle(robot), jax.random.key(0))
+      >>> arm = robots.load("two_link_arm")
+      >>> ref = references.quintic(arm.home, arm.home + 0.1, duration=0.2, control_dt=0.01)
+      >>> task = tasks.JointSpaceTask(arm, ref, kp=100.0, kd=20.0, control_dt=0.01)
+      >>> out = rollout.run(task, inverse_dynamics_oracle(arm), jax.random.key(0))
       >>> float(rollout.tracking_mse(out)[0]) < 1e-5
       True
     """
@@ -127,16 +91,11 @@ def inverse_dynamics_oracle(robot, simulator="native"):
 
 
 def implicit_damping(mj_model) -> np.ndarray:
-    """``h D`` per dof when MuJoCo's Euler integrator treats joint damping implicitly
-    (``h`` the timestep, ``D`` the damping), else zeros: the extra inertia-like term that
-    one Euler step adds to ``M qdd``.
+    """``h D`` per dof (timestep times damping) if the Euler integrator treats damping
+    implicitly, else zeros: the term one Euler step adds to ``M qdd``.
 
     Args:
       mj_model: a ``mujoco.MjModel``.
-
-    Returns:
-      ``(nv,)``: ``timestep * dof_damping`` with the Euler integrator and implicit damping
-      enabled, else zeros.
 
     Examples:
       >>> from cfm_jax import robots
@@ -150,8 +109,7 @@ def implicit_damping(mj_model) -> np.ndarray:
 
 
 def _native_inverse(mj_model, implicit_damping):
-    """Host function ``(qpos, qvel, qacc) -> M qacc + h D qacc + bias - passive`` (float32),
-    any leading batch shape."""
+    """Host ``(qpos, qvel, qacc) -> M qacc + h D qacc + bias - passive``, float32, batched."""
     data = mujoco.MjData(mj_model)
     nq, nv = mj_model.nq, mj_model.nv
 
@@ -174,22 +132,16 @@ def _native_inverse(mj_model, implicit_damping):
 
 
 def joint_pd_gains(robot, kp: float, kd: float, home) -> tuple[np.ndarray, np.ndarray]:
-    """Torque PD gains equivalent to the acceleration gains ``kp, kd`` at the home pose.
+    """The joint PD-only baseline's torque gains ``(K_p, K_d) = (kp, kd) diag M(home)``.
 
-    ``K_p = kp * diag(M(q_home))`` and ``K_d = kd * diag(M(q_home))``: the gains that give each
-    joint, taken alone at the home pose, the same closed-loop stiffness and damping as the
-    PD correction of the desired acceleration. No gravity compensation, no feed-forward.
-    The joint-space PD baseline, ``K_p (q_ref - q) + K_d (qd_ref - qd)``, is the task's
-    feedback (:meth:`cfm_jax.tasks.JointSpaceTask.feedback`).
+    Each joint alone at ``home`` then has the gains ``kp, kd`` of ``s*``'s PD; the task applies
+    them with no feed-forward (:meth:`cfm_jax.tasks.JointSpaceTask.feedback`).
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       kp: acceleration stiffness (1/s^2).
       kd: acceleration damping (1/s).
       home: ``(nq,)`` the pose at which the mass matrix is taken.
-
-    Returns:
-      ``(K_p, K_d)``, each ``(nv,)``.
 
     Examples:
       >>> from cfm_jax import robots
@@ -203,32 +155,18 @@ def joint_pd_gains(robot, kp: float, kd: float, home) -> tuple[np.ndarray, np.nd
 
 
 def babbling_joint_gains(robot, kp: float, kd: float, poses) -> tuple[np.ndarray, np.ndarray]:
-    """Torque PD gains of the babbling's joint feedback: ``K = (kp, kd) * I_j``, with
-    ``I_j`` the joint's smallest effective inertia over ``poses``
-    (:meth:`cfm_jax.robots.Robot.lightest_inertia`),
-    for example every pose the babbling may visit.
+    """The babbling's torque PD gains ``(kp, kd) I_j``, ``I_j`` each joint's lightest
+    effective inertia over ``poses`` (:meth:`cfm_jax.robots.Robot.lightest_inertia`).
 
-    The PD-only baseline's gains, ``diag M(q_home)`` (:func:`joint_pd_gains`), fit the home
-    pose; the babbling reaches far from it, and on an arm with light links and no armature
-    the coupled inertia there makes those gains unstable at the control period (the
-    published KUKA iiwa 14: ``kd dt lambda_max(M(q)^-1 K_d)`` up to 20 over its range, 2
-    being the limit of a held torque), so that the babbling data is a noise-driven
-    oscillation of tens of rad/s. With ``K_d = kd I``, ``I_jj <= 1 / (M(q)^-1)_jj`` at
-    every pose of the sample, so the matrix ``K_d^(1/2) M(q)^-1 K_d^(1/2) / kd`` has a
-    diagonal of at most 1 wherever the babbling goes: each joint alone is damped at the
-    rate ``kd`` or less, and the loop's number ``kd dt lambda_max(M^-1 K_d)`` is at most
-    ``kd dt nv`` (on the development set of published arms at most ``2.6 kd dt``). On an
-    arm whose inertia changes little with the pose (armature) the gains are close to the
-    baseline's.
+    :func:`joint_pd_gains` fit the home pose only: on light arms without armature they are
+    unstable far from it. These damp no joint alone faster than ``kd`` at any pose of the
+    sample (docs/how-to/own-robot.md).
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       kp: acceleration stiffness (1/s^2).
       kd: acceleration damping (1/s).
       poses: ``(n, nq)`` the poses the babbling may visit.
-
-    Returns:
-      ``(K_p, K_d)``, each ``(action_dim,)``.
 
     Examples:
       >>> from cfm_jax import robots
@@ -247,31 +185,14 @@ def babbling_joint_gains(robot, kp: float, kd: float, poses) -> tuple[np.ndarray
 class HostOpspaceOracle:
     """Analytic operational-space controller (Khatib 1987) with MuJoCo C, float64.
 
-    ``HostOpspaceOracle(robot, site, home, null_kp, null_kd)(qpos (..., nq), qvel (..., nv),
-    xdd_desired (..., 3)) -> tau (..., nv)``:
+    ``oracle(qpos (..., nq), qvel (..., nv), xdd_desired (..., 3)) -> tau (..., nv)``:
 
         tau = J^T Lambda (xdd* - Jdot qd) + N^T tau_null + bias - passive
         Lambda = (J Mt^-1 J^T)^+,   Jbar = Mt^-1 J^T Lambda,   N^T = I - J^T Jbar^T
         tau_null = Mt (null_kp (q_home - q) - null_kd qd),     Mt = M + h D
 
-    ``bias`` is MuJoCo's ``qfrc_bias`` (Coriolis, centrifugal, gravity), ``passive``
-    ``qfrc_passive`` (joint damping and springs), ``M`` the joint-space inertia (with
-    armature), ``h D`` :func:`implicit_damping`. ``^+`` is the pseudo-inverse (relative
-    cut-off :data:`RCOND`), which is the inverse when ``J`` has full row rank.
-
-    Derivation: one Euler step realises ``qdd = Mt^-1 (tau + passive - bias)``
-    (:func:`implicit_damping`), so ``J qdd = J Mt^-1 J^T Lambda (xdd* - Jdot qd) +
-    J Mt^-1 N^T tau_null``. The first term is ``xdd* - Jdot qd`` (``J Mt^-1 J^T Lambda = I``
-    on the range of ``J``); the second is zero because ``J Mt^-1 N^T = J Mt^-1 -
-    (J Mt^-1 J^T) Lambda J Mt^-1 = 0`` (dynamically consistent projector). Hence the site's
-    acceleration ``J qdd + Jdot qd = xdd*`` exactly over one physics step from any state
-    (up to torque and joint limits), whatever ``tau_null``. With the torque held over
-    several physics steps, tracking is approximate. Using ``M`` instead of ``Mt`` leaves an
-    error of order ``h D / M`` (~1e-3 on the iiwa).
-
-    The null-space term pulls the redundant joints towards ``home`` (default
-    ``robot.home``) with the joint-space acceleration gains ``null_kp`` (1/s^2, default
-    25) and ``null_kd`` (1/s, default 10, critical damping at 5 rad/s), scaled by ``Mt``.
+    One Euler step realises ``xdd*`` exactly (derivation in docs/opspace.md); ``^+`` cuts
+    singular values below :data:`RCOND`.
 
     Args:
       robot: a fixed-base :class:`cfm_jax.robots.Robot`.
@@ -283,8 +204,7 @@ class HostOpspaceOracle:
     Examples:
       >>> from cfm_jax import robots
       >>> iiwa = robots.load("iiwa14")
-      >>> tau = HostOpspaceOracle(iiwa)(iiwa.home, np.zeros(7), np.zeros(3))  # holds the pose
-      >>> tau.shape
+      >>> HostOpspaceOracle(iiwa)(iiwa.home, np.zeros(7), np.zeros(3)).shape
       (7,)
     """
 
@@ -352,12 +272,10 @@ def opspace_oracle(
     null_kd: float = NULL_KD,
     simulator: str = "native",
 ):
-    """The operational-space oracle as a JAX function
-    ``torque(qpos (..., nq), qvel (..., nv), xdd_desired (..., 3)) -> tau (..., nv)``
-    (float32). ``simulator="native"``: one ``jax.pure_callback`` into
-    :class:`HostOpspaceOracle` (one host call per batch under ``vmap``); ``"mjx"``: the same
-    controller computed by MJX in JAX (:func:`mjx_opspace_oracle`). Torques are not
-    clipped.
+    """:class:`HostOpspaceOracle` as a float32 JAX function ``torque(qpos, qvel, xdd_desired)``.
+
+    ``"native"``: one ``jax.pure_callback`` per batch into an oracle built once per (model,
+    site, home, gains); ``"mjx"``: :func:`mjx_opspace_oracle`. Torques are not clipped.
 
     Args:
       robot: a fixed-base :class:`cfm_jax.robots.Robot`.
@@ -367,15 +285,10 @@ def opspace_oracle(
       null_kd: null-space derivative gain (1/s).
       simulator: ``"native"`` or ``"mjx"``.
 
-    Returns:
-      The function ``torque``; one :class:`HostOpspaceOracle` per (model, site, home,
-      gains) is built and reused.
-
     Examples:
       >>> from cfm_jax import robots
       >>> iiwa = robots.load("iiwa14")
-      >>> torque = opspace_oracle(iiwa)
-      >>> jax.jit(torque)(iiwa.home, np.zeros(7), np.zeros(3)).shape
+      >>> jax.jit(opspace_oracle(iiwa))(iiwa.home, np.zeros(7), np.zeros(3)).shape
       (7,)
     """
     if simulator == "mjx":
@@ -407,14 +320,8 @@ def mjx_opspace_oracle(
     null_kp: float = NULL_KP,
     null_kd: float = NULL_KD,
 ):
-    """:class:`HostOpspaceOracle`'s controller computed by MJX, in JAX (no host callback), as
-    ``torque(qpos (..., nq), qvel (..., nv), xdd_desired (..., 3)) -> tau (..., nv)``.
-
-    The same formula: ``J``, ``Jdot qd`` from :func:`cfm_jax.opspace.mjx_kinematics`, ``M``
-    from ``mjx.full_m``, ``qfrc_bias`` and ``qfrc_passive`` from ``mjx.fwd_position`` and
-    ``mjx.fwd_velocity``, ``Lambda`` with ``jnp.linalg.pinv`` at the relative cut-off
-    :data:`RCOND_FLOAT32` (float32's rounding; :data:`RCOND` for the float64 host); float32
-    instead of float64.
+    """:class:`HostOpspaceOracle`'s controller computed by MJX in float32, as a jit/vmap-able
+    ``torque(qpos, qvel, xdd_desired)``; its pseudo-inverse cuts at :data:`RCOND_FLOAT32`.
 
     Args:
       robot: a fixed-base :class:`cfm_jax.robots.Robot` with hinge and slide joints.
@@ -422,9 +329,6 @@ def mjx_opspace_oracle(
       home: ``(nq,)`` posture of the null-space term, or None for ``robot.home``.
       null_kp: null-space proportional gain (1/s^2).
       null_kd: null-space derivative gain (1/s).
-
-    Returns:
-      The function ``torque`` (float32, jit/vmap-able).
 
     Examples:
       >>> from cfm_jax import robots
@@ -467,13 +371,10 @@ def mjx_opspace_oracle(
 def opspace_pd_gains(
     robot, kp: float, kd: float, site: int | str | None = None, home=None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Task-space torque PD gains equivalent to the acceleration gains ``kp, kd`` at home.
+    """The op-space PD-only baseline's gains ``(K_p, K_d) = (kp, kd) Lambda(home)``, ``(3, 3)``.
 
-    ``K_p = kp * Lambda(q_home)``, ``K_d = kd * Lambda(q_home)``, ``(3, 3)`` each, with the
-    task-space inertia ``Lambda = (J Mt^-1 J^T)^+`` of :class:`HostOpspaceOracle`: a force
-    ``F = K_p e + K_d ed`` on the end effector alone at the home pose gives it the
-    acceleration ``kp e + kd ed`` (the PD correction of the desired acceleration). The
-    analogue of :func:`joint_pd_gains` (which uses ``diag M(q_home)``).
+    ``Lambda`` is :meth:`HostOpspaceOracle.task_inertia`: at home the force ``K_p e + K_d ed``
+    gives the site the acceleration ``kp e + kd ed`` (cf. :func:`joint_pd_gains`).
 
     Args:
       robot: a fixed-base :class:`cfm_jax.robots.Robot`.
@@ -481,9 +382,6 @@ def opspace_pd_gains(
       kd: derivative acceleration gain (1/s).
       site: the site's id or name, or None for :func:`cfm_jax.opspace.ee_site`'s default.
       home: ``(nq,)`` pose where ``Lambda`` is taken, or None for ``robot.home``.
-
-    Returns:
-      ``(K_p, K_d)``, ``(3, 3)`` NumPy arrays each (N/m and N s/m).
 
     Examples:
       >>> from cfm_jax import robots
@@ -499,24 +397,15 @@ def opspace_pd_gains(
 def opspace_pd_policy(
     robot, gain_p, gain_d, site: int | str | None = None, simulator: str = "native"
 ):
-    """PD-only feedback in task space as a JAX function
-    ``torque(qpos, qvel, ref_x (..., 3), ref_xd (..., 3)) -> tau (..., nv)``:
-
-        tau = J(q)^T (K_p (x_ref - x) + K_d (xd_ref - xd))
-
-    with ``x, xd, J`` from :func:`cfm_jax.opspace.kinematics` (of ``simulator``). No gravity
-    compensation, no feed-forward, no null-space term (the joint damping of the model is the
-    only null-space damping).
+    """Task-space PD-only feedback ``torque(qpos, qvel, ref_x, ref_xd) -> tau`` (JAX, float32):
+    ``tau = J^T (K_p (x_ref - x) + K_d (xd_ref - xd))``, no feed-forward or null-space term.
 
     Args:
       robot: a fixed-base :class:`cfm_jax.robots.Robot`.
       gain_p: ``K_p``, ``(3, 3)`` (for example from :func:`opspace_pd_gains`).
       gain_d: ``K_d``, ``(3, 3)``.
       site: the site's id or name, or None for :func:`cfm_jax.opspace.ee_site`'s default.
-      simulator: ``"native"`` (site kinematics from MuJoCo C on the host) or ``"mjx"``.
-
-    Returns:
-      The function ``torque`` (float32, jit/vmap-able).
+      simulator: where the site kinematics come from, ``"native"`` or ``"mjx"``.
 
     Examples:
       >>> from cfm_jax import robots
@@ -546,18 +435,11 @@ def site_tracking_mse(positions, reference_x):
     """End-effector position tracking MSE per target, ``(targets,)`` (m^2).
 
     Args:
-      positions: ``(targets, steps, 3)`` site positions after each control step,
-        ``x_{t+1}``.
-      reference_x: ``(targets, steps + 1, 3)`` (``CartesianReference.x``) or already
-        aligned ``(targets, steps, 3)``.
-
-    Returns:
-      ``mean over t and axes of (x_{t+1} - x_ref(t+1))^2``, ``(targets,)``.
+      positions: ``(targets, steps, 3)`` site positions ``x_{t+1}`` after each control step.
+      reference_x: ``(targets, steps + 1, 3)`` (its first point dropped) or ``(targets, steps, 3)``.
 
     Examples:
-      >>> positions = np.zeros((2, 3, 3))  # 2 targets, 3 steps
-      >>> reference_x = np.ones((2, 4, 3))  # the first reference point is dropped
-      >>> site_tracking_mse(positions, reference_x).tolist()
+      >>> site_tracking_mse(np.zeros((2, 3, 3)), np.ones((2, 4, 3))).tolist()
       [1.0, 1.0]
     """
     positions = jnp.asarray(positions)
@@ -568,25 +450,18 @@ def site_tracking_mse(positions, reference_x):
 
 
 class HostRollout(NamedTuple):
-    """Result of :func:`host_rollout`, leading axes ``(targets, steps)``.
+    """Result of :func:`host_rollout`, each ``(targets, steps, ...)`` after each control step.
 
     Attributes:
-      qpos: joint positions after each control step, ``(targets, steps, nq)``.
-      qvel: joint velocities after each control step, ``(targets, steps, nv)``.
-      position: site position after each control step, ``(targets, steps, 3)``.
-      desired: ``xdd*_t`` at each control step, ``(targets, steps, 3)``.
-      tau: applied (clipped) torque, ``(targets, steps, nv)``.
+      qpos: joint positions ``(..., nq)``.
+      qvel: joint velocities ``(..., nv)``.
+      position: site positions ``(..., 3)``.
+      desired: ``xdd*_t`` ``(..., 3)``.
+      tau: applied (clipped) torques ``(..., nv)``.
 
     Examples:
-      >>> from cfm_jax import references, robots
-      >>> arm = robots.load("two_link_arm")
-      >>> ref = references.cartesian_reaching(
-      ...     arm, "tip", [[0.5, 0.0, 1.4]], duration=0.1, control_dt=0.01)
-      >>> oracle = HostOpspaceOracle(arm, "tip")
-      >>> out = host_rollout(arm, ref, lambda q, qd, xdd, *_: oracle(q, qd, xdd),
-      ...                    kp=100.0, kd=20.0, control_dt=0.01, site="tip")
-      >>> out.qpos.shape, out.position.shape, out.tau.shape
-      ((1, 10, 2), (1, 10, 3), (1, 10, 2))
+      >>> HostRollout._fields
+      ('qpos', 'qvel', 'position', 'desired', 'tau')
     """
 
     qpos: np.ndarray
@@ -606,30 +481,22 @@ def host_rollout(
     site: int | str | None = None,
     home=None,
 ) -> HostRollout:
-    """Closed loop of a host policy on every target, MuJoCo C on the host (NumPy).
+    """The :class:`HostRollout` of a host policy on every target, with MuJoCo C (NumPy): the
+    reference for :func:`cfm_jax.rollout.run` with the ``native`` simulator, same conventions.
 
-    The reference implementation of the operational-space rollout, with the conventions of
-    :func:`cfm_jax.rollout.run` and its ``native`` simulator (:class:`cfm_jax.native.Stepper`,
-    state stored as float32 between control steps): start at rest at ``home``; at step ``t``
-    ``xdd*_t`` from :func:`cfm_jax.references.desired_acceleration`, ``tau = clip(policy(qpos,
-    qvel, xdd*_t, x_ref(t), xd_ref(t)), limits)`` held for ``control_dt / timestep`` physics
-    steps.
+    Start at rest at ``home``; at step ``t`` the policy's torque for ``xdd*_t``
+    (:func:`cfm_jax.references.desired_acceleration`), clipped to the limits, is held for
+    ``control_dt / timestep`` physics steps; the state is stored as float32.
 
     Args:
       robot: a fixed-base :class:`cfm_jax.robots.Robot`.
-      reference: a :class:`cfm_jax.references.CartesianReference` (NumPy),
-        ``(targets, steps + 1, 3)``.
-      policy: ``policy(qpos (B, nq), qvel (B, nv), desired (B, 3), ref_x (B, 3),
-        ref_xd (B, 3)) -> tau (B, nv)``, NumPy; e.g. ``lambda q, qd, xdd, *_:
-        HostOpspaceOracle(robot)(q, qd, xdd)``.
+      reference: a :class:`cfm_jax.references.CartesianReference` (NumPy).
+      policy: NumPy ``policy(qpos, qvel, desired, ref_x, ref_xd) -> tau``, batched ``(B, ...)``.
       kp: proportional gain (1/s^2) of the desired acceleration.
       kd: derivative gain (1/s) of the desired acceleration.
       control_dt: control period (s), a multiple of the robot's timestep.
       site: the site's id or name, or None for :func:`cfm_jax.opspace.ee_site`'s default.
       home: ``(nq,)`` start pose (at rest), or None for ``robot.home``.
-
-    Returns:
-      A :class:`HostRollout`, ``(targets, steps, ...)``.
 
     Examples:
       >>> from cfm_jax import references, robots
@@ -639,8 +506,8 @@ def host_rollout(
       >>> oracle = HostOpspaceOracle(arm, "tip")
       >>> out = host_rollout(arm, ref, lambda q, qd, xdd, *_: oracle(q, qd, xdd),
       ...                    kp=100.0, kd=20.0, control_dt=0.01, site="tip")
-      >>> bool(site_tracking_mse(out.position, ref.x)[0] < 1e-5)  # the oracle tracks the line
-      True
+      >>> out.tau.shape, bool(site_tracking_mse(out.position, ref.x)[0] < 1e-5)
+      ((1, 50, 2), True)
     """
     n_sub = rollout.substeps(robot, control_dt)
     stepper = native.Stepper(robot.mj_model, n_sub)

@@ -1,35 +1,5 @@
-"""Benchmark: rollout throughput next to native MuJoCo, training-iteration cost, compile time.
-
-``cfm-jax bench`` (or ``python -m cfm_jax.bench``) measures, in one process, on one model
-and one batch:
-
-* **rollouts**: the library's data-collection path, a compiled closed loop
-  ``jit(vmap(scan(...)))`` of a controller network plus PD feedback stepping MuJoCo C
-  through :func:`cfm_jax.rollout.native_physics` (one host call per control step for the
-  whole batch), in physics steps per second, next to ``mujoco.rollout`` (MuJoCo C, 2
-  threads, open loop) replaying the controls our rollout applied, on the same model from
-  the same initial state, and their ratio. The two are timed alternately, best of
-  ``--repeats``.
-* **training**: one iteration of Algorithm 1 at the default sizes (a rollout of the
-  controller on ``--targets`` references, the forward ensemble's refit: ``--fit-steps``
-  Adam steps of 3 x (400, 400, 400) at batch 256 per member, the controller's refit with
-  the joint loss: ``--fit-steps`` steps of (300, 200, 100) at batch 256), as one compiled
-  function: seconds per iteration, its split into rollout, forward-model update and
-  controller update (each part compiled alone), and the iteration's compile time (first
-  call minus the best later call).
-* **PyTorch reference** (optional, ``pip install "cfm_jax[bench]"``): the same two updates
-  in PyTorch (:mod:`cfm_jax.torch_reference`), updates per second with 1 and 2 threads.
-* peak resident memory of the process.
-
-The policy works for fixed- and floating-base robots: the controller MLP sees
-``[qpos, qvel]`` and a desired acceleration of the actuated joints, plus PD feedback of
-the actuated joints towards a sinusoidal reference around the keyframe ``home`` (or
-``qpos0``); torques are clipped to the actuators' limits and mapped through the gears.
-
-Examples:
-  cfm-jax bench --robot iiwa14 --batch 16 --json
-  cfm-jax bench --robot path/to/solo12.xml --batch 16 --no-train
-"""
+"""Benchmark (``cfm-jax bench``): rollout steps/s next to ``mujoco.rollout``, a training
+iteration's cost and compile time, PyTorch reference, memory (:func:`run`, docs/benchmarks.md)."""
 
 from __future__ import annotations
 
@@ -61,25 +31,21 @@ def _best(fn, repeats: int) -> float:
 
 @dataclasses.dataclass
 class Bench:
-    """The robot, its stepping and a policy for the benchmark (fixed or floating base).
-
-    Built by ``Bench.load(robot)`` from the MJCF alone (no :class:`cfm_jax.robots.Robot`), so
-    any joint-actuated model works; ``nu`` actuators.
+    """The robot, its stepping and a policy, from the MJCF alone (:meth:`load`; any base).
 
     Attributes:
       mj_model: the ``mujoco.MjModel``.
       n_sub: physics steps per control step of :data:`CONTROL_DT`.
       q_home: ``(nq,)`` the keyframe ``home``, else ``qpos0``.
       act_qpos: ``(nu,)`` qpos address of each actuator's joint.
-      act_dof: ``(nu,)`` dof (qvel) address of each actuator's joint.
+      act_dof: ``(nu,)`` dof address of each actuator's joint.
       gear: ``(nu,)`` actuator gears (``tau = ctrl * gear``).
-      ctrl_low: ``(nu,)`` lower control limits (``-inf`` where not limited).
-      ctrl_high: ``(nu,)`` upper control limits (``inf`` where not limited).
+      ctrl_low: ``(nu,)`` lower control limits (``-inf``: not limited).
+      ctrl_high: ``(nu,)`` upper control limits (``inf``: not limited).
 
     Examples:
-      >>> bench = Bench.load("solo12")  # floating base: 7 qpos, 6 dofs before the joints
-      >>> bench.n_sub, bench.nu, bench.act_qpos[:3].tolist(), bench.act_dof[:3].tolist()
-      (5, 12, [7, 8, 9], [6, 7, 8])
+      >>> Bench.load("solo12").act_dof[:3].tolist()  # floating base: 6 dofs before the joints
+      [6, 7, 8]
     """
 
     mj_model: object
@@ -152,8 +118,7 @@ class Bench:
         return networks.Normaliser.identity(self.state_dim, self.nu, self.torque_limit)
 
     def rollout_fn(self, controller, steps: int):
-        """``f(controller_params, normaliser, phases (batch,)) -> (Transitions, ctrl, finite)``
-        with leading ``(batch, steps)`` axes: the compiled closed loop."""
+        """``f(controller_params, normaliser, phases) -> (Transitions, ctrl, finite)``: the loop."""
         import jax
         import jax.numpy as jnp
 
@@ -200,8 +165,7 @@ class Bench:
         return jax.vmap(one, in_axes=(None, None, 0))
 
     def native_rollout(self, ctrl, repeats: int, threads: int = NATIVE_THREADS) -> float:
-        """Seconds (best of ``repeats``) of ``mujoco.rollout`` replaying ``ctrl (batch,
-        steps, nu)`` (held ``n_sub`` physics steps each) from the home state."""
+        """Best seconds of ``mujoco.rollout`` replaying ``ctrl (batch, steps, nu)`` from home."""
         import mujoco
         import numpy as np
         from mujoco import rollout as mj_rollout
@@ -219,7 +183,8 @@ class Bench:
 
 
 def measure_rollout(bench: Bench, batch: int, steps: int, repeats: int) -> dict:
-    """Our closed loop and ``mujoco.rollout`` on the same batch, timed alternately.
+    """Physics ``rollout_steps_per_s`` of our loop, ``native_steps_per_s`` of ``mujoco.rollout``
+    replaying its controls (timed in turn), ``ratio``, ``rollout_compile_s``, ``finite_fraction``.
 
     Args:
       bench: the :class:`Bench`.
@@ -227,16 +192,8 @@ def measure_rollout(bench: Bench, batch: int, steps: int, repeats: int) -> dict:
       steps: control steps per rollout.
       repeats: timed runs of each (the best counts).
 
-    Returns:
-      A dict: ``batch``, ``rollout_steps_per_s`` and ``native_steps_per_s`` (physics steps
-      per second), their ``ratio``, ``rollout_compile_s`` (first call minus the best) and
-      ``finite_fraction`` (of the closed loop's steps).
-
     Examples:
-      >>> # not run: it compiles and times rollouts on both simulators (tens of seconds)
-      >>> result = measure_rollout(Bench.load("two_link_arm"), 2, 5, 1)  # doctest: +SKIP
-      >>> result["batch"], result["ratio"] > 0, result["finite_fraction"]  # doctest: +SKIP
-      (2, True, 1.0)
+      >>> measure_rollout(Bench.load("two_link_arm"), 2, 5, 1)  # tens of seconds  # doctest: +SKIP
     """
     import jax
     import jax.numpy as jnp
@@ -268,31 +225,20 @@ def measure_rollout(bench: Bench, batch: int, steps: int, repeats: int) -> dict:
 
 
 def measure_training(bench: Bench, targets: int, steps: int, fit_steps: int, repeats: int):
-    """One iteration of Algorithm 1 (rollout, add, refit f, refit g with the joint loss) as
-    one compiled function, and each part compiled alone.
+    """One iteration of Algorithm 1 (rollout, refit f, refit g with the joint loss) compiled whole
+    and in parts: ``(times, (flat, normaliser))``, ``flat`` the first rollout; ``times`` has
+    ``<part>_s`` (``rollout``, ``forward_update``, ``controller_update``, ``iteration``),
+    ``iteration_compile_s``, ``recompiled_after_first`` and ``<model>_updates_per_s``.
 
     Args:
       bench: the :class:`Bench`.
       targets: rollouts per iteration.
       steps: control steps per rollout.
       fit_steps: Adam steps of each refit (batch 256).
-      repeats: timed runs of each part and of the iteration (the best counts; the
-        iteration runs at least twice after its first call).
-
-    Returns:
-      ``(times, (flat, normaliser))``: ``times`` is a dict with ``rollout_s``,
-      ``forward_update_s``, ``controller_update_s``, ``iteration_s``,
-      ``iteration_compile_s``, ``recompiled_after_first``, ``forward_updates_per_s`` and
-      ``controller_updates_per_s``; ``flat`` the first rollout's
-      :class:`cfm_jax.dataset.Transitions` ``(targets * steps, ...)`` and ``normaliser``
-      their :class:`cfm_jax.networks.Normaliser` (for :func:`measure_torch`).
+      repeats: timed runs of each (the best counts; of the iteration at least 2).
 
     Examples:
-      >>> bench = Bench.load("two_link_arm")
-      >>> # not run: it compiles and times training iterations (tens of seconds)
-      >>> times, (flat, _) = measure_training(bench, 2, 5, 2, 1)  # doctest: +SKIP
-      >>> times["iteration_s"] > 0, flat.state.shape  # doctest: +SKIP
-      (True, (10, 4))
+      >>> measure_training(Bench.load("two_link_arm"), 2, 5, 2, 1)  # compiles  # doctest: +SKIP
     """
     import jax
     import jax.numpy as jnp
@@ -368,30 +314,18 @@ def measure_training(bench: Bench, targets: int, steps: int, fit_steps: int, rep
 
 
 def measure_torch(bench: Bench, flat, repeats: int, updates: int = 50) -> dict:
-    """PyTorch reference updates/s with 1 and 2 threads (best thread count reported too).
+    """PyTorch reference updates/s (ImportError without torch), ``torch_<model>_updates_per_s``
+    (the better of 1 and 2 threads, also each as ``..._1t``, ``..._2t``), ``torch_version``.
 
     Args:
       bench: the :class:`Bench` (for the torque limits).
-      flat: :class:`cfm_jax.dataset.Transitions` ``(n, ...)`` to train on (from
-        :func:`measure_training`).
+      flat: ``Transitions`` ``(n, ...)`` to train on (from :func:`measure_training`).
       repeats: timed runs per model and thread count (the best counts).
       updates: updates per timed run (after 5 warm-up updates).
 
-    Returns:
-      A dict: ``torch_forward_updates_per_s_1t``, ``..._2t`` and the same for
-      ``controller``, the better of the two as ``torch_forward_updates_per_s`` and
-      ``torch_controller_updates_per_s``, and ``torch_version``.
-
-    Raises:
-      ImportError: torch is not installed.
-
     Examples:
-      >>> bench = Bench.load("two_link_arm")
-      >>> # not run: it needs torch (the bench extra) and compiles training iterations
-      >>> _, (flat, _) = measure_training(bench, 2, 5, 2, 1)  # doctest: +SKIP
-      >>> result = measure_torch(bench, flat, 1, updates=2)  # doctest: +SKIP
-      >>> result["torch_forward_updates_per_s"] > 0  # doctest: +SKIP
-      True
+      >>> _, (flat, _) = measure_training(Bench.load("two_link_arm"), 2, 5, 2, 1)  # doctest: +SKIP
+      >>> measure_torch(Bench.load("two_link_arm"), flat, 1)  # needs torch  # doctest: +SKIP
     """
     import numpy as np
 
@@ -429,10 +363,7 @@ def measure_torch(bench: Bench, flat, repeats: int, updates: int = 50) -> dict:
 
 
 def peak_memory_mib() -> float:
-    """Peak resident set size of this process (MiB).
-
-    Returns:
-      ``ru_maxrss`` in MiB (the unit of ``ru_maxrss`` is KiB on Linux, bytes on macOS).
+    """Peak resident set size of this process in MiB.
 
     Examples:
       >>> peak_memory_mib() > 0
@@ -443,10 +374,7 @@ def peak_memory_mib() -> float:
 
 
 def versions() -> str:
-    """Versions of the packages the benchmark depends on, for the record.
-
-    Returns:
-      ``"jax X, jaxlib X, mujoco X, mujoco-mjx X, flax X, optax X"``.
+    """The benchmark's package versions, for the record.
 
     Examples:
       >>> versions()  # doctest: +ELLIPSIS
@@ -457,11 +385,7 @@ def versions() -> str:
 
 
 def machine() -> str:
-    """The machine the benchmark ran on, for the record.
-
-    Returns:
-      Processor, core count, memory (from ``/proc/meminfo``, ``?`` elsewhere), operating
-      system, Python version and ``XLA_FLAGS``, comma-separated.
+    """Processor, cores, memory (``?`` without ``/proc/meminfo``), OS, Python and ``XLA_FLAGS``.
 
     Examples:
       >>> "cores" in machine() and "XLA_FLAGS=" in machine()
@@ -489,7 +413,8 @@ def run(
     targets: int = 5,
     fit_steps: int = 200,
 ) -> dict:
-    """Every measurement of one benchmark run, as a flat dict (see the module docstring).
+    """Every measurement of one benchmark run as a flat dict (the ``measure_*`` results, the
+    speed-ups over torch, ``robot``, ``n_sub``, ``peak_memory_mib``, ``machine``, ...).
 
     Args:
       robot: registered robot name or path to an MJCF file.
@@ -497,22 +422,12 @@ def run(
       steps: control steps per rollout.
       repeats: best of this many timed runs.
       train: also time a training iteration (:func:`measure_training`).
-      torch: also time the PyTorch reference (:func:`measure_torch`; skipped with
-        ``torch_version`` None if torch is missing).
+      torch: also time the PyTorch reference (without torch: ``torch_version`` None).
       targets: rollouts per training iteration.
       fit_steps: Adam steps per refit in the timed iteration.
 
-    Returns:
-      The dict of :func:`measure_rollout` (and :func:`measure_training`,
-      :func:`measure_torch` with the speed-ups over torch), plus ``robot``, ``n_sub``,
-      ``control_dt``, ``steps``, ``fast_callback``, ``peak_memory_mib``, ``machine`` and
-      ``versions``.
-
     Examples:
-      >>> # not run: a benchmark: it compiles and times rollouts (tens of seconds)
-      >>> result = run("two_link_arm", batch=2, steps=5, repeats=1, train=False)  # doctest: +SKIP
-      >>> result["robot"], result["n_sub"], result["batch"]  # doctest: +SKIP
-      ('two_link_arm', 5, 2)
+      >>> run("two_link_arm", batch=2, steps=5, train=False)  # tens of seconds  # doctest: +SKIP
     """
     from cfm_jax import native
 
@@ -540,20 +455,13 @@ def run(
 
 
 def table(result: dict) -> str:
-    """The result as an aligned two-column table.
-
-    Floats of at least 100 are printed as integers with thousands separators, smaller ones
-    to 4 significant digits.
+    """The result as an aligned two-column table (floats from 100 up with thousands separators).
 
     Args:
       result: a dict, as :func:`run` returns.
 
-    Returns:
-      One line per key.
-
     Examples:
-      >>> print(table({"robot": "iiwa14", "rollout_steps_per_s": 123456.7, "ratio": 0.81234}))
-      robot                iiwa14
+      >>> print(table({"rollout_steps_per_s": 123456.7, "ratio": 0.81234}))
       rollout_steps_per_s  123,457
       ratio                0.8123
     """
@@ -569,13 +477,10 @@ def table(result: dict) -> str:
 
 
 def main() -> None:
-    """``python -m cfm_jax.bench``: the same flags as ``cfm-jax bench`` (tyro).
+    """``python -m cfm_jax.bench``: :func:`bench` with its flags (tyro).
 
     Examples:
-      >>> import sys
-      >>> # not run: a benchmark from the command line (tens of seconds)
-      >>> sys.argv = ["cfm_jax.bench", "--robot", "two_link_arm", "--no-train"]  # doctest: +SKIP
-      >>> main()  # doctest: +SKIP
+      >>> main()  # a benchmark with the flags in sys.argv (tens of seconds)  # doctest: +SKIP
     """
     import tyro
 
@@ -592,9 +497,7 @@ def bench(
     fit_steps: int = 200,
     json: bool = False,  # noqa: A002  (the flag's name)
 ) -> None:
-    """Rollout steps/s next to native mujoco.rollout (2 threads) on the same model and
-    batch, a training iteration's cost (rollout, forward and controller updates), compile
-    time, PyTorch reference updates/s (if torch is installed), peak memory.
+    """Rollout steps/s next to mujoco.rollout, a training iteration's cost, compile time, memory.
 
     Args:
       robot: registered robot name or path to an MJCF file (fixed or floating base).
@@ -607,8 +510,7 @@ def bench(
       json: print one JSON line instead of a table.
 
     Examples:
-      >>> # not run: a benchmark: it compiles and times rollouts (tens of seconds)
-      >>> bench("two_link_arm", batch=2, steps=5, repeats=1, train=False)  # doctest: +SKIP
+      >>> bench("two_link_arm", batch=2, steps=5, train=False)  # tens of seconds  # doctest: +SKIP
     """
     result = run(
         robot=robot,

@@ -1,19 +1,11 @@
-"""Checkpoints of the whole training state with Orbax, verified by a content manifest.
+"""Checkpoints of the whole :class:`cfm_jax.algorithm.TrainState` with Orbax, verified by a
+content manifest (docs/how-to/resume.md).
 
-A checkpoint ``DIR/<step>/`` (``step`` = completed iterations of Algorithm 1) holds the
-:class:`cfm_jax.algorithm.TrainState` of every seed (both models' parameters and optimiser
-states, normalisation statistics, the data set, the PRNG key as raw key data, the
-iteration counter) and a JSON ``meta`` part (the config and the metric rows so far). Orbax
-writes each step atomically (a temporary directory renamed on commit) and keeps the last
-``keep``. After Orbax commits, :class:`Checkpointer` writes ``cfm_manifest.json`` with the
-size and SHA-256 of every file of the step, so a truncated or altered file is detected on
-restore; a step without a manifest (killed between the two writes) counts as incomplete.
-
-Examples:
-  >>> # not run: it needs a run's state, rows and template (cfm_jax.train)
-  >>> ckpt = Checkpointer("/tmp/run/checkpoints", keep=3)  # doctest: +SKIP
-  >>> ckpt.save(2, state, {"rows": rows})  # doctest: +SKIP
-  >>> state, meta, step = ckpt.restore_latest(template)  # doctest: +SKIP
+``DIR/<step>/`` (``step``: completed iterations) holds the state of every seed (the PRNG
+key as raw key data) and a JSON ``meta`` part. Orbax writes a step atomically; then
+:class:`Checkpointer` writes ``cfm_manifest.json``, the size and SHA-256 of every file, so
+a truncated or altered file is found on restore and a step without one (killed between
+the two writes) counts as incomplete.
 """
 
 from __future__ import annotations
@@ -34,15 +26,11 @@ _ORBAX_TIMING = "Waiting for previous save to complete"
 
 
 def has_steps(run_dir: str) -> bool:
-    """Whether ``run_dir/checkpoints`` holds a checkpoint step (a folder named by its
-    iteration). A run killed before its first checkpoint leaves the folder empty, which
-    counts as none.
+    """Whether ``run_dir/checkpoints`` holds a checkpoint step (a run killed before its first
+    leaves it empty: none).
 
     Args:
       run_dir: a run's output folder (``out_dir``, or ``OUT/<loss>`` of the CLI).
-
-    Returns:
-      True if it holds at least one checkpoint step.
 
     Examples:
       >>> import tempfile
@@ -60,10 +48,8 @@ def has_steps(run_dir: str) -> bool:
 
 
 class _DropOrbaxTiming(logging.Filter):
-    """Drops Orbax's timing note "Waiting for previous save to complete took N seconds",
-    logged as an absl WARNING when a save waits on the one before it (on busy cores): a
-    note about disk speed, not a problem of the run, and not the library's own line
-    (issue 26: a run prints nothing else). Every other absl record passes."""
+    """Drops Orbax's absl WARNING "Waiting for previous save to complete took N seconds" (a
+    note on disk speed, not the run's: a run prints nothing else); other records pass."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         return _ORBAX_TIMING not in record.getMessage()
@@ -79,11 +65,9 @@ class CheckpointError(RuntimeError):
     """A checkpoint that cannot be used (the message names it and what to do).
 
     Examples:
-      >>> # not run: it resumes a run's files in results/run and trains (minutes)
-      >>> try:
-      ...     cfm_jax.train(config, resume="results/run")  # doctest: +SKIP
-      ... except CheckpointError as error:
-      ...     print(error)  # doctest: +SKIP
+      >>> cfm_jax.train(config, resume="results/run")  # doctest: +SKIP
+      Traceback (most recent call last):
+      cfm_jax.checkpoint.CheckpointError: checkpoint step 4 is not usable: ...
     """
 
 
@@ -114,19 +98,15 @@ def _from_storable(state):
 
 
 class Checkpointer:
-    """Save and restore training states under ``directory`` (created), keeping ``keep``.
+    """Save and restore training states under ``directory`` (created).
 
     Args:
-      directory: the checkpoint folder (``OUT/checkpoints`` for a run); one sub-folder per
-        step.
-      keep: number of most recent steps kept on disk (older ones are deleted by Orbax).
+      directory: the checkpoint folder (``OUT/checkpoints`` of a run), one sub-folder a step.
+      keep: number of most recent steps kept on disk (Orbax deletes older ones).
 
     Examples:
-      >>> # not run: it needs the result of a finished run (cfm_jax.train)
       >>> ckpt = Checkpointer("/tmp/run/checkpoints", keep=3)  # doctest: +SKIP
       >>> ckpt.save(2, result.state, {"rows": []})  # doctest: +SKIP
-      >>> ckpt.steps(), ckpt.problem(2)  # doctest: +SKIP
-      ([2], None)
       >>> state, meta = ckpt.restore(2, template=result.state)  # doctest: +SKIP
     """
 
@@ -165,8 +145,8 @@ class Checkpointer:
         write_text(os.path.join(step_dir, MANIFEST), json.dumps(manifest), durable=True)
 
     def problem(self, step: int) -> str | None:
-        """Why ``step`` cannot be restored (missing manifest, missing/truncated/changed
-        file), or None when it verifies."""
+        """Why ``step`` cannot be restored (no manifest, a missing, truncated or changed file), or
+        None when it verifies."""
         step_dir = os.path.join(self.directory, str(step))
         try:
             with open(os.path.join(step_dir, MANIFEST)) as f:
@@ -190,8 +170,7 @@ class Checkpointer:
         """``(state, meta)`` of ``step``; ``template`` is a state of the same structure.
 
         Raises:
-          CheckpointError: the step does not verify; the message offers the newest
-            earlier step that does.
+          CheckpointError: the step does not verify (the newest earlier one that does is offered).
         """
         problem = self.problem(step)
         if problem is not None:

@@ -1,15 +1,9 @@
 """Frozen, validated configuration dataclasses.
 
-Every field has a comment; every constructor checks its fields and raises
-:class:`ConfigError` naming the field, the bad value and what is allowed. Configs are plain
-data: they round-trip through JSON (:func:`to_dict` / :func:`from_dict`).
-
-Examples:
-  >>> cfg = Config(loop=LoopConfig(iterations=2, seeds=1))
-  >>> cfg.loop.iterations
-  2
-  >>> cfg.replace(loss="task").loss
-  'task'
+Each field is documented once, in its class's ``Attributes:`` (also the CLI's ``--help``).
+Every constructor checks its fields and raises :class:`ConfigError` naming the field, the
+bad value and what is allowed. Configs round-trip through JSON (:func:`to_dict` /
+:func:`from_dict`); :func:`for_task` gives a task's defaults.
 """
 
 from __future__ import annotations
@@ -23,8 +17,7 @@ from typing import Any
 from cfm_jax import _shipped
 
 TASKS = ("inverse_dynamics", "opspace", "walk", "jump")
-"""Tasks available for ``Config.task.name``: the library's four, then those added by
-:func:`cfm_jax.tasks.register` (:func:`add_task_name`)."""
+"""Values of ``Config.task.name``: the library's four, then those of :func:`add_task_name`."""
 
 _BUILT_IN_TASKS = TASKS
 
@@ -35,23 +28,16 @@ def add_task_name(
     check: Callable[[TaskConfig], None] | None = None,
     structural: tuple[str, ...] = (),
 ) -> None:
-    """Let ``Config.task.name`` take ``name``, with the task's own defaults
-    (:func:`cfm_jax.tasks.register` calls this; the config knows the names and where their
-    defaults come from, the task modules know what they mean).
+    """Let ``Config.task.name`` take ``name`` (:func:`cfm_jax.tasks.register` calls this).
 
     Args:
-      name: the new task's name; a name already in :data:`TASKS` keeps its place.
-      default_config: ``default_config() -> Config``, the task's defaults (its module's
-        ``default_config``): what every field left at :data:`TASK_DEFAULT` takes in a
-        :class:`Config` or :class:`TaskConfig` naming this task. Inside it, such fields take
-        the generic values of :data:`GENERIC` (so it states only what differs). None: the
-        generic values.
-      check: ``check(task_config)``, what the task refuses of a :class:`TaskConfig` of its
-        name (raises :class:`ConfigError`, :func:`fail`), run after the fields' own checks
-        of type and range; None: nothing more.
-      structural: the ``task.*`` fields of :data:`RUNTIME_FIELDS` whose values this task
-        builds into its compiled program (``opspace``: ``home``, its oracle's null-space
-        posture): :func:`structure` keeps them.
+      name: the task's name; one already in :data:`TASKS` keeps its place.
+      default_config: ``default_config() -> Config``, the task's defaults for fields left at
+        :data:`TASK_DEFAULT` (inside it they take :data:`GENERIC`'s); None: the generic ones.
+      check: ``check(task_config)``, raising :class:`ConfigError` for what the task refuses
+        after the fields' own checks; None: nothing more.
+      structural: its ``task.*`` fields of :data:`RUNTIME_FIELDS` built into its compiled
+        program (``opspace``: ``home``); :func:`structure` keeps them.
 
     Examples:
       >>> add_task_name("walk", TASK_DEFAULTS["walk"], TASK_CHECKS.get("walk")); TASKS
@@ -80,35 +66,27 @@ class _TaskDefault:
 
 
 TASK_DEFAULT = _TaskDefault()
-"""The default of every field whose value depends on the task (the top-level ``robot``,
-``forward``, ``controller`` and ``loop``, and every field of :class:`TaskConfig` but its
-``name``): a field left at it takes the value of the task's own ``default_config()``
-(:data:`TASK_DEFAULTS`), so ``Config(robot="solo12", task=TaskConfig(name="walk"))``
-is the walk's experiment, the same as :func:`for_task` and the CLI's ``--task walk``. A
-section given explicitly is taken as given (its own fields' defaults are the generic ones):
-to change one field of a task's section, start from :func:`for_task` and replace it."""
+"""Default of the task-dependent fields (``robot``, ``forward``, ``controller``, ``loop``,
+each :class:`TaskConfig` field but ``name``): such a field takes the task's
+``default_config()`` value (:data:`TASK_DEFAULTS`). A section given explicitly is taken as
+given: to change one field of a task's section, start from :func:`for_task`."""
 
 TASK_DEFAULTS: dict[str, Callable[[], Config]] = {}
-"""The ``default_config`` of each registered task (:func:`add_task_name`, called by
-:func:`cfm_jax.tasks.register`; importing :mod:`cfm_jax` registers the library's four)."""
+"""Each registered task's ``default_config`` (:func:`add_task_name`)."""
 
 TASK_CHECKS: dict[str, Callable[[TaskConfig], None]] = {}
-"""What each registered task refuses of a :class:`TaskConfig` of its name (:func:`add_task_name`):
-the fields only other tasks take (the arms refuse the legged tasks' joint gains and
-motions, for example)."""
+"""Each registered task's ``check`` of a :class:`TaskConfig` (:func:`add_task_name`)."""
 
 TASK_STRUCTURAL: dict[str, tuple[str, ...]] = {}
-"""The runtime ``task.*`` fields each registered task builds into its program
-(:func:`add_task_name`; :func:`structure` keeps them)."""
+"""Each registered task's ``structural`` fields (:func:`add_task_name`)."""
 
 _DEFAULTS_OF: dict[str, Config] = {}  # each task's default_config(), made once
 _BUILDING: set[str] = set()  # the tasks whose default_config() runs now
 
 
 def _task_default(name: str, section: str | None, field: str) -> Any:
-    """The value of a field left at :data:`TASK_DEFAULT` in a config of task ``name``:
-    the task's ``default_config()``'s (``section`` None: a top-level field), or, while that
-    default config itself is made and for a task registered without one, :data:`GENERIC`'s."""
+    """Task ``name``'s value of a field left at :data:`TASK_DEFAULT` (``section`` None: top
+    level); :data:`GENERIC`'s while its ``default_config()`` runs or without one."""
     if name not in TASK_DEFAULTS and name in _BUILT_IN_TASKS:
         raise ConfigError(
             f"task.name={name!r}: its defaults are not registered yet (import cfm_jax, "
@@ -128,22 +106,19 @@ def _task_default(name: str, section: str | None, field: str) -> Any:
 
 
 def _resolve(obj: Any, name: str, section: str | None) -> None:
-    """Replace every field of the frozen dataclass ``obj`` left at :data:`TASK_DEFAULT` by
-    task ``name``'s value (:func:`_task_default`)."""
+    """Set the fields of ``obj`` left at :data:`TASK_DEFAULT` to task ``name``'s values."""
     for field in dataclasses.fields(obj):
         if getattr(obj, field.name) is TASK_DEFAULT:
             object.__setattr__(obj, field.name, _task_default(name, section, field.name))
 
 
 FORWARD_KINDS = ("mlp", "rigid_body")
-"""Kinds of forward model for ``Config.forward.kind`` (see :mod:`cfm_jax.forward_models`):
-``mlp``, the PETS ensemble of the paper's text (the default), and ``rigid_body``, the
-physics-structured model of the authors' Solo12 code (:mod:`cfm_jax.rigid_body`)."""
+"""Values of ``Config.forward.kind`` (:mod:`cfm_jax.forward_models`; see
+:class:`ForwardModelConfig`)."""
 
 
 def add_forward_kind(name: str) -> None:
-    """Allow ``name`` as ``forward.kind`` (called by
-    :func:`cfm_jax.forward_models.register`).
+    """Allow ``name`` as ``forward.kind`` (:func:`cfm_jax.forward_models.register` calls this).
 
     Args:
       name: the new kind's name; a name already in :data:`FORWARD_KINDS` changes nothing.
@@ -158,12 +133,11 @@ def add_forward_kind(name: str) -> None:
 
 
 SIMULATORS = ("native", "mjx")
-"""Physics back ends for ``Config.simulator`` (see :mod:`cfm_jax.rollout`)."""
+"""Values of ``Config.simulator`` (:mod:`cfm_jax.rollout`)."""
 
 
 def check_simulator(simulator: str) -> None:
-    """Raise :class:`ConfigError` unless ``simulator`` is one of :data:`SIMULATORS` (the
-    check of every function that takes a ``simulator`` argument).
+    """Raise :class:`ConfigError` unless ``simulator`` is one of :data:`SIMULATORS`.
 
     Args:
       simulator: the name to check.
@@ -172,7 +146,6 @@ def check_simulator(simulator: str) -> None:
       ConfigError: naming the value and the allowed ones.
 
     Examples:
-      >>> check_simulator("mjx")
       >>> check_simulator("mujoco")
       Traceback (most recent call last):
       ...
@@ -183,13 +156,11 @@ def check_simulator(simulator: str) -> None:
 
 
 PAPER_LOSSES = ("joint", "task", "distal", "supervised")
-"""The paper's four controller losses, in the order results are reported (``"all"`` in
-sweeps and the CLI); the functions are in :mod:`cfm_jax.losses`."""
+"""The paper's four controller losses (:mod:`cfm_jax.losses`), in reporting order (``all``)."""
 
 CONTROLLER_LOSSES = PAPER_LOSSES + ("distal_literal",)
-"""Every controller loss name (``Config.loss``): :data:`PAPER_LOSSES` and ``distal_literal``
-(the distal teacher written literally as a loss over the whole data set,
-:func:`cfm_jax.losses.distal_literal`; for studies of it)."""
+"""Values of ``Config.loss``: :data:`PAPER_LOSSES` and ``distal_literal`` (the distal teacher
+as a loss over the whole data set, :func:`cfm_jax.losses.distal_literal`)."""
 
 BABBLING_BEFORE = {
     "inverse_dynamics": "reference_pd",
@@ -197,93 +168,43 @@ BABBLING_BEFORE = {
     "walk": "oracle",
     "jump": "oracle",
 }
-"""How each task babbled before ``loop.babbling`` existed (what :func:`from_dict` reads
-for a config that has a ``loop`` without it)."""
+"""Each task's babbling before ``loop.babbling`` existed (:func:`from_dict` of old configs)."""
 
 BABBLING = ("home", "reaching", "reference_pd", "oracle")
-"""Strategies of the initial (motor-babbling) data for ``Config.loop.babbling``
-(see :mod:`cfm_jax.babbling`). ``home`` and ``reaching`` know neither the test references
-nor the reference controller; ``reference_pd`` and ``oracle`` use them and exist only to
-study their effect."""
+"""Values of ``Config.loop.babbling`` (:mod:`cfm_jax.babbling`; see :class:`LoopConfig`)."""
 
 
 TORQUE_SCALES = ("inertia", "limit", "coupled")
-"""How torques are scaled, for ``Config.loop.torque_scale``
-(:meth:`cfm_jax.robots.Robot.torque_scale`, :meth:`cfm_jax.robots.Robot.coupled_torque_scale`).
-``inertia`` scales joint ``j``'s torque by ``S_j = F_j + I_j min_k (tau_max_k - F_k) / I_k``
-with ``I_j = hypot(M_jj(home), D_j / w)`` (``D`` damping, ``F`` dry friction, ``w`` the
-task's feedback frequency, :meth:`TaskConfig.feedback_frequency`): the torque amplitude that
-gives it, alone at the start pose, the acceleration amplitude at ``w`` that the least of the
-joints' limits gives (without damping and friction: ``M_jj(home) min_k (tau_max_k /
-M_kk(home))``, the same acceleration): the babbling noise is that fraction of ``S``, the
-forward model takes ``tau / S`` and the controller puts out ``tau_max tanh(S u / tau_max)``.
-``coupled`` (the inverse-dynamics task's default since issue 41; ``opspace`` keeps
-``inertia``, :func:`for_task`) adds the joints' coupling: the matrix
-``T = diag(S) + a (M(home) - diag(M_jj))``, ``a = min_k (tau_max_k - F_k) / I_k``, so that a
-scaled torque moves every joint alike at home even where light links hang on heavy ones
-(noise ``T n``, inputs ``T^-1 tau``, outputs ``tau_max tanh(T u / tau_max)``); on an arm
-whose mass matrix is diagonal at home the two are the same. ``limit`` (the legged tasks'
-default) scales every torque by its limit ``tau_max`` (noise, inputs, and ``tau_max
-tanh(u)``). All three agree on a robot whose joints all reach the same acceleration at their
-limits; on a published arm with light distal links the wrist's limit gives 100x the
-acceleration of the shoulder's, and scaled by its limit the wrist's torques that the tracking
-needs are 1e-4 of the controller's range and 1e-3 of the babbling noise. Why ``coupled`` is
-the default: on the seven published arms of ``tests/robots`` (3 seeds, one H100) every loss
-tracked below PD-only on every seed with it, against 21 of 28 (arm, loss) pairs with
-``inertia`` (docs/how-to/own-robot.md)."""
+"""Values of ``Config.loop.torque_scale`` (see :class:`LoopConfig`): the formulas are in
+:meth:`cfm_jax.robots.Robot.torque_scale` and :meth:`~cfm_jax.robots.Robot.coupled_torque_scale`,
+why ``coupled`` is the arm default in docs/how-to/own-robot.md."""
 
 
 BABBLING_GAINS = ("lightest", "baseline")
-"""The torque gains of the babbling's joint PD feedback, for ``Config.loop.babbling_gains``
-(:func:`cfm_jax.baselines.babbling_joint_gains`): ``lightest`` (default) ``kp``, ``kd``
-times each joint's lightest effective inertia over the poses the babbling may visit,
-stable wherever it goes; ``baseline`` the PD-only baseline's ``kp``, ``kd`` times
-``diag M(home)`` (the babbling before issue 41), which coupled light links without armature
-make unstable away from home. The legged tasks' feedback has the references' own gains
-either way, and op-space's task-space gains."""
+"""Values of ``Config.loop.babbling_gains`` (:func:`cfm_jax.baselines.babbling_joint_gains`).
+The legged and op-space tasks' feedback keeps its own gains either way."""
 
 
 NORMALISERS = ("babbling", "data", "robot")
-"""Input and output scaling of both networks for ``Config.loop.normaliser``
-(:class:`cfm_jax.networks.Normaliser`): ``babbling`` (statistics of the initial data, fitted
-once and frozen; today's default), ``data`` (statistics of the whole data set, recomputed
-before every refit of both models) and ``robot`` (fixed physical scales from the MJCF and
-the task, :mod:`cfm_jax.tasks.scales`)."""
+"""Values of ``Config.loop.normaliser`` (:class:`cfm_jax.networks.Normaliser`)."""
 
 ROBOT_ACTUATORS = ("strict", "torque")
-"""How the robot's actuators are taken (``Config.robot_actuators``): ``strict`` (the
-default; torque motors only) or ``torque`` (each servo on a joint replaced by a torque motor
-at load time, :func:`cfm_jax.robots.convert`)."""
+"""Values of ``Config.robot_actuators`` (see :class:`Config`)."""
 
 DESIRED = ("pd", "next_velocity")
-"""How the legged tasks build ``s*`` (``Config.task.desired``): ``pd`` (the PD correction
-with the gains ``task.kp``, ``task.kd``, ``task.joint_kp``, ``task.joint_kd``) or
-``next_velocity`` (the authors' Solo12 code: the desired next velocity, ``kp = 0`` and
-``kd = 1 / control_dt`` on every base and joint coordinate)."""
+"""Values of ``Config.task.desired`` (see :class:`TaskConfig`)."""
 CONTROLLER_GOALS = ("desired", "observed")
-"""What the controller is given as its goal while it is trained (``controller.goal``):
-``desired`` feeds ``g(s, s*)`` (the paper's text, eq. 4; the default), ``observed`` feeds
-``g(s, P s_a)``, the observed next state in the desired quantity's coordinates (the authors'
-public Solo12 code). At run time ``g`` is always given ``s*``."""
+"""Values of ``Config.controller.goal`` (see :class:`ControllerConfig`)."""
 
 LOSS_FORMS = ("squared", "norm")
-"""Forms of the controller loss (``controller.loss_form``): ``squared`` (sums of squares,
-the paper's text) or ``norm`` (per-sample Euclidean norms of weighted coordinate groups, the
-authors' public Solo12 code, the default since the selection run; see
-:func:`cfm_jax.losses.grouped`)."""
+"""Values of ``Config.controller.loss_form`` (see :class:`ControllerConfig`)."""
 
 FIT_STARTS = ("warm", "warm_new_optimizer", "fresh")
-"""How each refit of a network in an iteration starts (``forward.start``,
-``controller.start``): ``warm`` (the default) continues from the parameters and the Adam
-state of the previous fit; ``warm_new_optimizer`` keeps the parameters and re-creates Adam
-(the authors' public Solo12 code); ``fresh`` re-initialises the parameters (from a key derived
-from the iteration's key) and Adam."""
+"""Values of ``forward.start`` and ``controller.start`` (see :class:`ForwardModelConfig`)."""
 
 
 class ConfigError(ValueError):
-    """A configuration field has a value that is not allowed.
-
-    The message names the field (dotted for nested configs), the value and what is allowed.
+    """A configuration field has a value that is not allowed (see :func:`fail`).
 
     Examples:
       >>> try:
@@ -295,9 +216,7 @@ class ConfigError(ValueError):
 
 
 def fail(field: str, value: Any, allowed: str) -> None:
-    """Raise the library's error for a bad input: the field, the bad value and what is
-    allowed, in the words every check of the library (config, CLI, sweeps, environments)
-    uses.
+    """Raise the library's error for a bad input (config, CLI, sweeps, environments).
 
     Args:
       field: the input's name as the user wrote it (``loop.seeds``, ``--out``).
@@ -308,11 +227,10 @@ def fail(field: str, value: Any, allowed: str) -> None:
       ConfigError: ``"{field}={value!r} is not allowed: {allowed}"``.
 
     Examples:
-      >>> try:
-      ...     fail("loop.seeds", 0, "a positive integer")
-      ... except ConfigError as error:
-      ...     print(error)
-      loop.seeds=0 is not allowed: a positive integer
+      >>> fail("loop.seeds", 0, "a positive integer")
+      Traceback (most recent call last):
+      ...
+      cfm_jax.config.ConfigError: loop.seeds=0 is not allowed: a positive integer
     """
     raise ConfigError(f"{field}={value!r} is not allowed: {allowed}")
 
@@ -357,8 +275,7 @@ def _layer_sizes(field: str, value: Any) -> None:
 
 
 def _loss_weights(field: str, value: Any) -> Any:
-    """``None`` or a non-empty tuple of ``(weight, (index, ...))`` groups (lists accepted),
-    returned as tuples of float and int."""
+    """None or the ``(weight, (index, ...))`` groups as tuples of float and int."""
     if value is None:
         return None
     allowed = (
@@ -391,19 +308,16 @@ def _loss_weights(field: str, value: Any) -> Any:
 
 
 def check_duration(duration: float, control_dt: float) -> None:
-    """``duration`` must be a whole number (>= 1) of control periods, so that the sampled
-    path ends exactly at the goal with zero velocity.
+    """Check ``duration`` is a whole number (>= 1) of periods: the path ends at its goal, at rest.
 
     Args:
       duration: seconds per reach.
       control_dt: control period (s).
 
     Raises:
-      ConfigError: ``duration / control_dt`` is not a whole number >= 1 (relative tolerance
-        1e-6).
+      ConfigError: otherwise (relative tolerance 1e-6).
 
     Examples:
-      >>> check_duration(2.0, 0.01)
       >>> check_duration(0.015, 0.01)
       Traceback (most recent call last):
       ...
@@ -419,46 +333,27 @@ def check_duration(duration: float, control_dt: float) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class TaskConfig:
-    """The tracking task: reaching trajectories and desired accelerations.
-
-    ``inverse_dynamics``: joint-space reaching, the controller gets a desired joint
-    acceleration. ``opspace``: Cartesian reaching of an end-effector site, the controller
-    gets a desired end-effector acceleration (see :mod:`cfm_jax.tasks`). ``walk`` and
-    ``jump``: the Solo12's recorded references (see :mod:`cfm_jax.locomotion`).
+    """The tracking task (:mod:`cfm_jax.tasks`): its references and the desired quantity ``s*``.
 
     Attributes:
       name: task name, one of :data:`TASKS`.
-      duration: duration of each reaching trajectory in seconds (home pose to target,
-        quintic); a whole multiple of ``control_dt``.
-      control_dt: control period in seconds; a multiple of the MJCF timestep (the torque is
-        held for ``control_dt / timestep`` physics steps). None: the MJCF timestep.
-      targets: reaching targets, one tuple per target: joint positions ``(nq,)``
-        (``inverse_dynamics``) or end-effector positions ``(x, y, z)`` in metres
-        (``opspace``); None: the robot's 5 default targets.
-      home: start pose ``(nq,)``; None: the MJCF keyframe named ``home``, else ``qpos0``.
-      kp: proportional gain (1/s^2) of the PD correction in the desired acceleration
-        ``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``; ``kp = kd = 0`` is pure
-        feed-forward.
-      kd: derivative gain (1/s) of the same PD correction. The legged tasks apply ``kp`` and
-        ``kd`` to the base pose and ``joint_kp`` / ``joint_kd`` to the joints.
-      joint_kp: legged tasks (``walk``, ``jump``): proportional gain (1/s^2) on the
-        actuated joints in the desired acceleration; None: ``kp``. The arm tasks take
-        ``kp`` for their joints and reject a value here.
-      joint_kd: legged tasks: derivative gain (1/s) on the actuated joints; None: ``kd``.
-      site: ``opspace``: the end-effector site of the MJCF; None: the site ``ee``, else
-        ``flange``, else ``attachment_site`` (MuJoCo Menagerie's name).
-      motions: legged tasks: the references to follow, walk durations (s) for ``walk`` or
-        foot clearances (m) for ``jump``, one reference each
-        (:func:`cfm_jax.locomotion.walk_reference`, :func:`~cfm_jax.locomotion.jump_reference`);
-        None: the paper's 5 test references (:data:`cfm_jax.locomotion.WALK_DURATIONS`,
-        :data:`~cfm_jax.locomotion.JUMP_HEIGHTS`). Other motions than the test ones are
-        what a choice of defaults is made on (``experiments/select_defaults.py``). The arm
-        tasks take ``targets`` and reject a value here.
+      duration: seconds of each reach (quintic, home to target); a multiple of ``control_dt``.
+      control_dt: control period (s), a multiple of the MJCF timestep; None: the timestep.
+      targets: reaching targets, joint positions ``(nq,)`` (``inverse_dynamics``) or site
+        positions ``(x, y, z)`` in m (``opspace``); None: the robot's 5 default targets.
+      home: start pose ``(nq,)``; None: the MJCF keyframe ``home``, else ``qpos0``.
+      kp: proportional gain (1/s^2) in ``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``
+        (legged tasks: on the base); ``kp = kd = 0``: pure feed-forward.
+      kd: derivative gain (1/s) of the same correction.
+      joint_kp: legged tasks only: proportional gain (1/s^2) on the joints; None: ``kp``.
+      joint_kd: legged tasks only: derivative gain (1/s) on the joints; None: ``kd``.
+      site: ``opspace``: the end-effector site; None: the first of ``ee``, ``flange`` and
+        ``attachment_site``.
+      motions: legged tasks only: walk durations (s) or jump foot clearances (m), one reference
+        each; None: the paper's 5 test references (:mod:`cfm_jax.locomotion`).
       desired: how the legged tasks build ``s*``, one of :data:`DESIRED`: ``pd`` (default;
-        the gains above) or ``next_velocity`` (the authors' Solo12 code: the desired next
-        velocity ``s* = v_ref(t+1) - v(t)``, i.e. ``kp = 0``, ``kd = 1 / control_dt`` on
-        the base and the joints; ``kp`` and ``kd`` must then be 0 and ``joint_kp``,
-        ``joint_kd`` None). The arm tasks take ``pd`` only.
+        the gains above) or ``next_velocity`` (the authors' code: ``v_ref(t+1) - v(t)``; needs
+        ``kp = kd = 0``, joint gains None). The arm tasks take ``pd`` only.
 
     Examples:
       >>> task = TaskConfig(duration=1.0, targets=((0.2, -0.3),))
@@ -480,8 +375,7 @@ class TaskConfig:
     desired: str = TASK_DEFAULT
 
     def control_period(self, timestep: float) -> float:
-        """Seconds between controller steps: ``control_dt``, or ``timestep`` (the robot's
-        physics timestep) where it is None.
+        """Seconds between controller steps: ``control_dt``, else the physics ``timestep``.
 
         Examples:
           >>> TaskConfig().control_period(0.002), TaskConfig(control_dt=0.02).control_period(0.002)
@@ -490,11 +384,8 @@ class TaskConfig:
         return self.control_dt if self.control_dt is not None else timestep
 
     def feedback_frequency(self, control_dt: float) -> float:
-        """The angular frequency (rad/s) of the joints' feedback in ``s*``: ``sqrt`` of the
-        joints' ``kp`` (``joint_kp``, else ``kp``); where that is 0, the joints' ``kd`` (the
-        rate of a first-order loop); where both are 0 (pure feed-forward), ``1 /
-        control_dt``. The frequency at which :meth:`cfm_jax.robots.Robot.torque_scale`
-        weighs damping against inertia.
+        """Angular frequency (rad/s) of the joints' feedback in ``s*``: ``sqrt`` of their ``kp``,
+        else their ``kd``, else ``1 / control_dt`` (for :meth:`cfm_jax.robots.Robot.torque_scale`).
 
         Examples:
           >>> TaskConfig().feedback_frequency(0.01)  # kp 100
@@ -592,29 +483,21 @@ class ForwardModelConfig:
       hidden: hidden layer widths (ReLU). Paper: ``(400, 400, 400)``.
       ensemble_size: number of ensemble members. Paper: 3.
       learning_rate: Adam learning rate.
-      initial_steps: gradient steps on the whole data set before the first iteration (after
-        babbling).
+      initial_steps: gradient steps on the babbling data before the first iteration.
       steps_per_iteration: gradient steps per iteration of Algorithm 1.
-      batch_size: minibatch size (sampled uniformly from the data set, per member).
-      min_log_variance: initial lower soft bound of the predicted log-variance (normalised
-        units); learned, as in PETS.
+      batch_size: minibatch size (drawn uniformly from the data set, per member).
+      min_log_variance: initial lower soft bound of the predicted log-variance; learned (PETS).
       max_log_variance: initial upper soft bound; learned; above ``min_log_variance``.
-      start: how each refit in an iteration starts, one of :data:`FIT_STARTS`: ``warm``
-        (default; the arm tasks': the parameters and Adam state of the previous fit carry
-        on), ``warm_new_optimizer`` (parameters kept, Adam re-created for each fit: the
-        authors' public Solo12 code; the legged tasks' default, :func:`for_task`) or
-        ``fresh`` (parameters re-initialised each iteration from a key derived from the
-        iteration's key, Adam re-created).
-      kind: one of :data:`FORWARD_KINDS`: ``"mlp"`` (default; the paper's text: the
-        ensemble predicts the output from ``(s, tau)``) or ``"rigid_body"`` (the authors'
-        Solo12 code: ``qdd = M(q)^-1 (S tau - h(q, qd)) + residual(s, tau)`` with ``M`` and
-        ``h`` of a nominal MuJoCo model and the ensemble as the residual;
-        :mod:`cfm_jax.rigid_body`), with every task: the physics fills the output entries
-        that are an affine image of ``qacc`` (``opspace``: ``[qacc, J qacc + Jdot qd]``).
-      nominal: ``rigid_body`` only: the MJCF file (a path or a registered robot name) of
-        the nominal model ``M`` and ``h`` come from; None (default): the robot's own.
-      nominal_mass_scale: ``rigid_body`` only: every body mass and inertia of the nominal
-        model multiplied by this factor (> 0; default 1.0), to study model bias.
+      start: how each refit starts, one of :data:`FIT_STARTS`: ``warm`` (default; parameters
+        and Adam state carry on), ``warm_new_optimizer`` (new Adam each fit, the authors'
+        code) or ``fresh`` (parameters re-initialised from the iteration's key, new Adam).
+      kind: one of :data:`FORWARD_KINDS`: ``mlp`` (default; the paper's text) or
+        ``rigid_body`` (the authors' Solo12 code: ``qdd = M(q)^-1 (S tau - h(q, qd)) +
+        residual(s, tau)``, the ensemble the residual; :mod:`cfm_jax.rigid_body`).
+      nominal: ``rigid_body`` only: the MJCF (path or robot name) of the nominal ``M``, ``h``;
+        None (default): the robot's own.
+      nominal_mass_scale: ``rigid_body`` only: factor (> 0) on the nominal model's masses and
+        inertias, to study model bias.
 
     Examples:
       >>> ForwardModelConfig(hidden=[64, 64]).hidden  # lists become tuples
@@ -679,31 +562,21 @@ class ControllerConfig:
     Attributes:
       hidden: hidden layer widths (ReLU). Paper: ``(300, 200, 100)``.
       learning_rate: Adam learning rate.
-      initial_steps: gradient steps before the first iteration (after the forward model's
-        initial fit).
+      initial_steps: gradient steps before the first iteration (after f's initial fit).
       steps_per_iteration: gradient steps per iteration of Algorithm 1.
-      batch_size: minibatch size (rows drawn uniformly with replacement per step).
-      goal: the controller's goal input while it is trained (at run time it is always
-        ``s*``), one of
-        :data:`CONTROLLER_GOALS`: ``desired`` (default, the paper's eq. 4:
-        ``f(s, g(s, s*))``) or ``observed`` (the authors' public Solo12 code: ``g(s, P s_a)``,
-        the observed next state in the desired quantity's coordinates; each loss keeps its
-        targets; ``supervised`` feeds the observed goal either way).
-      loss_form: one of :data:`LOSS_FORMS`: ``norm`` (default, chosen by the selection
-        run on the arm: per-sample Euclidean norms of weighted coordinate groups, the
-        authors' code; :func:`cfm_jax.losses.grouped`) or ``squared`` (sums of squares,
-        every coordinate alike, the paper's text).
-      loss_weights: the coordinate groups of the ``norm`` form, ``((weight, (index, ...)),
-        ...)`` with indices into the forward model's output ``y``; None: the task's default
-        (``task.loss_weights()``: the legged tasks the authors' groups with 10 on the base's
-        vertical and angular velocity, the arm tasks one group of weight 1). Only with
-        ``loss_form="norm"``.
-      start: how each refit in an iteration starts, one of :data:`FIT_STARTS` (as
-        ``forward.start``; default ``warm``, the legged tasks' ``warm_new_optimizer``).
-      full_batch: False (default): each step a minibatch of ``batch_size`` rows; True: each
-        step every filled row of the data set (the authors' code: one batch of the whole
-        data set), a mean over the fixed-capacity buffer weighted by the filled-row mask
-        (``batch_size`` is then not used).
+      batch_size: minibatch size (rows drawn uniformly with replacement).
+      goal: the goal input in training (at run time always ``s*``), one of
+        :data:`CONTROLLER_GOALS`: ``desired`` (default; the paper's eq. 4) or ``observed``
+        (the authors' code: the observed next state in ``s*``'s coordinates; ``supervised``
+        always uses it).
+      loss_form: one of :data:`LOSS_FORMS`: ``norm`` (default; per-sample norms of weighted
+        coordinate groups, the authors' code, :func:`cfm_jax.losses.grouped`) or ``squared``
+        (sums of squares, the paper's text).
+      loss_weights: ``norm`` only: groups ``((weight, (index, ...)), ...)`` of the forward
+        model's output ``y``; None: the task's ``loss_weights()``.
+      start: how each refit starts, one of :data:`FIT_STARTS` (as ``forward.start``).
+      full_batch: True: each step every filled row of the data set (the authors' code;
+        ``batch_size`` unused); False: minibatches.
 
     Examples:
       >>> ControllerConfig(hidden=(32,), initial_steps=50).steps_per_iteration
@@ -752,42 +625,26 @@ class LoopConfig:
     """Algorithm 1: motor babbling, then iterations of rollout / refit f / refit g.
 
     Attributes:
-      iterations: iterations of Algorithm 1 (each: roll out g on every target, add the data,
-        refit f, refit g).
+      iterations: iterations of Algorithm 1.
       seeds: number of independent runs (seeds ``Config.seed + k``), a ``vmap`` axis.
-      babbling: the strategy of the initial data, one of :data:`BABBLING`
-        (:mod:`cfm_jax.babbling`): ``reaching`` (default; the task's PD feedback tracking
-        reaches from the start pose to random poses inside the joint limits, drawn from the
-        seed), ``home`` (the same PD feedback holding the start pose; the legged tasks'
-        default, :func:`for_task`), ``reference_pd`` (PD tracking of the test references) or
-        ``oracle`` (the task's oracle on the test references); each plus Gaussian torque
-        noise. The defaults were chosen by the selection run
-        (``experiments/select_defaults.py``, docs/results/selection/).
-      babbling_rollouts: motor-babbling rollouts per target (each as wide as one rollout of
-        the task: ``targets x steps`` transitions).
-      babbling_noise: standard deviation of the babbling torque noise, as a fraction of each
-        joint's torque scale (``torque_scale``).
-      torque_scale: how torques are scaled, one of :data:`TORQUE_SCALES`: ``coupled``
-        (default, the inverse-dynamics task's; a matrix with the joints' inertia and their
-        coupling at the start pose, so that a scaled torque gives every joint the same
-        acceleration), ``inertia`` (its diagonal alone: each joint's own inertia; the
-        op-space task's default, :func:`for_task`) or ``limit`` (the legged tasks' default,
-        :func:`for_task`; by the torque limits): the babbling noise, the forward model's torque
-        input and the controller's output range (:meth:`cfm_jax.robots.Robot.torque_scale`,
-        :meth:`cfm_jax.robots.Robot.coupled_torque_scale`).
-      babbling_gains: the torque gains of the babbling's joint PD feedback, one of
-        :data:`BABBLING_GAINS`: ``lightest`` (default; sized for each joint's lightest
-        effective inertia over the poses the babbling visits, stable wherever it goes) or
-        ``baseline`` (the PD-only baseline's gains).
-      normaliser: the input and output scaling of both networks, one of
-        :data:`NORMALISERS`: ``babbling`` (default, the arm tasks'; statistics of the
-        initial data, fitted once), ``data`` (the legged tasks' default, :func:`for_task`;
-        statistics of the whole data set, recomputed before every refit of both models) or
-        ``robot`` (fixed scales from the MJCF and the task:
-        :mod:`cfm_jax.tasks.scales`).
-      checkpoint_every: save a checkpoint every this many iterations (and after the initial
-        fit and the last iteration) when ``train`` has an output directory; 0: none.
-      checkpoint_keep: number of most recent checkpoints kept on disk.
+      babbling: the initial data, one of :data:`BABBLING`, each with torque noise:
+        ``reaching`` (default; PD feedback reaching random poses within the joint limits),
+        ``home`` (holding the start pose), ``reference_pd`` (PD on the test references) or
+        ``oracle`` (the oracle on them); the last two only to study their effect.
+      babbling_rollouts: babbling rollouts per target (each ``targets x steps`` transitions).
+      babbling_noise: std of the babbling torque noise, a fraction of each joint's torque scale.
+      torque_scale: scale of the babbling noise, f's torque input and g's output, one of
+        :data:`TORQUE_SCALES`: ``coupled`` (default; alike accelerations at home, with the
+        joints' coupling), ``inertia`` (the same, each joint alone) or ``limit`` (the limits).
+      babbling_gains: the babbling's joint PD gains, one of :data:`BABBLING_GAINS`:
+        ``lightest`` (default; by each joint's lightest inertia over the poses it may visit,
+        stable everywhere) or ``baseline`` (the PD-only baseline's).
+      normaliser: both networks' scaling, one of :data:`NORMALISERS`: ``babbling`` (default;
+        the initial data's statistics), ``data`` (the data set's, before every refit) or
+        ``robot`` (fixed, from the MJCF and the task: :mod:`cfm_jax.tasks.scales`).
+      checkpoint_every: checkpoint every this many iterations (and after the initial fit and
+        the last iteration) when ``train`` has an output directory; 0: none.
+      checkpoint_keep: number of most recent checkpoints kept.
 
     Examples:
       >>> LoopConfig(iterations=3, seeds=2).babbling_rollouts
@@ -827,36 +684,26 @@ class Config:
     """A whole experiment: robot, task, both models, the controller loss and the loop.
 
     Attributes:
-      robot: a registered robot name (``"iiwa14"``, ``"two_link_arm"``, ``"solo12"``) or a
-        path to an MJCF file (see :func:`cfm_jax.robots.load`).
-      loss: the controller loss, one of ``CONTROLLER_LOSSES``: ``joint``, ``task``,
-        ``distal``, ``supervised`` (the paper's four) and ``distal_literal`` (the distal
-        teacher written literally).
+      robot: a registered robot name (``iiwa14``, ``two_link_arm``, ``solo12``) or an MJCF
+        path (:func:`cfm_jax.robots.load`).
+      loss: the controller loss, one of :data:`CONTROLLER_LOSSES`.
       seed: base seed; run ``k`` of ``loop.seeds`` uses ``seed + k``.
-      simulator: physics back end of the rollouts, one of :data:`SIMULATORS`: ``native``
-        (MuJoCo's C engine through a host callback; exact, fast on CPU) or ``mjx`` (MuJoCo
-        MJX in JAX, on the device).
+      simulator: physics of the rollouts, one of :data:`SIMULATORS`: ``native`` (MuJoCo C in
+        a host callback; exact, fast on CPU) or ``mjx`` (MuJoCo MJX, on the device).
       task: a :class:`TaskConfig`.
       forward: a :class:`ForwardModelConfig`.
       controller: a :class:`ControllerConfig`.
       loop: a :class:`LoopConfig`.
-      robot_actuators: how the robot's actuators are taken, one of :data:`ROBOT_ACTUATORS`:
-        ``strict`` (default; torque motors only, a servo is an error) or ``torque`` (each
-        servo on a joint, as MuJoCo Menagerie's arms have, replaced by a torque motor on the
-        same joint and gear at load time: :func:`cfm_jax.robots.convert`).
-      robot_torque_limit: with ``robot_actuators="torque"``, the torque limit (N m or N) of
-        servos whose file gives none (no ``forcerange``, no joint ``actuatorfrcrange``):
-        None (default; such a servo is an error), one number for all joints, or one per
-        hinge/slide joint in model order.
+      robot_actuators: one of :data:`ROBOT_ACTUATORS`: ``strict`` (default; torque motors
+        only) or ``torque`` (each joint servo becomes a torque motor at load time,
+        :func:`cfm_jax.robots.convert`).
+      robot_torque_limit: with ``robot_actuators="torque"``, the limit (N m or N) of servos
+        whose file gives none: None (an error), one number, or one per hinge/slide joint.
 
     Examples:
       >>> config = Config(robot="two_link_arm", loss="task", loop=LoopConfig(seeds=3))
       >>> config.loss, config.loop.seeds, config.forward.hidden
       ('task', 3, (400, 400, 400))
-      >>> Config(loss="l1")
-      Traceback (most recent call last):
-      ...
-      cfm_jax.config.ConfigError: loss='l1' is not allowed: one of ('joint', 'task', ...)
     """
 
     robot: str = TASK_DEFAULT
@@ -937,9 +784,6 @@ class Config:
         Args:
           **changes: new values of top-level fields (``robot``, ``loss``, ``task``, ...).
 
-        Returns:
-          A new :class:`Config`.
-
         Examples:
           >>> Config().replace(loss="distal").loss
           'distal'
@@ -948,20 +792,12 @@ class Config:
 
 
 def for_task(task: str, **changes) -> Config:
-    """The default :class:`Config` of a task, with top-level ``changes``: the same as
-    ``Config(task=TaskConfig(name=task)).replace(**changes)``, the defaults the task's module
-    states in its ``default_config()`` (:data:`TASK_DEFAULTS`; how each was chosen is
-    written there: :func:`cfm_jax.tasks.inverse_dynamics.default_config`,
-    :func:`cfm_jax.tasks.operational_space.default_config`,
-    :func:`cfm_jax.tasks.legged.default_config`). The CLI's ``--task`` starts from it.
+    """The default :class:`Config` of ``task`` (:data:`TASK_DEFAULTS`; the CLI's ``--task``),
+    top-level ``changes`` replaced: ``Config(task=TaskConfig(name=task)).replace(**changes)``.
 
     Args:
       task: one of :data:`TASKS`.
-      changes: keyword arguments, top-level fields to replace afterwards (``robot``,
-        ``loss``, ``loop``, ...).
-
-    Returns:
-      A :class:`Config`.
+      changes: top-level fields to replace (``robot``, ``loss``, ``loop``, ...).
 
     Raises:
       ConfigError: an unknown task or a bad value in ``changes``.
@@ -970,10 +806,6 @@ def for_task(task: str, **changes) -> Config:
       >>> walk = for_task("walk")
       >>> walk.robot, walk.task.control_dt, walk.task.desired, walk.forward.kind
       ('solo12', 0.004, 'next_velocity', 'rigid_body')
-      >>> walk == Config(robot="solo12", task=TaskConfig(name="walk"))
-      True
-      >>> for_task("inverse_dynamics").loop.torque_scale, for_task("opspace").loop.torque_scale
-      ('coupled', 'inertia')
     """
     if task not in TASKS:
         fail("task.name", task, f"one of {TASKS}")
@@ -1001,19 +833,15 @@ GENERIC: dict[str, dict[str, Any]] = {
         "desired": "pd",
     },
 }
-"""The generic value of each field left at :data:`TASK_DEFAULT` (a class: its defaults), by
-section (``"config"``: the top-level fields): what a task's ``default_config`` does not
-state, and every value of a task registered without one."""
+"""Generic value of each field left at :data:`TASK_DEFAULT` by section (``config``: top
+level; a class: its defaults), where a task's ``default_config`` does not state one."""
 
 
 def to_dict(config: Config) -> dict:
-    """Plain nested dict (JSON-serialisable) of a config.
+    """Plain nested dict (JSON-serialisable) of a :class:`Config`.
 
     Args:
-      config: a :class:`Config`.
-
-    Returns:
-      ``{"robot": ..., "task": {...}, "forward": {...}, ...}``.
+      config: the config.
 
     Examples:
       >>> to_dict(Config())["task"]["kp"]
@@ -1023,25 +851,17 @@ def to_dict(config: Config) -> dict:
 
 
 DERIVED = ("robot_conversion",)
-"""Keys a run's ``config.json`` may hold beside the fields: derived from them (and from the
-robot file) for the reader, ignored by :func:`from_dict`."""
+"""Keys a run's ``config.json`` may hold beside the fields; :func:`from_dict` ignores them."""
 
 
 def from_dict(data: dict) -> Config:
-    """Inverse of :func:`to_dict`; unknown keys raise :class:`ConfigError` naming them.
+    """Inverse of :func:`to_dict`; lists are accepted for tuples, :data:`DERIVED` keys ignored.
 
-    Keys of :data:`DERIVED` (written beside the fields for the reader, as the robot
-    conversion of :func:`cfm_jax.report.config_record`) are ignored. Missing fields take
-    their defaults, except ``loop.babbling`` in a config written
-    before that field existed: those runs babbled as :data:`BABBLING_BEFORE` says, so the
-    config reads as what ran.
+    Missing fields take their defaults, except in configs written before the field existed:
+    ``loop.babbling`` then takes :data:`BABBLING_BEFORE`'s, ``task.desired`` ``"pd"`` (what ran).
 
     Args:
-      data: a dict as written by :func:`to_dict` (for example a run's ``config.json``);
-        lists where tuples are expected are accepted.
-
-    Returns:
-      The validated :class:`Config`.
+      data: a dict as written by :func:`to_dict` (a run's ``config.json``).
 
     Raises:
       ConfigError: an unknown field or a value that is not allowed.
@@ -1113,39 +933,26 @@ RUNTIME_FIELDS = (
     "loop.checkpoint_every",
     "loop.checkpoint_keep",
 )
-"""Fields whose values do not change the compiled program: the seed and the checkpoint
-settings are not part of it; the learning rates, the initial log-variance bounds, the
-babbling strategy, noise and gains, the task gains (and ``task.desired``, which sets the legged
-gains) and the reference trajectories are arguments of it
-(:class:`cfm_jax.algorithm.Knobs`). Configs that differ only in these and in ``loss`` share
-one :class:`cfm_jax.experiment.Experiment` and its compilations (a sweep over them compiles
-once per loss). Two of them are partly structure (see :func:`structure`): the *number* of
-``task.targets`` (None: the default set) and, for ``opspace``, ``task.home`` (the
-oracle's null-space posture lives in its host callback). Every other field (robot,
-simulator, task name, duration, control period, site, network sizes, ensemble size, step
-counts, batch sizes, iterations, seeds, babbling rollouts) builds its own."""
+"""Fields that do not change the compiled program (checkpointing and seed are not part of it,
+the others are its arguments, :class:`cfm_jax.algorithm.Knobs`): configs that differ only in
+these and ``loss`` share a :class:`cfm_jax.experiment.Experiment` (see :func:`structure`,
+docs/how-to/sweep.md)."""
 
 
 def structure(config: Config) -> dict:
-    """The part of ``config`` that shapes its compiled program: :func:`to_dict` without
-    ``loss`` and :data:`RUNTIME_FIELDS`, but with the number of ``task.targets`` (None when
-    the default targets are used) and the fields the task builds into its program
-    (:data:`TASK_STRUCTURAL`: ``opspace``'s ``task.home``). Two configs with equal structures
-    can share an :class:`cfm_jax.experiment.Experiment`.
+    """The part of ``config`` that shapes its compiled program (equal structures share an
+    :class:`cfm_jax.experiment.Experiment`): :func:`to_dict` without ``loss`` and
+    :data:`RUNTIME_FIELDS`, with the number of ``task.targets`` (None: the default set) and
+    the task's :data:`TASK_STRUCTURAL` fields.
 
     Args:
       config: a :class:`Config`.
 
-    Returns:
-      A nested dict, JSON-serialisable.
-
     Examples:
       >>> a = Config(seed=1, task=TaskConfig(kp=50.0, targets=((0.1,) * 7, (0.2,) * 7)))
       >>> b = Config(loss="task", task=TaskConfig(targets=((0.3,) * 7, (0.4,) * 7)))
-      >>> structure(a) == structure(b)
-      True
-      >>> structure(a)["task"]["targets"]
-      2
+      >>> structure(a) == structure(b), structure(a)["task"]["targets"]
+      (True, 2)
       >>> structure(a) == structure(Config(task=TaskConfig(duration=1.0)))
       False
     """
@@ -1165,13 +972,10 @@ def structure(config: Config) -> dict:
 
 
 def seeds_of(config: Config) -> Sequence[int]:
-    """The seeds of the runs in this config: ``seed, seed + 1, ..., seed + seeds - 1``.
+    """The seeds of ``config``'s runs: ``seed, seed + 1, ..., seed + loop.seeds - 1``.
 
     Args:
       config: a :class:`Config`.
-
-    Returns:
-      A tuple of ``config.loop.seeds`` ints.
 
     Examples:
       >>> seeds_of(Config(seed=5, loop=LoopConfig(seeds=3)))
@@ -1181,15 +985,12 @@ def seeds_of(config: Config) -> Sequence[int]:
 
 
 def differences(old: dict, new: dict, prefix: str = "") -> list[str]:
-    """Dotted names of the fields that differ between two config dicts, with both values.
+    """Dotted names of the fields that differ between two config dicts, with both values, sorted.
 
     Args:
       old: a config dict (:func:`to_dict`), for example a run's.
       new: another one.
       prefix: prefix of the dotted names (used by the recursion).
-
-    Returns:
-      One string per differing field, sorted by name.
 
     Examples:
       >>> differences({"loss": "task", "loop": {"seeds": 1}},

@@ -1,17 +1,6 @@
-"""Fixed-capacity ring-buffer data set of transitions, as a pytree.
-
-Shapes never change, so the training iteration compiles once: ``add`` writes a batch of
-transitions at the insertion point (overwriting the oldest when full), ``sample`` draws
-uniform minibatches from the filled part. Transitions flagged invalid (for example from a
-rollout whose simulator state went non-finite) are not added.
-
-Examples:
-  >>> import jax, jax.numpy as jnp
-  >>> data = empty(capacity=4, state_dim=2, nv=1)
-  >>> batch = Transitions(*(jnp.ones((3, d)) for d in (2, 1, 1, 1)))
-  >>> data = add(data, batch, valid=jnp.array([True, False, True]))
-  >>> int(data.size)
-  2
+"""Fixed-capacity ring buffer of transitions, a pytree whose shapes never change (so the
+training iteration compiles once): :func:`empty`, :func:`add`, :func:`sample`; a run's data
+sets are written by :func:`save` and read back by :func:`load`.
 """
 
 from __future__ import annotations
@@ -32,23 +21,16 @@ class Transitions(NamedTuple):
     """A batch of transitions ``(n, ...)``.
 
     Attributes:
-      state: the task's state ``s_t`` (``[q, qdot]`` for the arm tasks), ``(n, state_dim)``.
-      desired: the desired quantity ``s*_t`` (the desired next-step joint acceleration
-        ``qdd*_t`` for the joint-space task), ``(n, desired_dim)``.
-      action: executed torque ``tau_run``, ``(n, action_dim)``.
-      observed: the observed quantity the forward model predicts (the acceleration
-        ``(qdot_{t+1} - qdot_t) / dt`` for the joint-space task), ``(n, output_dim)``.
-      terms: what the forward model needs per transition besides ``(s, tau)``, computed
-        once when the transition enters the data set (``Model.terms``; for ``rigid_body``
-        the :class:`cfm_jax.rigid_body.Terms` ``M^-1 S`` and ``-M^-1 h`` of the state); a
-        pytree of ``(n, ...)`` arrays, or None (the ``mlp`` forward model: no terms, so
-        the data pytree is the four arrays above). Not written by :func:`save`: a replay
-        recomputes them.
+      state: the task's state ``s_t``, ``(n, state_dim)``.
+      desired: the desired quantity ``s*_t``, ``(n, desired_dim)``.
+      action: the executed torque ``tau_run``, ``(n, action_dim)``.
+      observed: the observed quantity the forward model predicts, ``(n, output_dim)``.
+      terms: the forward model's per-transition terms (``Model.terms``, computed when the
+        row is added; :func:`save` omits them), a pytree of ``(n, ...)`` arrays, or None.
 
     Examples:
-      >>> batch = Transitions(*(jnp.zeros((3, d)) for d in (4, 2, 2, 2)))
-      >>> batch.state.shape, batch._fields[:4], batch.terms
-      ((3, 4), ('state', 'desired', 'action', 'observed'), None)
+      >>> Transitions(*(jnp.zeros((3, d)) for d in (4, 2, 2, 2))).state.shape
+      (3, 4)
     """
 
     state: jax.Array
@@ -59,8 +41,7 @@ class Transitions(NamedTuple):
 
 
 RECORDED_FIELDS = ("state", "desired", "action", "observed")
-"""The fields of :class:`Transitions` that :func:`save` writes (``terms`` are derived from
-the state and recomputed when a replay adds the rows)."""
+"""The fields of :class:`Transitions` that :func:`save` writes."""
 
 
 @struct.dataclass
@@ -95,19 +76,15 @@ def empty(
     output_dim: int | None = None,
     terms: Any = None,
 ) -> Dataset:
-    """An empty data set for ``capacity`` transitions.
+    """An empty :class:`Dataset` of ``capacity`` float32 zero rows.
 
     Args:
-      capacity: number of rows (fixed: shapes never change, so the iteration compiles once).
+      capacity: number of rows.
       state_dim: size of the state ``s``.
       nv: size of the desired quantity ``s*``.
-      action_dim: size of the action (default ``nv``, the joint-space task).
+      action_dim: size of the action (default ``nv``).
       output_dim: size of the observed quantity (default ``nv``).
-      terms: the forward model's per-transition terms of one row (a pytree of arrays,
-        whose shapes the rows get), or None (no terms).
-
-    Returns:
-      A :class:`Dataset` of float32 zeros, ``size = insert = 0``.
+      terms: the forward model's terms of one row (a pytree giving the shapes), or None.
 
     Examples:
       >>> empty(capacity=8, state_dim=4, nv=2, output_dim=5).data.observed.shape
@@ -122,17 +99,13 @@ def empty(
 
 
 def add(dataset: Dataset, batch: Transitions, valid=None) -> Dataset:
-    """Append the ``valid`` rows of ``batch``, the oldest rows overwritten when full.
-
-    Rows are written in order; invalid rows take no space.
+    """A new :class:`Dataset` with the ``valid`` rows of ``batch`` appended in order, the
+    oldest rows overwritten when full (invalid rows, e.g. of a diverged rollout, take no space).
 
     Args:
       dataset: the :class:`Dataset`.
       batch: :class:`Transitions` ``(n, ...)`` with ``n <= capacity``.
       valid: ``(n,)`` booleans, the rows to add (None: all).
-
-    Returns:
-      The new :class:`Dataset` (pure: the input is unchanged).
 
     Raises:
       ValueError: ``n`` larger than the capacity.
@@ -165,15 +138,13 @@ def add(dataset: Dataset, batch: Transitions, valid=None) -> Dataset:
 
 
 def sample(dataset: Dataset, key, batch_size: int) -> Transitions:
-    """``batch_size`` rows drawn uniformly (with replacement) from the filled part.
+    """:class:`Transitions` of ``batch_size`` rows drawn uniformly (with replacement) from
+    the filled part.
 
     Args:
       dataset: the :class:`Dataset`.
       key: PRNG key.
       batch_size: number of rows (static).
-
-    Returns:
-      :class:`Transitions` ``(batch_size, ...)``.
 
     Examples:
       >>> data = add(empty(capacity=8, state_dim=1, nv=1),
@@ -187,43 +158,33 @@ def sample(dataset: Dataset, key, batch_size: int) -> Transitions:
 
 
 def filled(dataset: Dataset) -> Transitions:
-    """The filled rows as a host-side view (not jittable: the size is data-dependent).
+    """The filled rows, :class:`Transitions` ``(size, ...)`` (host side: not jittable).
 
     Args:
       dataset: the :class:`Dataset`.
 
-    Returns:
-      :class:`Transitions` ``(size, ...)``.
-
     Examples:
-      >>> data = add(empty(capacity=8, state_dim=1, nv=1),
-      ...            Transitions(*(jnp.ones((3, 1)) for _ in range(4))))
-      >>> filled(data).action.shape
-      (3, 1)
+      >>> filled(empty(capacity=8, state_dim=1, nv=1)).action.shape
+      (0, 1)
     """
     n = int(dataset.size)
     return jax.tree.map(lambda x: x[:n], dataset.data)
 
 
 class Recorded(NamedTuple):
-    """The data sets a run collected, one per seed, in the order they were collected: a
-    result of its own (:func:`save`, :func:`load`; ``dataset.npz`` of every run with an
-    output directory), and the input of a replay (``cfm_jax.train(config, data=...)``).
+    """A run's data sets, one per seed, in collection order (its ``dataset.npz``, read by
+    :func:`load`); the input of a replay, ``cfm_jax.train(config, data=...)``.
 
     Attributes:
-      transitions: :class:`Transitions`, leaves ``(seeds, rows, ...)``; row ``i`` of seed
-        ``k`` is valid for ``i < size[k]``.
+      transitions: :class:`Transitions` ``(seeds, rows, ...)``; row ``i < size[k]`` is valid.
       size: ``(seeds,)`` filled rows per seed.
-      segments: ``(seeds, 1 + iterations)`` rows added by motor babbling and then by each
-        iteration's rollout (their sum is ``size``).
-      seeds: the seeds of the run, ``(seeds,)``.
+      segments: ``(seeds, 1 + iterations)`` rows added by babbling and by each iteration.
+      seeds: the run's seeds, ``(seeds,)``.
       config: the run's config as a dict (:func:`cfm_jax.config.to_dict`).
 
     Examples:
-      >>> # not run: it needs the files of a finished run (cfm_jax.train with out_dir)
-      >>> recorded = load("results/run/joint/dataset.npz")  # doctest: +SKIP
-      >>> recorded.iterations, recorded.segments.shape  # doctest: +SKIP
-      (10, (3, 11))
+      >>> Recorded._fields  # load(path) reads one: see save
+      ('transitions', 'size', 'segments', 'seeds', 'config')
     """
 
     transitions: Transitions
@@ -256,15 +217,12 @@ class Recorded(NamedTuple):
 
 
 def save(path: str, data: Dataset, segments, seeds, config: dict) -> None:
-    """Write the filled rows of a seed-batched :class:`Dataset` and its segments (``.npz``).
-
-    Written atomically (a temporary file renamed). :func:`load` reads it back.
+    """Write the filled rows of a seed-batched :class:`Dataset` to ``.npz``, atomically.
 
     Args:
-      path: the file to write (``.npz``).
+      path: the file to write.
       data: a :class:`Dataset` with leaves ``(seeds, ...)``.
-      segments: ``(seeds, 1 + iterations)`` rows added by babbling and by each iteration;
-        each row must add up to that seed's ``size``.
+      segments: as :attr:`Recorded.segments`; each row adds up to that seed's ``size``.
       seeds: the run's seeds, ``(seeds,)``.
       config: the run's config as a dict (:func:`cfm_jax.config.to_dict`).
 
@@ -278,8 +236,9 @@ def save(path: str, data: Dataset, segments, seeds, config: dict) -> None:
       >>> two = jax.tree.map(lambda x: jnp.stack([x, x]), one)  # two seeds
       >>> path = os.path.join(tempfile.mkdtemp(), "dataset.npz")
       >>> save(path, two, segments=[[2, 1], [2, 1]], seeds=[0, 1], config={"robot": "x"})
-      >>> load(path).size.tolist()
-      [3, 3]
+      >>> recorded = load(path)
+      >>> recorded.size.tolist(), recorded.iterations
+      ([3, 3], 1)
     """
     size = np.asarray(data.size)
     if not np.all(np.asarray(segments).sum(axis=1) == size):
@@ -298,13 +257,10 @@ def save(path: str, data: Dataset, segments, seeds, config: dict) -> None:
 
 
 def load(path: str) -> Recorded:
-    """Read a data set written by :func:`save`.
+    """The :class:`Recorded` data sets of a file written by :func:`save`.
 
     Args:
       path: the ``.npz`` file (a run's ``OUT/<loss>/dataset.npz``).
-
-    Returns:
-      A :class:`Recorded`.
 
     Raises:
       FileNotFoundError: no such file.

@@ -1,45 +1,16 @@
-"""The library's arm tracking tasks as Gymnasium environments, for the methods researchers
-would otherwise use (SAC, PPO; issue 42's comparison of robot-seconds).
+"""The library's arm tracking tasks as Gymnasium environments, for SAC and PPO (docs/peers.md).
 
-:class:`TrackingEnv` is made from the library's own task object (:func:`cfm_jax.tasks.make`
-through :class:`cfm_jax.experiment.Experiment`), not a second definition of the task: the
-same robot file and servo conversion, references, control period, torque limits, start
-state, physics (MuJoCo C, :class:`cfm_jax.native.Stepper`, as the ``native`` simulator) and
-per-step tracking error. One episode is one reference of the task's duration.
+:class:`TrackingEnv` wraps the library's own task object (:func:`cfm_jax.tasks.make`): the
+same robot, references, control period, torque limits, start state, MuJoCo C physics
+(:class:`cfm_jax.native.Stepper`) and tracking error as the ``native`` simulator. An episode
+is one reference. The observation is the controller's input ``(s_t, s*_t)`` scaled by the
+robot's own scales (:func:`cfm_jax.tasks.scales.robot_scales`), float32; the action ``a`` in
+``[-1, 1]`` is the torque ``a * tau_max``; the reward is minus the mean square of the next
+state's tracking error (an episode's mean ``-reward`` is :func:`cfm_jax.rollout.tracking_mse`).
+Episodes are truncated after the reference's steps and terminated when the simulation
+diverges (``info["diverged"]``, with the reward of the last good state).
 
-* **Observation**: what the controller ``g`` sees, the learning state ``s_t`` and the
-  desired quantity ``s*_t``, each normalised by the robot's own scales
-  (:func:`cfm_jax.tasks.scales.robot_scales`, the ``robot`` normaliser: from the MJCF and
-  the task, never from data), float32.
-* **Action**: ``a`` in ``[-1, 1]`` per actuated joint, the torque ``a * tau_max``.
-* **Reward**: minus the mean square of the task's tracking error of the next state (for
-  inverse dynamics the mean over the joints of the squared position error, rad^2), so that
-  the mean of ``-reward`` over an episode is the library's tracking MSE of that rollout
-  (:func:`cfm_jax.rollout.tracking_mse`).
-* **Episodes**: ``references="training"`` (default) draws each episode's reference as the
-  ``reaching`` babbling does (a minimum-jerk reach from the start pose to a random pose
-  inside the joint ranges, :mod:`cfm_jax.babbling`), from the environment's seed: it knows
-  nothing of the test references. ``references="test"`` follows the task's test
-  references, one per episode in turn (``reset(options={"target": k})`` picks one), for
-  evaluation only.
-* **End**: truncated after the reference's steps; terminated when the simulation diverges
-  (a state beyond MuJoCo's bounds, as :func:`cfm_jax.rollout.run` flags it), with
-  ``info["diverged"] = True`` and the reward of the last good state.
-
-The legged tasks (falls, contact features) are not wrapped yet.
-
-Needs ``gymnasium`` (``pip install "cfm_jax[peers]"``).
-
-Examples:
-  >>> import numpy as np
-  >>> from cfm_jax import config
-  >>> env = TrackingEnv(config.Config(robot="two_link_arm", task=config.TaskConfig(duration=0.1)))
-  >>> obs, info = env.reset(seed=0)
-  >>> obs.shape, env.action_space.shape
-  ((6,), (2,))
-  >>> obs, reward, terminated, truncated, info = env.step(np.zeros(2, np.float32))
-  >>> bool(reward <= 0), terminated, truncated
-  (True, False, False)
+Needs ``gymnasium`` (``pip install "cfm_jax[peers]"``). The legged tasks are not wrapped yet.
 """
 
 from __future__ import annotations
@@ -57,7 +28,7 @@ from cfm_jax import native, networks, rollout
 from cfm_jax.tasks import scales
 
 REFERENCES = ("training", "test")
-"""Where :class:`TrackingEnv`'s episodes get their references (see the module)."""
+"""Values of :class:`TrackingEnv`'s ``references``."""
 
 
 class TrackingEnv(gymnasium.Env):
@@ -66,7 +37,9 @@ class TrackingEnv(gymnasium.Env):
     Args:
       config: a :class:`cfm_jax.config.Config` (its robot, task and servo conversion; the
         learner's fields are not used). ``simulator`` must be ``native``.
-      references: one of :data:`REFERENCES`.
+      references: one of :data:`REFERENCES`: ``training``, reaches drawn as the ``reaching``
+        babbling draws them (:mod:`cfm_jax.babbling`), from the environment's seed, blind to
+        the test references; or ``test``, the task's test references in turn (evaluation).
       experiment: an :class:`cfm_jax.experiment.Experiment` of ``config`` to take the robot
         and task from (saves building them again), or None.
 
@@ -79,10 +52,16 @@ class TrackingEnv(gymnasium.Env):
       ConfigError: a legged task, the ``mjx`` simulator, or an unknown ``references``.
 
     Examples:
+      >>> import numpy as np
       >>> from cfm_jax import config
-      >>> env = TrackingEnv(config.Config(robot="two_link_arm"), references="test")
-      >>> env.task.steps, env.control_dt
-      (200, 0.01)
+      >>> cfg = config.Config(robot="two_link_arm", task=config.TaskConfig(duration=0.1))
+      >>> env = TrackingEnv(cfg)
+      >>> obs, info = env.reset(seed=0)
+      >>> obs.shape, env.action_space.shape, env.task.steps, env.control_dt
+      ((6,), (2,), 10, 0.01)
+      >>> obs, reward, terminated, truncated, info = env.step(np.zeros(2, np.float32))
+      >>> bool(reward <= 0), terminated, truncated
+      (True, False, False)
     """
 
     metadata = {"render_modes": []}
@@ -138,14 +117,13 @@ class TrackingEnv(gymnasium.Env):
         """Start an episode at the task's start state of a new reference.
 
         Args:
-          seed: seeds the environment's generator (``gymnasium.Env.reset``); with
-            ``references="test"`` the references start again at the first.
-          options: ``{"target": k}`` with ``references="test"``: follow test reference
-            ``k`` (else the next in turn).
+          seed: seeds the environment's generator; with ``references="test"`` the references
+            start again at the first.
+          options: ``{"target": k}`` with ``references="test"``: follow test reference ``k``
+            (else the next in turn).
 
         Returns:
-          ``(observation, info)``; ``info["target"]`` the test reference followed (None for
-          a training reach).
+          ``(observation, info)``; ``info["target"]``: the test reference, None for a training one.
         """
         super().reset(seed=seed)
         if seed is not None:  # a seeded environment starts its test references again
@@ -167,9 +145,8 @@ class TrackingEnv(gymnasium.Env):
           action: ``(action_dim,)`` in ``[-1, 1]`` (clipped).
 
         Returns:
-          ``(observation, reward, terminated, truncated, info)``; ``info["tracking_error"]``
-          the task's error vector of the next state (float32, as the library's rollout
-          records it), ``info["diverged"]`` whether the simulation diverged at this step.
+          ``(observation, reward, terminated, truncated, info)``; ``info["tracking_error"]`` the
+          task's error vector of the next state (float32), ``info["diverged"]``.
         """
         if self._reference is None:
             raise RuntimeError("TrackingEnv.step before reset")
@@ -202,7 +179,7 @@ class TrackingEnv(gymnasium.Env):
 
 class _Compiled(NamedTuple):
     """The task's own functions, compiled once per task: the same float32 operations as
-    inside :func:`cfm_jax.rollout.run`, so the same actions give the same states and errors."""
+    :func:`cfm_jax.rollout.run`, so the same actions give the same states and errors."""
 
     observe: Any
     normalise: Any
@@ -215,8 +192,7 @@ class _Compiled(NamedTuple):
 
 @functools.lru_cache(maxsize=16)
 def _compiled(task, robot) -> _Compiled:
-    """:class:`_Compiled` of ``task`` on ``robot``, shared by every environment of the same
-    task object (a vector of environments made from one experiment compiles once)."""
+    """:class:`_Compiled` of ``task`` on ``robot``, shared by environments of one task object."""
     normaliser = networks.Normaliser.from_scales(
         **scales.robot_scales(task),
         torque_limit=robot.torque_limit,

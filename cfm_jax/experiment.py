@@ -1,19 +1,5 @@
 """Algorithm 1 compiled: the pure functions of :mod:`cfm_jax.algorithm`, vmapped over seeds,
-jit-compiled once per config structure and kept with their config.
-
-:class:`Experiment` holds one config's :class:`cfm_jax.algorithm.Setup` and its compiled
-functions. Configs that differ only in the loss and in
-:data:`cfm_jax.config.RUNTIME_FIELDS` (seed, learning rates, babbling, task gains,
-references) run on the same compilations: those values are arguments
-(:class:`cfm_jax.algorithm.Knobs`). Its only impurity is the caching of compiled functions
-and of host-side results (the loss-independent start of a run, the baselines).
-
-Examples:
-  >>> from cfm_jax import config as cfg
-  >>> exp = Experiment(cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3)))
-  >>> exp.task.targets, exp.task.steps, exp.state_dim
-  (5, 30, 4)
-"""
+jit-compiled once per config structure and kept with their config (:class:`Experiment`)."""
 
 from __future__ import annotations
 
@@ -32,16 +18,13 @@ from cfm_jax.algorithm import METRIC_COLUMNS, Knobs, TrainState
 
 
 class Experiment:
-    """The static pieces of one config (robot, reference, models) and its compiled
-    functions. Build once and reuse, also across losses and across the values of
-    :data:`cfm_jax.config.RUNTIME_FIELDS` (seed, learning rates, babbling noise, task
-    gains, target sets, checkpointing): those are arguments of the compiled functions
-    (:class:`cfm_jax.algorithm.Knobs`), so the rollout used for evaluation and the
-    baselines compiles once per experiment, and each loss's iteration compiles once.
+    """One config's static pieces (robot, reference, models) and its compiled functions.
 
-    ``config.loss`` and the runtime fields of ``config`` are only the defaults: every
-    method takes the loss to use and, optionally, the :class:`Knobs` of another config
-    (:meth:`knobs_for`).
+    Build once and reuse across losses and across the values of
+    :data:`cfm_jax.config.RUNTIME_FIELDS`: those are arguments (:class:`Knobs`), so each function
+    compiles once per experiment. Every method takes the loss and, optionally, the
+    :class:`Knobs` of another config (:meth:`knobs_for`). Its only impurity is the caching of
+    compiled functions and of host-side results (the loss-independent start, the baselines).
 
     Args:
       config: the :class:`cfm_jax.config.Config` to build for.
@@ -55,8 +38,8 @@ class Experiment:
     Examples:
       >>> from cfm_jax import config as cfg
       >>> exp = Experiment(cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3)))
-      >>> exp.metric_columns[:5]
-      ('loss', 'seed', 'iteration', 'target', 'tracking_mse')
+      >>> exp.task.targets, exp.task.steps, exp.state_dim
+      (5, 30, 4)
       >>> other = exp.config.replace(seed=4, task=cfg.TaskConfig(duration=0.3, kp=25.0))
       >>> float(exp.knobs_for(other).task["kp"]), float(exp.knobs.task["kp"])
       (25.0, 100.0)
@@ -87,21 +70,17 @@ class Experiment:
 
     @property
     def metric_columns(self) -> tuple[str, ...]:
-        """Columns of the metrics table: :data:`cfm_jax.algorithm.METRIC_COLUMNS` and the
-        task's metrics."""
+        """Columns of the metrics table: :data:`cfm_jax.algorithm.METRIC_COLUMNS`, the task's."""
         return METRIC_COLUMNS + tuple(self.task.metric_names)
 
     # ----- which configs run on this experiment -------------------------------------------
 
     def compatible(self, config: config_lib.Config) -> bool:
-        """True when ``config`` differs from this experiment's at most in ``loss`` and
-        :data:`cfm_jax.config.RUNTIME_FIELDS` (it can then run on this experiment's
-        compilations)."""
+        """True when ``config`` can run on these compilations (no :meth:`differences`)."""
         return not self.differences(config)
 
     def differences(self, config: config_lib.Config) -> list[str]:
-        """The fields outside ``loss`` and :data:`cfm_jax.config.RUNTIME_FIELDS` in which
-        ``config`` differs from this experiment's, with both values (empty: compatible)."""
+        """Fields outside ``loss`` and the runtime fields where ``config`` differs, both values."""
         return [
             d.replace(" in the run,", " in the experiment,")
             for d in config_lib.differences(
@@ -112,15 +91,8 @@ class Experiment:
     def knobs_for(self, config: config_lib.Config) -> Knobs:
         """The :class:`Knobs` of ``config``, a config :meth:`compatible` with this one.
 
-        Args:
-          config: the config to run on this experiment's compilations.
-
-        Returns:
-          Its :class:`Knobs`.
-
         Raises:
-          ValueError: ``config`` differs in a field that changes the compiled program (the
-            fields are listed).
+          ValueError: ``config`` differs in a field that changes the compiled program (named).
         """
         diff = self.differences(config)
         if diff:
@@ -133,11 +105,9 @@ class Experiment:
         return Knobs.of(config, self.robot, self.task_for(config))
 
     def task_for(self, config: config_lib.Config):
-        """The task object of ``config`` (a config :meth:`compatible` with this one): this
-        experiment's task when ``config.task`` is its own, else one built for it (on the
-        host; kept for the last few task configs). Its :meth:`values` are what the compiled
-        functions get; its host attributes (``tracking_scale``, the NumPy references)
-        describe ``config``."""
+        """The task object of a :meth:`compatible` ``config``: this experiment's, or one built on
+        the host (the last 8 kept). Its :meth:`values` go to the compiled functions; its host
+        attributes (``tracking_scale``, the NumPy references) describe ``config``."""
         if config.task == self.config.task:
             return self.task
         key = json.dumps(dataclasses.asdict(config.task), sort_keys=True)
@@ -158,8 +128,7 @@ class Experiment:
     def rollout_one(
         self, policy: rollout.MixedPolicy, key, knobs: Knobs | None = None
     ) -> rollout.Rollout:
-        """:func:`cfm_jax.algorithm.rollout` for one seed, with the task values of ``knobs``
-        (None: this experiment's)."""
+        """:func:`cfm_jax.algorithm.rollout` for one seed (``knobs`` None: this experiment's)."""
         return algorithm.rollout(self.setup, policy, key, self._knobs(knobs))
 
     def babbling_policy(self, knobs: Knobs | None = None) -> rollout.MixedPolicy:
@@ -181,21 +150,13 @@ class Experiment:
         return jax.vmap(functools.partial(fn, self.setup, *args), in_axes=in_axes)
 
     def compilations(self) -> dict[str, int]:
-        """How many programs each compiled function of this experiment holds (one per
-        distinct argument shape; values of :class:`Knobs` do not add any).
-
-        Returns:
-          ``{name: count}``, e.g. ``{"prepare": 1, "init/joint": 1, "iteration/joint": 1,
-          "rollout": 1}``.
-        """
+        """How many programs each compiled function holds, ``{name: count}`` (one per argument
+        shape; the values of :class:`Knobs` add none)."""
         return {name: fn._cache_size() for name, fn in self._compiled.items()}
 
     def init(self, loss: str, keys, knobs: Knobs | None = None) -> TrainState:
-        """:func:`cfm_jax.algorithm.init` for every seed of ``keys``.
-
-        Compiled in two parts: :meth:`prepare` (babbling, normaliser, initial fit of f),
-        computed once per set of keys and knobs and shared by every loss of this
-        experiment, then the controller's initial fit with ``loss``."""
+        """:func:`cfm_jax.algorithm.init` for every seed of ``keys``: :meth:`prepare` (shared by
+        every loss), then the controller's initial fit with ``loss``."""
         knobs = self._knobs(knobs)
         prepared, key_fit = self.prepare(keys, knobs)
         return self._fit_initial(loss, prepared, key_fit, knobs)
@@ -214,9 +175,8 @@ class Experiment:
     def init_from_data(
         self, loss: str, keys, chunk: dataset.Transitions, valid, knobs: Knobs | None = None
     ) -> TrainState:
-        """:meth:`init` with the babbling data given (``chunk`` and ``valid`` with a leading
-        seed axis) instead of collected; the keys are used exactly as :meth:`init` uses
-        them, so the same data and seed give the same state."""
+        """:meth:`init` from given babbling data (``chunk``, ``valid`` with a seed axis); the keys
+        are used as :meth:`init` uses them, so the same data and seed give the same state."""
         knobs = self._knobs(knobs)
 
         def prepare(key, knobs, chunk, valid):
@@ -238,8 +198,7 @@ class Experiment:
     def replay_iteration(
         self, loss: str, state: TrainState, chunk, valid, knobs: Knobs | None = None
     ):
-        """:meth:`iteration` with the data given (``chunk``, ``valid`` with leading seed
-        axes) instead of collected (:func:`cfm_jax.algorithm.iteration` with ``data``)."""
+        """:meth:`iteration` on given data (``chunk``, ``valid`` with seed axes), not collected."""
 
         def replay(state, knobs, chunk, valid):
             return algorithm.iteration(self.setup, loss, state, knobs, (chunk, valid))
@@ -250,23 +209,20 @@ class Experiment:
     def rollout(
         self, policy: rollout.MixedPolicy, keys, knobs: Knobs | None = None
     ) -> rollout.Rollout:
-        """Rollouts for a seed axis: ``policy`` leaves and ``keys`` have a leading seed axis.
-        Compiled once per experiment and batch shape (evaluation and baselines share it)."""
+        """Rollouts of ``policy`` (a leading seed axis) for ``keys``, compiled once per shape."""
         fn = self._vmapped(algorithm.rollout, in_axes=(0, 0, None))
         return self._jit("rollout", fn)(policy, keys, self._knobs(knobs))
 
     def babbling_rollouts(self, keys, knobs: Knobs | None = None) -> rollout.Rollout:
-        """:func:`cfm_jax.algorithm.babble_all` for every seed of ``keys``: the babbling
-        rollouts ``(seeds, loop.babbling_rollouts, ...)`` of the strategy ``knobs.babbling``
-        (the data :meth:`init` starts from, with the key it derives; for inspection)."""
+        """:func:`cfm_jax.algorithm.babble_all` per seed: the babbling rollouts ``(seeds,
+        loop.babbling_rollouts, ...)`` that :meth:`init` starts from (for inspection)."""
         fn = self._vmapped(algorithm.babble_all, in_axes=(0, None))
         key_babble = jax.vmap(lambda k: jax.random.split(k, 2)[0])(keys)
         return self._jit("babble", fn)(key_babble, self._knobs(knobs))
 
     def evaluate(self, state: TrainState, knobs: Knobs | None = None) -> dict:
-        """Metrics of a rollout of the current controllers (no update), every seed
-        (:func:`cfm_jax.algorithm.evaluate`; the rollout key is
-        :func:`cfm_jax.algorithm.evaluation_key`)."""
+        """Metrics of a rollout of the current controllers, every seed
+        (:func:`cfm_jax.algorithm.evaluate`, key :func:`cfm_jax.algorithm.evaluation_key`)."""
         keys = jax.vmap(algorithm.evaluation_key)(state)
         policy = jax.vmap(self.learned_policy)(state)
         result = self.rollout(policy, keys, knobs)

@@ -1,27 +1,6 @@
-"""The kinds of forward model (``Config.forward.kind``) and a registry of them.
-
-Every kind is a :class:`cfm_jax.networks.Model` built by ``make(forward_config, robot,
-task)`` and registered here under its name:
-
-* ``mlp`` (default): the PETS ensemble of the paper's text,
-  :func:`cfm_jax.networks.forward_model`;
-* ``rigid_body``: ``M^-1 (S tau - h)`` of a nominal MuJoCo model plus the ensemble as a
-  residual, as in the authors' Solo12 code (:mod:`cfm_jax.rigid_body`).
-
-A kind owns its contract with the learning loop (the fields of
-:class:`cfm_jax.networks.Model`: ``init``, ``objective``, ``predict``, ``batches``,
-``start``; :func:`cfm_jax.networks.pets` gives the ensemble's); the shared update and
-algorithm code call them and know none of its parameters. A kind that needs more than
-``(s, tau)`` per transition gives the model a ``terms(state)`` function: the learning loop
-stores its output with each transition when it enters the data set and passes it on as
-``terms=`` (:attr:`cfm_jax.dataset.Transitions.terms`). A new kind is one module with a
-``make`` and one call of :func:`register`, in the library or outside it
-(``tests/test_forward_kinds.py``).
-
-Examples:
-  >>> from cfm_jax import config
-  >>> sorted(REGISTRY) == sorted(config.FORWARD_KINDS)
-  True
+"""The kinds of forward model (``Config.forward.kind``), :class:`cfm_jax.networks.Model` each:
+``mlp``, the PETS ensemble, and ``rigid_body`` (:mod:`cfm_jax.rigid_body`). A new kind is a
+``make`` and a :func:`register` call (docs/concepts/method.md).
 """
 
 from __future__ import annotations
@@ -47,8 +26,9 @@ def register(kind: str, make_model: Callable) -> None:
       ValueError: ``kind`` is not a non-empty string, or is registered already.
 
     Examples:
-      >>> # not run: it would add "my_kind" to the registry for the rest of the session
-      >>> register("my_kind", lambda forward, robot, task: None)  # doctest: +SKIP
+      >>> register("mlp", lambda forward, robot, task: None)
+      Traceback (most recent call last):
+      ValueError: kind='mlp' is not allowed: a forward model of that name exists
     """
     if not isinstance(kind, str) or not kind:
         raise ValueError(f"kind={kind!r} is not allowed: a non-empty string")
@@ -65,9 +45,6 @@ def make(forward: ForwardModelConfig, robot, task) -> networks.Model:
       forward: the :class:`cfm_jax.config.ForwardModelConfig`.
       robot: the :class:`cfm_jax.robots.Robot`.
       task: the task object (:func:`cfm_jax.tasks.make`).
-
-    Returns:
-      A :class:`cfm_jax.networks.Model`.
 
     Raises:
       ConfigError: no kind of that name, or the kind does not fit the robot or task.

@@ -1,21 +1,9 @@
-"""Forward-model and controller losses (paper section III).
+"""Forward-model and controller losses (paper section III), small pure functions of arrays.
 
-Every function here is a small pure function of arrays; none of them knows about networks.
-The gradient path is chosen where ``jax.grad`` is called (see ``cfm_jax.update``): the
-controller losses are differentiated with respect to the controller parameters only, so
-the forward model is never changed by them.
-
-Notation (1-D, paper section III-B): ``s_p = f_theta(s, g_beta(s, s_d))`` is the predicted
-next state, ``s_d`` the desired next state, ``s_a`` the observed (actual) next state, and
-``p' = df/dg * dg/dbeta``.
-
-Shapes: every per-sample loss takes arrays of shape ``(..., d)`` and returns the sum of
-squares over the last axis, shape ``(...)``. Means over batches are taken by the caller.
-
-Two forms (``controller.loss_form``): ``squared`` (the paper's text, the default) and
-``norm``, where every distance ``|x - y|^2`` of a controller loss becomes the weighted sum of
-per-sample Euclidean norms of coordinate groups, ``sum_k w_k |x[I_k] - y[I_k]|``
-(:func:`grouped`; the authors' public Solo12 code).
+Per-sample losses take ``(..., d)`` arrays and sum over the last axis, shape ``(...)``.
+Notation: ``s_p = f(s, g(s, s_d))`` predicted, ``s_d`` desired, ``s_a`` observed next state,
+``p' = df/dg dg/dbeta``. Gradients, rest points and the ``squared`` and ``norm`` forms
+(``controller.loss_form``): docs/concepts/losses.md.
 """
 
 from __future__ import annotations
@@ -30,16 +18,11 @@ from cfm_jax.config import CONTROLLER_LOSSES, PAPER_LOSSES  # noqa: F401
 
 
 def task(predicted_next, desired_next):
-    """Task loss ``L = |s_p - s_d|^2`` (paper eq. 2).
-
-    1-D gradient: ``dL/dbeta = 2 p' (s_p - s_d)``; at rest where the *model* predicts the
-    desired state, ``s_p = s_d``, whatever the model's bias.
+    """Task loss ``|s_p - s_d|^2`` (paper eq. 2); at rest where the model predicts ``s_d``.
 
     Args:
-      predicted_next: ``f(s, g(s, s*))``, shape ``(..., d)``.
-      desired_next: ``s*``, shape ``(..., d)``.
-    Returns:
-      shape ``(...)``.
+      predicted_next: ``s_p``, shape ``(..., d)``.
+      desired_next: ``s_d``, shape ``(..., d)``.
 
     Examples:
       >>> float(task(jnp.array([1.0]), jnp.array([3.0])))
@@ -49,17 +32,12 @@ def task(predicted_next, desired_next):
 
 
 def joint(predicted_next, desired_next, observed_next):
-    """Joint loss ``L = |s_p - s_d|^2 + |s_p - s_a|^2`` (paper eq. 4, its contribution).
-
-    1-D gradient: ``dL/dbeta = 2 p' (2 s_p - s_d - s_a)``; at rest where
-    ``s_p = (s_d + s_a) / 2``.
+    """Joint loss ``|s_p - s_d|^2 + |s_p - s_a|^2`` (paper eq. 4); at rest at ``(s_d + s_a) / 2``.
 
     Args:
-      predicted_next: ``f(s, g(s, s*))``, shape ``(..., d)``.
-      desired_next: ``s*``, shape ``(..., d)``.
-      observed_next: next state observed on the robot, shape ``(..., d)``.
-    Returns:
-      shape ``(...)``.
+      predicted_next: ``s_p``, shape ``(..., d)``.
+      desired_next: ``s_d``, shape ``(..., d)``.
+      observed_next: ``s_a``, shape ``(..., d)``.
 
     Examples:
       >>> float(joint(jnp.array([1.0]), jnp.array([3.0]), jnp.array([0.0])))
@@ -69,26 +47,16 @@ def joint(predicted_next, desired_next, observed_next):
 
 
 def distal(predicted_next, predicted_run, desired_next, observed_next):
-    """Distal-teacher loss (Jordan & Rumelhart 1992) in a bounded form:
-    ``L = |s_p - s_p,run + s_a - s_d|^2``, with ``s_p,run = f(s, tau_run)`` the model's
-    prediction for the action that was run (held fixed: it does not depend on the
-    controller's parameters).
+    """Bounded distal-teacher loss ``|s_p - s_p,run + s_a - s_d|^2`` (Jordan & Rumelhart 1992).
 
-    1-D gradient: ``dL/dbeta = 2 p' (s_p - s_p,run + s_a - s_d)``; at ``g = tau_run``
-    (``s_p = s_p,run``) it is ``2 p' (s_a - s_d)``, the distal teacher's update (paper
-    section III-D, up to its sign convention and a factor): the outcome error of the
-    action that was run, carried back through the model. ``L >= 0``, so unlike
-    :func:`distal_literal` it is bounded below; it is at rest where the model predicts the
-    run outcome corrected by the observed error, ``s_p = s_p,run - (s_a - s_d)``.
+    At ``g = tau_run`` its gradient is the distal teacher's ``2 p' (s_a - s_d)`` (paper III-D);
+    unlike :func:`distal_literal` it is bounded below.
 
     Args:
-      predicted_next: ``f(s, g(s, s*))``, shape ``(..., d)``.
-      predicted_run: ``f(s, tau_run)``, shape ``(..., d)``.
-      desired_next: ``s*``, shape ``(..., d)``.
-      observed_next: next state observed on the robot, shape ``(..., d)``.
-
-    Returns:
-      shape ``(...)``.
+      predicted_next: ``s_p``, shape ``(..., d)``.
+      predicted_run: ``s_p,run = f(s, tau_run)``, shape ``(..., d)``; no controller parameter.
+      desired_next: ``s_d``, shape ``(..., d)``.
+      observed_next: ``s_a``, shape ``(..., d)``.
 
     Examples:
       >>> float(distal(jnp.array([1.0]), jnp.array([1.0]), jnp.array([3.0]), jnp.array([0.0])))
@@ -98,21 +66,15 @@ def distal(predicted_next, predicted_run, desired_next, observed_next):
 
 
 def distal_literal(predicted_next, desired_next, observed_next):
-    """The distal teacher written literally as a loss, ``L = |s_p - s_d|^2 - |s_p - s_a|^2``,
-    over the whole data set (``loss="distal_literal"``; for studies of it).
+    """The distal teacher written literally, ``|s_p - s_d|^2 - |s_p - s_a|^2`` (for studies).
 
-    1-D gradient: ``dL/dbeta = 2 p' (s_a - s_d)`` for every sample, at any ``g``. It is
-    linear in ``s_p``, so it has no rest point for a held ``s_a`` and is unbounded below:
-    trained for many steps on observed outcomes of earlier controllers it diverges. The
-    bounded :func:`distal` has the same gradient at the action that was run.
+    Its gradient is ``2 p' (s_a - s_d)`` at any ``g``: linear in ``s_p``, it has no rest point for a
+    held ``s_a`` and is unbounded below, so long training on earlier outcomes diverges.
 
     Args:
-      predicted_next: ``f(s, g(s, s*))``, shape ``(..., d)``.
-      desired_next: ``s*``, shape ``(..., d)``.
-      observed_next: next state observed on the robot, shape ``(..., d)``.
-
-    Returns:
-      shape ``(...)``.
+      predicted_next: ``s_p``, shape ``(..., d)``.
+      desired_next: ``s_d``, shape ``(..., d)``.
+      observed_next: ``s_a``, shape ``(..., d)``.
 
     Examples:
       >>> float(distal_literal(jnp.array([1.0]), jnp.array([3.0]), jnp.array([0.0])))
@@ -122,17 +84,11 @@ def distal_literal(predicted_next, desired_next, observed_next):
 
 
 def supervised(predicted_action, executed_action):
-    """Supervised inverse loss ``L = |g(s_t, s_a) - tau_run|^2`` (paper eq. 3).
-
-    The controller is fed the *observed* next state in place of the desired one and
-    regressed onto the action that produced it; no forward model is involved.
-    1-D gradient: ``dL/dbeta = 2 g' (g - tau_run)``.
+    """Supervised inverse loss ``|g(s, s_a) - tau_run|^2`` (paper eq. 3); no forward model.
 
     Args:
       predicted_action: ``g(s, s_a)``, shape ``(..., m)``.
       executed_action: ``tau_run``, shape ``(..., m)``.
-    Returns:
-      shape ``(...)``.
 
     Examples:
       >>> float(supervised(jnp.array([1.0, 0.0]), jnp.array([0.0, 2.0])))
@@ -151,37 +107,21 @@ def controller_loss(
     groups=None,
     desired_index=None,
 ):
-    """Dispatch the model-based controller losses by name (``task``, ``joint``, ``distal``,
-    ``distal_literal``).
+    """A model-based controller loss by name, comparing the selection ``P`` of ``s_p`` with ``s_d``.
 
-    With ``P`` the selection ``select``: ``task = |P s_p - s_d|^2``, ``joint = |P s_p - s_d|^2
-    + |s_p - s_a|^2`` (the whole prediction error), ``distal = |P (s_p - s_p,run) + P s_a -
-    s_d|^2`` and ``distal_literal = |P s_p - s_d|^2 - |P s_p - P s_a|^2`` (error signal
-    ``P s_a - s_d`` for both). ``supervised`` does not go through the forward model; call
-    :func:`supervised`.
+    With ``P`` the selection: ``task = |P s_p - s_d|^2``, ``joint`` adds the whole prediction error
+    ``|s_p - s_a|^2``, ``distal`` and ``distal_literal`` use the error signal ``P s_a - s_d``.
 
     Args:
       name: ``"task"``, ``"joint"``, ``"distal"`` or ``"distal_literal"``.
-      predicted_next: ``s_p = f(s, g(s, s*))``, shape ``(..., d_out)``: everything the
-        forward model predicts.
-      desired_next: ``s_d = s*``, shape ``(..., d)``.
-      observed_next: ``s_a``, the observed quantity, shape ``(..., d_out)``.
-      select: ``select(y)`` picks the ``d`` entries of a prediction or observation
-        ``(..., d_out)`` that the desired state specifies (``None``: all, ``d = d_out``; for
-        example the end-effector acceleration among the joint and end-effector accelerations
-        the forward model predicts).
-      predicted_run: ``s_p,run = f(s, tau_run)``, shape ``(..., d_out)``; needed by
-        ``distal`` only.
-      groups: None (the ``squared`` form, every ``|x - y|^2`` above a sum of squares) or
-        the ``norm`` form's ``((weight, (output index, ...)), ...)``: every ``|x - y|^2``
-        becomes :func:`grouped` of ``x - y``, with the groups over the output for
-        ``|s_p - s_a|`` and mapped by :func:`desired_groups` with ``desired_index`` for
-        the distances in the desired quantity's coordinates.
-      desired_index: the output entries ``select`` picks (None: all); used with
-        ``groups`` only.
-
-    Returns:
-      shape ``(...)``.
+      predicted_next: ``s_p``, everything the forward model predicts, shape ``(..., d_out)``.
+      desired_next: ``s_d``, shape ``(..., d)``.
+      observed_next: ``s_a``, shape ``(..., d_out)``.
+      select: ``P``, picks the ``d`` entries ``s_d`` specifies from ``(..., d_out)`` (None: all).
+      predicted_run: ``s_p,run = f(s, tau_run)``, shape ``(..., d_out)``; ``distal`` only.
+      groups: None (``squared``) or the ``norm`` form's ``((weight, (output index, ...)), ...)``:
+        distances become :func:`grouped` norms (in ``s_d``'s entries by :func:`desired_groups`).
+      desired_index: the output entries ``select`` picks (None: all); used with ``groups``.
 
     Raises:
       ValueError: an unknown ``name`` (or ``supervised``), or ``distal`` without
@@ -224,8 +164,7 @@ def controller_loss(
 
 
 class _Quantities(NamedTuple):
-    """What a model-based loss is made of: ``P s_p``, ``s_p``, ``s_d``, ``s_a``, ``P s_a``
-    and ``P s_p,run`` (``P`` the selection of the desired quantity's entries)."""
+    """A model-based loss's terms: ``P s_p, s_p, s_d, s_a, P s_a, P s_p,run``."""
 
     predicted: Any
     predicted_next: Any
@@ -255,23 +194,15 @@ def _distal_literal(q, d_desired, d_output):
 
 
 MODEL_BASED = {"task": _task, "joint": _joint, "distal": _distal, "distal_literal": _distal_literal}
-"""Each model-based controller loss, defined once for both forms
-(``controller.loss_form``): ``loss(quantities, d_desired, d_output)`` with the distances
-of the form (``squared``: sums of squares; ``norm``: :func:`grouped` norms), used by
-:func:`controller_loss` (the update's and the 1-D theory's)."""
+"""Each model-based loss, ``loss(quantities, d_desired, d_output)``, once for both forms: the
+distances are sums of squares (``squared``) or :func:`grouped` norms (``norm``)."""
 
 
 def safe_norm(x):
-    """Euclidean norm over the last axis, with gradient 0 (a subgradient) where ``x = 0``.
-
-    ``jnp.linalg.norm`` has a NaN gradient at 0, which a sample the model predicts exactly
-    would otherwise give.
+    """Euclidean norm over the last axis, gradient 0 at ``x = 0`` (``jnp.linalg.norm``'s is NaN).
 
     Args:
       x: shape ``(..., d)``.
-
-    Returns:
-      shape ``(...)``.
 
     Examples:
       >>> import jax
@@ -284,22 +215,14 @@ def safe_norm(x):
 
 
 def grouped(error, groups):
-    """Weighted sum of the Euclidean norms of coordinate groups of ``error``:
-    ``sum_k w_k |error[..., I_k]|`` (the ``norm`` form of the controller losses).
-
-    The authors' Solo12 task loss ``|v_p - v*| + |F_p - F*| + 10 |v_p[2:6] - v*[2:6]|`` is
-    ``grouped(s_p - s*, ((1, velocities), (1, forces), (10, (2, 3, 4, 5))))``.
+    """Weighted sum of group norms ``sum_k w_k |error[..., I_k]|``, the ``norm`` form's distance.
 
     Args:
       error: shape ``(..., d)``.
-      groups: ``((weight, (index, ...)), ...)``, indices into the last axis (static).
-
-    Returns:
-      shape ``(...)``.
+      groups: ``((weight, (index, ...)), ...)``, static indices into the last axis.
 
     Examples:
-      >>> e = jnp.array([3.0, 4.0, 1.0])
-      >>> float(grouped(e, ((1.0, (0, 1)), (2.0, (2,)))))  # 5 + 2 * 1
+      >>> float(grouped(jnp.array([3.0, 4.0, 1.0]), ((1.0, (0, 1)), (2.0, (2,)))))  # 5 + 2 * 1
       7.0
     """
     total = 0.0
@@ -309,16 +232,13 @@ def grouped(error, groups):
 
 
 def desired_groups(groups, desired_index):
-    """Groups over the forward model's output ``y`` as groups over the desired quantity
-    ``s* = P y`` (``P``: the entries ``desired_index``): each group keeps the entries ``P``
-    selects, renumbered as positions in ``s*``; groups left empty are dropped.
+    """Groups over the forward model's output as groups over the desired entries ``desired_index``.
+
+    Each group keeps the selected entries, renumbered as positions in ``s_d``; empty groups go.
 
     Args:
       groups: ``((weight, (output index, ...)), ...)``.
-      desired_index: the output entries ``s*`` specifies, or None (all, in order).
-
-    Returns:
-      ``((weight, (desired position, ...)), ...)``.
+      desired_index: the output entries ``s_d`` specifies, or None (all, in order).
 
     Examples:
       >>> desired_groups(((1.0, (0, 1, 2)), (5.0, (0,))), desired_index=(1, 2))
@@ -336,14 +256,11 @@ def desired_groups(groups, desired_index):
 
 
 def squared_error(predicted, target):
-    """Sum of squared errors over the last axis, ``sum_i (predicted_i - target_i)^2``.
+    """Sum of squared errors over the last axis.
 
     Args:
       predicted: shape ``(..., d)``.
       target: shape ``(..., d)``.
-
-    Returns:
-      shape ``(...)``.
 
     Examples:
       >>> float(squared_error(jnp.array([1.0, 2.0]), jnp.array([0.0, 0.0])))
@@ -353,18 +270,12 @@ def squared_error(predicted, target):
 
 
 def gaussian_nll(mean, log_variance, target):
-    """Gaussian negative log-likelihood of ``target`` (PETS, Chua et al. 2018), no constant.
-
-    ``L = sum_i (target_i - mean_i)^2 exp(-log_variance_i) + log_variance_i``
-    (twice the NLL minus ``d log 2 pi``). For fixed variance its gradient in ``mean`` is the
-    squared error's gradient scaled by ``exp(-log_variance)``.
+    """Twice the Gaussian NLL minus its constant (PETS): ``sum (target - mean)^2 / var + log var``.
 
     Args:
       mean: predicted mean, shape ``(..., d)``.
-      log_variance: predicted log-variance, shape ``(..., d)``.
+      log_variance: predicted ``log var``, shape ``(..., d)``.
       target: observed value, shape ``(..., d)``.
-    Returns:
-      shape ``(...)``.
 
     Examples:
       >>> float(gaussian_nll(jnp.array([0.0]), jnp.array([0.0]), jnp.array([2.0])))

@@ -1,27 +1,5 @@
-"""MuJoCo's C engine stepping a batch of states on the host (the ``native`` simulator).
-
-:class:`Stepper` is what :func:`cfm_jax.rollout.native_physics` calls once per control
-step: ``(qpos, qvel, ctrl) -> (qpos, qvel, sensordata)`` after ``n_sub`` physics steps, for
-any leading batch shape. It has no JAX in it, so it can be tested and benchmarked alone.
-
-:func:`host_step` is the JAX operation around it: a primitive lowered to XLA's Python
-host callback directly, which costs ~7 us per call on CPU instead of the ~95 us of
-``jax.pure_callback`` with three operands and three results (``pure_callback`` turns
-every operand into a ``jax.Array`` with ``device_put`` before calling the function and
-back with ``np.asarray``; measured with a no-op callback inside a compiled
-``vmap(scan(...))``, jax 0.10). It uses one private JAX function
-(``jax._src.callback.emit_python_callback``, through ``cfm_jax._jax_private``); if that
-is missing in another JAX version it falls back to ``jax.pure_callback``
-(:data:`FAST_CALLBACK` says which is in use), with the same results.
-
-Examples:
-  >>> import numpy as np
-  >>> from cfm_jax import robots
-  >>> arm = robots.load("two_link_arm")
-  >>> stepper = Stepper(arm.mj_model, n_sub=5)
-  >>> q, qd, sensors = stepper(np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 2)))
-  >>> q.shape, sensors.shape
-  ((3, 2), (3, 5, 0))
+"""MuJoCo's C engine stepping a batch of states on the host (the ``native`` simulator):
+:class:`Stepper` and its JAX operation :func:`host_step` (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -35,19 +13,14 @@ import numpy as np
 from cfm_jax import _jax_private
 
 MAXVAL = 1e10
-"""MuJoCo's ``mjMAXVAL``: a state entry that is NaN, infinite or larger than this in magnitude
-is *bad* (MuJoCo's own test, ``mju_isBad``, behind its "Nan, Inf or huge value" warnings)."""
+"""MuJoCo's ``mjMAXVAL``: a state entry NaN, infinite or beyond it in magnitude is *bad*."""
 
 WARNINGS: dict[str, int] = {}
-"""MuJoCo warnings raised while :class:`Stepper` objects stepped, by message (the DOF and time
-stripped), counted since the last :func:`take_warnings`. They are captured, not printed."""
+"""MuJoCo warnings captured (not printed) while stepping, by message (:func:`take_warnings`)."""
 
 
 def take_warnings() -> dict[str, int]:
-    """The MuJoCo warnings captured since the last call (:data:`WARNINGS`), and clear them.
-
-    Returns:
-      ``{message: count}``, for example ``{"Nan, Inf or huge value in QACC": 3}``.
+    """The MuJoCo warnings captured since the last call, ``{message: count}``; clears them.
 
     Examples:
       >>> take_warnings()
@@ -64,14 +37,10 @@ def _capture(message: str) -> None:
 
 
 def bad_rows(x: np.ndarray) -> np.ndarray:
-    """Rows (all axes but the last) of ``x`` with a bad entry (:data:`MAXVAL`).
+    """Whether each row (all axes but the last) of ``x`` has a bad entry (:data:`MAXVAL`).
 
     Args:
       x: an array ``(..., n)``.
-
-    Returns:
-      A bool array ``(...)``: True where a row has a NaN, an infinity or an entry beyond
-      :data:`MAXVAL` in magnitude.
 
     Examples:
       >>> bad_rows(np.array([[0.0, 1.0], [np.nan, 0.0], [2e10, 0.0]])).tolist()
@@ -96,58 +65,29 @@ class _Buffers:
 class Stepper:
     """Steps a batch of states ``n_sub`` physics steps with MuJoCo's C engine.
 
-    ``stepper(qpos (..., nq), qvel (..., nv), ctrl (..., nu))`` returns ``qpos (..., nq)``,
-    ``qvel (..., nv)`` (float32) after ``n_sub`` steps with the control held, and the
-    model's ``sensordata`` recorded at each of those steps, ``(..., n_sub, nsensordata)``
-    (float32; MuJoCo computes sensors in the ``mj_forward`` at the start of each step, so
-    entry ``k`` belongs to the state before step ``k``'s integration).
-
-    Every call starts from the model's defaults for everything but ``qpos, qvel, ctrl``
-    (time 0, no warm start, actuator activations and applied forces as in a fresh
-    ``MjData``). Holds a copy of the robot's ``MjModel`` with automatic reset on numerical
-    instability disabled (``mjDSBL_AUTORESET``), so a diverging state stays non-finite and
-    is flagged like in MJX, instead of silently jumping back to ``qpos0``; a non-finite
-    control makes the state non-finite too (MuJoCo would zero it and step on).
-
-    Divergence: a row whose ``qpos`` or ``qvel`` is bad (NaN, infinite or beyond MuJoCo's
-    ``mjMAXVAL`` = 1e10, :data:`MAXVAL`) at any of its ``n_sub`` physics steps, or that
-    ``mujoco.rollout`` stopped stepping because MuJoCo raised a warning (MuJoCo's own test
-    of ``qpos``, ``qvel`` and ``qacc`` against ``mjMAXVAL`` among them; seen as a time short
-    of ``n_sub`` steps, so it needs ``n_sub >= 2``), returns NaN ``qpos``, ``qvel`` and
-    sensors; a row whose input state or control is bad is not
-    stepped at all (the C engine never sees it) and returns NaN too. Every row is stepped
-    alone, so a diverging row changes no other row's numbers. MuJoCo's warnings ("Nan, Inf or
-    huge value in QACC ...") are captured while stepping (``mujoco.set_mju_user_warning``)
-    and counted in :data:`WARNINGS` instead of being printed and logged to
-    ``MUJOCO_LOG.TXT``.
-
-    Batches of at least :attr:`threaded_batch` physics steps' worth of rollouts use a pool
-    of ``threads`` threads (``mujoco.rollout``, one chunk per thread); results do not
-    depend on the thread count (each rollout is computed by one thread). Input/output
-    buffers are allocated once per batch size, and the call goes straight to MuJoCo's C++
-    rollout (no Python-side checks), so the fixed cost of a call is a few microseconds. A
-    lock makes concurrent calls safe (they run one after the other).
+    ``stepper(qpos, qvel, ctrl)`` (any leading batch shape) returns float32 ``qpos``, ``qvel``
+    after ``n_sub`` steps with ``ctrl`` held and ``sensordata (..., n_sub, nsensordata)``,
+    from the model's defaults for all else (time, warm start, activations).
+    Auto-reset is off: a row that went bad (:func:`bad_rows`) at any step, that
+    ``mujoco.rollout`` stopped at a warning (:data:`WARNINGS`) or whose input was bad
+    returns NaN, and changes no other row. Results do not depend on ``threads``.
 
     Args:
-      mj_model: the ``mujoco.MjModel`` to step (copied; the original is not changed).
-      n_sub: physics steps per call (the control is held for all of them).
+      mj_model: the ``mujoco.MjModel`` to step (copied).
+      n_sub: physics steps per call (>= 2 to see a stop at a warning).
       threads: size of the thread pool; None: ``min(2, os.cpu_count())``.
 
     Examples:
       >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> stepper = Stepper(arm.mj_model, n_sub=5, threads=1)
-      >>> q, qd, sensors = stepper(arm.home, np.zeros(2), np.zeros(2))  # one state, no batch
-      >>> q.shape, q.dtype, sensors.shape  # the arm has no sensors
-      ((2,), dtype('float32'), (5, 0))
-      >>> q, _, _ = stepper(arm.home, np.zeros(2), np.array([np.nan, 0.0]))
-      >>> q.tolist()  # a NaN torque gives a NaN state (no auto-reset)
+      >>> stepper = Stepper(robots.load("two_link_arm").mj_model, n_sub=5, threads=1)
+      >>> stepper(np.zeros(2), np.zeros(2), np.zeros(2))[2].shape  # no batch; no sensors
+      (5, 0)
+      >>> stepper(np.zeros(2), np.zeros(2), np.array([np.nan, 0.0]))[0].tolist()  # no reset
       [nan, nan]
     """
 
     threaded_batch = 8
-    """Smallest batch stepped on the thread pool (smaller ones run on the calling thread:
-    the pool's dispatch then costs more than it saves)."""
+    """Smallest batch stepped on the thread pool (below it the dispatch costs more)."""
 
     def __init__(self, mj_model, n_sub: int, threads: int | None = None):
         import mujoco
@@ -250,13 +190,11 @@ class Stepper:
 
 _PRIMITIVE = None
 FAST_CALLBACK: bool | None = None
-"""True when :func:`host_step` lowers to XLA's host callback directly, False when it falls
-back to ``jax.pure_callback``; None before the first use."""
+"""Whether :func:`host_step` calls XLA's host callback directly (None: not used yet)."""
 
 
 def _primitive():
-    """The ``cfm_native_step`` primitive (built on first use; None without the private
-    JAX function it needs)."""
+    """The ``cfm_native_step`` primitive, built on first use; None without the private API."""
     global _PRIMITIVE, FAST_CALLBACK
     if FAST_CALLBACK is not None:
         return _PRIMITIVE
@@ -321,37 +259,22 @@ def _primitive():
 
 
 def host_step(stepper: Stepper, qpos, qvel, ctrl, fast: bool = True):
-    """JAX operation of ``stepper``: ``(qpos, qvel, sensordata)`` as float32 JAX arrays.
-
-    Traceable under ``jit``, ``vmap`` (the whole batch is one host call, as
-    ``vmap_method="broadcast_all"``) and ``scan``; not differentiable. On a CPU backend with
-    ``fast=True`` it lowers straight to XLA's host callback (see the module docstring);
-    otherwise (other backends, ``fast=False``, or the private JAX function missing) it is a
-    ``jax.pure_callback`` of the same function with the same results.
+    """:class:`Stepper` as a JAX operation (one host call per ``vmap`` batch; no gradient).
 
     Args:
-      stepper: the :class:`Stepper` (a static part of the operation, not traced).
+      stepper: the :class:`Stepper` (static, not traced).
       qpos: positions ``(..., nq)``.
       qvel: velocities ``(..., nv)``.
-      ctrl: controls ``(..., nu)``, held for the ``n_sub`` steps.
-      fast: use the direct host callback where possible (see above).
-
-    Returns:
-      ``(qpos (..., nq), qvel (..., nv), sensordata (..., n_sub, nsensordata))``, float32
-      ``jax.Array``.
+      ctrl: controls ``(..., nu)``.
+      fast: on CPU, call XLA's host callback directly, not ``jax.pure_callback`` (same result).
 
     Examples:
-      >>> import jax, jax.numpy as jnp
+      >>> import jax
       >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> stepper = Stepper(arm.mj_model, n_sub=5, threads=1)
+      >>> stepper = Stepper(robots.load("two_link_arm").mj_model, n_sub=5, threads=1)
       >>> step = jax.jit(jax.vmap(lambda q, qd, u: host_step(stepper, q, qd, u)))
-      >>> q, qd, sensors = step(jnp.zeros((3, 2)), jnp.zeros((3, 2)), jnp.zeros((3, 2)))
-      >>> q.shape, sensors.shape
-      ((3, 2), (3, 5, 0))
-      >>> slow = host_step(stepper, jnp.zeros(2), jnp.zeros(2), jnp.zeros(2), fast=False)
-      >>> bool(jnp.all(slow[0] == q[0]))  # same results through jax.pure_callback
-      True
+      >>> step(np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 2)))[0].shape
+      (3, 2)
     """
     import jax
     import jax.numpy as jnp

@@ -1,23 +1,8 @@
 """Forward model and controller as ``(init, apply)`` pairs of pure functions (Flax linen).
 
-* Forward model ``f(s, tau) -> qdd``: an ensemble of probabilistic MLPs (PETS, Chua et al.
-  2018): each member outputs a Gaussian mean and a log-variance softly bounded between
-  learned limits. Inputs and outputs are normalised with statistics of the data
-  (:class:`Normaliser`); the members are one parameter pytree with a leading member axis.
-* Controller ``g(s, qdd*) -> tau``: an MLP whose output is squashed into the torque limits,
-  ``tau = tau_max * tanh(raw)``.
-
-Both models work in the space the desired state ``s*`` is given in (joint accelerations),
-so the task and joint losses compare like with like.
-
-Examples:
-  >>> import jax, jax.numpy as jnp
-  >>> norm = Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
-  >>> fm = forward_model(hidden=(8,), ensemble_size=2, nv=2)
-  >>> params = fm.init(jax.random.key(0), state_dim=4)
-  >>> mean, log_var = fm.apply(params, norm, jnp.zeros(4), jnp.zeros(2))
-  >>> mean.shape, log_var.shape
-  ((2, 2), (2, 2))
+The forward model ``f(s, tau)`` is an ensemble of probabilistic MLPs (PETS, Chua et al.
+2018, :func:`forward_model`); the controller ``g(s, s*) -> tau`` an MLP squashed into the
+torque limits (:func:`controller`). Both see inputs scaled by a :class:`Normaliser`.
 """
 
 from __future__ import annotations
@@ -34,28 +19,20 @@ from cfm_jax import losses
 
 @struct.dataclass
 class Normaliser:
-    """Centres and scales of the networks' inputs and outputs: statistics of the babbling
-    data (fitted once), of the whole data set (refitted before every fit) or fixed physical
-    scales of the robot, as ``Config.loop.normaliser`` says (:func:`from_data`,
-    :func:`from_scales`).
+    """Centres and scales of the networks' inputs and outputs (``Config.loop.normaliser``: of
+    the babbling data, of the data set, or the robot's physical scales).
 
     Attributes:
       state_mean: ``(state_dim,)`` mean of the learning state.
       state_std: ``(state_dim,)`` standard deviation of the learning state.
-      output_mean: ``(output_dim,)`` mean of the observed quantity the forward model
-        predicts (joint accelerations for the joint-space task); the forward model's
-        outputs, the observed quantity and (by ``desired_index``) the desired quantity are
-        normalised with it and ``output_std``.
-      output_std: ``(output_dim,)`` standard deviation of the same quantity.
-      torque_limit: ``(action_dim,)`` the torque limits: the bound of the controller's
-        output, and the scale of the torques where ``torque_scale`` is None.
-      torque_scale: ``(action_dim,)`` scale of the torques
-        (:meth:`cfm_jax.robots.Robot.torque_scale`), or None: the torque limits. The
-        forward model takes ``tau / scale``; the controller puts out
-        ``torque_limit tanh(u)`` (None) or ``torque_limit tanh(torque_scale u /
-        torque_limit)``, whose slope at 0 is ``torque_scale``.
-      desired_index: static tuple, the entries of the output the desired quantity specifies
-        (``None``: all of them, in order).
+      output_mean: ``(output_dim,)`` mean of the observed quantity (also used for the
+        forward model's outputs and, at ``desired_index``, the desired quantity).
+      output_std: ``(output_dim,)`` its standard deviation.
+      torque_limit: ``(action_dim,)`` bound of the controller's output.
+      torque_scale: ``(action_dim,)`` or ``(action_dim, action_dim)`` torque scale ``T``
+        (:meth:`cfm_jax.robots.Robot.torque_scale`), or None: the limits. The forward model
+        takes ``T^-1 tau``, the controller puts out ``torque_limit tanh(T u / torque_limit)``.
+      desired_index: static, the output entries the desired quantity specifies (None: all).
 
     Examples:
       >>> norm = Normaliser.from_data(jnp.array([[0.0], [2.0]]), jnp.array([[1.0], [3.0]]),
@@ -90,11 +67,7 @@ class Normaliser:
     def from_data(
         cls, states, observed, torque_limit, weights=None, desired_index=None, torque_scale=None
     ) -> Normaliser:
-        """Statistics of ``states (n, state_dim)`` and ``observed (n, output_dim)``.
-
-        ``weights (n,)`` (0 or 1) masks rows out (for example non-finite ones); standard
-        deviations are floored at 1e-3.
-        """
+        """Statistics of ``states`` and ``observed`` (rows of nonzero ``weights``; std >= 1e-3)."""
         floor = 1e-3
         n = states.shape[0]
         weights = jnp.ones(n) if weights is None else weights.astype(jnp.float32)
@@ -129,14 +102,7 @@ class Normaliser:
         desired_index=None,
         torque_scale=None,
     ) -> Normaliser:
-        """A normaliser of given centres and scales (for example the robot's fixed
-        physical scales, :func:`cfm_jax.tasks.scales.robot_scales`), as float32.
-
-        Examples:
-          >>> norm = Normaliser.from_scales([1.0], [2.0], [0.0], [4.0], [1.0])
-          >>> norm.state(jnp.array([3.0])).tolist(), norm.output(jnp.array([2.0])).tolist()
-          ([1.0], [0.5])
-        """
+        """A normaliser of given centres and scales (:func:`cfm_jax.tasks.scales.robot_scales`)."""
         state_mean, state_std, output_mean, output_std, torque_limit = (
             jnp.asarray(x, jnp.float32)
             for x in (state_mean, state_std, output_mean, output_std, torque_limit)
@@ -155,17 +121,14 @@ class Normaliser:
         return (s - self.state_mean) / self.state_std
 
     def torque(self, tau):
-        """Scaled torque ``(..., action_dim)``: ``tau / torque_scale`` (None: the limits;
-        a matrix scale ``T``: ``T^-1 tau``)."""
+        """Scaled torque: ``tau / torque_scale``, or ``T^-1 tau`` for a matrix ``T``."""
         scale = self.torque_limit if self.torque_scale is None else self.torque_scale
         if scale.ndim == 2:  # a coupled scale T: T^-1 tau
             return jnp.linalg.solve(scale, tau[..., None])[..., 0]
         return tau / scale
 
     def torque_output(self, u):
-        """The controller's torque for its network's output ``u``: ``torque_limit tanh(u)``,
-        or with a ``torque_scale`` ``torque_limit tanh(torque_scale u / torque_limit)``
-        (slope ``torque_scale`` at 0, bounded by the limits)."""
+        """The controller's torque for its network's output ``u`` (see ``torque_scale``)."""
         if self.torque_scale is None:
             return self.torque_limit * jnp.tanh(u)
         if self.torque_scale.ndim == 2:  # a coupled scale T
@@ -184,13 +147,11 @@ class Normaliser:
         return y if self.desired_index is None else y[..., jnp.asarray(self.desired_index)]
 
     def desired(self, d):
-        """Normalised desired quantity ``(..., desired_dim)`` (the output's statistics at
-        ``desired_index``)."""
+        """Normalised desired quantity (the output's statistics at ``desired_index``)."""
         return (d - self.select(self.output_mean)) / self.select(self.output_std)
 
 
 def _scale(torque_scale):
-    """None, or the torque scale as float32."""
     return None if torque_scale is None else jnp.asarray(torque_scale, jnp.float32)
 
 
@@ -224,34 +185,22 @@ def _unchanged(params, runtime):
 
 
 class Model(NamedTuple):
-    """A network as pure functions: ``(init, apply)``, and for a forward model its whole
-    contract with the learning loop, which calls these and knows nothing of the
-    parameters (a new kind of forward model is a :class:`Model` and one
-    :func:`cfm_jax.forward_models.register`).
+    """A network as pure functions, and a forward model's whole contract with the learning loop,
+    which knows nothing of its parameters (docs/concepts/method.md).
 
     Attributes:
       init: ``init(key, state_dim) -> params``.
-      apply: ``apply(params, normaliser, state, other) -> output`` (see
-        :func:`forward_model` and :func:`controller`).
-      terms: forward models only: ``terms(state (..., state_dim)) -> pytree (..., ...)``,
-        what the model needs per transition besides ``(s, tau)``, computed once when a
-        transition enters the data set (:attr:`cfm_jax.dataset.Transitions.terms`) and
-        passed on as ``terms=``; None (the ``mlp`` ensemble, the controller): none.
-      objective: forward models: ``objective(params, normaliser, batch) -> scalar``, the
-        training loss of a fit step on ``batch`` (:class:`cfm_jax.dataset.Transitions`
-        with a leading axis of ``batches(params)`` minibatches, each of ``(rows, ...)``);
-        None for a controller.
-      predict: forward models: ``predict(params, normaliser, state (..., state_dim), tau
-        (..., action_dim), terms=None) -> (..., output_dim)``, the prediction in normalised
-        output units (``normaliser.output_inverse`` gives physical units) that the
-        controller losses and the metrics use; None for a controller.
-      batches: forward models: ``batches(params) -> int``, the minibatches drawn for each
-        fit step (the ensemble: one per member); default 1.
-      start: forward models: ``start(params, runtime) -> params``, the parameters a fit
-        starts from (called on fresh ``init`` parameters), given the forward section's
-        runtime values (``runtime``: ``{field: float32}`` of the ``forward.*`` fields of
-        :data:`cfm_jax.config.RUNTIME_FIELDS` but the learning rate; the ensemble sets its
-        log-variance bounds from them); default: unchanged.
+      apply: ``apply(params, normaliser, state, other)`` (:func:`forward_model`,
+        :func:`controller`).
+      terms: ``terms(state) -> pytree`` that a forward model needs per transition besides
+        ``(s, tau)``, stored when it enters the data set and passed as ``terms=``; or None.
+      objective: ``objective(params, normaliser, batch) -> scalar``, the loss of a fit step
+        (``batch``: :class:`cfm_jax.dataset.Transitions` of ``batches(params)`` minibatches).
+      predict: ``predict(params, normaliser, state, tau, terms=None)``, the prediction in
+        normalised output units that the controller losses and metrics use.
+      batches: ``batches(params) -> int``, minibatches per fit step; default 1.
+      start: ``start(params, runtime) -> params``, what a fit starts from given the
+        ``forward.*`` runtime values; default: unchanged.
 
     Examples:
       >>> g = controller(hidden=(8,), nv=2)
@@ -275,32 +224,21 @@ LOG_VARIANCE_BOUND_PENALTY = 0.01
 
 
 def pets(init, apply, terms=None) -> Model:
-    """The forward :class:`Model` of a PETS-style ensemble: ``apply(params, normaliser,
-    state, tau, per_member=False, terms=None) -> (mean, log_variance)``, each ``(members,
-    ..., output)``, over parameters ``{"members": (members, ...) leaves, "min_log_variance",
-    "max_log_variance"}`` (:func:`forward_model`; the ``rigid_body`` kind adds physics to
-    its mean). The contract it gets: ``objective`` the mean Gaussian NLL of the observed
-    quantity over members and rows, member ``e`` scored on minibatch ``e`` only, plus
-    :data:`LOG_VARIANCE_BOUND_PENALTY` times the learned bounds (PETS); ``predict`` the mean
-    over members; ``batches`` the members; ``start`` sets both bounds to the runtime's
-    ``min_log_variance`` and ``max_log_variance``.
+    """The forward :class:`Model` of a PETS ensemble ``apply -> (mean, log_variance)``, each
+    ``(members, ..., output)``: ``objective`` is the Gaussian NLL with member ``e`` scored on
+    minibatch ``e`` plus :data:`LOG_VARIANCE_BOUND_PENALTY` times the learned bounds,
+    ``predict`` the members' mean, ``start`` sets the bounds from the runtime values.
 
     Args:
-      init: ``init(key, state_dim) -> params``.
-      apply: the ensemble's ``apply`` (above).
+      init: ``init(key, state_dim) -> {"members", "min_log_variance", "max_log_variance"}``.
+      apply: ``apply(params, normaliser, state, tau, per_member=False, terms=None)``.
       terms: ``terms(state)``, what ``apply`` needs per transition, or None.
-
-    Returns:
-      A :class:`Model`.
 
     Examples:
       >>> fm = forward_model(hidden=(8,), ensemble_size=3, nv=2)  # pets(...) of the MLPs
       >>> params = fm.init(jax.random.key(0), state_dim=4)
       >>> fm.batches(params)
       3
-      >>> bounds = {"min_log_variance": -5.0, "max_log_variance": 1.0}
-      >>> fm.start(params, bounds)["min_log_variance"].tolist()
-      [-5.0, -5.0]
     """
 
     def objective(params, normaliser: Normaliser, batch):
@@ -339,29 +277,18 @@ def forward_model(
     max_log_variance: float = 0.5,
     action_dim: int | None = None,
 ) -> Model:
-    """Probabilistic ensemble ``f(s, tau)`` predicting the normalised observed quantity.
+    """Probabilistic ensemble ``f(s, tau) -> (mean, log_variance)`` in normalised output units.
 
-    ``nv`` is the output size (the joint accelerations for the joint-space task; in
-    general the task's ``output_dim``), ``action_dim`` the size of ``tau`` (default ``nv``).
-    ``apply(params, normaliser, state (..., state_dim), tau (..., action_dim))`` returns
-    ``(mean, log_variance)``, each ``(ensemble_size, ..., nv)``, in normalised units
-    (``normaliser.output``). With ``per_member=True`` the inputs carry a leading member axis
-    ``(ensemble_size, ..., ·)`` and member ``e`` sees only ``state[e], tau[e]`` (used to
-    train every member on its own minibatches). Log-variance bounds follow PETS:
-    ``lv = max - softplus(max - raw); lv = min + softplus(lv - min)`` with learned ``max``
-    and ``min``.
+    Each output is ``(ensemble_size, ..., nv)``; with ``per_member=True`` member ``e`` sees
+    only ``state[e], tau[e]``. Log-variances are softly bounded by learned limits (PETS).
 
     Args:
       hidden: hidden layer widths (ReLU).
-      ensemble_size: number of members ``E``.
+      ensemble_size: number of members.
       nv: output size (the task's ``output_dim``).
-      min_log_variance: initial lower bound of the log-variance (learned).
-      max_log_variance: initial upper bound (learned).
+      min_log_variance: initial lower bound of the log-variance.
+      max_log_variance: initial upper bound.
       action_dim: size of ``tau`` (default ``nv``).
-
-    Returns:
-      A :class:`Model`; ``init(key, state_dim)`` gives ``{"members": (E, ...) leaves,
-      "max_log_variance": (nv,), "min_log_variance": (nv,)}``.
 
     Examples:
       >>> norm = Normaliser.identity(state_dim=4, output_dim=3, torque_limit=jnp.ones(2))
@@ -399,22 +326,15 @@ def forward_model(
 
 
 def ensemble(forward, output_dim: int, action_dim: int) -> Model:
-    """The PETS ensemble a forward-model config describes (:func:`forward_model` with its
-    ``hidden``, ``ensemble_size`` and log-variance bounds) over an output of
-    ``output_dim`` from ``action_dim`` torques: the ``mlp`` kind, and the residual of the
-    ``rigid_body`` kind.
+    """:func:`forward_model` of a forward-model config: the ``mlp`` kind, ``rigid_body``'s residual.
 
     Args:
       forward: a :class:`cfm_jax.config.ForwardModelConfig`.
       output_dim: the task's output size.
       action_dim: the task's number of torques.
 
-    Returns:
-      A :class:`Model`.
-
     Examples:
-      >>> from cfm_jax.config import ForwardModelConfig
-      >>> fm = ensemble(ForwardModelConfig(hidden=(8,), ensemble_size=2), 3, 2)
+      >>> fm = ensemble(cfm_jax.config.ForwardModelConfig(hidden=(8,), ensemble_size=2), 3, 2)
       >>> fm.init(jax.random.key(0), state_dim=4)["max_log_variance"].shape
       (3,)
     """
@@ -429,20 +349,13 @@ def ensemble(forward, output_dim: int, action_dim: int) -> Model:
 
 
 def controller(hidden: tuple[int, ...], nv: int, desired_dim: int | None = None) -> Model:
-    """Controller ``g(s, s*) -> tau``, squashed into the torque limits.
-
-    ``nv`` is the number of torques (``action_dim``), ``desired_dim`` the size of the
-    desired quantity ``s*`` (default ``nv``: a desired joint acceleration).
-    ``apply(params, normaliser, state (..., state_dim), desired (..., desired_dim))`` returns
-    ``tau (..., nv)`` with ``|tau| < normaliser.torque_limit``.
+    """Controller ``g(s, s*) -> tau (..., nv)``, squashed into the torque limits
+    (:meth:`Normaliser.torque_output`).
 
     Args:
       hidden: hidden layer widths (ReLU).
       nv: number of torques (``action_dim``).
       desired_dim: size of ``s*`` (default ``nv``).
-
-    Returns:
-      A :class:`Model`.
 
     Examples:
       >>> norm = Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.array([5.0, 1.0]))

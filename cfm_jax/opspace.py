@@ -1,33 +1,8 @@
-"""Operational-space kinematics of an end-effector site: site lookup, MuJoCo C and MJX.
-
-The operational-space task (paper section IV-A-2) controls a MuJoCo *site* (:func:`ee_site`)
-of the arm. Everything here is linear, in the world frame, of the site's origin: position
-``x (3,)``, velocity ``xd = J qd``, acceleration ``xdd = J qdd + Jdot qd`` with the
-translational site Jacobian ``J (3, nv)``. The task's Cartesian references are in
-:mod:`cfm_jax.references`, its oracle and PD baseline in :mod:`cfm_jax.baselines`.
-
-Kinematics are computed by MuJoCo's C engine (``mj_kinematics``, ``mj_comPos``,
-``mj_comVel``, ``mj_jacSite``, ``mj_jacDot``), on the host, through ``jax.pure_callback``
-(``vmap_method="broadcast_all"``: one host call per batch, like the native simulator).
-Measured against MJX in JAX on the iiwa (``docs/opspace.md``): compile 0.13 s instead of
-33-37 s, and 180 / 390 us instead of 480 / 1230 us per control step for a batch of 5 / 15
-states. The callback's inputs are wrapped in ``stop_gradient``: the kinematics are
-constants of the state under ``jax.grad``; :func:`task_acceleration` is linear in ``qacc``
-and differentiable in it (the path a task loss on predicted joint accelerations needs).
-With ``simulator="mjx"`` the same quantities come from MJX (:func:`mjx_kinematics`), in
-JAX on the device.
-
-Host class (NumPy float64, any leading batch shape; the oracle of the tests):
-:class:`HostKinematics`. JAX functions (float32, jit/vmap-able): :func:`kinematics`,
-:func:`ee_position`, :func:`ee_velocity`, :func:`ee_jacobian`, :func:`ee_acceleration`.
-
-Examples:
-  >>> import numpy as np
-  >>> from cfm_jax import robots
-  >>> iiwa = robots.load("iiwa14")
-  >>> x = ee_position(iiwa, iiwa.home)  # the flange at the home pose
-  >>> np.round(np.asarray(x, np.float64), 3).tolist()
-  [0.669, 0.0, 0.285]
+"""Kinematics of an end-effector site (a MuJoCo site's origin, world frame) for the
+operational-space task: :func:`kinematics` takes them from MuJoCo C on the host
+(:class:`HostKinematics`, one ``jax.pure_callback`` per batch: it compiles in 0.13 s, MJX in
+over 30 s) or from MJX (:func:`mjx_kinematics`), as constants of the state under
+``jax.grad``. See docs/opspace.md.
 """
 
 from __future__ import annotations
@@ -55,13 +30,9 @@ def site_names(robot) -> tuple[str, ...]:
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
 
-    Returns:
-      A tuple of ``nsite`` names.
-
     Examples:
-      >>> from cfm_jax import robots
-      >>> site_names(robots.load("two_link_arm")), site_names(robots.load("iiwa14"))
-      (('tip',), ('flange',))
+      >>> site_names(cfm_jax.robots.load("iiwa14"))
+      ('flange',)
     """
     model = robot.mj_model
     return tuple(
@@ -70,30 +41,19 @@ def site_names(robot) -> tuple[str, ...]:
 
 
 def ee_site(robot, name: str | None = None) -> int:
-    """Id of the end-effector site: ``name`` if given, else the first of :data:`DEFAULT_SITES`
-    (``"ee"``, then ``"flange"``, then ``"attachment_site"``, MuJoCo Menagerie's name) that
-    the model has.
+    """Id of the end-effector site: ``name``, or the first of :data:`DEFAULT_SITES` the model has.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
-      name: a site name of the robot's MJCF, or None for the default.
-
-    Returns:
-      The site id (int).
-
-    Examples:
-      >>> from cfm_jax import robots
-      >>> iiwa = robots.load("iiwa14")
-      >>> ee_site(iiwa) == ee_site(iiwa, "flange")
-      True
-      >>> ee_site(robots.load("two_link_arm"))  # its only site is called "tip"
-      Traceback (most recent call last):
-      ...
-      cfm_jax.config.ConfigError: task.site=None is not allowed for robot 'two_link_arm': ...
+      name: a site name of the robot's MJCF, or None.
 
     Raises:
-      ConfigError: no such site, no default site, or a site fixed to the world body; the
-        message names the site and lists the model's sites.
+      ConfigError: no such site, no default site, or a site fixed to the world body.
+
+    Examples:
+      >>> ee_site(cfm_jax.robots.load("two_link_arm"))  # its only site is called "tip"
+      Traceback (most recent call last):
+      cfm_jax.config.ConfigError: task.site=None is not allowed for robot 'two_link_arm': ...
     """
     model = robot.mj_model
     names = site_names(robot)
@@ -133,17 +93,12 @@ def site_id(robot, site: int | str | None) -> int:
       robot: a :class:`cfm_jax.robots.Robot`.
       site: a site id, a site name, or None.
 
-    Returns:
-      The site id.
-
     Raises:
-      ConfigError: an id out of range, a name the robot lacks, a site fixed to the world.
+      ConfigError: an id out of range, or as :func:`ee_site`.
 
     Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> site_id(arm, "tip"), site_id(arm, 0)
-      (0, 0)
+      >>> site_id(cfm_jax.robots.load("two_link_arm"), "tip")
+      0
     """
     if isinstance(site, int | np.integer) and not isinstance(site, bool):
         if not 0 <= int(site) < robot.mj_model.nsite:
@@ -165,17 +120,13 @@ class Kinematics(NamedTuple):
       position: ``x``, ``(..., 3)`` (m).
       velocity: ``xd = J qd``, ``(..., 3)`` (m/s).
       jacobian: ``J = dx/dq``, ``(..., 3, nv)``.
-      bias_acceleration: ``Jdot qd``, ``(..., 3)`` (m/s^2): the site's acceleration when
-        ``qdd = 0``, so that ``xdd = J qdd + Jdot qd``.
+      bias_acceleration: ``Jdot qd``, ``(..., 3)`` (m/s^2): ``xdd`` at ``qdd = 0``.
 
     Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")  # stretched out along x at q = 0, 0.9 m long
+      >>> arm = cfm_jax.robots.load("two_link_arm")  # along x at q = 0, 0.9 m long
       >>> kin = HostKinematics(arm, "tip")(np.zeros(2), np.array([1.0, 0.0]))
-      >>> np.round(kin.position, 3).tolist(), np.round(kin.velocity, 3).tolist()
-      ([0.9, 0.0, 1.0], [0.0, 0.0, 0.9])
-      >>> np.round(kin.bias_acceleration, 3).tolist()  # centripetal, towards the shoulder
-      [-0.9, 0.0, 0.0]
+      >>> kin.velocity.round(3).tolist(), kin.bias_acceleration.round(3).tolist()
+      ([0.0, 0.0, 0.9], [-0.9, 0.0, 0.0])
     """
 
     position: np.ndarray
@@ -185,24 +136,16 @@ class Kinematics(NamedTuple):
 
 
 def task_acceleration(kin: Kinematics, qacc):
-    """``xdd = J qacc + Jdot qd`` from :class:`Kinematics` and joint accelerations.
-
-    Linear and differentiable in ``qacc``; NumPy in (float64 :class:`HostKinematics`), NumPy
-    out, otherwise ``jnp``.
+    """``xdd = J qacc + Jdot qd``, ``(..., 3)``: linear and differentiable in ``qacc``.
 
     Args:
-      kin: :class:`Kinematics` of the states, leading axes ``...``.
+      kin: :class:`Kinematics` of the states (NumPy ones give NumPy, else ``jnp``).
       qacc: joint accelerations, ``(..., nv)``.
 
-    Returns:
-      The site accelerations ``xdd``, ``(..., 3)``.
-
     Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> kin = HostKinematics(arm, "tip")(np.zeros(2), np.array([1.0, 0.0]))
-      >>> np.round(task_acceleration(kin, np.array([1.0, 0.0])), 3).tolist()
-      [-0.9, 0.0, 0.9]
+      >>> kin = HostKinematics(cfm_jax.robots.load("two_link_arm"), "tip")(np.zeros(2), np.ones(2))
+      >>> task_acceleration(kin, np.zeros(2)).round(3).tolist()  # centripetal
+      [-2.1, 0.0, 0.0]
     """
     arrays = (kin.jacobian, kin.bias_acceleration, qacc)
     xp = np if all(isinstance(a, np.ndarray) for a in arrays) else jnp
@@ -210,22 +153,18 @@ def task_acceleration(kin: Kinematics, qacc):
 
 
 class HostKinematics:
-    """Site kinematics with MuJoCo C on the host, float64, any leading batch shape.
+    """Site kinematics by MuJoCo C on the host, NumPy float64: the tests' oracle.
 
-    ``HostKinematics(robot, site)(qpos (..., nq), qvel (..., nv)) -> Kinematics`` of NumPy
-    float64 arrays. Per state: ``mj_kinematics``, ``mj_comPos``, ``mj_comVel``, then
-    ``J = mj_jacSite`` (translational part) and ``Jdot = mj_jacDot`` at the site position.
+    ``HostKinematics(robot, site)(qpos (..., nq), qvel (..., nv))`` gives :class:`Kinematics`.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       site: the site's id or name, or None for :func:`ee_site`'s default.
 
     Examples:
-      >>> from cfm_jax import robots
-      >>> iiwa = robots.load("iiwa14")
-      >>> kin = HostKinematics(iiwa)(iiwa.home, np.zeros(7))
-      >>> kin.jacobian.shape, np.round(kin.position, 3).tolist()
-      ((3, 7), [0.669, 0.0, 0.285])
+      >>> iiwa = cfm_jax.robots.load("iiwa14")
+      >>> HostKinematics(iiwa)(iiwa.home, np.zeros(7)).jacobian.shape
+      (3, 7)
     """
 
     def __init__(self, robot, site: int | str | None = None):
@@ -274,25 +213,17 @@ _HOSTS: dict = {}
 
 
 def host_function(kind, robot, site: int, *args):
-    """The host object ``kind(robot, site, *args)``, built once per (kind, model, site, args)
-    and reused, wrapped to return float32 arrays: the callable that ``jax.pure_callback``
-    calls for :func:`kinematics` and :func:`cfm_jax.baselines.opspace_oracle`.
+    """``kind(robot, site, *args)``, built once, returning float32, for ``jax.pure_callback``.
 
     Args:
-      kind: a class taking ``(robot, site, *args)`` whose instances are called on NumPy
-        arrays (:class:`HostKinematics`, :class:`cfm_jax.baselines.HostOpspaceOracle`).
-      robot: a :class:`cfm_jax.robots.Robot` (its model is kept alive with the object).
+      kind: a class such as :class:`HostKinematics` or :class:`cfm_jax.baselines.HostOpspaceOracle`.
+      robot: a :class:`cfm_jax.robots.Robot`.
       site: the site id (:func:`site_id`).
       args: further hashable constructor arguments.
 
-    Returns:
-      A function of the same arguments as the object, returning its outputs as float32.
-
     Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> host = host_function(HostKinematics, arm, site_id(arm, "tip"))
-      >>> host(arm.home, np.zeros(2)).position.dtype
+      >>> arm = cfm_jax.robots.load("two_link_arm")
+      >>> host_function(HostKinematics, arm, 0)(arm.home, np.zeros(2)).position.dtype
       dtype('float32')
     """
     key = (kind.__name__, id(robot.mj_model), site, args)
@@ -311,27 +242,17 @@ def kinematics(
 ) -> Kinematics:
     """:class:`Kinematics` of the site as float32 JAX arrays, any leading batch shape.
 
-    ``simulator="native"``: one ``jax.pure_callback`` into :class:`HostKinematics` (under
-    ``vmap``, one host call for the whole batch), MuJoCo C in float64. ``"mjx"``:
-    :func:`mjx_kinematics`, in JAX on the device, no host callback. Either way treated as
-    a constant of ``(qpos, qvel)`` by ``jax.grad``.
-
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       qpos: joint positions, ``(..., nq)``.
-      qvel: joint velocities, ``(..., nv)`` (broadcast to ``qpos``'s batch shape).
+      qvel: joint velocities, ``(..., nv)``.
       site: the site's id or name, or None for :func:`ee_site`'s default.
-      simulator: ``"native"`` or ``"mjx"``.
-
-    Returns:
-      :class:`Kinematics` of float32 ``jax.Array`` with leading axes ``...``.
+      simulator: ``"native"`` (MuJoCo C, one host callback per batch) or ``"mjx"``.
 
     Examples:
-      >>> from cfm_jax import robots
-      >>> iiwa = robots.load("iiwa14")
-      >>> kin = jax.jit(lambda q, qd: kinematics(iiwa, q, qd))(iiwa.home, np.zeros(7))
-      >>> kin.jacobian.shape, kin.position.dtype
-      ((3, 7), dtype('float32'))
+      >>> iiwa = cfm_jax.robots.load("iiwa14")
+      >>> jax.jit(lambda q, v: kinematics(iiwa, q, v))(iiwa.home, np.zeros(7)).jacobian.shape
+      (3, 7)
     """
     if simulator == "mjx":
         qpos = jax.lax.stop_gradient(jnp.asarray(qpos, jnp.float32))
@@ -350,24 +271,18 @@ def kinematics(
 
 
 def mjx_site(robot, site: int | str | None):
-    """What the MJX site computations need: ``(mjx model, site id, body id, blank data)``.
+    """``(robot.mjx_model, site id, the site's body id, blank mjx data)``.
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot` with hinge and slide joints (``nq == nv``).
+      robot: a :class:`cfm_jax.robots.Robot` with hinge and slide joints only.
       site: the site's id or name, or None for :func:`ee_site`'s default.
 
-    Returns:
-      ``(robot.mjx_model, site id, id of the site's body, mjx.make_data(model))``.
-
     Raises:
-      ValueError: the robot has a ball or free joint (``nq != nv``).
+      ValueError: a ball or free joint (``nq != nv``).
 
     Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> model, site, body, blank = mjx_site(arm, "tip")
-      >>> site == site_id(arm, "tip"), blank.qpos.shape
-      (True, (2,))
+      >>> mjx_site(cfm_jax.robots.load("two_link_arm"), "tip")[1:3]
+      (0, 2)
     """
     if robot.nq != robot.nv:
         raise ValueError(
@@ -380,20 +295,15 @@ def mjx_site(robot, site: int | str | None):
 
 
 def over_batch(one, *arrays):
-    """``one`` of unbatched arrays, mapped (``jax.vmap``) over the common leading axes of
-    ``arrays`` (each broadcast to them; the last axis is each array's own).
+    """``jax.vmap`` of ``one`` over the leading axes of ``arrays``, broadcast together.
 
     Args:
-      one: a function of one unbatched array per argument, returning a pytree of arrays.
-      arrays: ``(..., k_i)`` arrays whose leading axes broadcast together.
-
-    Returns:
-      ``one``'s pytree with the common leading axes ``...`` in front of every leaf.
+      one: a function of one unbatched array per argument, returning a pytree.
+      arrays: ``(..., k_i)`` arrays.
 
     Examples:
-      >>> out = over_batch(lambda a, b: a @ b, jnp.ones((4, 5, 3)), jnp.ones((5, 3)))
-      >>> out.shape, float(out[0, 0])
-      ((4, 5), 3.0)
+      >>> over_batch(lambda a, b: a @ b, jnp.ones((4, 5, 3)), jnp.ones((5, 3))).shape
+      (4, 5)
     """
     batch = jnp.broadcast_shapes(*(a.shape[:-1] for a in arrays))
     flat = [jnp.broadcast_to(a, batch + a.shape[-1:]).reshape(-1, a.shape[-1]) for a in arrays]
@@ -402,35 +312,21 @@ def over_batch(one, *arrays):
 
 
 def mjx_kinematics(robot, qpos, qvel, site: int | str | None = None) -> Kinematics:
-    """:class:`Kinematics` of the site computed by MJX, in JAX: no host callback.
-
-    ``x`` is MJX's ``site_xpos`` after ``mjx.kinematics`` and ``mjx.com_pos``, ``J`` the
-    translational part of ``mjx.jac`` at the site (MuJoCo's ``mj_jacSite``), ``xd = J qd``,
-    and ``Jdot qd`` the derivative of ``J(q) qd`` along ``qd`` (forward-mode
-    differentiation through MJX; MuJoCo C's ``mj_jacDot`` is the host counterpart).
-    float32, any leading batch shape, jit/vmap-able and differentiable.
+    """:class:`Kinematics` by MJX, in JAX; ``Jdot qd`` is ``J(q) qd``'s derivative along ``qd``.
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot` with hinge and slide joints (``nq == nv``).
+      robot: a :class:`cfm_jax.robots.Robot` with hinge and slide joints only.
       qpos: joint positions, ``(..., nq)``.
       qvel: joint velocities, ``(..., nv)``.
       site: the site's id or name, or None for :func:`ee_site`'s default.
 
-    Returns:
-      :class:`Kinematics` of float32 ``jax.Array``.
-
     Raises:
-      ValueError: the robot has a ball or free joint.
+      ValueError: a ball or free joint.
 
     Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")  # stretched out along x at q = 0, 0.9 m long
-      >>> # not run: MJX run op by op, 15 s on 2 shared cores
-      >>> kin = mjx_kinematics(arm, np.zeros(2), np.array([1.0, 0.0]), "tip")  # doctest: +SKIP
-      >>> np.round(np.asarray(kin.velocity, np.float64), 3).tolist()  # doctest: +SKIP
-      [0.0, 0.0, 0.9]
-      >>> np.round(np.asarray(kin.bias_acceleration, np.float64), 3).tolist()  # doctest: +SKIP
-      [-0.9, 0.0, 0.0]
+      >>> arm = cfm_jax.robots.load("two_link_arm")  # not run: MJX op by op takes 15 s
+      >>> mjx_kinematics(arm, np.zeros(2), np.ones(2), "tip").position.shape  # doctest: +SKIP
+      (3,)
     """
     model, sid, bid, blank = mjx_site(robot, site)
 
@@ -450,28 +346,23 @@ def mjx_kinematics(robot, qpos, qvel, site: int | str | None = None) -> Kinemati
 
 
 def ee_position(robot, qpos, site: int | str | None = None):
-    """Site position ``x(q)`` in the world frame, ``(..., 3)`` float32 (m).
+    """Site position ``x(q)`` (m), world frame, ``(..., 3)`` float32.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       qpos: joint positions, ``(..., nq)``.
       site: the site's id or name, or None for :func:`ee_site`'s default.
 
-    Returns:
-      ``x``, ``(..., 3)`` float32 ``jax.Array``.
-
     Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")  # shoulder at (0, 0, 1), links 0.5 + 0.4 m
-      >>> x = ee_position(arm, np.zeros((4, 2)), "tip")  # a batch of 4 poses
-      >>> x.shape, np.round(np.asarray(x[0], float), 3).tolist()
-      ((4, 3), [0.9, 0.0, 1.0])
+      >>> iiwa = cfm_jax.robots.load("iiwa14")
+      >>> np.round(np.asarray(ee_position(iiwa, iiwa.home), float), 3).tolist()  # the flange
+      [0.669, 0.0, 0.285]
     """
     return kinematics(robot, qpos, jnp.zeros(jnp.shape(qpos)), site).position
 
 
 def ee_velocity(robot, qpos, qvel, site: int | str | None = None):
-    """Linear site velocity ``xd = J(q) qd`` in the world frame, ``(..., 3)`` float32.
+    """Site velocity ``xd = J(q) qd`` (m/s), world frame, ``(..., 3)`` float32.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
@@ -479,50 +370,34 @@ def ee_velocity(robot, qpos, qvel, site: int | str | None = None):
       qvel: joint velocities, ``(..., nv)``.
       site: the site's id or name, or None for :func:`ee_site`'s default.
 
-    Returns:
-      ``xd`` (m/s), ``(..., 3)`` float32 ``jax.Array``.
-
     Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> xd = ee_velocity(arm, np.zeros(2), np.array([1.0, 0.0]), "tip")
-      >>> np.round(np.asarray(xd, float), 3).tolist()
-      [0.0, 0.0, 0.9]
+      >>> arm = cfm_jax.robots.load("two_link_arm")  # along x at q = 0, 0.9 m long
+      >>> np.asarray(ee_velocity(arm, np.zeros(2), np.array([1.0, 0.0]), "tip")).round(3)
+      array([0. , 0. , 0.9], dtype=float32)
     """
     return kinematics(robot, qpos, qvel, site).velocity
 
 
 def ee_jacobian(robot, qpos, site: int | str | None = None):
-    """Translational site Jacobian ``J(q) = dx/dq`` (world frame), ``(..., 3, nv)``.
+    """Translational site Jacobian ``J(q) = dx/dq``, world frame, ``(..., 3, nv)`` float32.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       qpos: joint positions, ``(..., nq)``.
       site: the site's id or name, or None for :func:`ee_site`'s default.
 
-    Returns:
-      ``J``, ``(..., 3, nv)`` float32 ``jax.Array``.
-
     Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> jac = ee_jacobian(arm, np.zeros(2), "tip")
-      >>> jac.shape, np.round(np.asarray(jac[2], float), 3).tolist()  # dz/dq: lever arms
-      ((3, 2), [0.9, 0.4])
+      >>> jac = ee_jacobian(cfm_jax.robots.load("two_link_arm"), np.zeros(2), "tip")
+      >>> np.asarray(jac[2]).round(3)  # dz/dq: the lever arms
+      array([0.9, 0.4], dtype=float32)
     """
     return kinematics(robot, qpos, jnp.zeros(jnp.shape(qpos)), site).jacobian
 
 
 def ee_acceleration(robot, qpos, qvel, qacc, site: int | str | None = None):
-    """Linear site acceleration ``xdd = J(q) qacc + Jdot(q, qd) qd`` in the world frame,
-    ``(..., 3)`` float32 (m/s^2); differentiable in ``qacc``.
+    """Site acceleration ``xdd = J qacc + Jdot qd`` (m/s^2), world frame, ``(..., 3)`` float32.
 
-    This is the classical acceleration of the site point (the second time derivative of
-    ``x``), without gravity. MuJoCo's ``mj_objectAcceleration`` (after
-    ``mj_rnePostConstraint``) returns, in its linear part with ``flg_local=0``, this same
-    quantity minus ``opt.gravity`` (its recursion starts from the world body accelerating at
-    ``-gravity``); it already adds the ``omega x v`` term that converts MuJoCo's spatial
-    ``cacc`` to the classical acceleration. So ``xdd = res[3:] + opt.gravity``.
+    Without gravity: ``mj_objectAcceleration``'s linear part plus ``opt.gravity`` (docs/opspace.md).
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
@@ -531,14 +406,10 @@ def ee_acceleration(robot, qpos, qvel, qacc, site: int | str | None = None):
       qacc: joint accelerations, ``(..., nv)``.
       site: the site's id or name, or None for :func:`ee_site`'s default.
 
-    Returns:
-      ``xdd``, ``(..., 3)`` float32 ``jax.Array``.
-
     Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
+      >>> arm = cfm_jax.robots.load("two_link_arm")
       >>> xdd = ee_acceleration(arm, np.zeros(2), np.array([1.0, 0.0]), np.zeros(2), "tip")
-      >>> np.round(np.asarray(xdd, float), 3).tolist()  # centripetal, |qd|^2 * 0.9 m
-      [-0.9, 0.0, 0.0]
+      >>> np.asarray(xdd).round(3)  # centripetal, |qd|^2 * 0.9 m
+      array([-0.9, 0. , 0. ], dtype=float32)
     """
     return task_acceleration(kinematics(robot, qpos, qvel, site), qacc)

@@ -1,26 +1,5 @@
-"""Every figure of the library (matplotlib, imported when a figure is drawn): learning curves
-of training results and the foot forces of a legged reference. The numbers they draw come
-from :mod:`cfm_jax.report` (tables, statistics) and :mod:`cfm_jax.locomotion`.
-
-Each function returns the matplotlib :class:`~matplotlib.figure.Figure` (a notebook shows
-it); given a ``path`` it also writes the image there, whole and renamed into place
-(:mod:`cfm_jax._files`; the path's suffix picks the format, default PNG). The figures are
-made without pyplot: none stays open in pyplot's list, and the notebook's backend is left
-as it is.
-
-Examples:
-  >>> import os, tempfile
-  >>> import pandas as pd
-  >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [0, 1],
-  ...                         "tracking_mse": [1.0, 0.1]})
-  >>> figure = plot_learning_curves(metrics)  # no file
-  >>> [ax.get_ylabel() for ax in figure.axes][0]
-  'joint tracking MSE (rad$^2$)'
-  >>> path = os.path.join(tempfile.mkdtemp(), "curves.png")
-  >>> figure = plot_learning_curves(metrics, path)  # and the file
-  >>> os.path.getsize(path) > 0
-  True
-"""
+"""The library's figures (matplotlib, without pyplot): each returns the ``Figure`` and, given
+a ``path``, also writes the image there whole (the suffix picks the format, default PNG)."""
 
 from __future__ import annotations
 
@@ -42,16 +21,12 @@ if TYPE_CHECKING:
 
 
 def _figure(figsize: tuple[float, float]) -> Figure:
-    """A new matplotlib Figure, not registered with pyplot (no backend is chosen or
-    switched, nothing to close)."""
     from matplotlib.figure import Figure
 
     return Figure(figsize=figsize)
 
 
 def _save(figure: Figure, path: str | os.PathLike | None, dpi: int) -> None:
-    """Write ``figure`` to ``path`` atomically (its suffix picks the format; none: PNG);
-    nothing for None."""
     if path is None:
         return
     fmt = Path(path).suffix.lstrip(".").lower() or "png"
@@ -70,46 +45,23 @@ def plot_learning_curves(
     tracking_label: str = "joint tracking MSE (rad$^2$)",
     output_unit: str = "(rad/s$^2$)$^2$",
 ) -> Figure:
-    """Tracking MSE, prediction error and predicted task error per iteration, per loss.
-
-    Each seed is averaged over its targets; the line is the mean over seeds and the shaded
-    band its 95% percentile bootstrap confidence interval over seeds
-    (:func:`cfm_jax.report.seed_curves`, :func:`cfm_jax.report.bootstrap_ci`; one seed: no
-    band), as the legend says (the paper's Fig. 3 and 4 style). Oracle and PD-only tracking
-    MSE as horizontal lines. Log scale.
+    """Tracking MSE, prediction and predicted task error per iteration and loss, mean over seeds
+    with its bootstrap interval as a band, log scale (the paper's Fig. 3 and 4).
 
     Args:
-      metrics: a metrics table (``TrainResult.metrics``, or several concatenated) with
-        columns ``loss``, ``iteration``, ``tracking_mse``, ``seed`` (without it: one
-        seed) and optionally ``prediction_error`` and ``predicted_task_error``; one curve
-        per loss.
-      path: the image file to write (its folder must exist; its suffix picks the format),
-        or None (default): no file.
-      baselines: ``TrainResult.baselines`` (columns ``baseline``, ``tracking_mse``); their
-        mean tracking MSE is drawn as horizontal lines (None: no lines).
+      metrics: ``TrainResult.metrics``, or several concatenated (without ``seed``: one seed).
+      path: the image file to write (its folder must exist), or None: no file.
+      baselines: ``TrainResult.baselines``: each baseline's mean tracking MSE as a line.
       title: the figure's title ("": none).
-      tracking_label: y label of the tracking panel (the task's tracking error and unit).
-      output_unit: squared unit of the forward model's predicted quantity, for the labels
-        of the two prediction panels.
-
-    Returns:
-      The :class:`~matplotlib.figure.Figure` (three panels, ``figure.axes``).
+      tracking_label: y label of the tracking panel (the task's error and unit).
+      output_unit: squared unit of the forward model's output, for the other two panels.
 
     Examples:
-      >>> import os, tempfile
       >>> import pandas as pd
-      >>> metrics = pd.DataFrame({"loss": ["joint"] * 4, "seed": [0, 0, 1, 1],
-      ...                         "iteration": [0, 1, 0, 1], "target": [0] * 4,
-      ...                         "tracking_mse": [1.0, 0.1, 2.0, 0.2],
-      ...                         "prediction_error": [1.0, 0.5, 1.0, 0.5],
-      ...                         "predicted_task_error": [0.5, 0.1, 0.5, 0.1]})
-      >>> with tempfile.TemporaryDirectory() as folder:
-      ...     path = os.path.join(folder, "curves.png")
-      ...     figure = plot_learning_curves(metrics, path)
-      ...     os.path.getsize(path) > 0
-      True
-      >>> [line.get_label() for line in figure.axes[0].get_lines()]
-      ['joint']
+      >>> m = pd.DataFrame(dict(loss="joint", seed=[0, 0, 1, 1], iteration=[0, 1, 0, 1],
+      ...                       tracking_mse=[1.0, 0.1, 2.0, 0.2]))
+      >>> plot_learning_curves(m).axes[0].get_ylabel()
+      'joint tracking MSE (rad$^2$)'
     """
     frame = metrics if "seed" in metrics.columns else metrics.assign(seed=0)
     columns = [c for c, _ in _panels(tracking_label, output_unit) if c in frame.columns]
@@ -131,40 +83,26 @@ def plot_curves(
     tracking_label: str = "joint tracking MSE (rad$^2$)",
     output_unit: str = "(rad/s$^2$)$^2$",
 ) -> Figure:
-    """The figure of :func:`plot_learning_curves` from a :func:`cfm_jax.report.seed_curves`
-    table: one line per group (mean over seeds, each seed averaged over its targets) with its
-    confidence interval over seeds as a shaded band (a table without ``_ci_low`` /
-    ``_ci_high`` columns: mean ± one std), log scale; the legend says which.
+    """:func:`plot_learning_curves` from a :func:`cfm_jax.report.seed_curves` table: a line per
+    group, its band the confidence interval (a table without one: mean ± one std).
 
     Args:
-      curves: the output of :func:`cfm_jax.report.seed_curves` (with ``tracking_mse``, and
-        ``prediction_error`` and ``predicted_task_error`` when they are to be drawn).
-      path: the image file to write (its suffix picks the format), or None (default): no
-        file.
-      by: the group columns of ``curves``; lines are labelled ``loss, path=value``.
-      baselines: oracle and PD-only tracking per target (drawn as horizontal lines), or
-        None.
-      title: the figure's title.
-      tracking_label: the label of the tracking error's axis.
-      output_unit: the unit of the forward model's output, for the other two axes.
-
-    Returns:
-      The :class:`~matplotlib.figure.Figure` (three panels, ``figure.axes``).
+      curves: the output of :func:`cfm_jax.report.seed_curves`.
+      path: the image file to write, or None: no file.
+      by: the group columns of ``curves``; lines are labelled ``loss, column=value``.
+      baselines: as for :func:`plot_learning_curves`.
+      title: as for :func:`plot_learning_curves`.
+      tracking_label: as for :func:`plot_learning_curves`.
+      output_unit: as for :func:`plot_learning_curves`.
 
     Examples:
-      >>> import os, tempfile
+      >>> import tempfile
       >>> import pandas as pd
-      >>> from cfm_jax import report
-      >>> metrics = pd.DataFrame({"loss": ["joint"] * 4, "seed": [0, 1, 0, 1],
-      ...                         "iteration": [0, 0, 1, 1], "target": [0] * 4,
-      ...                         "tracking_mse": [1.0, 3.0, 0.5, 0.7]})
-      >>> path = os.path.join(tempfile.mkdtemp(), "curves.png")
-      >>> curves = report.seed_curves(metrics)
-      >>> figure = plot_curves(curves, path)
+      >>> m = pd.DataFrame(dict(loss="joint", seed=[0, 1, 0, 1], iteration=[0, 0, 1, 1],
+      ...                       tracking_mse=[1.0, 3.0, 0.5, 0.7]))
+      >>> figure = plot_curves(cfm_jax.report.seed_curves(m), tempfile.mkdtemp() + "/curves.png")
       >>> figure.axes[0].get_lines()[0].get_ydata().tolist()  # mean over seeds
       [2.0, 0.6]
-      >>> os.path.getsize(path) > 0
-      True
     """
     by = list(by)
     series = []
@@ -187,9 +125,6 @@ def _panels(tracking_label: str, output_unit: str) -> list[tuple[str, str]]:
 
 
 def _bands(frame: pd.DataFrame) -> dict:
-    """``{column: (mean, low, high)}`` of an iteration-indexed
-    :func:`cfm_jax.report.seed_curves` group: its confidence interval, or mean ± std for a
-    table without one."""
     bands = {}
     for column, _ in _panels("", ""):
         if f"{column}_mean" not in frame:
@@ -214,9 +149,7 @@ def _band_label(curves: pd.DataFrame) -> str:
 def _plot_series(
     series, path, baselines, title, tracking_label, output_unit, band_label=None
 ) -> Figure:
-    """Three log-scale panels; ``series``: ``[(label, {column: (mean, low, high)})]`` with
-    iteration-indexed mean and band (:func:`_bands`); ``band_label`` names the band in the
-    legend; written to ``path`` unless it is None."""
+    """The three panels of ``series``, ``[(label, {column: (mean, low, high)})]``."""
     from matplotlib.patches import Patch
     from matplotlib.ticker import MaxNLocator
 
@@ -295,33 +228,21 @@ def plot_foot_force(
     foot: str = "FR",
     title: str | None = None,
 ) -> Figure:
-    """Plot desired (``ref.foot_force``) vs observed (and optionally predicted) force of one
-    foot over time, one panel per world axis, like the paper's Fig. 6; saves a PNG. The
-    force arrays are ``(T+1, 4, 3)`` (or ``(T, 4, 3)`` for the states after each step).
+    """Desired (``ref.foot_force``), observed and predicted force of one foot per world axis.
 
     Args:
-      ref: the :class:`cfm_jax.locomotion.LocomotionReference` (its ``foot_force`` is the
-        desired force).
-      path: the image file to write (its folder is created; its suffix picks the format),
-        or None (default): no file.
+      ref: the :class:`cfm_jax.locomotion.LocomotionReference`.
+      path: the image file to write (its folder is created), or None: no file.
       observed: ``(T+1, 4, 3)`` or ``(T, 4, 3)`` observed forces, or None.
-      predicted: forces of the same shape predicted by a model, or None.
+      predicted: forces predicted by a model, or None.
       foot: ``"FL"``, ``"FR"``, ``"HL"`` or ``"HR"``.
       title: the figure's title (None: the kind and foot).
 
-    Returns:
-      The :class:`~matplotlib.figure.Figure` (one panel per world axis x, y, z).
-
     Examples:
-      >>> import os, tempfile
       >>> from cfm_jax import locomotion
       >>> ref = locomotion.walk_reference(0.2, use_cache=False)
-      >>> with tempfile.TemporaryDirectory() as folder:
-      ...     path = os.path.join(folder, "force.png")
-      ...     figure = plot_foot_force(ref, path, observed=locomotion.replay(ref).foot_force)
-      ...     os.path.getsize(path) > 0
-      True
-      >>> [line.get_label() for line in figure.axes[0].get_lines()]
+      >>> figure = plot_foot_force(ref, observed=locomotion.replay(ref).foot_force)
+      >>> [line.get_label() for line in figure.axes[0].get_lines()]  # the paper's Fig. 6
       ['desired', 'observed']
     """
     leg = solo12.LEGS.index(foot)

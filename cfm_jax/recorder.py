@@ -1,15 +1,6 @@
-"""What a training run keeps of itself: the :class:`Recorder` of :func:`cfm_jax.train` (the
-metrics rows and ``metrics.csv`` after every iteration, ``config.json``, Orbax checkpoints
-and resume, the seeds stopped by a non-finite update, the ``progress_fn`` callback, and at
-the end ``baselines.csv``, ``stopped.json`` and the data set), and its progress display
-(:func:`progress_bar`).
-
-Examples:
-  >>> from cfm_jax import config as cfg
-  >>> recorder = Recorder(cfg.Config(robot="two_link_arm"), out_dir=None)
-  >>> recorder.rows, recorder.stopped
-  ([], [])
-"""
+"""What a training run keeps of itself: the :class:`Recorder` of :func:`cfm_jax.train` (its
+files, checkpoints and resume, stopped seeds and ``progress_fn``) and the progress display
+(:func:`progress_bar`)."""
 
 from __future__ import annotations
 
@@ -34,8 +25,8 @@ __all__ = ["PlainProgress", "Recorder", "progress_bar"]
 
 
 class Recorder:
-    """The record of one training run (one loss, every seed): checks ``out_dir`` and
-    ``resume`` when made, before anything is built or written.
+    """The record of one training run (one loss, every seed); checks ``out_dir`` and ``resume``
+    when made, before anything is built or written.
 
     Args:
       config: the run's :class:`cfm_jax.config.Config`.
@@ -44,8 +35,8 @@ class Recorder:
       progress_fn: ``progress_fn(iteration, rows)``, called with each iteration's new rows.
 
     Raises:
-      ConfigError: ``out_dir`` holds checkpoints and ``resume`` is None, or ``resume``
-        names no run directory or a run of another config (the fields are listed).
+      ConfigError: ``out_dir`` holds checkpoints and ``resume`` is None, or ``resume`` names
+        no run directory or a run of another config (the fields are listed).
 
     Attributes:
       rows: the metric rows so far (dicts, one per seed and target).
@@ -53,11 +44,9 @@ class Recorder:
         quantity).
 
     Examples:
-      >>> import numpy as np, pandas as pd
-      >>> from cfm_jax import config as cfg
       >>> seen = []
-      >>> recorder = Recorder(cfg.Config(robot="two_link_arm", loop=cfg.LoopConfig(seeds=2)),
-      ...                     out_dir=None, progress_fn=lambda i, rows: seen.append(len(rows)))
+      >>> config = cfm_jax.Config(robot="two_link_arm", loop=cfm_jax.LoopConfig(seeds=2))
+      >>> recorder = Recorder(config, None, progress_fn=lambda i, rows: seen.append(len(rows)))
       >>> recorder.open(["loss", "seed", "iteration", "target", "tracking_mse"])
       >>> recorder.record(0, {"tracking_mse": np.array([[0.5, 0.25], [0.1, 0.2]])})
       >>> recorder.metrics().tracking_mse.tolist(), seen  # 2 seeds x 2 targets
@@ -101,11 +90,7 @@ class Recorder:
         self.out_dir = out_dir
 
     def open(self, columns) -> None:
-        """Make ``out_dir``, write ``config.json`` and open the checkpoints.
-
-        Args:
-          columns: the metric columns of the run (its rows' keys, in order).
-        """
+        """Make ``out_dir``, write ``config.json``, open the checkpoints; ``columns``: row keys."""
         self.columns = list(columns)
         if not self.out_dir:
             return
@@ -119,16 +104,8 @@ class Recorder:
             )
 
     def start(self, state: TrainState) -> tuple[TrainState, int]:
-        """The state to start from and the iterations done: with ``resume``, the newest
-        usable checkpoint's (its rows and stopped seeds restored); else ``state``, saved as
-        step 0.
-
-        Args:
-          state: the initial state (the restore's template).
-
-        Returns:
-          ``(state, first iteration to run)``.
-        """
+        """``(state, first iteration)``: with ``resume``, the newest usable checkpoint's (its rows
+        and stopped seeds restored; ``state``: the template), else ``state``, saved as step 0."""
         if self.resume is not None and self.checkpointer is not None:
             state, self.rows, first, self.stopped = _restore(self.checkpointer, state)
             self._write_metrics()
@@ -138,17 +115,7 @@ class Recorder:
 
     def iteration(self, i: int, state: TrainState, previous: TrainState, metrics) -> TrainState:
         """After iteration ``i``: stop the seeds whose update went non-finite (they keep
-        ``previous``), record the metrics, save a checkpoint when one is due.
-
-        Args:
-          i: the iteration (0-based).
-          state: the state after it.
-          previous: the state before it.
-          metrics: its metrics (on the host).
-
-        Returns:
-          The state to go on from.
-        """
+        ``previous``), :meth:`record` the metrics, checkpoint when due; the state to go on from."""
         state = _stop_nonfinite(state, previous, metrics, i, self.config.loss, self.seeds,
                                 self.stopped)  # fmt: skip
         self.record(i, metrics)
@@ -156,14 +123,8 @@ class Recorder:
         return state
 
     def record(self, iteration: int, metrics) -> None:
-        """Add the rows of ``metrics`` (none of stopped seeds), rewrite ``metrics.csv`` and
-        call ``progress_fn``.
-
-        Args:
-          iteration: the iteration the metrics are of (``loop.iterations``: the final
-            evaluation).
-          metrics: per-seed metrics (on the host).
-        """
+        """Add the rows of ``metrics`` (none of stopped seeds), rewrite ``metrics.csv`` and call
+        ``progress_fn``; ``iteration`` ``loop.iterations`` is the final evaluation."""
         new = rows_of(self.config.loss, self.seeds, iteration, metrics, self.columns)
         gone = {entry["seed"] for entry in self.stopped}
         new = [row for row in new if row["seed"] not in gone]
@@ -173,14 +134,8 @@ class Recorder:
             self.progress_fn(iteration, pd.DataFrame(new, columns=self.columns))
 
     def finish(self, state: TrainState, baselines: pd.DataFrame, recorded) -> None:
-        """Close the checkpoints; write ``baselines.csv``, ``stopped.json`` (if any seed
-        stopped) and the data set.
-
-        Args:
-          state: the final state.
-          baselines: the baselines' metrics.
-          recorded: the replayed :class:`cfm_jax.dataset.Recorded`, or None.
-        """
+        """Close the checkpoints; write ``baselines.csv``, ``stopped.json`` (if a seed stopped) and
+        the data set (segments of the replayed ``recorded``, or None)."""
         if self.checkpointer is not None:
             self.checkpointer.close()
         if not self.out_dir:
@@ -198,7 +153,7 @@ class Recorder:
         dataset.save(path, state.data, segments, self.seeds, self.saved_config)
 
     def metrics(self) -> pd.DataFrame:
-        """The rows so far as a DataFrame (the run's metric columns)."""
+        """The rows so far as a DataFrame."""
         return pd.DataFrame(self.rows, columns=self.columns)
 
     def _write_metrics(self) -> None:
@@ -222,11 +177,8 @@ def rows_of(loss, seeds, iteration, metrics, columns) -> list[dict]:
       loss: the loss name (the ``loss`` column).
       seeds: the seeds, in the order of the metrics' leading axis.
       iteration: the ``iteration`` column.
-      metrics: dict of arrays ``(seeds, targets)`` or ``(seeds,)`` (one value per seed).
+      metrics: dict of arrays ``(seeds, targets)`` or ``(seeds,)``.
       columns: the metric columns; the first four are ``loss, seed, iteration, target``.
-
-    Returns:
-      A list of dicts.
 
     Examples:
       >>> rows_of("joint", [0], 2, {"tracking_mse": np.array([[0.5, 0.25]])},
@@ -247,9 +199,8 @@ def rows_of(loss, seeds, iteration, metrics, columns) -> list[dict]:
 
 
 def _nonfinite(state: TrainState, metrics: dict, n_seeds: int) -> list[str | None]:
-    """Per seed, the first quantity of an update that is non-finite (a training loss or
-    the parameters of a model), or None. A diverged *rollout* is not in this list: it is an
-    outcome of the controller, recorded in the metrics (``diverged``)."""
+    """Per seed, the first non-finite quantity of an update (a training loss or a model's
+    parameters), or None. A diverged rollout is not one: it is recorded in the metrics."""
     checks = [
         ("forward_loss", ~np.isfinite(np.asarray(metrics["forward_loss"]))),
         ("controller_loss", ~np.isfinite(np.asarray(metrics["controller_loss"]))),
@@ -273,8 +224,7 @@ def _nonfinite(state: TrainState, metrics: dict, n_seeds: int) -> list[str | Non
 
 
 def _stop_nonfinite(state, previous, metrics, iteration, loss, seeds, stopped) -> TrainState:
-    """Stop the seeds whose update produced a non-finite loss or parameter: they keep
-    ``previous`` (their last good state) from now on and are listed in ``stopped``."""
+    """Stop the seeds whose update went non-finite: they keep ``previous`` and join ``stopped``."""
     n = len(seeds)
     gone = {entry["seed"] for entry in stopped}
     for s, quantity in enumerate(_nonfinite(state, metrics, n)):
@@ -293,9 +243,8 @@ def _stop_nonfinite(state, previous, metrics, iteration, loss, seeds, stopped) -
 def _segments(
     config: config_lib.Config, state: TrainState, rows: list[dict], recorded
 ) -> np.ndarray:
-    """Rows added to each seed's data set by babbling and by each iteration,
-    ``(seeds, 1 + iterations)``: an iteration adds its rollout's ``transitions_added``, in
-    a replay the recorded segment; babbling the rest."""
+    """``(seeds, 1 + iterations)`` rows added by babbling and by each iteration (its
+    ``transitions_added``, or in a replay the recorded segment)."""
     iterations = config.loop.iterations
     size = np.asarray(state.data.size)
     if recorded is not None:
@@ -313,9 +262,8 @@ def _segments(
 
 
 def _restore(checkpointer, template: TrainState):
-    """Newest usable checkpoint: ``(state, rows, completed iterations, stopped)``. Steps
-    left incomplete by a kill (no manifest) are skipped with a warning; a corrupt step
-    raises :class:`cfm_jax.checkpoint.CheckpointError` offering the previous valid one."""
+    """Newest usable checkpoint, ``(state, rows, completed iterations, stopped)``: a step a kill
+    left incomplete is removed with a warning; a corrupt one raises ``CheckpointError``."""
     for step in reversed(checkpointer.steps()):
         problem = checkpointer.problem(step)
         if problem is not None and "is incomplete" in problem:
@@ -332,18 +280,14 @@ def _restore(checkpointer, template: TrainState):
 
 
 def progress_bar(enabled: bool):
-    """A rich progress bar on a terminal or in a notebook; in a file or a pipe (a log), one
-    plain line per step instead (:class:`PlainProgress`): a bar there shows only at the
-    end.
+    """A rich progress bar on a terminal or in a notebook, else (a log) :class:`PlainProgress`:
+    in a file a bar shows only at the end.
 
     Args:
       enabled: False: nothing is shown (``--quiet``).
 
-    Returns:
-      A context manager with ``add_task``, ``update`` and ``advance`` (rich's).
-
     Examples:
-      >>> with progress_bar(False) as bar:  # --quiet: nothing is shown
+      >>> with progress_bar(False) as bar:
       ...     bar.advance(bar.add_task("arm joint: babbling", total=1))
     """
     from rich.console import Console
@@ -368,13 +312,12 @@ def progress_bar(enabled: bool):
 
 
 class PlainProgress:
-    """The part of ``rich.progress.Progress`` that :func:`cfm_jax.train` uses, printing one
-    line per step, e.g. ``iiwa14 joint: iteration 2: 3/6 (41 s)``, flushed at once.
+    """The part of ``rich.progress.Progress`` that :func:`cfm_jax.train` uses, printing one line
+    per step, flushed at once.
 
     Examples:
       >>> with PlainProgress() as bar:
-      ...     task = bar.add_task("arm joint: babbling", total=3)
-      ...     bar.advance(task)  # doctest: +ELLIPSIS
+      ...     bar.advance(bar.add_task("arm joint: babbling", total=3))
       arm joint: babbling: 1/3 (0 s)
     """
 

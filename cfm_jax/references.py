@@ -1,34 +1,7 @@
-"""Reference trajectories of the tasks: joint-space and Cartesian reaching, legged recordings.
-
-Joint-space reaching (the inverse-dynamics task, paper section IV-A-1): the robot reaches
-from its home pose to each target along a quintic (minimum-jerk) joint-space path of
-``duration`` seconds. At each control step the desired next-step joint acceleration is
-
-    qdd*_t = qdd_ref(t) + kp (q_ref(t) - q_t) + kd (qd_ref(t) - qd_t)
-
-(``kp = kd = 0`` is pure feed-forward of the reference acceleration;
-:func:`desired_acceleration`).
-
-Cartesian reaching (the operational-space task, paper section IV-A-2): the end effector (a
-MuJoCo *site*, :func:`cfm_jax.opspace.ee_site`) reaches from its home position to each
-target along a quintic straight line (:func:`cartesian_reaching`), and the desired
-end-effector acceleration is the same formula in the world frame,
-``xdd*_t = xdd_ref(t) + kp (x_ref(t) - x_t) + kd (xd_ref(t) - xd_t)``. The site
-kinematics come from :mod:`cfm_jax.opspace`.
-
-The Solo12 recordings themselves are in :mod:`cfm_jax.locomotion`; :func:`as_jax_legged`
-pads them for the legged tasks.
-
-Examples:
-  >>> import numpy as np
-  >>> ref = quintic(np.zeros(1), np.ones(1), duration=1.0, control_dt=0.5)
-  >>> ref.q[0, :, 0].tolist()
-  [0.0, 0.5, 1.0]
-  >>> from cfm_jax import robots
-  >>> iiwa = robots.load("iiwa14")
-  >>> cartesian = cartesian_reaching(iiwa, None, None, duration=2.0, control_dt=0.01)
-  >>> cartesian.x.shape, np.round(cartesian.x[0, 0], 3).tolist()  # the flange at home
-  ((5, 201, 3), [0.669, 0.0, 0.285])
+"""Reference trajectories of the tasks (docs/how-to/reference-trajectory.md): minimum-jerk
+joint-space (:func:`reaching`, paper IV-A-1) and Cartesian (:func:`cartesian_reaching`,
+IV-A-2) reaches with their :func:`desired_acceleration`, and the padded Solo12 recordings of
+:mod:`cfm_jax.locomotion` (:func:`as_jax_legged`).
 """
 
 from __future__ import annotations
@@ -60,22 +33,17 @@ SELECTION_SEED = 3
 
 
 class Reference(NamedTuple):
-    """Reference trajectories, one per target.
-
-    Arrays are NumPy float64 (:func:`as_jax` makes float32 JAX copies).
+    """Joint reference trajectories, one per target, NumPy float64 (:func:`as_jax`: JAX).
 
     Attributes:
-      q: ``(targets, steps + 1, nq)`` joint positions at the control times
-        ``0, dt, ..., duration``.
-      qd: ``(targets, steps + 1, nq)`` joint velocities at the same times.
-      qdd: ``(targets, steps + 1, nq)`` joint accelerations at the same times.
+      q: ``(targets, steps + 1, nq)`` positions at the times ``0, dt, ..., duration``.
+      qd: ``(targets, steps + 1, nq)`` velocities.
+      qdd: ``(targets, steps + 1, nq)`` accelerations.
 
     Examples:
       >>> ref = quintic([0.0, 0.0], [1.0, 0.5], duration=1.0, control_dt=0.1)
-      >>> ref.q.shape, ref.steps
-      ((1, 11, 2), 10)
-      >>> ref.q[0, -1].tolist(), ref.qd[0, -1].tolist()  # at the goal, at rest
-      ([1.0, 0.5], [0.0, 0.0])
+      >>> ref.q.shape, ref.steps, ref.q[0, -1].tolist(), ref.qd[0, -1].tolist()
+      ((1, 11, 2), 10, [1.0, 0.5], [0.0, 0.0])
     """
 
     q: np.ndarray
@@ -89,26 +57,17 @@ class Reference(NamedTuple):
 
 
 def quintic(start, goal, duration: float, control_dt: float) -> Reference:
-    """Minimum-jerk path ``start -> goal`` sampled every ``control_dt``: one target.
-
-    ``q(t) = start + (goal - start) (10 u^3 - 15 u^4 + 6 u^5)``, ``u = t / duration``; zero
-    velocity and acceleration at both ends.
+    """The :class:`Reference` ``(1, steps + 1, nq)`` of one :func:`minimum_jerk` path.
 
     Args:
       start: ``(nq,)`` positions at ``t = 0``.
       goal: ``(nq,)`` positions at ``t = duration``.
-      duration: seconds from start to goal (a whole number of control periods, see
-        :func:`check_duration`; not checked here).
+      duration: seconds (a whole number of control periods; not checked here).
       control_dt: sampling period (s).
 
-    Returns:
-      A :class:`Reference` with a leading target axis of size 1,
-      ``(1, round(duration / control_dt) + 1, nq)``.
-
     Examples:
-      >>> ref = quintic([0.0], [2.0], duration=1.0, control_dt=0.5)
-      >>> ref.q[0, :, 0].tolist(), ref.qd[0, :, 0].tolist()  # half way at mid-time
-      ([0.0, 1.0, 2.0], [0.0, 3.75, 0.0])
+      >>> quintic([0.0], [2.0], duration=1.0, control_dt=0.5).q[0, :, 0].tolist()
+      [0.0, 1.0, 2.0]
     """
     start = np.asarray(start, dtype=np.float64)
     goal = np.asarray(goal, dtype=np.float64)
@@ -117,12 +76,10 @@ def quintic(start, goal, duration: float, control_dt: float) -> Reference:
 
 
 def minimum_jerk(start, goal, duration: float, control_dt: float, xp=jnp):
-    """Minimum-jerk paths ``start -> goal`` sampled every ``control_dt``, for any leading
-    shape, in NumPy (``xp=np``, :func:`quintic`'s references) or JAX (traceable; the
-    babbling references of :meth:`JointSpaceTask.babbling_reference`).
+    """Minimum-jerk paths ``(x, xd, xdd)``, each ``(..., steps + 1, n)``, in ``start``'s dtype.
 
-    ``x(t) = start + (goal - start) (10 u^3 - 15 u^4 + 6 u^5)``, ``u = t / duration``;
-    with ``goal == start`` exactly ``start`` and zeros.
+    ``x(t) = start + (goal - start) (10 u^3 - 15 u^4 + 6 u^5)``, ``u = t / duration``: zero
+    velocity and acceleration at both ends. Traceable with ``xp=jnp`` (the babbling's reaches).
 
     Args:
       start: ``(..., n)`` positions at ``t = 0``.
@@ -131,12 +88,9 @@ def minimum_jerk(start, goal, duration: float, control_dt: float, xp=jnp):
       control_dt: sampling period (s).
       xp: ``numpy`` or ``jax.numpy``.
 
-    Returns:
-      ``(x, xd, xdd)``, each ``(..., steps + 1, n)``, in the dtype of ``start``.
-
     Examples:
       >>> x, xd, _ = minimum_jerk(np.zeros(1), np.full(1, 2.0), 1.0, 0.5, xp=np)
-      >>> x[:, 0].tolist(), xd[:, 0].tolist()
+      >>> x[:, 0].tolist(), xd[:, 0].tolist()  # half way at mid-time
       ([0.0, 1.0, 2.0], [0.0, 3.75, 0.0])
     """
     start = xp.asarray(start)
@@ -153,28 +107,18 @@ def minimum_jerk(start, goal, duration: float, control_dt: float, xp=jnp):
 
 
 def default_targets(joint_range: np.ndarray, home: np.ndarray, seed: int = 0) -> np.ndarray:
-    """Five reaching targets inside the joint limits, the same for every call.
+    """Five fixed reaching targets ``(5, nq)`` inside the joint limits.
 
-    Target ``i`` is ``home + reach * d_i``, where ``d_i`` are fixed directions with entries in
-    ``[-1, 1]`` (drawn once from a generator seeded with ``seed``), ``reach = min(0.6,
-    range / 4)`` per joint, and the result is clipped to the joint range shrunk by 10% at
-    each end. Works for any number of joints. ``seed=0`` gives the five test targets;
-    another seed gives five other motions of the same kind (the selection of defaults,
-    ``experiments/select_defaults.py``, uses :data:`SELECTION_SEED`).
+    ``home + reach * d_i``, ``reach = min(0.6, range / 4)`` per joint, ``d_i`` in ``[-1, 1]``
+    drawn with ``seed``, clipped to the range shrunk by :data:`RANGE_MARGIN` at each end.
 
     Args:
-      joint_range: ``(nq, 2)`` lower and upper joint limits (``-inf, inf`` for unlimited
-        joints), as :attr:`cfm_jax.robots.Robot.joint_range`.
+      joint_range: ``(nq, 2)`` joint limits, as :attr:`cfm_jax.robots.Robot.joint_range`.
       home: ``(nq,)`` start pose the targets are placed around.
-      seed: the directions' generator seed (0: the test targets).
-
-    Returns:
-      ``(5, nq)`` target joint positions.
+      seed: the directions' seed (0: the test targets; :data:`SELECTION_SEED`: selection's).
 
     Examples:
-      >>> import numpy as np
-      >>> joint_range = np.array([[-2.5, 2.5], [-2.5, 2.5]])
-      >>> targets = default_targets(joint_range, home=np.zeros(2))
+      >>> targets = default_targets(np.array([[-2.5, 2.5], [-2.5, 2.5]]), home=np.zeros(2))
       >>> targets.shape, bool(np.all(np.abs(targets) <= 0.6))
       ((5, 2), True)
     """
@@ -190,23 +134,18 @@ def default_targets(joint_range: np.ndarray, home: np.ndarray, seed: int = 0) ->
 
 
 def driven_targets(robot, home, seed: int = 0) -> np.ndarray:
-    """:func:`default_targets` of a robot: the joints the controller drives move, the
-    others (held or passive, :func:`cfm_jax.robots.held_joints`) stay at ``home``.
+    """:func:`default_targets` of a robot's driven joints; the others (held or passive,
+    :func:`cfm_jax.robots.held_joints`) stay at ``home``.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       home: ``(nq,)`` start pose.
-      seed: as :func:`default_targets` (0: the test targets).
-
-    Returns:
-      ``(5, nq)`` target joint positions.
+      seed: as :func:`default_targets`.
 
     Examples:
       >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> bool(np.array_equal(driven_targets(arm, arm.home),
-      ...                     default_targets(arm.joint_range, arm.home)))
-      True
+      >>> driven_targets(robots.load("two_link_arm"), np.zeros(2)).shape
+      (5, 2)
     """
     home = np.asarray(home, np.float64)
     targets = default_targets(robot.joint_range, home, seed)
@@ -216,29 +155,20 @@ def driven_targets(robot, home, seed: int = 0) -> np.ndarray:
 
 
 def reaching(robot, task: TaskConfig, control_dt: float) -> Reference:
-    """Reference trajectories of the configured targets for a robot.
-
-    One :func:`quintic` per target, from ``task.home`` (None: ``robot.home``) to each of
-    ``task.targets`` (None: :func:`default_targets`, with the joints the controller does
-    not drive, held or passive, kept at home) in ``task.duration`` seconds.
+    """The :class:`Reference` of ``task``: a :func:`quintic` from ``task.home`` (None:
+    ``robot.home``) to each of ``task.targets`` (None: :func:`driven_targets`).
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       task: a :class:`cfm_jax.config.TaskConfig` (its ``targets`` are joint positions).
       control_dt: control period (s).
 
-    Returns:
-      A :class:`Reference`, ``(targets, steps + 1, nq)``.
-
     Raises:
-      ConfigError: targets or home of the wrong length or outside the joint limits, or a
-        duration that is not a whole number of control periods.
+      ConfigError: targets or home not valid (:func:`check_positions`), or a bad duration.
 
     Examples:
       >>> from cfm_jax import config, robots
-      >>> arm = robots.load("two_link_arm")
-      >>> ref = reaching(arm, config.TaskConfig(duration=1.0), control_dt=0.01)
-      >>> ref.q.shape  # the 5 default targets, 100 control steps
+      >>> reaching(robots.load("two_link_arm"), config.TaskConfig(duration=1.0), 0.01).q.shape
       (5, 101, 2)
     """
     check_duration(task.duration, control_dt)
@@ -257,21 +187,16 @@ def check_positions(field: str, positions: np.ndarray, robot) -> None:
     """Raise ConfigError if joint positions ``(k, nq)`` have the wrong size or break limits.
 
     Args:
-      field: the configuration field the positions come from, for the message (for example
-        ``"task.targets"``).
+      field: the configuration field, for the message (for example ``"task.targets"``).
       positions: ``(k, nq)`` joint positions.
       robot: the :class:`cfm_jax.robots.Robot` whose joint count and limits apply.
 
     Raises:
-      ConfigError: the last axis is not ``robot.nq`` long, or a position is outside its
-        joint's range (the message names the first such entry and joint).
+      ConfigError: the wrong length, or the first position outside its joint's range.
 
     Examples:
-      >>> import numpy as np
       >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> check_positions("task.targets", np.array([[0.0, 1.0]]), arm)
-      >>> check_positions("task.targets", np.array([[0.0, 9.0]]), arm)
+      >>> check_positions("task.targets", np.array([[0.0, 9.0]]), robots.load("two_link_arm"))
       Traceback (most recent call last):
       ...
       cfm_jax.config.ConfigError: task.targets[0][1]=9 (joint 'elbow') is outside the joint ...
@@ -292,46 +217,33 @@ def check_positions(field: str, positions: np.ndarray, robot) -> None:
 
 
 def desired_acceleration(ref_q, ref_qd, ref_qdd, q, qd, kp: float, kd: float):
-    """``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``; all arrays ``(..., n)``.
+    """``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``, arrays ``(..., n)``.
 
-    The desired acceleration of every reaching task: of the joints (``n = nv``) for the
-    joint-space task, of the end-effector site (``n = 3``, world frame, the arguments then
-    being ``x_ref, xd_ref, xdd_ref, x, xd``) for the operational-space task.
+    The desired acceleration of the joints (``n = nv``) or, with ``x_ref, xd_ref, xdd_ref,
+    x, xd``, of the end-effector site (``n = 3``, world frame).
 
     Args:
-      ref_q: reference positions ``q_ref``, ``(..., n)``.
-      ref_qd: reference velocities ``qd_ref``, ``(..., n)``.
-      ref_qdd: reference accelerations ``qdd_ref``, ``(..., n)``.
-      q: current positions, ``(..., n)``.
-      qd: current velocities, ``(..., n)``.
+      ref_q: reference positions.
+      ref_qd: reference velocities.
+      ref_qdd: reference accelerations.
+      q: current positions.
+      qd: current velocities.
       kp: proportional gain (1/s^2).
       kd: derivative gain (1/s).
 
-    Returns:
-      ``qdd*``, ``(..., n)`` (NumPy or JAX, as the inputs).
-
     Examples:
-      >>> import numpy as np
       >>> desired_acceleration(np.array([1.0]), np.array([0.0]), np.array([0.5]),
       ...                      q=np.array([0.9]), qd=np.array([0.2]), kp=100.0, kd=20.0)
       array([6.5])
-      >>> desired_acceleration(np.array([1.0, 0.0, 0.0]), np.zeros(3), np.zeros(3),  # a site
-      ...                      np.array([0.9, 0.0, 0.0]), np.array([0.1, 0.0, 0.0]),
-      ...                      kp=100.0, kd=20.0)
-      array([8., 0., 0.])
     """
     return ref_qdd + kp * (ref_q - q) + kd * (ref_qd - qd)
 
 
 def rms_reach(reference: Reference) -> float:
-    """RMS reaching distance: ``sqrt(mean over targets and joints of (q_goal - q_home)^2)``.
+    """RMS reaching distance, ``sqrt(mean over targets and joints of (q_goal - q_home)^2)``.
 
     Args:
-      reference: a :class:`Reference` ``(targets, steps + 1, nq)``; its first and last
-        positions are taken as home and goal.
-
-    Returns:
-      The distance (rad, or m for slide joints), a float.
+      reference: a :class:`Reference`; its first and last positions are home and goal.
 
     Examples:
       >>> rms_reach(quintic([0.0, 0.0], [0.3, -0.4], duration=1.0, control_dt=0.5))
@@ -342,18 +254,14 @@ def rms_reach(reference: Reference) -> float:
 
 
 def as_jax(reference: Reference) -> Reference:
-    """The same reference as float32 JAX arrays.
+    """The same :class:`Reference` as float32 JAX arrays.
 
     Args:
       reference: a :class:`Reference` of NumPy arrays.
 
-    Returns:
-      A :class:`Reference` of ``jax.Array`` float32, same shapes.
-
     Examples:
-      >>> ref = as_jax(quintic([0.0], [1.0], duration=1.0, control_dt=0.5))
-      >>> ref.q.dtype, ref.q.shape
-      (dtype('float32'), (1, 3, 1))
+      >>> as_jax(quintic([0.0], [1.0], duration=1.0, control_dt=0.5)).q.dtype
+      dtype('float32')
     """
     return Reference(*(jnp.asarray(x, jnp.float32) for x in reference))
 
@@ -362,22 +270,16 @@ def as_jax(reference: Reference) -> Reference:
 
 
 class CartesianReference(NamedTuple):
-    """End-effector reference trajectories, one per target.
-
-    Arrays are NumPy float64 (:func:`as_jax_cartesian` makes float32 JAX copies).
+    """End-effector reference trajectories, one per target, NumPy float64 (world frame).
 
     Attributes:
-      x: ``(targets, steps + 1, 3)`` site positions at the control times
-        ``0, dt, ..., duration`` (world frame, m).
-      xd: ``(targets, steps + 1, 3)`` site velocities at the same times (m/s).
-      xdd: ``(targets, steps + 1, 3)`` site accelerations at the same times (m/s^2).
+      x: ``(targets, steps + 1, 3)`` site positions at the times ``0, dt, ..., duration`` (m).
+      xd: ``(targets, steps + 1, 3)`` site velocities (m/s).
+      xdd: ``(targets, steps + 1, 3)`` site accelerations (m/s^2).
 
     Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> ref = cartesian_reaching(arm, "tip", [[0.5, 0.0, 1.4]], duration=0.5, control_dt=0.01)
-      >>> ref.x.shape, ref.steps, ref.x[0, -1].tolist()
-      ((1, 51, 3), 50, [0.5, 0.0, 1.4])
+      >>> CartesianReference(*(np.zeros((1, 51, 3)),) * 3).steps
+      50
     """
 
     x: np.ndarray
@@ -391,15 +293,11 @@ class CartesianReference(NamedTuple):
 
 
 def reach(robot, site: int | str | None = None) -> tuple[float, np.ndarray, str]:
-    """Upper bound of the distance between the arm's base and the site, from the model.
+    """An upper bound of the distance from the arm's base to the site: the arm's reach.
 
-    The base is the anchor of the last joint of the site's kinematic chain whose anchor
-    cannot move (it lies on the axes of all hinges before it, with no slide joint before
-    it): for the iiwa joint 2 at (0, 0, 0.36), for the two-link arm the shoulder. The reach
-    is the sum of the distances between consecutive joint anchors from there to the site
-    (taken at ``qpos0``), plus the travel ``hi - lo`` of every slide joint (infinite if a
-    slide joint is unlimited). A target farther than this is certainly unreachable;
-    joint limits may make nearer targets unreachable too.
+    The base is the last joint anchor of the site's chain that cannot move (on the axes of all
+    hinges before it); the reach sums the anchor-to-anchor distances from there to the site
+    at ``qpos0``, plus every slide joint's travel.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
@@ -455,28 +353,17 @@ def reach(robot, site: int | str | None = None) -> tuple[float, np.ndarray, str]
 def default_cartesian_targets(
     robot, site: int | str | None = None, home=None, seed: int = 0
 ) -> np.ndarray:
-    """Five reachable end-effector targets: the site positions at the five default
-    joint-space targets :func:`default_targets` (inside the joint limits, so
-    reachable by construction, and deterministic; the same reaching motions as the
-    joint-space task, seen at the end effector).
-
-    For the iiwa with the flange from the home pose they lie 0.21 to 0.57 m from the home
-    flange position.
+    """Five reachable end-effector targets ``(5, 3)`` (m): the site at :func:`default_targets`.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       site: the site's id or name, or None for :func:`cfm_jax.opspace.ee_site`'s default.
-      home: ``(nq,)`` pose the joint-space targets are placed around, or None for
-        ``robot.home``.
-      seed: the seed of :func:`default_targets` (0: the test targets).
-
-    Returns:
-      ``(5, 3)`` positions in the world frame (m).
+      home: ``(nq,)`` pose the joint targets are placed around, or None for ``robot.home``.
+      seed: as :func:`default_targets`.
 
     Examples:
       >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> targets = default_cartesian_targets(arm, "tip")
+      >>> targets = default_cartesian_targets(robots.load("two_link_arm"), "tip")
       >>> targets.shape, bool(np.all(targets[:, 1] == 0.0))  # the arm moves in the x-z plane
       ((5, 3), True)
     """
@@ -486,29 +373,19 @@ def default_cartesian_targets(
 
 
 def check_targets(robot, targets, site: int | str | None = None) -> np.ndarray:
-    """Validate end-effector targets; returns them as a ``(k, 3)`` float64 array.
+    """Validated end-effector targets as a ``(k, 3)`` float64 array.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
-      targets: end-effector positions (m, world frame), anything ``np.asarray`` makes a
-        ``(k, 3)`` array of.
-      site: the site's id or name, or None for :func:`cfm_jax.opspace.ee_site`'s default
-        (for the reach).
-
-    Returns:
-      ``(k, 3)`` float64 array of the targets.
+      targets: end-effector positions (m, world frame), ``(k, 3)`` array-like.
+      site: the site's id or name, or None for :func:`cfm_jax.opspace.ee_site`'s default.
 
     Raises:
-      ConfigError: not a non-empty ``(k, 3)`` array of finite numbers, or a target farther
-        from the arm's base than its :func:`reach` (the message names the target and its
-        distance).
+      ConfigError: not a non-empty finite ``(k, 3)`` array, or a target beyond :func:`reach`.
 
     Examples:
       >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> check_targets(arm, [[0.5, 0.0, 1.4]], "tip").shape
-      (1, 3)
-      >>> check_targets(arm, [[2.0, 0.0, 0.0]], "tip")
+      >>> check_targets(robots.load("two_link_arm"), [[2.0, 0.0, 0.0]], "tip")
       Traceback (most recent call last):
       ...
       cfm_jax.config.ConfigError: task.targets[0]=(2.0, 0.0, 0.0) is not allowed: it is ...
@@ -545,33 +422,26 @@ def check_targets(robot, targets, site: int | str | None = None) -> np.ndarray:
 def cartesian_reaching(
     robot, site: int | str | None, targets, duration: float, control_dt: float, home=None
 ) -> CartesianReference:
-    """Quintic straight-line paths of the site from its home position to each target.
-
-    ``x(t) = x_home + (x_goal - x_home) s(t / duration)``, ``s(u) = 10 u^3 - 15 u^4 + 6 u^5``
-    (minimum jerk; zero velocity and acceleration at both ends), sampled every
-    ``control_dt`` (:func:`quintic` per target).
+    """The :class:`CartesianReference` ``(k, steps + 1, 3)`` of the site: a straight
+    :func:`quintic` line from its position at ``home`` to each target.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
       site: site name, id, or None for :func:`cfm_jax.opspace.ee_site`'s default.
-      targets: ``(k, 3)`` end-effector positions (m, world frame), or None for
-        :func:`default_cartesian_targets`.
+      targets: ``(k, 3)`` positions (m), or None for :func:`default_cartesian_targets`.
       duration: seconds per reach, a whole number (>= 1) of control periods.
       control_dt: control period (s).
       home: ``(nq,)`` start pose, or None for ``robot.home``.
 
-    Returns:
-      A :class:`CartesianReference` ``(k, steps + 1, 3)``.
-
     Raises:
-      ConfigError: bad site, home, targets (see :func:`check_targets`) or duration.
+      ConfigError: bad site, home, targets (:func:`check_targets`) or duration.
 
     Examples:
       >>> from cfm_jax import robots
       >>> arm = robots.load("two_link_arm")
       >>> ref = cartesian_reaching(arm, "tip", [[0.5, 0.0, 1.4]], duration=0.5, control_dt=0.01)
-      >>> np.round(ref.x[0, 0], 3).tolist()  # the tip at the home pose
-      [0.636, 0.0, 0.929]
+      >>> ref.x.shape, np.round(ref.x[0, 0], 3).tolist(), ref.x[0, -1].tolist()  # home to goal
+      ((1, 51, 3), [0.636, 0.0, 0.929], [0.5, 0.0, 1.4])
     """
     check_duration(duration, control_dt)
     home = robot.home if home is None else np.asarray(home, np.float64)
@@ -585,18 +455,13 @@ def cartesian_reaching(
 
 
 def as_jax_cartesian(reference: CartesianReference) -> CartesianReference:
-    """The same reference as float32 JAX arrays.
+    """The same :class:`CartesianReference` as float32 JAX arrays.
 
     Args:
       reference: a :class:`CartesianReference` of NumPy arrays.
 
-    Returns:
-      A :class:`CartesianReference` of float32 ``jax.Array``, same shapes.
-
     Examples:
-      >>> from cfm_jax import robots
-      >>> arm = robots.load("two_link_arm")
-      >>> ref = cartesian_reaching(arm, "tip", [[0.5, 0.0, 1.4]], duration=0.5, control_dt=0.01)
+      >>> ref = CartesianReference(*(np.zeros((1, 3, 3)) for _ in range(3)))
       >>> as_jax_cartesian(ref).xdd.dtype
       dtype('float32')
     """
@@ -607,25 +472,19 @@ def as_jax_cartesian(reference: CartesianReference) -> CartesianReference:
 
 
 class LeggedReference(NamedTuple):
-    """Locomotion references of several targets padded to one length (float32 JAX arrays,
-    leading axes ``(targets, steps + 1)``; built by :func:`as_jax_legged`).
+    """Locomotion references padded to one length (float32 JAX; :func:`as_jax_legged`).
 
     Attributes:
       qpos: ``(targets, steps + 1, nq)`` positions (base pose and joints).
       qvel: ``(targets, steps + 1, nv)`` velocities.
-      qacc: ``(targets, steps + 1, nv)`` mean acceleration over control period ``t`` (zero
-        beyond the target's horizon).
+      qacc: ``(targets, steps + 1, nv)`` mean acceleration over control period ``t``.
       tau: ``(targets, steps + 1, action_dim)`` feed-forward joint torques.
-      force: ``(targets, steps + 1, 4 * 3)`` the mean floor force on each foot over control
-        period ``t``, flattened, world frame (N).
-      active: ``(targets, steps + 1)`` 1 while ``t`` is inside the target's horizon, else 0.
+      force: ``(targets, steps + 1, 4 * 3)`` mean floor force per foot, world frame (N).
+      active: ``(targets, steps + 1)`` 1 inside the target's horizon, else 0.
 
     Examples:
-      >>> from cfm_jax import locomotion
-      >>> walks = [locomotion.walk_reference(d, use_cache=False) for d in (0.1, 0.2)]
-      >>> ref = as_jax_legged(walks)
-      >>> ref.qpos.shape, ref.force.shape, ref.active.sum(axis=1).tolist()
-      ((2, 51, 19), (2, 51, 12), [25.0, 50.0])
+      >>> LeggedReference._fields
+      ('qpos', 'qvel', 'qacc', 'tau', 'force', 'active')
     """
 
     qpos: jax.Array
@@ -637,23 +496,18 @@ class LeggedReference(NamedTuple):
 
 
 def as_jax_legged(references) -> LeggedReference:
-    """Pad :class:`cfm_jax.locomotion.LocomotionReference` s to the longest horizon
-    (holding the last state, zero acceleration and the last torque and force) and stack
-    them as float32 JAX arrays ``(targets, steps + 1, ...)``.
+    """Pad locomotion references to the longest horizon (holding the last state, torque and
+    force, with zero acceleration) and stack them as a :class:`LeggedReference`.
 
     Args:
-      references: a sequence of :class:`cfm_jax.locomotion.LocomotionReference`, one per
-        target (``steps`` is the longest horizon).
-
-    Returns:
-      A :class:`LeggedReference`; ``force`` is the references' ``foot_force_mean``.
+      references: :class:`cfm_jax.locomotion.LocomotionReference` s, one per target.
 
     Examples:
       >>> from cfm_jax import locomotion
       >>> walks = [locomotion.walk_reference(d, use_cache=False) for d in (0.1, 0.2)]
-      >>> ref = as_jax_legged(walks)
-      >>> ref.tau.shape, ref.qacc[0, 25:].tolist() == [[0.0] * 18] * 26
-      ((2, 51, 12), True)
+      >>> ref = as_jax_legged(walks)  # horizons of 25 and 50 steps
+      >>> ref.qpos.shape, ref.active.sum(axis=1).tolist(), bool(jnp.all(ref.qacc[0, 25:] == 0))
+      ((2, 51, 19), [25.0, 50.0], True)
     """
     steps = max(r.horizon for r in references)
 

@@ -1,21 +1,5 @@
-"""Offscreen pictures of recorded trajectories for any MJCF model (MuJoCo's ``Renderer``).
-
-:func:`render_frames` turns a sequence of ``qpos`` into RGB images, :func:`frame_strip` lays
-a few of them side by side into one PNG (like the paper's walking image sequence).
-
-OpenGL: ``mujoco`` picks its GL backend from ``MUJOCO_GL`` when it is imported. Without a
-display (``$DISPLAY`` unset) and without ``MUJOCO_GL``, the default GLFW backend cannot start,
-so this module uses MuJoCo's EGL context instead (headless, works with Mesa). When no backend
-works, :class:`RenderUnavailable` is raised with the reason; :func:`render_available` asks
-without raising, so callers can skip pictures with a clear message.
-
-Examples:
-  >>> import mujoco
-  >>> from cfm_jax import render
-  >>> # not run: it needs offscreen OpenGL (MUJOCO_GL=egl or osmesa), which CI may lack
-  >>> model = mujoco.MjModel.from_xml_path("robots/solo12.xml")  # doctest: +SKIP
-  >>> render.frame_strip(model, qpos_seq, "walk.png", n_frames=6)  # doctest: +SKIP
-"""
+"""Offscreen pictures and videos of recorded ``qpos`` for any MJCF model (MuJoCo's ``Renderer``;
+no display and no ``MUJOCO_GL``: MuJoCo's EGL context); see docs/how-to/render.md."""
 
 from __future__ import annotations
 
@@ -30,14 +14,11 @@ from cfm_jax._files import atomic_path
 
 
 class RenderUnavailable(RuntimeError):
-    """No OpenGL context could be created (the message says why and what to try).
+    """No OpenGL context could be created (the message says why); see :func:`render_available`.
 
     Examples:
-      >>> # not run: it needs offscreen OpenGL (MUJOCO_GL=egl or osmesa), which CI may lack
-      >>> try:
-      ...     frames = render_frames(model, qpos)  # doctest: +SKIP
-      ... except RenderUnavailable as error:
-      ...     print(error)  # doctest: +SKIP
+      >>> issubclass(RenderUnavailable, RuntimeError)
+      True
     """
 
 
@@ -75,14 +56,10 @@ def _renderer(model, height: int, width: int):
 
 
 def render_available() -> tuple[bool, str]:
-    """Whether an offscreen OpenGL context can be created here.
-
-    Returns:
-      ``(True, "")`` when it can, else ``(False, reason)``.
+    """Whether an offscreen OpenGL context can be made: ``(True, "")`` or ``(False, why)``.
 
     Examples:
-      >>> ok, why = render_available()
-      >>> isinstance(ok, bool) and (ok or "MUJOCO_GL" in why)
+      >>> render_available()[0] or "MUJOCO_GL" in render_available()[1]
       True
     """
     import mujoco
@@ -124,31 +101,21 @@ def render_frames(
     camera: str | int | dict | None = None,
     track: bool = True,
 ) -> np.ndarray:
-    """RGB frames of the states ``qpos (N, nq)``, offscreen.
+    """RGB frames ``(N, height, width, 3)`` uint8 of ``qpos`` (else :class:`RenderUnavailable`).
 
     Args:
       model: a ``mujoco.MjModel``.
-      qpos: ``(N, nq)`` generalised positions (one ``(nq,)`` state is accepted too).
+      qpos: ``(N, nq)`` (or one ``(nq,)``) generalised positions.
       width: image width in pixels (at most the model's ``offwidth``).
-      height: image height in pixels (at most the model's ``offheight``).
-      camera: a camera name or id of the model, or a dict of free-camera settings
-        (``distance``, ``azimuth``, ``elevation``, ``lookat``); default a side view (azimuth
-        90, the camera on the -y side looking along +y) of the first body's subtree COM.
-      track: the free camera follows that COM (height fixed when ``lookat`` is given).
-
-    Returns:
-      ``(N, height, width, 3)`` uint8.
-
-    Raises:
-      RenderUnavailable: no OpenGL context.
+      height: image height in pixels (at most ``offheight``).
+      camera: a camera name or id, or a dict of free-camera ``distance``, ``azimuth``, etc.
+      track: the free camera follows body 1's subtree COM (height fixed by ``lookat``).
 
     Examples:
       >>> from cfm_jax import robots
       >>> arm = robots.load("two_link_arm")
-      >>> # not run: it needs offscreen OpenGL (MUJOCO_GL=egl or osmesa), which CI may lack
-      >>> frames = render_frames(arm.mj_model, arm.home, width=64, height=48)  # doctest: +SKIP
-      >>> frames.shape  # doctest: +SKIP
-      (1, 48, 64, 3)
+      >>> render_frames(arm.mj_model, arm.home).shape  # needs OpenGL  # doctest: +SKIP
+      (1, 240, 320, 3)
     """
     import mujoco
 
@@ -182,34 +149,24 @@ def frame_strip(
     track: bool = True,
     gap: int = 4,
 ) -> np.ndarray:
-    """Render a few states side by side into one PNG (like the paper's image sequences).
+    """Render ``n_frames`` evenly spaced states (or ``indices``) side by side into one image.
 
     Args:
       model: a ``mujoco.MjModel``.
       qpos: ``(T, nq)`` generalised positions.
-      path: the PNG to write (folders are created).
-      n_frames: number of evenly spaced states to show (when ``indices`` is None).
+      path: the image to write (folders are created; the suffix picks the format).
+      n_frames: number of states shown when ``indices`` is None.
       indices: the states to show instead.
       width: width of each frame in pixels.
       height: height of each frame in pixels.
       camera: as for :func:`render_frames`.
       track: as for :func:`render_frames`.
-      gap: white pixels between frames.
-
-    Returns:
-      The strip image ``(height, n * width + (n - 1) * gap, 3)`` uint8.
-
-    Raises:
-      RenderUnavailable: no OpenGL context.
+      gap: white pixels between frames (the image returned: ``n * (width + gap) - gap`` wide).
 
     Examples:
       >>> from cfm_jax import robots
       >>> arm = robots.load("two_link_arm")
-      >>> # not run: it needs offscreen OpenGL (MUJOCO_GL=egl or osmesa), which CI may lack
-      >>> strip = frame_strip(arm.mj_model, [arm.home] * 10, "/tmp/strip.png", n_frames=3,
-      ...                     width=64, height=48, gap=4)  # doctest: +SKIP
-      >>> strip.shape  # doctest: +SKIP
-      (48, 200, 3)
+      >>> frame_strip(arm.mj_model, [arm.home] * 9, "strip.png")  # needs OpenGL  # doctest: +SKIP
     """
     import matplotlib.image
 
@@ -239,32 +196,18 @@ VIDEO_FORMATS = (".mp4", ".gif")
 
 
 def write_video(frames: np.ndarray, path: str | os.PathLike, *, fps: float = 30.0) -> Path:
-    """Write RGB frames as an MP4 (H.264) or an animated GIF, chosen by ``path``'s extension.
-
-    MP4 goes through imageio's ffmpeg plugin (``imageio-ffmpeg`` ships its own ffmpeg
-    binary; ``pip install "cfm_jax[video]"``), with ``yuv420p`` pixels so browsers and
-    notebooks play it; frames of odd width or height are padded by one edge pixel. GIF goes
-    through Pillow and loops forever.
+    """Write RGB frames as an MP4 (H.264, ``yuv420p``, odd sizes edge-padded; RuntimeError
+    without ``cfm_jax[video]``) or a looping GIF, chosen by ``path``'s extension.
 
     Args:
-      frames: ``(N, height, width, 3)`` uint8 RGB images, for example from
-        :func:`render_frames`.
-      path: output file ending in ``.mp4`` or ``.gif`` (folders are created).
-      fps: frames per second of playback, > 0.
-
-    Returns:
-      The path written.
-
-    Raises:
-      ValueError: frames of the wrong shape or dtype, an unknown extension or a bad ``fps``.
-      RuntimeError: MP4 asked for and imageio's ffmpeg plugin is not installed.
+      frames: ``(N, height, width, 3)`` uint8 RGB images (e.g. :func:`render_frames`).
+      path: output file, ``.mp4`` or ``.gif`` (folders are created); returned.
+      fps: frames per second of playback, > 0 (ValueError: bad frames, extension or ``fps``).
 
     Examples:
-      >>> import numpy as np, tempfile, os
+      >>> import os, tempfile
       >>> frames = np.zeros((5, 32, 48, 3), np.uint8)
-      >>> frames[:, :, :24] = 255  # left half white
-      >>> out = write_video(frames, os.path.join(tempfile.mkdtemp(), "clip.gif"), fps=10)
-      >>> out.suffix
+      >>> write_video(frames, os.path.join(tempfile.mkdtemp(), "clip.gif"), fps=10).suffix
       '.gif'
     """
     frames = np.asarray(frames)
@@ -329,40 +272,24 @@ def video(
     camera: str | int | dict | None = None,
     track: bool = True,
 ) -> np.ndarray:
-    """Render the states ``qpos (T, nq)`` offscreen and write them as an MP4 or a GIF.
-
-    A state every ``every`` steps is rendered; with states ``control_dt`` apart, real time
-    is ``fps = 1 / (every * control_dt)``.
+    """Render every ``every``-th state and :func:`write_video` them; returns the frames (real
+    time: ``fps = 1 / (every * control_dt)``; ValueError: bad ``every``, ``qpos``, path, fps).
 
     Args:
-      model: a ``mujoco.MjModel`` or a :class:`cfm_jax.robots.Robot` (its ``mj_model``).
-      qpos: ``(T, nq)`` generalised positions, one per frame before subsampling.
-      path: output file, ``.mp4`` or ``.gif`` (see :func:`write_video`).
+      model: a ``mujoco.MjModel`` or a :class:`cfm_jax.robots.Robot`.
+      qpos: ``(T, nq)`` generalised positions.
+      path: output file, ``.mp4`` or ``.gif``.
       fps: frames per second of playback.
-      every: render every ``every``-th state (a positive integer).
-      width: image width in pixels (at most the model's offscreen buffer,
-        ``<visual><global offwidth>``).
-      height: image height in pixels (at most ``offheight``).
-      camera: a camera name or id of the model, or a dict of free-camera settings (as for
-        :func:`render_frames`).
-      track: let the free camera follow the robot (as for :func:`render_frames`).
-
-    Returns:
-      The frames written, ``(ceil(T / every), height, width, 3)`` uint8.
-
-    Raises:
-      RenderUnavailable: no OpenGL context (set ``MUJOCO_GL=egl`` on headless Linux).
-      ValueError: a bad ``every``, ``qpos`` of the wrong width, or a bad path or ``fps``.
+      every: a positive integer: render every ``every``-th state.
+      width: as for :func:`render_frames`.
+      height: as for :func:`render_frames`.
+      camera: as for :func:`render_frames`.
+      track: as for :func:`render_frames`.
 
     Examples:
-      >>> import numpy as np
       >>> from cfm_jax import robots
       >>> arm = robots.load("two_link_arm")
-      >>> qpos = arm.home + np.linspace(0, 1, 20)[:, None] * np.array([1.0, -1.0])
-      >>> # not run: it needs offscreen OpenGL (MUJOCO_GL=egl or osmesa), which CI may lack
-      >>> frames = video(arm, qpos, "/tmp/arm.gif", fps=20, every=2)  # doctest: +SKIP
-      >>> frames.shape  # doctest: +SKIP
-      (10, 240, 320, 3)
+      >>> video(arm, [arm.home] * 20, "arm.gif", fps=20, every=2)  # needs OpenGL  # doctest: +SKIP
     """
     model = getattr(model, "mj_model", model)
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:

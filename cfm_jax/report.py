@@ -1,22 +1,5 @@
-"""Summaries, tables and statistics of training results (pandas, rich); their figures are
-in :mod:`cfm_jax.plots`.
-
-Statistics: the unit of every uncertainty here is the *seed*, each seed averaged over its
-targets (:func:`seed_means`): the targets of one seed share its networks and data, so they
-are not independent runs. :func:`summary` gives each loss's mean with a percentile
-bootstrap confidence interval over seeds (:func:`bootstrap_ci`), :func:`paired_table` the
-paired difference between a reference loss and each other loss over the seeds both have
-(:func:`paired_difference`), and the learning-curve figures (:mod:`cfm_jax.plots`) draw
-the same interval as a band. The bootstrap uses a fixed seed, so the same metrics give the
-same report.
-
-Examples:
-  >>> import pandas as pd
-  >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [1, 1],
-  ...                         "target": [0, 0], "tracking_mse": [1.0, 3.0]})
-  >>> summary(metrics).loc["joint", "tracking_mse_mean"]
-  np.float64(2.0)
-"""
+"""Summaries, tables and bootstrap statistics of training results (pandas, rich), each
+uncertainty over seeds averaged over their targets; see docs/how-to/metrics.md."""
 
 from __future__ import annotations
 
@@ -38,24 +21,14 @@ BOOTSTRAP_SEED = 0
 
 
 def config_record(config) -> dict:
-    """The config as a run records it in ``config.json`` (and in its checkpoints): the
-    JSON form of :func:`cfm_jax.config.to_dict`, and for ``robot_actuators='torque'`` the
-    conversion (``robot_conversion``: each servo's joint, kind, torque limit and the
-    limit's source, :func:`cfm_jax.robots.conversion`). That part is derived from the robot
-    file, for the reader; :func:`cfm_jax.config.from_dict` ignores it, and a resume whose
-    file now converts differently is refused as a different config.
+    """The ``config.json`` record: JSON of ``config.to_dict``, plus a torque ``robot_conversion``.
 
     Args:
       config: a :class:`cfm_jax.config.Config`.
 
-    Returns:
-      A dict of JSON types.
-
     Examples:
-      >>> from cfm_jax import config as config_lib
-      >>> record = config_record(config_lib.Config(robot="two_link_arm"))
-      >>> "robot_conversion" in record, config_lib.from_dict(record).robot
-      (False, 'two_link_arm')
+      >>> config_record(cfm_jax.Config(robot="two_link_arm"))["robot"]
+      'two_link_arm'
     """
     import json
 
@@ -70,33 +43,14 @@ def config_record(config) -> dict:
 
 
 def protocol(config) -> str:
-    """One line that says how a run's initial data and ``s*`` were made and how the
-    networks' inputs are scaled, for every summary table: ``loop.babbling``
-    (:mod:`cfm_jax.babbling`), its rollouts and noise, the ``s*`` gains (or
-    ``task.desired='next_velocity'``), ``loop.normaliser`` and ``forward.kind`` (with
-    ``forward.nominal`` and ``forward.nominal_mass_scale`` where they are not the default),
-    (the noise a fraction of the limits or of the torque scales, ``loop.torque_scale``, and
-    for inverse dynamics the babbling's gains), and with ``robot_actuators='torque'`` the
-    servos converted and each torque limit's
-    source (:func:`cfm_jax.robots.conversion_note`).
+    """The line every summary starts with: how the data and ``s*`` were made, normaliser, model.
 
     Args:
       config: a :class:`cfm_jax.config.Config`.
 
-    Returns:
-      A line of text (markdown).
-
     Examples:
-      >>> from cfm_jax import config
-      >>> print(protocol(config.Config()))
+      >>> print(protocol(cfm_jax.Config()))
       initial data: `loop.babbling='reaching'` (2 rollouts per target, torque noise 0.1 of the coupled torque scale, T n, `loop.babbling_gains='lightest'`); s* gains kp 100, kd 20; `loop.normaliser='babbling'`; `forward.kind='mlp'`
-      >>> walk = config.for_task("walk")
-      >>> print(protocol(walk).split("; ", 1)[1])
-      s* the desired next velocity (`task.desired='next_velocity'`: kp 0, kd 1/control_dt = 250/s on base and joints); `loop.normaliser='data'`; `forward.kind='rigid_body'`
-      >>> biased = walk.replace(forward=config.ForwardModelConfig(
-      ...     kind="rigid_body", nominal_mass_scale=1.2))
-      >>> print(protocol(biased).rsplit("; ", 1)[1])
-      `forward.kind='rigid_body'` (`forward.nominal_mass_scale=1.2`)
     """  # noqa: E501
     loop, task = config.loop, config.task
     gains = f"s* gains kp {task.kp:g}, kd {task.kd:g}"
@@ -144,44 +98,18 @@ def protocol(config) -> str:
 def bootstrap_ci(
     values, confidence: float = CONFIDENCE, resamples: int = RESAMPLES, seed: int = BOOTSTRAP_SEED
 ) -> tuple[float, float]:
-    """Percentile bootstrap confidence interval of the mean of a 1-D sample.
-
-    For ``x`` of length ``n``, ``B = resamples`` and ``c = confidence``: the index matrix
-    ``I = rng.integers(0, n, size=(B, n))`` with ``rng = np.random.default_rng(seed)``
-    gives the resample means ``m_b = (1/n) sum_j x[I[b, j]]`` (``b = 0 .. B-1``); the
-    interval is their ``100 (1 - c)/2``-th and ``100 (1 + c)/2``-th percentiles
-    (``np.percentile``, linear: with ``m`` sorted and ``h = (B - 1) p / 100``, the
-    ``p``-th percentile is ``m[floor(h)] + (h - floor(h)) (m[floor(h) + 1] - m[floor(h)])``).
-
-    The interval describes how much the mean moves when the sample is redrawn from
-    itself; with few values it is too narrow for a ``c`` interval of the true mean (for
-    normal data, a simulation gives a coverage of about 50% with 2 values, 75% with 3,
-    85% with 5 and 90% with 10), so read a 3-seed interval as a lower bound on the
-    uncertainty. The order of ``values`` matters only through the fixed random indices:
-    callers here pass seed means ordered by seed.
+    """Percentile bootstrap interval ``(low, high)`` of the mean of a 1-D sample (ValueError: bad
+    arguments); too narrow with few values: read a 3-seed interval as a lower bound.
 
     Args:
-      values: the sample, shape ``(n,)`` (a list, array or Series). NaN values are not
-        dropped: they make the interval NaN (callers here drop them first).
-      confidence: the level ``c``, in (0, 1).
-      resamples: the number ``B`` of resamples (memory: ``B x n`` integer indices; meant
-        for small samples such as seeds).
-      seed: seed of ``np.random.default_rng``.
-
-    Returns:
-      ``(low, high)`` as floats. ``n == 1``: ``(x[0], x[0])``: every resample is that
-      value, so no spread can be estimated (the interval says nothing about the
-      uncertainty). ``n == 0``: ``(nan, nan)``.
-
-    Raises:
-      ValueError: ``values`` is not 1-D, ``confidence`` is not in (0, 1) or
-        ``resamples`` is not a positive integer.
+      values: the sample ``(n,)``; NaN makes the interval NaN.
+      confidence: the level ``c`` in (0, 1): the ``(1 ± c)/2`` percentiles of the means.
+      resamples: the number of resamples (``resamples x n`` indices: for small samples).
+      seed: seed of ``np.random.default_rng``, which draws the indices.
 
     Examples:
-      >>> bootstrap_ci([1.0, 2.0, 3.0, 4.0])
-      (1.5, 3.5)
-      >>> bootstrap_ci([2.0]), bootstrap_ci([])
-      ((2.0, 2.0), (nan, nan))
+      >>> bootstrap_ci([1.0, 2.0, 3.0, 4.0]), bootstrap_ci([2.0]), bootstrap_ci([])
+      ((1.5, 3.5), (2.0, 2.0), (nan, nan))
     """
     x = np.asarray(values, dtype=float)
     if x.ndim != 1:
@@ -203,17 +131,12 @@ def bootstrap_ci(
 
 
 def diverged_runs(metrics: pd.DataFrame) -> pd.Series:
-    """Which rows of a metrics table are runs whose simulation diverged (``diverged == 1``;
-    none when the table has no ``diverged`` column). See :func:`without_diverged`.
+    """Bool Series: which rows of a metrics table diverged (``diverged == 1``).
 
     Args:
-      metrics: a metrics table.
-
-    Returns:
-      A bool Series on the table's index.
+      metrics: a metrics table (no ``diverged`` column: none).
 
     Examples:
-      >>> import pandas as pd
       >>> diverged_runs(pd.DataFrame({"diverged": [0.0, 1.0]})).tolist()
       [False, True]
     """
@@ -223,17 +146,12 @@ def diverged_runs(metrics: pd.DataFrame) -> pd.Series:
 
 
 def failed_runs(metrics: pd.DataFrame) -> pd.Series:
-    """Which rows are failed runs for every ranking or selection rule: the simulation
-    diverged (:func:`diverged_runs`) or, for the legged tasks, the robot fell (``fell``).
+    """Bool Series: the failed runs of every ranking, diverged (:func:`diverged_runs`) or fell.
 
     Args:
       metrics: a metrics table.
 
-    Returns:
-      A bool Series on the table's index.
-
     Examples:
-      >>> import pandas as pd
       >>> failed_runs(pd.DataFrame({"diverged": [0.0, 1.0, 0.0], "fell": [1.0, 0.0, 0.0]})).tolist()
       [True, True, False]
     """
@@ -244,23 +162,13 @@ def failed_runs(metrics: pd.DataFrame) -> pd.Series:
 
 
 def without_diverged(metrics: pd.DataFrame, column: str) -> pd.Series:
-    """The one rule for a metric of runs that may have diverged: ``column`` with the
-    diverged runs (:func:`diverged_runs`) set to NaN, so every mean of this module is over
-    the runs that did not diverge and the count and fraction of those that did are
-    reported beside it (``diverged``, ``diverged_fraction`` of :func:`summary`). A
-    diverged run is a failed run, as a fall is: its error over the steps before it
-    diverged is not a small error (see docs/how-to/metrics.md).
+    """``column``, NaN at the diverged runs: the rule of every table (counted, not averaged).
 
     Args:
       metrics: a metrics table.
-      column: the metric (``diverged`` and ``diverged_step`` themselves, and non-numeric
-        columns, are returned as they are).
-
-    Returns:
-      The column as a Series, NaN at the diverged runs.
+      column: the metric (``diverged``, ``diverged_step`` and non-numeric ones: unchanged).
 
     Examples:
-      >>> import pandas as pd
       >>> frame = pd.DataFrame({"tracking_mse": [1.0, 0.5], "diverged": [0.0, 1.0]})
       >>> without_diverged(frame, "tracking_mse").tolist()
       [1.0, nan]
@@ -277,38 +185,20 @@ def seed_means(
     iteration: int | None = None,
     by: Sequence[str] = ("loss",),
 ) -> pd.DataFrame:
-    """Each seed's ``column`` averaged over its targets at one iteration: the unit of the
-    statistics of this module.
-
-    ``m[g, s] = (1/K) sum_k x[g, s, k]`` for each group ``g`` (a loss), seed ``s`` and the
-    ``K`` targets (rows) of that seed at the iteration; NaN values and the runs that
-    diverged (:func:`without_diverged`) are skipped.
+    """Per group and seed, ``column`` averaged over the seed's ``targets`` (NaN, diverged skipped)
+    at one iteration: the unit of the statistics (ValueError: a missing column).
 
     Args:
-      metrics: a metrics table (``TrainResult.metrics``, several concatenated, a sweep's
-        table) with the ``by`` columns, ``iteration``, ``column`` and ``seed`` (a table
-        without ``seed`` is one seed, seed 0).
+      metrics: a metrics table with ``by``, ``iteration``, ``column``, ``seed`` (else 0).
       column: the metric to average.
-      iteration: the iteration; None: each group's last iteration.
+      iteration: the iteration; None: each group's last.
       by: the columns that tell one group from another.
 
-    Returns:
-      One row per group and seed, groups in order of first appearance, seeds ascending:
-      the ``by`` columns, ``seed``, ``iteration``, ``column`` (the seed mean) and
-      ``targets`` (the number of values averaged). Groups without ``iteration`` are left
-      out.
-
-    Raises:
-      ValueError: a column named in ``by`` or ``column`` is not in ``metrics``.
-
     Examples:
-      >>> import pandas as pd
-      >>> metrics = pd.DataFrame({"loss": ["joint"] * 4, "seed": [1, 1, 0, 0],
-      ...                         "iteration": [2] * 4, "target": [0, 1, 0, 1],
-      ...                         "tracking_mse": [5.0, 7.0, 1.0, 3.0]})
-      >>> seed_means(metrics)
+      >>> m = pd.DataFrame(dict(loss="joint", seed=[1, 1, 0], iteration=2, tracking_mse=[5, 7, 2]))
+      >>> seed_means(m)
           loss  seed  iteration  tracking_mse  targets
-      0  joint     0          2           2.0        2
+      0  joint     0          2           2.0        1
       1  joint     1          2           6.0        2
     """
     by = list(by)
@@ -329,16 +219,11 @@ def seed_means(
 
 
 def mean_ci(values, confidence: float = CONFIDENCE) -> dict:
-    """The mean of a sample and its bootstrap confidence interval (:func:`bootstrap_ci`).
+    """``{"mean", "low", "high"}`` of a sample: its mean and :func:`bootstrap_ci`.
 
     Args:
-      values: the sample, shape ``(n,)``: e.g. one loss's seed means (a list, array or
-        Series ordered by seed).
+      values: the sample ``(n,)``, e.g. one loss's seed means ordered by seed.
       confidence: the confidence level, in (0, 1).
-
-    Returns:
-      ``{"mean": ..., "low": ..., "high": ...}`` (floats; ``n == 0``: NaN), the keys
-      of :func:`paired_difference` less ``n``, so :func:`ci_text` formats either.
 
     Examples:
       >>> mean_ci([1.0, 2.0, 3.0, 4.0])
@@ -350,14 +235,10 @@ def mean_ci(values, confidence: float = CONFIDENCE) -> dict:
 
 
 def ci_text(stats: dict) -> str:
-    """``"mean [low, high]"`` of a :func:`mean_ci` or :func:`paired_difference` result,
-    each number to 3 significant digits (the tables' format).
+    """``"mean [low, high]"`` of :func:`mean_ci` or :func:`paired_difference`, 3 digits each.
 
     Args:
       stats: a mapping with the keys ``"mean"``, ``"low"`` and ``"high"``.
-
-    Returns:
-      The text, for example ``"0.154 [0.0420, 0.270]"``.
 
     Examples:
       >>> ci_text({"mean": 2.0e-5, "low": 1.2e-5, "high": 0.2718})
@@ -374,30 +255,14 @@ def paired_difference(
     resamples: int = RESAMPLES,
     seed: int = BOOTSTRAP_SEED,
 ) -> dict:
-    """Paired comparison over seeds: the mean of ``d_s = a_s - b_s`` and its bootstrap
-    confidence interval (:func:`bootstrap_ci`).
-
-    Only the seeds that both ``a`` and ``b`` have (with finite values) enter; ``d`` is
-    ordered by seed before the bootstrap, so the result does not depend on the order of
-    the inputs. Pairing removes what two losses share within a seed (its babbling data,
-    the initial forward model), so the interval of the difference is usually narrower
-    than the two losses' own intervals suggest.
+    """Mean of ``d_s = a_s - b_s`` over the ``n`` seeds both have, :func:`bootstrap_ci` of ``d``.
 
     Args:
-      a: values per seed: a ``pd.Series`` indexed by seed or a ``{seed: value}`` dict
-        (e.g. a column of :func:`seed_means` indexed by ``seed``).
+      a: values per seed, a ``pd.Series`` indexed by seed or a dict (ValueError: a seed twice).
       b: the same for the other loss.
       confidence: the confidence level, in (0, 1).
       resamples: bootstrap resamples.
       seed: seed of the bootstrap's random numbers.
-
-    Returns:
-      ``{"mean": mean of d, "low": ..., "high": ..., "n": number of paired seeds}``
-      (floats, ``n`` an int; ``n == 1``: ``low == high == mean``, no spread can be
-      estimated; ``n == 0``: NaN).
-
-    Raises:
-      ValueError: a seed appears twice in ``a`` or in ``b``.
 
     Examples:
       >>> paired_difference({0: 1.0, 1: 2.0, 2: 4.0}, {2: 3.0, 0: 2.0})  # d = -1, 1
@@ -427,57 +292,21 @@ def summary(
     iteration: int | None = None,
     confidence: float = CONFIDENCE,
 ) -> pd.DataFrame:
-    """Final-iteration error per loss: mean and std over seeds and targets, and the mean's
-    bootstrap confidence interval over seeds.
-
-    For loss ``l`` with seeds ``s = 1..S`` and seed means ``m_s`` (:func:`seed_means`:
-    each seed averaged over its targets): ``seeds = S``, ``seed_std = sqrt(sum_s (m_s -
-    mean(m))^2 / (S - 1))`` (the sample std, ``ddof=1``; NaN for one seed) and
-    ``[ci_low, ci_high]`` = :func:`bootstrap_ci` of ``m`` (ordered by seed): the
-    percentile bootstrap interval of the mean over seeds. ``mean(m)`` equals
-    ``<column>_mean`` when every seed has the same number of targets (always, for the
-    library's runs).
+    """Final error per loss and baseline, over seeds x targets and over seed means (bootstrap
+    interval), with the failed runs; columns: docs/how-to/metrics.md.
 
     Args:
-      metrics: a metrics table (``TrainResult.metrics``, or several concatenated), with
-        columns ``loss``, ``iteration``, ``column``, ``seed`` (without it: one seed) and
-        optionally ``prediction_error``, ``predicted_task_error``.
-      baselines: ``TrainResult.baselines``; adds rows ``oracle`` and ``pd_only`` (mean and
-        std over targets; no seed columns) when it has ``column``.
-      rms_reach: the RMS reaching distance; adds the column ``rmse_over_reach`` (the square
-        root of ``<column>_mean`` over this distance; meant for ``tracking_mse``).
-      column: the metric, e.g. ``tracking_mse`` or the legged tasks' ``force_mse``.
-      iteration: the iteration to summarise; None: each loss's last.
+      metrics: a metrics table with ``loss``, ``iteration``, ``column`` (else ValueError).
+      baselines: ``TrainResult.baselines``: adds rows ``oracle`` and ``pd_only``.
+      rms_reach: the RMS reaching distance: adds ``rmse_over_reach``, ``sqrt(mean) / reach``.
+      column: the metric, e.g. ``tracking_mse`` or ``force_mse``.
+      iteration: the iteration; None: each loss's last.
       confidence: the level of the interval.
 
-    Returns:
-      One row per loss (``losses.CONTROLLER_LOSSES`` order, then other names in order of
-      appearance) and baseline. Columns: ``iteration``; ``<column>_mean`` and
-      ``<column>_std`` (mean and population std, ``ddof=0``, over seeds x targets);
-      ``runs`` (seeds x targets); ``seeds``, ``seed_std``, ``ci_low``, ``ci_high`` (over
-      the seed means, as above; NaN for the baselines); ``diverged`` and
-      ``diverged_fraction`` (the runs whose simulation diverged, when ``metrics`` has a
-      ``diverged`` column: every mean is over the others, :func:`without_diverged`);
-      ``fell`` (the runs in which the robot fell, when ``metrics`` has a ``fell``
-      column: the legged tasks); ``prediction_error_mean``,
-      ``predicted_task_error_mean`` (when in ``metrics``); ``rmse_over_reach``. The
-      frame's ``attrs`` hold ``column``, ``confidence`` and ``resamples``.
-
-    Raises:
-      ValueError: ``loss``, ``iteration`` or ``column`` is not in ``metrics``.
-
     Examples:
-      >>> import pandas as pd
-      >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [1, 1],
-      ...                         "target": [0, 0], "tracking_mse": [1.0, 3.0]})
-      >>> summary(metrics).loc["joint", "tracking_mse_mean"]
-      np.float64(2.0)
-      >>> summary(metrics).loc["joint", ["seeds", "seed_std", "ci_low", "ci_high"]].round(3)
-      seeds       2.000
-      seed_std    1.414
-      ci_low      1.000
-      ci_high     3.000
-      Name: joint, dtype: float64
+      >>> m = pd.DataFrame(dict(loss="joint", seed=[0, 1], iteration=1, tracking_mse=[1.0, 3.0]))
+      >>> summary(m).loc["joint", ["tracking_mse_mean", "seed_std", "ci_low", "ci_high"]].tolist()
+      [2.0, 1.4142135623730951, 1.0, 3.0]
     """
     _require(metrics, ["loss", "iteration", column])
     means = seed_means(metrics, column, iteration)
@@ -530,39 +359,20 @@ def paired_table(
     iteration: int | None = None,
     confidence: float = CONFIDENCE,
 ) -> pd.DataFrame:
-    """Paired comparison of a reference loss with every other loss, over seeds.
-
-    For each other loss ``l``: ``d_s = m_s(reference) - m_s(l)`` over the seeds both
-    have, ``m`` the seed means of ``column`` (:func:`seed_means`, each seed averaged over
-    its targets), then :func:`paired_difference`. For an error metric (``tracking_mse``,
-    ``force_mse``) a negative difference means the reference is better (lower); a ``c``
-    interval that excludes 0 means the sign holds in at least ``(1 + c)/2`` of the
-    bootstrap resamples of the seeds.
+    """Per other loss, :func:`paired_difference` of the seed means, reference minus loss.
 
     Args:
       metrics: a metrics table with ``loss``, ``seed``, ``iteration`` and ``column``.
-      reference: the loss every other one is compared with; None: ``joint`` when present,
-        else the first loss in ``losses.CONTROLLER_LOSSES`` order.
-      column: the metric.
+      reference: the loss compared with (ValueError if absent); None: ``joint``, else the first.
+      column: the metric (an error: negative, the reference is better).
       iteration: the iteration; None: each loss's last.
       confidence: the level of the interval.
 
-    Returns:
-      One row per other loss (index ``loss``, library order), columns
-      ``mean_difference`` (reference minus loss), ``ci_low``, ``ci_high`` and ``seeds``
-      (the number of paired seeds); ``attrs`` hold ``reference``, ``column``,
-      ``confidence`` and ``resamples``. No other loss: no rows.
-
-    Raises:
-      ValueError: ``reference`` is not in ``metrics`` or a needed column is missing.
-
     Examples:
-      >>> import pandas as pd
-      >>> metrics = pd.DataFrame({"loss": ["joint"] * 2 + ["task"] * 2, "seed": [0, 1] * 2,
-      ...                         "iteration": [1] * 4, "tracking_mse": [1.0, 2.0, 3.0, 3.0]})
-      >>> paired_table(metrics).reset_index()  # joint - task: -2 (seed 0), -1 (seed 1)
-         loss  mean_difference  ci_low  ci_high  seeds
-      0  task             -1.5    -2.0     -1.0      2
+      >>> m = pd.DataFrame(dict(loss=["joint"] * 2 + ["task"] * 2, seed=[0, 1] * 2,
+      ...                       iteration=1, tracking_mse=[1.0, 2.0, 3.0, 3.0]))  # d: -2, -1
+      >>> paired_table(m).loc["task"].tolist()  # mean_difference, ci_low, ci_high, seeds
+      [-1.5, -2.0, -1.0, 2.0]
     """
     means = seed_means(metrics, column, iteration)
     present = loss_order(means["loss"])
@@ -599,14 +409,10 @@ def _require(frame: pd.DataFrame, columns: Iterable[str]) -> None:
 
 
 def loss_order(names) -> list[str]:
-    """The order in which tables and figures show losses: the library's losses in
-    ``CONTROLLER_LOSSES`` order, then other names (baselines, ...) as they come.
+    """Distinct loss names in table order: ``losses.CONTROLLER_LOSSES`` first, then others.
 
     Args:
       names: loss names, repeats allowed (a metrics table's ``loss`` column).
-
-    Returns:
-      The distinct names in that order.
 
     Examples:
       >>> loss_order(["mine", "task", "joint", "task"])
@@ -640,7 +446,6 @@ def _ci_header(table: pd.DataFrame) -> str:
 
 
 def _ci_cell(row) -> str:
-    """``[low, high]``; ``-`` with fewer than two seeds (no spread) or no seeds at all."""
     seeds = row.get("seeds", np.nan)
     if not (isinstance(seeds, int | float | np.integer | np.floating) and seeds >= 2):
         return "-"
@@ -659,8 +464,7 @@ def _ci_note(table: pd.DataFrame) -> str:
 
 
 def _table_columns(table: pd.DataFrame) -> list[str]:
-    """The columns to show: ``iteration`` left out, ``ci_low``/``ci_high`` as one column
-    (named ``"ci"``) in the place of ``ci_low``."""
+    """The columns shown: no ``iteration``, ``ci_low``/``ci_high`` as one ``"ci"``."""
     columns = [c for c in table.columns if c not in ("iteration", "ci_high")]
     if "ci_high" not in table.columns:
         columns = [c for c in columns if c != "ci_low"]
@@ -677,31 +481,20 @@ def print_summary(
     tracking: str = "joint-position tracking MSE (rad^2)",
     console=None,
 ) -> None:
-    """Print a :func:`summary` table with rich (short column headers, explained below it):
-    ``ci_low`` and ``ci_high`` as one column ``95% CI`` (``[low, high]``), the caption says
-    what the interval is (percentile bootstrap of the mean over seeds, each seed averaged
-    over its targets). No number or name is ever cut: a table wider than the console is
-    printed in parts, each with the controller column, the most read columns (MSE mean,
-    95% CI, seeds, diverged) first.
+    """Print a :func:`summary` table with rich, headers explained below; in parts if too wide.
 
     Args:
       table: the output of :func:`summary`.
       title: the table's title.
-      tracking: what the table's metric (``summary(column=...)``) is and its unit, for
-        the caption.
-      console: a ``rich.console.Console`` (None: the terminal's, or 200 columns for a file
-        or a pipe).
+      tracking: what the metric is and its unit, for the caption.
+      console: a ``rich.console.Console`` (None: the terminal's; 200 columns for a file).
 
     Examples:
-      >>> import io
-      >>> import pandas as pd
-      >>> from rich.console import Console
-      >>> metrics = pd.DataFrame({"loss": ["supervised"], "iteration": [0],
-      ...                         "tracking_mse": [3.8e-7]})
-      >>> narrow = Console(width=40, file=io.StringIO())
-      >>> print_summary(summary(metrics), console=narrow)
-      >>> text = narrow.file.getvalue()
-      >>> "supervised" in text and "3.80e-07" in text
+      >>> import io, rich.console
+      >>> narrow = rich.console.Console(width=40, file=io.StringIO())
+      >>> m = pd.DataFrame(dict(loss=["supervised"], iteration=0, tracking_mse=3.8e-7))
+      >>> print_summary(summary(m), console=narrow)
+      >>> "3.80e-07" in narrow.file.getvalue()
       True
     """
     from rich.table import Table
@@ -766,14 +559,10 @@ def print_paired(table: pd.DataFrame, title: str | None = None) -> None:
 
     Args:
       table: the output of :func:`paired_table`.
-      title: the table's title (None: says the reference and the metric).
+      title: the table's title (None: the reference and the metric).
 
     Examples:
-      >>> import pandas as pd
-      >>> metrics = pd.DataFrame({"loss": ["joint", "task"], "seed": [0, 0],
-      ...                         "iteration": [0, 0], "tracking_mse": [0.5, 1.0]})
-      >>> # not run: rich lays the table out to the terminal's width
-      >>> print_paired(paired_table(metrics))  # doctest: +SKIP
+      >>> print_paired(paired_table(metrics))  # laid out to the terminal  # doctest: +SKIP
     """
     from rich.table import Table
 
@@ -809,28 +598,17 @@ def _format(value) -> str:
 
 
 def markdown(table: pd.DataFrame) -> str:
-    """The table as GitHub markdown (numbers to 3 significant digits).
-
-    A :func:`summary` table's ``ci_low`` and ``ci_high`` become one column ``95% CI``
-    (``[low, high]``; ``-`` with fewer than two seeds and for the baselines), and a line
-    below the table says what the interval is.
+    """The table as GitHub markdown (3 digits; a :func:`summary`'s interval as one column).
 
     Args:
       table: the output of :func:`summary` (any frame with an index of row names).
 
-    Returns:
-      Markdown text, one line per row, the ``iteration`` column left out.
-
     Examples:
-      >>> import pandas as pd
-      >>> metrics = pd.DataFrame({"loss": ["task"] * 2, "seed": [0, 1], "iteration": [0, 0],
-      ...                         "tracking_mse": [0.5, 1.5]})
-      >>> print(markdown(summary(metrics)))  # doctest: +ELLIPSIS
+      >>> m = pd.DataFrame(dict(loss="task", seed=[0, 1], iteration=0, tracking_mse=[0.5, 1.5]))
+      >>> print(markdown(summary(m)))  # doctest: +ELLIPSIS
       | controller | tracking_mse_mean | tracking_mse_std | runs | seeds | seed_std | 95% CI |
-      |---|---:|---:|---:|---:|---:|---:|
-      | task | 1 | 0.5 | 2 | 2 | 0.707 | [0.5, 1.5] |
-      <BLANKLINE>
-      95% CI: percentile bootstrap (10000 resamples) of the mean over seeds of tracking_mse, ...
+      ...| task | 1 | 0.5 | 2 | 2 | 0.707 | [0.5, 1.5] |
+      ...
     """
     columns = _table_columns(table)
     headers = [_ci_header(table) if c == "ci" else c for c in columns]
@@ -855,24 +633,16 @@ def _paired_note(table: pd.DataFrame) -> str:
 
 
 def paired_markdown(table: pd.DataFrame) -> str:
-    """A :func:`paired_table` as GitHub markdown, with a line that says what it is.
+    """A :func:`paired_table` as GitHub markdown, below a line that says what it is.
 
     Args:
       table: the output of :func:`paired_table`.
 
-    Returns:
-      Markdown text: the explanation, a blank line, then one table row per loss
-      (``loss``, ``<reference> - loss``, ``95% CI``, ``seeds``).
-
     Examples:
-      >>> import pandas as pd
-      >>> metrics = pd.DataFrame({"loss": ["joint"] * 2 + ["task"] * 2, "seed": [0, 1] * 2,
-      ...                         "iteration": [1] * 4, "tracking_mse": [1.0, 2.0, 3.0, 3.0]})
-      >>> print(paired_markdown(paired_table(metrics)))  # doctest: +ELLIPSIS
+      >>> m = pd.DataFrame(dict(loss=["joint"] * 2 + ["task"] * 2, seed=[0, 1] * 2,
+      ...                       iteration=1, tracking_mse=[1.0, 2.0, 3.0, 3.0]))
+      >>> print(paired_markdown(paired_table(m)))  # doctest: +ELLIPSIS
       joint - loss: mean over the seeds both have of the difference of their tracking_mse ...
-      <BLANKLINE>
-      | loss | joint - loss | 95% CI | seeds |
-      |---|---:|---:|---:|
       | task | -1.5 | [-2, -1] | 2 |
     """
     reference = table.attrs.get("reference", "reference")
@@ -899,44 +669,20 @@ def seed_curves(
     columns: Sequence[str] | None = None,
     confidence: float | None = CONFIDENCE,
 ) -> pd.DataFrame:
-    """Mean, standard deviation and bootstrap confidence interval over seeds, per
-    iteration, for each group ``by`` (each loss, or each loss and override combination of
-    a sweep): the paper's learning curves.
-
-    Each seed's value at an iteration is first averaged over the targets (``m_s``, as in
-    :func:`seed_means`); the mean and the population standard deviation (``ddof=0``) are
-    then taken over the seeds, and the interval is :func:`bootstrap_ci` of the ``m_s``
-    (ordered by seed; NaN seed means left out).
+    """Learning curves: per group and iteration, ``seeds`` and each column's ``_mean``, ``_std``
+    (``ddof=0``), ``_ci_low``, ``_ci_high`` over the seed means (as :func:`seed_means`).
 
     Args:
-      metrics: a metrics table with ``seed``, ``iteration``, ``target``, the ``by`` columns
-        and the metrics (``TrainResult.metrics``, a sweep's table).
-      by: the columns that tell one curve from another.
-      columns: the metrics to summarise (default: every numeric column that is not an id,
-        a group column, ``finite_fraction``, ``transitions_added`` or a training loss).
+      metrics: a metrics table with ``seed``, ``iteration``, ``by`` and the metrics.
+      by: the columns that tell one curve from another (ValueError: not in ``metrics``).
+      columns: the metrics (default: numeric ones but ids, ``by`` and training quantities).
       confidence: the level of the interval; None: no interval columns.
 
-    Returns:
-      One row per group and iteration, groups in order of first appearance, iterations
-      ascending: the ``by`` columns, ``iteration``, ``seeds`` and ``<column>_mean``,
-      ``<column>_std``, ``<column>_ci_low``, ``<column>_ci_high`` for each column;
-      ``attrs["confidence"]`` the level.
-
-    Raises:
-      ValueError: a column named in ``by`` or ``columns`` is not in ``metrics``.
-
     Examples:
-      >>> import pandas as pd
-      >>> metrics = pd.DataFrame({"loss": ["joint"] * 4, "seed": [0, 0, 1, 1],
-      ...                         "iteration": [0] * 4, "target": [0, 1, 0, 1],
-      ...                         "tracking_mse": [1.0, 3.0, 5.0, 7.0]})
-      >>> curves = seed_curves(metrics)  # seed means 2 and 6
-      >>> curves[["loss", "iteration", "seeds", "tracking_mse_mean", "tracking_mse_std"]]
-          loss  iteration  seeds  tracking_mse_mean  tracking_mse_std
-      0  joint          0      2                4.0               2.0
-      >>> curves[["tracking_mse_ci_low", "tracking_mse_ci_high"]]
-         tracking_mse_ci_low  tracking_mse_ci_high
-      0                  2.0                   6.0
+      >>> m = pd.DataFrame(dict(loss="joint", seed=[0, 0, 1, 1], iteration=0,
+      ...                       tracking_mse=[1.0, 3.0, 5.0, 7.0]))  # seed means 2 and 6
+      >>> seed_curves(m).iloc[0, 3:].tolist()  # mean, std, ci_low, ci_high
+      [4.0, 2.0, 2.0, 6.0]
     """
     by = list(by)
     if columns is None:
@@ -985,28 +731,19 @@ def curves_markdown(
     iteration: int | None = None,
     columns: Sequence[str] | None = None,
 ) -> str:
-    """A :func:`seed_curves` table at one ``iteration`` as GitHub markdown: one row per
-    group, each metric as ``mean ± std`` over seeds (3 significant digits).
+    """A :func:`seed_curves` table at one iteration as GitHub markdown, ``mean ± std``.
 
     Args:
       curves: the output of :func:`seed_curves`.
-      by: its group columns (as given to :func:`seed_curves`).
+      by: its group columns.
       iteration: the iteration to show; None: the last.
       columns: the metrics to show (default: all of ``curves``).
 
-    Returns:
-      Markdown text: a line naming the iteration, then the table.
-
     Examples:
-      >>> import pandas as pd
-      >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [3, 3],
-      ...                         "target": [0, 0], "tracking_mse": [1.0, 3.0]})
-      >>> print(curves_markdown(seed_curves(metrics)))
+      >>> m = pd.DataFrame(dict(loss="joint", seed=[0, 1], iteration=3, tracking_mse=[1.0, 3.0]))
+      >>> print(curves_markdown(seed_curves(m)))  # doctest: +ELLIPSIS
       iteration 3; mean ± std over seeds (each seed averaged over targets)
-      <BLANKLINE>
-      | loss | seeds | tracking_mse |
-      |---|---:|---:|
-      | joint | 2 | 2 ± 1 |
+      ...| joint | 2 | 2 ± 1 |
     """
     by = list(by)
     if iteration is None:

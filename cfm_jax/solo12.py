@@ -1,24 +1,7 @@
-"""The Solo12 quadruped itself: its model file, the floor's forces on its feet (from the
-contact sensors), its leg kinematics, and when it has fallen.
+"""The Solo12 quadruped: model file, the floor's forces on the feet, leg kinematics, fall rule.
 
-The reference motions recorded on this robot are :mod:`cfm_jax.locomotion`'s; the legged
-tasks (:mod:`cfm_jax.tasks.legged`) read the foot forces and falls from here.
-
-Conventions (see docs/locomotion.md):
-
-* ``qpos`` (19) = base position (3), base quaternion w x y z (4), 12 joints in the order
-  FL, FR, HL, HR, each (HAA, HFE, KFE); ``qvel`` (18) = base linear velocity (world frame),
-  base angular velocity (base frame, MuJoCo's free-joint convention), 12 joint velocities.
-* ``foot_force (..., 4, 3)``: force the floor exerts on each foot, world frame, in newtons
-  (z > 0 when standing).
-* Leg kinematics are in the base frame, closed form of the chain in ``robots/solo12.xml``.
-
-Examples:
-  >>> from cfm_jax import solo12
-  >>> standing = solo12.load_model().key("home").qpos
-  >>> bool(solo12.fell(standing)), np.round(solo12.hip_positions()[0], 4).tolist()
-  (False, [0.1946, 0.148, -0.2229])
-"""
+``qpos`` (19): base position, quaternion (w, x, y, z), 12 joints FL, FR, HL, HR x (HAA, HFE,
+KFE); ``qvel`` (18): base linear (world) and angular (base frame) velocity, joints."""
 
 from __future__ import annotations
 
@@ -56,9 +39,6 @@ KP, KD = 5.0, 0.1  # robot_properties_solo default joint PD [2.5]
 def model_path() -> str:
     """Path of the shipped ``solo12.xml`` (package data, or ``robots/`` of a checkout).
 
-    Returns:
-      The file's path (str).
-
     Examples:
       >>> model_path().endswith("solo12.xml")
       True
@@ -80,9 +60,6 @@ def load_model(path: str | None = None):
     Args:
       path: an MJCF file, or None for :func:`model_path`.
 
-    Returns:
-      The ``mujoco.MjModel``.
-
     Examples:
       >>> model = load_model()
       >>> model.nq, model.nv, model.nu, model.nsensordata, model.opt.timestep
@@ -94,20 +71,15 @@ def load_model(path: str | None = None):
 
 
 KINEMATICS_TOLERANCE = 1e-6
-"""Largest foot or knee position difference (m) between MuJoCo and the closed-form leg
-kinematics that :func:`check_model` accepts."""
+"""Largest foot or knee gap (m) to the closed-form kinematics that :func:`check_model` accepts."""
 
 
 def check_model(model, name: str = "solo12") -> None:
-    """Check that ``model`` has the Solo12's structure and leg geometry, which the legged
-    tasks' references and fall rule assume (:func:`leg_fk`, :func:`leg_ik`,
-    :func:`knee_positions`): a free base then the 12 joints :data:`JOINTS` in that order, 12
-    actuators, the sites ``<leg>_foot`` and bodies ``<leg>_lower_leg``, and foot and knee
-    positions that the closed form reproduces within :data:`KINEMATICS_TOLERANCE` at three
-    poses. Masses, inertias, friction, gains and the timestep may differ.
+    """Check that ``model`` is built like the Solo12 (as the legged tasks assume): free base,
+    :data:`JOINTS`, 12 actuators, feet and knees where :func:`leg_fk`, :func:`knee_positions` say.
 
     Args:
-      model: a ``mujoco.MjModel``.
+      model: a ``mujoco.MjModel``; masses, inertias, friction, gains and timestep may differ.
       name: the robot's name, for the message.
 
     Raises:
@@ -164,32 +136,19 @@ def check_model(model, name: str = "solo12") -> None:
 
 
 def foot_forces(sensordata, xp=np):
-    """World-frame force of the floor on each foot, ``(..., 4, 3)``, from ``sensordata``.
-
-    Works on ``(..., 40)`` arrays (the four contact sensors of ``solo12.xml``), with NumPy or
-    ``jax.numpy`` (pass ``xp=jnp``). The contact sensors report the force in the contact frame
-    (normal, tangent, bitangent = normal x tangent, the force that geom1 = foot exerts on
-    geom2 = floor) together with the frame's normal and tangent in the world frame; this
-    rotates it to the world frame and flips the sign so it is the floor's force on the foot.
-    Slots with no contact are all zero, giving zero force.
+    """The floor's force on each foot (N, world frame), ``(..., 4, 3)``, from the contact sensors.
 
     Args:
-      sensordata: ``(..., nsensordata)`` whose first 40 entries are the four feet's contact
-        sensors (10 each: found, force, normal, tangent), as in ``solo12.xml``.
+      sensordata: ``(..., nsensordata)``, first the four feet's sensors (10 each, FL, FR, HL, HR).
       xp: the array module, ``numpy`` or ``jax.numpy``.
-
-    Returns:
-      ``(..., 4, 3)`` forces (N), feet in the order FL, FR, HL, HR.
 
     Examples:
       >>> import mujoco
-      >>> model = load_model()
-      >>> data = mujoco.MjData(model)
+      >>> data = mujoco.MjData(model := load_model())
       >>> mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
       >>> mujoco.mj_forward(model, data)
-      >>> force = foot_forces(data.sensordata)
-      >>> force.shape, np.round(force[:, 2], 1).tolist()  # the floor pushes each foot up
-      ((4, 3), [6.6, 6.6, 6.6, 6.6])
+      >>> np.round(foot_forces(data.sensordata)[:, 2], 1).tolist()  # the floor pushes each foot up
+      [6.6, 6.6, 6.6, 6.6]
     """
     s = xp.reshape(sensordata[..., : 4 * SENSOR_SLOT], sensordata.shape[:-1] + (4, SENSOR_SLOT))
     f, n, t = s[..., 1:4], s[..., 4:7], s[..., 7:10]
@@ -204,9 +163,6 @@ def foot_contact(sensordata, xp=np):
     Args:
       sensordata: ``(..., nsensordata)`` as for :func:`foot_forces`.
       xp: the array module, ``numpy`` or ``jax.numpy``.
-
-    Returns:
-      ``(..., 4)`` bool, feet in the order FL, FR, HL, HR.
 
     Examples:
       >>> foot_contact(np.zeros(40)).tolist()  # no sensor found a contact
@@ -225,15 +181,11 @@ def _rot_x(a):
 
 
 def leg_fk(q_leg, leg: int) -> np.ndarray:
-    """Foot centre of leg ``leg`` (0..3 = FL, FR, HL, HR) in the base frame for joints
-    ``(HAA, HFE, KFE)``; closed form of the chain in solo12.xml ([2.2]).
+    """Foot centre of leg ``leg``, base frame (m), ``(3,)``: the closed form of solo12.xml's chain.
 
     Args:
-      q_leg: the leg's joint angles ``(HAA, HFE, KFE)``, ``(3,)`` (rad).
+      q_leg: the leg's joint angles ``(HAA, HFE, KFE)`` (rad).
       leg: 0, 1, 2 or 3 (FL, FR, HL, HR).
-
-    Returns:
-      ``(3,)`` foot centre position (m).
 
     Examples:
       >>> np.round(leg_fk([0.0, 0.8, -1.6], 0), 4).tolist()  # FL at the home pose
@@ -247,8 +199,7 @@ def leg_fk(q_leg, leg: int) -> np.ndarray:
 
 
 def _knees(q_legs, signs, xp):
-    """Knees of legs with joints ``q_legs (..., 3)`` and signs ``signs (..., 2)`` (broadcast
-    together), base frame ``(..., 3)``: the HFE chain rotated about x by HAA."""
+    """Knees ``(..., 3)`` of legs with joints ``q_legs (..., 3)`` and signs ``signs (..., 2)``."""
     sx, sy = signs[..., 0], signs[..., 1]
     q0, q1 = q_legs[..., 0], q_legs[..., 1]
     x = -sx * HFE_DX - L_UPPER * xp.sin(q1)
@@ -258,15 +209,11 @@ def _knees(q_legs, signs, xp):
 
 
 def knee_fk(q_leg, leg: int) -> np.ndarray:
-    """Knee (KFE axis) of leg ``leg`` in the base frame.
+    """Knee (KFE axis) of leg ``leg``, base frame (m), ``(3,)``.
 
     Args:
-      q_leg: the leg's joint angles ``(HAA, HFE, KFE)``, ``(3,)`` (rad); KFE does not move
-        the knee.
+      q_leg: the leg's joint angles ``(HAA, HFE, KFE)`` (rad); KFE does not move the knee.
       leg: 0, 1, 2 or 3 (FL, FR, HL, HR).
-
-    Returns:
-      ``(3,)`` knee position (m).
 
     Examples:
       >>> np.round(knee_fk([0.0, 0.8, -1.6], 0), 4).tolist()  # FL at home: knee behind the hip
@@ -276,16 +223,11 @@ def knee_fk(q_leg, leg: int) -> np.ndarray:
 
 
 def knee_positions(joints, xp=np):
-    """The four knees in the base frame, ``(..., 4, 3)``, from the 12 joint angles
-    ``(..., 12)``: :func:`knee_fk` of every leg at once, with NumPy or ``jax.numpy``
-    (traceable: no Python loop over the batch).
+    """The four knees, base frame (m), ``(..., 4, 3)``: :func:`knee_fk` of every leg, traceable.
 
     Args:
-      joints: ``(..., 12)`` joint angles, legs FL, FR, HL, HR, each (HAA, HFE, KFE) (rad).
+      joints: ``(..., 12)`` joint angles (rad), legs FL, FR, HL, HR, each (HAA, HFE, KFE).
       xp: the array module, ``numpy`` or ``jax.numpy``.
-
-    Returns:
-      ``(..., 4, 3)`` knee positions (m), legs FL, FR, HL, HR.
 
     Examples:
       >>> np.round(knee_positions(HOME_JOINTS)[:, 2], 4).tolist()  # standing: all at -0.11 m
@@ -296,20 +238,14 @@ def knee_positions(joints, xp=np):
 
 
 def leg_ik(foot, leg: int) -> np.ndarray:
-    """Joints ``(HAA, HFE, KFE)`` that put the foot centre of leg ``leg`` at ``foot`` (base
-    frame). Knee branch of the ODRI demos: front legs KFE < 0, hind legs KFE > 0 (knees point
-    to the body centre). Unreachable targets are clipped to the workspace boundary.
+    """Joints ``(HAA, HFE, KFE)`` (rad) that put leg ``leg``'s foot centre at ``foot``.
 
     Args:
-      foot: ``(3,)`` target of the foot centre in the base frame (m).
-      leg: 0, 1, 2 or 3 (FL, FR, HL, HR).
-
-    Returns:
-      ``(3,)`` joint angles ``(HAA, HFE, KFE)`` (rad).
+      foot: ``(3,)`` target of the foot centre, base frame (m); unreachable ones are clipped.
+      leg: 0, 1, 2 or 3 (FL, FR, HL, HR); the ODRI knee branch: front KFE < 0, hind KFE > 0.
 
     Examples:
-      >>> q = leg_ik(leg_fk([0.0, 0.8, -1.6], 0), 0)  # inverse of leg_fk on this branch
-      >>> np.round(q, 6).tolist()
+      >>> np.round(leg_ik(leg_fk([0.0, 0.8, -1.6], 0), 0), 6).tolist()  # inverse of leg_fk
       [0.0, 0.8, -1.6]
     """
     sx, sy = LEG_SIGNS[leg]
@@ -328,37 +264,25 @@ def leg_ik(foot, leg: int) -> np.ndarray:
 
 
 def hip_positions() -> np.ndarray:
-    """Nominal foot positions under the hips at the home pose, base frame ``(4, 3)``.
-
-    Returns:
-      ``(4, 3)`` foot centres (m), legs FL, FR, HL, HR (:func:`leg_fk` of the home joints).
+    """Foot centres at the home pose, base frame (m), ``(4, 3)``: :func:`leg_fk` of each leg.
 
     Examples:
-      >>> np.round(hip_positions(), 4)
-      array([[ 0.1946,  0.148 , -0.2229],
-             [ 0.1946, -0.148 , -0.2229],
-             [-0.1946,  0.148 , -0.2229],
-             [-0.1946, -0.148 , -0.2229]])
+      >>> np.round(hip_positions()[1], 4).tolist()  # FR
+      [0.1946, -0.148, -0.2229]
     """
     return np.array([leg_fk(HOME_JOINTS[3 * i : 3 * i + 3], i) for i in range(4)])
 
 
 def quat_to_mat(quat, xp=np):
-    """Rotation matrices ``(..., 3, 3)`` of unit quaternions ``(..., 4)`` (w, x, y, z).
+    """Rotation matrices ``(..., 3, 3)`` of unit quaternions ``(..., 4)``.
 
     Args:
-      quat: unit quaternions ``(..., 4)``, scalar first (MuJoCo's convention).
+      quat: unit quaternions ``(..., 4)``, scalar first (w, x, y, z; MuJoCo's convention).
       xp: the array module, ``numpy`` or ``jax.numpy``.
 
-    Returns:
-      ``(..., 3, 3)`` rotation matrices.
-
     Examples:
-      >>> quarter_turn = np.array([np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)])  # about z
-      >>> np.round(quat_to_mat(quarter_turn), 6) + 0.0  # + 0.0: no negative zeros
-      array([[ 0., -1.,  0.],
-             [ 1.,  0.,  0.],
-             [ 0.,  0.,  1.]])
+      >>> quat_to_mat(np.array([0.0, 0.0, 0.0, 1.0])).diagonal().tolist()  # half turn about z
+      [-1.0, -1.0, 1.0]
     """
     w, x, y, z = (quat[..., i] for i in range(4))
     rows = [
@@ -374,25 +298,18 @@ def quat_to_mat(quat, xp=np):
 
 @dataclasses.dataclass(frozen=True)
 class FallLimits:
-    """Thresholds of :func:`fell`. The defaults are the library's one fall rule,
-    :data:`FALL`, used by the reference checks and by the legged tasks' training alike.
+    """Thresholds of :func:`fell`; the defaults are the library's one fall rule, :data:`FALL`.
 
     Attributes:
-      min_base_height: lowest allowed base origin height (m; standing is 0.239 m, the
-        deepest crouch of the jumps ~0.16 m).
-      max_tilt: largest allowed angle between the base z axis and the world z axis (rad).
-      body_clearance: the lowest base-box corner (and knee, with ``knees``) must stay this
-        far above the floor (m; the model has no body-floor contacts, so touching the floor
-        is detected geometrically; the knee point is the knee joint's axis, inside the lower
-        leg's 8 mm capsule, so at 5 mm the leg's shell is already in the floor).
-      knees: whether the four knees count as body points for ``body_clearance``.
-      max_pull: largest downward normal force (N) a foot may exert on the floor when
-        :func:`fell` is given the foot forces (beyond it the state is non-physical).
+      min_base_height: lowest base origin height (m; standing 0.239, deepest jump crouch ~0.16).
+      max_tilt: largest angle between the base's and the world's z axes (rad).
+      body_clearance: least height (m) of the base-box corners (and knees) above the floor.
+      knees: whether the knees (joint axes, inside the 8 mm leg shell) count as body points.
+      max_pull: largest downward force (N) a foot may exert on the floor (beyond: non-physical).
 
     Examples:
-      >>> qpos = load_model().key("home").qpos  # standing
-      >>> bool(fell(qpos)), bool(fell(qpos, limits=FallLimits(min_base_height=0.3)))
-      (False, True)
+      >>> bool(fell(load_model().key("home").qpos, limits=FallLimits(min_base_height=0.3)))
+      True
     """
 
     min_base_height: float = 0.10
@@ -403,42 +320,23 @@ class FallLimits:
 
 
 FALL = FallLimits()
-"""The fall rule of the library: base below 0.10 m, tilt above 0.8 rad, or a base-box corner
-or knee within 5 mm of the floor. The reference checks (:func:`cfm_jax.locomotion.replay`)
-and the legged tasks' ``fell`` metric and terminal steps
-(:meth:`cfm_jax.tasks.legged.LeggedTask.record`) both use it."""
+"""The library's fall rule: reference checks, legged tasks' ``fell`` metric and terminal steps."""
 
 
 def fell(qpos, foot_force=None, limits: FallLimits = FALL, xp=np):
-    """True where the robot has fallen: base too low, body (base-box corner, or knee when
-    ``limits.knees``) closer to the floor than ``limits.body_clearance``, or base tilted more
-    than ``limits.max_tilt``. ``qpos (..., 19)``; returns ``(...)`` bool. ``foot_force
-    (..., 4, 3)`` is optional: a foot pulling the floor (normal force below
-    ``-limits.max_pull``) also counts, which only happens for non-physical states.
-
-    Knees are computed in closed form (:func:`knee_positions`), the base corners from the
-    base pose. With ``xp=jax.numpy`` it traces under ``jit`` and ``vmap`` (no Python loop
-    over the batch), in the precision of ``qpos``.
+    """Where the robot has fallen, ``(...)`` bool: base too low or tilted, body near the floor, or
+    (given ``foot_force``) a foot pulling the floor; thresholds in :class:`FallLimits`.
 
     Args:
       qpos: ``(..., 19)`` positions (base pose, 12 joints).
       foot_force: ``(..., 4, 3)`` floor forces on the feet (world frame), or None.
-      limits: the :class:`FallLimits` (default: :data:`FALL`, the library's rule).
-      xp: the array module, ``numpy`` or ``jax.numpy``.
-
-    Returns:
-      ``(...)`` bool array.
+      limits: the :class:`FallLimits` (default: :data:`FALL`).
+      xp: the array module, ``numpy`` or ``jax.numpy`` (traces under ``jit`` and ``vmap``).
 
     Examples:
-      >>> standing = load_model().key("home").qpos
-      >>> low = standing.copy()
-      >>> low[2] = 0.05  # base origin 5 cm above the floor
-      >>> fell(np.stack([standing, low])).tolist()
-      [False, True]
-      >>> kneel = standing.copy()
+      >>> kneel = load_model().key("home").qpos.copy()
       >>> kneel[2] = 0.11  # knees at the floor, base above 0.10 m
-      >>> no_knees = FallLimits(body_clearance=0.0, knees=False)
-      >>> bool(fell(kneel)), bool(fell(kneel, limits=no_knees))
+      >>> bool(fell(kneel)), bool(fell(kneel, limits=FallLimits(body_clearance=0.0, knees=False)))
       (True, False)
     """
     qpos = np.asarray(qpos, float) if xp is np else xp.asarray(qpos)

@@ -1,38 +1,12 @@
-"""Sweeps: a grid of configs run as one study, in-process or on a Ray cluster.
+"""Sweeps: a grid of configs run as one study, in-process or on a Ray cluster (:func:`sweep`).
 
-The module is ``sweeps`` so that ``cfm_jax.sweep`` (the function) never shadows it.
-
-A sweep is a grid of *cells*: every combination of the ``overrides`` (dotted config paths
-such as ``"task.kp"`` or ``"controller.learning_rate"``, each with a list of values) times
-every controller loss. Each cell is one call of :func:`cfm_jax.train` with all the seeds as
-its vmap axis, so a cell compiles once and runs its seeds as one program; cells that share
-everything but the loss also share one :class:`cfm_jax.experiment.Experiment` (babbling
-data, initial forward fit and the compiled rollout), as ``cfm-jax train --loss all`` does.
-
-Impure shell: this module runs cells, writes files and talks to Ray. Each finished cell is
-written to ``out_dir/cells/<cell id>/`` at once (``config.json``, ``cell.json``,
-``baselines.csv`` and last ``metrics.csv``, each written to a temporary file and renamed),
-so an interrupted sweep loses at most the cells in flight, and a re-run with the same
-arguments skips every finished cell. A cell id is the loss and a digest of the cell's
-whole config, so it does not depend on the order of the grid.
-
-Backends:
-
-* ``"local"``: cells one after another in this process (no server).
-* ``"ray"``: each cell a Ray task (``max_retries`` retries when its worker dies);
-  ``address`` an existing cluster, or ``None`` for a local one started on demand (all
-  cores) and stopped at the end. Results come back to this process, which writes them, so
-  workers need no shared filesystem (see ``checkpoints``). Needs ``pip install
-  'cfm_jax[ray]'``.
-
-Examples:
-  >>> import cfm_jax
-  >>> config = cfm_jax.Config(robot="two_link_arm")
-  >>> # not run: it trains 12 cells (minutes) and writes results/s
-  >>> result = cfm_jax.sweep(
-  ...     config, seeds=3, losses=["joint", "task"], overrides={"task.kp": [50.0, 100.0]},
-  ...     out_dir="results/s")  # doctest: +SKIP
-  >>> result.curves()  # mean and std over seeds per iteration  # doctest: +SKIP
+A sweep is a grid of *cells* (:func:`grid`): every combination of the ``overrides`` (dotted
+config paths, each with a list of values) times every controller loss. A cell is one
+:func:`cfm_jax.train` call with the seeds as its vmap axis; cells that differ only in the
+loss share one :class:`cfm_jax.experiment.Experiment`. Each finished cell is written at once
+to ``out_dir/cells/<cell id>/``, so a re-run skips it. Backends, files and compilation:
+docs/how-to/sweep.md. (The module is ``sweeps`` so that the function ``cfm_jax.sweep``
+never shadows it.)
 """
 
 from __future__ import annotations
@@ -64,17 +38,17 @@ RESERVED = {"loss": "losses", "seed": "seeds", "loop.seeds": "seeds"}
 """Config paths that are axes of the sweep itself, not overrides (path -> argument)."""
 
 EXPERIMENT_CACHE_SIZE = 2
-"""Compiled experiments kept per process (also in each Ray worker), most recent first."""
+"""Compiled experiments kept per process (also per Ray worker), most recent first."""
 
 
 class SweepError(RuntimeError):
-    """Some cells failed. The other cells' results are kept (on disk when the sweep has an
-    ``out_dir``; a re-run runs only the missing cells).
+    """Some cells failed; the others' results are kept (on disk with an ``out_dir``: a re-run
+    runs only the missing cells).
 
     Args:
-      failures: ``{cell id: error text}`` (kept as the attribute ``failures``).
-      result: a :class:`SweepResult` of the cells that finished (attribute ``result``).
-      total: the number of cells of the grid (for the message).
+      failures: ``{cell id: error text}`` (attribute ``failures``).
+      result: a :class:`SweepResult` of the finished cells (attribute ``result``).
+      total: the number of cells of the grid.
 
     Examples:
       >>> # not run: it runs a sweep (minutes)
@@ -105,9 +79,9 @@ class Cell:
     """One cell of the grid: a full config (its loss, seeds and override values).
 
     Attributes:
-      id: the cell id (:func:`cell_id`), also its folder name under ``out_dir/cells``.
+      id: the cell id (:func:`cell_id`), its folder under ``out_dir/cells``.
       config: the cell's whole config.
-      overrides: ``{dotted path: value}`` of the override values of this cell.
+      overrides: ``{dotted path: value}`` of this cell.
 
     Examples:
       >>> cell = grid(config_lib.Config(), losses="task", overrides={"task.kp": [50.0]})[0]
@@ -135,10 +109,9 @@ class CellOutput:
       seconds: wall time of the cell.
       pid: the process that ran it.
       host: the machine that ran it.
-      labels: axis labels of the task for figures (``tracking_label``, ``output_unit``).
-      stopped: :attr:`cfm_jax.TrainResult.stopped` of the cell: seeds stopped by a
-        non-finite training quantity (a diverged *rollout* is in ``metrics``, ``diverged``;
-        neither loses the cell).
+      labels: the task's axis labels for figures (``tracking_label``, ``output_unit``).
+      stopped: :attr:`cfm_jax.TrainResult.stopped`: seeds stopped by a non-finite training
+        quantity (neither they nor a diverged rollout lose the cell).
 
     Examples:
       A custom runner does extra work around :func:`run_cell` and returns its output:
@@ -163,15 +136,12 @@ class SweepResult:
     """What :func:`sweep` returns.
 
     Attributes:
-      metrics: the tidy table, one row per (cell, seed, iteration, target): columns
-        ``cell``, one column per override path (its value in that cell; tuples as JSON
-        text), then the columns of :attr:`cfm_jax.TrainResult.metrics` (``loss``, ``seed``,
-        ``iteration``, ``target``, ...). Rows in grid order (overrides, then losses), the
-        same whatever the backend or the order in which cells finished.
-      baselines: oracle and PD-only tracking per target, one set per combination of
-        override values (they do not depend on the loss).
-      cells: one row per cell: ``cell``, the override columns, ``loss``, ``seconds``,
-        ``pid``, ``host``, ``status`` (``ran``, or ``done before`` for a skipped cell).
+      metrics: the tidy table, one row per (cell, seed, iteration, target), in grid order
+        whatever the backend: ``cell``, one column per override path (tuples as JSON text),
+        then the columns of :attr:`cfm_jax.TrainResult.metrics`.
+      baselines: oracle and PD-only tracking per target, per combination of override values.
+      cells: one row per cell: ``cell``, the override columns, ``loss``, ``seconds``, ``pid``,
+        ``host``, ``status`` (``ran`` or ``done before``).
       override_columns: the override paths, in the order given.
       out_dir: where the files are, or None.
       seconds: wall time of the sweep.
@@ -179,9 +149,7 @@ class SweepResult:
     Examples:
       >>> # not run: it trains every loss (minutes) and writes results/s
       >>> result = cfm_jax.sweep(config, losses="all", out_dir="results/s")  # doctest: +SKIP
-      >>> result.metrics.groupby(["loss", "iteration"]).tracking_mse.mean()  # doctest: +SKIP
       >>> print(result.markdown())  # the curves at the last iteration  # doctest: +SKIP
-      >>> result.plot("curves.png", title="my sweep")  # doctest: +SKIP
     """
 
     metrics: pd.DataFrame
@@ -197,21 +165,14 @@ class SweepResult:
         return ["loss", *self.override_columns]
 
     def curves(self, columns: Sequence[str] | None = None) -> pd.DataFrame:
-        """Mean and std over seeds per iteration for each loss and override combination
-        (:func:`cfm_jax.report.seed_curves`)."""
+        """Mean and std over seeds per iteration and curve (:func:`cfm_jax.report.seed_curves`)."""
         return report.seed_curves(self.metrics, by=self.group_columns, columns=columns)
 
     def markdown(self, iteration: int | None = None) -> str:
-        """The summary of ``summary.md``, at ``iteration`` (default: the last), as markdown.
-
-        First the curves at that iteration (:func:`cfm_jax.report.curves_markdown`: mean ±
-        std over seeds of every metric, each seed averaged over its targets); then, for
-        each combination of override values, the per-loss ``tracking_mse`` table with its
-        95% percentile bootstrap CI over seeds and the oracle and PD-only baselines
-        (:func:`cfm_jax.report.summary`, :func:`cfm_jax.report.markdown`) and, when more
-        than one loss ran, the paired differences of the joint loss (else the first loss)
-        minus each other loss over seeds (:func:`cfm_jax.report.paired_table`,
-        :func:`cfm_jax.report.paired_markdown`)."""
+        """The summary of ``summary.md`` at ``iteration`` (default: the last): the curves
+        (:func:`cfm_jax.report.curves_markdown`), then per combination of override values the
+        per-loss table with baselines and, with several losses, the paired differences of the
+        joint (else the first) loss minus each other (docs/how-to/sweep.md)."""
         parts = [report.curves_markdown(self.curves(), self.group_columns, iteration)]
         parts += _summary_sections(
             self.metrics, self.baselines, list(self.override_columns), iteration
@@ -219,9 +180,8 @@ class SweepResult:
         return "\n\n".join(parts)
 
     def plot(self, path: str | None = None, title: str = "", **labels):
-        """The paper-style figure of the curves (:func:`cfm_jax.plots.plot_curves`); the
-        baselines are drawn when the sweep has no overrides. Returns the matplotlib
-        ``Figure``; given ``path``, also writes the image there (atomically)."""
+        """The paper-style figure of the curves (:func:`cfm_jax.plots.plot_curves`; baselines when
+        there are no overrides), also written to ``path`` if given; returns the ``Figure``."""
         baselines = self.baselines if not self.override_columns else None
         return plots.plot_curves(
             self.curves(), path, self.group_columns, baselines=baselines, title=title, **labels
@@ -237,21 +197,16 @@ def grid(
     losses: str | Sequence[str] | None = None,
     overrides: Mapping[str, Sequence[Any]] | None = None,
 ) -> list[Cell]:
-    """The cells of a sweep, in grid order: every combination of the override values (the
-    first path varies slowest), and for each every loss.
+    """The cells of a sweep: every combination of the override values (the first path varies
+    slowest), and for each every loss.
 
     Args:
       base_config: the config every cell starts from.
-      seeds: the number of seeds (``base_config.seed`` onwards), or the seeds themselves as
-        consecutive integers (``range(3, 6)``); None: ``base_config``'s.
+      seeds: the number of seeds (``base_config.seed`` onwards), or consecutive seeds
+        (``range(3, 6)``); None: ``base_config``'s.
       losses: a loss name, a list of them, or ``"all"``; None: ``base_config.loss``.
       overrides: ``{dotted path: [values]}``, e.g. ``{"controller.learning_rate": [1e-3,
-        3e-4], "task.targets": [targets_a, targets_b]}``. An int given for a field whose
-        base value is a float is taken as that float (so ``100`` and ``100.0`` name the
-        same cell).
-
-    Returns:
-      The list of :class:`Cell`.
+        3e-4]}``; an int for a float field is that float (``100`` and ``100.0``: one cell).
 
     Raises:
       ConfigError: naming the argument or path, the bad value and what is allowed.
@@ -283,16 +238,13 @@ def grid(
 
 
 def cell_id(config: config_lib.Config) -> str:
-    """The id of the cell of ``config``: ``<loss>-<first 12 hex digits of the SHA-256 of
-    the config's JSON>``, so equal configs have equal ids.
+    """The id of ``config``'s cell: ``<loss>-<12 hex digits of the SHA-256 of its JSON>``.
 
     Args:
       config: a cell's whole config.
 
     Examples:
       >>> cell_id(config_lib.Config(loss="task")).startswith("task-")
-      True
-      >>> cell_id(config_lib.Config()) == cell_id(config_lib.Config(seed=0))
       True
     """
     text = json.dumps(config_lib.to_dict(config), sort_keys=True)
@@ -438,11 +390,8 @@ _EXPERIMENTS: collections.OrderedDict = collections.OrderedDict()
 
 
 def experiment_for(config: config_lib.Config):
-    """A :class:`cfm_jax.experiment.Experiment` for ``config``, reused (with its compiled
-    functions and babbling data) for configs that differ only in the loss and in
-    :data:`cfm_jax.config.RUNTIME_FIELDS` (seed, learning rates, babbling noise, task
-    gains, target sets, checkpointing): a sweep compiles once per loss and per override that changes
-    the program's structure. The last :data:`EXPERIMENT_CACHE_SIZE` are kept per process.
+    """A :class:`cfm_jax.experiment.Experiment` for ``config``, reused for configs of the same
+    :func:`cfm_jax.config.structure`; the last :data:`EXPERIMENT_CACHE_SIZE` are kept.
 
     Args:
       config: the config of a cell.
@@ -470,25 +419,19 @@ def experiment_for(config: config_lib.Config):
 def run_cell(
     config: config_lib.Config, run_dir: str | None = None, progress: bool = False
 ) -> CellOutput:
-    """Run one cell: :func:`cfm_jax.train` on ``config`` (seeds as the vmap axis).
+    """Run one cell: :func:`cfm_jax.train` on ``config``; the default ``runner`` of :func:`sweep`.
 
-    With ``run_dir``, train writes its run files there (checkpoints, ``dataset.npz``);
-    when ``run_dir`` already holds checkpoints of an interrupted attempt of this cell, the
-    cell resumes from the newest valid one (bit for bit the uninterrupted run), and starts
-    afresh when none is usable. This is the default ``runner`` of :func:`sweep`.
+    A ``run_dir`` holding checkpoints of an interrupted attempt resumes from the newest valid
+    one (bit for bit the uninterrupted run), else the cell starts afresh.
 
     Args:
       config: the cell's config (its seeds are the vmap axis).
       run_dir: train's output directory for this cell, or None (nothing written).
       progress: show train's progress bar.
 
-    Returns:
-      A :class:`CellOutput`.
-
     Examples:
       >>> # not run: it trains (minutes)
       >>> output = run_cell(config_lib.Config(robot="two_link_arm"))  # doctest: +SKIP
-      >>> output.metrics.tracking_mse.mean()  # doctest: +SKIP
     """
     import warnings
 
@@ -552,38 +495,27 @@ def sweep(
     progress: bool = True,
     runner: Callable[[config_lib.Config, str | None], CellOutput] | None = None,
 ) -> SweepResult:
-    """Run a grid of cells (:func:`grid`: override combinations x losses), each with all
-    the seeds as one vmapped :func:`cfm_jax.train` call, and gather one tidy table.
+    """Run a grid of cells (:func:`grid`) and gather one tidy table (docs/how-to/sweep.md).
 
     Args:
       base_config: the config every cell starts from (see :func:`grid`).
       seeds: the number of seeds, or consecutive seeds (see :func:`grid`).
       losses: a loss, a list of losses or ``"all"`` (see :func:`grid`).
-      overrides: ``{dotted config path: [values]}``, the further grid axes (see
-        :func:`grid`).
-      out_dir: where results go (created). Each finished cell is written to
-        ``out_dir/cells/<cell id>/`` as it finishes; a re-run skips finished cells. When
-        all cells are done: ``metrics.csv`` and ``metrics.parquet`` (the tidy table),
-        ``baselines.csv``, ``cells.csv``, ``sweep.json`` (the grid), ``summary.md`` (the
-        protocol line, :func:`cfm_jax.report.protocol`; the curves at the last iteration;
-        per override combination the per-loss table with the 95% bootstrap CI over seeds
-        and the paired comparison of the joint loss) and ``curves.png``. None: nothing is written.
+      overrides: ``{dotted config path: [values]}``, the further grid axes (see :func:`grid`).
+      out_dir: where results go (created): each cell in ``out_dir/cells/<cell id>/`` as it
+        finishes (a re-run skips it), then the tables, ``summary.md`` and ``curves.png``;
+        None: nothing is written.
       backend: ``"local"`` (this process, one cell after another) or ``"ray"``.
-      address: ray only: the address of an existing cluster (``"host:port"`` or
-        ``"auto"``); None: use the Ray instance this process is already connected to,
-        else start a local one (all cores) and stop it at the end. A connection this
-        call opens is closed at its end.
-      max_retries: ray only: how often a cell is retried when its worker process dies.
-        A Python exception in a cell is not retried (it would fail again); it is reported.
+      address: ray only: an existing cluster (``"host:port"`` or ``"auto"``); None: this
+        process's Ray instance, else a local one (all cores). A connection it opens, it closes.
+      max_retries: ray only: retries of a cell whose worker process dies (an exception is
+        reported, not retried).
       cpus_per_cell: ray only: the CPUs a cell reserves (sets how many run at once).
-      checkpoints: give each cell the run directory ``out_dir/cells/<id>/run`` (train's
-        checkpoints and ``dataset.npz``, written by the process that runs the cell), so a
-        cell interrupted mid-way resumes from its last checkpoint. On a cluster without a
-        shared filesystem the directory is on the worker's machine (a retry elsewhere
-        starts the cell over).
+      checkpoints: give each cell the run directory ``out_dir/cells/<id>/run`` (on the
+        worker's machine), so an interrupted cell resumes from its last checkpoint.
       progress: progress bars (local) and a line per finished cell.
-      runner: ``runner(config, run_dir) -> CellOutput`` runs one cell; default
-        :func:`run_cell`. For extra per-cell work; on Ray it must be picklable.
+      runner: ``runner(config, run_dir) -> CellOutput`` runs one cell (picklable for Ray);
+        default :func:`run_cell`.
 
     Returns:
       A :class:`SweepResult`.
@@ -598,7 +530,6 @@ def sweep(
       >>> result = cfm_jax.sweep(  # doctest: +SKIP
       ...     config, seeds=3, losses="all", overrides={"task.kp": [50.0, 100.0]},
       ...     out_dir="results/kp", backend="ray")
-      >>> result.curves()  # doctest: +SKIP
     """
     start = time.perf_counter()
     cells = grid(base_config, seeds, losses, overrides)
@@ -729,8 +660,7 @@ def _reporter(progress: bool, total: int, done_before: int):
 
 
 def _write_cell(out_dir: str, cell: Cell, output: CellOutput) -> None:
-    """``config.json``, ``cell.json``, ``baselines.csv`` and, last, ``metrics.csv`` (its
-    presence marks the cell finished); each written whole and renamed into place."""
+    """A cell's files, each written whole and renamed; ``metrics.csv`` last marks it finished."""
     directory = os.path.join(out_dir, "cells", cell.id)
     os.makedirs(directory, exist_ok=True)
     config_text = json.dumps(report.config_record(cell.config), indent=2)
@@ -825,10 +755,7 @@ def _collect(cells, outputs, done_before, paths, out_dir, seconds) -> SweepResul
 
 
 def _summary_sections(metrics, baselines, paths, iteration) -> list[str]:
-    """Markdown sections of :meth:`SweepResult.markdown` after the curves: per combination
-    of override values (``paths``), the :func:`cfm_jax.report.summary` table of
-    ``tracking_mse`` (with that combination's baselines) and, with several losses, the
-    :func:`cfm_jax.report.paired_table`."""
+    """:meth:`SweepResult.markdown`'s sections after the curves, per override combination."""
     if metrics.empty or "tracking_mse" not in metrics or "loss" not in metrics:
         return []
     groups = metrics.groupby(paths, sort=False, dropna=False) if paths else [((), metrics)]
@@ -857,8 +784,7 @@ def _summary_sections(metrics, baselines, paths, iteration) -> list[str]:
 
 
 def _write_tables(out_dir: str, result: SweepResult, base_config, cells, labels) -> None:
-    """The tidy table as CSV and Parquet (pyarrow), the baselines, the cells, the grid, the
-    summary table and the figure; each file written whole and renamed into place."""
+    """The sweep's files (tables, grid, summary, figure), each written whole and renamed."""
     write_atomic(
         os.path.join(out_dir, "metrics.csv"), lambda tmp: result.metrics.to_csv(tmp, index=False)
     )

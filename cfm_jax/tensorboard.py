@@ -1,32 +1,5 @@
-"""TensorBoard event files of a training run (the optional ``tensorboard`` extra:
-``pip install 'cfm_jax[tensorboard]'``, which installs tensorboardX; no TensorFlow).
-
-:class:`TensorBoardWriter` is a ``progress_fn`` for :func:`cfm_jax.train` (and what
-``cfm-jax train --tensorboard DIR`` uses): after every iteration it writes one scalar per
-metric and loss, tag ``<loss>/<metric>`` (``joint/tracking_mse``), step = the iteration
-(``0 .. loop.iterations``, the last one the final evaluation), value = the metric's mean
-over the iteration's rows, i.e. over seeds and targets, as the command line's table
-averages (:func:`cfm_jax.report.summary`). Every numeric column of
-:attr:`cfm_jax.TrainResult.metrics` but ``seed``, ``iteration`` and ``target`` is a
-metric: ``tracking_mse``, ``prediction_error``, ``predicted_task_error``,
-``forward_loss``, ``controller_loss``, ``diverged`` (the fraction of rollouts that
-diverged) and the task's own. A metric whose mean is not finite at an iteration is not
-written there: the mean skips NaN rows, so that is a metric nobody measured at that step
-(``forward_loss`` and ``controller_loss`` at the final evaluation, which fits nothing), or
-an infinite one; TensorBoard would only draw a gap, and tensorboardX would print a warning
-for each. The file is flushed after every iteration, so TensorBoard
-shows a run while it trains (``tensorboard --logdir DIR``).
-
-Examples:
-  >>> import tempfile
-  >>> import pandas as pd
-  >>> rows = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [0, 0],
-  ...                      "target": [0, 0], "tracking_mse": [0.25, 0.75]})
-  >>> with TensorBoardWriter(tempfile.mkdtemp()) as writer:
-  ...     writer(0, rows)  # as cfm_jax.train(config, progress_fn=writer) calls it
-  ...     writer.written
-  {'joint/tracking_mse': [(0, 0.5)]}
-"""
+"""TensorBoard event files of a training run (``cfm-jax train --tensorboard DIR``; extra
+``cfm_jax[tensorboard]``): :class:`TensorBoardWriter`; see docs/how-to/metrics.md."""
 
 from __future__ import annotations
 
@@ -57,25 +30,20 @@ def available() -> bool:
 
 
 class TensorBoardWriter:
-    """A ``progress_fn`` that writes each iteration's metrics to a TensorBoard event file
-    in ``logdir`` (see the module's text for the tags and values).
+    """A ``progress_fn`` for :func:`cfm_jax.train` (ImportError without tensorboardX): per
+    iteration (the step) it writes tag ``<loss>/<metric>`` = the mean over seeds and targets
+    (non-finite: skipped) and flushes; ``written`` keeps ``{tag: [(step, value), ...]}``.
 
     Args:
-      logdir: the folder of the event file (created); several runs may share one folder
-        (TensorBoard shows each event file) or use one folder each.
-
-    Attributes:
-      logdir: the folder.
-      written: every scalar written, ``{tag: [(step, value), ...]}`` in order.
-
-    Raises:
-      ImportError: tensorboardX is not installed (the message says how to install it).
+      logdir: the folder of the event file (created; runs may share one).
 
     Examples:
-      >>> import cfm_jax
-      >>> # not run here: it trains the default config (minutes)
-      >>> with TensorBoardWriter("runs/iiwa") as writer:  # doctest: +SKIP
-      ...     result = cfm_jax.train(cfm_jax.Config(), progress_fn=writer)
+      >>> import tempfile
+      >>> rows = pd.DataFrame({"loss": "joint", "seed": [0, 1], "tracking_mse": [0.25, 0.75]})
+      >>> with TensorBoardWriter(tempfile.mkdtemp()) as writer:
+      ...     writer(0, rows)  # as cfm_jax.train(config, progress_fn=writer) calls it
+      ...     writer.written
+      {'joint/tracking_mse': [(0, 0.5)]}
     """
 
     def __init__(self, logdir: str | os.PathLike):
@@ -88,14 +56,7 @@ class TensorBoardWriter:
         self._writer = SummaryWriter(logdir=self.logdir)
 
     def __call__(self, iteration: int, metrics: pd.DataFrame) -> None:
-        """Write the scalars of one iteration's rows (``train``'s ``progress_fn``
-        signature) and flush them to the file.
-
-        Args:
-          iteration: the step.
-          metrics: that iteration's rows of :attr:`cfm_jax.TrainResult.metrics` (one per
-            seed and target; a ``loss`` column, else the loss is ``run``).
-        """
+        """Write and flush one iteration's rows of ``TrainResult.metrics`` (no loss: ``run``)."""
         frame = metrics if "loss" in metrics.columns else metrics.assign(loss="run")
         columns = [
             c for c in frame.columns

@@ -1,50 +1,9 @@
-"""The paper's 1-D argument (section III-B/C) as a tool: where each controller loss rests.
+"""The paper's 1-D argument (section III-B/C) made computable: where each controller loss rests.
 
-Bechtle et al. argue with ``s_p = f_theta(s, g_beta(s, s_d))`` that the task loss rests where
-the (possibly biased) forward model predicts the desired state, while the joint loss rests at
-``s_p = (s_d + s_a) / 2`` and, iterated with data collection (Algorithm 1), is pushed to
-``s_a = s_d``. This module makes every piece of that argument computable, so that it can be
-checked, including where it fails.
-
-The 1-D world (the state ``s`` is constant and dropped):
-
-* true system ``s_a = h(tau) = a tau + b + c tau^3`` (:class:`TrueSystem`); ``c != 0`` makes a
-  linear model misspecified;
-* forward model ``s_p = f(tau) = a_hat tau + b_hat`` (:class:`LinearModel`); its bias is the
-  gain ratio ``a_hat / a`` and the offset error ``b_hat - b``;
-* controller ``tau = g(s_target) = beta_0 + beta_1 s_target`` (:class:`AffineController`).
-
-The controller losses are those of :mod:`cfm_jax.losses` (task, joint, distal, supervised),
-applied to the composition ``f o g`` and differentiated with ``jax.grad``.
-
-Two readings of ``s_a`` (the docs say which result uses which):
-
-* **rollout** (Algorithm 1): ``s_a = h(tau_run)`` is observed with the action executed in the
-  last rollout and held fixed while ``g`` is trained;
-* **consistent**: ``s_a = h(tau)`` is the system's response to the *current* action, treated
-  as data (no gradient flows through ``h``). Its rest points are the fixed points of the
-  rollout iteration.
-
-Closed forms (linear system ``c = 0``, one desired state ``s_d``; ``e = s_a - s_d``):
-
-* task rest: ``tau = (s_d - b_hat) / a_hat``, error ``e_task = a (s_d - b_hat) / a_hat + b - s_d``;
-* joint rest for a held ``s_a``: ``tau = ((s_d + s_a) / 2 - b_hat) / a_hat``; fixed point of
-  the iteration with a fixed model: ``tau* = (s_d - 2 b_hat + b) / (2 a_hat - a)``, error
-  ``e_joint = e_task * 2 a_hat / (2 a_hat - a)``, contraction ``a / (2 a_hat)``;
-* distal teacher: no rest for a held ``s_a`` (the loss is linear in ``s_p``); ``n`` gradient
-  steps of size ``eta`` give ``e_{k+1} = (1 - 2 n eta a a_hat) e_k``, fixed point ``e = 0``;
-* model offset refitted on the latest observation (gain kept): task
-  ``e_{k+1} = (1 - a / a_hat) e_k``, joint ``e_{k+1} = (1 - a / (2 a_hat)) e_k``, both to 0.
-
-For the nonlinear system replace ``a`` by the local slope ``h'(tau*)``; fixed points are then
-found with Newton's method (:func:`consistent_rest_action`).
-
-Examples:
-  >>> system = TrueSystem(gain=1.0, offset=0.0)
-  >>> model = LinearModel(gain=1.0, offset=0.2)        # offset bias 0.2
-  >>> fp = fixed_point("joint", system, model, desired=1.0)
-  >>> round(float(fp.error), 3), round(float(fp.contraction), 3)
-  (-0.4, 0.5)
+A true system ``h`` (:class:`TrueSystem`), a linear model ``f`` and an affine controller ``g``
+with the losses of :mod:`cfm_jax.losses` on ``f o g``. Entry points: :func:`rest_action`,
+:func:`consistent_rest_action`, :func:`fixed_point`, :func:`iterate` (Algorithm 1) and
+:func:`sweep_model_bias`. The closed forms, readings of ``s_a`` and figures: docs/theory.md.
 """
 
 from __future__ import annotations
@@ -64,36 +23,25 @@ MODEL_BASED_LOSSES = ("task", "joint", "distal")
 """Losses that go through the forward model (``f o g``)."""
 
 GOALS = ("desired", "observed")
-"""The controller's goal while it is trained (``Config.controller.goal``): ``g(s_d)`` (the
-paper's eq. 4) or ``g(s_a)`` (the authors' public Solo12 code); see
-:func:`observed_goal_fixed_point`."""
+"""The controller's goal while trained (``Config.controller.goal``): ``g(s_d)`` (paper eq. 4) or
+``g(s_a)`` (the authors' Solo12 code); see :func:`observed_goal_fixed_point`."""
 
 REFIT_MODES = ("none", "latest", "all")
-"""How the forward model (and the supervised controller) is refitted after each rollout:
-
-* ``"none"``: never, the model stays as given (fixed bias);
-* ``"latest"``: only the offset is refitted so the model passes through the latest
-  observation ``(tau_k, s_a_k)``; the gain is kept (one point identifies one parameter);
-* ``"all"``: least squares on all data so far (babbling data plus every rollout), with an
-  optional ridge pull of strength ``prior_weight`` towards the initial model.
-"""
+"""The model's refit after each rollout: ``"none"`` (bias kept), ``"latest"`` (offset through the
+latest observation, gain kept) or ``"all"`` (least squares on all data, ridge ``prior_weight``)."""
 
 
 class TrueSystem(NamedTuple):
-    """True 1-D actuator ``s_a = gain * tau + offset + cubic * tau^3``.
-
-    ``cubic != 0`` makes the linear :class:`LinearModel` a misspecified model class.
-    Fields may be scalars or arrays (for ``vmap``).
+    """True 1-D actuator ``s_a = gain * tau + offset + cubic * tau^3`` (scalar or array fields).
 
     Attributes:
-      gain: ``a``, the linear gain.
-      offset: ``b``, the response to ``tau = 0``.
-      cubic: ``c``, the cubic coefficient (0: a linear system).
+      gain: ``a``.
+      offset: ``b``.
+      cubic: ``c``; nonzero makes :class:`LinearModel` a misspecified model class.
 
     Examples:
-      >>> system = TrueSystem(gain=2.0, offset=1.0, cubic=0.5)
-      >>> float(true_response(system, 2.0))  # 2 * 2 + 1 + 0.5 * 8
-      9.0
+      >>> TrueSystem(gain=2.0)
+      TrueSystem(gain=2.0, offset=0.0, cubic=0.0)
     """
 
     gain: jax.Array | float = 1.0
@@ -102,15 +50,15 @@ class TrueSystem(NamedTuple):
 
 
 class LinearModel(NamedTuple):
-    """Forward model ``s_p = gain * tau + offset`` (``a_hat``, ``b_hat``).
+    """Forward model ``s_p = gain * tau + offset``.
 
     Attributes:
-      gain: ``a_hat``, the model's gain.
-      offset: ``b_hat``, the model's offset.
+      gain: ``a_hat``.
+      offset: ``b_hat``.
 
     Examples:
-      >>> float(model_prediction(LinearModel(gain=2.0, offset=0.5), 1.0))
-      2.5
+      >>> biased_model(TrueSystem(2.0, 1.0), gain_ratio=0.5, offset_error=0.1)
+      LinearModel(gain=1.0, offset=1.1)
     """
 
     gain: jax.Array | float = 1.0
@@ -118,11 +66,11 @@ class LinearModel(NamedTuple):
 
 
 class AffineController(NamedTuple):
-    """Controller ``tau = offset + gain * s_target`` (``beta_0``, ``beta_1``).
+    """Controller ``tau = offset + gain * s_target``.
 
     Attributes:
-      offset: ``beta_0``, the action for ``s_target = 0``.
-      gain: ``beta_1``, the action's slope in the target.
+      offset: ``beta_0``.
+      gain: ``beta_1``.
 
     Examples:
       >>> float(controller_action(AffineController(offset=0.5, gain=2.0), 1.0))
@@ -138,10 +86,9 @@ class FixedPoint(NamedTuple):
 
     Attributes:
       action: ``tau*``.
-      error: actual error ``h(tau*) - s_d``.
-      contraction: derivative of the error map ``e_{k+1}(e_k)`` at the fixed point; the
-        iteration converges locally iff ``|contraction| < 1``, geometrically with this rate.
-        NaN where the map has no such factor (``refit="all"``).
+      error: ``h(tau*) - s_d``.
+      contraction: slope of the error map ``e_{k+1}(e_k)`` at the fixed point (local
+        convergence iff ``|contraction| < 1``, at this rate); NaN for ``refit="all"``.
 
     Examples:
       >>> fp = fixed_point("task", TrueSystem(), LinearModel(1.0, 0.2), desired=1.0)
@@ -155,26 +102,20 @@ class FixedPoint(NamedTuple):
 
 
 class IterationTrace(NamedTuple):
-    """Per-iteration record of :func:`iterate`, every field of shape ``(num_iters,)``.
-
-    ``actions[k]`` is ``tau_k`` executed in rollout ``k``, ``observed[k] = h(tau_k)``,
-    ``errors[k] = observed[k] - s_d``; ``model_*`` is the model after the refit that follows
-    rollout ``k``; ``controller_*`` is the controller after the update that follows it.
+    """Per-rollout record of :func:`iterate`, every field of shape ``(num_iters,)``.
 
     Attributes:
-      actions: ``tau_k``, the action executed in rollout ``k``.
+      actions: ``tau_k``, executed in rollout ``k``.
       observed: ``s_a_k = h(tau_k)``.
       errors: ``s_a_k - s_d``.
       model_gains: ``a_hat`` after the refit that follows rollout ``k``.
       model_offsets: ``b_hat`` after that refit.
-      controller_offsets: ``beta_0`` after the controller update that follows rollout ``k``.
+      controller_offsets: ``beta_0`` after the update that follows rollout ``k``.
       controller_gains: ``beta_1`` after that update.
 
     Examples:
       >>> tr = iterate("task", TrueSystem(), LinearModel(1.0, 0.2), AffineController(),
       ...              1.0, num_iters=3)
-      >>> tr.actions.shape
-      (3,)
       >>> [round(float(e), 3) for e in tr.errors]  # tau_0 = 0, then the task loss's rest
       [-1.0, -0.2, -0.2]
     """
@@ -189,12 +130,10 @@ class IterationTrace(NamedTuple):
 
 
 class DataMoments(NamedTuple):
-    """Sufficient statistics of pairs ``(x, y)`` = ``(tau, s_a)`` for least-squares lines.
-
-    Every field is a scalar (float, so that it can be a ``scan`` carry).
+    """Sufficient statistics of pairs ``(x, y) = (tau, s_a)`` for least-squares lines (scalars).
 
     Attributes:
-      count: the number of pairs ``n``.
+      count: ``n``.
       sum_x: ``sum_i x_i``.
       sum_xx: ``sum_i x_i^2``.
       sum_y: ``sum_i y_i``.
@@ -219,14 +158,11 @@ class DataMoments(NamedTuple):
 
 
 def true_response(system: TrueSystem, action):
-    """``s_a = a tau + b + c tau^3``, the true system's response.
+    """The true system's response ``s_a = a tau + b + c tau^3``.
 
     Args:
-      system: a :class:`TrueSystem` (scalars, or arrays broadcasting with ``action``).
+      system: a :class:`TrueSystem` (fields broadcast with ``action``).
       action: ``tau``, any shape.
-
-    Returns:
-      ``s_a``, the broadcast shape of ``action`` and the system's fields.
 
     Examples:
       >>> float(true_response(TrueSystem(2.0, 1.0, 0.5), 2.0))
@@ -236,14 +172,11 @@ def true_response(system: TrueSystem, action):
 
 
 def true_slope(system: TrueSystem, action):
-    """``h'(tau) = a + 3 c tau^2``, the true system's local gain.
+    """The true system's local gain ``h'(tau) = a + 3 c tau^2``.
 
     Args:
-      system: a :class:`TrueSystem` (scalars, or arrays broadcasting with ``action``).
+      system: a :class:`TrueSystem` (fields broadcast with ``action``).
       action: ``tau``, any shape.
-
-    Returns:
-      ``h'(tau)``, the broadcast shape.
 
     Examples:
       >>> float(true_slope(TrueSystem(gain=1.0, cubic=0.5), 2.0))  # 1 + 3 * 0.5 * 4
@@ -253,14 +186,11 @@ def true_slope(system: TrueSystem, action):
 
 
 def model_prediction(model: LinearModel, action):
-    """``s_p = a_hat tau + b_hat``, the forward model's prediction.
+    """The forward model's prediction ``s_p = a_hat tau + b_hat``.
 
     Args:
-      model: a :class:`LinearModel` (scalars, or arrays broadcasting with ``action``).
+      model: a :class:`LinearModel` (fields broadcast with ``action``).
       action: ``tau``, any shape.
-
-    Returns:
-      ``s_p``, the broadcast shape.
 
     Examples:
       >>> float(model_prediction(LinearModel(gain=2.0, offset=0.5), 1.0))
@@ -270,18 +200,13 @@ def model_prediction(model: LinearModel, action):
 
 
 def controller_action(controller: AffineController, target):
-    """``tau = beta_0 + beta_1 s_target``, the controller's action.
+    """The controller's action ``tau = beta_0 + beta_1 s_target``.
 
     Args:
-      controller: an :class:`AffineController` (scalars, or arrays broadcasting with
-        ``target``).
+      controller: an :class:`AffineController` (fields broadcast with ``target``).
       target: ``s_target``, any shape.
 
-    Returns:
-      ``tau``, the broadcast shape.
-
     Examples:
-      >>> import jax.numpy as jnp
       >>> controller_action(AffineController(offset=0.5, gain=2.0), jnp.array([0.0, 1.0]))
       Array([0.5, 2.5], dtype=float32)
     """
@@ -296,9 +221,6 @@ def model_error(system: TrueSystem, model: LinearModel, action):
       model: the :class:`LinearModel` ``f``.
       action: ``tau``, any shape (the fields may broadcast with it).
 
-    Returns:
-      ``f(tau) - h(tau)``, the broadcast shape.
-
     Examples:
       >>> round(float(model_error(TrueSystem(1.0, 0.0), LinearModel(1.0, 0.2), 3.0)), 6)
       0.2
@@ -307,22 +229,16 @@ def model_error(system: TrueSystem, model: LinearModel, action):
 
 
 def biased_model(system: TrueSystem, gain_ratio=1.0, offset_error=0.0) -> LinearModel:
-    """Linear model with gain ``gain_ratio * a`` and offset ``b + offset_error``.
-
-    The model ignores ``system.cubic``; with ``gain_ratio=1, offset_error=0`` it is exact for
-    a linear system.
+    """Linear model with gain ``gain_ratio * a`` and offset ``b + offset_error`` (ignores ``c``).
 
     Args:
       system: the :class:`TrueSystem` whose gain and offset are biased.
       gain_ratio: ``a_hat / a`` (scalar or array).
       offset_error: ``b_hat - b`` (scalar or array).
 
-    Returns:
-      the biased :class:`LinearModel` (fields broadcast as the arguments do).
-
     Examples:
-      >>> biased_model(TrueSystem(2.0, 1.0), gain_ratio=0.5, offset_error=0.1)
-      LinearModel(gain=1.0, offset=1.1)
+      >>> biased_model(TrueSystem(2.0, 1.0), gain_ratio=1.0)  # exact for a linear system
+      LinearModel(gain=2.0, offset=1.0)
     """
     return LinearModel(gain=gain_ratio * system.gain, offset=system.offset + offset_error)
 
@@ -338,26 +254,18 @@ def controller_loss(
     observed,
     goal: str = "desired",
 ):
-    """A model-based controller loss of :mod:`cfm_jax.losses` on ``s_p = f(g(s_d))``.
+    """A model-based loss of :mod:`cfm_jax.losses` on ``s_p = f(g(s_d))``, shape ``(...)``.
 
-    ``task``: ``(s_p - s_d)^2``; ``joint``: ``(s_p - s_d)^2 + (s_p - s_a)^2``;
-    ``distal``: ``(s_p - s_d)^2 - (s_p - s_a)^2`` (:func:`cfm_jax.losses.distal_literal`:
-    with ``s_a`` held, its gradient is the distal teacher's ``2 f' g' (s_a - s_d)`` at every
-    step, the paper's 1-D argument; the bounded :func:`cfm_jax.losses.distal` of the
-    learning loop has that gradient at the action that was run).
+    ``distal`` is :func:`cfm_jax.losses.distal_literal`: with ``s_a`` held its gradient is the
+    distal teacher's ``2 f' g' (s_a - s_d)`` at every step, as in the paper's 1-D argument.
 
     Args:
       name: ``"task"``, ``"joint"`` or ``"distal"``.
-      controller: an :class:`AffineController` (scalars, or arrays broadcasting with the
-        data).
+      controller: an :class:`AffineController` (fields broadcast with the data).
       model: a :class:`LinearModel` (likewise).
       desired: ``s_d``, shape ``(...)``.
       observed: ``s_a``, shape ``(...)``, held fixed.
-      goal: ``"desired"`` (``s_p = f(g(s_d))``, the paper) or ``"observed"``
-        (``s_p = f(g(s_a))``, the authors' Solo12 code, ``controller.goal``); the targets
-        are the same.
-    Returns:
-      loss of shape ``(...)``.
+      goal: one of :data:`GOALS` (else ValueError): ``s_p = f(g(s_d))`` or ``f(g(s_a))``.
 
     Examples:
       >>> float(controller_loss("joint", AffineController(1.0, 0.0), LinearModel(1.0, 0.0),
@@ -379,16 +287,10 @@ def controller_loss(
 def supervised_loss(controller: AffineController, observed, executed_action):
     """Supervised inverse loss ``(g(s_a) - tau_run)^2`` (:func:`cfm_jax.losses.supervised`).
 
-    The controller is fed the observed next state ``s_a`` in place of the desired one.
-
     Args:
-      controller: an :class:`AffineController` (scalars, or arrays broadcasting with the
-        data).
-      observed: ``s_a``, shape ``(...)``.
+      controller: an :class:`AffineController` (fields broadcast with the data).
+      observed: ``s_a``, the controller's input, shape ``(...)``.
       executed_action: ``tau_run``, the action that produced ``s_a``, shape ``(...)``.
-
-    Returns:
-      loss of shape ``(...)``.
 
     Examples:
       >>> float(supervised_loss(AffineController(0.0, 1.0), observed=2.0, executed_action=1.5))
@@ -410,12 +312,11 @@ def controller_gradient(
     executed_action=None,
     goal: str = "desired",
 ) -> AffineController:
-    """``dL/dbeta`` by ``jax.grad`` through ``f o g`` (scalar data).
+    """``dL/dbeta`` by ``jax.grad`` through ``f o g``, as ``(dL/dbeta_0, dL/dbeta_1)``.
 
-    For ``task``/``joint`` this equals the paper's ``2 f' g' (s_p - s_d)`` and
-    ``2 f' g' (2 s_p - s_d - s_a)`` with ``f' = a_hat`` and ``g' = (1, s_d)``; for ``distal``
-    ``2 f' g' (s_a - s_d)``. For ``supervised`` (which needs ``executed_action``) it is
-    ``2 (g(s_a) - tau_run) (1, s_a)``.
+    Equals the paper's ``2 f' g' (s_p - s_d)`` (task), ``2 f' g' (2 s_p - s_d - s_a)`` (joint) and
+    ``2 f' g' (s_a - s_d)`` (distal) with ``f' = a_hat``, ``g' = (1, s_d)`` (``(1, s_a)`` and
+    ``s_p = f(g(s_a))`` for ``goal="observed"``); supervised: ``2 (g(s_a) - tau_run) (1, s_a)``.
 
     Args:
       name: one of :data:`THEORY_LOSSES`.
@@ -423,12 +324,8 @@ def controller_gradient(
       model: a :class:`LinearModel` of scalars.
       desired: ``s_d`` (scalar).
       observed: ``s_a`` (scalar), held fixed.
-      executed_action: ``tau_run`` (scalar), used by the supervised loss.
-      goal: ``"desired"`` or ``"observed"`` (:func:`controller_loss`); with ``observed``
-        the task and joint gradients are ``2 f' (s_p - s_d) (1, s_a)`` and
-        ``2 f' (2 s_p - s_d - s_a) (1, s_a)`` with ``s_p = f(g(s_a))``.
-    Returns:
-      an :class:`AffineController` holding ``(dL/dbeta_0, dL/dbeta_1)``.
+      executed_action: ``tau_run`` (scalar), needed by ``supervised`` (else ValueError).
+      goal: ``"desired"`` or ``"observed"`` (:func:`controller_loss`).
 
     Examples:
       >>> g = controller_gradient("task", AffineController(1.0, 0.0), LinearModel(2.0, 0.0),
@@ -447,20 +344,16 @@ def controller_gradient(
 
 
 def loss_landscape(name: str, model: LinearModel, desired, observed, actions):
-    """Model-based loss as a function of the action ``tau`` (controller ``beta_0 = tau``).
+    """Model-based loss and its ``jax.grad`` in the action ``tau`` (``beta_0 = tau``), each (n,).
 
     Args:
       name: ``"task"``, ``"joint"`` or ``"distal"``.
       model: a :class:`LinearModel` of scalars.
       desired: ``s_d`` (scalar).
       observed: ``s_a`` (scalar), held fixed.
-      actions: the actions ``tau`` to evaluate, shape ``(n,)``.
-
-    Returns:
-      ``(loss, dloss/dtau)``, each of shape ``(n,)``; the gradient is ``jax.grad``'s.
+      actions: the actions ``tau``, shape ``(n,)``.
 
     Examples:
-      >>> import jax.numpy as jnp
       >>> loss, grad = loss_landscape("task", LinearModel(1.0, 0.0), 1.0, 0.0,
       ...                             jnp.array([0.0, 1.0, 2.0]))
       >>> loss.tolist(), grad.tolist()  # (tau - 1)^2 and 2 (tau - 1)
@@ -477,21 +370,16 @@ def loss_landscape(name: str, model: LinearModel, desired, observed, actions):
 
 
 def rest_action(name: str, model: LinearModel, desired, observed):
-    """Rollout reading: the action where the loss's gradient vanishes, ``s_a`` held fixed.
+    """Rollout reading: the action where the loss's gradient vanishes for a held ``s_a``.
 
-    ``task``: ``f(tau) = s_d``  ->  ``tau = (s_d - b_hat) / a_hat``;
-    ``joint``: ``f(tau) = (s_d + s_a) / 2``  ->  ``tau = ((s_d + s_a)/2 - b_hat) / a_hat``;
-    ``distal``: the gradient ``2 a_hat (s_a - s_d)`` does not depend on ``tau``: no rest
-    unless ``s_a = s_d`` (returns NaN).
+    Task: ``f(tau) = s_d``; joint: ``f(tau) = (s_d + s_a) / 2``; distal: no rest point, its
+    gradient ``2 a_hat (s_a - s_d)`` does not depend on ``tau`` (NaN).
 
     Args:
       name: ``"task"``, ``"joint"`` or ``"distal"``.
       model: a :class:`LinearModel` (scalars or broadcasting arrays).
       desired: ``s_d`` (scalar or array).
       observed: ``s_a`` (scalar or array), held fixed.
-
-    Returns:
-      ``tau``, the broadcast shape.
 
     Raises:
       ValueError: ``name`` is not a model-based loss.
@@ -539,25 +427,18 @@ def consistent_rest_action(
 ):
     """Consistent reading: the action where the gradient vanishes with ``s_a = h(tau)``.
 
-    Equivalently the fixed point of the rollout iteration with a fixed model.
-    ``task``: ``f(tau) = s_d``; ``joint``: ``2 f(tau) - h(tau) = s_d``; ``distal`` and
-    ``supervised``: ``h(tau) = s_d``. Closed form for ``c = 0``
-    (joint: ``tau = (s_d - 2 b_hat + b) / (2 a_hat - a)``); otherwise Newton's method
-    (derivative by ``jax.grad``) from ``initial_action`` (default: the closed form of the
-    system with ``c`` set to 0). With ``c != 0`` the joint equation is cubic and can have up to
-    three roots; Newton returns the one it reaches from the start.
+    This is the fixed point of the rollout iteration with a fixed model: task ``f(tau) = s_d``,
+    joint ``2 f(tau) - h(tau) = s_d``, distal and supervised ``h(tau) = s_d``. Closed form for
+    ``c = 0``, else Newton's method; the cubic joint equation can have three roots, Newton
+    returns the one it reaches. NaN or inf where there is no root (joint: ``2 a_hat = a``).
 
     Args:
       name: one of :data:`THEORY_LOSSES`.
       system: a :class:`TrueSystem` of scalars.
       model: a :class:`LinearModel` of scalars.
       desired: ``s_d`` (scalar).
-      initial_action: Newton's starting point (scalar); ``None``: the closed form above.
-      newton_iterations: Newton steps taken when ``system.cubic != 0``.
-
-    Returns:
-      ``tau*`` (scalar; NaN or inf where there is no root, e.g. ``2 a_hat = a`` for the joint
-      loss).
+      initial_action: Newton's start; ``None``: the closed form with ``c = 0``.
+      newton_iterations: Newton steps, used when ``system.cubic != 0``.
 
     Examples:
       >>> float(consistent_rest_action("joint", TrueSystem(1.0, 0.0), LinearModel(1.0, 0.5),
@@ -599,40 +480,21 @@ def fixed_point(
     learning_rate: float = 0.1,
     controller: AffineController | None = None,
 ) -> FixedPoint:
-    """Closed-form fixed point of the iterated Algorithm 1 and its contraction factor.
+    """Closed-form fixed point of the iterated Algorithm 1 (:func:`iterate`) and its contraction.
 
-    The iteration (see :func:`iterate`): roll out ``tau_k``, observe ``s_a = h(tau_k)``,
-    refit, update the controller with ``s_a`` held fixed (to rest, or ``n = inner_steps``
-    gradient steps of size ``eta = learning_rate`` on ``beta_0``). With ``a' = h'(tau*)``,
-    ``rho = 1 - eta * k * a_hat^2`` (``k = 2`` task, ``4`` joint; ``rho^n = 0`` to rest):
-
-    ============  ================================  =========================================
-    loss          ``refit="none"``                  ``refit="latest"`` (offset through last point)
-    ============  ================================  =========================================
-    task          ``f(tau*) = s_d``, ``rho^n``      ``h(tau*) = s_d``, ``1 - (1-rho^n) a'/a_hat``
-    joint         ``2f - h = s_d``,                 ``h(tau*) = s_d``,
-                  ``rho^n + (1-rho^n) a'/(2a_hat)``  ``1 - (1-rho^n) a'/(2 a_hat)``
-    distal        ``h(tau*) = s_d``,                same
-                  ``1 - 2 n eta a' a_hat``
-    supervised    ``tau* = g_0(s_d)``, ``0``        ``h(tau*) = s_d``, ``1 - a' beta_1``
-    ============  ================================  =========================================
-
-    ``refit="all"`` (least squares on all data): the rollouts pile up at the fixed point, so
-    every loss's limit is ``h(tau*) = s_d`` if the iteration converges; the rate is
-    sublinear when the model class is misspecified, so ``contraction`` is NaN.
+    The formulas per loss and refit mode are tabulated in docs/theory.md ("Closed forms"), with
+    ``a`` replaced by the local slope ``h'(tau*)``; ``refit="all"`` ends at ``h(tau*) = s_d``
+    for every converging loss, at a sublinear rate when misspecified (contraction NaN).
 
     Args:
       name: one of :data:`THEORY_LOSSES`.
       system: a :class:`TrueSystem` of scalars (``vmap`` for arrays).
       model: a :class:`LinearModel` of scalars.
       desired: ``s_d``.
-      refit: one of :data:`REFIT_MODES`.
-      inner_steps: ``None`` trains to rest (not possible for ``distal``, which needs steps).
-      learning_rate: step size of the inner gradient steps.
-      controller: initial controller, used by ``supervised`` (its ``tau* = g_0(s_d)`` without
-        refit and its gain ``beta_1`` with ``refit="latest"``).
-    Returns:
-      :class:`FixedPoint`.
+      refit: one of :data:`REFIT_MODES` (else ValueError).
+      inner_steps: gradient steps per update; ``None``: to rest (ValueError for ``distal``).
+      learning_rate: step size of those steps.
+      controller: the initial controller, needed by ``supervised`` (else ValueError).
 
     Examples:
       >>> fp = fixed_point("joint", TrueSystem(), LinearModel(1.0, 0.2), desired=1.0,
@@ -677,19 +539,15 @@ def fixed_point(
 
 
 def data_moments(actions, observed) -> DataMoments:
-    """Sufficient statistics of the pairs ``(tau_i, s_a_i)``.
+    """:class:`DataMoments` of the pairs ``(tau_i, s_a_i)``.
 
     Args:
       actions: ``tau_i``, shape ``(n,)``.
       observed: ``s_a_i``, shape ``(n,)``.
 
-    Returns:
-      :class:`DataMoments` of scalars.
-
     Examples:
-      >>> m = data_moments([0.0, 1.0], [1.0, 3.0])
-      >>> float(m.count), float(m.sum_y), float(m.sum_yy)
-      (2.0, 4.0, 10.0)
+      >>> float(data_moments([0.0, 1.0], [1.0, 3.0]).sum_yy)
+      10.0
     """
     actions = jnp.asarray(actions, dtype=jnp.result_type(float))
     observed = jnp.asarray(observed, dtype=jnp.result_type(float))
@@ -717,22 +575,18 @@ def _add_pair(moments: DataMoments, action, observed) -> DataMoments:
 def fit_line(count, sum_x, sum_xx, sum_y, sum_xy, prior_slope, prior_intercept, prior_weight):
     """Ridge least squares ``min sum_i (k x_i + m - y_i)^2 + w ((k - k0)^2 + (m - m0)^2)``.
 
-    Solves the 2x2 normal equations
-    ``[[Sxx + w, Sx], [Sx, n + w]] [k, m] = [Sxy + w k0, Sy + w m0]``.
-
     Args:
       count: ``n``, the number of pairs.
-      sum_x: ``Sx = sum_i x_i``.
-      sum_xx: ``Sxx = sum_i x_i^2``.
-      sum_y: ``Sy = sum_i y_i``.
-      sum_xy: ``Sxy = sum_i x_i y_i``.
-      prior_slope: ``k0``, the slope the ridge term pulls towards.
-      prior_intercept: ``m0``, the intercept it pulls towards.
-      prior_weight: ``w >= 0``; with ``w = 0`` plain least squares (which needs two distinct
-        ``x``).
+      sum_x: ``sum_i x_i``.
+      sum_xx: ``sum_i x_i^2``.
+      sum_y: ``sum_i y_i``.
+      sum_xy: ``sum_i x_i y_i``.
+      prior_slope: ``k0``.
+      prior_intercept: ``m0``.
+      prior_weight: ``w >= 0``; 0: plain least squares (needs two distinct ``x``).
 
     Returns:
-      ``(slope k, intercept m)``, scalars (or arrays, broadcast as the arguments).
+      ``(k, m)``, the slope and intercept (broadcast as the arguments).
 
     Examples:
       >>> m = data_moments([0.0, 1.0, 2.0], [1.0, 3.0, 5.0])  # y = 2 x + 1
@@ -752,14 +606,10 @@ def fit_model(moments: DataMoments, prior: LinearModel, prior_weight=0.0) -> Lin
     Args:
       moments: :class:`DataMoments` of the pairs ``(tau_i, s_a_i)``.
       prior: the :class:`LinearModel` the ridge term pulls towards.
-      prior_weight: ridge weight ``w`` (:func:`fit_line`); 0: plain least squares.
-
-    Returns:
-      the fitted :class:`LinearModel`.
+      prior_weight: ridge weight (:func:`fit_line`).
 
     Examples:
-      >>> m = data_moments([0.0, 1.0, 2.0], [1.0, 3.0, 5.0])
-      >>> fit = fit_model(m, LinearModel())
+      >>> fit = fit_model(data_moments([0.0, 1.0, 2.0], [1.0, 3.0, 5.0]), LinearModel())
       >>> round(float(fit.gain), 4), round(float(fit.offset), 4)
       (2.0, 1.0)
     """
@@ -779,16 +629,12 @@ def fit_model(moments: DataMoments, prior: LinearModel, prior_weight=0.0) -> Lin
 def fit_inverse(
     moments: DataMoments, prior: AffineController, prior_weight=0.0
 ) -> AffineController:
-    """Supervised inverse model: least squares ``tau ~ beta_0 + beta_1 s_a`` (closed form of
-    minimising :func:`cfm_jax.losses.supervised` over the data, ridge towards ``prior``).
+    """Least squares ``tau ~ beta_0 + beta_1 s_a``, the supervised inverse loss's minimiser.
 
     Args:
       moments: :class:`DataMoments` of the pairs ``(tau_i, s_a_i)``.
       prior: the :class:`AffineController` the ridge term pulls towards.
-      prior_weight: ridge weight ``w`` (:func:`fit_line`); 0: plain least squares.
-
-    Returns:
-      the fitted :class:`AffineController`.
+      prior_weight: ridge weight (:func:`fit_line`).
 
     Examples:
       >>> m = data_moments([0.0, 1.0, 2.0], [1.0, 3.0, 5.0])  # tau = (s_a - 1) / 2
@@ -824,38 +670,26 @@ def iterate(
     babble_actions=None,
     prior_weight=0.0,
 ) -> IterationTrace:
-    """Algorithm 1 in 1-D: roll out, observe, (refit), update the controller; repeat.
+    """Algorithm 1 in 1-D: roll out ``tau_k = g_k(s_d)``, observe ``h(tau_k)``, refit, update ``g``.
 
-    Iteration ``k``: execute ``tau_k = g_k(s_d)``, observe ``s_a_k = h(tau_k)``, add the pair
-    to the data, refit the model (``refit``), then update the controller with ``s_a_k`` held
-    fixed (rollout reading):
-
-    * ``task``/``joint``/``distal``: ``beta_0`` (the action for this target) follows
-      ``jax.grad`` of the library loss through ``f o g``: to rest by Newton's method
-      (``inner_steps=None``; exact in one step since the loss is quadratic in ``beta_0``) or
-      ``inner_steps`` gradient steps of size ``learning_rate``; ``beta_1`` is not trained
-      (one target identifies one parameter);
-    * ``supervised``: ``refit="none"`` keeps ``controller``; ``"latest"`` sets ``beta_0`` so
-      that ``g(s_a_k) = tau_k`` (gain kept); ``"all"`` fits ``g`` to all pairs by least
-      squares (:func:`fit_inverse`).
+    The controller update holds ``s_a_k``. Model-based losses train ``beta_0`` only (one target
+    identifies one parameter), to rest by Newton's method (exact: the loss is quadratic in
+    ``beta_0``) or by ``inner_steps`` gradient steps; ``supervised`` keeps ``g`` (``refit="none"``),
+    sets ``g(s_a_k) = tau_k`` (``"latest"``) or fits all pairs (``"all"``, :func:`fit_inverse`).
 
     Args:
-      name: one of :data:`THEORY_LOSSES`.
+      name: one of :data:`THEORY_LOSSES` (else ValueError).
       system: the :class:`TrueSystem` (scalars).
       model: the initial :class:`LinearModel` (scalars).
       controller: the initial :class:`AffineController` (scalars).
       desired: ``s_d`` (scalar).
-      num_iters: number of rollouts ``K``.
-      refit: one of :data:`REFIT_MODES`.
-      inner_steps: gradient steps of the controller update per iteration (``None``: to
-        rest, see above).
-      learning_rate: step size of those gradient steps.
-      babble_actions: actions of the motor-babbling data set (shape ``(n,)``), used by
-        ``refit="all"``; with ``None`` the only data are the rollouts.
-      prior_weight: ridge weight pulling ``refit="all"`` fits towards the initial model and
-        controller (needed when fewer than two distinct actions have been seen).
-    Returns:
-      :class:`IterationTrace` with fields of shape ``(num_iters,)``.
+      num_iters: number of rollouts.
+      refit: one of :data:`REFIT_MODES` (else ValueError).
+      inner_steps: gradient steps per update; ``None``: to rest (ValueError for ``distal``).
+      learning_rate: step size of those steps.
+      babble_actions: babbling actions ``(n,)``, data for ``refit="all"``; ``None``: none.
+      prior_weight: ridge weight of ``refit="all"`` towards the initial model and controller
+        (needed while fewer than two distinct actions have been seen).
 
     Examples:
       >>> tr = iterate("joint", TrueSystem(), LinearModel(1.0, 0.2), AffineController(),
@@ -944,26 +778,20 @@ def iterated_action_map(
     inner_steps: int | None = None,
     learning_rate=0.1,
 ):
-    """One iteration ``tau_{k+1} = T(tau_k)`` with a fixed model (``refit="none"``).
+    """One rollout ``tau_{k+1} = T(tau_k)`` of :func:`iterate` with a fixed model, per ``tau_k``.
 
-    Runs :func:`iterate` for one rollout from each ``tau_k`` in ``actions``; its fixed point
-    is :func:`fixed_point`'s ``action``.
+    Its fixed point is :func:`fixed_point`'s ``action``.
 
     Args:
-      name: one of :data:`THEORY_LOSSES` (``"supervised"`` keeps its action: the controller
-        is not updated without a refit).
+      name: one of :data:`THEORY_LOSSES` (``"supervised"`` keeps its action: no refit).
       system: a :class:`TrueSystem` of scalars.
       model: the fixed :class:`LinearModel` (scalars).
       desired: ``s_d`` (scalar).
       actions: ``tau_k``, shape ``(n,)``.
-      inner_steps: gradient steps of the controller update (``None``: to rest).
-      learning_rate: step size of those gradient steps.
-
-    Returns:
-      ``tau_{k+1}``, shape ``(n,)``.
+      inner_steps: gradient steps per update (``None``: to rest).
+      learning_rate: step size of those steps.
 
     Examples:
-      >>> import jax.numpy as jnp
       >>> nxt = iterated_action_map("joint", TrueSystem(), LinearModel(1.0, 0.2), 1.0,
       ...                           jnp.array([0.0, 0.6]))
       >>> [round(float(a), 4) for a in nxt]  # ((s_d + h(tau)) / 2 - b_hat) / a_hat
@@ -1001,40 +829,33 @@ def sweep_model_bias(
     distal_steps: int = 5,
     learning_rate=0.1,
 ) -> dict[str, jax.Array]:
-    """Fixed points, errors and iterated errors per loss over a grid of model biases.
+    """Fixed points and iterated errors per loss over a grid of model biases, in one ``vmap``.
 
-    One ``vmap`` over the flattened grid ``gain_ratio x offset_error`` (model
-    ``a_hat = gain_ratio * a``, ``b_hat = b + offset_error``, see :func:`biased_model`).
-    Every loss starts from the same action, the task loss's rest ``(s_d - b_hat) / a_hat``
-    (the supervised controller starts as the biased model's inverse, ``beta_1 = 1 / a_hat``,
-    which gives that action). ``distal`` uses ``distal_steps`` gradient steps per iteration,
-    the others ``inner_steps`` (``None``: to rest).
+    Every loss starts from the task loss's rest ``(s_d - b_hat) / a_hat`` (the supervised
+    controller as the biased model's inverse) on the model :func:`biased_model` gives.
 
     Args:
       system: a :class:`TrueSystem` of scalars.
       desired: ``s_d`` (scalar).
       gain_ratios: ``a_hat / a`` of the grid, shape ``(G,)``.
       offset_errors: ``b_hat - b`` of the grid, shape ``(O,)``.
-      refit: ``"none"`` or ``"latest"`` (``"all"`` forgets the initial model's bias).
-      num_iters: rollouts run to measure the iterated error.
-      inner_steps: gradient steps per controller update of the task, joint and supervised
-        losses (``None``: to rest).
-      distal_steps: gradient steps per controller update of the distal-teacher loss.
-      learning_rate: step size of those gradient steps.
+      refit: ``"none"`` or ``"latest"``.
+      num_iters: rollouts run for the iterated error.
+      inner_steps: gradient steps per update of the other losses (``None``: to rest).
+      distal_steps: gradient steps per update of the distal-teacher loss.
+      learning_rate: step size of those steps.
 
     Returns:
-      dict of arrays of shape ``(G * O,)``: ``gain_ratio``, ``offset_error`` and for each loss
-      ``L``: ``L_action`` (``tau*``), ``L_error`` (``h(tau*) - s_d``), ``L_contraction``,
-      ``L_iterated_error`` (error of the last rollout of :func:`iterate`).
+      Arrays of shape ``(G * O,)``: ``gain_ratio``, ``offset_error`` and per loss ``L``:
+      ``L_action``, ``L_error``, ``L_contraction`` (:class:`FixedPoint`) and
+      ``L_iterated_error`` (the last rollout's error of :func:`iterate`).
 
     Raises:
-      ValueError: ``refit="all"``.
+      ValueError: ``refit="all"``, which forgets the initial model's bias.
 
     Examples:
       >>> table = sweep_model_bias(TrueSystem(), 1.0, gain_ratios=[1.0, 2.0],
       ...                          offset_errors=[0.0, 0.2], num_iters=20)
-      >>> table["joint_error"].shape
-      (4,)
       >>> [round(float(e), 3) for e in table["task_error"]]  # (1 - b_hat) / a_hat - 1
       [0.0, -0.2, -0.5, -0.6]
     """
@@ -1091,23 +912,11 @@ def observed_goal_fixed_point(
     controller_gain,
     newton_iterations: int = 40,
 ) -> FixedPoint:
-    """Fixed point of Algorithm 1 when the controller is trained on the *observed* goal
-    (``controller.goal="observed"``) with a fixed model: roll out ``tau_k = g(s_d)``, observe
-    ``s_a = h(tau_k)``, train the offset ``beta_0`` to rest on the loss of ``s_p = f(g(s_a))``
-    (gain ``beta_1 = controller_gain`` held).
+    """Fixed point of Algorithm 1 with ``g`` trained on the observed goal and a fixed model.
 
-    The rest of training pins ``g`` at the observed goal only: ``f(g(s_a)) = s_d`` (task)
-    or ``(s_d + s_a) / 2`` (joint). The run-time action is read at the desired goal,
-    ``g(s_d) = g(s_a) + beta_1 (s_d - s_a)``, so the fixed point ``s_a = h(tau*)`` solves
-
-    * task: ``f(tau) - s_d + a_hat beta_1 (h(tau) - s_d) = 0``,
-    * joint: ``2 f(tau) - h(tau) - s_d + 2 a_hat beta_1 (h(tau) - s_d) = 0``,
-
-    and the action map ``tau_{k+1}(tau_k)`` has the slope (the contraction) ``-beta_1 a'``
-    (task) or ``a' (1 / (2 a_hat) - beta_1)`` (joint), ``a' = h'(tau*)``. For a linear system
-    the errors are ``e = e_task / (1 + a beta_1)`` (task) and ``e = 2 a_hat e_task / (2 a_hat
-    - a + 2 a a_hat beta_1)`` (joint), with ``e_task`` the desired goal's task error; with
-    ``beta_1 = 0`` (a controller that ignores its goal) both are the desired goal's.
+    Training the offset to rest pins ``f(g(s_a))`` at ``s_d`` (task) or ``(s_d + s_a) / 2``
+    (joint), while the rollout reads ``g(s_d) = g(s_a) + beta_1 (s_d - s_a)``; the resulting
+    equations, errors and contractions: docs/theory.md ("The observed goal").
 
     Args:
       name: ``"task"`` or ``"joint"``.
@@ -1115,10 +924,7 @@ def observed_goal_fixed_point(
       model: a :class:`LinearModel` of scalars.
       desired: ``s_d`` (scalar).
       controller_gain: ``beta_1``, the controller's slope in its goal (held).
-      newton_iterations: Newton steps (exact in one for a linear system).
-
-    Returns:
-      :class:`FixedPoint`.
+      newton_iterations: Newton steps (one is exact for a linear system).
 
     Raises:
       ValueError: ``name`` is not ``task`` or ``joint``.

@@ -1,19 +1,11 @@
-"""PyTorch CPU reference of the two model updates, for the benchmark only.
+"""PyTorch CPU reference of the two model updates, for the benchmark only (not used by training).
 
 The same networks, losses and optimiser as :mod:`cfm_jax.update` (float32, Adam 1e-3,
-minibatches of ``batch_size`` rows drawn uniformly with replacement):
-
-* :class:`ForwardUpdate`: the PETS ensemble (``E`` members, ReLU MLP, Gaussian mean and
-  softly bounded learned log-variance, Gaussian NLL plus the bound penalty), every member
-  on its own minibatch, written as batched matrix products over a leading member axis
-  (``torch.baddbmm``), the fast way to write an ensemble in PyTorch.
-* :class:`ControllerUpdate`: the controller MLP (``tanh`` scaled to the torque limits)
-  trained with the joint loss ``|f(s, g) - s*|^2 + |f(s, g) - s_a|^2`` through the frozen
-  ensemble's mean.
-
-``step()`` runs one update (sample, forward, backward, Adam). Inputs are plain NumPy; the
-torch import happens when a class is built (``pip install "cfm_jax[bench]"``, which pins
-the CPU build). Not used by training.
+minibatches drawn uniformly with replacement): :class:`ForwardUpdate`, the PETS ensemble as
+batched matrix products over a member axis (``torch.baddbmm``, the fast way in PyTorch), and
+:class:`ControllerUpdate`, the controller trained with the joint loss
+``|f(s, g) - s*|^2 + |f(s, g) - s_a|^2`` through the frozen ensemble's mean. ``step()`` runs
+one update on NumPy inputs. Needs torch (``pip install "cfm_jax[bench]"``, the CPU build).
 """
 
 from __future__ import annotations
@@ -41,14 +33,13 @@ def _linear_stack(torch, sizes, members, generator):
 
 
 class ForwardUpdate:
-    """One Adam step of the forward ensemble on ``(state, action, observed)`` rows.
-
-    Inputs are normalised with the data's statistics (standard deviations floored at 1e-3),
-    torques by ``torque_limit``.
+    """One Adam step of the forward ensemble on ``(state, action, observed)`` rows (inputs
+    normalised by the data's statistics, standard deviations floored at 1e-3; torques by
+    ``torque_limit``).
 
     Args:
-      data: a dict of NumPy arrays: ``state (n, state_dim)``, ``action (n, nv)``,
-        ``observed (n, nv)`` and ``torque_limit (nv,)``.
+      data: NumPy arrays ``state (n, state_dim)``, ``action (n, nv)``, ``observed (n, nv)``,
+        ``torque_limit (nv,)``.
       hidden: hidden layer sizes of each member.
       members: ensemble size ``E``.
       batch_size: rows per member per step.
@@ -124,13 +115,11 @@ class ForwardUpdate:
 
 
 class ControllerUpdate:
-    """One Adam step of the controller with the joint loss through a frozen ensemble.
-
-    Building it freezes ``forward``'s parameters (``requires_grad_(False)``).
+    """One Adam step of the controller with the joint loss through ``forward``'s frozen ensemble.
 
     Args:
-      forward: the :class:`ForwardUpdate` whose ensemble mean is the model (and whose data,
-        statistics and torch module are used).
+      forward: the :class:`ForwardUpdate` whose ensemble mean is the model (its data,
+        statistics and torch are used; building this freezes its parameters).
       data: a dict with ``desired (n, nv)``, the desired accelerations of ``forward``'s rows.
       hidden: hidden layer sizes of the controller.
       batch_size: rows per step.

@@ -1,18 +1,7 @@
 """Algorithm 1's impure shell: :func:`train` runs the compiled functions of an
-:class:`cfm_jax.experiment.Experiment` (the pure :mod:`cfm_jax.algorithm`, vmapped over seeds)
-in a loop around a :class:`cfm_jax.recorder.Recorder`, which keeps what touches the world
-(result files after every iteration, Orbax checkpoints and resume, the seeds stopped by a
-non-finite update, the ``progress_fn`` callback); here also the progress display and the
-replay of a recorded data set.
-
-Examples:
-  >>> from cfm_jax import config as cfg
-  >>> small = cfg.Config(robot="two_link_arm", loop=cfg.LoopConfig(iterations=1))
-  >>> # not run: it trains (compiling an iteration takes tens of seconds)
-  >>> result = train(small, progress=False)  # doctest: +SKIP
-  >>> result.metrics.columns[:4].tolist()  # doctest: +SKIP
-  ['loss', 'seed', 'iteration', 'target']
-"""
+:class:`cfm_jax.experiment.Experiment` in a loop around a :class:`cfm_jax.recorder.Recorder`
+(result files, checkpoints and resume, stopped seeds, ``progress_fn``), with the progress
+display and the replay of a recorded data set."""
 
 from __future__ import annotations
 
@@ -39,35 +28,33 @@ __all__ = ["TrainResult", "recorded_for", "rollout_qpos", "train"]
 
 @dataclasses.dataclass
 class TrainResult:
-    """What :func:`train` returns.
+    """What :func:`train` returns (its columns: docs/how-to/metrics.md).
 
     Attributes:
       config: the config that was run.
-      metrics: one row per (seed, iteration, target), columns :data:`METRIC_COLUMNS` and
-        the task's own metrics (``Experiment.metric_columns``).
-        Iteration ``i`` is measured on the rollout of the controller after ``i`` refits
-        (``0``: after babbling and the initial fit); ``forward_loss`` and
-        ``controller_loss`` are the mean training losses of the refit that followed.
+      metrics: one row per (seed, iteration, target); iteration ``i`` is measured on the
+        rollout of the controller after ``i`` refits.
       baselines: oracle and PD-only tracking MSE per target.
-      state: the final :class:`TrainState` (parameters, optimiser states, data set, key),
-        leaves with a leading seed axis.
+      state: the final :class:`TrainState`, leaves with a leading seed axis.
       rms_reach: RMS reaching distance of the targets (rad), the scale for tracking errors.
       seconds: wall time of the run (s).
-      compile_seconds: wall time of the first iteration this call ran (s), which includes
-        compiling it; NaN when the run had no iteration to run.
-      stopped: the seeds stopped by a non-finite training quantity, one dict each:
-        ``{"loss", "seed", "iteration", "quantity"}`` (``quantity``: ``forward_loss``,
-        ``controller_loss``, ``forward-model parameters`` or ``controller parameters``).
-        Such a seed keeps the state of its last good iteration, and has no metrics rows
-        from the iteration it stopped at on.
-      warnings: MuJoCo warnings captured while stepping (``{message: count}``, see
-        :func:`cfm_jax.native.take_warnings`); they are not printed.
+      compile_seconds: wall time of the first iteration run, its compilation included (s;
+        NaN when none ran).
+      stopped: the seeds stopped by a non-finite loss or parameter, ``{"loss", "seed",
+        "iteration", "quantity"}`` each; they keep their last good state and have no rows
+        from then on.
+      warnings: MuJoCo's warnings, captured instead of printed (``{message: count}``).
 
     Examples:
-      >>> # not run: it trains (minutes)
-      >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
-      >>> result.final().tracking_mse.mean()  # doctest: +SKIP
-      >>> result.baselines.groupby("baseline").tracking_mse.mean()  # doctest: +SKIP
+      >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [0, 0],
+      ...                         "target": [0, 0], "tracking_mse": [0.25, 0.75]})
+      >>> baselines = pd.DataFrame({"baseline": ["pd_only"], "target": [0], "tracking_mse": [4.0]})
+      >>> result = TrainResult(None, metrics, baselines, None, rms_reach=2.0,
+      ...                      seconds=0.0, compile_seconds=0.0)
+      >>> result.summary()[["tracking_mse_mean", "seeds", "rmse_over_reach"]]
+               tracking_mse_mean  seeds  rmse_over_reach
+      joint                  0.5    2.0         0.353553
+      pd_only                4.0    NaN         1.000000
     """
 
     config: config_lib.Config
@@ -90,29 +77,8 @@ class TrainResult:
         return self.metrics[self.metrics.iteration == self.metrics.iteration.max()]
 
     def summary(self, **options) -> pd.DataFrame:
-        """The table ``cfm-jax train`` prints and writes to ``summary.md``: final tracking
-        MSE per loss (mean and std over seeds and targets, the 95% bootstrap CI of the mean
-        over seeds), the oracle and PD-only baselines, and the tracking RMSE over the RMS
-        reaching distance; :func:`cfm_jax.report.summary` of ``metrics``, ``baselines`` and
-        ``rms_reach``. ``options`` go to it (``column=``, ``iteration=``,
-        ``confidence=``); :func:`cfm_jax.report.markdown` prints it as markdown.
-
-        Examples:
-          A result built by hand (a real one: ``result = cfm_jax.train(config)``):
-
-          >>> import pandas as pd
-          >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1],
-          ...                         "iteration": [0, 0], "target": [0, 0],
-          ...                         "tracking_mse": [0.25, 0.75]})
-          >>> baselines = pd.DataFrame({"baseline": ["pd_only"], "target": [0],
-          ...                           "tracking_mse": [4.0]})
-          >>> result = TrainResult(None, metrics, baselines, None, rms_reach=2.0,
-          ...                      seconds=0.0, compile_seconds=0.0)
-          >>> result.summary()[["tracking_mse_mean", "seeds", "rmse_over_reach"]]
-                   tracking_mse_mean  seeds  rmse_over_reach
-          joint                  0.5    2.0         0.353553
-          pd_only                4.0    NaN         1.000000
-        """
+        """The table ``cfm-jax train`` prints and writes to ``summary.md``:
+        :func:`cfm_jax.report.summary` of the result, with ``options`` (``column=``, ...)."""
         from cfm_jax import report
 
         return report.summary(self.metrics, self.baselines, self.rms_reach, **options)
@@ -129,59 +95,32 @@ def train(
 ) -> TrainResult:
     """Run Algorithm 1 for every seed of ``config`` (seeds as a vmap axis).
 
-    Impure shell: shows progress, writes ``out_dir/metrics.csv`` after every iteration (so
-    a crash loses at most the iteration in flight), ``out_dir/config.json``,
-    ``out_dir/baselines.csv`` and Orbax checkpoints of the whole state in
-    ``out_dir/checkpoints/`` (``loop.checkpoint_every``, ``loop.checkpoint_keep``). After
-    every iteration the losses and parameters are checked: a seed whose update made one of
-    them non-finite is stopped (it keeps its last good state, is listed in
-    :attr:`TrainResult.stopped` and ``out_dir/stopped.json``, and has no rows from then
-    on); the other seeds go on. A rollout whose simulation diverged is an outcome, not an
-    error: it is recorded (``diverged``, ``diverged_step``) and its finite transitions
-    before the divergence are data (:func:`cfm_jax.rollout.run`). MuJoCo's warnings are
-    captured, not printed (:attr:`TrainResult.warnings`). Everything under it is pure and
-    compiled.
+    Writes the result files (``metrics.csv`` after every iteration) and checkpoints; stops a
+    seed whose update went non-finite (:attr:`TrainResult.stopped`) while the others go on; a
+    diverged rollout is an outcome, recorded in the metrics (docs/how-to/resume.md).
 
     Args:
       config: a :class:`cfm_jax.config.Config`.
-      progress: show a progress bar (rich).
-      out_dir: directory for result files (created), or None.
-      experiment: a prebuilt :class:`Experiment` to reuse its compiled functions
-        (optional): one built for a config that differs from ``config`` at most in the loss
-        and :data:`cfm_jax.config.RUNTIME_FIELDS` (seed, learning rates, babbling noise,
-        task gains, reference trajectories, checkpointing); another raises ``ValueError``
-        naming the fields.
-      resume: the ``out_dir`` of an interrupted run of the same config: continue from its
-        newest valid checkpoint (results go to ``out_dir``, default ``resume``). The
-        metrics equal those of an uninterrupted run bit for bit.
-      data: replay a recorded data set (a path to a run's ``dataset.npz`` or a
-        :class:`cfm_jax.dataset.Recorded`) instead of collecting data: f and g are
-        trained from scratch with ``config.loss`` on the recorded babbling data, then each
-        iteration adds the rows the recorded run collected in that iteration (its seed
-        ``k`` for run ``k``) and refits f and g. The controller is still rolled out on
-        the robot every iteration, for the metrics only. With the run's own data, seed
-        and loss this reproduces the run exactly.
-      progress_fn: called as ``progress_fn(iteration, metrics)`` after each iteration
-        (``0 .. loop.iterations - 1``) and after the final evaluation
-        (``loop.iterations``), with that iteration's rows of :attr:`TrainResult.metrics`
-        (a DataFrame, one row per seed and target), as brax's ``train`` calls its
-        ``progress_fn``: for live plots or logging to a tracker. Iterations restored from
-        a checkpoint (``resume``) are not passed again.
-
-    Returns:
-      A :class:`TrainResult`.
+      progress: show a progress bar.
+      out_dir: directory for the result files (created), or None.
+      experiment: an :class:`Experiment` to reuse, built for a config that differs from
+        ``config`` at most in the loss and :data:`cfm_jax.config.RUNTIME_FIELDS`.
+      resume: the ``out_dir`` of an interrupted run of ``config``: continue from its newest
+        valid checkpoint (results go there unless ``out_dir`` says otherwise), bit for bit.
+      data: a recorded data set to replay instead of collecting data (:func:`recorded_for`):
+        f and g trained from scratch with ``config.loss``, the controller still rolled out.
+      progress_fn: called as ``progress_fn(iteration, rows)`` after each iteration and the
+        final evaluation with its rows of :attr:`TrainResult.metrics` (as in brax's ``train``).
 
     Raises:
       ValueError: ``experiment`` was built for a config of another structure.
-      ConfigError: ``resume`` names a run of a different config (the fields are listed).
+      ConfigError: ``out_dir`` holds a run, ``resume`` one of another config, or ``data``
+        does not fit (the fields are named).
       CheckpointError: the newest checkpoint is corrupt (the previous valid one is offered).
 
     Examples:
-      >>> import cfm_jax
       >>> config = cfm_jax.Config(robot="iiwa14", loss="joint")
-      >>> # not run: it trains (minutes) and writes results/run
       >>> result = cfm_jax.train(config, out_dir="results/run")  # doctest: +SKIP
-      >>> result.metrics.groupby("iteration").tracking_mse.agg(["mean", "std"])  # doctest: +SKIP
       >>> result = cfm_jax.train(config, resume="results/run")  # doctest: +SKIP
     """
     start = time.perf_counter()
@@ -242,32 +181,19 @@ def _take_warnings() -> dict:
 
 
 def rollout_qpos(result, *, seed: int = 0, experiment=None) -> np.ndarray:
-    """Joint positions of the learned controller of a training run, rolled out again.
-
-    Rolls the final controller of one seed of ``result`` out on every target of its task
-    (the rollout of the run's final evaluation, compiled as :func:`cfm_jax.train` compiles
-    it) and returns the positions at the
-    start of each control step, ready for :func:`cfm_jax.render.video` or
-    :func:`cfm_jax.render.frame_strip` (rendering takes trajectories, not training runs).
+    """Joint positions ``(targets, steps, nq)`` at the start of each control step of one seed's
+    final controller, rolled out again as in the final evaluation (for :mod:`cfm_jax.render`).
 
     Args:
       result: a :class:`TrainResult`.
-      seed: index into the run's seeds (``0 <= seed < config.loop.seeds``).
-      experiment: the :class:`Experiment` of ``result.config`` to reuse its
-        compiled rollout (built when None).
-
-    Returns:
-      ``(targets, steps, nq)`` positions, ``control_dt`` apart (the first ``nq`` entries of
-      the task's state, which starts with ``qpos`` for every task).
+      seed: index into the run's seeds.
+      experiment: the :class:`Experiment` of ``result.config`` to reuse (built when None).
 
     Raises:
       ValueError: ``seed`` out of range.
 
     Examples:
-      >>> # not run: it trains (minutes)
-      >>> result = cfm_jax.train(config, progress=False)  # doctest: +SKIP
-      >>> qpos = rollout_qpos(result)  # doctest: +SKIP
-      >>> render.video(robots.load(config.robot), qpos[0], "t0.mp4", fps=100)  # doctest: +SKIP
+      >>> qpos = rollout_qpos(cfm_jax.train(config, progress=False))  # doctest: +SKIP
     """
     seeds = result.config.loop.seeds
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < seeds:
@@ -283,24 +209,19 @@ def rollout_qpos(result, *, seed: int = 0, experiment=None) -> np.ndarray:
 
 
 def recorded_for(exp: Experiment, config: config_lib.Config, data) -> dataset.Recorded:
-    """Load ``data`` and check that ``config`` (on ``exp``) can replay it (``train(...,
-    data=...)``, ``cfm-jax train --data``).
+    """Load ``data`` and check that ``config`` (on ``exp``) can replay it.
 
     Args:
       exp: the :class:`cfm_jax.experiment.Experiment` of ``config``.
       config: the config that would replay the data.
       data: a path to a run's ``dataset.npz``, or a :class:`cfm_jax.dataset.Recorded`.
 
-    Returns:
-      The :class:`cfm_jax.dataset.Recorded`.
-
     Raises:
       ConfigError: the file cannot be read, or its seeds, iterations, sizes or babbling do
-        not fit ``config`` (the message names the field and what would fit).
+        not fit ``config`` (the message says what would fit).
 
     Examples:
-      >>> from cfm_jax import config as cfg
-      >>> arm = cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.1))
+      >>> arm = cfm_jax.Config(robot="two_link_arm", task=cfm_jax.TaskConfig(duration=0.1))
       >>> recorded_for(Experiment(arm), arm, "no_such_run/dataset.npz")
       Traceback (most recent call last):
       ...

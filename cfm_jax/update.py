@@ -1,14 +1,9 @@
-"""Model updates: minibatch gradient steps under ``lax.scan`` with Optax.
+"""Model updates: minibatch gradient steps under ``lax.scan`` with Optax, pure and jittable.
 
-* :func:`fit_forward`: the forward model by its own training objective (``forward.objective``;
-  the ensemble's: Gaussian NLL, PETS, every member on its own minibatches, in normalised
-  units).
-* :func:`fit_controller`: the controller with the chosen controller loss. The gradient is
-  taken with respect to the controller parameters only (``jax.grad`` of
-  :func:`controller_objective` in its first argument), so the forward model is never
-  changed by a controller loss.
-
-All functions are pure and jittable; the loss name is a static Python string.
+:func:`fit_forward` fits the forward model by its own ``objective`` (the ensemble's: Gaussian
+NLL, each member on its own minibatches); :func:`fit_controller` fits the controller by
+:func:`controller_objective`, differentiated in the controller's parameters only, so a
+controller loss never changes the forward model.
 """
 
 from __future__ import annotations
@@ -32,28 +27,12 @@ def controller_objective(
     groups=None,
     weights=None,
 ):
-    """Mean controller loss over a minibatch (normalised acceleration / torque units).
+    """Mean controller loss over a minibatch, in normalised units (the controller's training loss).
 
-    * ``task``, ``joint``, ``distal``, ``distal_literal``: through ``s_p = f(s, g(s, s*))``
-      (ensemble mean; ``distal`` also through ``f(s, tau_run)``, the prediction for the
-      action that was run),
-      with ``s*`` the desired and ``s_a`` the observed quantity of each transition (only
-      the entries ``normaliser.desired_index`` of ``s_p`` and ``s_a`` are compared with
-      ``s*``; see :func:`cfm_jax.losses.controller_loss`).
-    * ``supervised``: ``|g(s, P s_a) - tau_run|^2`` with torques divided by their limits
-      (``P s_a`` the observed values of the desired entries).
-
-    With ``goal="observed"`` (``controller.goal``, the authors' Solo12 code) the model-based
-    losses give ``g`` the observed goal ``P s_a`` in place of ``s*``: ``s_p = f(s, g(s, P
-    s_a))``, and each loss keeps its targets (``task`` pulls ``s_p`` to ``s*``, ``joint``
-    to ``s*`` and ``s_a``, ``distal`` compares ``s_p - s_p,run + s_a`` with ``s*``);
-    ``supervised`` feeds ``P s_a`` with either goal. With ``groups`` (the ``norm`` form)
-    every distance is :func:`cfm_jax.losses.grouped`; ``supervised`` then takes the
-    per-sample Euclidean norm of its scaled torque error (the groups are over the forward
-    model's output, which it does not use).
-
-    ``jax.grad`` of this function in its first argument is the controller's gradient: the
-    forward model's parameters are an argument it is not differentiated in.
+    Model-based losses compare ``s_p = f(s, g(s, s*))`` (ensemble mean) with ``s*``
+    (:func:`cfm_jax.losses.controller_loss`); ``supervised`` compares ``g(s, P s_a)`` with
+    ``tau_run`` in the forward model's scaled torque units (a norm in the ``norm`` form).
+    ``goal="observed"`` gives ``g`` the observed ``P s_a`` for ``s*``; see docs/concepts/losses.md.
 
     Args:
       controller_params: the controller's parameters (differentiated).
@@ -63,23 +42,16 @@ def controller_objective(
       controller: the controller :class:`cfm_jax.networks.Model`.
       normaliser: the :class:`cfm_jax.networks.Normaliser`.
       batch: :class:`cfm_jax.dataset.Transitions` ``(batch, ...)``.
-      goal: ``"desired"`` (default) or ``"observed"`` (static; see above).
-      groups: None (the ``squared`` form) or the ``norm`` form's ``((weight, (output
-        index, ...)), ...)`` (static).
-      weights: None (a plain mean over the rows) or ``(batch,)`` row weights (a weighted
-        mean, ``sum w L / max(sum w, 1)``: the full-batch fit's filled-row mask).
-
-    Returns:
-      The scalar loss.
+      goal: ``"desired"`` or ``"observed"`` (static; else ValueError).
+      groups: None (``squared`` form) or the ``norm`` form's groups (static).
+      weights: None (a plain mean) or ``(batch,)`` row weights: ``sum w L / max(sum w, 1)``.
 
     Examples:
-      >>> import jax, jax.numpy as jnp, optax
-      >>> from cfm_jax import dataset, networks
+      >>> from cfm_jax import networks
       >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
       >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
-      >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))
-      >>> data = dataset.add(dataset.empty(16, state_dim=4, nv=2), rows)
       >>> g = networks.controller(hidden=(8,), nv=2)
+      >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))
       >>> theta, beta = fm.init(jax.random.key(0), 4), g.init(jax.random.key(1), 4)
       >>> grads = jax.grad(controller_objective)(beta, theta, "joint", fm, g, norm, rows)
       >>> jax.tree.structure(grads) == jax.tree.structure(beta)
@@ -129,9 +101,6 @@ def _mean(per_sample, weights):
 def fit_forward(forward, optimizer, params, opt_state, normaliser, data, key, steps, batch_size):
     """``steps`` optimiser steps of the forward model's ``objective`` under ``lax.scan``.
 
-    Each step draws ``forward.batches(params)`` minibatches of ``batch_size`` rows (the
-    ensemble: one per member).
-
     Args:
       forward: the forward :class:`cfm_jax.networks.Model`.
       optimizer: an ``optax`` optimiser.
@@ -141,20 +110,18 @@ def fit_forward(forward, optimizer, params, opt_state, normaliser, data, key, st
       data: the :class:`cfm_jax.dataset.Dataset` to sample from.
       key: PRNG key.
       steps: number of steps (static; 0 returns the inputs and a NaN loss).
-      batch_size: rows per minibatch (static).
+      batch_size: rows per minibatch; each step draws ``forward.batches(params)`` (static).
 
     Returns:
       ``(params, opt_state, mean loss over the steps)``.
 
     Examples:
-      >>> import jax, jax.numpy as jnp, optax
-      >>> from cfm_jax import dataset, networks
+      >>> from cfm_jax import networks
       >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
       >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
       >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))
       >>> data = dataset.add(dataset.empty(16, state_dim=4, nv=2), rows)
-      >>> params = fm.init(jax.random.key(0), 4)
-      >>> opt = optax.adam(1e-2)
+      >>> params, opt = fm.init(jax.random.key(0), 4), optax.adam(1e-2)
       >>> params, state, first = fit_forward(fm, opt, params, opt.init(params), norm, data,
       ...                                    jax.random.key(1), steps=20, batch_size=4)
       >>> _, _, later = fit_forward(fm, opt, params, state, norm, data, jax.random.key(2),
@@ -195,7 +162,7 @@ def fit_controller(
     groups=None,
     full_batch=False,
 ):
-    """``steps`` Adam steps of :func:`controller_objective` in the controller's parameters.
+    """``steps`` optimiser steps of :func:`controller_objective` in the controller's parameters.
 
     Args:
       loss: one of ``losses.CONTROLLER_LOSSES`` (static).
@@ -210,20 +177,16 @@ def fit_controller(
       key: PRNG key.
       steps: number of steps (static; 0 returns the inputs and a NaN loss).
       batch_size: rows per step (static; not used with ``full_batch``).
-      goal: the goal ``g`` is given, ``"desired"`` or ``"observed"`` (static; see
-        :func:`controller_objective`).
+      goal: ``"desired"`` or ``"observed"`` (static; :func:`controller_objective`).
       groups: None (``squared`` form) or the ``norm`` form's groups (static).
-      full_batch: False: each step a minibatch of ``batch_size`` rows drawn uniformly
-        with replacement; True: each step every row of the buffer, the mean weighted by
-        the filled-row mask (rows ``[0, data.size)``), so the empty rows of the
-        fixed-capacity buffer count for nothing (static).
+      full_batch: False: a minibatch drawn with replacement per step; True: every row of the
+        buffer, its empty rows weighted 0 (static).
 
     Returns:
       ``(params, opt_state, mean loss over the steps)``.
 
     Examples:
-      >>> import jax, jax.numpy as jnp, optax
-      >>> from cfm_jax import dataset, networks
+      >>> from cfm_jax import networks
       >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
       >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
       >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))

@@ -1,28 +1,6 @@
-"""The tasks: what the learning problem is, one module per task, and a registry.
-
-A *task* object tells :func:`cfm_jax.rollout.run` and :mod:`cfm_jax.training` what to
-track and what the controller is given (its interface is documented on
-:class:`JointSpaceTask`). Each task lives in its own module and is registered here under
-the names ``Config.task.name`` takes:
-
-* ``inverse_dynamics``: :class:`JointSpaceTask` (:mod:`cfm_jax.tasks.inverse_dynamics`),
-* ``opspace``: :class:`OperationalSpaceTask` (:mod:`cfm_jax.tasks.operational_space`),
-* ``walk`` and ``jump``: :class:`LeggedTask` (:mod:`cfm_jax.tasks.legged`).
-
-The references they follow are in :mod:`cfm_jax.references` (joint-space and Cartesian
-reaching, the legged recordings padded) and :mod:`cfm_jax.locomotion` (the Solo12
-recordings); the arms' oracles and PD baselines in :mod:`cfm_jax.baselines`.
-
-A new task is one new module with a ``make(robot, task_config, control_dt, simulator)``
-and one call of :func:`register`; :func:`make` then builds it for any config that names
-it.
-
-Examples:
-  >>> from cfm_jax import config, robots, tasks
-  >>> sorted(tasks.REGISTRY) == sorted(config.TASKS)
-  True
-  >>> tasks.load("walk").default_config().robot
-  'solo12'
+"""The tasks and their registry: ``inverse_dynamics`` (:class:`JointSpaceTask`, which gives
+every task's interface), ``opspace`` (:class:`OperationalSpaceTask`), ``walk`` and ``jump``
+(:class:`LeggedTask`). A new task is a module with a ``make`` and a :func:`register` call.
 """
 
 from __future__ import annotations
@@ -57,15 +35,12 @@ class TaskSpec:
 
     Attributes:
       name: the name ``Config.task.name`` takes.
-      make: ``make(robot, task_config, control_dt, simulator) -> task``; raises
-        :class:`cfm_jax.config.ConfigError` when the task does not fit the robot.
-      default_config: ``default_config() -> Config``, the task's defaults (with
-        ``task.name`` set to ``name``).
+      make: ``make(robot, task_config, control_dt, simulator) -> task``.
+      default_config: ``default_config() -> Config``, the task's defaults.
 
     Examples:
-      >>> spec = load("inverse_dynamics")
-      >>> spec.name, spec.default_config().task.name
-      ('inverse_dynamics', 'inverse_dynamics')
+      >>> load("walk").default_config().robot
+      'solo12'
     """
 
     name: str
@@ -87,30 +62,22 @@ def register(
     """Register a task under ``name``, so that configs may name it.
 
     Args:
-      name: the task's name; it also becomes a name ``Config.task.name`` accepts.
+      name: the task's name, for ``Config.task.name``.
       make: ``make(robot, task_config, control_dt, simulator) -> task``.
-      default_config: ``default_config() -> Config``, the task's defaults: every field a
-        config of this task leaves at :data:`cfm_jax.config.TASK_DEFAULT` takes its value
-        (:func:`cfm_jax.config.add_task_name`); inside it such fields take the generic
-        values (:data:`cfm_jax.config.GENERIC`), so it states only what differs. None: the
-        generic values.
-      check: ``check(task_config)``, what the task refuses of a
-        :class:`cfm_jax.config.TaskConfig` of its name (raises
-        :class:`cfm_jax.config.ConfigError`), run when such a config is made; None:
-        nothing more than the fields' own checks.
-      structural: the runtime ``task.*`` fields (:data:`cfm_jax.config.RUNTIME_FIELDS`)
-        whose values the task builds into its compiled program; configs that differ in them
-        do not share one (:func:`cfm_jax.config.structure`).
-
-    Returns:
-      The :class:`TaskSpec`.
+      default_config: ``default_config() -> Config``, stating only what differs from the
+        generic values (:func:`cfm_jax.config.add_task_name`); None: the generic values.
+      check: ``check(task_config)``, raising :class:`cfm_jax.config.ConfigError` for what
+        the task refuses; None: nothing more than the fields' own checks.
+      structural: the runtime ``task.*`` fields the task builds into its compiled program
+        (:func:`cfm_jax.config.structure`).
 
     Raises:
       ValueError: ``name`` is not a non-empty string, or is registered already.
 
     Examples:
-      >>> # not run: it would add "my_task" to the registry for the rest of the session
-      >>> spec = register("my_task", lambda robot, task, dt, sim: None)  # doctest: +SKIP
+      >>> register("opspace", operational_space.make)
+      Traceback (most recent call last):
+      ValueError: name='opspace' is not allowed: a task of that name is registered
     """
     if not isinstance(name, str) or not name:
         raise ValueError(f"name={name!r} is not allowed: a non-empty string")
@@ -127,16 +94,13 @@ def register(
 
 
 def load(name: str) -> TaskSpec:
-    """The registered task ``name``.
+    """The :class:`TaskSpec` registered as ``name``.
 
     Args:
       name: a name of :data:`REGISTRY`.
 
-    Returns:
-      Its :class:`TaskSpec`.
-
     Raises:
-      ConfigError: no task of that name is registered (the message lists them).
+      ConfigError: no task of that name (the message lists them).
 
     Examples:
       >>> load("opspace").default_config().task.name
@@ -152,24 +116,16 @@ def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native"):
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
-      task: the :class:`cfm_jax.config.TaskConfig`; its ``name`` chooses the registered
-        task: :class:`JointSpaceTask` (``inverse_dynamics``), :class:`OperationalSpaceTask`
-        (``opspace``) or :class:`LeggedTask` (``walk``, ``jump``).
+      task: the :class:`cfm_jax.config.TaskConfig`; its ``name`` chooses the task.
       control_dt: control period (s), a multiple of the robot's timestep.
-      simulator: ``Config.simulator``: ``"native"`` or ``"mjx"`` (with ``mjx`` every part of
-        the task that runs inside a rollout is JAX, no host callback).
-
-    Returns:
-      The task object.
+      simulator: ``"native"`` or ``"mjx"`` (with ``mjx`` the rollout has no host callback).
 
     Raises:
-      ConfigError: the task does not fit the robot (the message says why), or no task of
-        that name is registered.
+      ConfigError: no such task, or it does not fit the robot (the message says why).
 
     Examples:
-      >>> from cfm_jax import config, robots
-      >>> arm = robots.load("two_link_arm")
-      >>> task = make(arm, config.TaskConfig(duration=1.0), control_dt=0.01)
+      >>> arm = cfm_jax.robots.load("two_link_arm")
+      >>> task = make(arm, TaskConfig(duration=1.0), control_dt=0.01)
       >>> type(task).__name__, task.targets, task.steps
       ('JointSpaceTask', 5, 100)
     """

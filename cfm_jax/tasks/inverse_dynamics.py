@@ -1,6 +1,7 @@
 """The inverse-dynamics task (``inverse_dynamics``, paper section IV-A-1): joint-space
-reaching, the controller gets a desired joint acceleration. Its class,
-:class:`JointSpaceTask`, also documents the interface every task has."""
+reaching, the controller gets a desired joint acceleration. Its :class:`JointSpaceTask`
+documents the interface every task has.
+"""
 
 from __future__ import annotations
 
@@ -24,26 +25,19 @@ from cfm_jax.references import (
 
 
 class AccelerationOutput(NamedTuple):
-    """How the joint accelerations ``qacc`` enter a task's forward-model output ``y``
-    (:meth:`JointSpaceTask.acceleration_output`): an affine map that may depend on the
-    state, ``y[entries] = scale * (A(s) qacc + b(s))``.
+    """How ``qacc`` enters a task's output ``y``: ``y[entries] = scale * (A(s) qacc + b(s))``.
+
+    The ``rigid_body`` forward model puts its physics there.
 
     Attributes:
-      entries: the ``k`` output indices the map fills; the other entries of ``y`` are not
-        accelerations (the legged tasks' foot forces).
+      entries: the ``k`` output indices of the map (others, like foot forces, are not in it).
       scale: a constant factor (1, or ``control_dt`` for outputs in velocity units).
-      affine: None for ``A = I``, ``b = 0`` (then ``k == nv``), or
-        ``affine(qpos (nq,), qvel (nv,)) -> (A (k, nv), b (k,))`` of one state, float32
-        and traceable by JAX (no host callback, so that it runs under ``jit`` with either
-        simulator): ``opspace`` gives ``A = [I; J(q)]``, ``b = [0; Jdot(q, qd) qd]`` of its
-        site.
-
-    The ``rigid_body`` forward model (:mod:`cfm_jax.rigid_body`) puts its physics there.
+      affine: None for ``A = I``, ``b = 0``, or ``affine(qpos, qvel) -> (A (k, nv), b (k,))``
+        of one state, traceable by JAX (no host callback).
 
     Examples:
-      >>> out = AccelerationOutput(entries=(0, 1), scale=0.5)
-      >>> out.entries, out.scale, out.affine is None
-      ((0, 1), 0.5, True)
+      >>> AccelerationOutput(entries=(0, 1), scale=0.5)
+      AccelerationOutput(entries=(0, 1), scale=0.5, affine=None)
     """
 
     entries: tuple[int, ...]
@@ -52,38 +46,22 @@ class AccelerationOutput(NamedTuple):
 
 
 class JointSpaceTask:
-    """The joint-space tracking task (``inverse_dynamics``) as the learning loop sees it.
+    """The joint-space tracking task (``inverse_dynamics``), and the interface of every task.
 
-    A *task* tells :func:`cfm_jax.rollout.run` and :mod:`cfm_jax.training` what the learning
-    problem is; every task has the same attributes and methods (this class documents them):
+    The interface that :func:`cfm_jax.rollout.run` and :mod:`cfm_jax.training` call (here):
 
-    * ``state(qpos, qvel, features) -> s``: the learning state (here ``[q, qdot]``).
-    * ``desired(ref_t, qpos, qvel, features) -> s*``: the desired quantity the controller is
-      given (here ``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``).
-    * ``observed(step, qpos', qvel', features') -> y``: what the forward model predicts,
-      measured after the control step (here ``(qdot' - qdot) / control_dt``).
-      ``desired_index`` says which entries of ``y`` the desired quantity specifies (all here).
-    * ``features(qpos, qvel, sensordata) -> features``: further measurements carried in the
-      state (contact forces for legged robots; none here).
-    * ``tracking_error(ref_{t+1}, qpos', qvel', features')``: what the tracking MSE is
-      taken over (here ``q' - q_ref(t+1)``, rad), ``record(...)`` further per-step
-      records, ``metrics(rollout)`` further per-target metrics.
-    * ``start(reference) -> (qpos0, qvel0, features0)``: initial state of a rollout.
-    * ``entries()``: what each entry of the state and the output is (a position, a
-      velocity, an acceleration, a force, ...; :mod:`cfm_jax.tasks.scales`), so that the
-      ``robot`` normaliser can scale them from the MJCF.
-    * ``babbling_reference(strategy, key)``: the reference the initial data's controller
-      follows (:mod:`cfm_jax.babbling`), of the shapes of ``reference``, and
-      ``with_reference(reference)``: a copy that follows another reference.
-    * ``feedback(step) -> tau``: the PD-only baseline feedback (and, with the babbling's
-      own gains, the babbling's: ``for_babbling(reference)``);
-      ``oracle_policy(simulator)``: the model-based oracle.
-    * ``value_names``, ``values() -> dict`` and ``with_values(values)``: the attributes
-      that hold values of the config rather than its structure (here the reference and the
-      gains), and a copy of the task that uses other values of the same shapes (traced
-      ones, inside compiled code). :class:`cfm_jax.experiment.Experiment` passes them as
-      arguments of its compiled functions, so a sweep over the gains or over targets
-      compiles once.
+    * ``state(qpos, qvel, features)``: the learning state ``s`` (``[q, qdot]``);
+    * ``desired(ref_t, qpos, qvel, features)``: ``s*``, here
+      ``qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``;
+    * ``observed(step, qpos', qvel', features')``: what the forward model predicts, here
+      ``(qdot' - qdot) / control_dt``; ``s*`` specifies its entries ``desired_index``;
+    * ``features(qpos, qvel, sensordata)``: measurements carried in the state (none);
+    * ``tracking_error(ref_next, qpos', qvel', features')`` (``q' - q_ref``, rad), ``record``,
+      ``metrics``, ``start(reference)``, :meth:`entries`, :meth:`acceleration_output`;
+    * :meth:`babbling_reference`, :meth:`with_reference`, :meth:`for_babbling`,
+      ``feedback(step)`` (the PD baseline), ``oracle_policy(simulator)``;
+    * ``value_names``, :meth:`values`, :meth:`with_values`: the config's values (reference,
+      gains), passed to compiled code as arguments so that a sweep over them compiles once.
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
@@ -93,9 +71,8 @@ class JointSpaceTask:
       control_dt: control period (a multiple of the robot's timestep).
 
     Examples:
-      >>> from cfm_jax import references, robots
-      >>> arm = robots.load("two_link_arm")
-      >>> ref = references.quintic(arm.home, arm.home + 0.1, duration=0.5, control_dt=0.01)
+      >>> arm = cfm_jax.robots.load("two_link_arm")
+      >>> ref = cfm_jax.references.quintic(arm.home, arm.home + 0.1, 0.5, control_dt=0.01)
       >>> task = JointSpaceTask(arm, ref, kp=100.0, kd=20.0, control_dt=0.01)
       >>> task.targets, task.steps, task.state_dim, task.desired_dim, task.output_dim
       (1, 50, 4, 2, 2)
@@ -131,20 +108,18 @@ class JointSpaceTask:
 
     @property
     def tracking_scale(self) -> float:
-        """RMS reaching distance (rad) of the actuated joints, the scale of the tracking
-        error."""
+        """RMS reaching distance (rad) of the actuated joints."""
         q = self._q(self.reference_np.q)
         return rms_reach(Reference(q, q, q))
 
     def _pd_gains(self, kp: float, kd: float):
-        """The torque gains of :meth:`feedback` for the acceleration gains ``kp``, ``kd``."""
         gain_p, gain_d = baselines.joint_pd_gains(self.robot, kp, kd, self.reference_np.q[0, 0])
         return self._v(gain_p), self._v(gain_d)
 
     def _babbling_gains(self, kp: float, kd: float):
-        """The torque gains of the babbling's feedback: sized for the lightest inertia of
-        each joint over the poses the babbling may visit
-        (:func:`cfm_jax.baselines.babbling_joint_gains`)."""
+        """Gains for the lightest inertia of the babbling's poses
+        (:func:`cfm_jax.baselines.babbling_joint_gains`).
+        """
         poses = babbling.pose_sample(self.robot, self.reference_np.q[0, 0])
         return baselines.babbling_joint_gains(self.robot, kp, kd, poses)
 
@@ -172,38 +147,23 @@ class JointSpaceTask:
     )
 
     def values(self) -> dict:
-        """The attributes :attr:`value_names`: the reference (float32 JAX arrays) and the
-        gains (``kp``, ``kd`` of the desired acceleration, ``gain_p``, ``gain_d`` of
-        :meth:`feedback`), as a dict (a pytree).
-
-        Returns:
-          ``{name: value}``; tasks built from configs of the same structure (same task,
-          robot, number of targets, duration, control period) have the same keys and shapes.
+        """``{name: value}`` of :attr:`value_names`; tasks of the same structure have the same keys
+        and shapes.
 
         Examples:
-          >>> from cfm_jax import config, robots
-          >>> arm = robots.load("two_link_arm")
-          >>> task = make(arm, config.TaskConfig(duration=0.5), control_dt=0.01)
-          >>> softer = make(arm, config.TaskConfig(duration=0.5, kp=25.0), control_dt=0.01)
-          >>> moved = task.with_values(softer.values())
-          >>> float(moved.kp), float(task.kp)
+          >>> arm = cfm_jax.robots.load("two_link_arm")
+          >>> task = make(arm, TaskConfig(duration=0.5), control_dt=0.01)
+          >>> softer = make(arm, TaskConfig(duration=0.5, kp=25.0), control_dt=0.01)
+          >>> float(task.with_values(softer.values()).kp), float(task.kp)
           (25.0, 100.0)
         """
         return {name: getattr(self, name) for name in self.value_names}
 
     def with_values(self, values: dict):
-        """A shallow copy of this task that uses ``values`` (from :meth:`values` of a task of
-        the same structure; inside compiled code they may be traced).
-
-        Args:
-          values: a dict with the keys :attr:`value_names`, each of the shape of this
-            task's.
-
-        Returns:
-          The copy; this task is unchanged.
+        """A shallow copy of this task that uses ``values`` (maybe traced).
 
         Raises:
-          ValueError: other keys or another shape (the name and both shapes are given).
+          ValueError: keys or shapes other than those of this task's :meth:`values`.
         """
         import copy
 
@@ -224,10 +184,9 @@ class JointSpaceTask:
         return task
 
     def with_reference(self, reference):
-        """A shallow copy of this task that follows ``reference`` (a pytree of the shapes of
-        :attr:`reference`, traced inside compiled code), for example a babbling reference
-        (:meth:`babbling_reference`). Host attributes (``reference_np``,
-        ``tracking_scale``) still describe this task's own references."""
+        """A shallow copy that follows ``reference``; ``reference_np`` and ``tracking_scale`` still
+        describe this task's own.
+        """
         import copy
 
         task = copy.copy(self)
@@ -235,20 +194,15 @@ class JointSpaceTask:
         return task
 
     def for_babbling(self, reference):
-        """A shallow copy of this task that follows the babbling ``reference``
-        (:meth:`with_reference`) with the babbling's feedback gains in place of the PD-only
-        baseline's: :meth:`feedback` then uses ``babbling_gain_p``, ``babbling_gain_d``
-        (:func:`cfm_jax.baselines.babbling_joint_gains`, stable wherever the babbling
-        goes), while the baseline keeps ``gain_p``, ``gain_d``."""
+        """:meth:`with_reference` with the babbling's feedback gains (stable wherever it goes)."""
         task = self.with_reference(reference)
         task.gain_p, task.gain_d = self.babbling_gain_p, self.babbling_gain_d
         return task
 
     def babbling_reference(self, strategy: str, key):
-        """The reference the babbling controller follows (:mod:`cfm_jax.babbling`), of the
-        shapes of :attr:`reference`: this task's own for ``reference_pd`` and ``oracle``,
-        else minimum-jerk paths from the start pose, held (``home``) or to random poses drawn
-        with ``key`` (``reaching``). Neither of these depends on the targets."""
+        """The babbling's reference: this task's for ``reference_pd`` and ``oracle``, else
+        minimum-jerk paths from home, held (``home``) or to random poses (``reaching``).
+        """
         if babbling.uses_reference(strategy):
             return self.reference
         start = self.reference.q[:, 0]  # (targets, nq): every reach starts at home
@@ -256,17 +210,10 @@ class JointSpaceTask:
         return Reference(*minimum_jerk(start, goal, self.steps * self.control_dt, self.control_dt))
 
     def entries(self) -> dict:
-        """What each entry of the state and of the output is, as ``(kind, index)`` pairs of
-        :data:`cfm_jax.tasks.scales.KINDS` (the ``robot`` normaliser scales them from the
-        MJCF): here the state ``[q, qdot]`` is ``qpos`` then ``qvel`` entries and the output
-        the joint accelerations.
-
-        Returns:
-          ``{"state": (state_dim pairs), "output": (output_dim pairs)}``.
+        """The state's and output's entries, ``(kind, index)`` of :mod:`cfm_jax.tasks.scales`.
 
         Examples:
-          >>> from cfm_jax import config, robots
-          >>> task = make(robots.load("two_link_arm"), config.TaskConfig(duration=0.5), 0.01)
+          >>> task = make(cfm_jax.robots.load("two_link_arm"), TaskConfig(duration=0.5), 0.01)
           >>> task.entries()["state"]
           (('position', 0), ('position', 1), ('velocity', 0), ('velocity', 1))
         """
@@ -303,10 +250,7 @@ class JointSpaceTask:
         return self._v(qvel_next - step.qvel) / self.control_dt
 
     def configuration(self, state):
-        """``(qpos, qvel)`` of learning states ``(..., state_dim)``: every task's state
-        starts with ``qpos`` and ends with ``qvel`` (a task whose state does not overrides
-        this). Used by the ``rigid_body`` forward model (:mod:`cfm_jax.rigid_body`). With
-        held or passive joints (not in the state) they are taken at rest at ``home``."""
+        """``(qpos, qvel)`` of states (for ``rigid_body``); held or passive joints at ``home``."""
         robot = self.robot
         if robot.drives_every_dof:
             nq, nv = robot.nq, robot.nv
@@ -320,17 +264,11 @@ class JointSpaceTask:
         )
 
     def acceleration_output(self):
-        """How the joint accelerations enter the forward model's output ``y``: an
-        :class:`AccelerationOutput` ``(entries, scale, affine)`` with
-        ``y[entries] = scale * (A(s) qacc + b(s))`` (here the whole output, scale 1,
-        ``A = I``, ``b = 0``), or None when the output is not an affine image of ``qacc``.
-        The ``rigid_body`` forward model puts its physics there; the other entries are the
-        residual network's alone.
+        """The output's :class:`AccelerationOutput`, or None if not an affine image of ``qacc``.
 
         Examples:
-          >>> from cfm_jax import config, robots, tasks
-          >>> arm = robots.load("two_link_arm")
-          >>> tasks.make(arm, config.TaskConfig(duration=0.1), 0.01).acceleration_output()
+          >>> arm = cfm_jax.robots.load("two_link_arm")
+          >>> make(arm, TaskConfig(duration=0.1), 0.01).acceleration_output()
           AccelerationOutput(entries=(0, 1), scale=1.0, affine=None)
         """
         robot = self.robot
@@ -355,32 +293,20 @@ class JointSpaceTask:
         return {}
 
     def loss_weights(self) -> tuple:
-        """The default coordinate groups of the ``norm`` controller loss
-        (``controller.loss_form="norm"``, :func:`cfm_jax.losses.grouped`):
-        ``((weight, (output index, ...)), ...)`` over the forward model's output ``y``.
-
-        The arm tasks: one group of weight 1, every output entry, so the ``norm`` form is
-        the plain Euclidean norm of the error (no coordinate of an arm's acceleration has a
-        reason to count more than another; the authors' code weights only the legged
-        robot's base).
-
-        Examples:
-          >>> from cfm_jax import config, robots, tasks
-          >>> arm = robots.load("two_link_arm")
-          >>> tasks.make(arm, config.TaskConfig(duration=0.1), 0.01).loss_weights()
-          ((1.0, (0, 1)),)
+        """``((weight, (output index, ...)), ...)``, the groups of the ``norm`` controller loss
+        (:func:`cfm_jax.losses.grouped`); the arms: one group, the plain Euclidean norm.
         """
         return ((1.0, tuple(range(self.output_dim))),)
 
     def feedback(self, step):
-        """``K_p (q_ref - q) + K_d (qd_ref - qd)`` with :func:`cfm_jax.baselines.joint_pd_gains`."""
+        """``K_p (q_ref - q) + K_d (qd_ref - qd)`` (:func:`cfm_jax.baselines.joint_pd_gains`)."""
         ref = step.reference
         return self.gain_p * self._q(ref.q - step.qpos) + self.gain_d * self._v(ref.qd - step.qvel)
 
     def oracle_policy(self, simulator: str):
-        """MuJoCo's inverse dynamics of the desired acceleration
-        (:func:`cfm_jax.baselines.inverse_dynamics_oracle`); with held or passive joints,
-        those held at rest (zero desired acceleration) and the actuated joints' torques."""
+        """MuJoCo's inverse dynamics (:func:`cfm_jax.baselines.inverse_dynamics_oracle`), with held
+        or passive joints at zero desired acceleration.
+        """
         oracle = baselines.inverse_dynamics_oracle(self.robot, simulator)
         robot = self.robot
         if robot.drives_every_dof:
@@ -395,8 +321,7 @@ class JointSpaceTask:
 
 
 def require_fixed_base(robot, name: str, every_joint: bool = False) -> None:
-    """The arm tasks need a fixed-base arm; ``every_joint``: with every joint actuated
-    (no held or passive joint, :class:`cfm_jax.robots.Robot`).
+    """Refuse a robot an arm task cannot drive (a floating base, undriven joints).
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
@@ -404,12 +329,10 @@ def require_fixed_base(robot, name: str, every_joint: bool = False) -> None:
       every_joint: whether the task also needs every joint driven by the controller.
 
     Raises:
-      ConfigError: ``robot`` has a floating base (a free joint), or with ``every_joint``
-        held or passive joints (they are named).
+      ConfigError: a floating base, or with ``every_joint`` held or passive joints.
 
     Examples:
-      >>> from cfm_jax import robots
-      >>> require_fixed_base(robots.load("two_link_arm"), "opspace")  # passes
+      >>> require_fixed_base(cfm_jax.robots.load("two_link_arm"), "opspace")  # passes
     """
     if robot.floating_base:
         raise ConfigError(
@@ -427,26 +350,19 @@ def require_fixed_base(robot, name: str, every_joint: bool = False) -> None:
 
 
 def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") -> JointSpaceTask:
-    """The ``inverse_dynamics`` task of a config: joint-space reaching
-    (:func:`cfm_jax.references.reaching`) with the config's gains.
+    """The ``inverse_dynamics`` task of a config (:func:`cfm_jax.references.reaching`).
 
     Args:
       robot: a fixed-base :class:`cfm_jax.robots.Robot`.
       task: the :class:`cfm_jax.config.TaskConfig`.
       control_dt: control period (s).
-      simulator: ``"native"`` or ``"mjx"`` (the same task for both: its simulator-specific
-        parts, the oracle, are chosen when a rollout asks for them).
-
-    Returns:
-      A :class:`JointSpaceTask`.
+      simulator: ``"native"`` or ``"mjx"`` (the same task for both).
 
     Raises:
-      ConfigError: the robot has a floating base, or a target or the home pose is outside
-        its joint limits.
+      ConfigError: a floating base, or a target or the home pose outside the joint limits.
 
     Examples:
-      >>> from cfm_jax import config, robots
-      >>> task = make(robots.load("two_link_arm"), config.TaskConfig(duration=0.5), 0.01)
+      >>> task = make(cfm_jax.robots.load("two_link_arm"), TaskConfig(duration=0.5), 0.01)
       >>> task.targets, task.steps
       (5, 50)
     """
@@ -455,30 +371,8 @@ def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") 
 
 
 def default_config() -> Config:
-    """The task's defaults (what ``Config(task=TaskConfig(name="inverse_dynamics"))``, the
-    CLI's ``--task inverse_dynamics`` and :func:`cfm_jax.config.for_task` give): the generic
-    values of every field (:data:`cfm_jax.config.GENERIC` and the sections' dataclasses).
-
-    The learner's options were chosen by the selection run (``experiments/select_defaults.py``,
-    docs/results/selection/): every option compared with all four losses alike, 3 seeds, on
-    motions other than the test ones, by a rule written before it ran (the lowest mean over
-    the losses of log10 final tracking MSE, a fall or divergence scoring 1000 x PD-only), one
-    factor at a time, on this task for the arms. They are: the paper's arm networks, 100 Hz
-    control, ``kp = 100``, ``kd = 20`` in ``s*`` (set before any loss was run), and, chosen
-    by the selection run, ``reaching`` initial data (the task's PD feedback tracking reaches
-    to random poses inside the joint limits: it knows neither the test references nor the
-    reference controller; ``home``, holding the start pose, was clearly worse) with the
-    ``babbling`` normaliser (statistics of that data, fitted once) and the ``mlp`` forward
-    model (``rigid_body`` was clearly worse on the arm), the controller loss in the ``norm``
-    form (per-sample Euclidean norms, the authors' code; clearly better than the squares of
-    the paper's text) and the goal ``desired`` (the paper's eq. 4; ``observed`` was clearly
-    worse). Babbling size and noise, 2 rollouts per target at torque noise 0.1 of the torque
-    scale, were set before any loss was run. Torques are scaled by the ``coupled`` scale,
-    chosen on the development set of published arms by a rule written before its run (issue
-    41, docs/how-to/own-robot.md).
-
-    Returns:
-      A :class:`cfm_jax.config.Config`.
+    """The task's defaults: the generic values (:data:`cfm_jax.config.GENERIC`), chosen by the
+    selection run (docs/results.md, "How the defaults are chosen").
 
     Examples:
       >>> config = default_config()
@@ -489,12 +383,10 @@ def default_config() -> Config:
 
 
 def check_config(task: TaskConfig) -> None:
-    """What the arm tasks (this one and ``opspace``) refuse of a :class:`TaskConfig`: the
-    legged tasks' joint gains (the arms take ``kp`` and ``kd`` for their joints), their
-    desired next velocity and their motions (the arms follow ``targets``).
+    """Refuse the legged tasks' fields (``joint_kp``, ``joint_kd``, ``desired``, ``motions``).
 
     Args:
-      task: a :class:`cfm_jax.config.TaskConfig` of an arm task (its fields' types checked).
+      task: a :class:`cfm_jax.config.TaskConfig` of an arm task.
 
     Raises:
       ConfigError: naming the field, its value and what the task takes.
@@ -502,7 +394,6 @@ def check_config(task: TaskConfig) -> None:
     Examples:
       >>> TaskConfig(name="opspace", joint_kd=5.0)
       Traceback (most recent call last):
-      ...
       cfm_jax.config.ConfigError: task.joint_kd=5.0 is not allowed: None for task 'opspace' ...
     """
     for field in ("joint_kp", "joint_kd"):

@@ -20,9 +20,7 @@ from cfm_jax.tasks.inverse_dynamics import AccelerationOutput, JointSpaceTask
 
 
 def _quat_error(target, quat):
-    """Rotation vector ``log(quat^-1 target)`` (MuJoCo's ``mju_subQuat(target, quat)``): the
-    angular displacement from ``quat`` to ``target`` in ``quat``'s local frame, which is the
-    frame of a free joint's angular velocity. Quaternions ``(w, x, y, z)``."""
+    """Rotation vector ``log(quat^-1 target)`` (``mju_subQuat``), in ``quat``'s local frame."""
     w1, v1 = quat[0], -quat[1:]  # conjugate of quat
     w2, v2 = target[0], target[1:]
     w = w1 * w2 - jnp.dot(v1, v2)
@@ -41,61 +39,25 @@ CONVERTED_REFUSED = (
 
 
 class LeggedTask(JointSpaceTask):
-    """Legged locomotion (``walk``, ``jump``; paper section IV-B) for a floating-base robot
-    with one MuJoCo contact sensor per foot (data ``found force normal tangent``, as in
-    ``robots/solo12.xml``; :func:`cfm_jax.solo12.foot_forces`).
+    """Legged locomotion (``walk``, ``jump``; paper section IV-B; docs/locomotion.md) for a
+    floating-base robot with one contact sensor per foot (:func:`cfm_jax.solo12.foot_forces`).
 
-    * State ``s_t = [base pose and joint positions (qpos), foot forces f_t (world frame,
-      mean over the previous control period), base and joint velocities (qvel)]``.
-    * A step where the robot fell is terminal (``extras["terminal"]``): the rest of that
-      rollout does not become data (the model has foot-floor contacts only, so a fallen
-      body sinks through the floor).
-    * The forward model predicts ``y = [qacc dt, f_{t+1}]``: the base and joint
-      accelerations over the control period times ``dt`` (``qvel' - qvel``) and the mean
-      foot forces over the period; the desired quantity is the same
-      ``s* = [qacc* dt, f*]`` with ``qacc* = qacc_ref + kp e + kd (qvel_ref - qvel)`` (``e``:
-      base position error, base orientation error as a rotation vector in the base frame,
-      joint position errors; gains ``task.kp``, ``task.kd`` on the 6 base coordinates and
-      ``task.joint_kp``, ``task.joint_kd`` on the joints) and ``f*`` the reference's foot
-      forces.
-    * References: :mod:`cfm_jax.locomotion` (a trot for 5 horizons, a vertical jump for 5
-      heights), recorded from a whole-body controller on this model at ``control_dt``;
-      padded to the longest horizon, steps beyond a target's horizon are masked out of the
-      data and the metrics.
-    * Tracking error: base position (m) and orientation (rad) error. Further metrics:
-      ``force_mse`` (N^2, foot forces against the reference), ``fell`` (1 if the robot
-      fell within the horizon: :func:`cfm_jax.solo12.fell` with :attr:`FALL_LIMITS`, the
-      library's rule :data:`cfm_jax.solo12.FALL`: base below 0.1 m, tilted more than
-      0.8 rad, or a base-box corner or knee within 5 mm of the floor; the reference checks
-      use the same rule),
-      ``base_position_mse``, ``base_orientation_mse``.
-    * Baselines: the reference's own controller (its feed-forward torque plus its joint
-      PD) as ``oracle``, the joint PD alone as ``pd_only``.
+    State ``[qpos, f, qvel]`` (``f``: mean foot forces of the last period), output ``[qacc dt, f]``,
+    ``qacc* = qacc_ref + kp e + kd (qvel_ref - qvel)``; a fall (:attr:`FALL_LIMITS`) is terminal.
 
     Args:
-      robot: a floating-base :class:`cfm_jax.robots.Robot` with one contact sensor per foot
-        and the Solo12's joints and leg geometry (:func:`cfm_jax.solo12.check_model`: the
-        references are generated with its leg kinematics); masses, friction and gains may
-        differ.
-      task: the :class:`cfm_jax.config.TaskConfig`; ``name`` (``walk`` or ``jump``), ``kp``,
-        ``kd``, ``joint_kp``, ``joint_kd`` and ``desired`` (``next_velocity``: the authors'
-        ``s*``, ``kp = 0`` and ``kd = 1 / control_dt`` on every coordinate) are used. The
-        targets and horizons are the references of :mod:`cfm_jax.locomotion` named by
-        ``task.motions`` (None: the 5 test references): ``duration`` is not used, and
-        ``targets`` and ``home`` must be None.
+      robot: a floating-base :class:`cfm_jax.robots.Robot` (:func:`cfm_jax.solo12.check_model`).
+      task: the :class:`cfm_jax.config.TaskConfig`; ``motions`` None: the 5 test references;
+        ``duration`` is not used, ``targets`` and ``home`` must be None.
       control_dt: control period (s), at most :attr:`MAX_CONTROL_DT`.
 
     Raises:
-      ConfigError: the robot has no floating base, no foot contact sensors or legs other
-        than the Solo12's, ``control_dt`` is too long, or ``task.targets`` / ``task.home``
-        is given.
+      ConfigError: the robot or ``control_dt`` does not fit, or ``targets``/``home`` is given.
 
     Examples:
       >>> from cfm_jax import config, robots
-      >>> solo = robots.load("solo12")
-      >>> walk = config.for_task("walk")  # control_dt 0.004
-      >>> # not run: it builds the 5 references: about 6 s of simulation uncached
-      >>> task = LeggedTask(solo, walk.task, walk.task.control_dt)  # doctest: +SKIP
+      >>> walk = config.for_task("walk").task  # not run below: 5 references, ~6 s uncached
+      >>> task = LeggedTask(robots.load("solo12"), walk, walk.control_dt)  # doctest: +SKIP
       >>> task.targets, task.steps, task.state_dim, task.desired_dim  # doctest: +SKIP
       (5, 750, 49, 30)
     """
@@ -181,21 +143,13 @@ class LeggedTask(JointSpaceTask):
     value_names = ("desired_kp", "desired_kd")
 
     def for_babbling(self, reference):
-        """The babbling follows ``reference`` with the references' own joint gains
-        (:meth:`with_reference`)."""
+        """Follow ``reference`` with the references' own joint gains (:meth:`with_reference`)."""
         return self.with_reference(reference)
 
     def _desired_gains(self, task: TaskConfig) -> dict:
-        """The gains of the PD correction in ``s*``: ``desired_kp`` and ``desired_kd``,
-        ``(6 + joints,)`` float32 (``task.kp``, ``task.kd`` on the 6 base coordinates, then
-        ``task.joint_kp``, ``task.joint_kd`` on the actuated joints; None there: ``kp``,
-        ``kd``). Not the references' joint PD torque gains ``gain_p``, ``gain_d``, which
-        come with the recordings.
-
-        With ``task.desired == "next_velocity"`` (the authors' Solo12 code) ``kp = 0`` and
-        ``kd = 1 / control_dt`` on every coordinate: then ``s* = qacc* dt =
-        qacc_ref dt + v_ref - v = v_ref(t+1) - v(t)``, the desired next velocity, because
-        the recorded ``qacc_ref`` is ``(v_ref(t+1) - v_ref(t)) / dt`` (docs/locomotion.md)."""
+        """``desired_kp``, ``desired_kd`` ``(6 + joints,)``, the PD gains in ``s*``: ``task.kp``,
+        ``task.kd`` on the base, ``task.joint_kp``, ``task.joint_kd`` (None: the base's) on joints;
+        with ``next_velocity`` 0 and ``1 / control_dt``, so ``s* = v_ref(t+1) - v(t)``."""
         if task.desired == "next_velocity":
             n = 6 + self.robot.action_dim
             return {
@@ -224,11 +178,8 @@ class LeggedTask(JointSpaceTask):
         return reference.qpos[0], reference.qvel[0], reference.force[0]
 
     def babbling_reference(self, strategy: str, key):
-        """As :meth:`JointSpaceTask.babbling_reference` from the robot's standing pose (its
-        keyframe ``home``): the joints held (``home``) or moved to random poses
-        (``reaching``), the base at rest, no feed-forward torque, the static standing
-        forces (:func:`cfm_jax.babbling.standing_forces`) as desired forces, every step
-        active. Neither depends on the recorded references."""
+        """As :meth:`JointSpaceTask.babbling_reference` from keyframe ``home``, base at rest, no
+        feed-forward, the standing forces (:func:`cfm_jax.babbling.standing_forces`) as ``f*``."""
         if babbling.uses_reference(strategy):
             return self.reference
         robot, steps = self.robot, self.steps
@@ -249,8 +200,7 @@ class LeggedTask(JointSpaceTask):
         )
 
     def entries(self) -> dict:
-        """As :meth:`JointSpaceTask.entries`: the state ``[qpos, foot forces, qvel]``, the
-        output ``[qacc dt, foot forces]`` (``velocity_change`` and ``force`` entries)."""
+        """State ``[position, force, velocity]``, output ``[velocity_change, force]``."""
         nq, nv, forces = self.robot.nq, self.robot.nv, 3 * self.feet
         return {
             "state": tuple(("position", i) for i in range(nq))
@@ -291,8 +241,7 @@ class LeggedTask(JointSpaceTask):
         return jnp.concatenate([qvel_next - step.qvel, features_next])
 
     def acceleration_output(self):
-        """``y[:nv] = control_dt * qacc`` (the foot forces after it are the residual
-        network's alone; see :meth:`JointSpaceTask.acceleration_output`)."""
+        """``y[:nv] = control_dt * qacc``; the foot forces are the residual network's alone."""
         return AccelerationOutput(tuple(range(self.robot.nv)), self.control_dt)
 
     def tracking_error(self, ref_next, qpos_next, qvel_next, features_next):
@@ -325,24 +274,11 @@ class LeggedTask(JointSpaceTask):
         }
 
     BASE_WEIGHT = 10.0
-    """Weight of the base's vertical and angular velocity in the ``norm`` controller loss
-    (the authors' public Solo12 code: ``10 mean |v_p[2:6] - v*[2:6]|``)."""
+    """Weight of the base's vertical and angular velocity in the ``norm`` controller loss."""
 
     def loss_weights(self) -> tuple:
-        """The default coordinate groups of the ``norm`` controller loss, the authors'
-        Solo12 task loss ``|v_p - v*| + |F_p - F*| + 10 |v_p[2:6] - v*[2:6]|``: the whole
-        velocity change (``nv`` entries) with weight 1, the foot forces with weight 1 (a norm
-        of their own, so newtons and velocities are not summed under one square root), and
-        the base's vertical velocity and its three angular velocities (free-joint entries 2
-        to 5) again with weight :attr:`BASE_WEIGHT`: those are the coordinates of balance
-        (height, roll, pitch, yaw), a few of ``nv``, whose errors a controller would
-        otherwise trade for the many joints' tracking.
-
-        Examples:
-          >>> # not run: it needs a LeggedTask (see the class's example)
-          >>> task.loss_weights()[2]  # doctest: +SKIP
-          (10.0, (2, 3, 4, 5))
-        """
+        """The authors' Solo12 ``norm`` loss ``|v_p - v*| + |F_p - F*| + 10 |v_p[2:6] - v*[2:6]|``
+        (the forces a norm of their own; height, roll, pitch, yaw again: :attr:`BASE_WEIGHT`)."""
         nv = self.robot.nv
         return (
             (1.0, tuple(range(nv))),
@@ -351,8 +287,7 @@ class LeggedTask(JointSpaceTask):
         )
 
     def feedback(self, step):
-        """The references' joint PD ``kp (q_ref - q) + kd (qd_ref - qd)`` on the actuated
-        joints."""
+        """The references' joint PD ``kp (q_ref - q) + kd (qd_ref - qd)``."""
         ref = step.reference
         joints = self.gain_p * (ref.qpos[self.joint_qpos] - step.qpos[self.joint_qpos])
         return joints + self.gain_d * (ref.qvel[self.joint_dofs] - step.qvel[self.joint_dofs])
@@ -375,60 +310,28 @@ def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") 
       robot: a floating-base :class:`cfm_jax.robots.Robot` with the Solo12's feet.
       task: the :class:`cfm_jax.config.TaskConfig` (``name`` ``walk`` or ``jump``).
       control_dt: control period (s).
-      simulator: ``"native"`` or ``"mjx"`` (the same task for both: its simulator-specific
-        parts, the oracle, are chosen when a rollout asks for them).
-
-    Returns:
-      A :class:`LeggedTask`.
+      simulator: ``"native"`` or ``"mjx"``: the same task serves both.
 
     Raises:
       ConfigError: the task does not fit the robot (the message says why).
 
     Examples:
       >>> from cfm_jax import config, robots
-      >>> walk = config.for_task("walk")
-      >>> # not run: it builds the 5 references: about 6 s of simulation uncached
-      >>> task = make(robots.load("solo12"), walk.task, walk.task.control_dt)  # doctest: +SKIP
-      >>> task.targets  # doctest: +SKIP
+      >>> walk = config.for_task("walk").task  # not run below: 5 references, ~6 s uncached
+      >>> make(robots.load("solo12"), walk, walk.control_dt).targets  # doctest: +SKIP
       5
     """
     return LeggedTask(robot, task, control_dt)
 
 
 def default_config(name: str = "walk") -> Config:
-    """The defaults of the legged task ``name`` (``walk`` or ``jump``; what
-    ``Config(task=TaskConfig(name=name))``, the CLI's ``--task`` and
-    :func:`cfm_jax.config.for_task` give).
+    """The defaults of the legged task ``name`` (what :func:`cfm_jax.config.for_task` gives).
 
-    The paper's quadruped networks (forward model 1000-500-500, a single member; controller
-    3 x 300), the Solo12, 250 Hz control (``task.control_dt = 0.004``) and ``home`` initial
-    data (the task's PD feedback holding the standing pose plus torque noise, as the authors'
-    Solo12 code collects it), and, chosen by the selection run (``experiments/select_defaults.py``,
-    docs/results/selection/: all four losses alike, 3 seeds, motions other than the test
-    ones, a rule written before it ran, on walking; jumping takes walking's choice): ``s*`` the
-    desired next velocity (``task.desired = "next_velocity"``: ``kp = 0``, ``kd = 1 /
-    control_dt`` on base and joints, the authors' Solo12 code; the PD form with no feedback,
-    the paper's planned accelerations, was clearly worse), the ``rigid_body`` forward model
-    (``M^-1 (S tau - h)`` of the robot's own MJCF plus a learned residual, as the authors'
-    code; clearly better than the black box), the ``data`` normaliser (statistics of the
-    whole data set, recomputed before every refit; in round 2 the ``robot`` and ``babbling``
-    normalisers failed far more walks) and fits started ``warm_new_optimizer`` (both networks
-    keep their parameters across iterations, Adam is re-created for each fit, as the authors'
-    code; better than ``warm`` in both rounds, not clearly); the controller loss keeps the
-    ``squared`` form (the ``norm`` form, chosen for the arms, failed more walks and scored
-    worse, not clearly); torques scaled by their limits. The choices made one factor at a
-    time did not work together on the walks, so a second round of the same rule, from the
-    first round's best cell (the ``rigid_body`` forward model), chose the normaliser and the
-    fit start again. The earlier legged choices, babbling 4 x 0.3 and the gains ``kp = 100``,
-    ``kd = 20`` on the base, ``joint_kp = 2000``, ``joint_kd = 50``, were chosen on pilot
-    runs of the joint loss alone; they remain cells of ``experiments/robustness_study.py``,
-    not defaults.
+    The paper's networks, 250 Hz, ``home`` babbling, and what the selection run chose (``s*``,
+    forward model, normaliser, fit start, loss form; docs/results/selection/).
 
     Args:
       name: ``walk`` or ``jump``.
-
-    Returns:
-      A :class:`cfm_jax.config.Config`.
 
     Examples:
       >>> jump = default_config("jump")

@@ -1,5 +1,6 @@
 """The operational-space task (``opspace``, paper section IV-A-2): Cartesian reaching of an
-end-effector site, the controller gets a desired site acceleration."""
+end-effector site, the controller gets a desired site acceleration (docs/opspace.md).
+"""
 
 from __future__ import annotations
 
@@ -21,37 +22,25 @@ from cfm_jax.tasks.inverse_dynamics import AccelerationOutput, JointSpaceTask, r
 
 
 class OperationalSpaceTask(JointSpaceTask):
-    """Operational-space control (``opspace``, paper section IV-A-2): the controller gets
-    ``s = [q, qdot]`` and a desired end-effector acceleration
-    ``xdd* = xdd_ref + kp (x_ref - x) + kd (xd_ref - xd)`` (3-D, world frame, of the
-    configured site) and outputs joint torques; the forward model predicts the joint *and*
-    end-effector accelerations ``y = [qdd, xdd]`` (observed over the control period as
-    ``(qdot' - qdot) / dt`` and ``(xd' - xd) / dt``), of which the desired quantity specifies
-    the last three (``desired_index``). Redundant arms make ``tau`` for a given ``xdd*``
-    non-unique. The tracking error is the site position error ``x' - x_ref(t+1)`` (m).
-    References: straight quintic lines of the site (:func:`cfm_jax.references.cartesian_reaching`).
-    Site kinematics come from MuJoCo C through a host callback with the native simulator
-    and from MJX with ``mjx`` (:mod:`cfm_jax.opspace`); the features carried in
-    the rollout are ``[x, xd]`` of the site. Baselines (:mod:`cfm_jax.baselines`): the
-    analytic operational-space controller (Khatib) as oracle and task-space PD
-    (``J^T (K_p e + K_d ed)``).
+    """Operational-space control (``opspace``), the interface of :class:`JointSpaceTask`.
+
+    The controller gets ``s = [q, qdot]`` and the site's desired acceleration
+    ``xdd* = xdd_ref + kp (x_ref - x) + kd (xd_ref - xd)``; the forward model predicts
+    ``y = [qdd, xdd]`` (finite differences over the control period), of which
+    ``desired_index`` is the site part. Tracking error: the site position error (m).
 
     Args:
       robot: a fixed-base arm with the end-effector site.
-      task: the :class:`cfm_jax.config.TaskConfig` (``site``, ``targets`` as ``(k, 3)``
-        positions or None for the defaults, ``home``, ``duration``, ``kp``, ``kd``).
+      task: the :class:`cfm_jax.config.TaskConfig` (``targets`` as ``(k, 3)`` positions).
       control_dt: control period.
       simulator: ``"native"`` or ``"mjx"`` (where the site kinematics come from).
 
     Examples:
-      >>> from cfm_jax import config, robots
-      >>> arm = robots.load("two_link_arm")
-      >>> task = OperationalSpaceTask(
-      ...     arm, config.TaskConfig(name="opspace", duration=1.0, site="tip"), 0.01)
-      >>> task.reference.x.shape  # the 5 default targets, site positions
-      (5, 101, 3)
-      >>> task.desired_dim, task.output_dim, task.desired_index  # y = [qdd (2), xdd (3)]
-      (3, 5, (2, 3, 4))
+      >>> arm = cfm_jax.robots.load("two_link_arm")
+      >>> config = TaskConfig(name="opspace", duration=1.0, site="tip")
+      >>> task = OperationalSpaceTask(arm, config, control_dt=0.01)
+      >>> task.reference.x.shape, task.output_dim, task.desired_index  # y = [qdd (2), xdd (3)]
+      ((5, 101, 3), 5, (2, 3, 4))
     """
 
     name = "opspace"
@@ -86,16 +75,15 @@ class OperationalSpaceTask(JointSpaceTask):
 
     @property
     def tracking_scale(self) -> float:
-        """RMS end-effector reaching distance (m): ``sqrt(mean((x_goal - x_home)^2))``."""
+        """RMS end-effector reaching distance (m)."""
         delta = self.reference_np.x[:, -1] - self.reference_np.x[:, 0]
         return float(np.sqrt(np.mean(np.square(delta))))
 
     def _pd_gains(self, kp: float, kd: float):
-        """Task-space torque gains at home (:func:`cfm_jax.baselines.opspace_pd_gains`)."""
         return baselines.opspace_pd_gains(self.robot, kp, kd, self.site, self._home_np)
 
     def _babbling_gains(self, kp: float, kd: float):
-        """The babbling's feedback keeps the task-space gains of :meth:`_pd_gains`."""
+        """The babbling's feedback keeps the task-space PD gains."""
         return self._pd_gains(kp, kd)
 
     def _site(self, qpos, qvel):
@@ -103,8 +91,7 @@ class OperationalSpaceTask(JointSpaceTask):
         return jnp.concatenate([kin.position, kin.velocity], -1)
 
     def entries(self) -> dict:
-        """As :meth:`JointSpaceTask.entries`; the output ``[qdd, xdd]`` ends with the
-        site's three Cartesian accelerations (``site_acceleration``, index the site id)."""
+        """As :meth:`JointSpaceTask.entries`, the output ending with the site's ``xdd``."""
         joint = super().entries()
         site = tuple(("site_acceleration", int(self.site)) for _ in range(3))
         return {"state": joint["state"], "output": joint["output"] + site}
@@ -115,9 +102,7 @@ class OperationalSpaceTask(JointSpaceTask):
         return self.home, qvel, self._site(self.home, qvel)
 
     def babbling_reference(self, strategy: str, key):
-        """As :meth:`JointSpaceTask.babbling_reference`, in Cartesian space: straight
-        minimum-jerk paths of the site from its home position, held (``home``) or to where
-        random joint poses put it (``reaching``)."""
+        """As :meth:`JointSpaceTask.babbling_reference`, in straight lines of the site."""
         if babbling.uses_reference(strategy):
             return self.reference
         start = self.reference.x[:, 0]  # (targets, 3): the site at home
@@ -151,24 +136,10 @@ class OperationalSpaceTask(JointSpaceTask):
         return features_next[:3] - ref_next.x
 
     def acceleration_output(self):
-        """The output ``y = [qdd, xdd]`` is an affine image of ``qacc``: ``A = [I; J(q)]``,
-        ``b = [0; Jdot(q, qd) qd]`` with the site's translational Jacobian ``J`` and bias
-        acceleration ``Jdot qd`` from MJX (:func:`cfm_jax.opspace.mjx_kinematics`, in JAX
-        with either simulator; the simulated robot's kinematics), scale 1 (see
-        :class:`cfm_jax.tasks.inverse_dynamics.AccelerationOutput`). The observed ``y``
-        is the control period's finite difference of ``qdot`` and of ``xd = J qd``, i.e.
-        the *average* of ``qdd`` and of the site acceleration over the period; ``A qacc + b``
-        at the state is the instantaneous value at its start.
+        """``y = [qdd, xdd]`` is ``A qacc + b`` with ``A = [I; J(q)]``, ``b = [0; Jdot qd]`` by MJX.
 
-        Examples:
-          >>> from cfm_jax import config, robots
-          >>> arm = robots.load("two_link_arm")
-          >>> ops = make(arm, config.TaskConfig(name="opspace", duration=0.1, site="tip"), 0.01)
-          >>> out = ops.acceleration_output()
-          >>> # not run: MJX run op by op, 12 s on 2 shared cores
-          >>> a, b = out.affine(jnp.zeros(2), jnp.array([1.0, 0.0]))  # doctest: +SKIP
-          >>> a.shape, np.round(np.asarray(b, np.float64), 3).tolist()  # doctest: +SKIP
-          ((5, 2), [0.0, 0.0, -0.9, 0.0, 0.0])
+        The observed ``y`` is the average over the control period, ``A qacc + b`` the value at
+        its start (docs/opspace.md).
         """
         robot, site, nv = self.robot, self.site, self.robot.nv
 
@@ -181,17 +152,14 @@ class OperationalSpaceTask(JointSpaceTask):
         return AccelerationOutput(tuple(range(nv + 3)), 1.0, affine)
 
     def feedback(self, step):
-        """Task-space PD ``J^T (K_p (x_ref - x) + K_d (xd_ref - xd))``
-        (:func:`cfm_jax.baselines.opspace_pd_policy`)."""
+        """Task-space PD (:func:`cfm_jax.baselines.opspace_pd_policy`)."""
         torque = baselines.opspace_pd_policy(
             self.robot, self.gain_p, self.gain_d, self.site, self.simulator
         )
         return torque(step.qpos, step.qvel, step.reference.x, step.reference.xd)
 
     def oracle_policy(self, simulator: str):
-        """The analytic operational-space controller
-        (:func:`cfm_jax.baselines.opspace_oracle`: MuJoCo C on the host for ``native``, MJX
-        in JAX for ``mjx``)."""
+        """The analytic operational-space controller (:func:`cfm_jax.baselines.opspace_oracle`)."""
         torque = baselines.opspace_oracle(self.robot, self.site, self._home_np, simulator=simulator)
 
         def policy(step, key):
@@ -210,37 +178,23 @@ def make(
       robot: a fixed-base :class:`cfm_jax.robots.Robot`.
       task: the :class:`cfm_jax.config.TaskConfig`.
       control_dt: control period (s).
-      simulator: ``"native"`` (site kinematics from MuJoCo C through a host callback) or
-        ``"mjx"`` (from MJX, in JAX: the rollout has no host callback).
-
-    Returns:
-      An :class:`OperationalSpaceTask`.
+      simulator: ``"native"`` (site kinematics by a host callback) or ``"mjx"`` (in JAX).
 
     Raises:
       ConfigError: the robot has a floating base, or the site or a target does not fit it.
 
     Examples:
-      >>> from cfm_jax import config, robots
-      >>> arm = robots.load("two_link_arm")
-      >>> task = make(arm, config.TaskConfig(name="opspace", duration=0.5, site="tip"), 0.01)
-      >>> task.desired_dim, task.steps
-      (3, 50)
+      >>> arm = cfm_jax.robots.load("two_link_arm")
+      >>> make(arm, TaskConfig(name="opspace", duration=0.5, site="tip"), 0.01).steps
+      50
     """
     require_fixed_base(robot, task.name, every_joint=True)
     return OperationalSpaceTask(robot, task, control_dt, simulator)
 
 
 def default_config() -> Config:
-    """The task's defaults (what ``Config(task=TaskConfig(name="opspace"))``, the CLI's
-    ``--task opspace`` and :func:`cfm_jax.config.for_task` give): those of the arms'
-    inverse-dynamics task (:func:`cfm_jax.tasks.inverse_dynamics.default_config`; a check of
-    this task's babbling on its own selection targets kept ``reaching``), except the torque
-    scale: the per-joint ``inertia`` scale, not ``coupled``, which lost on the shipped
-    iiwa14's op-space task (joint loss worse on every one of 3 seeds paired; issue 41,
-    docs/how-to/own-robot.md).
-
-    Returns:
-      A :class:`cfm_jax.config.Config`.
+    """The task's defaults: the inverse-dynamics task's, but the ``inertia`` torque scale
+    (``coupled`` lost on the iiwa14's op-space task, docs/how-to/own-robot.md).
 
     Examples:
       >>> default_config().loop.torque_scale
