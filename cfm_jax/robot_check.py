@@ -38,16 +38,10 @@ class Check:
 
 
 def _limit_text(model, a) -> str:
-    gear = abs(float(model.actuator_gear[a, 0]))
-    limits = []
-    if model.actuator_ctrllimited[a]:
-        limits.append((np.max(np.abs(model.actuator_ctrlrange[a])) * gear, "ctrlrange"))
-    if model.actuator_forcelimited[a]:
-        limits.append((np.max(np.abs(model.actuator_forcerange[a])), "forcerange"))
-    if not limits:
+    bound = robots.actuator_torque_limit(model, a)
+    if bound is None:
         return "no torque limit"
-    value, source = min(limits)
-    return f"torque limit {value:g} ({source})"
+    return f"torque limit {bound[0]:g} ({bound[1]})"
 
 
 def _dynamics_lines(robot: Robot) -> list[str]:

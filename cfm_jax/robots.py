@@ -374,9 +374,46 @@ def held_joints(model) -> tuple[set[int], set[int]]:
     return joints, actuators
 
 
+def actuator_torque_limit(model, a: int, control_is_force: bool = True):
+    """The most joint torque (N m; N on a slide) actuator ``a`` exerts, as MuJoCo clamps it:
+    the least of its ``ctrlrange`` (a motor's control is its force) and ``forcerange``, both
+    times ``|gear|`` (the gear applies after the clamp), and its joint's ``actuatorfrcrange``
+    (in joint units), each where it is limited.
+
+    Args:
+      model: a ``mujoco.MjModel``.
+      a: the actuator's index (joint transmission).
+      control_is_force: whether ``ctrlrange`` bounds the force (a motor) or not (a servo's
+        control is a position or velocity).
+
+    Returns:
+      ``(limit, source)``, ``source`` one of ``ctrlrange``, ``forcerange``,
+      ``actuatorfrcrange``; None where nothing bounds it.
+
+    Examples:
+      >>> xml = ('<mujoco><worldbody><body><joint name="j" axis="0 1 0"/><geom size=".1"/>'
+      ...        '</body></worldbody><actuator><motor joint="j" gear="2" forcerange="-5 5"/>'
+      ...        '</actuator></mujoco>')
+      >>> actuator_torque_limit(mujoco.MjModel.from_xml_string(xml), 0)
+      (10.0, 'forcerange')
+    """
+    gear = abs(float(model.actuator_gear[a, 0]))
+    bounds = []
+    if control_is_force and model.actuator_ctrllimited[a]:
+        bounds.append((float(np.max(np.abs(model.actuator_ctrlrange[a]))) * gear, "ctrlrange"))
+    if model.actuator_forcelimited[a]:
+        bounds.append((float(np.max(np.abs(model.actuator_forcerange[a]))) * gear, "forcerange"))
+    joint = int(model.actuator_trnid[a, 0])
+    if model.jnt_actfrclimited[joint]:
+        frc = float(np.max(np.abs(model.jnt_actfrcrange[joint])))
+        bounds.append((frc, "actuatorfrcrange"))
+    return min(bounds, key=lambda bound: bound[0]) if bounds else None
+
+
 def servo_limits(model, torque_limit=None, where: str = "robot", keep=()):
-    """``{actuator: (kind, torque limit, source)}`` of each servo on a joint: its ``forcerange``
-    (times ``|gear|``), else the joint's ``actuatorfrcrange``, else ``torque_limit``.
+    """``{actuator: (kind, torque limit, source)}`` of each servo on a joint: the bound of
+    :func:`actuator_torque_limit` (its ``forcerange`` and its joint's ``actuatorfrcrange``),
+    else ``torque_limit``.
 
     Args:
       model: a ``mujoco.MjModel`` as the file gives it.
@@ -415,11 +452,9 @@ def servo_limits(model, torque_limit=None, where: str = "robot", keep=()):
                 "user actuator (gain or bias type other than fixed/affine); only motors and "
                 "servos can be taken as torque motors"
             )
-        if model.actuator_forcelimited[a]:
-            limit = float(np.max(np.abs(model.actuator_forcerange[a])))
-            found[a] = (kind, limit * abs(float(model.actuator_gear[a, 0])), "forcerange")
-        elif model.jnt_actfrclimited[j]:
-            found[a] = (kind, float(np.max(np.abs(model.jnt_actfrcrange[j]))), "actuatorfrcrange")
+        bound = actuator_torque_limit(model, a, control_is_force=False)
+        if bound is not None:
+            found[a] = (kind, *bound)
         elif torque_limit is not None and j in position:
             value = torque_limit[0] if len(torque_limit) == 1 else torque_limit[position[j]]
             found[a] = (kind, float(value), "robot_torque_limit")
@@ -668,14 +703,9 @@ def load(
         if a in servos:
             torque_limit[dof], limit_source[dof] = servos[a][1:]
             continue
-        limits = []
-        if model.actuator_ctrllimited[a]:
-            limits.append(np.max(np.abs(model.actuator_ctrlrange[a])) * abs(gear[dof]))
-        if model.actuator_forcelimited[a]:
-            limits.append(np.max(np.abs(model.actuator_forcerange[a])))
-        if limits:
-            torque_limit[dof] = min(limits)
-            limit_source[dof] = ("ctrlrange", "forcerange")[int(np.argmin(limits))]
+        bound = actuator_torque_limit(model, a)
+        if bound is not None:
+            torque_limit[dof], limit_source[dof] = bound
     if np.any(actuator_of_joint[sorted(unactuated)] >= 0):
         raise RobotError(f"{where}: the floating base (free joint) cannot be actuated")
     not_driven = unactuated | {int(model.jnt_dofadr[j]) for j in held}  # base, held joints
@@ -694,7 +724,8 @@ def load(
         ]
         raise RobotError(
             f"{where}: motors of joints {unlimited} have no torque limit; set ctrlrange "
-            "(with ctrllimited) or forcerange, the controller's outputs are squashed into it"
+            "(with ctrllimited), forcerange or the joint's actuatorfrcrange, the controller's "
+            "outputs are squashed into it"
         )
     if timestep is not None:
         model.opt.timestep = timestep

@@ -102,8 +102,9 @@ def test_user_file_fields(tmp_path):
     assert robot.joint_names == ("j1", "j2")
     np.testing.assert_array_equal(robot.actuator_of_joint, [1, 0])  # actuators listed reversed
     np.testing.assert_array_equal(robot.gear, [1.0, 2.0])
-    # j1: ctrl 4 * gear 1 = 4; j2: min(ctrl 3 * gear 2 = 6, force 5) = 5
-    np.testing.assert_array_equal(robot.torque_limit, [4.0, 5.0])
+    # j1: ctrl 4 * gear 1 = 4; j2: min(ctrl 3, force 5) * gear 2 = 6 (MuJoCo clamps the
+    # actuator's force, then applies the gear: test_torque_limit_is_what_mujoco_applies)
+    np.testing.assert_array_equal(robot.torque_limit, [4.0, 6.0])
     np.testing.assert_array_equal(robot.joint_range, [[-1.0, 1.0], [-np.inf, np.inf]])
     np.testing.assert_array_equal(robot.home, [0.0, 0.0])
 
@@ -130,6 +131,59 @@ def test_torque_to_ctrl_with_gear(tmp_path):
     data.ctrl[:] = np.asarray(ctrl[0])
     mujoco.mj_forward(robot.mj_model, data)
     np.testing.assert_allclose(data.qfrc_actuator, [1.0, 2.0], rtol=1e-12)
+
+
+LIMITED_HINGE = """
+<body name="a"><joint name="j1" type="hinge" axis="0 1 0" {joint}/>
+  <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.02" mass="1"/>
+</body>"""
+
+
+@pytest.mark.parametrize(
+    "joint, motor, source",
+    [
+        ("", 'gear="2" forcerange="-5 5"', "forcerange"),
+        ("", 'gear="-3" ctrlrange="-4 4" forcerange="-5 5"', "ctrlrange"),
+        ("", 'gear="0.5" ctrlrange="-40 40" forcerange="-5 5"', "forcerange"),
+        ('actuatorfrcrange="-3 3"', 'gear="2" forcerange="-5 5"', "actuatorfrcrange"),
+        ('actuatorfrcrange="-30 30"', 'gear="2" forcerange="-5 5"', "forcerange"),
+        ('actuatorfrcrange="-7 7"', "", "actuatorfrcrange"),
+    ],
+)
+def test_torque_limit_is_what_mujoco_applies(tmp_path, joint, motor, source):
+    # Oracle: MuJoCo C's joint torque for a control far beyond every bound, either sign
+    # (the motor's force is clamped to ctrlrange and forcerange, then times the gear; the
+    # joint's actuatorfrcrange clamps the sum). It used to forget the gear on forcerange and
+    # the joint's bound.
+    path = write(tmp_path, mjcf(LIMITED_HINGE.format(joint=joint), f'<motor joint="j1" {motor}/>'))
+    robot = robots.load(path)
+    data = mujoco.MjData(robot.mj_model)
+    for sign in (1.0, -1.0):
+        data.ctrl[:] = sign * 1e6
+        mujoco.mj_forward(robot.mj_model, data)
+        assert abs(data.qfrc_actuator[0]) == pytest.approx(robot.torque_limit[0], rel=1e-12)
+    assert robot.limit_source[0] == source
+
+
+@pytest.mark.parametrize(
+    "joint, servo",
+    [
+        ("", 'gear="2" kp="1000" forcerange="-5 5"'),
+        ('actuatorfrcrange="-3 3"', 'gear="2" kp="1000" forcerange="-5 5"'),
+        ('actuatorfrcrange="-3 3"', 'kp="1000"'),
+    ],
+)
+def test_servo_torque_limit_is_what_mujoco_applies(tmp_path, joint, servo):
+    # A position servo far from its target pushes with the most torque MuJoCo lets it: the
+    # converted motor's limit is that torque (both bounds where both are given).
+    model = mujoco.MjModel.from_xml_string(
+        mjcf(LIMITED_HINGE.format(joint=joint), f'<position joint="j1" {servo}/>')
+    )
+    data = mujoco.MjData(model)
+    data.ctrl[:] = 100.0
+    mujoco.mj_forward(model, data)
+    limits = robots.servo_limits(model)
+    assert limits[0][1] == pytest.approx(abs(data.qfrc_actuator[0]), rel=1e-12)
 
 
 @pytest.mark.parametrize("name", ["iiwa14", "two_link_arm"])
