@@ -14,8 +14,10 @@ from cfm_jax import _xla
 FAST_XLA = _xla.configure()  # must run before any JAX computation; see cfm_jax/_xla.py
 
 # The tasks register their names and defaults (cfm_jax.config.TASK_DEFAULTS), which every
-# config of them takes: done here, so that a config made after `import cfm_jax` or any
-# `from cfm_jax... import` is the task's experiment.
+# config of them takes, and the forward-model kinds their options (FORWARD_OPTIONS): done
+# here, so that a config made after `import cfm_jax` or any `from cfm_jax... import` is the
+# task's experiment with its kind's options.
+from cfm_jax import forward_models as _forward_models  # noqa: E402, F401
 from cfm_jax import tasks as _tasks  # noqa: E402, F401
 
 __version__ = "0.1.0"

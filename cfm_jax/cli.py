@@ -603,7 +603,7 @@ def _metavar(path: str, type_text: str) -> str:
         return "{" + ",".join(getattr(config_lib, _CHOICES[path])) + "}" + optional
     if path in _JSON_FIELDS:
         return "JSON" + optional
-    if path in ("robot", "forward.nominal"):
+    if path in ("robot", "forward.options.nominal"):
         return "NAME|FILE.xml" + optional
     element = "INT" if "int" in type_text else "FLOAT" if "float" in type_text else "TEXT"
     if type_text.startswith("tuple"):
@@ -673,12 +673,18 @@ def _flags_class(command: str, base: config_lib.Config, extra: list):
         group = []
         for field in dataclasses.fields(cls):
             path = f"{section}.{field.name}"
+            if path == "forward.options":
+                options = _options_class(base.forward)
+                group.append(("options", options, dataclasses.field(default_factory=options)))
+                continue
             aliases = (_SHORT[path],) if path in _SHORT else ()
             value = getattr(getattr(base, section), field.name)
             group.append((field.name, *_flag(path, field.type, value, helps[field.name], aliases)))
         group_cls = dataclasses.make_dataclass(
-            f"{section}", [(n, t, dataclasses.field(default=d)) for n, t, d in group]
-        )
+            f"{section}",
+            [(n, t, d if isinstance(d, dataclasses.Field) else dataclasses.field(default=d))
+             for n, t, d in group],
+        )  # fmt: skip
         group_cls.__doc__ = _plain(inspect.cleandoc(cls.__doc__).split("\n\n")[0])
         fields.append((section, group_cls, dataclasses.field(default_factory=group_cls)))
     flags = dataclasses.make_dataclass(
@@ -687,6 +693,38 @@ def _flags_class(command: str, base: config_lib.Config, extra: list):
          for f in fields],
     )  # fmt: skip
     return flags
+
+
+def _option_fields():
+    """``{name: (type, help)}`` of every registered kind's options (the ``forward.options``
+    flags: one flag per name, checked by the kind in use)."""
+    found: dict[str, tuple[str, str]] = {}
+    for kind, cls in config_lib.FORWARD_OPTIONS.items():
+        helps = _attribute_help(cls)
+        for field in dataclasses.fields(cls):
+            text = f"forward.kind={kind}: {helps[field.name]}"
+            if field.name in found:
+                text = found[field.name][1] + "; " + text
+            found[field.name] = (field.type, text)
+    return found
+
+
+def _options_class(forward: config_lib.ForwardModelConfig):
+    """The tyro group of the ``forward.options`` flags, defaults from ``forward``'s options
+    (another kind's fields: theirs)."""
+    group = []
+    for name, (type_text, help_text) in _option_fields().items():
+        if forward.options is not None and hasattr(forward.options, name):
+            value = getattr(forward.options, name)
+        else:
+            cls = next(c for c in config_lib.FORWARD_OPTIONS.values() if hasattr(c, name))
+            value = next(f.default for f in dataclasses.fields(cls) if f.name == name)
+        group.append((name, *_flag(f"forward.options.{name}", type_text, value, help_text)))
+    options = dataclasses.make_dataclass(
+        "options", [(n, t, dataclasses.field(default=d)) for n, t, d in group]
+    )
+    options.__doc__ = "the forward-model kind's own options (checked by the kind in use)."
+    return options
 
 
 def _prescan(argv: list[str], losses: list | None = None) -> config_lib.Config:
@@ -726,9 +764,20 @@ def _config_of(flags, base: config_lib.Config, loss: str) -> config_lib.Config:
     for section, cls in _SECTIONS.items():
         group = getattr(flags, section)
         for field in dataclasses.fields(cls):
+            if f"{section}.{field.name}" == "forward.options":
+                continue
             value = _value(f"{section}.{field.name}", field.type, getattr(group, field.name))
             if value not in (_UNSET, (_UNSET,)):
                 data[section][field.name] = value
+    given = {}
+    for name, (type_text, _) in _option_fields().items():
+        value = _value(f"forward.options.{name}", type_text, getattr(flags.forward.options, name))
+        if value not in (_UNSET, (_UNSET,)):
+            given[name] = value
+    # The base's options are its kind's: another --forward.kind starts from that kind's.
+    same_kind = data["forward"]["kind"] == base.forward.kind
+    options = dict(data["forward"]["options"] or {}) if same_kind else {}
+    data["forward"]["options"] = {**options, **given} or None
     return config_lib.from_dict(data)
 
 

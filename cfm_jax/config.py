@@ -117,11 +117,18 @@ FORWARD_KINDS = ("mlp", "rigid_body")
 :class:`ForwardModelConfig`)."""
 
 
-def add_forward_kind(name: str) -> None:
+FORWARD_OPTIONS: dict[str, type] = {}
+"""Each kind's options dataclass, ``forward.options`` (:func:`add_forward_kind`)."""
+
+
+def add_forward_kind(name: str, options: type | None = None) -> None:
     """Allow ``name`` as ``forward.kind`` (:func:`cfm_jax.forward_models.register` calls this).
 
     Args:
       name: the new kind's name; a name already in :data:`FORWARD_KINDS` changes nothing.
+      options: the kind's options, a frozen dataclass whose defaults are the kind's and whose
+        ``__post_init__`` checks them (:func:`fail` with ``forward.options.FIELD``); None:
+        the kind takes none.
 
     Examples:
       >>> add_forward_kind("mlp"); FORWARD_KINDS
@@ -130,6 +137,46 @@ def add_forward_kind(name: str) -> None:
     global FORWARD_KINDS
     if name not in FORWARD_KINDS:
         FORWARD_KINDS = FORWARD_KINDS + (name,)
+    if options is None:
+        FORWARD_OPTIONS.pop(name, None)
+    else:
+        FORWARD_OPTIONS[name] = options
+
+
+def _kind_options(kind: str, value: Any) -> Any:
+    """``forward.options`` of ``kind`` made from ``value`` (None, a dict, an options
+    dataclass). Fields of other kinds' options are dropped where they hold those kinds'
+    defaults (they say nothing: a sweep over ``forward.kind`` carries them) and refused
+    otherwise."""
+    own = FORWARD_OPTIONS.get(kind)
+    if own is not None and isinstance(value, own):
+        return value
+    given = value
+    if value is None:
+        value = {}
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        value = dataclasses.asdict(value)
+    if not isinstance(value, dict):
+        fail("forward.options", given, "None, a dict of the kind's options or its options object")
+    names = [f.name for f in dataclasses.fields(own)] if own is not None else []
+    for key, item in value.items():
+        if key in names:
+            continue
+        defaults = [
+            f.default
+            for other, cls in FORWARD_OPTIONS.items()
+            if other != kind
+            for f in dataclasses.fields(cls)
+            if f.name == key
+        ]
+        if not defaults or any(item != d for d in defaults):
+            allowed = (
+                f"an option of forward.kind={kind!r}, one of {names}"
+                if names
+                else f"no options: forward.kind={kind!r} takes none"
+            )
+            fail(f"forward.options.{key}", item, allowed)
+    return own(**{k: v for k, v in value.items() if k in names}) if own is not None else None
 
 
 SIMULATORS = ("native", "mjx")
@@ -494,10 +541,10 @@ class ForwardModelConfig:
       kind: one of :data:`FORWARD_KINDS`: ``mlp`` (default; the paper's text) or
         ``rigid_body`` (the authors' Solo12 code: ``qdd = M(q)^-1 (S tau - h(q, qd)) +
         residual(s, tau)``, the ensemble the residual; :mod:`cfm_jax.rigid_body`).
-      nominal: ``rigid_body`` only: the MJCF (path or robot name) of the nominal ``M``, ``h``;
-        None (default): the robot's own.
-      nominal_mass_scale: ``rigid_body`` only: factor (> 0) on the nominal model's masses and
-        inertias, to study model bias.
+      options: the kind's own settings (:data:`FORWARD_OPTIONS`): its options object or a
+        dict of its fields, checked by the kind; None: its defaults. ``rigid_body``:
+        :class:`cfm_jax.rigid_body.RigidBodyOptions` (``nominal``, ``mass_scale``); ``mlp``:
+        none.
 
     Examples:
       >>> ForwardModelConfig(hidden=[64, 64]).hidden  # lists become tuples
@@ -514,8 +561,7 @@ class ForwardModelConfig:
     max_log_variance: float = 0.5
     start: str = "warm"
     kind: str = "mlp"
-    nominal: str | None = None
-    nominal_mass_scale: float = 1.0
+    options: Any = None
 
     def __post_init__(self):
         object.__setattr__(self, "hidden", tuple(self.hidden))
@@ -541,18 +587,7 @@ class ForwardModelConfig:
             fail("forward.start", self.start, f"one of {FIT_STARTS}")
         if self.kind not in FORWARD_KINDS:
             fail("forward.kind", self.kind, f"one of {FORWARD_KINDS}")
-        if self.nominal is not None and (not isinstance(self.nominal, str) or not self.nominal):
-            fail("forward.nominal", self.nominal, "None or an MJCF path / robot name")
-        _positive_float("forward.nominal_mass_scale", self.nominal_mass_scale)
-        if self.kind != "rigid_body":
-            for name, default in (("nominal", None), ("nominal_mass_scale", 1.0)):
-                if getattr(self, name) != default:
-                    fail(
-                        f"forward.{name}",
-                        getattr(self, name),
-                        f"{default!r} unless forward.kind='rigid_body' (forward.kind="
-                        f"{self.kind!r} has no nominal model)",
-                    )
+        object.__setattr__(self, "options", _kind_options(self.kind, self.options))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -891,6 +926,8 @@ def from_dict(data: dict) -> Config:
             fields = {f.name for f in dataclasses.fields(cls)}
             if not isinstance(value, dict):
                 fail(key, value, f"an object of the fields {sorted(fields)}")
+            if key == "forward":
+                value = upgrade_forward(value)
             bad = set(value) - fields
             if bad:
                 fail(key, sorted(bad), f"known fields of {key} are {sorted(fields)}")
@@ -912,6 +949,34 @@ def from_dict(data: dict) -> Config:
         else:
             kwargs[key] = value
     return Config(**kwargs)
+
+
+def upgrade_forward(forward: dict) -> dict:
+    """A ``forward`` section of a ``config.json`` in today's fields: written before
+    ``forward.options``, it had the ``rigid_body`` kind's ``nominal`` and
+    ``nominal_mass_scale`` beside the shared fields.
+
+    Args:
+      forward: the section as read.
+
+    Examples:
+      >>> upgrade_forward({"kind": "rigid_body", "nominal": None, "nominal_mass_scale": 1.2})
+      {'kind': 'rigid_body', 'options': {'nominal': None, 'mass_scale': 1.2}}
+      >>> upgrade_forward({"kind": "mlp", "nominal": None, "nominal_mass_scale": 1.0})
+      {'kind': 'mlp', 'options': None}
+    """
+    if "nominal" not in forward and "nominal_mass_scale" not in forward:
+        return forward
+    forward = dict(forward)
+    options = {"nominal": forward.pop("nominal", None)}
+    options["mass_scale"] = forward.pop("nominal_mass_scale", 1.0)
+    if forward.get("kind", "mlp") != "rigid_body" and options == {
+        "nominal": None,
+        "mass_scale": 1.0,
+    }:
+        options = None  # the other kinds' defaults: they had no options
+    forward.setdefault("options", options)
+    return forward
 
 
 RUNTIME_FIELDS = (

@@ -14,13 +14,25 @@ from cfm_jax.config import ConfigError, ForwardModelConfig
 REGISTRY: dict[str, Callable] = {}
 """Every registered kind by name: ``make(forward_config, robot, task) -> Model``."""
 
+DESCRIBE: dict[str, Callable] = {}
+"""Each kind's ``describe(options) -> str`` (:func:`register`), for :func:`describe`."""
 
-def register(kind: str, make_model: Callable) -> None:
+
+def register(
+    kind: str,
+    make_model: Callable,
+    options: type | None = None,
+    describe_options: Callable | None = None,
+) -> None:
     """Register a kind of forward model, so that ``forward.kind`` may name it.
 
     Args:
       kind: its name.
       make_model: ``make_model(forward_config, robot, task) -> cfm_jax.networks.Model``.
+      options: the kind's settings, a frozen dataclass that checks its fields
+        (``forward.options``, :func:`cfm_jax.config.add_forward_kind`); None: none.
+      describe_options: ``describe_options(options) -> str``, the options worth naming in
+        a report (``""``: none); None: none are named.
 
     Raises:
       ValueError: ``kind`` is not a non-empty string, or is registered already.
@@ -34,8 +46,26 @@ def register(kind: str, make_model: Callable) -> None:
         raise ValueError(f"kind={kind!r} is not allowed: a non-empty string")
     if kind in REGISTRY:
         raise ValueError(f"kind={kind!r} is not allowed: a forward model of that name exists")
-    config_lib.add_forward_kind(kind)
+    config_lib.add_forward_kind(kind, options)
     REGISTRY[kind] = make_model
+    if describe_options is not None:
+        DESCRIBE[kind] = describe_options
+
+
+def describe(forward: ForwardModelConfig) -> str:
+    """How a summary names the forward model: its kind and the options it describes.
+
+    Args:
+      forward: the :class:`cfm_jax.config.ForwardModelConfig`.
+
+    Examples:
+      >>> from cfm_jax import config
+      >>> describe(config.ForwardModelConfig(kind="rigid_body", options={"mass_scale": 1.2}))
+      "`forward.kind='rigid_body'` (`forward.options.mass_scale=1.2`)"
+    """
+    text = f"`forward.kind={forward.kind!r}`"
+    details = DESCRIBE[forward.kind](forward.options) if forward.kind in DESCRIBE else ""
+    return f"{text} ({details})" if details else text
 
 
 def make(forward: ForwardModelConfig, robot, task) -> networks.Model:
@@ -68,4 +98,4 @@ def _mlp(forward: ForwardModelConfig, robot, task) -> networks.Model:
 
 
 register("mlp", _mlp)
-register("rigid_body", rigid_body.make)
+register("rigid_body", rigid_body.make, rigid_body.RigidBodyOptions, rigid_body.describe)

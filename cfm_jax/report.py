@@ -8,7 +8,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 import pandas as pd
 
-from cfm_jax import losses
+from cfm_jax import forward_models, losses
 
 CONFIDENCE = 0.95
 """Confidence level of the intervals of the tables and figures."""
@@ -64,15 +64,7 @@ def protocol(config) -> str:
             f"s* the desired next velocity (`task.desired={task.desired!r}`: kp 0, kd "
             f"1/control_dt{rate} on base and joints)"
         )
-    forward = config.forward
-    model = f"`forward.kind={forward.kind!r}`"
-    nominal = []
-    if forward.nominal is not None:
-        nominal.append(f"`forward.nominal={forward.nominal!r}`")
-    if forward.nominal_mass_scale != 1.0:
-        nominal.append(f"`forward.nominal_mass_scale={forward.nominal_mass_scale:g}`")
-    if nominal:
-        model += f" ({', '.join(nominal)})"
+    model = forward_models.describe(config.forward)
     if getattr(config, "robot_actuators", "strict") != "strict":
         from cfm_jax import robots
 

@@ -9,6 +9,7 @@ a residual that learns contacts, joint limits and the control period's average.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import jax
@@ -18,8 +19,55 @@ import numpy as np
 
 from cfm_jax import networks, robots
 from cfm_jax._mjx import mjx
-from cfm_jax.config import ConfigError, ForwardModelConfig
+from cfm_jax.config import ConfigError, ForwardModelConfig, fail
 from cfm_jax.tasks.inverse_dynamics import AccelerationOutput
+
+
+@dataclasses.dataclass(frozen=True)
+class RigidBodyOptions:
+    """The ``rigid_body`` kind's own settings, ``forward.options``.
+
+    Attributes:
+      nominal: the MJCF (path or robot name) whose ``M`` and ``h`` the model takes; None
+        (default): the robot's own.
+      mass_scale: factor (> 0) on the nominal model's masses and inertias, to study model
+        bias.
+
+    Examples:
+      >>> RigidBodyOptions(mass_scale=0.8)
+      RigidBodyOptions(nominal=None, mass_scale=0.8)
+    """
+
+    nominal: str | None = None
+    mass_scale: float = 1.0
+
+    def __post_init__(self):
+        if self.nominal is not None and (not isinstance(self.nominal, str) or not self.nominal):
+            fail("forward.options.nominal", self.nominal, "None or an MJCF path / robot name")
+        scale = self.mass_scale
+        if isinstance(scale, bool) or not isinstance(scale, int | float) or not scale > 0:
+            fail("forward.options.mass_scale", scale, "a finite number > 0")
+        if not np.isfinite(scale):
+            fail("forward.options.mass_scale", scale, "a finite number > 0")
+        object.__setattr__(self, "mass_scale", float(scale))
+
+
+def describe(options: RigidBodyOptions) -> str:
+    """The options that differ from the defaults, for the protocol line of every summary.
+
+    Args:
+      options: the kind's :class:`RigidBodyOptions`.
+
+    Examples:
+      >>> describe(RigidBodyOptions(mass_scale=1.2)), describe(RigidBodyOptions())
+      ('`forward.options.mass_scale=1.2`', '')
+    """
+    parts = []
+    if options.nominal is not None:
+        parts.append(f"`forward.options.nominal={options.nominal!r}`")
+    if options.mass_scale != 1.0:
+        parts.append(f"`forward.options.mass_scale={options.mass_scale:g}`")
+    return ", ".join(parts)
 
 
 class Terms(NamedTuple):
@@ -47,7 +95,7 @@ def nominal_model(robot, nominal: str | None = None, mass_scale: float = 1.0) ->
 
     Args:
       robot: the simulated :class:`cfm_jax.robots.Robot`.
-      nominal: an MJCF path or robot name (``forward.nominal``), or None: the robot's own.
+      nominal: an MJCF path or robot name (``forward.options.nominal``), or None: the robot's.
       mass_scale: factor on ``body_mass`` and ``body_inertia``.
 
     Raises:
@@ -66,7 +114,7 @@ def nominal_model(robot, nominal: str | None = None, mass_scale: float = 1.0) ->
             other = robots.load(nominal, actuators=robot.actuators, torque_limit=limits)
         except robots.RobotError as error:
             raise ConfigError(
-                f"forward.nominal={nominal!r} is not allowed: an MJCF file or robot name "
+                f"forward.options.nominal={nominal!r} is not allowed: an MJCF file or robot name "
                 f"that loads as a robot ({error})"
             ) from error
         same = (
@@ -76,7 +124,7 @@ def nominal_model(robot, nominal: str | None = None, mass_scale: float = 1.0) ->
         )
         if not same:
             raise ConfigError(
-                f"forward.nominal={nominal!r} is not allowed: a model with the joints of "
+                f"forward.options.nominal={nominal!r} is not allowed: a model with the joints of "
                 f"robot {robot.name!r} (nq={robot.nq}, nv={robot.nv}, actuated dofs "
                 f"{robot.actuated_dofs.tolist()}); it has nq={other.nq}, nv={other.nv}, "
                 f"actuated dofs {other.actuated_dofs.tolist()}"
@@ -227,7 +275,8 @@ def make(forward: ForwardModelConfig, robot, task) -> networks.Model:
             "accelerations); use forward.kind='mlp'"
         )
     where = AccelerationOutput(*where)  # a task may return a plain (entries, scale)
-    model = nominal_model(robot, forward.nominal, forward.nominal_mass_scale)
+    options = forward.options
+    model = nominal_model(robot, options.nominal, options.mass_scale)
     residual = networks.ensemble(forward, task.output_dim, task.action_dim)
     terms = terms_function(model, robot.actuated_dofs, task.configuration, where.affine)
     return structured(residual, terms, task.output_dim, where.entries, float(where.scale))

@@ -805,7 +805,7 @@ def _write_tables(out_dir: str, result: SweepResult, base_config, cells, labels)
     }
     write_text(os.path.join(out_dir, "sweep.json"), json.dumps(description, indent=2))
     protocol = report.protocol(base_config)
-    overridden = ("loop.babbling", "forward.kind", "forward.nominal")  # and nominal_mass_scale
+    overridden = ("loop.babbling", "forward.kind", "forward.options")
     if any(path.startswith(overridden) for path in result.override_columns):
         protocol += " (the base; the cells override it, see the columns)"
     write_text(os.path.join(out_dir, "summary.md"), protocol + "\n\n" + result.markdown() + "\n")

@@ -55,6 +55,22 @@ def test_a_nested_flag_reaches_its_config_field(flags, section, changes, monkeyp
     assert printed == json.loads(json.dumps(config_lib.to_dict(expected)))
 
 
+def test_a_kinds_options_are_flags_and_follow_the_kind(monkeypatch, capsys):
+    # --forward.options.FIELD reaches the kind's options; choosing another kind starts from
+    # that kind's options (the walk's rigid_body options do not follow it to the mlp).
+    flags = ["--forward.kind", "rigid_body", "--forward.options.mass-scale", "0.8"]
+    printed = printed_config(flags, monkeypatch, capsys)
+    base = cli_default()
+    forward = dataclasses.replace(base.forward, kind="rigid_body", options={"mass_scale": 0.8})
+    assert config_lib.from_dict(printed) == base.replace(forward=forward)
+    assert printed["forward"]["options"] == {"nominal": None, "mass_scale": 0.8}
+    walk = printed_config(["--task", "walk", "--forward.kind", "mlp"], monkeypatch, capsys)
+    assert walk["forward"]["kind"] == "mlp" and walk["forward"]["options"] is None
+    with pytest.raises(SystemExit):  # the mlp takes no options: one error line, exit 2
+        printed_config(["--forward.options.mass-scale", "0.8"], monkeypatch, capsys)
+    assert "forward.options.mass_scale=0.8 is not allowed" in capsys.readouterr().err
+
+
 def test_config_file_plus_one_flag_changes_only_that_field(tmp_path, monkeypatch, capsys):
     # The case: a walk config with the default --task no longer replaces its task.
     walk = config_lib.for_task("walk")

@@ -11,19 +11,37 @@ import numpy as np
 from tiny import tiny_config
 
 import cfm_jax
+from cfm_jax import config as config_lib
 from cfm_jax import forward_models, networks
 
 KIND = "linear_test"
 
 
+@dataclasses.dataclass(frozen=True)
+class LinearOptions:
+    """The test kind's own option (``forward.options``), checked by the kind."""
+
+    init_scale: float = 0.1
+
+    def __post_init__(self):
+        if not self.init_scale > 0:
+            config_lib.fail("forward.options.init_scale", self.init_scale, "a number > 0")
+
+
+def _register():
+    if KIND not in forward_models.REGISTRY:
+        forward_models.register(KIND, linear, LinearOptions, lambda o: f"init {o.init_scale:g}")
+
+
 def linear(forward, robot, task) -> networks.Model:
     """``y = [s, tau] W + b`` in normalised units, fitted by the mean squared error."""
-    del forward, robot
+    del robot
     n_in, n_out = task.state_dim + task.action_dim, task.output_dim
+    scale = 0.1 if forward is None else forward.options.init_scale
 
     def init(key, state_dim):
         del state_dim
-        return {"w": 0.1 * jax.random.normal(key, (n_in, n_out)), "b": jnp.zeros(n_out)}
+        return {"w": scale * jax.random.normal(key, (n_in, n_out)), "b": jnp.zeros(n_out)}
 
     def predict(params, normaliser, state, tau, terms=None):
         del terms
@@ -37,9 +55,25 @@ def linear(forward, robot, task) -> networks.Model:
     return networks.Model(init, predict, objective=objective, predict=predict)
 
 
+def test_a_kinds_options_are_its_own_checked_by_it_and_saved():
+    _register()
+    with_options = config_lib.ForwardModelConfig(kind=KIND, options={"init_scale": 0.05})
+    assert with_options.options == LinearOptions(0.05)
+    assert config_lib.ForwardModelConfig(kind=KIND).options == LinearOptions()
+    try:
+        config_lib.ForwardModelConfig(kind=KIND, options={"init_scale": -1.0})
+    except config_lib.ConfigError as error:
+        assert "forward.options.init_scale=-1.0 is not allowed" in str(error)
+    else:
+        raise AssertionError("the kind's check did not run")
+    config = tiny_config().replace(forward=with_options)
+    assert config_lib.to_dict(config)["forward"]["options"] == {"init_scale": 0.05}
+    assert config_lib.from_dict(config_lib.to_dict(config)) == config
+    assert forward_models.describe(with_options) == f"`forward.kind={KIND!r}` (init 0.05)"
+
+
 def test_a_forward_model_kind_written_outside_the_library_trains_end_to_end():
-    if KIND not in forward_models.REGISTRY:
-        forward_models.register(KIND, linear)
+    _register()
     config = tiny_config(iterations=2, seeds=1)
     config = config.replace(forward=dataclasses.replace(
         config.forward, kind=KIND, learning_rate=1e-2, initial_steps=400, steps_per_iteration=200

@@ -200,8 +200,8 @@ def test_nominal_mass_scale_scales_links_inertia_and_bias(arms):
 
 def test_nominal_file_must_have_the_robots_joints(arms):
     robot, task = arms["two_link_arm"]
-    with pytest.raises(config_lib.ConfigError, match=r"forward\.nominal='iiwa14'"):
-        _model(robot, task, nominal="iiwa14")
+    with pytest.raises(config_lib.ConfigError, match=r"forward\.options\.nominal='iiwa14'"):
+        _model(robot, task, options={"nominal": "iiwa14"})
 
 
 def test_a_task_whose_output_is_not_affine_in_qacc_is_refused():
@@ -269,30 +269,78 @@ def test_protocol_line_names_the_forward_model_and_a_nominal_that_is_not_the_def
     assert report.protocol(exact).endswith("; `forward.kind='rigid_body'`")
     biased = base.replace(
         forward=config_lib.ForwardModelConfig(
-            kind="rigid_body", nominal="two_link_arm", nominal_mass_scale=0.8
+            kind="rigid_body",
+            options=rigid_body.RigidBodyOptions(nominal="two_link_arm", mass_scale=0.8),
         )
     )
     assert report.protocol(biased).endswith(
-        "; `forward.kind='rigid_body'` (`forward.nominal='two_link_arm'`, "
-        "`forward.nominal_mass_scale=0.8`)"
+        "; `forward.kind='rigid_body'` (`forward.options.nominal='two_link_arm'`, "
+        "`forward.options.mass_scale=0.8`)"
     )
 
 
 def test_forward_config_fields_validated_and_round_trip():
     with pytest.raises(config_lib.ConfigError, match=r"forward\.kind='gru'"):
         config_lib.ForwardModelConfig(kind="gru")
-    with pytest.raises(config_lib.ConfigError, match=r"forward\.nominal_mass_scale=0"):
-        config_lib.ForwardModelConfig(kind="rigid_body", nominal_mass_scale=0)
-    with pytest.raises(config_lib.ConfigError, match=r"forward\.nominal_mass_scale=2\.0"):
-        config_lib.ForwardModelConfig(nominal_mass_scale=2.0)  # the mlp has no nominal model
+    # The kind checks its own options, named as the user wrote them.
+    with pytest.raises(config_lib.ConfigError, match=r"forward\.options\.mass_scale=0 "):
+        config_lib.ForwardModelConfig(kind="rigid_body", options={"mass_scale": 0})
+    with pytest.raises(config_lib.ConfigError, match=r"forward\.options\.nominal=''"):
+        config_lib.ForwardModelConfig(kind="rigid_body", options={"nominal": ""})
+    with pytest.raises(
+        config_lib.ConfigError,
+        match=r"forward\.options\.depth=3 .*'rigid_body', one of \['nominal', 'mass_scale'\]",
+    ):
+        config_lib.ForwardModelConfig(kind="rigid_body", options={"depth": 3})
+    # The mlp takes no options: another kind's option is refused unless it is that kind's
+    # default (a sweep over forward.kind carries the base kind's options; they say nothing).
+    with pytest.raises(
+        config_lib.ConfigError, match=r"forward\.options\.mass_scale=2\.0 .*'mlp' takes none"
+    ):
+        config_lib.ForwardModelConfig(options={"mass_scale": 2.0})
+    plain = config_lib.ForwardModelConfig(options={"nominal": None, "mass_scale": 1.0})
+    assert plain.options is None and plain == config_lib.ForwardModelConfig()
+    with pytest.raises(config_lib.ConfigError, match=r"forward\.options=3 "):
+        config_lib.ForwardModelConfig(kind="rigid_body", options=3)
+    # A dict, the options object and None (the kind's defaults) give the same config.
+    as_dict = config_lib.ForwardModelConfig(kind="rigid_body", options={"mass_scale": 0.8})
+    as_object = config_lib.ForwardModelConfig(
+        kind="rigid_body", options=rigid_body.RigidBodyOptions(mass_scale=0.8)
+    )
+    assert as_dict == as_object and as_dict.options.nominal is None
+    assert config_lib.ForwardModelConfig(kind="rigid_body").options == rigid_body.RigidBodyOptions()
     cfg = config_lib.Config(
         forward=config_lib.ForwardModelConfig(
-            kind="rigid_body", nominal="two_link_arm", nominal_mass_scale=0.8
+            kind="rigid_body", options={"nominal": "two_link_arm", "mass_scale": 0.8}
         )
     )
     assert config_lib.from_dict(config_lib.to_dict(cfg)) == cfg
+    assert config_lib.to_dict(cfg)["forward"]["options"] == {
+        "nominal": "two_link_arm",
+        "mass_scale": 0.8,
+    }
     assert config_lib.structure(cfg) != config_lib.structure(config_lib.Config())
     assert sorted(forward_models.REGISTRY) == sorted(config_lib.FORWARD_KINDS)
+
+
+def test_config_json_written_before_options_reads_as_today():
+    # config.json of runs before forward.options had the rigid_body kind's fields beside the
+    # shared ones (the committed robustness records); they read as the same experiment.
+    old = config_lib.to_dict(config_lib.Config())
+    old["forward"].pop("options")
+    mlp = {**old, "forward": {**old["forward"], "nominal": None, "nominal_mass_scale": 1.0}}
+    assert config_lib.from_dict(mlp) == config_lib.Config()
+    biased = {
+        **old,
+        "forward": {**old["forward"], "kind": "rigid_body", "nominal": "two_link_arm",
+                    "nominal_mass_scale": 0.8},
+    }  # fmt: skip
+    assert config_lib.from_dict(biased).forward.options == rigid_body.RigidBodyOptions(
+        "two_link_arm", 0.8
+    )
+    wrong = {**old, "forward": {**old["forward"], "nominal_mass_scale": 0.8}}  # mlp: refused
+    with pytest.raises(config_lib.ConfigError, match=r"forward\.options\.mass_scale=0\.8"):
+        config_lib.from_dict(wrong)
 
 
 @pytest.mark.slow  # ~20 s (native), longer on mjx: compiles a whole iteration

@@ -27,11 +27,13 @@ import robustness_study as study  # noqa: E402
 
 def _as_run_today(recorded: dict) -> dict:
     """A record's config.json with the loop fields added since it was written
-    (``_study.BEFORE_TORQUE_SCALING``: a record that predates them ran on those values)."""
+    (``_study.BEFORE_TORQUE_SCALING``: a record that predates them ran on those values) and
+    its forward section upgraded (:func:`cfm_jax.config.upgrade_forward`)."""
     loop = dict(recorded["loop"])
     for path, value in _study.BEFORE_TORQUE_SCALING.items():
         loop.setdefault(path.split(".")[1], value)
-    return {**recorded, "loop": loop}
+    # and the forward section's rigid_body fields as they are read today (forward.options)
+    return {**recorded, "loop": loop, "forward": config_lib.upgrade_forward(recorded["forward"])}
 
 
 LOSSES = ("joint", "task", "distal", "supervised")

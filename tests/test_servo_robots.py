@@ -259,8 +259,11 @@ def test_robot_check_on_a_servo_arm(tmp_path, monkeypatch, capsys):
     status, text = robot_check([path], monkeypatch, capsys)
     assert status == 1
     assert "a1: position servo on shoulder; as a torque motor: torque limit 40 (forcerange)" in text
-    # The joint's actuatorfrcrange comes after the actuator's forcerange (2 x 10 = 20 N m).
-    assert "a2: position servo on elbow; as a torque motor: torque limit 20 (forcerange)" in text
+    # The joint's actuatorfrcrange (8 N m) binds before the actuator's forcerange (2 x 10 =
+    # 20 N m): MuJoCo clamps both (test_robots.test_servo_torque_limit_is_what_mujoco_applies).
+    assert (
+        "a2: position servo on elbow; as a torque motor: torque limit 8 (actuatorfrcrange)" in text
+    )
     assert "loads with robot_actuators='strict': no" in text
     assert "with robot_actuators='torque' it loads" in text
     status, text = robot_check([path, "--robot-actuators", "torque"], monkeypatch, capsys)
