@@ -335,6 +335,8 @@ def _get_path(tree: dict, path: str):
         here = ".".join(parts[:depth]) or "the config"
         if not isinstance(node, dict) or part not in node:
             known = sorted(node) if isinstance(node, dict) else []
+            if node is None and here == "forward.options":  # a kind without options
+                known = f"none: the base's forward.kind={tree['forward']['kind']!r} takes none"
             config_lib.fail(
                 f"overrides[{path!r}]",
                 path,

@@ -93,6 +93,13 @@ def test_grid_is_the_product_of_overrides_and_losses():
         TINY, overrides={"task.targets": [[[0.1, 0.2]], [[0.3, 0.4], [0.5, 0.6]]]}
     )
     assert [c.config.task.targets for c in targets] == [((0.1, 0.2),), ((0.3, 0.4), (0.5, 0.6))]
+    # a kind's options are fields like the others; a sweep over the kind drops the base
+    # kind's options where they are its defaults (the mlp takes none)
+    rigid = TINY.replace(forward=dataclasses.replace(TINY.forward, kind="rigid_body"))
+    scaled = sweeps.grid(rigid, overrides={"forward.options.mass_scale": [0.8, 1.2]})
+    assert [c.config.forward.options.mass_scale for c in scaled] == [0.8, 1.2]
+    kinds = sweeps.grid(rigid, overrides={"forward.kind": ["mlp", "rigid_body"]})
+    assert [c.config.forward.options for c in kinds] == [None, rigid.forward.options]
 
 
 @pytest.mark.parametrize(
@@ -104,6 +111,14 @@ def test_grid_is_the_product_of_overrides_and_losses():
         ),
         (dict(overrides={"robots": ["iiwa14"]}), r"overrides\['robots'\].*'robot'"),
         (dict(overrides={"task": [1]}), r"not a section"),
+        (  # the tiny config's mlp has no options: said so, with the kind
+            dict(overrides={"forward.options.mass_scale": [0.8]}),
+            r"fields of forward.options are none: the base's forward.kind='mlp' takes none",
+        ),
+        (
+            dict(overrides={"forward.options.mass_scale": [0.0]}, base="rigid_body"),
+            r"forward.options.mass_scale=0.0 is not allowed",
+        ),
         (dict(overrides={"loss": ["task"]}), r"axis of the sweep: use sweep's losses="),
         (dict(overrides={"loop.seeds": [2]}), r"use sweep's seeds="),
         # An override keeps the base's sections: opspace would run the arm's torque scale.
@@ -121,8 +136,11 @@ def test_grid_is_the_product_of_overrides_and_losses():
     ],
 )
 def test_bad_arguments_are_named(kwargs, match):
+    base = TINY
+    if kwargs.pop("base", None) == "rigid_body":
+        base = TINY.replace(forward=dataclasses.replace(TINY.forward, kind="rigid_body"))
     with pytest.raises(config_lib.ConfigError, match=match):
-        cfm_jax.sweep(TINY, progress=False, **kwargs)
+        cfm_jax.sweep(base, progress=False, **kwargs)
 
 
 # ----- local backend ------------------------------------------------------------------
