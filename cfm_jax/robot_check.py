@@ -9,8 +9,8 @@ import mujoco
 import numpy as np
 
 from cfm_jax import robots
+from cfm_jax import tasks as tasks_lib
 from cfm_jax.robots import Robot
-from cfm_jax.tasks import legged as legged_task
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,9 +109,7 @@ def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Ch
       >>> found.ok, found.tasks["opspace"] is None
       (True, False)
     """
-    from cfm_jax import opspace, solo12
     from cfm_jax.config import ConfigError
-    from cfm_jax.tasks import inverse_dynamics
 
     path = robots.resolve(name_or_path)
     try:
@@ -191,46 +189,17 @@ def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Ch
         if actuators == "strict" and servos and servo_error is None:
             reason += " -- with robot_actuators='torque' it loads"
         lines.append(f"loads with robot_actuators={actuators!r}: no: {reason}")
-        tasks = dict.fromkeys(("inverse_dynamics", "opspace", "walk", "jump"), reason)
+        tasks = dict.fromkeys(tasks_lib.REGISTRY, reason)
         lines.append("tasks: none (the file does not load, see above)")
         return Check("\n".join(lines), tasks, None)
+    notes = {}
     if robot is not None:
-
-        def attempt(name, test):
+        for name, spec in tasks_lib.REGISTRY.items():
             try:
-                test()
+                notes[name] = spec.fits(robot) if spec.fits is not None else "not checked"
                 tasks[name] = None
             except ConfigError as error:
                 tasks[name] = str(error)
-
-        attempt(
-            "inverse_dynamics",
-            lambda: inverse_dynamics.require_fixed_base(robot, "inverse_dynamics"),
-        )
-        attempt(
-            "opspace",
-            lambda: (
-                inverse_dynamics.require_fixed_base(robot, "opspace", every_joint=True),
-                opspace.ee_site(robot),
-            ),
-        )
-
-        def legged():
-            if not robot.floating_base:
-                raise ConfigError(
-                    "the legged tasks need a floating base (a free joint at the root)"
-                )
-            solo12.check_model(robot.mj_model, robot.name)
-            if robot.converted:
-                raise ConfigError(legged_task.CONVERTED_REFUSED)
-
-        attempt("walk", legged)
-        tasks["jump"] = tasks["walk"]
-        if tasks["opspace"] is None:
-            site = opspace.site_names(robot)[opspace.ee_site(robot)]
-            tasks_site = f" (site {site!r})"
-        else:
-            tasks_site = ""
     if robot is not None:
         mjx_error = robot.mjx_error
         lines.append(
@@ -243,6 +212,6 @@ def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Ch
             lines += _dynamics_lines(robot)
     lines.append("tasks:")
     for name, reason in tasks.items():
-        extra = tasks_site if name == "opspace" and robot is not None else ""
+        extra = f" ({notes[name]})" if notes.get(name) else ""
         lines.append(f"  {name}: " + ("yes" + extra if reason is None else f"no: {reason}"))
     return Check("\n".join(lines), tasks, robot)

@@ -37,6 +37,9 @@ class TaskSpec:
       name: the name ``Config.task.name`` takes.
       make: ``make(robot, task_config, control_dt, simulator) -> task``.
       default_config: ``default_config() -> Config``, the task's defaults.
+      fits: ``fits(robot) -> note``, whether the task can run on a robot (``cfm-jax robot
+        check``): raises :class:`cfm_jax.config.ConfigError` saying why not, else returns a
+        note for the report ("" or, for example, the site it takes); None: not checked.
 
     Examples:
       >>> load("walk").default_config().robot
@@ -46,6 +49,7 @@ class TaskSpec:
     name: str
     make: Callable[[Any, TaskConfig, float], Any]
     default_config: Callable[[], config_lib.Config]
+    fits: Callable[[Any], str] | None = None
 
 
 REGISTRY: dict[str, TaskSpec] = {}
@@ -58,6 +62,7 @@ def register(
     default_config: Callable | None = None,
     check: Callable | None = None,
     structural: tuple[str, ...] = (),
+    fits: Callable | None = None,
 ) -> TaskSpec:
     """Register a task under ``name``, so that configs may name it.
 
@@ -70,6 +75,8 @@ def register(
         the task refuses; None: nothing more than the fields' own checks.
       structural: the runtime ``task.*`` fields the task builds into its compiled program
         (:func:`cfm_jax.config.structure`).
+      fits: ``fits(robot) -> note`` (:class:`TaskSpec`), for ``cfm-jax robot check``; None:
+        the check reports the task as not checked.
 
     Raises:
       ValueError: ``name`` is not a non-empty string, or is registered already.
@@ -89,7 +96,7 @@ def register(
         def default_config():
             return config_lib.Config(task=TaskConfig(name=name))
 
-    REGISTRY[name] = TaskSpec(name, make, default_config)
+    REGISTRY[name] = TaskSpec(name, make, default_config, fits)
     return REGISTRY[name]
 
 
@@ -137,6 +144,7 @@ register(
     inverse_dynamics.make,
     inverse_dynamics.default_config,
     inverse_dynamics.check_config,
+    fits=inverse_dynamics.fits,
 )
 register(
     "opspace",
@@ -144,6 +152,7 @@ register(
     operational_space.default_config,
     inverse_dynamics.check_config,
     structural=("home",),  # the Khatib oracle's null-space posture, in its host callback
+    fits=operational_space.fits,
 )
-register("walk", legged.make, functools.partial(legged.default_config, "walk"))
-register("jump", legged.make, functools.partial(legged.default_config, "jump"))
+register("walk", legged.make, functools.partial(legged.default_config, "walk"), fits=legged.fits)
+register("jump", legged.make, functools.partial(legged.default_config, "jump"), fits=legged.fits)

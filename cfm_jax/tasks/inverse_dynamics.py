@@ -349,6 +349,23 @@ def require_fixed_base(robot, name: str, every_joint: bool = False) -> None:
         )
 
 
+def fits(robot) -> str:
+    """Whether ``inverse_dynamics`` can run on ``robot`` (``cfm-jax robot check``).
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+
+    Raises:
+      ConfigError: it has a floating base.
+
+    Examples:
+      >>> fits(cfm_jax.robots.load("two_link_arm"))
+      ''
+    """
+    require_fixed_base(robot, "inverse_dynamics")
+    return ""
+
+
 def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") -> JointSpaceTask:
     """The ``inverse_dynamics`` task of a config (:func:`cfm_jax.references.reaching`).
 

@@ -303,6 +303,28 @@ class LeggedTask(JointSpaceTask):
         return policy
 
 
+def fits(robot) -> str:
+    """Whether the legged tasks can run on ``robot`` (``cfm-jax robot check``).
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+
+    Raises:
+      ConfigError: no floating base, not the Solo12's joints and feet, or servos converted
+        at load time.
+
+    Examples:
+      >>> fits(cfm_jax.robots.load("solo12"))
+      ''
+    """
+    if not robot.floating_base:
+        raise ConfigError("the legged tasks need a floating base (a free joint at the root)")
+    solo12.check_model(robot.mj_model, robot.name)
+    if robot.converted:
+        raise ConfigError(CONVERTED_REFUSED)
+    return ""
+
+
 def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") -> LeggedTask:
     """The ``walk`` or ``jump`` task of a config.
 

@@ -169,6 +169,23 @@ class OperationalSpaceTask(JointSpaceTask):
         return policy
 
 
+def fits(robot) -> str:
+    """Whether ``opspace`` can run on ``robot`` (``cfm-jax robot check``), and its site.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+
+    Raises:
+      ConfigError: a floating base, held or passive joints, or no end-effector site.
+
+    Examples:
+      >>> fits(cfm_jax.robots.load("iiwa14"))
+      "site 'flange'"
+    """
+    require_fixed_base(robot, "opspace", every_joint=True)
+    return f"site {opspace.site_names(robot)[opspace.ee_site(robot)]!r}"
+
+
 def make(
     robot, task: TaskConfig, control_dt: float, simulator: str = "native"
 ) -> OperationalSpaceTask:
