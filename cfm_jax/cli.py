@@ -696,16 +696,19 @@ def _flags_class(command: str, base: config_lib.Config, extra: list):
 
 
 def _option_fields():
-    """``{name: (type, help)}`` of every registered kind's options (the ``forward.options``
-    flags: one flag per name, checked by the kind in use)."""
-    found: dict[str, tuple[str, str]] = {}
+    """``{name: (type, help, default)}`` of every registered kind's options (the
+    ``forward.options`` flags: one flag per name, checked by the kind in use; the default
+    is the first kind's that has the field)."""
+    found: dict[str, tuple[str, str, object]] = {}
     for kind, cls in config_lib.FORWARD_OPTIONS.items():
         helps = _attribute_help(cls)
         for field in dataclasses.fields(cls):
             text = f"forward.kind={kind}: {helps[field.name]}"
+            default = field.default
             if field.name in found:
-                text = found[field.name][1] + "; " + text
-            found[field.name] = (field.type, text)
+                _, earlier, default = found[field.name]
+                text = earlier + "; " + text
+            found[field.name] = (field.type, text, default)
     return found
 
 
@@ -713,12 +716,8 @@ def _options_class(forward: config_lib.ForwardModelConfig):
     """The tyro group of the ``forward.options`` flags, defaults from ``forward``'s options
     (another kind's fields: theirs)."""
     group = []
-    for name, (type_text, help_text) in _option_fields().items():
-        if forward.options is not None and hasattr(forward.options, name):
-            value = getattr(forward.options, name)
-        else:
-            cls = next(c for c in config_lib.FORWARD_OPTIONS.values() if hasattr(c, name))
-            value = next(f.default for f in dataclasses.fields(cls) if f.name == name)
+    for name, (type_text, help_text, default) in _option_fields().items():
+        value = getattr(forward.options, name, default)  # None has no such attribute
         group.append((name, *_flag(f"forward.options.{name}", type_text, value, help_text)))
     options = dataclasses.make_dataclass(
         "options", [(n, t, dataclasses.field(default=d)) for n, t, d in group]
@@ -770,7 +769,7 @@ def _config_of(flags, base: config_lib.Config, loss: str) -> config_lib.Config:
             if value not in (_UNSET, (_UNSET,)):
                 data[section][field.name] = value
     given = {}
-    for name, (type_text, _) in _option_fields().items():
+    for name, (type_text, _, _) in _option_fields().items():
         value = _value(f"forward.options.{name}", type_text, getattr(flags.forward.options, name))
         if value not in (_UNSET, (_UNSET,)):
             given[name] = value
