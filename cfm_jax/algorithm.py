@@ -299,7 +299,8 @@ def iteration(
     setup: Setup, loss: str, state: TrainState, knobs: Knobs, data=None
 ) -> tuple[TrainState, dict]:
     """One iteration of Algorithm 1 for one seed: roll g out, measure, add the data, refit f and g.
-    Returns the next state and the :func:`metrics`, with the refits' losses.
+    Returns the next state and the :func:`metrics`, with the refits' losses: the loss-independent
+    :func:`collect_and_refit_forward`, then :func:`refit_controller` with ``loss``.
 
     Args:
       setup: the run's :class:`Setup`.
@@ -310,6 +311,27 @@ def iteration(
 
     Examples:
       >>> state, measured = iteration(setup, "joint", state, knobs)  # doctest: +SKIP
+    """
+    state, out, key_controller = collect_and_refit_forward(setup, state, knobs, data)
+    state, out["controller_loss"] = refit_controller(setup, loss, state, key_controller, knobs)
+    return state, out
+
+
+def collect_and_refit_forward(
+    setup: Setup, state: TrainState, knobs: Knobs, data=None
+) -> tuple[TrainState, dict, jax.Array]:
+    """The part of :func:`iteration` that does not depend on the controller's loss: roll g out,
+    measure, add the data, refit f; the state has the next key and iteration count. Returns
+    ``(state, metrics, key of the controller's refit)``.
+
+    Args:
+      setup: the run's :class:`Setup`.
+      state: the seed's :class:`TrainState`.
+      knobs: the runtime values.
+      data: ``(transitions, valid)`` to add instead of the rollout's (a replay), or None.
+
+    Examples:
+      >>> state, measured, key = collect_and_refit_forward(setup, state, knobs)  # doctest: +SKIP
     """
     cfg = setup.config
     key, key_rollout, key_fit_fm, key_fit_ctrl = jax.random.split(state.key, 4)
@@ -323,15 +345,30 @@ def iteration(
         norm = data_normaliser(setup, state.data, state.normaliser.torque_scale)
         state = state.replace(normaliser=norm)
     state = restart_fits(setup, state, key_fit_fm, key_fit_ctrl, knobs)
-    state, forward_loss = _fit_forward(
+    state, out["forward_loss"] = _fit_forward(
         setup, state, key_fit_fm, cfg.forward.steps_per_iteration, knobs
     )
-    state, controller_loss = _fit_controller(
-        setup, loss, state, key_fit_ctrl, cfg.controller.steps_per_iteration, knobs
-    )
-    out["forward_loss"] = forward_loss
-    out["controller_loss"] = controller_loss
-    return state.replace(key=key, iteration=state.iteration + 1), out
+    return state.replace(key=key, iteration=state.iteration + 1), out, key_fit_ctrl
+
+
+def refit_controller(
+    setup: Setup, loss: str, state: TrainState, key, knobs: Knobs
+) -> tuple[TrainState, jax.Array]:
+    """The controller's refit of an iteration with ``loss`` (``controller.steps_per_iteration``
+    updates through the refitted f); returns the state and the mean training loss.
+
+    Args:
+      setup: the run's :class:`Setup`.
+      loss: the controller's loss.
+      state: the state of :func:`collect_and_refit_forward`.
+      key: the key it returned.
+      knobs: the runtime values.
+
+    Examples:
+      >>> state, value = refit_controller(setup, "task", state, key, knobs)  # doctest: +SKIP
+    """
+    steps = setup.config.controller.steps_per_iteration
+    return _fit_controller(setup, loss, state, key, steps, knobs)
 
 
 def evaluate(setup: Setup, state: TrainState, result: rollout_lib.Rollout) -> dict:

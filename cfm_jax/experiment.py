@@ -9,6 +9,7 @@ import hashlib
 import json
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
@@ -206,6 +207,100 @@ class Experiment:
         fn = jax.vmap(replay, in_axes=(0, None, 0, 0))
         return self._jit(f"replay/{loss}", fn)(state, self._knobs(knobs), chunk, valid)
 
+    # ----- compiled, over losses and seeds -------------------------------------------------
+    #
+    # The loss is a loop axis of one program, not a vmap axis: vmapping the networks over
+    # losses x seeds changes the batch size XLA:CPU compiles each matrix product for, and
+    # with it the rounding of the last bits (seen on the tiny test networks), so a loss's
+    # numbers would depend on which other losses ran beside it. In a loop (lax.map) every
+    # loss runs the single-loss program's computation, bit for bit; the loss-specific part,
+    # the controller's refit, is picked by lax.switch on the loss's index (one branch runs).
+
+    def init_losses(self, losses, keys, knobs: Knobs | None = None, data=None) -> TrainState:
+        """:meth:`init` for every loss of ``losses`` and every seed of ``keys``: :meth:`prepare`
+        once per seed (every loss starts from it, with the same key), then each loss's initial
+        controller fit, all losses in one program. Leaves have leading ``(loss, seed)`` axes.
+
+        Args:
+          losses: distinct controller-loss names.
+          keys: one PRNG key per seed.
+          knobs: the runtime values (None: this experiment's).
+          data: babbling data ``(chunk, valid)`` with a seed axis instead of babbling, or None.
+
+        Examples:
+          >>> state = exp.init_losses(("joint", "task"), keys)  # doctest: +SKIP
+          >>> state.iteration.shape  # (losses, seeds)
+          (2, 3)
+        """
+        losses, knobs = _loss_names(losses), self._knobs(knobs)
+        if data is None:
+            prepared, key_fit = self.prepare(keys, knobs)
+        else:
+
+            def prepare(key, knobs, chunk, valid):
+                return algorithm.prepare(self.setup, key, knobs, (chunk, valid))
+
+            fn = jax.vmap(prepare, in_axes=(0, None, 0, 0))
+            prepared, key_fit = self._jit("prepare_from_data", fn)(keys, knobs, *data)
+
+        def fits(prepared, key_fit, knobs):
+            def fit(loss, _):
+                fn = functools.partial(algorithm.fit_initial_controller, self.setup, loss)
+                return jax.vmap(fn, in_axes=(0, 0, None))(prepared, key_fit, knobs)
+
+            return _loop_losses(losses, fit, None)
+
+        return self._jit(f"init[{','.join(losses)}]", fits)(prepared, key_fit, knobs)
+
+    def iteration_losses(self, losses, state: TrainState, knobs: Knobs | None = None, data=None):
+        """:func:`cfm_jax.algorithm.iteration` for every loss and seed of ``state`` (leading
+        ``(loss, seed)`` axes) in one program: a loop over the losses runs, vmapped over seeds,
+        the loss-independent :func:`cfm_jax.algorithm.collect_and_refit_forward` (rollout,
+        metrics, data, refit of f) and the loss's :func:`cfm_jax.algorithm.refit_controller`.
+        Each loss's slice is bit for bit that loss's :meth:`iteration`. Returns ``(state,
+        metrics)``, metrics with leading ``(loss, seed)`` axes.
+
+        Args:
+          losses: the losses of ``state``'s first axis, in order.
+          state: the :class:`TrainState` of :meth:`init_losses` or of the last call.
+          knobs: the runtime values (None: this experiment's).
+          data: ``(chunk, valid)`` with a seed axis to add instead of the rollouts' (a replay:
+            every loss adds the same data), or None.
+
+        Examples:
+          >>> state, metrics = exp.iteration_losses(("joint", "task"), state)  # doctest: +SKIP
+          >>> metrics["tracking_mse"].shape  # (losses, seeds, targets)
+          (2, 3, 5)
+        """
+        losses = _loss_names(losses)
+
+        def step(state, knobs, data):
+            def one(loss, state):
+                shared = functools.partial(algorithm.collect_and_refit_forward, self.setup)
+                in_axes = (0, None, None if data is None else 0)
+                state, out, key = jax.vmap(shared, in_axes=in_axes)(state, knobs, data)
+                refit = functools.partial(algorithm.refit_controller, self.setup, loss)
+                state, out["controller_loss"] = jax.vmap(refit, in_axes=(0, 0, None))(
+                    state, key, knobs
+                )
+                return state, out
+
+            return _loop_losses(losses, one, state)
+
+        name = f"{'replay' if data is not None else 'iteration'}[{','.join(losses)}]"
+        return self._jit(name, step)(state, self._knobs(knobs), data)
+
+    def evaluate_losses(self, state: TrainState, knobs: Knobs | None = None) -> dict:
+        """:meth:`evaluate` of each loss of a state with leading ``(loss, seed)`` axes, with the
+        programs of :meth:`evaluate` (metrics with the same leading axes).
+
+        Examples:
+          >>> exp.evaluate_losses(state)["tracking_mse"].shape  # doctest: +SKIP
+          (2, 3, 5)
+        """
+        count = state.iteration.shape[0]
+        return _stack([self.evaluate(_index(state, i), knobs) for i in range(count)])
+
     def rollout(
         self, policy: rollout.MixedPolicy, keys, knobs: Knobs | None = None
     ) -> rollout.Rollout:
@@ -254,6 +349,43 @@ class Experiment:
                 rows.append(row)
         cache[cache_key] = pd.DataFrame(rows)
         return cache[cache_key].copy()
+
+
+def _loss_names(losses) -> tuple[str, ...]:
+    """``losses`` as a tuple of distinct controller-loss names, or a named ValueError."""
+    names = (losses,) if isinstance(losses, str) else tuple(losses)
+    bad = [n for n in names if n not in config_lib.CONTROLLER_LOSSES]
+    if not names or bad or len(set(names)) != len(names):
+        raise ValueError(
+            f"losses={losses!r} is not allowed: distinct names from "
+            f"{config_lib.CONTROLLER_LOSSES}, at least one"
+        )
+    return names
+
+
+def _loop_losses(losses: tuple[str, ...], body, xs):
+    """``body(loss, x)`` for each loss and its entry ``x`` of ``xs``'s leading axis (``xs``
+    None: ``x`` None), stacked: a ``lax.map`` whose ``lax.switch`` on the loss's index runs
+    that loss's branch only. One loss: ``body`` itself, the single-loss program."""
+    if len(losses) == 1:
+        return _stack([body(losses[0], None if xs is None else _index(xs, 0))])
+    branches = [functools.partial(body, loss) for loss in losses]
+
+    def one(entry):
+        index, x = entry
+        return jax.lax.switch(index, branches, x)
+
+    return jax.lax.map(one, (jnp.arange(len(losses)), xs))
+
+
+def _stack(trees):
+    """The pytrees ``trees`` stacked along a new leading axis."""
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)
+
+
+def _index(tree, i: int):
+    """Entry ``i`` of a pytree's leading axis."""
+    return jax.tree.map(lambda x: x[i], tree)
 
 
 def _fingerprint(tree) -> bytes:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -16,9 +16,10 @@ import numpy as np
 import pandas as pd
 
 from cfm_jax import algorithm, dataset
+from cfm_jax import checkpoint as ckpt_lib
 from cfm_jax import config as config_lib
 from cfm_jax.algorithm import METRIC_COLUMNS, Knobs, TrainState  # noqa: F401 (Knobs: re-export)
-from cfm_jax.experiment import Experiment
+from cfm_jax.experiment import Experiment, _index, _stack
 from cfm_jax.recorder import Recorder, progress_bar
 
 # Experiment, TrainState, Knobs and METRIC_COLUMNS are imported here for the shell's use
@@ -35,7 +36,8 @@ class TrainResult:
       metrics: one row per (seed, iteration, target); iteration ``i`` is measured on the
         rollout of the controller after ``i`` refits.
       baselines: oracle and PD-only tracking MSE per target.
-      state: the final :class:`TrainState`, leaves with a leading seed axis.
+      state: the final :class:`TrainState`, leaves with a leading seed axis (a run of several
+        losses: ``(loss, seed)`` axes).
       rms_reach: RMS reaching distance of the targets (rad), the scale for tracking errors.
       seconds: wall time of the run (s).
       compile_seconds: wall time of the first iteration run, its compilation included (s;
@@ -44,6 +46,7 @@ class TrainResult:
         "iteration", "quantity"}`` each; they keep their last good state and have no rows
         from then on.
       warnings: MuJoCo's warnings, captured instead of printed (``{message: count}``).
+      losses: the losses of a run of several (``train(..., losses=...)``), else ``()``.
 
     Examples:
       >>> metrics = pd.DataFrame({"loss": ["joint"] * 2, "seed": [0, 1], "iteration": [0, 0],
@@ -66,6 +69,31 @@ class TrainResult:
     compile_seconds: float
     stopped: list = dataclasses.field(default_factory=list)
     warnings: dict = dataclasses.field(default_factory=dict)
+    losses: tuple[str, ...] = ()
+
+    def of(self, loss: str) -> TrainResult:
+        """The result of one loss of a run of several (``train(..., losses=...)``): its rows,
+        its state (seed axis only), its stopped seeds; the run's baselines and times.
+
+        Raises:
+          ValueError: ``loss`` was not one of the run's losses.
+        """
+        if loss not in self.losses:
+            raise ValueError(
+                f"loss={loss!r} is not allowed: this result holds the losses {self.losses}"
+                if self.losses
+                else f"loss={loss!r} is not allowed: this is a run of one loss, "
+                f"{self.config.loss!r}; use the result itself"
+            )
+        i = self.losses.index(loss)
+        return dataclasses.replace(
+            self,
+            config=self.config.replace(loss=loss),
+            metrics=self.metrics[self.metrics["loss"] == loss].reset_index(drop=True),
+            state=_index(self.state, i),
+            stopped=[entry for entry in self.stopped if entry["loss"] == loss],
+            losses=(),
+        )
 
     @property
     def params(self) -> dict:
@@ -92,86 +120,149 @@ def train(
     resume: str | None = None,
     data: str | dataset.Recorded | None = None,
     progress_fn: Callable[[int, pd.DataFrame], object] | None = None,
+    losses: str | Sequence[str] | None = None,
 ) -> TrainResult:
-    """Run Algorithm 1 for every seed of ``config`` (seeds as a vmap axis).
+    """Run Algorithm 1 for every seed of ``config`` (seeds as a vmap axis), and for several
+    controller losses at once (``losses``: the loss as a batch axis of the same programs).
 
     Writes the result files (``metrics.csv`` after every iteration) and checkpoints; stops a
     seed whose update went non-finite (:attr:`TrainResult.stopped`) while the others go on; a
-    diverged rollout is an outcome, recorded in the metrics (docs/how-to/resume.md).
+    diverged rollout is an outcome, recorded in the metrics (docs/how-to/resume.md). With
+    ``losses``, every loss starts from the same babbling data and initial fit of f, and each
+    loss's numbers are those of a run of that loss alone (docs/how-to/sweep.md).
 
     Args:
       config: a :class:`cfm_jax.config.Config`.
       progress: show a progress bar.
-      out_dir: directory for the result files (created), or None.
+      out_dir: directory for the result files (created), or None; with ``losses``, each loss's
+        files go to ``out_dir/<loss>``.
       experiment: an :class:`Experiment` to reuse, built for a config that differs from
         ``config`` at most in the loss and :data:`cfm_jax.config.RUNTIME_FIELDS`.
       resume: the ``out_dir`` of an interrupted run of ``config``: continue from its newest
-        valid checkpoint (results go there unless ``out_dir`` says otherwise), bit for bit.
+        valid checkpoint (results go there unless ``out_dir`` says otherwise), bit for bit;
+        with ``losses``, each loss with checkpoints resumes, the others start afresh.
       data: a recorded data set to replay instead of collecting data (:func:`recorded_for`):
         f and g trained from scratch with ``config.loss``, the controller still rolled out.
       progress_fn: called as ``progress_fn(iteration, rows)`` after each iteration and the
-        final evaluation with its rows of :attr:`TrainResult.metrics` (as in brax's ``train``).
+        final evaluation with its rows of :attr:`TrainResult.metrics` (as in brax's ``train``;
+        with ``losses``, once per loss).
+      losses: None (``config.loss`` alone), or distinct loss names (``"all"``: the paper's
+        four) trained together: the result's ``state`` then has a leading loss axis and
+        :meth:`TrainResult.of` gives each loss's result.
 
     Raises:
       ValueError: ``experiment`` was built for a config of another structure.
-      ConfigError: ``out_dir`` holds a run, ``resume`` one of another config, or ``data``
-        does not fit (the fields are named).
+      ConfigError: ``out_dir`` holds a run, ``resume`` one of another config, ``data``
+        does not fit, or ``losses`` names an unknown loss (the fields are named).
       CheckpointError: the newest checkpoint is corrupt (the previous valid one is offered).
 
     Examples:
       >>> config = cfm_jax.Config(robot="iiwa14", loss="joint")
       >>> result = cfm_jax.train(config, out_dir="results/run")  # doctest: +SKIP
       >>> result = cfm_jax.train(config, resume="results/run")  # doctest: +SKIP
+      >>> every = cfm_jax.train(config, losses="all", out_dir="results/all")  # doctest: +SKIP
+      >>> every.of("task").summary()  # doctest: +SKIP
     """
     start = time.perf_counter()
-    recorder = Recorder(config, out_dir, resume, progress_fn)  # checks out_dir and resume
+    names = _loss_names(config, losses)
+    several = losses is not None
+    recorders = {}  # each loss's record, made first: they check out_dir and resume
+    for name in names:
+        run_resume = _run_dir(resume, name, several)
+        if several and run_resume is not None and not ckpt_lib.has_steps(run_resume):
+            run_resume = None  # a loss that never reached its first checkpoint starts afresh
+        run_out = _run_dir(out_dir or resume, name, several)
+        recorders[name] = Recorder(config.replace(loss=name), run_out, run_resume, progress_fn)
     if experiment is None:
         exp = Experiment(config)
         knobs = exp.knobs
     else:
         exp, knobs = experiment, experiment.knobs_for(config)  # refuses another structure
     recorded = None if data is None else recorded_for(exp, config, data)
-    recorder.open(exp.metric_columns)
+    for recorder in recorders.values():
+        recorder.open(exp.metric_columns)
+    iterations = config.loop.iterations
     with progress_bar(progress) as bar:
-        label = f"{config.robot} {config.loss}"
-        task = bar.add_task(f"{label}: babbling + initial fit", total=config.loop.iterations + 2)
-        keys = jax.vmap(jax.random.key)(jnp.asarray(recorder.seeds, jnp.uint32))
-        if recorded is None:
-            state = exp.init(config.loss, keys, knobs)
-        else:
+        label = f"{config.robot} {','.join(names)}"
+        task = bar.add_task(f"{label}: babbling + initial fit", total=iterations + 2)
+        keys = jax.vmap(jax.random.key)(jnp.asarray(config_lib.seeds_of(config), jnp.uint32))
+        chunk = None
+        if recorded is not None:
             chunk = recorded.chunk(0, config.loop.babbling_rollouts * exp.transitions_per_rollout)
-            state = exp.init_from_data(config.loss, keys, *chunk, knobs=knobs)
-        state, first = recorder.start(jax.block_until_ready(state))
-        bar.advance(task, 1 + first)
+        state = jax.block_until_ready(exp.init_losses(names, keys, knobs, data=chunk))
+        states, firsts = {}, {}
+        for i, name in enumerate(names):
+            states[name], firsts[name] = recorders[name].start(_index(state, i))
+        bar.advance(task, 1 + min(firsts.values()))
         compile_seconds = float("nan")
-        for i in range(first, config.loop.iterations):
-            bar.update(task, description=f"{label}: iteration {i + 1}")
-            t0 = time.perf_counter()
-            if recorded is None:
-                new, metrics = exp.iteration(config.loss, state, knobs)
-            else:
-                chunk = recorded.chunk(i + 1, exp.transitions_per_rollout)
-                new, metrics = exp.replay_iteration(config.loss, state, *chunk, knobs=knobs)
-            metrics = jax.device_get(metrics)
-            compile_seconds = time.perf_counter() - t0 if i == first else compile_seconds
-            state = recorder.iteration(i, new, state, metrics)
-            bar.advance(task)
+        # Losses resumed from different iterations run in groups (usually one: all losses).
+        for first in sorted(set(firsts.values())):
+            group = tuple(name for name in names if firsts[name] == first)
+            state = _stack([states[name] for name in group])
+            for i in range(first, iterations):
+                bar.update(task, description=f"{label}: iteration {i + 1}")
+                t0 = time.perf_counter()
+                chunk = None
+                if recorded is not None:
+                    chunk = recorded.chunk(i + 1, exp.transitions_per_rollout)
+                new, metrics = exp.iteration_losses(group, state, knobs, data=chunk)
+                metrics = jax.device_get(metrics)
+                if np.isnan(compile_seconds):
+                    compile_seconds = time.perf_counter() - t0
+                slices = [_index(new, j) for j in range(len(group))]
+                kept = [
+                    recorders[name].iteration(i, slices[j], _index(state, j), _index(metrics, j))
+                    for j, name in enumerate(group)
+                ]
+                # A seed stopped by a non-finite update keeps its previous state.
+                same = all(k is n for k, n in zip(kept, slices, strict=True))
+                state = new if same else _stack(kept)
+                if first == min(firsts.values()):
+                    bar.advance(task)
+            for j, name in enumerate(group):
+                states[name] = _index(state, j)
         bar.update(task, description=f"{label}: final evaluation")
-        recorder.record(config.loop.iterations, jax.device_get(exp.evaluate(state, knobs)))
+        state = _stack([states[name] for name in names])
+        final = jax.device_get(exp.evaluate_losses(state, knobs))
+        for j, name in enumerate(names):
+            recorders[name].record(iterations, _index(final, j))
         baselines = exp.baselines(knobs)
         bar.advance(task)
-    recorder.finish(state, baselines, recorded)
+    for j, name in enumerate(names):
+        recorders[name].finish(_index(state, j), baselines, recorded)
     return TrainResult(
-        config=config,
-        metrics=recorder.metrics(),
+        config=config if several else config.replace(loss=names[0]),
+        metrics=pd.concat([r.metrics() for r in recorders.values()], ignore_index=True),
         baselines=baselines,
-        state=state,
+        state=state if several else _index(state, 0),
         rms_reach=exp.task_for(config).tracking_scale,
         seconds=time.perf_counter() - start,
         compile_seconds=compile_seconds,
-        stopped=list(recorder.stopped),
+        stopped=[entry for r in recorders.values() for entry in r.stopped],
         warnings=_take_warnings(),
+        losses=names if several else (),
     )
+
+
+def _loss_names(config: config_lib.Config, losses) -> tuple[str, ...]:
+    """The losses of a :func:`train` call, or a ConfigError naming ``losses``."""
+    if losses is None:
+        return (config.loss,)
+    if losses == "all":
+        return tuple(config_lib.PAPER_LOSSES)
+    names = (losses,) if isinstance(losses, str) else tuple(losses)
+    if not names or len(set(names)) != len(names) or any(
+        n not in config_lib.CONTROLLER_LOSSES for n in names
+    ):
+        config_lib.fail(
+            "losses", losses, f"'all' or distinct names from {config_lib.CONTROLLER_LOSSES}"
+        )
+    return names
+
+
+def _run_dir(folder: str | None, loss: str, several: bool) -> str | None:
+    """A loss's result folder: ``folder/<loss>`` in a run of several losses, else ``folder``."""
+    return None if folder is None else os.path.join(folder, loss) if several else folder
 
 
 def _take_warnings() -> dict:

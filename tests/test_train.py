@@ -155,13 +155,60 @@ def test_one_compiled_function_per_loss_iteration(experiment, two_seeds):
     # After the run (2 iterations) and the determinism run, the compiled iteration exists
     # once for the loss: every call re-used it. A second loss adds exactly one more.
     compiled = experiment._compiled
-    assert compiled["iteration/joint"]._cache_size() == 1
+    assert compiled["iteration[joint]"]._cache_size() == 1
     keys = jax.vmap(jax.random.key)(jnp.arange(2, dtype=jnp.uint32))
     state = experiment.init("task", keys)
     for _ in range(2):
         state, _ = experiment.iteration("task", state)
     assert compiled["iteration/task"]._cache_size() == 1
-    assert compiled["iteration/joint"]._cache_size() == 1
+    assert compiled["iteration[joint]"]._cache_size() == 1
+
+
+def test_losses_batched_equal_each_loss_alone(experiment, two_seeds):
+    # The loss as a batch axis (issue 46): the four paper losses trained in one program,
+    # from one babbling and one initial fit of f per seed. Oracle: each loss run alone
+    # (its own programs: init/<loss> and iteration/<loss> of the Experiment, the path of
+    # train before the batching, loop written out here). Every state (parameters, Adam,
+    # data set, keys) and every metric is bit-identical.
+    losses = ("joint", "task", "distal", "supervised")
+    result = cfm_jax.train(TINY, progress=False, experiment=experiment, losses=losses)
+    assert result.losses == losses
+    assert result.state.iteration.shape == (4, 2)
+    keys = jax.vmap(jax.random.key)(jnp.arange(2, dtype=jnp.uint32))
+    for i, loss in enumerate(losses):
+        state = experiment.init(loss, keys)
+        rows = []
+        for _ in range(TINY.loop.iterations):
+            state, metrics = experiment.iteration(loss, state)
+            rows.append(jax.device_get(metrics))
+        rows.append(jax.device_get(experiment.evaluate(state)))
+        leaves = zip(jax.tree.leaves(result.of(loss).state), jax.tree.leaves(state), strict=True)
+        for batched, alone in leaves:
+            if jnp.issubdtype(alone.dtype, jax.dtypes.prng_key):
+                batched, alone = jax.random.key_data(batched), jax.random.key_data(alone)
+            np.testing.assert_array_equal(np.asarray(batched), np.asarray(alone))
+        frame = result.of(loss).metrics
+        for iteration, metrics in enumerate(rows):
+            got = frame[frame.iteration == iteration]
+            for name in experiment.metric_columns[4:]:
+                want = np.asarray(metrics[name]).reshape(2, -1)
+                want = np.broadcast_to(want, (2, TARGETS)).ravel()
+                np.testing.assert_array_equal(got[name], want, err_msg=name)
+    # One program for the four losses' iterations; training them again compiles nothing.
+    before = experiment.compilations()
+    assert before["iteration[joint,task,distal,supervised]"] == 1
+    cfm_jax.train(TINY, progress=False, experiment=experiment, losses=losses)
+    assert experiment.compilations() == before
+    # A single loss of the batch is that loss's slice: the joint run of the fixture.
+    pd.testing.assert_frame_equal(
+        result.of("joint").metrics[["loss", "seed", "iteration", "target", "tracking_mse"]],
+        two_seeds.metrics[["loss", "seed", "iteration", "target", "tracking_mse"]],
+        check_exact=True,
+    )
+    with pytest.raises(ValueError, match=r"loss='walk' is not allowed: this result holds"):
+        result.of("walk")
+    with pytest.raises(config_lib.ConfigError, match=r"losses=\['joint', 'joint'\]"):
+        cfm_jax.train(TINY, progress=False, experiment=experiment, losses=["joint", "joint"])
 
 
 def test_experiment_reuse_is_refused_for_a_different_structure(experiment):
@@ -193,7 +240,7 @@ def test_runtime_fields_reuse_the_compilations_and_equal_a_fresh_experiment(expe
     assert experiment.compilations() == before
     # One program per compiled function (the rollout has one more for the baselines' seed
     # axis of 1).
-    for name in ("prepare", "init/joint", "iteration/joint", "evaluate"):
+    for name in ("prepare", "init[joint]", "iteration[joint]", "evaluate"):
         assert before[name] == 1, before
     fresh = cfm_jax.train(other, progress=False)
     pd.testing.assert_frame_equal(shared.metrics, fresh.metrics, check_exact=True)
