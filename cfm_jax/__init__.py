@@ -1,8 +1,10 @@
 """cfm_jax: coupled forward and inverse models for learning robot controllers.
 
 JAX + MuJoCo implementation of Bechtle et al., "Leveraging Forward Model Prediction Error
-for Learning Control" (ICRA 2021). Importing it sets the XLA flags (:mod:`cfm_jax._xla`)
-and registers the tasks' defaults; ``__all__``'s names are imported on first use.
+for Learning Control" (ICRA 2021). Importing it sets the XLA flags (:mod:`cfm_jax._xla`),
+turns on JAX's persistent compilation cache (``~/.cache/cfm_jax/jax``;
+``CFM_JAX_COMPILATION_CACHE=0`` turns it off) and registers the tasks' defaults;
+``__all__``'s names are imported on first use.
 
 Examples:
   >>> import cfm_jax
@@ -12,6 +14,9 @@ Examples:
 from cfm_jax import _xla
 
 FAST_XLA = _xla.configure()  # must run before any JAX computation; see cfm_jax/_xla.py
+# JAX's persistent compilation cache (CFM_JAX_COMPILATION_CACHE=0: off); JAX decides at its
+# first compilation whether a cache is used, so it is set here, before any.
+COMPILATION_CACHE = _xla.use_compilation_cache()
 
 # The tasks register their names and defaults (cfm_jax.config.TASK_DEFAULTS), which every
 # config of them takes, and the forward-model kinds their options (FORWARD_OPTIONS): done

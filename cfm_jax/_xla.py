@@ -121,3 +121,47 @@ def fast_path_active() -> bool:
     if not flag_known(jaxlib_version()):
         return True
     return _flag_present(os.environ.get("XLA_FLAGS", ""))
+
+
+CACHE_VARIABLE = "CFM_JAX_COMPILATION_CACHE"
+"""The environment variable that sets JAX's persistent compilation cache for cfm_jax: unset,
+the folder :func:`cache_folder` names; ``0``, ``off`` or empty: no cache; else a folder."""
+
+
+def cache_folder() -> str | None:
+    """Where :func:`use_compilation_cache` keeps compiled programs: :data:`CACHE_VARIABLE`'s
+    folder, else ``$XDG_CACHE_HOME/cfm_jax/jax`` (``~/.cache/cfm_jax/jax``); None when the
+    variable turns the cache off."""
+    value = os.environ.get(CACHE_VARIABLE)
+    if value is not None:
+        return None if value.strip().lower() in ("", "0", "off", "false", "no") else value
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "cfm_jax", "jax")
+
+
+def use_compilation_cache() -> str | None:
+    """Turn on JAX's persistent compilation cache in :func:`cache_folder` (a second run of the
+    same shapes loads its programs instead of compiling them), unless the user set one
+    (``jax_compilation_cache_dir``) or turned it off; returns the folder in use, or None.
+
+    Programs that call back into Python (the native simulator's rollouts) are compiled every
+    time: JAX does not cache them. Idempotent."""
+    import jax
+
+    current = jax.config.jax_compilation_cache_dir
+    if current:
+        return current
+    folder = cache_folder()
+    if folder is None:
+        return None
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as error:
+        warnings.warn(
+            f"the compilation cache folder {folder} cannot be made ({error.strerror}): "
+            f"compiling without it; set {CACHE_VARIABLE} to another folder or to 0",
+            stacklevel=3,
+        )
+        return None
+    jax.config.update("jax_compilation_cache_dir", folder)
+    return folder

@@ -120,14 +120,21 @@ class Checkpointer:
             self.directory,
             options=ocp.CheckpointManagerOptions(max_to_keep=keep, create=True),
         )
+        self._pending: int | None = None  # the step being written in the background
 
     def steps(self) -> list[int]:
         """Steps present on disk (complete or not), ascending."""
+        self.wait()
         self._manager.reload()
         return sorted(self._manager.all_steps())
 
     def save(self, step: int, state, meta: dict) -> None:
-        """Write ``state`` and JSON ``meta`` as ``step``; returns once it is on disk."""
+        """Write ``state`` and JSON ``meta`` as ``step``, in the background: it returns once the
+        state is copied, and the files are written while training goes on (Orbax's async
+        save). The step's manifest, which makes it complete, is written when the write has
+        finished, at the next :meth:`save`, :meth:`wait` or :meth:`close`; a step a kill
+        interrupts has none and is skipped on resume."""
+        self.wait()
         ocp = self._ocp
         self._manager.save(
             step,
@@ -137,6 +144,13 @@ class Checkpointer:
             ),
             force=True,
         )
+        self._pending = step
+
+    def wait(self) -> None:
+        """Wait for the step being written and write its manifest (nothing if none is)."""
+        if self._pending is None:
+            return
+        step, self._pending = self._pending, None
         self._manager.wait_until_finished()
         step_dir = os.path.join(self.directory, str(step))
         manifest = {
@@ -147,6 +161,7 @@ class Checkpointer:
     def problem(self, step: int) -> str | None:
         """Why ``step`` cannot be restored (no manifest, a missing, truncated or changed file), or
         None when it verifies."""
+        self.wait()
         step_dir = os.path.join(self.directory, str(step))
         try:
             with open(os.path.join(step_dir, MANIFEST)) as f:
@@ -172,6 +187,7 @@ class Checkpointer:
         Raises:
           CheckpointError: the step does not verify (the newest earlier one that does is offered).
         """
+        self.wait()
         problem = self.problem(step)
         if problem is not None:
             earlier = [s for s in self.steps() if s < step and self.problem(s) is None]
@@ -194,7 +210,10 @@ class Checkpointer:
 
     def delete(self, step: int) -> None:
         """Remove ``step`` from disk (for example one left incomplete by a kill)."""
+        self.wait()
         self._manager.delete(step)
 
     def close(self) -> None:
+        """Finish the step being written (:meth:`wait`) and close the manager."""
+        self.wait()
         self._manager.close()

@@ -141,43 +141,46 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
 
 
 def _train_losses(base, names, out, resume, data, quiet, experiment, progress_fn=None):
-    """Train each loss in turn: the top-level metrics.csv is rewritten after every iteration
-    (the finished losses' rows and this loss's rows so far), the other combined files after
-    each loss. ``progress_fn`` (e.g. the TensorBoard writer) is called as train calls it."""
-    from cfm_jax import checkpoint
+    """Train the losses together (:func:`cfm_jax.train` with ``losses``: one program, one
+    babbling and initial fit of f per seed), each into OUT/<loss>; the top-level metrics.csv
+    is rewritten after every iteration from the losses' own files, the other combined files
+    at the end. ``progress_fn`` (e.g. the TensorBoard writer) is called as train calls it."""
     from cfm_jax import training as train_lib
 
-    frames, result, notes = [], None, []
+    def iteration_done(iteration, rows):
+        # train wrote OUT/<loss>/metrics.csv (every row of that loss so far, restored ones
+        # included) just before calling this
+        paths = [os.path.join(out, name, "metrics.csv") for name in names]
+        _write_metrics(out, [_read_csv(path) for path in paths if os.path.isfile(path)])
+        if progress_fn is not None:
+            progress_fn(iteration, rows)
+
+    result = train_lib.train(
+        base,
+        progress=not quiet,
+        out_dir=out,
+        experiment=experiment,
+        resume=out if resume else None,
+        data=data,
+        progress_fn=iteration_done,
+        losses=names,
+    )
+    frames, notes = [], []
     for name in names:
-        run_dir = os.path.join(out, name)
-        can_resume = resume and checkpoint.has_steps(run_dir)
-
-        def iteration_done(iteration, rows, run_dir=run_dir):
-            # train wrote run_dir/metrics.csv (every row of this loss so far, restored ones
-            # included) just before calling this
-            _write_metrics(out, [*frames, _read_metrics(run_dir)])
-            if progress_fn is not None:
-                progress_fn(iteration, rows)
-
-        result = train_lib.train(
-            base.replace(loss=name),
-            progress=not quiet,
-            out_dir=run_dir,
-            experiment=experiment,
-            resume=run_dir if can_resume else None,
-            data=data,
-            progress_fn=iteration_done,
-        )
-        frames.append(result.metrics)
-        notes += _notes(name, result)
-        _write_outputs(out, frames, result, base, experiment.task, notes, names)
+        own = result.of(name)
+        frames.append(own.metrics)
+        notes += _notes(name, dataclasses.replace(own, warnings={}))
+    if result.warnings:
+        counts = ", ".join(f"{text} ({n}x)" for text, n in result.warnings.items())
+        notes.append(f"MuJoCo warnings (captured, not printed): {counts}")
+    _write_outputs(out, frames, result, base, experiment.task, notes, names)
     return frames, result, notes
 
 
-def _read_metrics(run_dir: str):
+def _read_csv(path: str):
     import pandas as pd
 
-    return pd.read_csv(os.path.join(run_dir, "metrics.csv"))
+    return pd.read_csv(path)
 
 
 def _write_metrics(out: str, frames) -> None:

@@ -52,6 +52,7 @@ class Experiment:
 
     def __init__(self, config: config_lib.Config):
         self.config = config
+        _xla.use_compilation_cache()  # CFM_JAX_COMPILATION_CACHE=0 turns it off
         if config.simulator == "mjx" and jax.default_backend() == "cpu":
             _xla.warn_if_slow_mjx()
         self.setup = algorithm.Setup.of(config)
@@ -228,8 +229,9 @@ class Experiment:
           data: babbling data ``(chunk, valid)`` with a seed axis instead of babbling, or None.
 
         Examples:
+          >>> # not run: the initial fits take seconds to minutes
           >>> state = exp.init_losses(("joint", "task"), keys)  # doctest: +SKIP
-          >>> state.iteration.shape  # (losses, seeds)
+          >>> state.iteration.shape  # (losses, seeds)  # doctest: +SKIP
           (2, 3)
         """
         losses, knobs = _loss_names(losses), self._knobs(knobs)
@@ -268,8 +270,9 @@ class Experiment:
             every loss adds the same data), or None.
 
         Examples:
+          >>> # not run: an iteration trains (seconds)
           >>> state, metrics = exp.iteration_losses(("joint", "task"), state)  # doctest: +SKIP
-          >>> metrics["tracking_mse"].shape  # (losses, seeds, targets)
+          >>> metrics["tracking_mse"].shape  # (losses, seeds, targets)  # doctest: +SKIP
           (2, 3, 5)
         """
         losses = _loss_names(losses)
@@ -293,6 +296,10 @@ class Experiment:
     def evaluate_losses(self, state: TrainState, knobs: Knobs | None = None) -> dict:
         """:meth:`evaluate` of each loss of a state with leading ``(loss, seed)`` axes, with the
         programs of :meth:`evaluate` (metrics with the same leading axes).
+
+        Args:
+          state: the :class:`TrainState` of :meth:`iteration_losses`.
+          knobs: the runtime values (None: this experiment's).
 
         Examples:
           >>> exp.evaluate_losses(state)["tracking_mse"].shape  # doctest: +SKIP

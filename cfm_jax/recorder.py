@@ -152,6 +152,12 @@ class Recorder:
         path = os.path.join(self.out_dir, "dataset.npz")
         dataset.save(path, state.data, segments, self.seeds, self.saved_config)
 
+    def flush(self) -> None:
+        """Finish writing the last checkpoint (saves run in the background), so a run stopped by
+        an exception leaves it complete."""
+        if self.checkpointer is not None:
+            self.checkpointer.wait()
+
     def metrics(self) -> pd.DataFrame:
         """The rows so far as a DataFrame."""
         return pd.DataFrame(self.rows, columns=self.columns)

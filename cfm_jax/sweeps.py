@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import functools
 import hashlib
 import itertools
 import json
@@ -421,7 +420,7 @@ def experiment_for(config: config_lib.Config):
 def run_cell(
     config: config_lib.Config, run_dir: str | None = None, progress: bool = False
 ) -> CellOutput:
-    """Run one cell: :func:`cfm_jax.train` on ``config``; the default ``runner`` of :func:`sweep`.
+    """Run one cell: :func:`cfm_jax.train` on ``config`` (what :func:`run_cells` does for one).
 
     A ``run_dir`` holding checkpoints of an interrupted attempt resumes from the newest valid
     one (bit for bit the uninterrupted run), else the cell starts afresh.
@@ -442,12 +441,7 @@ def run_cell(
 
     start = time.perf_counter()
     experiment = experiment_for(config)
-    resume = None
-    if run_dir is not None and config.loop.checkpoint_every > 0:
-        if os.path.isdir(os.path.join(run_dir, "checkpoints")) and os.path.isfile(
-            os.path.join(run_dir, "config.json")
-        ):
-            resume = run_dir
+    resume = run_dir if _resumable(run_dir, config) else None
     try:
         result = training.train(
             config, progress=progress, out_dir=run_dir, experiment=experiment, resume=resume
@@ -460,11 +454,87 @@ def run_cell(
 
         shutil.rmtree(run_dir)
         result = training.train(config, progress=progress, out_dir=run_dir, experiment=experiment)
+    return _cell_output(experiment, result, time.perf_counter() - start)
+
+
+def run_cells(
+    configs: Sequence[config_lib.Config],
+    run_dirs: Sequence[str | None],
+    progress: bool = False,
+) -> list[CellOutput]:
+    """Run cells that differ only in the loss together: :func:`cfm_jax.train` with ``losses``
+    (one program, one babbling and initial fit of f per seed; each loss's numbers are those of
+    its cell run alone). What :func:`sweep` runs when no ``runner`` is given.
+
+    Each cell's ``run_dir`` holding checkpoints of an interrupted attempt resumes from its
+    newest valid one; a corrupt checkpoint restarts the cells from the beginning (warned).
+    Each cell's ``seconds`` is its share of the cells' wall time.
+
+    Args:
+      configs: the cells' configs; they differ in ``loss`` only.
+      run_dirs: train's output folder of each cell, or None (nothing written).
+      progress: show train's progress bar.
+
+    Raises:
+      ValueError: the configs differ in more than the loss, or a loss repeats.
+
+    Examples:
+      >>> # not run: it trains two losses (minutes)
+      >>> base = config_lib.Config(robot="two_link_arm")
+      >>> joint, task = run_cells([base, base.replace(loss="task")], [None, None])  # doctest: +SKIP
+    """
+    import warnings
+
+    from cfm_jax import checkpoint as ckpt_lib
+    from cfm_jax import training
+
+    if len(configs) == 1:
+        return [run_cell(configs[0], run_dirs[0], progress)]
+    first = configs[0]
+    others = [c for c in configs if c.replace(loss=first.loss) != first]
+    if others:
+        raise ValueError(f"run_cells: the configs differ in more than the loss: {others[0]}")
+    start = time.perf_counter()
+    experiment = experiment_for(first)
+    names = [c.loss for c in configs]
+    out = dict(zip(names, run_dirs, strict=True))
+    resume = {name: folder for name, folder in out.items() if _resumable(folder, first)}
+    try:
+        result = training.train(first, progress=progress, out_dir=out, experiment=experiment,
+                                resume=resume or None, losses=names)  # fmt: skip
+    except ckpt_lib.CheckpointError as error:
+        if not resume:
+            raise
+        warnings.warn(f"{error}; running the cells {names} from the start", stacklevel=2)
+        import shutil
+
+        for folder in resume.values():
+            shutil.rmtree(folder)
+        result = training.train(first, progress=progress, out_dir=out, experiment=experiment,
+                                losses=names)  # fmt: skip
+    seconds = (time.perf_counter() - start) / len(configs)
+    outputs = []
+    for name in names:
+        own = result.of(name)
+        outputs.append(_cell_output(experiment, own, seconds))
+    return outputs
+
+
+def _resumable(run_dir: str | None, config: config_lib.Config) -> bool:
+    """Whether ``run_dir`` holds an interrupted attempt to resume (checkpoints and config)."""
+    if run_dir is None or config.loop.checkpoint_every <= 0:
+        return False
+    return os.path.isdir(os.path.join(run_dir, "checkpoints")) and os.path.isfile(
+        os.path.join(run_dir, "config.json")
+    )
+
+
+def _cell_output(experiment, result, seconds: float) -> CellOutput:
     task = experiment.task
     return CellOutput(
         metrics=result.metrics,
         baselines=result.baselines,
-        seconds=time.perf_counter() - start,
+        seconds=seconds,
         pid=os.getpid(),
         host=socket.gethostname(),
         labels={
@@ -475,9 +545,13 @@ def run_cell(
     )
 
 
-def _ray_task(runner, config: dict, run_dir: str | None) -> CellOutput:
-    """The body of a Ray task: one cell (the config travels as plain JSON data)."""
-    return runner(config_lib.from_dict(_tuples(config)), run_dir)
+def _ray_task(runner, configs: list[dict], run_dirs: list) -> list[CellOutput]:
+    """The body of a Ray task: cells that differ only in the loss (:func:`run_cells`), or one
+    cell of a custom ``runner`` (the configs travel as plain JSON data)."""
+    configs = [config_lib.from_dict(_tuples(config)) for config in configs]
+    if runner is None:
+        return run_cells(configs, run_dirs)
+    return [runner(configs[0], run_dirs[0])]
 
 
 # ----- the sweep ----------------------------------------------------------------------
@@ -512,12 +586,14 @@ def sweep(
         process's Ray instance, else a local one (all cores). A connection it opens, it closes.
       max_retries: ray only: retries of a cell whose worker process dies (an exception is
         reported, not retried).
-      cpus_per_cell: ray only: the CPUs a cell reserves (sets how many run at once).
+      cpus_per_cell: ray only: the CPUs a task reserves (sets how many run at once); a task
+        trains the cells that differ only in the loss (one cell with a custom ``runner``).
       checkpoints: give each cell the run directory ``out_dir/cells/<id>/run`` (on the
         worker's machine), so an interrupted cell resumes from its last checkpoint.
       progress: progress bars (local) and a line per finished cell.
       runner: ``runner(config, run_dir) -> CellOutput`` runs one cell (picklable for Ray);
-        default :func:`run_cell`.
+        default: :func:`run_cells`, the cells that differ only in the loss trained together
+        (the loss a batch axis: one compile, one babbling per seed, the same numbers).
 
     Returns:
       A :class:`SweepResult`.
@@ -574,18 +650,24 @@ def sweep(
             return None
         return os.path.abspath(os.path.join(out_dir, "cells", cell.id, "run"))
 
-    if todo and backend == "local":
-        run = runner or functools.partial(run_cell, progress=progress)
-        for cell in todo:
+    # The default runner trains the cells that differ only in the loss together (run_cells);
+    # a custom runner gets one cell at a time.
+    units = _by_structure(todo) if runner is None else [[cell] for cell in todo]
+    if units and backend == "local":
+        for unit in units:
             try:
-                output = run(cell.config, run_dir(cell))
+                if runner is None:
+                    got = run_cells([c.config for c in unit], [run_dir(c) for c in unit], progress)
+                else:
+                    got = [runner(unit[0].config, run_dir(unit[0]))]
             except Exception as error:  # reported in SweepError; the other cells go on
-                failed(cell, f"{type(error).__name__}: {error}")
+                for cell in unit:
+                    failed(cell, f"{type(error).__name__}: {error}")
             else:
-                finished(cell, output)
-    elif todo:
-        _run_ray(todo, runner or run_cell, run_dir, address, max_retries, cpus_per_cell,
-                 finished, failed)  # fmt: skip
+                for cell, output in zip(unit, got, strict=True):
+                    finished(cell, output)
+    elif units:
+        _run_ray(units, runner, run_dir, address, max_retries, cpus_per_cell, finished, failed)
     result = _collect(cells, outputs, done_before, paths, out_dir, time.perf_counter() - start)
     if failures:
         raise SweepError(failures, result, len(cells))
@@ -594,7 +676,7 @@ def sweep(
     return result
 
 
-def _run_ray(todo, runner, run_dir, address, max_retries, cpus_per_cell, finished, failed):
+def _run_ray(units, runner, run_dir, address, max_retries, cpus_per_cell, finished, failed):
     try:
         import ray
     except ImportError:
@@ -622,27 +704,43 @@ def _run_ray(todo, runner, run_dir, address, max_retries, cpus_per_cell, finishe
             max_retries=max_retries, retry_exceptions=False, num_cpus=cpus_per_cell
         )
         refs = {
-            task.remote(runner, config_lib.to_dict(cell.config), run_dir(cell)): cell
-            for cell in todo
+            task.remote(
+                runner,
+                [config_lib.to_dict(cell.config) for cell in unit],
+                [run_dir(cell) for cell in unit],
+            ): unit
+            for unit in units
         }
         pending = list(refs)
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)
             for ref in ready:
-                cell = refs[ref]
+                unit = refs[ref]
                 try:
-                    output = ray.get(ref)
+                    got = ray.get(ref)
                 except ray.exceptions.RayError as error:
                     cause = getattr(error, "cause", None)
-                    if isinstance(cause, BaseException):
-                        failed(cell, f"{type(cause).__name__}: {cause}")
-                    else:
-                        failed(cell, f"{type(error).__name__}: {error}")
+                    for cell in unit:
+                        if isinstance(cause, BaseException):
+                            failed(cell, f"{type(cause).__name__}: {cause}")
+                        else:
+                            failed(cell, f"{type(error).__name__}: {error}")
                 else:
-                    finished(cell, output)
+                    for cell, output in zip(unit, got, strict=True):
+                        finished(cell, output)
     finally:
         if started:
             ray.shutdown()
+
+
+def _by_structure(cells: list[Cell]) -> list[list[Cell]]:
+    """``cells`` grouped by everything but the loss (grid order kept): the cells one
+    :func:`run_cells` trains together."""
+    groups: dict[str, list[Cell]] = {}
+    for cell in cells:
+        key = json.dumps(config_lib.to_dict(cell.config.replace(loss="joint")), sort_keys=True)
+        groups.setdefault(key, []).append(cell)
+    return list(groups.values())
 
 
 def _reporter(progress: bool, total: int, done_before: int):

@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -75,8 +75,16 @@ class TrainResult:
         """The result of one loss of a run of several (``train(..., losses=...)``): its rows,
         its state (seed axis only), its stopped seeds; the run's baselines and times.
 
+        Args:
+          loss: one of :attr:`losses`.
+
         Raises:
           ValueError: ``loss`` was not one of the run's losses.
+
+        Examples:
+          >>> result = cfm_jax.train(config, losses=("joint", "task"))  # doctest: +SKIP
+          >>> result.of("task").metrics.loss.unique().tolist()  # doctest: +SKIP
+          ['task']
         """
         if loss not in self.losses:
             raise ValueError(
@@ -115,9 +123,9 @@ class TrainResult:
 def train(
     config: config_lib.Config,
     progress: bool = True,
-    out_dir: str | None = None,
+    out_dir: str | Mapping[str, str | None] | None = None,
     experiment: Experiment | None = None,
-    resume: str | None = None,
+    resume: str | Mapping[str, str | None] | None = None,
     data: str | dataset.Recorded | None = None,
     progress_fn: Callable[[int, pd.DataFrame], object] | None = None,
     losses: str | Sequence[str] | None = None,
@@ -135,12 +143,13 @@ def train(
       config: a :class:`cfm_jax.config.Config`.
       progress: show a progress bar.
       out_dir: directory for the result files (created), or None; with ``losses``, each loss's
-        files go to ``out_dir/<loss>``.
+        files go to ``out_dir/<loss>`` (or ``out_dir[loss]``, a mapping of folders).
       experiment: an :class:`Experiment` to reuse, built for a config that differs from
         ``config`` at most in the loss and :data:`cfm_jax.config.RUNTIME_FIELDS`.
       resume: the ``out_dir`` of an interrupted run of ``config``: continue from its newest
         valid checkpoint (results go there unless ``out_dir`` says otherwise), bit for bit;
-        with ``losses``, each loss with checkpoints resumes, the others start afresh.
+        with ``losses``, each loss with checkpoints in its folder (``resume/<loss>`` or
+        ``resume[loss]``) resumes, the others start afresh.
       data: a recorded data set to replay instead of collecting data (:func:`recorded_for`):
         f and g trained from scratch with ``config.loss``, the controller still rolled out.
       progress_fn: called as ``progress_fn(iteration, rows)`` after each iteration and the
@@ -166,6 +175,9 @@ def train(
     start = time.perf_counter()
     names = _loss_names(config, losses)
     several = losses is not None
+    for name, folder in (("out_dir", out_dir), ("resume", resume)):
+        if isinstance(folder, Mapping) and not several:
+            config_lib.fail(name, folder, "a folder; a mapping {loss: folder} needs losses")
     recorders = {}  # each loss's record, made first: they check out_dir and resume
     for name in names:
         run_resume = _run_dir(resume, name, several)
@@ -181,53 +193,13 @@ def train(
     recorded = None if data is None else recorded_for(exp, config, data)
     for recorder in recorders.values():
         recorder.open(exp.metric_columns)
-    iterations = config.loop.iterations
-    with progress_bar(progress) as bar:
-        label = f"{config.robot} {','.join(names)}"
-        task = bar.add_task(f"{label}: babbling + initial fit", total=iterations + 2)
-        keys = jax.vmap(jax.random.key)(jnp.asarray(config_lib.seeds_of(config), jnp.uint32))
-        chunk = None
-        if recorded is not None:
-            chunk = recorded.chunk(0, config.loop.babbling_rollouts * exp.transitions_per_rollout)
-        state = jax.block_until_ready(exp.init_losses(names, keys, knobs, data=chunk))
-        states, firsts = {}, {}
-        for i, name in enumerate(names):
-            states[name], firsts[name] = recorders[name].start(_index(state, i))
-        bar.advance(task, 1 + min(firsts.values()))
-        compile_seconds = float("nan")
-        # Losses resumed from different iterations run in groups (usually one: all losses).
-        for first in sorted(set(firsts.values())):
-            group = tuple(name for name in names if firsts[name] == first)
-            state = _stack([states[name] for name in group])
-            for i in range(first, iterations):
-                bar.update(task, description=f"{label}: iteration {i + 1}")
-                t0 = time.perf_counter()
-                chunk = None
-                if recorded is not None:
-                    chunk = recorded.chunk(i + 1, exp.transitions_per_rollout)
-                new, metrics = exp.iteration_losses(group, state, knobs, data=chunk)
-                metrics = jax.device_get(metrics)
-                if np.isnan(compile_seconds):
-                    compile_seconds = time.perf_counter() - t0
-                slices = [_index(new, j) for j in range(len(group))]
-                kept = [
-                    recorders[name].iteration(i, slices[j], _index(state, j), _index(metrics, j))
-                    for j, name in enumerate(group)
-                ]
-                # A seed stopped by a non-finite update keeps its previous state.
-                same = all(k is n for k, n in zip(kept, slices, strict=True))
-                state = new if same else _stack(kept)
-                if first == min(firsts.values()):
-                    bar.advance(task)
-            for j, name in enumerate(group):
-                states[name] = _index(state, j)
-        bar.update(task, description=f"{label}: final evaluation")
-        state = _stack([states[name] for name in names])
-        final = jax.device_get(exp.evaluate_losses(state, knobs))
-        for j, name in enumerate(names):
-            recorders[name].record(iterations, _index(final, j))
-        baselines = exp.baselines(knobs)
-        bar.advance(task)
+    try:
+        with progress_bar(progress) as bar:
+            state, compile_seconds = _run(exp, config, recorders, recorded, knobs, bar)
+    finally:  # a run stopped by an exception keeps its last checkpoint whole
+        for recorder in recorders.values():
+            recorder.flush()
+    baselines = exp.baselines(knobs)
     for j, name in enumerate(names):
         recorders[name].finish(_index(state, j), baselines, recorded)
     return TrainResult(
@@ -244,6 +216,57 @@ def train(
     )
 
 
+def _run(exp, config, recorders: dict, recorded, knobs, bar) -> tuple[TrainState, float]:
+    """:func:`train`'s loop: the losses' initial fits in one program, each loss's start (or
+    resumed checkpoint), the iterations of the losses that start at the same iteration
+    together, the final evaluation. Returns the final state (loss and seed axes) and the
+    first iteration's wall time, its compilation included."""
+    names, iterations = tuple(recorders), config.loop.iterations
+    label = f"{config.robot} {','.join(names)}"
+    task = bar.add_task(f"{label}: babbling + initial fit", total=iterations + 2)
+    keys = jax.vmap(jax.random.key)(jnp.asarray(config_lib.seeds_of(config), jnp.uint32))
+    chunk = None
+    if recorded is not None:
+        chunk = recorded.chunk(0, config.loop.babbling_rollouts * exp.transitions_per_rollout)
+    state = jax.block_until_ready(exp.init_losses(names, keys, knobs, data=chunk))
+    states, firsts = {}, {}
+    for j, name in enumerate(names):
+        states[name], firsts[name] = recorders[name].start(_index(state, j))
+    earliest = min(firsts.values())
+    bar.advance(task, 1 + earliest)
+    compile_seconds = float("nan")
+    # Losses resumed from different iterations run in groups (usually one: all losses).
+    for first in sorted(set(firsts.values())):
+        group = tuple(name for name in names if firsts[name] == first)
+        state = _stack([states[name] for name in group])
+        for i in range(first, iterations):
+            bar.update(task, description=f"{label}: iteration {i + 1}")
+            t0 = time.perf_counter()
+            chunk = None if recorded is None else recorded.chunk(i + 1, exp.transitions_per_rollout)
+            new, metrics = exp.iteration_losses(group, state, knobs, data=chunk)
+            metrics = jax.device_get(metrics)
+            if np.isnan(compile_seconds):
+                compile_seconds = time.perf_counter() - t0
+            slices = [_index(new, j) for j in range(len(group))]
+            kept = [
+                recorders[name].iteration(i, slices[j], _index(state, j), _index(metrics, j))
+                for j, name in enumerate(group)
+            ]
+            # A seed stopped by a non-finite update keeps its previous state.
+            same = all(k is n for k, n in zip(kept, slices, strict=True))
+            state = new if same else _stack(kept)
+            if first == earliest:
+                bar.advance(task)
+        states.update({name: _index(state, j) for j, name in enumerate(group)})
+    bar.update(task, description=f"{label}: final evaluation")
+    state = _stack([states[name] for name in names])
+    final = jax.device_get(exp.evaluate_losses(state, knobs))
+    for j, name in enumerate(names):
+        recorders[name].record(iterations, _index(final, j))
+    bar.advance(task)
+    return state, compile_seconds
+
+
 def _loss_names(config: config_lib.Config, losses) -> tuple[str, ...]:
     """The losses of a :func:`train` call, or a ConfigError naming ``losses``."""
     if losses is None:
@@ -251,8 +274,10 @@ def _loss_names(config: config_lib.Config, losses) -> tuple[str, ...]:
     if losses == "all":
         return tuple(config_lib.PAPER_LOSSES)
     names = (losses,) if isinstance(losses, str) else tuple(losses)
-    if not names or len(set(names)) != len(names) or any(
-        n not in config_lib.CONTROLLER_LOSSES for n in names
+    if (
+        not names
+        or len(set(names)) != len(names)
+        or any(n not in config_lib.CONTROLLER_LOSSES for n in names)
     ):
         config_lib.fail(
             "losses", losses, f"'all' or distinct names from {config_lib.CONTROLLER_LOSSES}"
@@ -260,9 +285,12 @@ def _loss_names(config: config_lib.Config, losses) -> tuple[str, ...]:
     return names
 
 
-def _run_dir(folder: str | None, loss: str, several: bool) -> str | None:
-    """A loss's result folder: ``folder/<loss>`` in a run of several losses, else ``folder``."""
-    return None if folder is None else os.path.join(folder, loss) if several else folder
+def _run_dir(folder, loss: str, several: bool) -> str | None:
+    """A loss's result folder: ``folder[loss]`` of a mapping, ``folder/<loss>`` in a run of
+    several losses, else ``folder``."""
+    if folder is None or isinstance(folder, Mapping):
+        return None if folder is None else folder.get(loss)
+    return os.path.join(folder, loss) if several else folder
 
 
 def _take_warnings() -> dict:

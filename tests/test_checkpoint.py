@@ -220,18 +220,18 @@ def _keys():
 
 def test_nan_in_parameters_stops_that_seed_only_and_names_it(uninterrupted, tmp_path,
                                                               monkeypatch):  # fmt: skip
-    original = training.Experiment.iteration
+    original = training.Experiment.iteration_losses
     calls = {"n": 0}
 
-    def poisoned(self, loss, state, knobs=None):
-        state, metrics = original(self, loss, state, knobs)
+    def poisoned(self, losses, state, knobs=None, data=None):
+        state, metrics = original(self, losses, state, knobs, data)
         calls["n"] += 1
-        if calls["n"] == 3:  # iteration index 2, seed 1
-            params = jax.tree.map(lambda x: x.at[1].set(jnp.nan), state.controller_params)
+        if calls["n"] == 3:  # iteration index 2, (the only) loss 0, seed 1
+            params = jax.tree.map(lambda x: x.at[0, 1].set(jnp.nan), state.controller_params)
             state = state.replace(controller_params=params)
         return state, metrics
 
-    monkeypatch.setattr(training.Experiment, "iteration", poisoned)
+    monkeypatch.setattr(training.Experiment, "iteration_losses", poisoned)
     out = tmp_path / "nan_params"
     result = cfm_jax.train(CFG, progress=False, out_dir=str(out))
     expected = [{"loss": "joint", "seed": 1, "iteration": 2, "quantity": "controller parameters"}]
@@ -250,6 +250,41 @@ def test_nan_in_parameters_stops_that_seed_only_and_names_it(uninterrupted, tmp_
     assert all(np.all(np.isfinite(np.asarray(x[1]))) for x in leaves)
     ckpt = checkpoint.Checkpointer(str(out / "checkpoints"))
     assert ckpt.steps()[-1] == CFG.loop.iterations and ckpt.problem(ckpt.steps()[-1]) is None
+
+
+def test_nan_in_one_loss_of_a_batch_stops_that_loss_seed_only(uninterrupted, monkeypatch):
+    # Two losses trained together (issue 46); the task loss's seed 1 gets NaN parameters
+    # after iteration index 1. Oracle: the uninterrupted joint run (the fixture) for the
+    # joint loss, unchanged bit for bit, and the task loss's seed 0 as in a batch without
+    # the fault; only (task, seed 1) stops, keeping its last good state.
+    original = training.Experiment.iteration_losses
+    calls = {"n": 0}
+
+    def poisoned(self, losses, state, knobs=None, data=None):
+        state, metrics = original(self, losses, state, knobs, data)
+        calls["n"] += 1
+        if calls["n"] == 2:  # iteration index 1, loss 1 (task), seed 1
+            params = jax.tree.map(lambda x: x.at[1, 1].set(jnp.nan), state.controller_params)
+            state = state.replace(controller_params=params)
+        return state, metrics
+
+    clean = cfm_jax.train(CFG, progress=False, losses=("joint", "task"))
+    monkeypatch.setattr(training.Experiment, "iteration_losses", poisoned)
+    result = cfm_jax.train(CFG, progress=False, losses=("joint", "task"))
+    assert result.stopped == [
+        {"loss": "task", "seed": 1, "iteration": 1, "quantity": "controller parameters"}
+    ]
+    joint = result.of("joint").metrics
+    pd.testing.assert_frame_equal(joint, uninterrupted[0].metrics, check_exact=True)
+    task, task_clean = result.of("task").metrics, clean.of("task").metrics
+    pd.testing.assert_frame_equal(
+        task[task.seed == 0].reset_index(drop=True),
+        task_clean[task_clean.seed == 0].reset_index(drop=True),
+        check_exact=True,
+    )
+    assert sorted(task[task.seed == 1].iteration.unique()) == [0]
+    leaves = jax.tree.leaves(result.of("task").state.controller_params)
+    assert all(np.all(np.isfinite(np.asarray(x[1]))) for x in leaves)
 
 
 def test_cli_resume_continues_each_loss(tmp_path):

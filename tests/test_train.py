@@ -175,7 +175,7 @@ def test_losses_batched_equal_each_loss_alone(experiment, two_seeds):
     assert result.losses == losses
     assert result.state.iteration.shape == (4, 2)
     keys = jax.vmap(jax.random.key)(jnp.arange(2, dtype=jnp.uint32))
-    for i, loss in enumerate(losses):
+    for loss in losses:
         state = experiment.init(loss, keys)
         rows = []
         for _ in range(TINY.loop.iterations):

@@ -168,3 +168,53 @@ def test_jaxlib_0_10_still_gets_the_flag():
     done = _versions_case("0.10.0", "import cfm_jax, os\nprint('flags', os.environ['XLA_FLAGS'])\n")
     assert done.returncode == 0, done.stderr
     assert f"flags {FLAG}" in done.stdout
+
+
+# ---- the persistent compilation cache (issue 46) -------------------------------------------
+
+_CACHED_PROGRAM = (
+    "import cfm_jax, jax, jax.numpy as jnp, json; from jax._src import monitoring; "
+    "events = []; monitoring.register_event_listener("
+    "lambda name, **kw: events.append(name.rsplit('/', 1)[-1]) if 'cache_' in name else None); "
+    "jax.config.update('jax_persistent_cache_min_compile_time_secs', 0); "
+    "jax.jit(lambda x: jnp.sin(x) @ x.T)(jnp.ones((64, 64))).block_until_ready(); "
+    "print(json.dumps([cfm_jax.COMPILATION_CACHE, jax.config.jax_compilation_cache_dir, events]))"
+)
+
+
+def _cache_run(tmp_path, **env) -> list:
+    import json
+
+    # Without the test session's own cache (conftest.py) and the variables that set it.
+    dropped = ("XLA_FLAGS", _xla.CACHE_VARIABLE, "JAX_COMPILATION_CACHE", "JAX_PERSISTENT_CACHE")
+    base = {k: v for k, v in os.environ.items() if not k.startswith(dropped)}
+    done = subprocess.run(
+        [sys.executable, "-c", _CACHED_PROGRAM], capture_output=True, text=True, timeout=300,
+        env={**base, "JAX_PLATFORMS": "cpu", "XDG_CACHE_HOME": str(tmp_path / "xdg"), **env},
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_compilation_cache_is_on_by_default_and_a_second_process_loads_the_program(tmp_path):
+    # Oracle: JAX's own monitoring events. The first process misses and writes the program
+    # under $XDG_CACHE_HOME/cfm_jax/jax; a second process of the same program hits it.
+    folder = str(tmp_path / "xdg" / "cfm_jax" / "jax")
+    first = _cache_run(tmp_path)
+    assert first[:2] == [folder, folder]
+    assert "cache_misses" in first[2] and "cache_hits" not in first[2]
+    assert os.listdir(folder)
+    second = _cache_run(tmp_path)
+    assert "cache_hits" in second[2] and "cache_misses" not in second[2]
+
+
+def test_compilation_cache_folder_and_off_switch(tmp_path):
+    own = str(tmp_path / "own")
+    assert _cache_run(tmp_path, CFM_JAX_COMPILATION_CACHE=own)[:2] == [own, own]
+    for off in ("0", "off", ""):
+        cache, jax_dir, events = _cache_run(tmp_path, CFM_JAX_COMPILATION_CACHE=off)
+        assert cache is None and jax_dir is None and "cache_hits" not in events
+    # A folder the user gave JAX is kept.
+    user = str(tmp_path / "user")
+    got = _cache_run(tmp_path, JAX_COMPILATION_CACHE_DIR=user)
+    assert got[:2] == [user, user]
