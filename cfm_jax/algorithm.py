@@ -299,8 +299,8 @@ def iteration(
     setup: Setup, loss: str, state: TrainState, knobs: Knobs, data=None
 ) -> tuple[TrainState, dict]:
     """One iteration of Algorithm 1 for one seed: roll g out, measure, add the data, refit f and g.
-    Returns the next state and the :func:`metrics`, with the refits' losses: the loss-independent
-    :func:`collect_and_refit_forward`, then :func:`refit_controller` with ``loss``.
+    Returns the next state and the :func:`metrics`, with the refits' losses: :func:`collect`,
+    then the loss-independent :func:`refit_forward`, then :func:`refit_controller` with ``loss``.
 
     Args:
       setup: the run's :class:`Setup`.
@@ -312,43 +312,61 @@ def iteration(
     Examples:
       >>> state, measured = iteration(setup, "joint", state, knobs)  # doctest: +SKIP
     """
-    state, out, key_controller = collect_and_refit_forward(setup, state, knobs, data)
-    state, out["controller_loss"] = refit_controller(setup, loss, state, key_controller, knobs)
+    out, chunk = collect(setup, state, knobs)
+    state, out["forward_loss"], key = refit_forward(setup, state, chunk if data is None else data,
+                                                     knobs)  # fmt: skip
+    state, out["controller_loss"] = refit_controller(setup, loss, state, key, knobs)
     return state, out
 
 
-def collect_and_refit_forward(
-    setup: Setup, state: TrainState, knobs: Knobs, data=None
-) -> tuple[TrainState, dict, jax.Array]:
-    """The part of :func:`iteration` that does not depend on the controller's loss: roll g out,
-    measure, add the data, refit f; the state has the next key and iteration count. Returns
-    ``(state, metrics, key of the controller's refit)``.
+def collect(setup: Setup, state: TrainState, knobs: Knobs) -> tuple[dict, tuple]:
+    """The rollout of an iteration: roll g out on every target and measure it (:func:`metrics`,
+    before any refit). Returns the metrics and the rollout's data ``(transitions, valid)``.
+    The only part of :func:`iteration` that runs the simulator.
 
     Args:
       setup: the run's :class:`Setup`.
       state: the seed's :class:`TrainState`.
       knobs: the runtime values.
-      data: ``(transitions, valid)`` to add instead of the rollout's (a replay), or None.
 
     Examples:
-      >>> state, measured, key = collect_and_refit_forward(setup, state, knobs)  # doctest: +SKIP
+      >>> measured, (rows, valid) = collect(setup, state, knobs)  # doctest: +SKIP
     """
-    cfg = setup.config
-    key, key_rollout, key_fit_fm, key_fit_ctrl = jax.random.split(state.key, 4)
+    _, key_rollout, _, _ = jax.random.split(state.key, 4)
     result = rollout(setup, learned_policy(setup, state), key_rollout, knobs)
     result = result._replace(transitions=with_terms(setup, result.transitions))
-    out = metrics(setup, state, result)
-    chunk, valid = collected(result) if data is None else data
+    return metrics(setup, state, result), collected(result)
+
+
+def refit_forward(
+    setup: Setup, state: TrainState, data, knobs: Knobs
+) -> tuple[TrainState, jax.Array, jax.Array]:
+    """The part of :func:`iteration` after the rollout that does not depend on the controller's
+    loss: add ``data`` to the data set, refit f; the state has the next key and iteration
+    count. Returns ``(state, the refit's mean loss, key of the controller's refit)``.
+
+    Args:
+      setup: the run's :class:`Setup`.
+      state: the seed's :class:`TrainState` (before the iteration).
+      data: ``(transitions, valid)``, :func:`collect`'s or a recorded chunk (a replay).
+      knobs: the runtime values.
+
+    Examples:
+      >>> state, loss, key = refit_forward(setup, state, chunk, knobs)  # doctest: +SKIP
+    """
+    cfg = setup.config
+    key, _, key_fit_fm, key_fit_ctrl = jax.random.split(state.key, 4)
+    chunk, valid = data
     chunk = with_terms(setup, chunk)
     state = state.replace(data=dataset.add(state.data, chunk, valid))
     if cfg.loop.normaliser == "data":  # statistics of all data, before both refits
         norm = data_normaliser(setup, state.data, state.normaliser.torque_scale)
         state = state.replace(normaliser=norm)
     state = restart_fits(setup, state, key_fit_fm, key_fit_ctrl, knobs)
-    state, out["forward_loss"] = _fit_forward(
+    state, forward_loss = _fit_forward(
         setup, state, key_fit_fm, cfg.forward.steps_per_iteration, knobs
     )
-    return state.replace(key=key, iteration=state.iteration + 1), out, key_fit_ctrl
+    return state.replace(key=key, iteration=state.iteration + 1), forward_loss, key_fit_ctrl
 
 
 def refit_controller(
@@ -360,7 +378,7 @@ def refit_controller(
     Args:
       setup: the run's :class:`Setup`.
       loss: the controller's loss.
-      state: the state of :func:`collect_and_refit_forward`.
+      state: the state of :func:`refit_forward`.
       key: the key it returned.
       knobs: the runtime values.
 

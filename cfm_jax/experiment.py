@@ -165,14 +165,28 @@ class Experiment:
 
     def prepare(self, keys, knobs: Knobs | None = None) -> tuple[TrainState, jax.Array]:
         """:func:`cfm_jax.algorithm.prepare` for every seed of ``keys`` (cached for the last
-        keys and knobs)."""
+        keys and knobs), in two programs: the babbling rollouts (the simulator), then the
+        start from their data (normaliser, models, fit of f; no simulator, so JAX's
+        persistent compilation cache keeps it)."""
         knobs = self._knobs(knobs)
         cache_key = _fingerprint((jax.random.key_data(keys), knobs))
         cached = self._cache.get("prepared")
         if cached is None or cached[0] != cache_key:
-            fn = self._vmapped(algorithm.prepare, in_axes=(0, None))
-            self._cache["prepared"] = (cache_key, self._jit("prepare", fn)(keys, knobs))
+
+            def babble(key, knobs):
+                key_babble, _ = jax.random.split(key, 2)
+                return algorithm.collected(algorithm.babble_all(self.setup, key_babble, knobs))
+
+            data = self._jit("babbling_data", jax.vmap(babble, in_axes=(0, None)))(keys, knobs)
+            self._cache["prepared"] = (cache_key, self._prepare_from_data(keys, knobs, data))
         return self._cache["prepared"][1]
+
+    def _prepare_from_data(self, keys, knobs: Knobs, data):
+        def prepare(key, knobs, chunk, valid):
+            return algorithm.prepare(self.setup, key, knobs, (chunk, valid))
+
+        fn = jax.vmap(prepare, in_axes=(0, None, 0, 0))
+        return self._jit("prepare_from_data", fn)(keys, knobs, *data)
 
     def init_from_data(
         self, loss: str, keys, chunk: dataset.Transitions, valid, knobs: Knobs | None = None
@@ -180,12 +194,7 @@ class Experiment:
         """:meth:`init` from given babbling data (``chunk``, ``valid`` with a seed axis); the keys
         are used as :meth:`init` uses them, so the same data and seed give the same state."""
         knobs = self._knobs(knobs)
-
-        def prepare(key, knobs, chunk, valid):
-            return algorithm.prepare(self.setup, key, knobs, (chunk, valid))
-
-        fn = jax.vmap(prepare, in_axes=(0, None, 0, 0))
-        prepared, key_fit = self._jit("prepare_from_data", fn)(keys, knobs, chunk, valid)
+        prepared, key_fit = self._prepare_from_data(keys, knobs, (chunk, valid))
         return self._fit_initial(loss, prepared, key_fit, knobs)
 
     def _fit_initial(self, loss: str, prepared, key_fit, knobs: Knobs) -> TrainState:
@@ -238,12 +247,7 @@ class Experiment:
         if data is None:
             prepared, key_fit = self.prepare(keys, knobs)
         else:
-
-            def prepare(key, knobs, chunk, valid):
-                return algorithm.prepare(self.setup, key, knobs, (chunk, valid))
-
-            fn = jax.vmap(prepare, in_axes=(0, None, 0, 0))
-            prepared, key_fit = self._jit("prepare_from_data", fn)(keys, knobs, *data)
+            prepared, key_fit = self._prepare_from_data(keys, knobs, data)
 
         def fits(prepared, key_fit, knobs):
             def fit(loss, _):
@@ -256,11 +260,13 @@ class Experiment:
 
     def iteration_losses(self, losses, state: TrainState, knobs: Knobs | None = None, data=None):
         """:func:`cfm_jax.algorithm.iteration` for every loss and seed of ``state`` (leading
-        ``(loss, seed)`` axes) in one program: a loop over the losses runs, vmapped over seeds,
-        the loss-independent :func:`cfm_jax.algorithm.collect_and_refit_forward` (rollout,
-        metrics, data, refit of f) and the loss's :func:`cfm_jax.algorithm.refit_controller`.
-        Each loss's slice is bit for bit that loss's :meth:`iteration`. Returns ``(state,
-        metrics)``, metrics with leading ``(loss, seed)`` axes.
+        ``(loss, seed)`` axes), in two programs, each a loop over the losses vmapped over
+        seeds: :func:`cfm_jax.algorithm.collect` (the rollouts and their metrics: the
+        simulator), then :func:`cfm_jax.algorithm.refit_forward` and the loss's
+        :func:`cfm_jax.algorithm.refit_controller` (no simulator, so JAX's persistent
+        compilation cache keeps this program, the larger one). Each loss's slice is bit for
+        bit that loss's :meth:`iteration`. Returns ``(state, metrics)``, metrics with leading
+        ``(loss, seed)`` axes.
 
         Args:
           losses: the losses of ``state``'s first axis, in order.
@@ -275,23 +281,33 @@ class Experiment:
           >>> metrics["tracking_mse"].shape  # (losses, seeds, targets)  # doctest: +SKIP
           (2, 3, 5)
         """
-        losses = _loss_names(losses)
+        losses, knobs = _loss_names(losses), self._knobs(knobs)
 
-        def step(state, knobs, data):
-            def one(loss, state):
-                shared = functools.partial(algorithm.collect_and_refit_forward, self.setup)
-                in_axes = (0, None, None if data is None else 0)
-                state, out, key = jax.vmap(shared, in_axes=in_axes)(state, knobs, data)
-                refit = functools.partial(algorithm.refit_controller, self.setup, loss)
-                state, out["controller_loss"] = jax.vmap(refit, in_axes=(0, 0, None))(
-                    state, key, knobs
-                )
-                return state, out
+        def collect(state, knobs):
+            def one(_, state):
+                fn = functools.partial(algorithm.collect, self.setup)
+                return jax.vmap(fn, in_axes=(0, None))(state, knobs)
 
-            return _loop_losses(losses, one, state)
+            return _loop_losses((losses[0],) * len(losses), one, state, switch=False)
 
-        name = f"{'replay' if data is not None else 'iteration'}[{','.join(losses)}]"
-        return self._jit(name, step)(state, self._knobs(knobs), data)
+        def refit(state, data, knobs):
+            def one(loss, entry):
+                state, data = entry
+                fn = functools.partial(algorithm.refit_forward, self.setup)
+                state, forward_loss, key = jax.vmap(fn, in_axes=(0, 0, None))(state, data, knobs)
+                fn = functools.partial(algorithm.refit_controller, self.setup, loss)
+                state, controller_loss = jax.vmap(fn, in_axes=(0, 0, None))(state, key, knobs)
+                return state, forward_loss, controller_loss
+
+            return _loop_losses(losses, one, (state, data))
+
+        out, collected = self._jit(f"collect[{len(losses)}]", collect)(state, knobs)
+        if data is not None:  # a replay: every loss adds the recorded data
+            collected = jax.tree.map(lambda x: jnp.broadcast_to(x, (len(losses), *x.shape)), data)
+        state, out["forward_loss"], out["controller_loss"] = self._jit(
+            f"refit[{','.join(losses)}]", refit
+        )(state, collected, knobs)
+        return state, out
 
     def evaluate_losses(self, state: TrainState, knobs: Knobs | None = None) -> dict:
         """:meth:`evaluate` of each loss of a state with leading ``(loss, seed)`` axes, with the
@@ -370,16 +386,19 @@ def _loss_names(losses) -> tuple[str, ...]:
     return names
 
 
-def _loop_losses(losses: tuple[str, ...], body, xs):
+def _loop_losses(losses: tuple[str, ...], body, xs, switch: bool = True):
     """``body(loss, x)`` for each loss and its entry ``x`` of ``xs``'s leading axis (``xs``
     None: ``x`` None), stacked: a ``lax.map`` whose ``lax.switch`` on the loss's index runs
-    that loss's branch only. One loss: ``body`` itself, the single-loss program."""
+    that loss's branch only (``switch=False``: ``body`` does not depend on the loss, one
+    branch). One loss: ``body`` itself, the single-loss program."""
     if len(losses) == 1:
         return _stack([body(losses[0], None if xs is None else _index(xs, 0))])
-    branches = [functools.partial(body, loss) for loss in losses]
+    branches = [functools.partial(body, loss) for loss in (losses if switch else losses[:1])]
 
     def one(entry):
         index, x = entry
+        if not switch:
+            return branches[0](x)
         return jax.lax.switch(index, branches, x)
 
     return jax.lax.map(one, (jnp.arange(len(losses)), xs))

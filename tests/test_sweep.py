@@ -206,7 +206,8 @@ def test_value_overrides_compile_once_and_equal_separate_runs(tmp_path):
     assert len(sweeps._EXPERIMENTS) == 1
     counts = next(iter(sweeps._EXPERIMENTS.values())).compilations()
     # The two losses of a cell's values train together: one program for both.
-    for name in ("prepare", "init[joint,task]", "iteration[joint,task]"):
+    names = ("babbling_data", "prepare_from_data", "init[joint,task]", "collect[2]")
+    for name in (*names, "refit[joint,task]"):
         assert counts[name] == 1, counts
     assert counts["evaluate"] == 1, counts
     frame = result.metrics

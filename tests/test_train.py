@@ -155,13 +155,14 @@ def test_one_compiled_function_per_loss_iteration(experiment, two_seeds):
     # After the run (2 iterations) and the determinism run, the compiled iteration exists
     # once for the loss: every call re-used it. A second loss adds exactly one more.
     compiled = experiment._compiled
-    assert compiled["iteration[joint]"]._cache_size() == 1
+    assert compiled["collect[1]"]._cache_size() == 1
+    assert compiled["refit[joint]"]._cache_size() == 1
     keys = jax.vmap(jax.random.key)(jnp.arange(2, dtype=jnp.uint32))
     state = experiment.init("task", keys)
     for _ in range(2):
         state, _ = experiment.iteration("task", state)
     assert compiled["iteration/task"]._cache_size() == 1
-    assert compiled["iteration[joint]"]._cache_size() == 1
+    assert compiled["refit[joint]"]._cache_size() == 1
 
 
 def test_losses_batched_equal_each_loss_alone(experiment, two_seeds):
@@ -194,9 +195,10 @@ def test_losses_batched_equal_each_loss_alone(experiment, two_seeds):
                 want = np.asarray(metrics[name]).reshape(2, -1)
                 want = np.broadcast_to(want, (2, TARGETS)).ravel()
                 np.testing.assert_array_equal(got[name], want, err_msg=name)
-    # One program for the four losses' iterations; training them again compiles nothing.
+    # One program for the four losses' rollouts, one for their refits; training them again
+    # compiles nothing.
     before = experiment.compilations()
-    assert before["iteration[joint,task,distal,supervised]"] == 1
+    assert before["collect[4]"] == before["refit[joint,task,distal,supervised]"] == 1
     cfm_jax.train(TINY, progress=False, experiment=experiment, losses=losses)
     assert experiment.compilations() == before
     # A single loss of the batch is that loss's slice: the joint run of the fixture.
@@ -240,7 +242,8 @@ def test_runtime_fields_reuse_the_compilations_and_equal_a_fresh_experiment(expe
     assert experiment.compilations() == before
     # One program per compiled function (the rollout has one more for the baselines' seed
     # axis of 1).
-    for name in ("prepare", "init[joint]", "iteration[joint]", "evaluate"):
+    names = ("babbling_data", "prepare_from_data", "init[joint]", "collect[1]", "refit[joint]")
+    for name in (*names, "evaluate"):
         assert before[name] == 1, before
     fresh = cfm_jax.train(other, progress=False)
     pd.testing.assert_frame_equal(shared.metrics, fresh.metrics, check_exact=True)
