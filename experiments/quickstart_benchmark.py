@@ -159,9 +159,9 @@ def write(path: str, section: str) -> None:
     if MARKER in text:
         before, _, rest = text.partition(MARKER)
         _, _, after = rest.partition(MARKER)
-        text = before + MARKER + "\n" + section + "\n" + MARKER + after
+        text = before + MARKER + "\n" + section + "\n\n" + MARKER + after
     else:
-        text = text.rstrip("\n") + "\n\n" + MARKER + "\n" + section + "\n" + MARKER + "\n"
+        text = text.rstrip("\n") + "\n\n" + MARKER + "\n" + section + "\n\n" + MARKER + "\n"
     with open(path, "w") as f:
         f.write(text)
 
