@@ -83,7 +83,7 @@ def main() -> None:
     print(f"fresh per cell: {fresh_s:.1f} s, {fresh_built} Experiment(s)", flush=True)
     columns = [c for c in shared.metrics.columns if c != "cell"]
     pd.testing.assert_frame_equal(shared.metrics[columns], fresh.metrics[columns], check_exact=True)
-    iteration = shared_counts[0].get("iteration/joint")
+    iteration = shared_counts[0].get("refit[joint]")  # the iteration's compiled refits
     lines = [
         "## Sweeps: one compilation across runtime overrides",
         "",
