@@ -243,7 +243,7 @@ class Experiment:
           >>> state.iteration.shape  # (losses, seeds)  # doctest: +SKIP
           (2, 3)
         """
-        losses, knobs = _loss_names(losses), self._knobs(knobs)
+        losses, knobs = loss_names(losses), self._knobs(knobs)
         if data is None:
             prepared, key_fit = self.prepare(keys, knobs)
         else:
@@ -281,7 +281,7 @@ class Experiment:
           >>> metrics["tracking_mse"].shape  # (losses, seeds, targets)  # doctest: +SKIP
           (2, 3, 5)
         """
-        losses, knobs = _loss_names(losses), self._knobs(knobs)
+        losses, knobs = loss_names(losses), self._knobs(knobs)
 
         def collect(state, knobs):
             def one(_, state):
@@ -374,14 +374,29 @@ class Experiment:
         return cache[cache_key].copy()
 
 
-def _loss_names(losses) -> tuple[str, ...]:
-    """``losses`` as a tuple of distinct controller-loss names, or a named ValueError."""
+def loss_names(losses) -> tuple[str, ...]:
+    """``losses`` as a tuple of distinct controller-loss names (``"all"``: the paper's four).
+
+    Args:
+      losses: a loss name, a sequence of them, or ``"all"``.
+
+    Raises:
+      ConfigError: an unknown or repeated name, or none (a ``ValueError``).
+
+    Examples:
+      >>> loss_names("all")
+      ('joint', 'task', 'distal', 'supervised')
+    """
+    if losses == "all":
+        return tuple(config_lib.PAPER_LOSSES)
     names = (losses,) if isinstance(losses, str) else tuple(losses)
-    bad = [n for n in names if n not in config_lib.CONTROLLER_LOSSES]
-    if not names or bad or len(set(names)) != len(names):
-        raise ValueError(
-            f"losses={losses!r} is not allowed: distinct names from "
-            f"{config_lib.CONTROLLER_LOSSES}, at least one"
+    if (
+        not names
+        or len(set(names)) != len(names)
+        or any(n not in config_lib.CONTROLLER_LOSSES for n in names)
+    ):
+        config_lib.fail(
+            "losses", losses, f"'all' or distinct names from {config_lib.CONTROLLER_LOSSES}"
         )
     return names
 

@@ -19,7 +19,7 @@ from cfm_jax import algorithm, dataset
 from cfm_jax import checkpoint as ckpt_lib
 from cfm_jax import config as config_lib
 from cfm_jax.algorithm import METRIC_COLUMNS, Knobs, TrainState  # noqa: F401 (Knobs: re-export)
-from cfm_jax.experiment import Experiment, _index, _stack
+from cfm_jax.experiment import Experiment, _index, _stack, loss_names
 from cfm_jax.recorder import Recorder, progress_bar
 
 # Experiment, TrainState, Knobs and METRIC_COLUMNS are imported here for the shell's use
@@ -173,7 +173,7 @@ def train(
       >>> every.of("task").summary()  # doctest: +SKIP
     """
     start = time.perf_counter()
-    names = _loss_names(config, losses)
+    names = (config.loss,) if losses is None else loss_names(losses)
     several = losses is not None
     for name, folder in (("out_dir", out_dir), ("resume", resume)):
         if isinstance(folder, Mapping) and not several:
@@ -265,24 +265,6 @@ def _run(exp, config, recorders: dict, recorded, knobs, bar) -> tuple[TrainState
         recorders[name].record(iterations, _index(final, j))
     bar.advance(task)
     return state, compile_seconds
-
-
-def _loss_names(config: config_lib.Config, losses) -> tuple[str, ...]:
-    """The losses of a :func:`train` call, or a ConfigError naming ``losses``."""
-    if losses is None:
-        return (config.loss,)
-    if losses == "all":
-        return tuple(config_lib.PAPER_LOSSES)
-    names = (losses,) if isinstance(losses, str) else tuple(losses)
-    if (
-        not names
-        or len(set(names)) != len(names)
-        or any(n not in config_lib.CONTROLLER_LOSSES for n in names)
-    ):
-        config_lib.fail(
-            "losses", losses, f"'all' or distinct names from {config_lib.CONTROLLER_LOSSES}"
-        )
-    return names
 
 
 def _run_dir(folder, loss: str, several: bool) -> str | None:
