@@ -1,8 +1,8 @@
 """Learning, end to end (issue 29, item 1): on a small two-link-arm config the learned
 controllers of all four paper losses must clearly learn, on both simulators.
 
-One module-scoped run per simulator trains every loss of :data:`cfm_jax.config.PAPER_LOSSES`
-with ``cfm_jax.train`` as a user calls it (one shared ``Experiment``, seeds vmapped), and
+One run per simulator trains every loss of :data:`cfm_jax.config.PAPER_LOSSES` with
+``cfm_jax.train`` as a user calls it (the losses batched, seeds vmapped), and
 the tests (tests/test_learning.py on the native simulator, tests/test_learning_mjx.py on
 MJX, two files so that the two workers take one each) assert, per loss:
 
@@ -67,20 +67,27 @@ def learning_config(simulator: str) -> config_lib.Config:
     )
 
 
-def run_all_losses(config: config_lib.Config) -> dict:
-    """``cfm_jax.train`` for each paper loss on one shared Experiment: per loss the tracking
-    MSE per seed at iteration 0 and at the end, and the PD-only baseline."""
+def train_all_losses(config: config_lib.Config) -> tuple[Experiment, cfm_jax.TrainResult]:
+    """``cfm_jax.train`` of every paper loss in one batched call, as a user trains them, and
+    the Experiment it ran on (for the oracle of each loss alone)."""
     experiment = Experiment(config)
+    losses = config_lib.PAPER_LOSSES
+    return experiment, cfm_jax.train(config, progress=False, experiment=experiment, losses=losses)
+
+
+def summarise(result: cfm_jax.TrainResult) -> dict:
+    """Per loss the tracking MSE per seed at iteration 0 and at the end, and the PD-only
+    baseline."""
     out = {}
-    for loss in config_lib.PAPER_LOSSES:
-        result = cfm_jax.train(config.replace(loss=loss), progress=False, experiment=experiment)
-        per_seed = result.metrics.groupby(["iteration", "seed"]).tracking_mse.mean()
-        base = result.baselines
+    for loss in result.losses:
+        one = result.of(loss)
+        per_seed = one.metrics.groupby(["iteration", "seed"]).tracking_mse.mean()
+        base = one.baselines
         out[loss] = {
             "first": per_seed.loc[0].to_numpy(),
             "final": per_seed.loc[ITERATIONS].to_numpy(),
             "pd_only": base[base.baseline == "pd_only"].tracking_mse.mean(),
-            "diverged": bool(result.metrics.diverged.any()),
+            "diverged": bool(one.metrics.diverged.any()),
         }
     return out
 

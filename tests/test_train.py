@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from golden import assert_bit_identical
-from tiny import assert_own_output, cli_command, tiny_config
+from tiny import assert_each_loss_equals_it_alone, assert_own_output, cli_command, tiny_config
 
 import cfm_jax
 from cfm_jax import config as config_lib
@@ -167,34 +167,12 @@ def test_one_compiled_function_per_loss_iteration(experiment, two_seeds):
 
 def test_losses_batched_equal_each_loss_alone(experiment, two_seeds):
     # The loss as a batch axis (issue 46): the four paper losses trained in one program,
-    # from one babbling and one initial fit of f per seed. Oracle: each loss run alone
-    # (its own programs: init/<loss> and iteration/<loss> of the Experiment, the path of
-    # train before the batching, loop written out here). Every state (parameters, Adam,
-    # data set, keys) and every metric is bit-identical.
+    # from one babbling and one initial fit of f per seed, against each loss alone.
     losses = ("joint", "task", "distal", "supervised")
     result = cfm_jax.train(TINY, progress=False, experiment=experiment, losses=losses)
     assert result.losses == losses
     assert result.state.iteration.shape == (4, 2)
-    keys = jax.vmap(jax.random.key)(jnp.arange(2, dtype=jnp.uint32))
-    for loss in losses:
-        state = experiment.init(loss, keys)
-        rows = []
-        for _ in range(TINY.loop.iterations):
-            state, metrics = experiment.iteration(loss, state)
-            rows.append(jax.device_get(metrics))
-        rows.append(jax.device_get(experiment.evaluate(state)))
-        leaves = zip(jax.tree.leaves(result.of(loss).state), jax.tree.leaves(state), strict=True)
-        for batched, alone in leaves:
-            if jnp.issubdtype(alone.dtype, jax.dtypes.prng_key):
-                batched, alone = jax.random.key_data(batched), jax.random.key_data(alone)
-            np.testing.assert_array_equal(np.asarray(batched), np.asarray(alone))
-        frame = result.of(loss).metrics
-        for iteration, metrics in enumerate(rows):
-            got = frame[frame.iteration == iteration]
-            for name in experiment.metric_columns[4:]:
-                want = np.asarray(metrics[name]).reshape(2, -1)
-                want = np.broadcast_to(want, (2, TARGETS)).ravel()
-                np.testing.assert_array_equal(got[name], want, err_msg=name)
+    assert_each_loss_equals_it_alone(experiment, result)
     # One program for the four losses' rollouts, one for their refits; training them again
     # compiles nothing.
     before = experiment.compilations()

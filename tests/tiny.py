@@ -1,5 +1,5 @@
 """Shared test helpers: tiny configs and CLI helpers for the end-to-end tests (fast, wiring
-only), and the list of public modules."""
+only), the oracle of the losses' batch axis, and the list of public modules."""
 
 from __future__ import annotations
 
@@ -7,6 +7,10 @@ import json
 import pkgutil
 import re
 import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
 
 import cfm_jax
 from cfm_jax import config as config_lib
@@ -76,3 +80,34 @@ def assert_own_output(done) -> None:
     assert done.stderr == "", done.stderr  # --quiet: nothing at all on stderr
     foreign = [line for line in done.stdout.splitlines() if FOREIGN.search(line)]
     assert not foreign, foreign
+
+
+def assert_each_loss_equals_it_alone(experiment, result, losses=None) -> None:
+    """The batched run of several losses (issue 46) against each loss run alone.
+
+    Oracle: the loss's own programs (``init`` and ``iteration`` of the Experiment, the path
+    of train before the batching, the loop written out here). Every state (parameters, Adam,
+    data set, keys) and every metric of the loss's slice of ``result`` is bit-identical to
+    it. ``losses``: which slices to check (default: all of them)."""
+    seeds = result.state.iteration.shape[-1]
+    keys = jax.vmap(jax.random.key)(jnp.arange(seeds, dtype=jnp.uint32))
+    for loss in losses or result.losses:
+        state = experiment.init(loss, keys)
+        rows = []
+        for _ in range(experiment.config.loop.iterations):
+            state, metrics = experiment.iteration(loss, state)
+            rows.append(jax.device_get(metrics))
+        rows.append(jax.device_get(experiment.evaluate(state)))
+        leaves = zip(jax.tree.leaves(result.of(loss).state), jax.tree.leaves(state), strict=True)
+        for batched, alone in leaves:
+            if jnp.issubdtype(alone.dtype, jax.dtypes.prng_key):
+                batched, alone = jax.random.key_data(batched), jax.random.key_data(alone)
+            np.testing.assert_array_equal(np.asarray(batched), np.asarray(alone))
+        frame = result.of(loss).metrics
+        for iteration, metrics in enumerate(rows):
+            got = frame[frame.iteration == iteration]
+            targets = len(got) // seeds
+            for name in experiment.metric_columns[4:]:
+                want = np.asarray(metrics[name]).reshape(seeds, -1)
+                want = np.broadcast_to(want, (seeds, targets)).ravel()
+                np.testing.assert_array_equal(got[name], want, err_msg=f"{loss}: {name}")
