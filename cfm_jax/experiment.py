@@ -254,7 +254,7 @@ class Experiment:
                 fn = functools.partial(algorithm.fit_initial_controller, self.setup, loss)
                 return jax.vmap(fn, in_axes=(0, 0, None))(prepared, key_fit, knobs)
 
-            return _loop_losses(losses, fit, None)
+            return _loop_losses(losses, None, per_loss=fit)
 
         return self._jit(f"init[{','.join(losses)}]", fits)(prepared, key_fit, knobs)
 
@@ -284,22 +284,24 @@ class Experiment:
         losses, knobs = loss_names(losses), self._knobs(knobs)
 
         def collect(state, knobs):
-            def one(_, state):
+            def one(state):
                 fn = functools.partial(algorithm.collect, self.setup)
                 return jax.vmap(fn, in_axes=(0, None))(state, knobs)
 
-            return _loop_losses((losses[0],) * len(losses), one, state, switch=False)
+            return _loop_losses(losses, state, common=one)
 
         def refit(state, data, knobs):
-            def one(loss, entry):
-                state, data = entry
+            def forward(entry):  # the same for every loss: outside the switch, compiled once
                 fn = functools.partial(algorithm.refit_forward, self.setup)
-                state, forward_loss, key = jax.vmap(fn, in_axes=(0, 0, None))(state, data, knobs)
+                return jax.vmap(fn, in_axes=(0, 0, None))(*entry, knobs)
+
+            def controller(loss, entry):
+                state, forward_loss, key = entry
                 fn = functools.partial(algorithm.refit_controller, self.setup, loss)
                 state, controller_loss = jax.vmap(fn, in_axes=(0, 0, None))(state, key, knobs)
                 return state, forward_loss, controller_loss
 
-            return _loop_losses(losses, one, (state, data))
+            return _loop_losses(losses, (state, data), common=forward, per_loss=controller)
 
         out, collected = self._jit(f"collect[{len(losses)}]", collect)(state, knobs)
         if data is not None:  # a replay: every loss adds the recorded data
@@ -401,20 +403,25 @@ def loss_names(losses) -> tuple[str, ...]:
     return names
 
 
-def _loop_losses(losses: tuple[str, ...], body, xs, switch: bool = True):
-    """``body(loss, x)`` for each loss and its entry ``x`` of ``xs``'s leading axis (``xs``
-    None: ``x`` None), stacked: a ``lax.map`` whose ``lax.switch`` on the loss's index runs
-    that loss's branch only (``switch=False``: ``body`` does not depend on the loss, one
-    branch). One loss: ``body`` itself, the single-loss program."""
+def _loop_losses(losses: tuple[str, ...], xs, common=None, per_loss=None):
+    """For each loss and its entry ``x`` of ``xs``'s leading axis (``xs`` None: ``x`` None):
+    ``common(x)``, the part that does not depend on the loss, then ``per_loss(loss, ·)`` on
+    its result, picked by a ``lax.switch`` on the loss's index (one branch runs, and only it
+    is compiled per loss); results stacked. A ``lax.map`` over the losses; one loss: the
+    single-loss program itself. ``common``/``per_loss`` None: that part is the identity."""
+    common = common or (lambda x: x)
+
+    def branch(loss):
+        return functools.partial(per_loss, loss) if per_loss else lambda x: x
+
     if len(losses) == 1:
-        return _stack([body(losses[0], None if xs is None else _index(xs, 0))])
-    branches = [functools.partial(body, loss) for loss in (losses if switch else losses[:1])]
+        return _stack([branch(losses[0])(common(None if xs is None else _index(xs, 0)))])
+    branches = [branch(loss) for loss in losses]
 
     def one(entry):
         index, x = entry
-        if not switch:
-            return branches[0](x)
-        return jax.lax.switch(index, branches, x)
+        x = common(x)
+        return jax.lax.switch(index, branches, x) if per_loss else x
 
     return jax.lax.map(one, (jnp.arange(len(losses)), xs))
 
