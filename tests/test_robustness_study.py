@@ -227,6 +227,20 @@ def test_claims_verdicts_follow_the_rule_on_hand_made_seeds():
     assert parts == ["joint - task: -10 [-10, -10]"]
 
 
+def test_claims_theory_verdict_can_return_every_verdict():
+    """experiments/claims.py, the 1-D claim (issue 43): each verdict of THEORY_RULE from
+    counts made for it (the function before could only say 'does not reproduce' or 'not
+    resolved')."""
+    import claims
+
+    assert claims.theory_verdict(cases=254, closer=254) == "reproduces"
+    assert claims.theory_verdict(cases=254, closer=0) == "does not reproduce"
+    assert claims.theory_verdict(cases=254, closer=3) == "mixed"
+    assert claims.theory_verdict(cases=0, closer=0) == "not resolved"
+    with pytest.raises(ValueError, match="closer=5: between 0 and cases=4"):
+        claims.theory_verdict(cases=4, closer=5)
+
+
 def test_claims_success_counts_the_falls_of_the_last_iteration():
     """Fig. 5's "only the joint loss succeeds" on a fake default walk cell: the joint loss
     never falls at the last iteration, every other loss does once, and the joint loss's
