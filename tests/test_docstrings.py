@@ -51,6 +51,7 @@ DOCTEST_MODULES = (
     "robot_check",
     "rollout",
     "solo12",
+    "stats",
     "sweeps",
     "tasks",
     "tasks.inverse_dynamics",
