@@ -406,8 +406,8 @@ def loss_names(losses) -> tuple[str, ...]:
 def _loop_losses(losses: tuple[str, ...], xs, common=None, per_loss=None):
     """For each loss and its entry ``x`` of ``xs``'s leading axis (``xs`` None: ``x`` None):
     ``common(x)``, the part that does not depend on the loss, then ``per_loss(loss, ·)`` on
-    its result, picked by a ``lax.switch`` on the loss's index (one branch runs, and only it
-    is compiled per loss); results stacked. A ``lax.map`` over the losses; one loss: the
+    its result, picked by a ``lax.switch`` on the loss's index (one branch runs; only this
+    part is in the program once per loss); results stacked. A ``lax.map`` over the losses; one loss: the
     single-loss program itself. ``common``/``per_loss`` None: that part is the identity."""
     common = common or (lambda x: x)
 
