@@ -126,6 +126,38 @@ def test_committed_page_is_its_records():
     assert peers.page(records_frame, meta, "peers.png") == committed
 
 
+def test_readme_headline_is_the_committed_records():
+    """The README's sentence on SAC and PPO, recomputed from docs/results/peers_records.csv
+    (issue 42: >= 5 seeds per method; issue 43: the README tied to the records)."""
+    records = pd.read_csv(os.path.join(ROOT, peers.RECORDS))
+    pd_only, _ = peers.levels(records)
+    rows = {row["method"]: row for row in peers.summary_rows(records, pd_only)}
+    assert set(rows) == set(peers.METHODS)
+    assert all(row["to_pd"][2] >= 5 for row in rows.values())  # seeds per method
+    losses = [rows[loss] for loss in peers.LOSSES]
+    to_pd = {row["to_pd"][0] for row in losses}
+    to_tenth = sorted({row["to_tenth"][0] for row in losses})
+    finals = sorted(row["at_cfm"][0]["mean"] for row in losses)
+    ppo, sac = rows["ppo"], rows["sac"]
+    walls = sorted(row["wall"] for row in losses)
+    expected = [
+        f"after {to_pd.pop():.0f} robot-seconds",
+        f"10x better after {to_tenth[0]:.0f} to {to_tenth[-1]:.0f} s, in 5 of 5 seeds",
+        f"its tracking MSE is {finals[0]:.1e} to {finals[-1]:.1e} rad^2 (PD-only {pd_only:.1e})",
+        f"its last checkpoint, {ppo['to_pd'][0]:.0f} robot-seconds (5 of 5 seeds; "
+        f"{ppo['at_peer'][0]['mean']:.1e} rad^2 there)",
+        f"within its {sac['last']:.0f} s ({sac['at_peer'][0]['mean']:.2g} rad^2 "
+        f"[{sac['at_peer'][0]['low']:.2g}, {sac['at_peer'][0]['high']:.2g}]",
+        f"{walls[0]:.0f} to {walls[-1]:.0f} s per loss",
+        f"{ppo['wall']:.0f} s per PPO seed and {sac['wall'] / 60:.0f} minutes per SAC seed",
+    ]
+    assert not to_pd  # every loss reaches PD-only at the same checkpoint
+    assert sac["to_pd"][0] is None and ppo["to_tenth"][0] is None and sac["to_tenth"][0] is None
+    readme = " ".join(open(os.path.join(ROOT, "README.md")).read().split())
+    for text in expected:
+        assert text.replace("e-0", "e-") in readme, text
+
+
 def test_selection_rule_by_hand():
     grid = [
         {},
