@@ -240,6 +240,8 @@ ROBOT_ACTUATORS = ("strict", "torque")
 
 DESIRED = ("pd", "next_velocity")
 """Values of ``Config.task.desired`` (see :class:`TaskConfig`)."""
+MOTION_FAMILIES = ("test", "selection")
+"""Values of ``Config.task.motion_family`` (see :class:`TaskConfig`)."""
 CONTROLLER_GOALS = ("desired", "observed")
 """Values of ``Config.controller.goal`` (see :class:`ControllerConfig`)."""
 
@@ -398,6 +400,9 @@ class TaskConfig:
         ``attachment_site``.
       motions: legged tasks only: walk durations (s) or jump foot clearances (m), one reference
         each; None: the paper's 5 test references (:mod:`cfm_jax.locomotion`).
+      motion_family: legged tasks only: ``test`` (default; the test references' gait) or
+        ``selection``, the gait of :data:`cfm_jax.locomotion.SELECTION_MOTIONS`, on which
+        hyperparameters are chosen: no window of its motions is one of a test motion.
       desired: how the legged tasks build ``s*``, one of :data:`DESIRED`: ``pd`` (default;
         the gains above) or ``next_velocity`` (the authors' code: ``v_ref(t+1) - v(t)``; needs
         ``kp = kd = 0``, joint gains None). The arm tasks take ``pd`` only.
@@ -419,6 +424,7 @@ class TaskConfig:
     joint_kd: float | None = TASK_DEFAULT
     site: str | None = TASK_DEFAULT
     motions: tuple[float, ...] | None = TASK_DEFAULT
+    motion_family: str = TASK_DEFAULT
     desired: str = TASK_DEFAULT
 
     def control_period(self, timestep: float) -> float:
@@ -463,6 +469,8 @@ class TaskConfig:
                 _nonnegative_float(f"task.{field}", getattr(self, field))
         if not isinstance(self.desired, str) or self.desired not in DESIRED:
             fail("task.desired", self.desired, f"one of {DESIRED}")
+        if not isinstance(self.motion_family, str) or self.motion_family not in MOTION_FAMILIES:
+            fail("task.motion_family", self.motion_family, f"one of {MOTION_FAMILIES}")
         if self.name in TASK_CHECKS:
             TASK_CHECKS[self.name](self)
         if self.desired == "next_velocity":
@@ -865,6 +873,7 @@ GENERIC: dict[str, dict[str, Any]] = {
         "joint_kd": None,
         "site": None,
         "motions": None,
+        "motion_family": "test",
         "desired": "pd",
     },
 }

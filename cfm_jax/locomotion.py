@@ -136,6 +136,8 @@ class JumpParams:
       crouch_height: base origin height at the bottom of the crouch (m).
       extension: foot-to-hip depth (m) at which the push ends.
       push_force: vertical ground force per foot in the push (N); None: bisected to ``height``.
+      stand_depth: foot-to-hip depth (m) when standing (settle, flight, landing); None: the
+        nominal stance of :func:`cfm_jax.solo12.hip_positions` (0.223 m).
 
     Examples:
       >>> round(jump_clearance(simulate_jump(JumpParams(duration=0.8, push_force=30.0))[0]), 2)
@@ -149,6 +151,7 @@ class JumpParams:
     crouch_height: float = 0.17
     extension: float = 0.27
     push_force: float | None = None
+    stand_depth: float | None = None
 
 
 def _total_mass(model) -> float:
@@ -314,7 +317,7 @@ def _jump_run(params: JumpParams, push_force: float, model, control_dt):
     sim = _Sim(model, control_dt)
     weight = _total_mass(model) * -model.opt.gravity[2]
     nominal = solo12.hip_positions()
-    stand_depth = -nominal[0, 2]
+    stand_depth = -nominal[0, 2] if params.stand_depth is None else params.stand_depth
     crouch_depth = params.crouch_height - solo12.FOOT_RADIUS
     steps = int(round(params.duration / control_dt))
     phase = "settle"
@@ -510,6 +513,51 @@ def replay(ref: LocomotionReference, model=None, qpos0=None, qvel0=None) -> Repl
 
 WALK_DURATIONS = (1.0, 1.5, 2.0, 2.5, 3.0)  # s, the 5 walking horizons
 JUMP_HEIGHTS = (0.05, 0.08, 0.11, 0.14, 0.17)  # m of foot clearance, the 5 jump heights
+
+SELECTION_MOTIONS = {
+    "walk": {"speed": 0.2, "period": 0.4, "height": 0.22, "swing_height": 0.07},
+    "jump": {"stand_depth": 0.2, "crouch_height": 0.19},
+}
+"""The motions a choice of hyperparameters is made on (``task.motion_family="selection"``):
+the :class:`WalkParams` / :class:`JumpParams` fields that differ from the test references'.
+A slower trot with a longer cycle, lower base and higher steps; jumps from a lower stance
+through a shallower crouch. Not a window of any test motion: no 0.25 s window of a test
+reference's joint positions is within :data:`DISJOINT_RMS` of any window of a selection
+reference of the same kind (:func:`closest_window`; tests/test_locomotion.py), while the
+walks and jumps of the test family are prefixes or shared phases of one another."""
+
+DISJOINT_RMS = 0.03
+"""rad: the RMS joint-position distance under which two 0.25 s windows count as the same
+motion (the check of :data:`SELECTION_MOTIONS`)."""
+
+
+def closest_window(a, b, window: int) -> float:
+    """How close two trajectories come over any ``window`` steps, shifted in time: the
+    minimum over start steps ``t`` of ``a`` and ``s`` of ``b`` of the RMS (over the window's
+    steps and the columns) of ``a[t:t+window] - b[s:s+window]``. 0 when one trajectory holds
+    a window of the other (a prefix, or the same phase at another time).
+
+    Args:
+      a: ``(Ta, n)`` array (for example a reference's joint positions ``qpos[:, 7:]``).
+      b: ``(Tb, n)`` array.
+      window: steps per window, at most ``min(Ta, Tb)``.
+
+    Examples:
+      >>> x = np.sin(np.linspace(0.0, 6.0, 50))[:, None]
+      >>> closest_window(x, x[10:30], window=20)  # b is a window of a
+      0.0
+    """
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if a.ndim != 2 or b.ndim != 2 or a.shape[1] != b.shape[1]:
+        raise ValueError(f"a and b: (T, n) arrays with the same n, got {a.shape} and {b.shape}")
+    if not 1 <= window <= min(len(a), len(b)):
+        raise ValueError(f"window={window}: between 1 and {min(len(a), len(b))} (the shorter one)")
+    squared = ((a[:, None, :] - b[None, :, :]) ** 2).mean(-1)  # (Ta, Tb), step against step
+    diagonal = np.zeros((len(a) + 1, len(b) + 1))  # sums along the diagonals t - s = const
+    for t in range(len(a)):
+        diagonal[t + 1, 1:] = diagonal[t, :-1] + squared[t]
+    sums = diagonal[window:, window:] - diagonal[:-window, :-window]
+    return float(np.sqrt(max(sums.min(), 0.0) / window))
 
 
 def cache_dir(path: str | os.PathLike | None = None) -> Path:

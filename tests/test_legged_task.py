@@ -10,6 +10,7 @@ horizons of different length must be masked out of the data and the metrics.
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import jax
@@ -188,6 +189,21 @@ def test_motions_choose_the_references_other_than_the_test_ones(solo):
     assert [r.params for r in tasks.make(solo, default, 0.004).references] == [
         r.params for r in locomotion.default_jumps()
     ]
+
+
+def test_motion_family_selection_follows_the_selection_gait(solo):
+    """``task.motion_family="selection"``: the references of locomotion.SELECTION_MOTIONS
+    for the same durations (oracle: locomotion.walk_reference with those parameters); the
+    arm tasks refuse it, naming the field."""
+    config = config_lib.TaskConfig(name="walk", motions=(1.25,), motion_family="selection")
+    walk = tasks.make(solo, config, 0.004)
+    expected = locomotion.walk_reference(1.25, **locomotion.SELECTION_MOTIONS["walk"])
+    np.testing.assert_array_equal(walk.references[0].qpos, expected.qpos)
+    assert json.loads(walk.references[0].params)["speed"] == 0.2
+    with pytest.raises(config_lib.ConfigError, match=r"task.motion_family='selection' .* 'test'"):
+        config_lib.TaskConfig(name="inverse_dynamics", motion_family="selection")
+    with pytest.raises(config_lib.ConfigError, match=r"task.motion_family='train' .* one of"):
+        config_lib.TaskConfig(name="walk", motion_family="train")
 
 
 def test_legged_tasks_refuse_legs_other_than_the_solo12s(tmp_path):

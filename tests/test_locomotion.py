@@ -210,3 +210,60 @@ def test_cache_dir_from_environment(monkeypatch, tmp_path):
     assert L.cache_dir(tmp_path) == tmp_path
     monkeypatch.delenv(L.CACHE_ENV)
     assert L.cache_dir() == Path.home() / ".cache" / "cfm_jax" / "references"
+
+
+# ---- selection motions (issue 43) ----------------------------------------------------------
+
+# The selection's walk durations and jump clearances (experiments/select_defaults.py).
+SELECTION_WALKS = (1.25, 1.75, 2.25, 2.75)
+SELECTION_JUMPS = (0.065, 0.095, 0.125, 0.155)
+WINDOW = int(round(0.25 / L.CONTROL_DT))  # 0.25 s
+
+
+def test_closest_window_equals_a_plain_loop_over_every_pair_of_windows():
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(23, 3)), rng.normal(size=(17, 3))
+    b[4:12] = a[9:17] + 0.01  # a near-copy of 8 steps at another time
+
+    def plain(a, b, w):
+        return min(
+            np.sqrt(np.mean((a[t : t + w] - b[s : s + w]) ** 2))
+            for t in range(len(a) - w + 1)
+            for s in range(len(b) - w + 1)
+        )
+
+    for window in (1, 5, 8, 17):
+        assert L.closest_window(a, b, window) == pytest.approx(plain(a, b, window), rel=1e-9)
+    assert L.closest_window(a, b, 8) == pytest.approx(0.01, rel=1e-9)
+    with pytest.raises(ValueError, match="window=18: between 1 and 17"):
+        L.closest_window(a, b, 18)
+
+
+@pytest.mark.parametrize("kind", ["walk", "jump"])
+def test_selection_motions_hold_no_window_of_a_test_motion(cache, walks, jumps, kind):
+    """Disjoint in content, not in parameters: no 0.25 s window of a test reference's joint
+    positions is within DISJOINT_RMS of any window of a selection reference, at any shift in
+    time. The selection run's motions (the same durations and heights in the test gait) fail
+    this check: its walks are prefixes of the test walks, and its jumps begin with the test
+    jumps' settle and crouch (both distance 0)."""
+    make = L.walk_reference if kind == "walk" else L.jump_reference
+    values = SELECTION_WALKS if kind == "walk" else SELECTION_JUMPS
+    tests = walks if kind == "walk" else jumps
+
+    def closest(selection):
+        return min(L.closest_window(t.qpos[:, 7:], s.qpos[:, 7:], WINDOW)
+                   for t in tests for s in selection)  # fmt: skip
+
+    before = closest([make(v, cache=cache) for v in values])
+    assert before < L.DISJOINT_RMS / 10  # the check catches today's selection motions
+    now = [make(v, cache=cache, **L.SELECTION_MOTIONS[kind]) for v in values]
+    assert closest(now) > L.DISJOINT_RMS
+    if kind == "walk":  # and they walk as the test walks do: half the commanded distance
+        for ref in now:
+            params = L.WalkParams(**json.loads(ref.params))
+            assert L.summary(ref)["distance_m"] >= 0.5 * L.commanded_distance(params)
+            assert np.degrees(_tilt(ref.qpos)).max() < 5
+    else:  # and jump to the requested clearance (to 3 %) and land upright
+        got = [L.jump_clearance(r) for r in now]
+        np.testing.assert_allclose(got, values, rtol=0.03)
+        assert all(np.degrees(_tilt(r.qpos[-1])) < 10 for r in now)

@@ -400,7 +400,8 @@ def default_config() -> Config:
 
 
 def check_config(task: TaskConfig) -> None:
-    """Refuse the legged tasks' fields (``joint_kp``, ``joint_kd``, ``desired``, ``motions``).
+    """Refuse the legged tasks' fields (``joint_kp``, ``joint_kd``, ``desired``, ``motions``,
+    ``motion_family``).
 
     Args:
       task: a :class:`cfm_jax.config.TaskConfig` of an arm task.
@@ -433,4 +434,11 @@ def check_config(task: TaskConfig) -> None:
             "task.motions",
             task.motions,
             f"None for task {task.name!r} (the arm tasks follow task.targets)",
+        )
+    if task.motion_family != "test":
+        fail(
+            "task.motion_family",
+            task.motion_family,
+            f"'test' for task {task.name!r} (the arm tasks follow task.targets; the selection "
+            "targets are references.default_targets(..., seed=references.SELECTION_SEED))",
         )

@@ -118,6 +118,8 @@ class LeggedTask(JointSpaceTask):
         self.sensor_rows = np.concatenate([np.arange(a, a + 10) for a in feet])
         self.feet = len(feet)
         kwargs = dict(control_dt=control_dt, model_file=robot.path)
+        if task.motion_family == "selection":
+            kwargs.update(locomotion.SELECTION_MOTIONS[task.name])
         if task.name == "walk":
             durations = locomotion.WALK_DURATIONS if task.motions is None else task.motions
             refs = [locomotion.walk_reference(d, **kwargs) for d in durations]
