@@ -407,8 +407,8 @@ def _loop_losses(losses: tuple[str, ...], xs, common=None, per_loss=None):
     """For each loss and its entry ``x`` of ``xs``'s leading axis (``xs`` None: ``x`` None):
     ``common(x)``, the part that does not depend on the loss, then ``per_loss(loss, ·)`` on
     its result, picked by a ``lax.switch`` on the loss's index (one branch runs; only this
-    part is in the program once per loss); results stacked. A ``lax.map`` over the losses; one loss: the
-    single-loss program itself. ``common``/``per_loss`` None: that part is the identity."""
+    part is in the program once per loss); results stacked. A ``lax.map`` over the losses;
+    one loss: the single-loss program itself. ``common``/``per_loss`` None: the identity."""
     common = common or (lambda x: x)
 
     def branch(loss):
