@@ -1,0 +1,249 @@
+"""Each loss at its own best (issue 43, item 1): a hyperparameter search per loss on an equal
+budget, on selection motions and selection seeds only, by a rule written before its first
+trial.
+
+The rule (``RULE``, also on the page this script writes) is fixed before any trial runs:
+
+* One Optuna study per (task, loss), the same for every loss: TPE (``TPESampler``, seed
+  ``SAMPLER_SEED``, the first ``STARTUP`` trials random), ``TRIALS`` trials, the search space
+  ``SPACE`` of the task's family (the learner's shared factors, the same for every loss; no
+  loss has options of its own in the config, and a factor a loss ignores, the controller
+  goal for ``supervised``, stays in its space so that every loss searches the same space).
+* A trial trains its loss from the task's library defaults with the trial's values, on the
+  task's selection motions (arm: the targets of ``references.SELECTION_SEED``; legged:
+  ``task.motion_family="selection"`` for the durations or heights of
+  ``select_defaults.SELECTION_WALKS`` / ``SELECTION_JUMPS``, no window of which is one of a
+  test motion) and the seeds ``SEEDS`` (no test cell uses them), for the task's iterations.
+* Its score is the selection run's (``select_defaults.RULE``) for that loss alone:
+  ``log10`` of the final tracking MSE per run, a failed run (fell, diverged, not finite)
+  scoring ``log10(1000 x PD-only)`` on its target or its own score if higher; the mean over
+  targets, then over seeds. Lower is better.
+* The loss's configuration for the comparison "each at its best" is its trial with the
+  lowest score (ties: the earlier trial). The test cells then run each loss with its own
+  configuration, beside the shared defaults.
+
+Resumable: each study lives in a journal file (``--runs/<task>/<loss>/journal.log``); a trial
+killed while running is marked failed on the next start and its values are tried again
+first, so the trials' values do not depend on where the search was cut. Each trial's
+metrics are kept in ``--out`` (``trials.csv``: one row per trial; ``chosen.json``).
+
+Usage:
+  python experiments/loss_search.py --task inverse_dynamics --budget 3000   # a piece
+  python experiments/loss_search.py --quick --runs /tmp/q --out /tmp/q       # smoke test
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import sys
+import time
+
+import _study
+import pandas as pd
+import select_defaults
+
+import cfm_jax
+from cfm_jax import config as config_lib
+from cfm_jax import losses as losses_lib
+
+RULE = (
+    "One TPE study per (task, loss), the same for every loss: sampler seed {seed}, {startup} "
+    "random trials first, {trials} trials in all, the family's search space. A trial trains "
+    "its loss from the task's library defaults with the trial's values on the selection "
+    "motions (arm: the SELECTION_SEED targets; legged: motion_family='selection') and the "
+    "selection seeds {seeds}. Score: the selection run's, for that loss alone (log10 final "
+    "tracking MSE per run; a failed run scores log10(1000 x PD-only) or its own if higher; "
+    "mean over targets, then seeds); lower is better. A loss's configuration 'at its best' "
+    "is its lowest-scoring trial (ties: the earlier). Written before the first trial."
+)
+SAMPLER_SEED = 43
+STARTUP = 4
+TRIALS = 12
+SEEDS = (100, 101, 102)
+"""Selection seeds: the test cells use seeds 0-9, the first selection run 0-2."""
+ITERATIONS = {"inverse_dynamics": 10, "opspace": 10, "walk": 30, "jump": 30}
+
+CATEGORICAL = {
+    "normaliser": ("loop.normaliser", config_lib.NORMALISERS),
+    "forward model": ("forward.kind", config_lib.FORWARD_KINDS),
+    "controller goal": ("controller.goal", config_lib.CONTROLLER_GOALS),
+    "loss form": ("controller.loss_form", config_lib.LOSS_FORMS),
+    "fit start": ("forward+controller.start", config_lib.FIT_STARTS),
+}
+FAMILY_CATEGORICAL = {
+    "arm": {"babbling": ("loop.babbling", ("reaching", "home"))},
+    "legged": {"s*": ("task.desired", config_lib.DESIRED)},
+}
+LOG_UNIFORM = {
+    "forward learning rate": ("forward.learning_rate", (1e-4, 3e-3)),
+    "controller learning rate": ("controller.learning_rate", (1e-4, 3e-3)),
+}
+"""The search space: the factors of the first selection run (categorical) and the two
+learning rates (log-uniform), per family; the same for every loss."""
+
+
+def space(task: str) -> dict:
+    """``{factor: (dotted path, values or (low, high))}`` of ``task``'s family."""
+    family = select_defaults.family(task)
+    return {**CATEGORICAL, **FAMILY_CATEGORICAL[family], **LOG_UNIFORM}
+
+
+def suggest(trial, task: str) -> dict:
+    """The trial's values, ``{dotted path: value}`` (``forward+controller.start`` sets both)."""
+    changes = {}
+    for name, (path, values) in space(task).items():
+        if name in LOG_UNIFORM:
+            value = trial.suggest_float(name, *values, log=True)
+        else:
+            value = trial.suggest_categorical(name, list(values))
+        for one in select_defaults.factor_paths(path):
+            changes[one] = value
+    return changes
+
+
+def trial_config(task: str, changes: dict, quick: bool = False) -> config_lib.Config:
+    """The task's library defaults on its selection motions with ``changes``."""
+    config = config_lib.for_task(task, robot=select_defaults.ROBOT[task])
+    motions = select_defaults.selection_motions(task, config)
+    if task in ("walk", "jump"):
+        motions["motion_family"] = "selection"
+    config = _study.with_changes(config, {
+        "loop.iterations": ITERATIONS[task],
+        **{f"task.{k}": v for k, v in motions.items()},
+        **changes,
+    })  # fmt: skip
+    if quick:
+        config = _study.quick_config(config)
+        config = config.replace(loop=dataclasses.replace(config.loop, iterations=1))
+    return config
+
+
+def score(metrics: pd.DataFrame, baselines: pd.DataFrame) -> float:
+    """The trial's score under :data:`RULE` (one loss: mean over seeds of the mean over
+    targets of the selection run's per-run score at the last iteration)."""
+    frame = select_defaults.scores(metrics, baselines)
+    return float(select_defaults.seed_scores(frame).mean(axis=0).mean())
+
+
+def study(runs: str, task: str, loss: str):
+    import optuna
+
+    folder = os.path.join(runs, task, loss)
+    os.makedirs(folder, exist_ok=True)
+    backend = optuna.storages.journal.JournalFileBackend(os.path.join(folder, "journal.log"))
+    return optuna.create_study(
+        study_name=f"{task}-{loss}",
+        storage=optuna.storages.JournalStorage(backend),
+        sampler=optuna.samplers.TPESampler(seed=SAMPLER_SEED, n_startup_trials=STARTUP),
+        direction="minimize",
+        load_if_exists=True,
+    )
+
+
+def _recover(search) -> None:
+    """A trial left running by a killed piece: failed, and its values tried again first."""
+    import optuna
+
+    for trial in search.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
+        search.tell(trial.number, state=optuna.trial.TrialState.FAIL)
+        search.enqueue_trial(trial.params)
+
+
+def run_trial(search, task: str, loss: str, args) -> dict:
+    """Ask, train (seeds vmapped), score, tell; the trial's record."""
+    trial = search.ask()
+    changes = suggest(trial, task)
+    config = trial_config(task, changes, args.quick)
+    seeds = list(SEEDS[:2] if args.quick else SEEDS)
+    start = time.perf_counter()
+    result = cfm_jax.train(config.replace(seed=seeds[0], loop=dataclasses.replace(
+        config.loop, seeds=len(seeds))), progress=False, losses=[loss])  # fmt: skip
+    seconds = time.perf_counter() - start
+    value = score(result.metrics, result.baselines)
+    if not math.isfinite(value):
+        raise RuntimeError(f"{task}/{loss} trial {trial.number}: score {value}")
+    trial.set_user_attr("seconds", round(seconds, 1))
+    search.tell(trial, value)
+    return {"task": task, "loss": loss, "trial": trial.number, "score": value,
+            "seconds": round(seconds, 1), **trial.params}  # fmt: skip
+
+
+def records(runs: str, tasks, loss_names) -> pd.DataFrame:
+    """Every finished trial of the studies in ``runs``."""
+    import optuna
+
+    rows = []
+    for task in tasks:
+        for loss in loss_names:
+            if not os.path.exists(os.path.join(runs, task, loss, "journal.log")):
+                continue
+            for t in study(runs, task, loss).get_trials(
+                deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)
+            ):
+                rows.append({"task": task, "loss": loss, "trial": t.number, "score": t.value,
+                             "seconds": t.user_attrs.get("seconds"), **t.params})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def chosen(trials: pd.DataFrame) -> dict:
+    """Per task and loss, the lowest-scoring trial (ties: the earlier) and its values."""
+    out = {}
+    for (task, loss), frame in trials.groupby(["task", "loss"], sort=False):
+        best = frame.sort_values(["score", "trial"]).iloc[0]
+        values = {k: v for k, v in best.items() if k not in ("task", "loss", "seconds")}
+        out.setdefault(task, {})[loss] = {k: (v.item() if hasattr(v, "item") else v)
+                                          for k, v in values.items() if pd.notna(v)}  # fmt: skip
+    return out
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--task", default="inverse_dynamics", choices=sorted(ITERATIONS))
+    parser.add_argument("--losses", default=",".join(losses_lib.PAPER_LOSSES))
+    parser.add_argument("--trials", type=int, default=TRIALS, help="trials per loss in all")
+    parser.add_argument("--budget", type=float, default=math.inf,
+                        help="seconds: start no trial after this (a piece)")  # fmt: skip
+    parser.add_argument("--runs", default="results/loss_search")
+    parser.add_argument("--out", default="docs/results/loss_search")
+    parser.add_argument("--quick", action="store_true", help="tiny networks, 1 iteration")
+    args = parser.parse_args(argv)
+    loss_names = [s for s in args.losses.split(",") if s]
+    bad = sorted(set(loss_names) - set(losses_lib.PAPER_LOSSES))
+    if bad:
+        parser.error(f"--losses: {bad} not allowed; choose from {list(losses_lib.PAPER_LOSSES)}")
+    from optuna.trial import TrialState
+
+    COMPLETE = TrialState.COMPLETE  # noqa: N806
+    start = time.perf_counter()
+    searches = {loss: study(args.runs, args.task, loss) for loss in loss_names}
+    for search in searches.values():
+        _recover(search)
+    # Round-robin over the losses, a trial each, so that a piece cut short leaves every loss
+    # with about the same number of trials.
+    while time.perf_counter() - start < args.budget:
+        done = {loss: len(s.get_trials(deepcopy=False, states=(COMPLETE,)))
+                for loss, s in searches.items()}  # fmt: skip
+        todo = [loss for loss in loss_names if done[loss] < args.trials]
+        if not todo:
+            break
+        loss = min(todo, key=lambda name: (done[name], loss_names.index(name)))
+        row = run_trial(searches[loss], args.task, loss, args)
+        print(f"loss_search: {args.task}/{loss} trial {row['trial']}: score "
+              f"{row['score']:.3f} in {row['seconds']:.0f} s", flush=True)  # fmt: skip
+    trials = records(args.runs, [args.task], loss_names)
+    os.makedirs(args.out, exist_ok=True)
+    if not trials.empty:
+        trials.to_csv(os.path.join(args.out, f"trials_{args.task}.csv"), index=False)
+        with open(os.path.join(args.out, f"chosen_{args.task}.json"), "w") as f:
+            json.dump({"rule": RULE.format(seed=SAMPLER_SEED, startup=STARTUP, trials=args.trials,
+                                           seeds=list(SEEDS)),
+                       "chosen": chosen(trials)}, f, indent=1)  # fmt: skip
+    print(f"loss_search: {len(trials)} trials recorded in {args.out}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,104 @@
+"""experiments/loss_search.py (issue 43, item 1): its trials' configs, score, resumption and
+choice, without training.
+
+Oracles: the test motions and seeds of the library, which no trial may use; scores computed
+by hand (log10 errors, the failure floor of 1000 x PD-only); Optuna's own record of a trial.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cfm_jax import locomotion, references, robots
+
+optuna = pytest.importorskip("optuna")
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
+import loss_search  # noqa: E402
+
+
+@pytest.mark.parametrize("task", ["inverse_dynamics", "opspace", "walk", "jump"])
+def test_a_trial_runs_on_selection_motions_and_seeds_with_its_values(task):
+    trial = optuna.trial.FixedTrial({
+        **{name: values[-1] for name, (_, values) in loss_search.CATEGORICAL.items()},
+        **{name: values[-1] for name, (_, values)
+           in loss_search.FAMILY_CATEGORICAL[loss_search.select_defaults.family(task)].items()},
+        "forward learning rate": 2e-4, "controller learning rate": 3e-4,
+    })  # fmt: skip
+    changes = loss_search.suggest(trial, task)
+    config = loss_search.trial_config(task, changes)
+    assert config.forward.learning_rate == 2e-4 and config.controller.learning_rate == 3e-4
+    assert config.forward.start == config.controller.start == "fresh"  # one factor, two fields
+    assert config.loop.normaliser == "robot" and config.controller.loss_form == "norm"
+    assert config.loop.iterations == loss_search.ITERATIONS[task]
+    if task == "walk":
+        assert config.task.motion_family == "selection"
+        assert not set(config.task.motions) & set(locomotion.WALK_DURATIONS)
+    elif task == "jump":
+        assert config.task.motion_family == "selection"
+        assert not set(config.task.motions) & set(locomotion.JUMP_HEIGHTS)
+    else:  # the arm: no target within 0.1 (rad or m, per coordinate) of a test target
+        robot = robots.load("iiwa14")
+        test = references.default_targets(robot.joint_range, robot.home)
+        if task == "opspace":  # end-effector positions of the test poses, metres
+            test = references.default_cartesian_targets(robot, config.task.site, robot.home)
+        chosen = np.asarray(config.task.targets)
+        assert chosen.shape == test.shape
+        assert np.min(np.abs(test[:, None] - chosen[None]).max(axis=-1)) > 0.1
+    assert not set(loss_search.SEEDS) & set(range(10))  # no test cell's seed
+
+
+def test_the_score_is_the_selection_rule_for_one_loss_by_hand():
+    # Two seeds x two targets of one loss at the last iteration; PD-only 1e-2 on both
+    # targets: the failure floor is log10(1000 x 1e-2) = 1.
+    metrics = pd.DataFrame({
+        "loss": "task", "seed": [100, 100, 101, 101], "iteration": 3, "target": [0, 1, 0, 1],
+        "tracking_mse": [1e-4, 1e-6, 1e-5, np.nan], "diverged": [0, 0, 0, 1],
+    })  # fmt: skip
+    earlier = metrics.assign(iteration=2, tracking_mse=1.0, diverged=0)
+    baselines = pd.DataFrame({"baseline": "pd_only", "target": [0, 1], "tracking_mse": 1e-2})
+    got = loss_search.score(pd.concat([earlier, metrics], ignore_index=True), baselines)
+    # seed 100: (-4 - 6) / 2 = -5; seed 101: (-5 + 1) / 2 = -2; mean -3.5.
+    assert got == pytest.approx(-3.5)
+
+
+def test_a_trial_cut_by_a_killed_piece_is_tried_again_first(tmp_path):
+    search = loss_search.study(str(tmp_path), "inverse_dynamics", "joint")
+    first = search.ask()
+    loss_search.suggest(first, "inverse_dynamics")
+    cut = dict(first.params)  # the piece is killed here: the trial stays RUNNING
+    again = loss_search.study(str(tmp_path), "inverse_dynamics", "joint")  # the next piece
+    loss_search._recover(again)
+    states = [t.state for t in again.get_trials(deepcopy=False)]
+    assert states == [optuna.trial.TrialState.FAIL, optuna.trial.TrialState.WAITING]
+    retried = again.ask()
+    loss_search.suggest(retried, "inverse_dynamics")
+    assert retried.params == cut
+
+
+def test_every_loss_draws_the_same_startup_trials_and_the_lowest_score_is_chosen(tmp_path):
+    # The same sampler seed: the random startup trials are the same values for every loss
+    # (paired), so no loss starts from luckier draws.
+    drawn = {}
+    for loss in ("joint", "supervised"):
+        search = loss_search.study(str(tmp_path), "walk", loss)
+        trials = [search.ask() for _ in range(loss_search.STARTUP)]
+        for t in trials:
+            loss_search.suggest(t, "walk")
+        drawn[loss] = [t.params for t in trials]
+    assert drawn["joint"] == drawn["supervised"]
+    trials = pd.DataFrame({
+        "task": "walk", "loss": ["joint"] * 3 + ["task"] * 2, "trial": [0, 1, 2, 0, 1],
+        "score": [-1.0, -2.0, -2.0, 0.5, math.inf], "seconds": 1.0,
+        "normaliser": ["data", "robot", "babbling", "data", "robot"],
+    })  # fmt: skip
+    chosen = loss_search.chosen(trials)
+    assert chosen["walk"]["joint"] == {"trial": 1, "score": -2.0, "normaliser": "robot"}
+    assert chosen["walk"]["task"]["trial"] == 0
+    with pytest.raises(SystemExit):
+        loss_search.main(["--losses", "joint,jont", "--runs", str(tmp_path)])
