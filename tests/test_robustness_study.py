@@ -26,14 +26,18 @@ import robustness_study as study  # noqa: E402
 
 
 def _as_run_today(recorded: dict) -> dict:
-    """A record's config.json with the loop fields added since it was written
-    (``_study.BEFORE_TORQUE_SCALING``: a record that predates them ran on those values) and
-    its forward section upgraded (:func:`cfm_jax.config.upgrade_forward`)."""
+    """A record's config.json with the fields added since it was written
+    (``_study.BEFORE_TORQUE_SCALING``: a record that predates them ran on those values;
+    ``task.motion_family``: the test family) and its forward section upgraded
+    (:func:`cfm_jax.config.upgrade_forward`)."""
     loop = dict(recorded["loop"])
     for path, value in _study.BEFORE_TORQUE_SCALING.items():
         loop.setdefault(path.split(".")[1], value)
+    # task.motion_family (issue 43) came later: every record followed the test motions' family
+    task = {**recorded["task"], "motion_family": recorded["task"].get("motion_family", "test")}
     # and the forward section's rigid_body fields as they are read today (forward.options)
-    return {**recorded, "loop": loop, "forward": config_lib.upgrade_forward(recorded["forward"])}
+    forward = config_lib.upgrade_forward(recorded["forward"])
+    return {**recorded, "loop": loop, "task": task, "forward": forward}
 
 
 LOSSES = ("joint", "task", "distal", "supervised")
