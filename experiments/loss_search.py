@@ -60,6 +60,18 @@ RULE = (
     "mean over targets, then seeds); lower is better. A loss's configuration 'at its best' "
     "is its lowest-scoring trial (ties: the earlier). Written before the first trial."
 )
+SIZING = (
+    "Measured before the first trial (2 cores, nothing beside it): the inverse-dynamics cell "
+    "of the arm's defaults on the selection targets, 3 seeds x 10 iterations, the four losses "
+    "in one batched call, 487 s, about 122 s per loss (a trial trains one loss alone: about "
+    "140 s). The first selection run measured the walk's cell (30 iterations) at 2.6x the "
+    "inverse-dynamics one: about 360 s per walk trial. 12 trials per loss: about 1.9 h for "
+    "inverse dynamics and 4.8 h for the walk, in pieces over sessions. So the search runs on "
+    "one task per family, as the first selection did (inverse dynamics, walk), and op-space "
+    "and the jump take their family's per-loss configuration; decided on the cost alone, "
+    "before any trial."
+)
+SEARCHED_ON = {"arm": "inverse_dynamics", "legged": "walk"}
 SAMPLER_SEED = 43
 STARTUP = 4
 TRIALS = 12
