@@ -71,7 +71,6 @@ SIZING = (
     "and the jump take their family's per-loss configuration; decided on the cost alone, "
     "before any trial."
 )
-SEARCHED_ON = {"arm": "inverse_dynamics", "legged": "walk"}
 SAMPLER_SEED = 43
 STARTUP = 4
 TRIALS = 12
