@@ -2,7 +2,8 @@
 budget, on selection motions and selection seeds only, by a rule written before its first
 trial.
 
-The rule (``RULE``, also on the page this script writes) is fixed before any trial runs:
+The rule (``RULE``, also in the ``chosen_<task>.json`` it writes) is fixed before any trial
+runs:
 
 * One Optuna study per (task, loss), the same for every loss: TPE (``TPESampler``, seed
   ``SAMPLER_SEED``, the first ``STARTUP`` trials random), ``TRIALS`` trials, the search space
@@ -22,14 +23,16 @@ The rule (``RULE``, also on the page this script writes) is fixed before any tri
   lowest score (ties: the earlier trial). The test cells then run each loss with its own
   configuration, beside the shared defaults.
 
-Resumable: each study lives in a journal file (``--runs/<task>/<loss>/journal.log``); a trial
-killed while running is marked failed on the next start and its values are tried again
-first, so the trials' values do not depend on where the search was cut. Each trial's
-metrics are kept in ``--out`` (``trials.csv``: one row per trial; ``chosen.json``).
+Resumable: each study lives in a journal file (``--out/<task>/<loss>/journal.log``, a few
+kB, committed with the records so that a fresh machine resumes it); a trial killed while
+running is marked failed on the next start and its values are tried again first, so the
+trials' values do not depend on where the search was cut. The finished trials are written to
+``--out`` after every trial (``trials_<task>.csv``: one row per trial;
+``chosen_<task>.json``: the rule and each loss's lowest-scoring trial).
 
 Usage:
   python experiments/loss_search.py --task inverse_dynamics --budget 3000   # a piece
-  python experiments/loss_search.py --quick --runs /tmp/q --out /tmp/q       # smoke test
+  python experiments/loss_search.py --quick --out /tmp/q                     # smoke test
 """
 
 from __future__ import annotations
@@ -211,6 +214,17 @@ def chosen(trials: pd.DataFrame) -> dict:
     return out
 
 
+def write_records(out: str, task: str, loss_names, trials: int) -> pd.DataFrame:
+    """``trials_<task>.csv`` and ``chosen_<task>.json`` in ``out`` from the studies there."""
+    frame = records(out, [task], loss_names)
+    if not frame.empty:
+        frame.to_csv(os.path.join(out, f"trials_{task}.csv"), index=False)
+        rule = RULE.format(seed=SAMPLER_SEED, startup=STARTUP, trials=trials, seeds=list(SEEDS))
+        with open(os.path.join(out, f"chosen_{task}.json"), "w") as f:
+            json.dump({"rule": rule, "chosen": chosen(frame)}, f, indent=1)
+    return frame
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--task", default="inverse_dynamics", choices=sorted(ITERATIONS))
@@ -218,7 +232,6 @@ def main(argv=None) -> None:
     parser.add_argument("--trials", type=int, default=TRIALS, help="trials per loss in all")
     parser.add_argument("--budget", type=float, default=math.inf,
                         help="seconds: start no trial after this (a piece)")  # fmt: skip
-    parser.add_argument("--runs", default="results/loss_search")
     parser.add_argument("--out", default="docs/results/loss_search")
     parser.add_argument("--quick", action="store_true", help="tiny networks, 1 iteration")
     args = parser.parse_args(argv)
@@ -230,7 +243,7 @@ def main(argv=None) -> None:
 
     COMPLETE = TrialState.COMPLETE  # noqa: N806
     start = time.perf_counter()
-    searches = {loss: study(args.runs, args.task, loss) for loss in loss_names}
+    searches = {loss: study(args.out, args.task, loss) for loss in loss_names}
     for search in searches.values():
         _recover(search)
     # Round-robin over the losses, a trial each, so that a piece cut short leaves every loss
@@ -245,14 +258,8 @@ def main(argv=None) -> None:
         row = run_trial(searches[loss], args.task, loss, args)
         print(f"loss_search: {args.task}/{loss} trial {row['trial']}: score "
               f"{row['score']:.3f} in {row['seconds']:.0f} s", flush=True)  # fmt: skip
-    trials = records(args.runs, [args.task], loss_names)
-    os.makedirs(args.out, exist_ok=True)
-    if not trials.empty:
-        trials.to_csv(os.path.join(args.out, f"trials_{args.task}.csv"), index=False)
-        with open(os.path.join(args.out, f"chosen_{args.task}.json"), "w") as f:
-            json.dump({"rule": RULE.format(seed=SAMPLER_SEED, startup=STARTUP, trials=args.trials,
-                                           seeds=list(SEEDS)),
-                       "chosen": chosen(trials)}, f, indent=1)  # fmt: skip
+        write_records(args.out, args.task, loss_names, args.trials)  # nothing lost on a kill
+    trials = write_records(args.out, args.task, loss_names, args.trials)
     print(f"loss_search: {len(trials)} trials recorded in {args.out}")
 
 

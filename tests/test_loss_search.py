@@ -101,4 +101,4 @@ def test_every_loss_draws_the_same_startup_trials_and_the_lowest_score_is_chosen
     assert chosen["walk"]["joint"] == {"trial": 1, "score": -2.0, "normaliser": "robot"}
     assert chosen["walk"]["task"]["trial"] == 0
     with pytest.raises(SystemExit):
-        loss_search.main(["--losses", "joint,jont", "--runs", str(tmp_path)])
+        loss_search.main(["--losses", "joint,jont", "--out", str(tmp_path)])
