@@ -245,6 +245,59 @@ def test_claims_theory_verdict_can_return_every_verdict():
         claims.theory_verdict(cases=4, closer=5)
 
 
+def test_committed_claims_page_is_its_records(tmp_path):
+    """docs/results/claims.md regenerated from the committed records (the robustness
+    study's cells, the swap rerun) and the 1-D theory recomputed: every number and verdict
+    on the page comes from them (issue 43, item 4)."""
+    import claims
+
+    root = os.path.join(os.path.dirname(__file__), "..")
+    got = claims.write(
+        os.path.join(root, "docs", "results", "robustness"),
+        os.path.join(root, "docs", "results", "swap", "swap_metrics.csv"),
+        str(tmp_path / "claims.md"),
+    )
+    with open(os.path.join(root, "docs", "results", "claims.md")) as f:
+        assert got == f.read()
+
+
+def test_readme_results_table_is_the_committed_records():
+    """The README's results table (final tracking MSE per loss, mean over seeds [95% CI],
+    falls, oracle and PD-only) recomputed from the default cells' committed records, two
+    significant digits (issue 43, item 4: the README tied to the records)."""
+    import claims
+
+    from cfm_jax import report
+
+    def fmt(value):
+        if value < 0.01:
+            mantissa, exponent = f"{value:.1e}".split("e")
+            return f"{mantissa}e{int(exponent)}"
+        return f"{value:.2g}"
+
+    labels = {"inverse_dynamics": "iiwa inverse dynamics, rad^2", "opspace": "iiwa op-space, m^2",
+              "walk": "Solo12 walk, base pose", "jump": "Solo12 jump, base pose"}  # fmt: skip
+    root = os.path.join(os.path.dirname(__file__), "..")
+    readme = open(os.path.join(root, "README.md")).read().splitlines()
+    cells = claims.records(os.path.join(root, "docs", "results", "robustness"))
+    defaults = [cell for cell in cells if cell.default]
+    assert {cell.task for cell in defaults} == set(labels)
+    for cell in defaults:
+        metrics, baselines = cells[cell]
+        values = claims.per_seed(metrics, "tracking_mse")
+        final = metrics[metrics.iteration == metrics.iteration.max()]
+        row = [labels[cell.task]]
+        for loss in LOSSES:
+            ci = report.mean_ci(values[loss])
+            text = f"{fmt(ci['mean'])} [{fmt(ci['low'])}, {fmt(ci['high'])}]"
+            if cell.task in ("walk", "jump"):
+                text += f"; {int(report.failed_runs(final[final.loss == loss]).sum())} fell"
+            row.append(text)
+        for baseline in ("oracle", "pd_only"):
+            row.append(fmt(baselines[baselines.baseline == baseline].tracking_mse.mean()))
+        assert "| " + " | ".join(row) + " |" in readme, cell.task
+
+
 def test_claims_success_counts_the_falls_of_the_last_iteration():
     """Fig. 5's "only the joint loss succeeds" on a fake default walk cell: the joint loss
     never falls at the last iteration, every other loss does once, and the joint loss's
