@@ -79,6 +79,8 @@ STARTUP = 4
 TRIALS = 12
 SEEDS = (100, 101, 102)
 """Selection seeds: the test cells use seeds 0-9, the first selection run 0-2."""
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+"""The repository: the records' default folder is in its docs, wherever the command runs."""
 ITERATIONS = {"inverse_dynamics": 10, "opspace": 10, "walk": 30, "jump": 30}
 
 CATEGORICAL = {
@@ -232,7 +234,7 @@ def main(argv=None) -> None:
     parser.add_argument("--trials", type=int, default=TRIALS, help="trials per loss in all")
     parser.add_argument("--budget", type=float, default=math.inf,
                         help="seconds: start no trial after this (a piece)")  # fmt: skip
-    parser.add_argument("--out", default="docs/results/loss_search")
+    parser.add_argument("--out", default=os.path.join(ROOT, "docs", "results", "loss_search"))
     parser.add_argument("--quick", action="store_true", help="tiny networks, 1 iteration")
     args = parser.parse_args(argv)
     loss_names = [s for s in args.losses.split(",") if s]
