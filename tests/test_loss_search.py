@@ -15,11 +15,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cfm_jax import locomotion, references, robots
+from cfm_jax import locomotion
 
 optuna = pytest.importorskip("optuna")
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
 import loss_search  # noqa: E402
+from tiny import assert_targets_are_not_the_test_targets  # noqa: E402
 
 
 @pytest.mark.parametrize("task", ["inverse_dynamics", "opspace", "walk", "jump"])
@@ -43,13 +44,7 @@ def test_a_trial_runs_on_selection_motions_and_seeds_with_its_values(task):
         assert config.task.motion_family == "selection"
         assert not set(config.task.motions) & set(locomotion.JUMP_HEIGHTS)
     else:  # the arm: no target within 0.1 (rad or m, per coordinate) of a test target
-        robot = robots.load("iiwa14")
-        test = references.default_targets(robot.joint_range, robot.home)
-        if task == "opspace":  # end-effector positions of the test poses, metres
-            test = references.default_cartesian_targets(robot, config.task.site, robot.home)
-        chosen = np.asarray(config.task.targets)
-        assert chosen.shape == test.shape
-        assert np.min(np.abs(test[:, None] - chosen[None]).max(axis=-1)) > 0.1
+        assert_targets_are_not_the_test_targets(config)
     assert not set(loss_search.SEEDS) & set(range(10))  # no test cell's seed
 
 

@@ -13,16 +13,16 @@ import math
 import os
 import sys
 
-import numpy as np
 import pandas as pd
 import pytest
 
 from cfm_jax import config as config_lib
-from cfm_jax import locomotion, references, robots
+from cfm_jax import locomotion
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
 import _study  # noqa: E402
 import select_defaults as select  # noqa: E402
+from tiny import assert_targets_are_not_the_test_targets  # noqa: E402
 
 LOSSES = ("joint", "task", "distal", "supervised")
 RECORDS = os.path.join(os.path.dirname(__file__), "..", "docs", "results", "selection")
@@ -48,13 +48,7 @@ def test_every_cell_runs_on_motions_other_than_the_test_ones(task):
             assert config.task.motions == select.SELECTION_JUMPS
             assert not set(config.task.motions) & set(locomotion.JUMP_HEIGHTS)
         else:
-            robot = robots.load("iiwa14")
-            test = references.default_targets(robot.joint_range, robot.home)
-            if task == "opspace":  # end-effector positions of the test poses, metres
-                test = references.default_cartesian_targets(robot, config.task.site, robot.home)
-            chosen = np.asarray(config.task.targets)
-            assert chosen.shape == test.shape
-            assert np.min(np.abs(test[:, None] - chosen[None]).max(axis=-1)) > 0.1
+            assert_targets_are_not_the_test_targets(config)
     # One factor at a time: each cell differs from the base in its factor's fields only.
     base = config_lib.to_dict(cells[0].config())
     for cell in cells[1:]:

@@ -111,3 +111,18 @@ def assert_each_loss_equals_it_alone(experiment, result, losses=None) -> None:
                 want = np.asarray(metrics[name]).reshape(seeds, -1)
                 want = np.broadcast_to(want, (seeds, targets)).ravel()
                 np.testing.assert_array_equal(got[name], want, err_msg=f"{loss}: {name}")
+
+
+def assert_targets_are_not_the_test_targets(config) -> None:
+    """An iiwa14 arm config's ``task.targets`` are selection targets: as many as the test
+    targets, none within 0.1 (rad, or m for op-space) per coordinate of a test target
+    (``references.default_targets`` with seed 0; op-space: their end-effector positions)."""
+    from cfm_jax import references, robots
+
+    robot = robots.load("iiwa14")
+    test = references.default_targets(robot.joint_range, robot.home)
+    if config.task.name == "opspace":  # end-effector positions of the test poses, metres
+        test = references.default_cartesian_targets(robot, config.task.site, robot.home)
+    chosen = np.asarray(config.task.targets)
+    assert chosen.shape == test.shape
+    assert np.min(np.abs(test[:, None] - chosen[None]).max(axis=-1)) > 0.1
