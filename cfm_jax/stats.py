@@ -139,12 +139,14 @@ def interval_estimates(
     return pd.DataFrame(rows)
 
 
-def _percentiles(draws: np.ndarray, confidence: float) -> tuple[float, float]:
+def _percentiles(draws: np.ndarray, confidence: float, axis=None):
+    """The percentile interval of ``confidence`` over ``draws`` (``axis``: the resamples'
+    axis of a statistic of several values; None: one value, as floats)."""
     if not 0 < confidence < 1:
         raise ValueError(f"confidence={confidence}: between 0 and 1")
     tail = 100 * (1 - confidence) / 2
-    low, high = np.percentile(draws, [tail, 100 - tail])
-    return float(low), float(high)
+    low, high = np.percentile(draws, [tail, 100 - tail], axis=axis)
+    return (float(low), float(high)) if axis is None else (low, high)
 
 
 def probability_of_improvement(x, y, confidence: float = 0.95, reps: int = 2000,
@@ -212,8 +214,7 @@ def performance_profile(scores: Mapping[str, np.ndarray], thresholds, confidence
     for method, values in scores.items():
         array = _matrix(method, values)
         draws = _bootstrap([array], profile, reps, seed).reshape(len(thresholds), reps)
-        tail = 100 * (1 - confidence) / 2
-        low, high = np.percentile(draws, [tail, 100 - tail], axis=1)
+        low, high = _percentiles(draws, confidence, axis=1)
         for k, (tau, fraction) in enumerate(zip(thresholds, profile(array), strict=True)):
             rows.append({"method": method, "threshold": float(tau), "fraction": float(fraction),
                          "low": float(low[k]), "high": float(high[k])})  # fmt: skip
