@@ -32,6 +32,8 @@ trials' values do not depend on where the search was cut. The finished trials ar
 
 Usage:
   python experiments/loss_search.py --task inverse_dynamics --budget 3000   # a piece
+  python experiments/loss_search.py --losses joint,task &   # two pieces side by side,
+  python experiments/loss_search.py --losses distal,supervised   # a core each
   python experiments/loss_search.py --quick --out /tmp/q                     # smoke test
 """
 
@@ -220,10 +222,16 @@ def write_records(out: str, task: str, loss_names, trials: int) -> pd.DataFrame:
     """``trials_<task>.csv`` and ``chosen_<task>.json`` in ``out`` from the studies there."""
     frame = records(out, [task], loss_names)
     if not frame.empty:
-        frame.to_csv(os.path.join(out, f"trials_{task}.csv"), index=False)
         rule = RULE.format(seed=SAMPLER_SEED, startup=STARTUP, trials=trials, seeds=list(SEEDS))
-        with open(os.path.join(out, f"chosen_{task}.json"), "w") as f:
-            json.dump({"rule": rule, "chosen": chosen(frame)}, f, indent=1)
+        # Written whole, then renamed: two pieces side by side never leave a half file.
+        for name, text in (
+            (f"trials_{task}.csv", frame.to_csv(index=False)),
+            (f"chosen_{task}.json", json.dumps({"rule": rule, "chosen": chosen(frame)}, indent=1)),
+        ):
+            part = os.path.join(out, f".{name}.{os.getpid()}")
+            with open(part, "w") as f:
+                f.write(text)
+            os.replace(part, os.path.join(out, name))
     return frame
 
 
@@ -260,8 +268,10 @@ def main(argv=None) -> None:
         row = run_trial(searches[loss], args.task, loss, args)
         print(f"loss_search: {args.task}/{loss} trial {row['trial']}: score "
               f"{row['score']:.3f} in {row['seconds']:.0f} s", flush=True)  # fmt: skip
-        write_records(args.out, args.task, loss_names, args.trials)  # nothing lost on a kill
-    trials = write_records(args.out, args.task, loss_names, args.trials)
+        # Every loss's journal, not only this piece's: two pieces may run side by side on
+        # disjoint --losses (a process per core) and write the same records.
+        write_records(args.out, args.task, losses_lib.PAPER_LOSSES, args.trials)  # nothing lost
+    trials = write_records(args.out, args.task, losses_lib.PAPER_LOSSES, args.trials)
     print(f"loss_search: {len(trials)} trials recorded in {args.out}")
 
 
