@@ -1,0 +1,198 @@
+"""The comparison of the four losses that the claims page rests on (issue 43): on each task's
+test motions, 10 seeds, the losses under the library's shared defaults and each loss at its
+own best (its configuration from the per-loss search, ``loss_search.py``).
+
+The cells (:func:`cells`), per task (iiwa14 ``inverse_dynamics`` and ``opspace``, Solo12
+``walk`` and ``jump``):
+
+* ``shared``: the four losses in one sweep, the task's library defaults.
+* ``own-<loss>``: that loss alone, the task's defaults with the values of its lowest-scoring
+  search trial (``docs/results/loss_search/chosen_<task>.json``). The search ran on one task
+  per family (``inverse_dynamics``, ``walk``; ``loss_search.SIZING``): ``opspace`` takes the
+  arm's choice, ``jump`` the legged one. An own cell runs only once its loss's search has
+  all its trials (``loss_search.TRIALS``), so that no test cell sees a half-finished search.
+
+Every cell: seeds ``SEEDS`` (0-9; the searches used 100-102, the first selection run 0-2 on
+other motions), the test motions of ``cfm_jax.config.for_task``, the iterations the search
+scored at (``loss_search.ITERATIONS``: 10 for the arm, 30 for the legged tasks, the
+authors' count), so that a loss is tested at the budget it was chosen at.
+
+Outputs: the runs in ``--runs`` (large: one sweep folder per cell; an interrupted cell
+resumes from its checkpoints, so a piece may be killed at any time and started again), and
+the record of each finished cell in ``--out/cells/<task>/<cell>/`` (``metrics.csv``,
+``baselines.csv``, ``summary.md``, ``seconds.txt``: the wall time of each piece,
+``config.json``: the config that ran, one seed's); a cell with a record is not run again,
+also on a fresh clone. ``experiments/claims.py`` reads the records.
+
+Usage:
+  python experiments/comparison.py --budget 3000              # a piece (resumable)
+  python experiments/comparison.py --only walk --cells own    # one task's own cells
+  python experiments/comparison.py --quick --runs /tmp/c --out /tmp/c  # smoke test
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+
+import _study
+import loss_search
+import pandas as pd
+import select_defaults
+
+from cfm_jax import config as config_lib
+from cfm_jax import losses as losses_lib
+
+TASKS = ("inverse_dynamics", "opspace", "walk", "jump")
+SEEDS = 10
+"""Seeds 0-9 of every cell (the headline cells of issue 43: at least 10)."""
+ITERATIONS = loss_search.ITERATIONS
+SHARED = "shared"
+ROOT = loss_search.ROOT
+SEARCH_OUT = os.path.join(ROOT, "docs", "results", "loss_search")
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    """One cell: a task, its losses (all four, or one at its own configuration) and the
+    ``changes`` to the task's defaults (dotted config paths)."""
+
+    task: str
+    name: str
+    losses: tuple
+    changes: tuple = ()
+
+    @property
+    def own(self) -> bool:
+        return self.name != SHARED
+
+    def config(self, seeds: int = SEEDS, quick: bool = False) -> config_lib.Config:
+        """The cell's config: the task's defaults with ``changes``, its iterations and seeds
+        (seed 0 first)."""
+        config = config_lib.for_task(self.task, robot=_study.ROBOT[self.task])
+        changes = {**dict(self.changes), "loop.iterations": ITERATIONS[self.task]}
+        config = _study.with_changes(config, changes)
+        if quick:
+            config = _study.quick_config(config)
+            config = config.replace(loop=dataclasses.replace(config.loop, iterations=1))
+        return config.replace(seed=0, loop=dataclasses.replace(config.loop, seeds=seeds))
+
+
+def searched_on(task: str) -> str:
+    """The task whose per-loss search chose ``task``'s own configurations."""
+    return select_defaults.SELECTED_ON[select_defaults.family(task)]
+
+
+def own_changes(task: str, loss: str, search_out: str = SEARCH_OUT) -> tuple | None:
+    """``loss``'s chosen values for ``task`` as (dotted path, value) pairs, or None while its
+    search (on :func:`searched_on` ``task``) has fewer than ``loss_search.TRIALS`` trials."""
+    searched = searched_on(task)
+    path = os.path.join(search_out, f"trials_{searched}.csv")
+    if not os.path.isfile(path):
+        return None
+    trials = pd.read_csv(path)
+    if int((trials["loss"] == loss).sum()) < loss_search.TRIALS:
+        return None
+    best = loss_search.chosen(trials)[searched][loss]
+    with open(os.path.join(search_out, f"chosen_{searched}.json")) as f:
+        if json.load(f)["chosen"][searched][loss] != best:
+            raise RuntimeError(f"chosen_{searched}.json disagrees with trials_{searched}.csv "
+                               f"for {loss}: run loss_search.py to rewrite them")  # fmt: skip
+    changes = {}
+    for name, (dotted, _) in loss_search.space(searched).items():
+        for one in select_defaults.factor_paths(dotted):
+            changes[one] = best[name]
+    return tuple(sorted(changes.items()))
+
+
+def cells(tasks=TASKS, search_out: str = SEARCH_OUT) -> list[Cell]:
+    """The shared cell of each task, then the own cells whose search is complete."""
+    out = [Cell(t, SHARED, losses_lib.PAPER_LOSSES) for t in tasks]
+    for task in tasks:
+        for loss in losses_lib.PAPER_LOSSES:
+            changes = own_changes(task, loss, search_out)
+            if changes is not None:
+                out.append(Cell(task, f"own-{loss}", (loss,), changes))
+    return out
+
+
+def pending(tasks=TASKS, search_out: str = SEARCH_OUT) -> list[str]:
+    """The own cells that wait for their search, as ``task/own-loss``."""
+    return [f"{t}/own-{loss}" for t in tasks for loss in losses_lib.PAPER_LOSSES
+            if own_changes(t, loss, search_out) is None]  # fmt: skip
+
+
+def run_dir(runs: str, cell: Cell) -> str:
+    return os.path.join(runs, cell.task, cell.name)
+
+
+def record_dir(out: str, cell: Cell) -> str:
+    return os.path.join(out, "cells", cell.task, cell.name)
+
+
+RECORD_FILES = ("metrics.csv", "baselines.csv", "seconds.txt", "summary.md")
+
+
+def finished(runs: str, out: str, cell: Cell) -> bool:
+    """Whether the cell has a record (made from its finished run when it has none yet)."""
+    if not _study.recorded(record_dir(out, cell)):
+        _study.keep_record(run_dir(runs, cell), record_dir(out, cell), RECORD_FILES)
+    return _study.recorded(record_dir(out, cell))
+
+
+def run_cell(cell: Cell, args) -> float:
+    """Run (or resume) one cell; its wall time in seconds."""
+    seeds = 2 if args.quick else SEEDS
+    config = cell.config(seeds, args.quick)
+    os.makedirs(record_dir(args.out, cell), exist_ok=True)
+    with open(os.path.join(record_dir(args.out, cell), "config.json"), "w") as f:
+        json.dump(config_lib.to_dict(config), f, indent=1, sort_keys=True)
+        f.write("\n")
+    base = config.replace(loop=dataclasses.replace(config.loop, seeds=1))
+    seconds = _study.timed_sweep(base, seeds, list(cell.losses), run_dir(args.runs, cell),
+                                 args.quiet)  # fmt: skip
+    _study.keep_record(run_dir(args.runs, cell), record_dir(args.out, cell), RECORD_FILES)
+    return seconds
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", default=os.path.join(ROOT, "results", "comparison"))
+    parser.add_argument("--out", default=os.path.join(ROOT, "docs", "results", "comparison"))
+    parser.add_argument("--search", default=SEARCH_OUT, help="the per-loss search's records")
+    parser.add_argument("--only", default=",".join(TASKS), help="comma-separated tasks")
+    parser.add_argument("--cells", default="all", choices=("all", "shared", "own"))
+    parser.add_argument("--budget", type=float, default=float("inf"),
+                        help="seconds: start no further cell after this (a piece)")  # fmt: skip
+    parser.add_argument("--quick", action="store_true", help="tiny networks, 2 seeds, 1 it.")
+    parser.add_argument("--quiet", action="store_true")
+    args = parser.parse_args(argv)
+    tasks = [t.strip() for t in args.only.split(",") if t.strip()]
+    bad = [t for t in tasks if t not in TASKS]
+    if bad or not tasks:
+        parser.error(f"--only={args.only!r} is not allowed: names from {', '.join(TASKS)}")
+    todo = [c for c in cells(tasks, args.search)
+            if args.cells == "all" or (args.cells == "own") == c.own]  # fmt: skip
+    start = time.perf_counter()
+    for cell in todo:
+        if finished(args.runs, args.out, cell):
+            continue
+        if time.perf_counter() - start >= args.budget:
+            print(f"comparison: budget of {args.budget:.0f} s used; stopping", flush=True)
+            break
+        print(f"comparison: {cell.task}/{cell.name} ({', '.join(cell.losses)})", flush=True)
+        seconds = run_cell(cell, args)
+        print(f"comparison: {cell.task}/{cell.name} done in {seconds:.0f} s", flush=True)
+    done = sum(finished(args.runs, args.out, c) for c in todo)
+    print(f"comparison: {done} of {len(todo)} cells finished; records in {args.out}")
+    waiting = pending(tasks, args.search) if args.cells != "shared" else []
+    if waiting:
+        print(f"comparison: waiting for their search: {', '.join(waiting)}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,108 @@
+"""experiments/comparison.py (issue 43): the cells the claims page rests on, each loss at its
+own search's choice and all four at the shared defaults, on the test motions and seeds 0-9.
+
+Oracles: the library's defaults (``for_task``), a search record written by hand (its lowest
+trial known), and one tiny own cell run end to end.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import pandas as pd
+import pytest
+
+from cfm_jax import config as config_lib
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
+import comparison  # noqa: E402
+import loss_search  # noqa: E402
+
+
+def _search(folder, task: str, trials: dict) -> None:
+    """A search record: ``trials`` per loss, a list of (score, values), as loss_search
+    writes it (trials csv and the chosen json made from it)."""
+    rows = [{"task": task, "loss": loss, "trial": i, "score": score, "seconds": 1.0, **values}
+            for loss, runs in trials.items() for i, (score, values) in enumerate(runs)]  # fmt: skip
+    frame = pd.DataFrame(rows)
+    frame.to_csv(os.path.join(folder, f"trials_{task}.csv"), index=False)
+    with open(os.path.join(folder, f"chosen_{task}.json"), "w") as f:
+        json.dump({"rule": "", "chosen": loss_search.chosen(frame)}, f)
+
+
+ARM = {"normaliser": "data", "forward model": "mlp", "controller goal": "observed",
+       "loss form": "squared", "fit start": "fresh", "babbling": "home",
+       "forward learning rate": 2e-4, "controller learning rate": 5e-4}  # fmt: skip
+OTHER = {**ARM, "normaliser": "robot", "forward learning rate": 1e-3}
+
+
+@pytest.mark.parametrize("task", ["inverse_dynamics", "opspace"])
+def test_an_own_cell_is_the_defaults_with_its_lowest_trial_on_the_test_motions(tmp_path, task):
+    n = loss_search.TRIALS
+    # joint: the lowest trial is the second; distal: one trial short of a finished search.
+    _search(tmp_path, "inverse_dynamics", {
+        "joint": [(-2.0, OTHER), (-5.0, ARM)] + [(-1.0, OTHER)] * (n - 2),
+        "distal": [(-9.0, ARM)] * (n - 1),
+    })  # fmt: skip
+    cells = {c.name: c for c in comparison.cells([task], str(tmp_path))}
+    assert set(cells) == {"shared", "own-joint"}  # distal waits for its search
+    assert comparison.pending([task], str(tmp_path)) == [
+        f"{task}/own-{loss}" for loss in ("task", "distal", "supervised")]  # fmt: skip
+    defaults = config_lib.for_task(task, robot="iiwa14")
+    own, shared = cells["own-joint"].config(), cells["shared"].config()
+    assert cells["own-joint"].losses == ("joint",)
+    assert shared.replace(loop=defaults.loop) == defaults  # the shared cell: the defaults
+    assert (own.loop.normaliser, own.forward.kind, own.controller.goal) == ("data", "mlp",
+                                                                            "observed")  # fmt: skip
+    assert own.controller.loss_form == "squared" and own.loop.babbling == "home"
+    assert own.forward.start == own.controller.start == "fresh"
+    assert (own.forward.learning_rate, own.controller.learning_rate) == (2e-4, 5e-4)
+    for config in (own, shared):  # the test motions, seeds 0-9, the search's iterations
+        assert config.task == defaults.task
+        assert (config.seed, config.loop.seeds) == (0, comparison.SEEDS)
+        assert config.loop.iterations == loss_search.ITERATIONS[task]
+    assert not set(range(comparison.SEEDS)) & set(loss_search.SEEDS)
+
+
+def test_the_legged_cells_take_the_walks_search_and_a_stale_choice_is_refused(tmp_path):
+    n = loss_search.TRIALS
+    values = {"normaliser": "data", "forward model": "rigid_body", "controller goal": "desired",
+              "loss form": "norm", "fit start": "warm", "s*": "pd",
+              "forward learning rate": 3e-4, "controller learning rate": 1e-3}  # fmt: skip
+    _search(tmp_path, "walk", {"task": [(-1.0, values)] * n})
+    for task in ("walk", "jump"):
+        cell = [c for c in comparison.cells([task], str(tmp_path)) if c.own][0]
+        config = cell.config()
+        assert config.task.name == task and config.task.desired == "pd"
+        assert config.task.motion_family == "test"
+        assert config.loop.iterations == 30 and config.forward.learning_rate == 3e-4
+    with open(tmp_path / "chosen_walk.json") as f:
+        record = json.load(f)
+    record["chosen"]["walk"]["task"]["normaliser"] = "robot"  # no longer the trials' lowest
+    with open(tmp_path / "chosen_walk.json", "w") as f:
+        json.dump(record, f)
+    with pytest.raises(RuntimeError, match="chosen_walk.json disagrees"):
+        comparison.cells(["jump"], str(tmp_path))
+
+
+def test_a_tiny_own_cell_runs_and_keeps_its_record(tmp_path):
+    _search(tmp_path, "inverse_dynamics", {"task": [(-1.0, ARM)] * loss_search.TRIALS})
+    out = tmp_path / "out"
+    comparison.main(["--only", "inverse_dynamics", "--cells", "own", "--quick", "--quiet",
+                     "--search", str(tmp_path), "--runs", str(tmp_path / "runs"),
+                     "--out", str(out)])  # fmt: skip
+    record = out / "cells" / "inverse_dynamics" / "own-task"
+    metrics = pd.read_csv(record / "metrics.csv")
+    assert set(metrics.loss) == {"task"} and sorted(set(metrics.seed)) == [0, 1]
+    with open(record / "config.json") as f:
+        ran = json.load(f)
+    assert ran["loop"]["babbling"] == "home" and ran["forward"]["kind"] == "mlp"
+    assert ran["controller"]["learning_rate"] == 5e-4
+    # A finished cell is not run again: its record stays as it is.
+    before = (record / "metrics.csv").read_bytes()
+    comparison.main(["--only", "inverse_dynamics", "--cells", "own", "--quick", "--quiet",
+                     "--search", str(tmp_path), "--runs", str(tmp_path / "none"),
+                     "--out", str(out)])  # fmt: skip
+    assert (record / "metrics.csv").read_bytes() == before
