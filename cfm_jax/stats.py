@@ -8,7 +8,7 @@ Scores are arrays of shape ``(runs, tasks)`` (a run: one seed; a task: one robot
 or one cell of a study), higher is better: :func:`score` turns a tracking MSE into orders of
 magnitude below the PD-only baseline.
 
-Libraries: SciPy (the trimmed mean, the Mann-Whitney U, ``scipy.stats.bootstrap`` for the
+Libraries: SciPy (the trimmed mean, ``scipy.stats.bootstrap`` for the
 resampling) and statsmodels (Holm; the ``stats`` extra, ``pip install "cfm_jax[stats]"``).
 Not the ``rliable`` package itself: it pins ``arch < 8``, whose 7.x releases fail on import
 with pandas 3 (``TypeError: deprecate_kwarg()``); its definitions are followed here and the
@@ -179,10 +179,12 @@ def probability_of_improvement(x, y, confidence: float = 0.95, reps: int = 2000,
 
 
 def _improvement(x, y) -> float:
-    """P(X > Y) per task (Mann-Whitney U / (runs_x runs_y), ties half), mean over tasks."""
-    per_task = [scipy_stats.mannwhitneyu(x[:, t], y[:, t], alternative="greater").statistic
-                / (len(x) * len(y)) for t in range(x.shape[1])]  # fmt: skip
-    return float(np.mean(per_task))
+    """P(X > Y) per task (Mann-Whitney U / (runs_x runs_y), ties half), mean over tasks: the
+    U statistic counted over all pairs of runs at once (scipy's ``mannwhitneyu`` per task
+    and resample was 9 ms, most of a claims page's time)."""
+    greater = x[:, None, :] > y[None, :, :]
+    ties = x[:, None, :] == y[None, :, :]
+    return float(np.mean(greater.mean(axis=(0, 1)) + 0.5 * ties.mean(axis=(0, 1))))
 
 
 def performance_profile(scores: Mapping[str, np.ndarray], thresholds, confidence: float = 0.95,

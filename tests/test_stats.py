@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.stats import mannwhitneyu
 
 from cfm_jax import stats
 
@@ -50,6 +51,8 @@ def test_probability_of_improvement_counts_pairs_with_ties_half():
 
     point, low, high = stats.probability_of_improvement(x, y, reps=500)
     assert point == pytest.approx(plain(x, y), abs=1e-12)
+    u = [mannwhitneyu(x[:, t], y[:, t]).statistic / 9 for t in range(2)]  # SciPy's U
+    assert point == pytest.approx(np.mean(u), abs=1e-12)
     assert 0.0 <= low <= point <= high <= 1.0
     assert stats.probability_of_improvement([[2.0], [3.0]], [[0.0], [1.0]])[0] == 1.0
 
