@@ -76,6 +76,15 @@ SIZING = (
     "and the jump take their family's per-loss configuration; decided on the cost alone, "
     "before any trial."
 )
+AMENDMENT = (
+    "2026-11-28, after 16 inverse-dynamics trials (the 4 random startup draws of each loss "
+    "and joint's trial 4): the sampler was seeded once per process, so a piece that started "
+    "anew drew its first random trial with the seed's first draw again (supervised's trial 3 "
+    "repeated its trial 0's values; its score equal to the last bit, the determinism of a "
+    "trial). From then on trial k's sampler is seeded SAMPLER_SEED + k (its values depend on "
+    "the study's history only, not on where a piece was cut), a loss's missing startup "
+    "draws are queued first, and the budget counts trials with distinct values."
+)
 SAMPLER_SEED = 43
 STARTUP = 4
 TRIALS = 12
@@ -147,6 +156,17 @@ def score(metrics: pd.DataFrame, baselines: pd.DataFrame) -> float:
     return float(select_defaults.seed_scores(frame).mean(axis=0).mean())
 
 
+def sampler(number: int):
+    """The sampler of trial ``number``: TPE seeded with ``SAMPLER_SEED + number``, so that a
+    trial's values depend on its number and the study's history only, not on the piece (the
+    process) it runs in. (Seeded once per process, as the first piece did, a piece that
+    starts anew draws its first random trial with the seed's first draw again: the
+    supervised loss's inverse-dynamics trial 3 repeated its trial 0.)"""
+    import optuna
+
+    return optuna.samplers.TPESampler(seed=SAMPLER_SEED + number, n_startup_trials=STARTUP)
+
+
 def study(runs: str, task: str, loss: str):
     import optuna
 
@@ -156,10 +176,51 @@ def study(runs: str, task: str, loss: str):
     return optuna.create_study(
         study_name=f"{task}-{loss}",
         storage=optuna.storages.JournalStorage(backend),
-        sampler=optuna.samplers.TPESampler(seed=SAMPLER_SEED, n_startup_trials=STARTUP),
+        sampler=sampler(0),
         direction="minimize",
         load_if_exists=True,
     )
+
+
+def ask(search):
+    """The study's next trial, drawn by :func:`sampler` of its number (a queued trial: the
+    queued values)."""
+    search.sampler = sampler(len(search.get_trials(deepcopy=False)))
+    return search.ask()
+
+
+def _key(params: dict) -> str:
+    return json.dumps(params, sort_keys=True)
+
+
+def distinct(search) -> int:
+    """The study's finished trials with distinct values: the budget ``TRIALS`` counts these
+    (a trial that repeats an earlier one's values adds nothing)."""
+    import optuna
+
+    done = search.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
+    return len({_key(t.params) for t in done})
+
+
+def _fill_startup(searches, runs: str, task: str) -> None:
+    """Every loss searches from the same ``STARTUP`` random draws: the values any loss's
+    study (all four journals in ``runs``) has among its first ``STARTUP`` trials that one of
+    ``searches`` lacks are queued there, to be tried next."""
+    import optuna
+
+    startup = {}
+    for loss in losses_lib.PAPER_LOSSES:
+        if os.path.exists(os.path.join(runs, task, loss, "journal.log")):
+            for t in study(runs, task, loss).get_trials(deepcopy=False):
+                if t.number < STARTUP and t.params:
+                    startup.setdefault(_key(t.params), t.params)
+    alive = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.WAITING,
+             optuna.trial.TrialState.RUNNING)  # fmt: skip
+    for search in searches.values():
+        have = {_key(t.params) for t in search.get_trials(deepcopy=False, states=alive)}
+        for key, params in startup.items():
+            if key not in have:
+                search.enqueue_trial(params)
 
 
 def _recover(search) -> None:
@@ -173,7 +234,7 @@ def _recover(search) -> None:
 
 def run_trial(search, task: str, loss: str, args) -> dict:
     """Ask, train (seeds vmapped), score, tell; the trial's record."""
-    trial = search.ask()
+    trial = ask(search)
     changes = suggest(trial, task)
     config = trial_config(task, changes, args.quick)
     seeds = list(SEEDS[:2] if args.quick else SEEDS)
@@ -226,7 +287,12 @@ def write_records(out: str, task: str, loss_names, trials: int) -> pd.DataFrame:
         # Written whole, then renamed: two pieces side by side never leave a half file.
         for name, text in (
             (f"trials_{task}.csv", frame.to_csv(index=False)),
-            (f"chosen_{task}.json", json.dumps({"rule": rule, "chosen": chosen(frame)}, indent=1)),
+            (
+                f"chosen_{task}.json",
+                json.dumps(
+                    {"rule": rule, "amendment": AMENDMENT, "chosen": chosen(frame)}, indent=1
+                ),
+            ),
         ):
             part = os.path.join(out, f".{name}.{os.getpid()}")
             with open(part, "w") as f:
@@ -249,18 +315,15 @@ def main(argv=None) -> None:
     bad = sorted(set(loss_names) - set(losses_lib.PAPER_LOSSES))
     if bad:
         parser.error(f"--losses: {bad} not allowed; choose from {list(losses_lib.PAPER_LOSSES)}")
-    from optuna.trial import TrialState
-
-    COMPLETE = TrialState.COMPLETE  # noqa: N806
     start = time.perf_counter()
     searches = {loss: study(args.out, args.task, loss) for loss in loss_names}
     for search in searches.values():
         _recover(search)
+    _fill_startup(searches, args.out, args.task)
     # Round-robin over the losses, a trial each, so that a piece cut short leaves every loss
     # with about the same number of trials.
     while time.perf_counter() - start < args.budget:
-        done = {loss: len(s.get_trials(deepcopy=False, states=(COMPLETE,)))
-                for loss, s in searches.items()}  # fmt: skip
+        done = {loss: distinct(s) for loss, s in searches.items()}
         todo = [loss for loss in loss_names if done[loss] < args.trials]
         if not todo:
             break

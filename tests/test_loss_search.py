@@ -97,3 +97,43 @@ def test_every_loss_draws_the_same_startup_trials_and_the_lowest_score_is_chosen
     assert chosen["walk"]["task"]["trial"] == 0
     with pytest.raises(SystemExit):
         loss_search.main(["--losses", "joint,jont", "--out", str(tmp_path)])
+
+
+def _draw(folder, pieces, loss="joint"):
+    """Trials drawn and told in ``pieces`` (each a new study object, as a new process)."""
+    for size in pieces:
+        search = loss_search.study(str(folder), "walk", loss)
+        for _ in range(size):
+            trial = loss_search.ask(search)
+            loss_search.suggest(trial, "walk")
+            search.tell(trial, float((trial.number * 7) % 5))  # any made-up score
+    return [t.params for t in loss_search.study(str(folder), "walk", loss).get_trials()]
+
+
+def test_a_trials_values_do_not_depend_on_the_pieces_it_ran_in(tmp_path):
+    # 7 trials: 4 random startup draws, then TPE. In one piece, in pieces of 3 + 4, and one
+    # trial per piece: the same values trial by trial.
+    whole = _draw(tmp_path / "a", [7])
+    assert _draw(tmp_path / "b", [3, 4]) == whole
+    assert _draw(tmp_path / "c", [1] * 7) == whole
+    assert len({str(p) for p in whole}) == 7
+
+
+def test_a_loss_missing_a_startup_draw_gets_it_queued_and_repeats_do_not_count(tmp_path):
+    startup = _draw(tmp_path, [loss_search.STARTUP], "joint")
+    # The supervised study as the first pieces left it: its 4th trial repeated its 1st.
+    search = loss_search.study(str(tmp_path), "walk", "supervised")
+    for params in [*startup[:-1], startup[0]]:
+        search.enqueue_trial(params)
+        trial = search.ask()
+        loss_search.suggest(trial, "walk")
+        search.tell(trial, 1.0)
+    assert loss_search.distinct(search) == loss_search.STARTUP - 1
+    loss_search._fill_startup({"supervised": search}, str(tmp_path), "walk")
+    trial = loss_search.ask(search)
+    loss_search.suggest(trial, "walk")
+    assert trial.params == startup[-1]  # the missing draw first
+    search.tell(trial, 2.0)
+    assert loss_search.distinct(search) == loss_search.STARTUP
+    loss_search._fill_startup({"supervised": search}, str(tmp_path), "walk")
+    assert not search.get_trials(states=(optuna.trial.TrialState.WAITING,))  # nothing more
