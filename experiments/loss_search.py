@@ -202,6 +202,11 @@ def distinct(search) -> int:
     return len({_key(t.params) for t in done})
 
 
+def _values(trial) -> dict:
+    """A trial's values; a queued one's are its fixed values (its params are set when asked)."""
+    return trial.params or trial.system_attrs.get("fixed_params", {})
+
+
 def _fill_startup(searches, runs: str, task: str) -> None:
     """Every loss searches from the same ``STARTUP`` random draws: the values any loss's
     study (all four journals in ``runs``) has among its first ``STARTUP`` trials that one of
@@ -212,12 +217,12 @@ def _fill_startup(searches, runs: str, task: str) -> None:
     for loss in losses_lib.PAPER_LOSSES:
         if os.path.exists(os.path.join(runs, task, loss, "journal.log")):
             for t in study(runs, task, loss).get_trials(deepcopy=False):
-                if t.number < STARTUP and t.params:
-                    startup.setdefault(_key(t.params), t.params)
+                if t.number < STARTUP and _values(t):
+                    startup.setdefault(_key(_values(t)), _values(t))
     alive = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.WAITING,
              optuna.trial.TrialState.RUNNING)  # fmt: skip
     for search in searches.values():
-        have = {_key(t.params) for t in search.get_trials(deepcopy=False, states=alive)}
+        have = {_key(_values(t)) for t in search.get_trials(deepcopy=False, states=alive)}
         for key, params in startup.items():
             if key not in have:
                 search.enqueue_trial(params)

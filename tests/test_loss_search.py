@@ -130,6 +130,9 @@ def test_a_loss_missing_a_startup_draw_gets_it_queued_and_repeats_do_not_count(t
         search.tell(trial, 1.0)
     assert loss_search.distinct(search) == loss_search.STARTUP - 1
     loss_search._fill_startup({"supervised": search}, str(tmp_path), "walk")
+    # A queued draw counts as had: a piece that starts before it was tried queues it once.
+    loss_search._fill_startup({"supervised": search}, str(tmp_path), "walk")
+    assert len(search.get_trials(states=(optuna.trial.TrialState.WAITING,))) == 1
     trial = loss_search.ask(search)
     loss_search.suggest(trial, "walk")
     assert trial.params == startup[-1]  # the missing draw first
