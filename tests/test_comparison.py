@@ -1,5 +1,5 @@
 """experiments/comparison.py (issue 43): the cells the claims page rests on, each loss at its
-own search's choice and all four at the shared defaults, on the test motions and seeds 0-9.
+own search's choice and all four at the shared defaults, on the test motions and seeds 10-19.
 
 Oracles: the library's defaults (``for_task``), a search record written by hand (its lowest
 trial known), and one tiny own cell run end to end.
@@ -32,6 +32,12 @@ def _search(folder, task: str, trials: dict) -> None:
         json.dump({"rule": "", "chosen": loss_search.chosen(frame)}, f)
 
 
+def _runs(best: dict, other: dict, n: int) -> list:
+    """n trials with distinct values, ``best`` the lowest-scoring one (the second)."""
+    rest = [(-1.0, {**other, "controller learning rate": 2e-3 + 1e-5 * k}) for k in range(n - 2)]
+    return [(-2.0, other), (-5.0, best), *rest]
+
+
 ARM = {"normaliser": "data", "forward model": "mlp", "controller goal": "observed",
        "loss form": "squared", "fit start": "fresh", "babbling": "home",
        "forward learning rate": 2e-4, "controller learning rate": 5e-4}  # fmt: skip
@@ -41,10 +47,11 @@ OTHER = {**ARM, "normaliser": "robot", "forward learning rate": 1e-3}
 @pytest.mark.parametrize("task", ["inverse_dynamics", "opspace"])
 def test_an_own_cell_is_the_defaults_with_its_lowest_trial_on_the_test_motions(tmp_path, task):
     n = loss_search.TRIALS
-    # joint: the lowest trial is the second; distal: one trial short of a finished search.
+    # joint: the lowest trial is the second; distal: n trials but only two distinct values
+    # (a repeated trial does not count).
     _search(tmp_path, "inverse_dynamics", {
-        "joint": [(-2.0, OTHER), (-5.0, ARM)] + [(-1.0, OTHER)] * (n - 2),
-        "distal": [(-9.0, ARM)] * (n - 1),
+        "joint": _runs(ARM, OTHER, n),
+        "distal": [(-9.0, ARM), (-8.0, OTHER)] + [(-7.0, ARM)] * (n - 2),  # two distinct
     })  # fmt: skip
     cells = {c.name: c for c in comparison.cells([task], str(tmp_path))}
     assert set(cells) == {"shared", "own-joint"}  # distal waits for its search
@@ -53,17 +60,19 @@ def test_an_own_cell_is_the_defaults_with_its_lowest_trial_on_the_test_motions(t
     defaults = config_lib.for_task(task, robot="iiwa14")
     own, shared = cells["own-joint"].config(), cells["shared"].config()
     assert cells["own-joint"].losses == ("joint",)
-    assert shared.replace(loop=defaults.loop) == defaults  # the shared cell: the defaults
+    assert shared.replace(seed=0, loop=defaults.loop) == defaults  # the shared cell: defaults
     assert (own.loop.normaliser, own.forward.kind, own.controller.goal) == ("data", "mlp",
                                                                             "observed")  # fmt: skip
     assert own.controller.loss_form == "squared" and own.loop.babbling == "home"
     assert own.forward.start == own.controller.start == "fresh"
     assert (own.forward.learning_rate, own.controller.learning_rate) == (2e-4, 5e-4)
-    for config in (own, shared):  # the test motions, seeds 0-9, the search's iterations
+    for config in (own, shared):  # the test motions, seeds 10-19, the search's iterations
         assert config.task == defaults.task
-        assert (config.seed, config.loop.seeds) == (0, comparison.SEEDS)
+        assert config_lib.seeds_of(config) == tuple(range(10, 20))
         assert config.loop.iterations == loss_search.ITERATIONS[task]
-    assert not set(range(comparison.SEEDS)) & set(loss_search.SEEDS)
+    # No seed of a selection: the first selection run's (0-2) and the search's (100-102).
+    selection = {*range(loss_search.select_defaults.SEEDS), *loss_search.SEEDS}
+    assert not set(config_lib.seeds_of(own)) & selection
 
 
 def test_the_legged_cells_take_the_walks_search_and_a_stale_choice_is_refused(tmp_path):
@@ -71,7 +80,7 @@ def test_the_legged_cells_take_the_walks_search_and_a_stale_choice_is_refused(tm
     values = {"normaliser": "data", "forward model": "rigid_body", "controller goal": "desired",
               "loss form": "norm", "fit start": "warm", "s*": "pd",
               "forward learning rate": 3e-4, "controller learning rate": 1e-3}  # fmt: skip
-    _search(tmp_path, "walk", {"task": [(-1.0, values)] * n})
+    _search(tmp_path, "walk", {"task": _runs(values, {**values, "s*": "next_velocity"}, n)})
     for task in ("walk", "jump"):
         cell = [c for c in comparison.cells([task], str(tmp_path)) if c.own][0]
         config = cell.config()
@@ -88,14 +97,14 @@ def test_the_legged_cells_take_the_walks_search_and_a_stale_choice_is_refused(tm
 
 
 def test_a_tiny_own_cell_runs_and_keeps_its_record(tmp_path):
-    _search(tmp_path, "inverse_dynamics", {"task": [(-1.0, ARM)] * loss_search.TRIALS})
+    _search(tmp_path, "inverse_dynamics", {"task": _runs(ARM, OTHER, loss_search.TRIALS)})
     out = tmp_path / "out"
     comparison.main(["--only", "inverse_dynamics", "--cells", "own", "--quick", "--quiet",
                      "--search", str(tmp_path), "--runs", str(tmp_path / "runs"),
                      "--out", str(out)])  # fmt: skip
     record = out / "cells" / "inverse_dynamics" / "own-task"
     metrics = pd.read_csv(record / "metrics.csv")
-    assert set(metrics.loss) == {"task"} and sorted(set(metrics.seed)) == [0, 1]
+    assert set(metrics.loss) == {"task"} and sorted(set(metrics.seed)) == [10, 11]
     with open(record / "config.json") as f:
         ran = json.load(f)
     assert ran["loop"]["babbling"] == "home" and ran["forward"]["kind"] == "mlp"
