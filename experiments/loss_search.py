@@ -81,8 +81,9 @@ AMENDMENT = (
     "and joint's trial 4): the sampler was seeded once per process, so a piece that started "
     "anew drew its first random trial with the seed's first draw again (supervised's trial 3 "
     "repeated its trial 0's values; its score equal to the last bit, the determinism of a "
-    "trial). From then on trial k's sampler is seeded SAMPLER_SEED + k (its values depend on "
-    "the study's history only, not on where a piece was cut), a loss's missing startup "
+    "trial). From then on a trial's sampler is seeded SAMPLER_SEED + the number of finished "
+    "trials before it (its values depend on the study's history only, not on where a piece "
+    "was cut or a trial killed), a loss's missing startup "
     "draws are queued first, and the budget counts trials with distinct values."
 )
 SAMPLER_SEED = 43
@@ -156,15 +157,16 @@ def score(metrics: pd.DataFrame, baselines: pd.DataFrame) -> float:
     return float(select_defaults.seed_scores(frame).mean(axis=0).mean())
 
 
-def sampler(number: int):
-    """The sampler of trial ``number``: TPE seeded with ``SAMPLER_SEED + number``, so that a
-    trial's values depend on its number and the study's history only, not on the piece (the
-    process) it runs in. (Seeded once per process, as the first piece did, a piece that
-    starts anew draws its first random trial with the seed's first draw again: the
-    supervised loss's inverse-dynamics trial 3 repeated its trial 0.)"""
+def sampler(finished: int):
+    """The sampler of a trial drawn after ``finished`` finished trials: TPE seeded with
+    ``SAMPLER_SEED + finished``, so that a trial's values depend on the study's history
+    only, not on the piece (the process) it runs in nor on trials killed before it.
+    (Seeded once per process, as the first piece did, a piece that starts anew draws its
+    first random trial with the seed's first draw again: the supervised loss's
+    inverse-dynamics trial 3 repeated its trial 0.)"""
     import optuna
 
-    return optuna.samplers.TPESampler(seed=SAMPLER_SEED + number, n_startup_trials=STARTUP)
+    return optuna.samplers.TPESampler(seed=SAMPLER_SEED + finished, n_startup_trials=STARTUP)
 
 
 def study(runs: str, task: str, loss: str):
@@ -183,9 +185,12 @@ def study(runs: str, task: str, loss: str):
 
 
 def ask(search):
-    """The study's next trial, drawn by :func:`sampler` of its number (a queued trial: the
-    queued values)."""
-    search.sampler = sampler(len(search.get_trials(deepcopy=False)))
+    """The study's next trial, drawn by the :func:`sampler` of its finished trials (a queued
+    trial: the queued values)."""
+    import optuna
+
+    finished = search.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
+    search.sampler = sampler(len(finished))
     return search.ask()
 
 

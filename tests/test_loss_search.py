@@ -107,7 +107,8 @@ def _draw(folder, pieces, loss="joint"):
             trial = loss_search.ask(search)
             loss_search.suggest(trial, "walk")
             search.tell(trial, float((trial.number * 7) % 5))  # any made-up score
-    return [t.params for t in loss_search.study(str(folder), "walk", loss).get_trials()]
+    search = loss_search.study(str(folder), "walk", loss)
+    return [t.params for t in search.get_trials(states=(optuna.trial.TrialState.COMPLETE,))]
 
 
 def test_a_trials_values_do_not_depend_on_the_pieces_it_ran_in(tmp_path):
@@ -117,6 +118,14 @@ def test_a_trials_values_do_not_depend_on_the_pieces_it_ran_in(tmp_path):
     assert _draw(tmp_path / "b", [3, 4]) == whole
     assert _draw(tmp_path / "c", [1] * 7) == whole
     assert len({str(p) for p in whole}) == 7
+    # A piece killed during trial 5 (a TPE draw): the next piece tries its values again first,
+    # and the trials after it draw what they would have drawn without the kill.
+    _draw(tmp_path / "d", [5])
+    search = loss_search.study(str(tmp_path / "d"), "walk", "joint")
+    loss_search.suggest(loss_search.ask(search), "walk")  # killed: left RUNNING
+    loss_search._recover(search)
+    done = _draw(tmp_path / "d", [2])
+    assert done == whole  # the killed trial's values retried, then the same draws
 
 
 def test_a_loss_missing_a_startup_draw_gets_it_queued_and_repeats_do_not_count(tmp_path):
