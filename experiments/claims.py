@@ -103,6 +103,18 @@ def records(out: str):
     return found
 
 
+def _same_baselines(task: str, loss: str, own: pd.DataFrame, shared: pd.DataFrame) -> None:
+    """Both configurations are scored against one PD-only: an own cell's (of the same test
+    motions) must be the shared cell's. (The oracle's may differ with ``s*``.)"""
+    key = ["baseline", "target"]
+    a, b = (f[f.baseline == "pd_only"].set_index(key).sort_index() for f in (own, shared))
+    if not (a.index.equals(b.index) and np.allclose(a.tracking_mse, b.tracking_mse, rtol=1e-6)):
+        raise ValueError(
+            f"{task}: the own-{loss} cell's PD-only differs from the shared cell's (other "
+            "test motions or gains?): the two cannot be compared"
+        )
+
+
 def arms(comparison_dir: str, robustness: dict) -> dict:
     """``{task: {"shared": Arm | None, "own": Arm | None}}`` from the comparison's records
     (the robustness study's default cell standing in for a shared cell not run yet)."""
@@ -119,6 +131,8 @@ def arms(comparison_dir: str, robustness: dict) -> dict:
         own = [_read(comparison.record_dir(comparison_dir, comparison.Cell(task, f"own-{n}", (n,))))
                for n in LOSSES]  # fmt: skip
         if shared is not None and all(r is not None for r in own):
+            for loss, (_, baselines) in zip(LOSSES, own, strict=True):
+                _same_baselines(task, loss, baselines, shared.baselines)
             metrics = pd.concat([m for m, _ in own], ignore_index=True)
             own_arm = Arm(metrics, shared.baselines, "the comparison's own cells")
         else:

@@ -137,6 +137,10 @@ def test_arms_take_the_comparisons_cells_and_the_robustness_default_until_then(t
     arm.baselines.to_csv(f"{folder}/baselines.csv", index=False)
     own = claims.arms(str(tmp_path), robustness)["jump"]["own"]
     assert sorted(set(own.metrics.loss)) == sorted(LOSSES) and len(own.metrics) == len(arm.metrics)
+    # An own cell on other motions (another PD-only) cannot be compared: refused.
+    arm.baselines.assign(tracking_mse=2e-2).to_csv(f"{folder}/baselines.csv", index=False)
+    with pytest.raises(ValueError, match="jump: the own-supervised cell's PD-only differs"):
+        claims.arms(str(tmp_path), robustness)
 
 
 def test_theory_verdict_can_return_every_verdict():
