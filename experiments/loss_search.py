@@ -28,7 +28,8 @@ kB, committed with the records so that a fresh machine resumes it); a trial kill
 running is marked failed on the next start and its values are tried again first, so the
 trials' values do not depend on where the search was cut. The finished trials are written to
 ``--out`` after every trial (``trials_<task>.csv``: one row per trial;
-``chosen_<task>.json``: the rule and each loss's lowest-scoring trial).
+``chosen_<task>.json``: the rule and each loss's lowest-scoring trial; ``index.md`` and
+``search_<task>.png``: the same as a page, with each loss's best score so far per trial).
 
 Usage:
   python experiments/loss_search.py --task inverse_dynamics --budget 3000   # a piece
@@ -308,7 +309,84 @@ def write_records(out: str, task: str, loss_names, trials: int) -> pd.DataFrame:
             with open(part, "w") as f:
                 f.write(text)
             os.replace(part, os.path.join(out, name))
+        write_page(out, trials)
     return frame
+
+
+def write_page(out: str, trials: int = TRIALS) -> str:
+    """``index.md`` in ``out``: the rule, sizing and amendment, per task and loss the chosen
+    trial, the best score so far per trial (``search_<task>.png``) and every trial."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rule = RULE.format(seed=SAMPLER_SEED, startup=STARTUP, trials=trials, seeds=list(SEEDS))
+    lines = [
+        "# Each loss at its own best: the per-loss search",
+        "",
+        "Written by `experiments/loss_search.py` after every trial (issue 43).",
+        "",
+        f"Rule: {rule}",
+        "",
+        f"Sizing: {SIZING}",
+        "",
+        f"Amendment: {AMENDMENT}",
+        "",
+    ]
+    for task in ITERATIONS:
+        path = os.path.join(out, f"trials_{task}.csv")
+        if not os.path.isfile(path):
+            continue
+        frame = pd.read_csv(path)
+        names = list(space(task))
+        best = chosen(frame)[task]
+        fig, ax = plt.subplots(figsize=(5, 3))
+        lines += [
+            f"## {task}",
+            "",
+            f"![best score so far](search_{task}.png)",
+            "",
+            "| loss | trials (distinct values) | lowest score | its trial | "
+            + " | ".join(names)
+            + " |",
+            "|---|---:|---:|---:|" + "---|" * len(names),
+        ]
+        for loss, f in frame.groupby("loss", sort=False):
+            f = f.sort_values("trial")
+            ax.step(range(len(f)), f.score.cummin(), where="post", label=loss)
+            values = " | ".join(_f(best[loss].get(n)) for n in names)
+            lines.append(
+                f"| {loss} | {len(f)} ({len(f[names].drop_duplicates())}) | "
+                f"{best[loss]['score']:.3f} | {best[loss]['trial']} | {values} |"
+            )
+        ax.set(xlabel="finished trial", ylabel="lowest score so far (log10 MSE)", title=task)
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, f"search_{task}.png"), dpi=100, metadata={"Software": None})
+        plt.close(fig)
+        lines += [
+            "",
+            "Every trial (score: lower is better; seconds: its wall time, 2 cores, "
+            "at times beside another piece):",
+            "",
+            "| loss | trial | score | seconds | " + " | ".join(names) + " |",
+            "|---|---:|---:|---:|" + "---|" * len(names),
+        ]
+        for _, row in frame.iterrows():
+            lines.append(
+                f"| {row['loss']} | {row['trial']} | {row['score']:.3f} | "
+                f"{row['seconds']} | " + " | ".join(_f(row[n]) for n in names) + " |"
+            )
+        lines.append("")
+    text = "\n".join(lines) + "\n"
+    with open(os.path.join(out, "index.md"), "w") as f:
+        f.write(text)
+    return text
+
+
+def _f(value) -> str:
+    return f"{value:.3g}" if isinstance(value, float) else str(value)
 
 
 def main(argv=None) -> None:

@@ -149,3 +149,17 @@ def test_a_loss_missing_a_startup_draw_gets_it_queued_and_repeats_do_not_count(t
     assert loss_search.distinct(search) == loss_search.STARTUP
     loss_search._fill_startup({"supervised": search}, str(tmp_path), "walk")
     assert not search.get_trials(states=(optuna.trial.TrialState.WAITING,))  # nothing more
+
+
+def test_the_records_page_names_each_losss_lowest_trial(tmp_path):
+    rows = [{"task": "walk", "loss": loss, "trial": k, "score": score, "seconds": 1.0,
+             **{name: values[0] for name, (_, values) in loss_search.space("walk").items()
+                if name not in loss_search.LOG_UNIFORM},
+             "forward learning rate": 1e-4 * (k + 1), "controller learning rate": 2e-4}
+            for loss, scores in (("joint", (-1.0, -3.0)), ("task", (-2.0, -2.0)))
+            for k, score in enumerate(scores)]  # fmt: skip
+    pd.DataFrame(rows).to_csv(tmp_path / "trials_walk.csv", index=False)
+    page = loss_search.write_page(str(tmp_path))
+    assert "| joint | 2 (2) | -3.000 | 1 |" in page  # its lowest: trial 1
+    assert "| task | 2 (2) | -2.000 | 0 |" in page  # a tie: the earlier trial
+    assert (tmp_path / "search_walk.png").stat().st_size > 5_000
