@@ -59,12 +59,16 @@ def _matrix(name: str, scores) -> np.ndarray:
     return array
 
 
-def _iqm(array) -> float:
-    return float(scipy_stats.trim_mean(array, proportiontocut=0.25, axis=None))
+def _flat(array: np.ndarray) -> np.ndarray:
+    """``(..., runs, tasks)`` -> ``(..., runs x tasks)``: all of a sample's scores together."""
+    return array.reshape(*array.shape[:-2], -1)
 
 
-_AGGREGATES = {"iqm": _iqm, "mean": lambda a: float(np.mean(a)),
-               "median": lambda a: float(np.median(a))}  # fmt: skip
+# The aggregates reduce the last two axes (runs, tasks) of an array that may carry leading
+# batch axes: one bootstrap resample each, all computed at once.
+_AGGREGATES = {"iqm": lambda a: scipy_stats.trim_mean(_flat(a), 0.25, axis=-1),
+               "mean": lambda a: np.mean(_flat(a), axis=-1),
+               "median": lambda a: np.median(_flat(a), axis=-1)}  # fmt: skip
 
 
 def _aggregate(statistic: str):
@@ -91,16 +95,18 @@ def _bootstrap(arrays, statistic, reps: int, seed: int) -> np.ndarray:
     """``statistic`` of ``reps`` stratified bootstrap resamples of the same-shaped ``(runs,
     tasks)`` arrays: each task's runs resampled on their own (rliable's stratified
     bootstrap), the arrays' runs together (paired). ``scipy.stats.bootstrap`` draws the run
-    indices, one sample per task. Returns ``(reps,)``, or ``(k, reps)`` for a statistic of
-    ``k`` values."""
+    indices, one sample per task. ``statistic`` reduces the last two axes of arrays with
+    leading batch axes (all resamples at once). Returns ``(reps,)``, or ``(k, reps)`` for a
+    statistic of ``k`` values."""
     runs, tasks = arrays[0].shape
 
-    def resampled(*indices):
-        return statistic(*[np.stack([a[i, t] for t, i in enumerate(indices)], axis=1)
+    def resampled(*indices, axis=-1):
+        # indices: per task (..., runs) run indices; each array -> (..., runs, tasks).
+        return statistic(*[np.stack([a[i, t] for t, i in enumerate(indices)], axis=-1)
                            for a in arrays])  # fmt: skip
 
     result = scipy_stats.bootstrap(
-        (np.arange(runs),) * tasks, resampled, n_resamples=reps, vectorized=False,
+        (np.arange(runs),) * tasks, resampled, n_resamples=reps, vectorized=True,
         method="percentile", rng=np.random.default_rng(seed),
     )  # fmt: skip
     return np.asarray(result.bootstrap_distribution)
@@ -173,7 +179,7 @@ def probability_of_improvement(x, y, confidence: float = 0.95, reps: int = 2000,
     x, y = _matrix("x", x), _matrix("y", y)
     if x.shape != y.shape:
         raise ValueError(f"x and y: the same runs and tasks, got shapes {x.shape} and {y.shape}")
-    point = _improvement(x, y)
+    point = float(_improvement(x, y))
     draws = _bootstrap([x, y], _improvement, reps, seed)
     return (point, *_percentiles(draws, confidence))
 
@@ -182,9 +188,10 @@ def _improvement(x, y) -> float:
     """P(X > Y) per task (Mann-Whitney U / (runs_x runs_y), ties half), mean over tasks: the
     U statistic counted over all pairs of runs at once (scipy's ``mannwhitneyu`` per task
     and resample was 9 ms, most of a claims page's time)."""
-    greater = x[:, None, :] > y[None, :, :]
-    ties = x[:, None, :] == y[None, :, :]
-    return float(np.mean(greater.mean(axis=(0, 1)) + 0.5 * ties.mean(axis=(0, 1))))
+    greater = x[..., :, None, :] > y[..., None, :, :]  # (..., runs x, runs y, tasks)
+    ties = x[..., :, None, :] == y[..., None, :, :]
+    per_task = greater.mean(axis=(-3, -2)) + 0.5 * ties.mean(axis=(-3, -2))
+    return per_task.mean(axis=-1)
 
 
 def performance_profile(scores: Mapping[str, np.ndarray], thresholds, confidence: float = 0.95,
@@ -209,8 +216,8 @@ def performance_profile(scores: Mapping[str, np.ndarray], thresholds, confidence
     """
     thresholds = np.asarray(thresholds, dtype=float)
 
-    def profile(array):
-        return np.array([np.mean(array > tau) for tau in thresholds])
+    def profile(array):  # (..., runs, tasks) -> (thresholds, ...)
+        return np.stack([np.mean(_flat(array) > tau, axis=-1) for tau in thresholds])
 
     rows = []
     for method, values in scores.items():
