@@ -38,6 +38,17 @@ def test_interval_of_the_mean_matches_the_normal_closed_form_on_many_runs():
     assert constant.point[0] == constant.low[0] == constant.high[0] == 1.5
 
 
+def test_the_bootstrap_resamples_each_tasks_runs_on_their_own():
+    # Two tasks whose runs cancel row by row: resampling whole rows would keep every mean at
+    # 0; resampling each task's runs on its own (stratified) spreads it as the average of two
+    # independent means does: sd = sd(v) / sqrt(2 n).
+    v = np.linspace(-1.0, 1.0, 200)
+    frame = stats.interval_estimates({"a": np.stack([v, -v], axis=1)}, "mean", reps=4000)
+    half = 1.96 * v.std() / np.sqrt(2 * len(v))
+    assert frame.low[0] == pytest.approx(-half, rel=0.1)
+    assert frame.high[0] == pytest.approx(half, rel=0.1)
+
+
 def test_probability_of_improvement_counts_pairs_with_ties_half():
     x = np.array([[1.0, 0.0], [2.0, 0.0], [3.0, 5.0]])
     y = np.array([[2.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
