@@ -509,12 +509,12 @@ def write(comparison_dir: str, records_dir: str, swap_path: str, out: str) -> st
         rows.append(("Fig. 3c", "data-set swap: both losses do better on the data the joint "
                      "loss collected", v, "-", "<br>".join(family.text(n, label)
                                                           for n, label in better),
-                     f"{seeds} seeds, on the defaults before the selection run"))  # fmt: skip
+                     f"{seeds} seeds, the default cell's data sets"))  # fmt: skip
         v = _combined(["does not reproduce" if family.sign(n) else "reproduces"
                        for n, _ in similar])  # fmt: skip
         rows.append(("Fig. 3c", "on the same data the task and joint losses perform similarly",
                      v, "-", "<br>".join(family.text(n, label) for n, label in similar),
-                     f"{seeds} seeds, on the defaults before the selection run"))  # fmt: skip
+                     f"{seeds} seeds, the default cell's data sets"))  # fmt: skip
     verdict, theory = theory_claim()
     rows.append(("III-B (1-D)", "the joint loss rests at s_p = (s_d + s_a)/2, which drives "
                  "s_a to s_d: it corrects a biased model where the task loss does not",
