@@ -63,13 +63,9 @@ ALPHA = 0.05
 REPS = 4000
 """Bootstrap resamples per comparison and interval (fixed seed 0: the page is regenerated
 bit for bit)."""
-FAILED_SCORE = -3.0
-"""A failed run's score (fell or diverged): at most 3 orders of magnitude above PD-only, the
-selection rule's floor."""
-
-
-def _f(value) -> str:
-    return report._format(value)
+FAILED_SCORE = -float(np.log10(select_defaults.FAILURE_FACTOR))
+"""A failed run's highest score (fell or diverged): the selection rule's floor, 3 orders of
+magnitude above PD-only."""
 
 
 @dataclasses.dataclass
