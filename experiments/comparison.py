@@ -142,22 +142,13 @@ def pending(tasks=TASKS, search_out: str = SEARCH_OUT) -> list[str]:
             if own_changes(t, loss, search_out) is None]  # fmt: skip
 
 
-def run_dir(runs: str, cell: Cell) -> str:
-    return os.path.join(runs, cell.task, cell.name)
-
-
-def record_dir(out: str, cell: Cell) -> str:
-    return os.path.join(out, "cells", cell.task, cell.name)
-
-
-RECORD_FILES = ("metrics.csv", "baselines.csv", "seconds.txt", "summary.md")
-
-
-def finished(runs: str, out: str, cell: Cell) -> bool:
-    """Whether the cell has a record (made from its finished run when it has none yet)."""
-    if not _study.recorded(record_dir(out, cell)):
-        _study.keep_record(run_dir(runs, cell), record_dir(out, cell), RECORD_FILES)
-    return _study.recorded(record_dir(out, cell))
+# A cell's run and record folders, kept as the selection run keeps its own (a cell is named
+# by its task and name in both).
+run_dir, record_dir, finished = (
+    select_defaults.run_dir,
+    select_defaults.record_dir,
+    select_defaults.finished,
+)
 
 
 def run_cell(cell: Cell, args) -> float:
@@ -171,7 +162,7 @@ def run_cell(cell: Cell, args) -> float:
     base = config.replace(loop=dataclasses.replace(config.loop, seeds=1))
     seconds = _study.timed_sweep(base, seeds, list(cell.losses), run_dir(args.runs, cell),
                                  args.quiet)  # fmt: skip
-    _study.keep_record(run_dir(args.runs, cell), record_dir(args.out, cell), RECORD_FILES)
+    select_defaults.keep_record(args.runs, args.out, cell)
     return seconds
 
 
