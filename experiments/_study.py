@@ -141,6 +141,38 @@ def timed_sweep(config: config_lib.Config, seeds, losses, out_dir: str, quiet: b
     return seconds
 
 
+def tasks_of(parser: argparse.ArgumentParser, only: str, allowed) -> list[str]:
+    """The tasks named by ``--only`` (comma-separated); a name not in ``allowed``, or none,
+    is a usage error that names the flag, its value and the names allowed."""
+    tasks = [t.strip() for t in only.split(",") if t.strip()]
+    if not tasks or any(t not in allowed for t in tasks):
+        parser.error(f"--only={only!r} is not allowed: names from {', '.join(allowed)}")
+    return tasks
+
+
+def run_cells(script: str, cells, args, run_cell, finished, label=None, after=None) -> bool:
+    """Run the unfinished ``cells`` (any iterable) in order, ``run_cell(cell, args)`` each, until
+    ``args.budget`` seconds have passed: a cell in flight finishes, and the next start resumes
+    where this one stopped (``finished(args.runs, args.out, cell)`` skips the done cells).
+    Each start and end is printed as ``script: task/name`` (``label(cell)`` adds to the
+    start's line); ``after()`` runs after each cell (a study's tables). Returns whether the
+    budget stopped the run."""
+    start = time.perf_counter()
+    for cell in cells:
+        if finished(args.runs, args.out, cell):
+            continue
+        if time.perf_counter() - start >= args.budget:
+            print(f"{script}: budget of {args.budget:.0f} s used; stopping", flush=True)
+            return True
+        name = f"{cell.task}/{cell.name}"
+        print(f"{script}: {name}{' ' + label(cell) if label else ''}", flush=True)
+        seconds = run_cell(cell, args)
+        print(f"{script}: {name} done in {seconds:.0f} s", flush=True)
+        if after is not None:
+            after()
+    return False
+
+
 def keep_record(source: str, record: str, files) -> None:
     """Copy a finished run's ``files`` from ``source`` to its small record folder ``record``
     (when ``source`` has a ``metrics.csv``): what a study's tables are made of, kept with

@@ -39,7 +39,6 @@ import dataclasses
 import json
 import os
 import sys
-import time
 
 import _study
 import loss_search
@@ -178,22 +177,11 @@ def main(argv=None) -> None:
     parser.add_argument("--quick", action="store_true", help="tiny networks, 2 seeds, 1 it.")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
-    tasks = [t.strip() for t in args.only.split(",") if t.strip()]
-    bad = [t for t in tasks if t not in TASKS]
-    if bad or not tasks:
-        parser.error(f"--only={args.only!r} is not allowed: names from {', '.join(TASKS)}")
+    tasks = _study.tasks_of(parser, args.only, TASKS)
     todo = [c for c in cells(tasks, args.search)
             if args.cells == "all" or (args.cells == "own") == c.own]  # fmt: skip
-    start = time.perf_counter()
-    for cell in todo:
-        if finished(args.runs, args.out, cell):
-            continue
-        if time.perf_counter() - start >= args.budget:
-            print(f"comparison: budget of {args.budget:.0f} s used; stopping", flush=True)
-            break
-        print(f"comparison: {cell.task}/{cell.name} ({', '.join(cell.losses)})", flush=True)
-        seconds = run_cell(cell, args)
-        print(f"comparison: {cell.task}/{cell.name} done in {seconds:.0f} s", flush=True)
+    _study.run_cells("comparison", todo, args, run_cell, finished,
+                     label=lambda cell: f"({', '.join(cell.losses)})")  # fmt: skip
     done = sum(finished(args.runs, args.out, c) for c in todo)
     print(f"comparison: {done} of {len(todo)} cells finished; records in {args.out}")
     waiting = pending(tasks, args.search) if args.cells != "shared" else []

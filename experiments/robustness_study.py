@@ -62,7 +62,6 @@ import argparse
 import dataclasses
 import json
 import os
-import time
 
 import _study
 import numpy as np
@@ -451,22 +450,13 @@ def main() -> None:
     )  # fmt: skip
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args()
-    tasks = [t.strip() for t in args.only.split(",") if t.strip()]
-    bad = [t for t in tasks if t not in TASK_ORDER]
-    if bad or not tasks:
-        parser.error(f"--only={args.only!r} is not allowed: names from {', '.join(TASK_ORDER)}")
+    tasks = _study.tasks_of(parser, args.only, TASK_ORDER)
     cells = [c for c in CELLS if c.task in tasks]
-    start = time.perf_counter()
-    for cell in cells:
-        if finished(args.runs, args.out, cell):
-            continue
-        if time.perf_counter() - start >= args.budget:
-            print(f"robustness_study: budget of {args.budget:.0f} s used; stopping", flush=True)
-            break
-        print(f"robustness_study: {cell.name} ({cell.seeds} seeds)", flush=True)
-        seconds = run_cell(cell, args)
-        print(f"robustness_study: {cell.name} done in {seconds:.0f} s", flush=True)
-        write_outputs(args.runs, args.out, CELLS)
+    _study.run_cells(
+        "robustness_study", cells, args, run_cell, finished,
+        label=lambda cell: f"({cell.seeds} seeds)",
+        after=lambda: write_outputs(args.runs, args.out, CELLS),
+    )  # fmt: skip
     summary = write_outputs(args.runs, args.out, CELLS)
     done = sum(finished(args.runs, args.out, c) for c in cells)
     print(f"robustness_study: {done} of {len(cells)} cells finished; tables in {args.out}")

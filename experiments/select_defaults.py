@@ -55,7 +55,6 @@ import argparse
 import dataclasses
 import json
 import os
-import time
 
 import _study
 import numpy as np
@@ -646,23 +645,12 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="smoke test: tiny, no result")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args()
-    tasks = [t.strip() for t in args.only.split(",") if t.strip()]
-    bad = [t for t in tasks if t not in ARM + LEGGED]
-    if bad or not tasks:
-        parser.error(f"--only={args.only!r} is not allowed: names from {', '.join(ARM + LEGGED)}")
-    start = time.perf_counter()
-    for task in tasks:
-        for cell in cells_of(task):
-            if finished(args.runs, args.out, cell):
-                continue
-            if time.perf_counter() - start >= args.budget:
-                print(f"select_defaults: budget of {args.budget:.0f} s used; stopping", flush=True)
-                print(tables(args.out, tasks))
-                return
-            print(f"select_defaults: {task}/{cell.name}", flush=True)
-            seconds = run_cell(cell, args)
-            print(f"select_defaults: {task}/{cell.name} done in {seconds:.0f} s", flush=True)
-            tables(args.out, tasks)
+    tasks = _study.tasks_of(parser, args.only, ARM + LEGGED)
+    # A generator: a task's cells are made when its turn comes (they may read the records of
+    # the tasks before it), as the study always made them.
+    cells = (cell for task in tasks for cell in cells_of(task))
+    _study.run_cells("select_defaults", cells, args, run_cell, finished,
+                     after=lambda: tables(args.out, tasks))  # fmt: skip
     print(tables(args.out, tasks))
 
 

@@ -7,6 +7,7 @@ test_report.py). No training runs here; the study's cells are the library's swee
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import os
@@ -232,3 +233,30 @@ def test_the_default_cells_run_the_configs_of_reproduce_all():
         flags = cli._base_config(robot, task, "joint", 0, 5, 10, None, None, None, None)
         assert plain(flags) == plain(cells[task].config(10)), task
         assert cells[task].seeds == 5
+
+
+def test_run_cells_skips_finished_cells_and_stops_at_the_budget(monkeypatch, capsys):
+    """The study scripts' loop (``_study.run_cells``): finished cells are skipped, a started
+    cell always finishes, no cell starts once the budget is spent, ``after`` follows each
+    cell, and a second call resumes with the first cell left undone."""
+    cell = dataclasses.make_dataclass("C", ["task", "name"])
+    todo = [cell("walk", n) for n in ("a", "b", "c", "d")]
+    done, ran, after = {"a"}, [], []
+    clock = iter([0.0, 0.0, 5.0, 20.0, 20.0])  # start, before b, before c, before d, ...
+    monkeypatch.setattr(_study.time, "perf_counter", lambda: next(clock))
+
+    def run_cell(c, args):
+        ran.append(c.name)
+        done.add(c.name)
+        return 1.0
+
+    args = argparse.Namespace(runs="r", out="o", budget=10.0)
+    finished = lambda runs, out, c: (runs, out) == ("r", "o") and c.name in done  # noqa: E731
+    stopped = _study.run_cells("s", todo, args, run_cell, finished, label=lambda c: "(x)",
+                               after=lambda: after.append(len(ran)))  # fmt: skip
+    assert stopped and ran == ["b", "c"] and after == [1, 2]
+    out = capsys.readouterr().out
+    assert "s: walk/b (x)\ns: walk/b done in 1 s\n" in out
+    assert out.endswith("s: budget of 10 s used; stopping\n")
+    clock = iter([0.0, 0.0])
+    assert not _study.run_cells("s", todo, args, run_cell, finished) and ran == ["b", "c", "d"]
