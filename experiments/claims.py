@@ -447,10 +447,9 @@ def profiles(tasks: dict, path: str) -> None:
     plt.close(fig)
 
 
-def write(comparison_dir: str, records_dir: str, swap_path: str, out: str) -> str:
-    robustness = records(records_dir)
-    tasks = arms(comparison_dir, robustness)
-    family = Family()
+def _plans(family: Family, tasks: dict, robustness: dict) -> list[tuple]:
+    """The claims on the headline cells, in the page's order, as (claim, what the paper
+    says, its parts, the exploratory note); their comparisons are added to ``family``."""
     plans = []
     for claim, paper, task, column, over in RANKING:
         plans.append((claim, paper, _ranking(family, tasks, claim, task, column, over),
@@ -468,56 +467,66 @@ def write(comparison_dir: str, records_dir: str, swap_path: str, out: str) -> st
         plans.append((f"Fig. 4 ({task})", f"Solo12 {task}: during learning the joint loss's "
                       "forward-model prediction error is lower than the task loss's, whose "
                       "predicted task error is lower", _fig4(family, tasks, task), ""))  # fmt: skip
-    swap = _swap(family, swap_path)
-    family.solve()
-    rows = []
-    for claim, paper, parts, where in plans:
-        if parts == "success":
-            task = claim.split("(")[1].split(",")[0]
-            verdicts, lines = {}, []
-            for key, arm in tasks[task].items():
-                if arm is None:
-                    verdicts[key] = "not run yet"
-                    continue
-                verdicts[key], text = success_verdict(arm)
-                lines.append(f"{ARMS[key]}: failed runs at the last iteration: {text}")
-            measured = "<br>".join(lines)
-        elif claim.startswith("Fig. 4"):
-            verdicts, lines = {}, []
-            for key, names in parts.items():
-                if names is None:
-                    verdicts[key] = "not run yet"
-                    continue
-                both = [beats_verdict([family.sign(n)]) for n, _ in names]
-                verdicts[key] = _combined(both)
-                lines.append(f"{ARMS[key]}: " + "; ".join(family.text(n, label)
-                                                          for n, label in names))  # fmt: skip
-            measured = "<br>".join(lines)
-        else:
-            verdicts, measured = _measured(family, parts)
-        note = "; ".join(x for x in (_agreement(verdicts), where) if x)
-        rows.append((claim, paper, verdicts["shared"], verdicts["own"], measured, note))
-    if swap is None:
-        rows.append(("Fig. 3c", "", "not run yet", "", "", ""))
+    return plans
+
+
+def _claim_row(family: Family, tasks: dict, claim, paper, parts, where) -> tuple:
+    """One claim's row of the table (``family`` solved): its verdict in each configuration,
+    what was measured and the notes."""
+    if parts == "success":
+        task = claim.split("(")[1].split(",")[0]
+        verdicts, lines = {}, []
+        for key, arm in tasks[task].items():
+            if arm is None:
+                verdicts[key] = "not run yet"
+                continue
+            verdicts[key], text = success_verdict(arm)
+            lines.append(f"{ARMS[key]}: failed runs at the last iteration: {text}")
+        measured = "<br>".join(lines)
+    elif claim.startswith("Fig. 4"):
+        verdicts, lines = {}, []
+        for key, names in parts.items():
+            if names is None:
+                verdicts[key] = "not run yet"
+                continue
+            both = [beats_verdict([family.sign(n)]) for n, _ in names]
+            verdicts[key] = _combined(both)
+            lines.append(f"{ARMS[key]}: " + "; ".join(family.text(n, label)
+                                                      for n, label in names))  # fmt: skip
+        measured = "<br>".join(lines)
     else:
-        better, similar, seeds = swap
-        v = _combined([beats_verdict([family.sign(n)]) for n, _ in better])
-        rows.append(("Fig. 3c", "data-set swap: both losses do better on the data the joint "
-                     "loss collected", v, "-", "<br>".join(family.text(n, label)
-                                                          for n, label in better),
-                     f"{seeds} seeds, the default cell's data sets"))  # fmt: skip
-        v = _combined(["does not reproduce" if family.sign(n) else "reproduces"
-                       for n, _ in similar])  # fmt: skip
-        rows.append(("Fig. 3c", "on the same data the task and joint losses perform similarly",
-                     v, "-", "<br>".join(family.text(n, label) for n, label in similar),
-                     f"{seeds} seeds, the default cell's data sets"))  # fmt: skip
+        verdicts, measured = _measured(family, parts)
+    note = "; ".join(x for x in (_agreement(verdicts), where) if x)
+    return (claim, paper, verdicts["shared"], verdicts["own"], measured, note)
+
+
+def _swap_rows(family: Family, swap) -> list[tuple]:
+    """The data-set swap's two rows (Fig. 3c), ``family`` solved."""
+    if swap is None:
+        return [("Fig. 3c", "", "not run yet", "", "", "")]
+    better, similar, seeds = swap
+    v = _combined([beats_verdict([family.sign(n)]) for n, _ in better])
+    rows = [("Fig. 3c", "data-set swap: both losses do better on the data the joint loss "
+             "collected", v, "-", "<br>".join(family.text(n, label) for n, label in better),
+             f"{seeds} seeds, the default cell's data sets")]  # fmt: skip
+    v = _combined(["does not reproduce" if family.sign(n) else "reproduces"
+                   for n, _ in similar])  # fmt: skip
+    rows.append(("Fig. 3c", "on the same data the task and joint losses perform similarly",
+                 v, "-", "<br>".join(family.text(n, label) for n, label in similar),
+                 f"{seeds} seeds, the default cell's data sets"))  # fmt: skip
+    return rows
+
+
+def _theory_row() -> tuple:
+    """The 1-D theory's row (section III-B)."""
     verdict, theory = theory_claim()
-    rows.append(("III-B (1-D)", "the joint loss rests at s_p = (s_d + s_a)/2, which drives "
-                 "s_a to s_d: it corrects a biased model where the task loss does not",
-                 verdict, "-", "<br>".join(theory), "closed forms in docs/theory.md"))  # fmt: skip
-    figure = os.path.join(os.path.dirname(os.path.abspath(out)), "claims_profiles.png")
-    os.makedirs(os.path.dirname(figure), exist_ok=True)
-    profiles({t: p for t, p in tasks.items() if p["shared"] is not None}, figure)
+    return ("III-B (1-D)", "the joint loss rests at s_p = (s_d + s_a)/2, which drives "
+            "s_a to s_d: it corrects a biased model where the task loss does not",
+            verdict, "-", "<br>".join(theory), "closed forms in docs/theory.md")  # fmt: skip
+
+
+def _page(tasks: dict, rows: list[tuple], comparisons: int) -> str:
+    """The page's text: how it is made, the headline tables, the claims table."""
     lines = [
         "# The paper's claims under the faithful protocol",
         "",
@@ -532,7 +541,7 @@ def write(comparison_dir: str, records_dir: str, swap_path: str, out: str) -> st
         "bootstrap intervals; P(joint > loss): the probability that a joint-loss run scores "
         "above a run of that loss on the same motion. The claims' comparisons: the IQM over "
         "seeds of the per-seed difference of log10 errors (-1: ten times lower), "
-        f"{len(family.differences)} comparisons Holm-corrected together, each interval at "
+        f"{comparisons} comparisons Holm-corrected together, each interval at "
         "the level Holm tests it at (in brackets after it).",
         "",
         f"Rule: {RULE} {THEORY_RULE}",
@@ -552,7 +561,26 @@ def write(comparison_dir: str, records_dir: str, swap_path: str, out: str) -> st
         "|---|---|---|---|---|---|",
     ]
     lines += [f"| {' | '.join(row)} |" for row in rows]
-    text = "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n"
+
+
+def write(comparison_dir: str, records_dir: str, swap_path: str, out: str) -> str:
+    """Write the claims page ``out`` and its profiles figure beside it from the comparison
+    records (``comparison_dir``), the robustness records (``records_dir``, the stand-ins
+    and the exploratory notes) and the swap study's metrics (``swap_path``); returns the
+    page's text."""
+    robustness = records(records_dir)
+    tasks = arms(comparison_dir, robustness)
+    family = Family()
+    plans = _plans(family, tasks, robustness)
+    swap = _swap(family, swap_path)
+    family.solve()  # every comparison on the page is added: Holm over all of them
+    rows = [_claim_row(family, tasks, *plan) for plan in plans]
+    rows += _swap_rows(family, swap) + [_theory_row()]
+    figure = os.path.join(os.path.dirname(os.path.abspath(out)), "claims_profiles.png")
+    os.makedirs(os.path.dirname(figure), exist_ok=True)
+    profiles({t: p for t, p in tasks.items() if p["shared"] is not None}, figure)
+    text = _page(tasks, rows, len(family.differences))
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
     with open(out, "w") as f:
         f.write(text)
