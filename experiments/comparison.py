@@ -26,9 +26,9 @@ the record of each finished cell in ``--out/cells/<task>/<cell>/`` (``metrics.cs
 ``config.json``: the config that ran, one seed's); a cell with a record is not run again,
 also on a fresh clone. ``experiments/claims.py`` reads the records.
 
-Usage:
-  python experiments/comparison.py --budget 3000              # a piece (resumable)
-  python experiments/comparison.py --only walk --cells own    # one task's own cells
+Usage (one core per process, ``CORES``; two processes on disjoint tasks side by side):
+  taskset -c 0 python experiments/comparison.py --only inverse_dynamics --budget 3000
+  taskset -c 1 python experiments/comparison.py --only walk --cells own
   python experiments/comparison.py --quick --runs /tmp/c --out /tmp/c  # smoke test
 """
 
@@ -55,6 +55,15 @@ FIRST_SEED = 10
 """The cells' seeds are 10-19: disjoint from every selection's (``select_defaults``: 0-2,
 ``loss_search.SEEDS``: 100-102)."""
 ITERATIONS = loss_search.ITERATIONS
+CORES = 1
+"""Every cell runs in a process pinned to one core (``taskset -c N``), so that XLA's CPU pool
+has one thread: jaxlib 0.10.x (this registry's newest) splits a large batched LAPACK call
+(Cholesky, LU, triangular solve) over that pool and waits for the parts, and when as many such
+calls run at once as the pool has threads, every thread waits and the process stalls for
+good (the 10-seed inverse-dynamics cell did, twice, at its final evaluation, with two
+threads; jaxlib 0.11.1 removed that path). A pool of one runs the parts inline. The thread
+count also changes the numbers (XLA's matrix products split their work by it), so all cells
+share one; two pinned processes side by side (``--only``) use both cores."""
 SIZING = (
     "Sized before the first cell from the robustness study's records (5 seeds, the four "
     "losses in one sweep, 2 cores): inverse dynamics 1247 s and op-space 2229 s at 10 "
@@ -153,6 +162,11 @@ run_dir, record_dir, finished = (
 def run_cell(cell: Cell, args) -> float:
     """Run (or resume) one cell; its wall time in seconds."""
     seeds = 2 if args.quick else SEEDS
+    cores = len(os.sched_getaffinity(0))
+    if cores != CORES and not args.quick:
+        raise SystemExit(f"comparison: this process may run on {cores} cores; every cell runs "
+                         f"on {CORES} (CORES): start it as taskset -c 0 python "
+                         "experiments/comparison.py ...")  # fmt: skip
     config = cell.config(seeds, args.quick)
     os.makedirs(record_dir(args.out, cell), exist_ok=True)
     with open(os.path.join(record_dir(args.out, cell), "config.json"), "w") as f:
