@@ -115,3 +115,15 @@ def test_a_tiny_own_cell_runs_and_keeps_its_record(tmp_path):
                      "--search", str(tmp_path), "--runs", str(tmp_path / "none"),
                      "--out", str(out)])  # fmt: skip
     assert (record / "metrics.csv").read_bytes() == before
+
+
+def test_a_cell_refuses_to_run_on_more_than_one_core(tmp_path, monkeypatch):
+    """Every cell runs pinned to one core (``comparison.CORES``: jaxlib 0.10's LAPACK stall,
+    and the thread count changes the numbers): a process that may use two is refused before
+    anything is written, naming the cores, the rule and the command that pins it."""
+    monkeypatch.setattr(comparison.os, "sched_getaffinity", lambda pid: {0, 1})
+    with pytest.raises(SystemExit, match=r"may run on 2 cores; every cell runs on 1 .*taskset"):
+        comparison.main(["--only", "inverse_dynamics", "--cells", "shared", "--quiet",
+                         "--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "out"),
+                         "--search", str(tmp_path)])  # fmt: skip
+    assert not (tmp_path / "out").exists() and not (tmp_path / "runs").exists()
