@@ -87,6 +87,13 @@ AMENDMENT = (
     "was cut or a trial killed), a loss's missing startup "
     "draws are queued first, and the budget counts trials with distinct values."
 )
+CORES = {"inverse_dynamics": 2, "walk": 1}
+"""The cores a task's trials run on (the process's CPU affinity; XLA's CPU pool has as many
+threads, and the thread count changes a trial's numbers): the inverse-dynamics trials ran on
+both of our 2 cores; the walk's run pinned to one (``taskset -c N``, a process per core on
+disjoint ``--losses``), decided before its first trial because jaxlib 0.10 stalls for good
+when as many large batched LAPACK calls run at once as the pool has threads (see
+``comparison.CORES``), and the walk's 18 x 18 mass matrices reach that size sooner."""
 SAMPLER_SEED = 43
 STARTUP = 4
 TRIALS = 12
@@ -333,6 +340,10 @@ def write_page(out: str, trials: int = TRIALS) -> str:
         "",
         f"Amendment: {AMENDMENT}",
         "",
+        "Cores: "
+        + ", ".join(f"{task} trials on {n}" for task, n in CORES.items())
+        + " (the process's CPU affinity, `CORES`; one core avoids jaxlib 0.10's LAPACK stall).",
+        "",
     ]
     for task in ITERATIONS:
         path = os.path.join(out, f"trials_{task}.csv")
@@ -399,6 +410,11 @@ def main(argv=None) -> None:
     parser.add_argument("--out", default=os.path.join(ROOT, "docs", "results", "loss_search"))
     parser.add_argument("--quick", action="store_true", help="tiny networks, 1 iteration")
     args = parser.parse_args(argv)
+    cores = len(os.sched_getaffinity(0))
+    if not args.quick and cores != CORES.get(args.task, 1):
+        parser.error(f"--task={args.task}: its trials run on {CORES.get(args.task, 1)} core(s) "
+                     f"(CORES) and this process may run on {cores}: start it as "
+                     "taskset -c 0 python experiments/loss_search.py ...")  # fmt: skip
     loss_names = [s for s in args.losses.split(",") if s]
     bad = sorted(set(loss_names) - set(losses_lib.PAPER_LOSSES))
     if bad:

@@ -163,3 +163,16 @@ def test_the_records_page_names_each_losss_lowest_trial(tmp_path):
     assert "| joint | 2 (2) | -3.000 | 1 |" in page  # its lowest: trial 1
     assert "| task | 2 (2) | -2.000 | 0 |" in page  # a tie: the earlier trial
     assert (tmp_path / "search_walk.png").stat().st_size > 5_000
+
+
+def test_a_walk_piece_refuses_to_run_on_more_than_one_core(tmp_path, monkeypatch, capsys):
+    """The walk's trials run pinned to one core (``loss_search.CORES``: jaxlib 0.10's LAPACK
+    stall, and the thread count changes a trial's numbers): a process that may use two is a
+    usage error naming the task, the cores and the command, before any study is opened."""
+    monkeypatch.setattr(loss_search.os, "sched_getaffinity", lambda pid: {0, 1})
+    with pytest.raises(SystemExit):
+        loss_search.main(["--task", "walk", "--out", str(tmp_path)])
+    assert "--task=walk: its trials run on 1 core(s) (CORES) and this process may run on 2" in (
+        capsys.readouterr().err
+    )
+    assert os.listdir(tmp_path) == []
