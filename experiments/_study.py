@@ -141,6 +141,13 @@ def timed_sweep(config: config_lib.Config, seeds, losses, out_dir: str, quiet: b
     return seconds
 
 
+def cores() -> int:
+    """The cores this process may run on (its CPU affinity; XLA's CPU pool has as many
+    threads), or all of the machine's where the OS has no affinity (macOS)."""
+    affinity = getattr(os, "sched_getaffinity", None)
+    return len(affinity(0)) if affinity is not None else os.cpu_count() or 1
+
+
 def tasks_of(parser: argparse.ArgumentParser, only: str, allowed) -> list[str]:
     """The tasks named by ``--only`` (comma-separated); a name not in ``allowed``, or none,
     is a usage error that names the flag, its value and the names allowed."""

@@ -162,7 +162,7 @@ run_dir, record_dir, finished = (
 def run_cell(cell: Cell, args) -> float:
     """Run (or resume) one cell; its wall time in seconds."""
     seeds = 2 if args.quick else SEEDS
-    cores = len(os.sched_getaffinity(0))
+    cores = _study.cores()
     if cores != CORES and not args.quick:
         raise SystemExit(f"comparison: this process may run on {cores} cores; every cell runs "
                          f"on {CORES} (CORES): start it as taskset -c 0 python "

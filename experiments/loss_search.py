@@ -410,7 +410,7 @@ def main(argv=None) -> None:
     parser.add_argument("--out", default=os.path.join(ROOT, "docs", "results", "loss_search"))
     parser.add_argument("--quick", action="store_true", help="tiny networks, 1 iteration")
     args = parser.parse_args(argv)
-    cores = len(os.sched_getaffinity(0))
+    cores = _study.cores()
     if not args.quick and cores != CORES.get(args.task, 1):
         parser.error(f"--task={args.task}: its trials run on {CORES.get(args.task, 1)} core(s) "
                      f"(CORES) and this process may run on {cores}: start it as "
