@@ -63,6 +63,21 @@ def test_reference_controller_reproduces_the_recording(walk):
     assert walk.references[-1].qpos[-1, 0] - walk.references[-1].qpos[0, 0] > 0.5
 
 
+def test_configuration_of_a_state_is_its_whole_floating_base_configuration(walk, solo):
+    """The ``rigid_body`` forward model reads ``(qpos, qvel)`` back from a learning state
+    ``[qpos, foot forces, qvel]``: every entry, base included (a floating base is not an
+    arm's held joint, which the arms' ``configuration`` fills in at ``home``; 46cd728 had
+    the walk and jump crash there on their default forward model)."""
+    rng = np.random.default_rng(0)
+    qpos = rng.normal(size=(3, solo.nq)).astype(np.float32)
+    qvel = rng.normal(size=(3, solo.nv)).astype(np.float32)
+    forces = rng.normal(size=(3, 12)).astype(np.float32)
+    state = jax.vmap(walk.state)(jnp.asarray(qpos), jnp.asarray(qvel), jnp.asarray(forces))
+    got_qpos, got_qvel = walk.configuration(state)
+    np.testing.assert_array_equal(got_qpos, qpos)
+    np.testing.assert_array_equal(got_qvel, qvel)
+
+
 def test_desired_acceleration_has_base_gains_on_the_base_and_joint_gains_on_the_joints(solo):
     # Oracle: the PD correction written out by hand, with MuJoCo's mju_subQuat for the base
     # orientation error (a rotation vector in the base frame, the frame of the free joint's

@@ -133,7 +133,8 @@ def test_zero_residual_predicts_mujoco_qacc_and_jacobian_is_inverse_mass(arms, n
         )
 
 
-@pytest.mark.slow  # ~4 s of MJX compilation
+# In the default run (about 4 s of MJX compilation): the only check of the legged tasks'
+# rigid-body model against MuJoCo C.
 def test_solo12_in_the_air_zero_residual_is_mujoco_qacc_times_dt_then_forces():
     """The legged output ``[qacc dt, foot forces]``: the first ``nv`` entries are MuJoCo's
     ``qacc`` times the control period, the forces the residual's alone (zero here)."""

@@ -242,6 +242,12 @@ class LeggedTask(JointSpaceTask):
     def observed(self, step, qpos_next, qvel_next, features_next):
         return jnp.concatenate([qvel_next - step.qvel, features_next])
 
+    def configuration(self, state):
+        """``(qpos, qvel)`` of states ``[qpos, foot forces, qvel]`` (for ``rigid_body``): the
+        whole floating-base configuration, not the arms' driven-joint entries."""
+        nq, nv = self.robot.nq, self.robot.nv
+        return state[..., :nq], state[..., state.shape[-1] - nv :]
+
     def acceleration_output(self):
         """``y[:nv] = control_dt * qacc``; the foot forces are the residual network's alone."""
         return AccelerationOutput(tuple(range(self.robot.nv)), self.control_dt)
