@@ -10,7 +10,8 @@ The cells (:func:`cells`), per task (iiwa14 ``inverse_dynamics`` and ``opspace``
   search trial (``docs/results/loss_search/chosen_<task>.json``). The search ran on one task
   per family (``inverse_dynamics``, ``walk``; ``loss_search.SIZING``): ``opspace`` takes the
   arm's choice, ``jump`` the legged one. An own cell runs only once its loss's search has
-  all its trials (``loss_search.TRIALS`` with distinct values), so that no test cell sees a
+  all its trials (``loss_search.TRIALS`` TPE trials with distinct values, then the
+  shared-defaults trial: ``loss_search.AMENDMENT_DEFAULTS``), so that no test cell sees a
   half-finished search.
 
 Every cell: the seeds ``FIRST_SEED`` to ``FIRST_SEED + SEEDS - 1`` (10-19: no selection used
@@ -111,15 +112,14 @@ def searched_on(task: str) -> str:
 
 def own_changes(task: str, loss: str, search_out: str = SEARCH_OUT) -> tuple | None:
     """``loss``'s chosen values for ``task`` as (dotted path, value) pairs, or None while its
-    search (on :func:`searched_on` ``task``) has fewer than ``loss_search.TRIALS`` trials
-    with distinct values."""
+    search (on :func:`searched_on` ``task``) lacks trials (:func:`loss_search.complete`:
+    ``loss_search.TRIALS`` TPE trials with distinct values and the shared-defaults trial)."""
     searched = searched_on(task)
     path = os.path.join(search_out, f"trials_{searched}.csv")
     if not os.path.isfile(path):
         return None
     trials = pd.read_csv(path)
-    names = list(loss_search.space(searched))
-    if len(trials[trials["loss"] == loss][names].drop_duplicates()) < loss_search.TRIALS:
+    if not loss_search.complete(trials, searched, loss):
         return None
     best = loss_search.chosen(trials)[searched][loss]
     with open(os.path.join(search_out, f"chosen_{searched}.json")) as f:

@@ -32,10 +32,11 @@ def _search(folder, task: str, trials: dict) -> None:
         json.dump({"rule": "", "chosen": loss_search.chosen(frame)}, f)
 
 
-def _runs(best: dict, other: dict, n: int) -> list:
-    """n trials with distinct values, ``best`` the lowest-scoring one (the second)."""
+def _runs(best: dict, other: dict, n: int, task: str = "inverse_dynamics") -> list:
+    """n trials with distinct values, ``best`` the lowest-scoring one (the second), then the
+    shared-defaults trial (scoring higher)."""
     rest = [(-1.0, {**other, "controller learning rate": 2e-3 + 1e-5 * k}) for k in range(n - 2)]
-    return [(-2.0, other), (-5.0, best), *rest]
+    return [(-2.0, other), (-5.0, best), *rest, (-3.0, loss_search.defaults_values(task))]
 
 
 ARM = {"normaliser": "data", "forward model": "mlp", "controller goal": "observed",
@@ -52,9 +53,10 @@ def test_an_own_cell_is_the_defaults_with_its_lowest_trial_on_the_test_motions(t
     _search(tmp_path, "inverse_dynamics", {
         "joint": _runs(ARM, OTHER, n),
         "distal": [(-9.0, ARM), (-8.0, OTHER)] + [(-7.0, ARM)] * (n - 2),  # two distinct
+        "task": _runs(ARM, OTHER, n)[:-1],  # its TPE trials, not yet the shared defaults
     })  # fmt: skip
     cells = {c.name: c for c in comparison.cells([task], str(tmp_path))}
-    assert set(cells) == {"shared", "own-joint"}  # distal waits for its search
+    assert set(cells) == {"shared", "own-joint"}  # distal and task wait for their search
     assert comparison.pending([task], str(tmp_path)) == [
         f"{task}/own-{loss}" for loss in ("task", "distal", "supervised")]  # fmt: skip
     defaults = config_lib.for_task(task, robot="iiwa14")
@@ -80,7 +82,7 @@ def test_the_legged_cells_take_the_walks_search_and_a_stale_choice_is_refused(tm
     values = {"normaliser": "data", "forward model": "rigid_body", "controller goal": "desired",
               "loss form": "norm", "fit start": "warm", "s*": "pd",
               "forward learning rate": 3e-4, "controller learning rate": 1e-3}  # fmt: skip
-    _search(tmp_path, "walk", {"task": _runs(values, {**values, "s*": "next_velocity"}, n)})
+    _search(tmp_path, "walk", {"task": _runs(values, {**values, "s*": "next_velocity"}, n, "walk")})
     for task in ("walk", "jump"):
         cell = [c for c in comparison.cells([task], str(tmp_path)) if c.own][0]
         config = cell.config()

@@ -176,3 +176,40 @@ def test_a_walk_piece_refuses_to_run_on_more_than_one_core(tmp_path, monkeypatch
         capsys.readouterr().err
     )
     assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("task", ["inverse_dynamics", "walk"])
+def test_the_shared_defaults_trial_trains_exactly_the_library_defaults(task):
+    # Oracle: the trial config with no changes at all (the task's library defaults on the
+    # selection motions); the defaults as a point of the space must give the same config.
+    values = loss_search.defaults_values(task)
+    assert set(values) == set(loss_search.space(task))
+    changes = loss_search.suggest(optuna.trial.FixedTrial(values), task)
+    assert loss_search.trial_config(task, changes) == loss_search.trial_config(task, {})
+
+
+def test_every_study_scores_the_shared_defaults_after_its_tpe_trials_only(tmp_path):
+    # Amendment 2: after its TPE trials (here 5), a study runs the shared defaults once more;
+    # the TPE trials' values are those drawn without the amendment.
+    whole = _draw(tmp_path / "plain", [5])
+    searches = {"joint": loss_search.study(str(tmp_path / "a"), "walk", "joint")}
+    drawn = []
+    while (loss := loss_search.next_loss(searches, "walk", trials=5)) is not None:
+        trial = loss_search.ask(searches[loss])
+        loss_search.suggest(trial, "walk")
+        made_up = (trial.number * 7) % 5 if trial.number < 5 else -5  # _draw's, then -5
+        searches[loss].tell(trial, float(made_up))
+        drawn.append(trial.params)
+        assert len(drawn) <= 6
+    assert drawn[:5] == whole
+    assert drawn[5] == loss_search.defaults_values("walk")
+    assert loss_search.distinct(searches["joint"], "walk") == 5
+    frame = loss_search.records(str(tmp_path / "a"), ["walk"], ["joint"])
+    assert loss_search.is_defaults(frame, "walk").tolist() == [False] * 5 + [True]
+    assert loss_search.complete(frame, "walk", "joint", trials=5)
+    assert not loss_search.complete(frame.iloc[:5], "walk", "joint", trials=5)  # no defaults
+    assert not loss_search.complete(frame.iloc[1:], "walk", "joint", trials=5)  # 4 TPE trials
+    # The defaults trial scored lowest (-5): it is the loss's choice, marked on the page.
+    assert loss_search.chosen(frame)["walk"]["joint"]["trial"] == 5
+    frame.to_csv(tmp_path / "trials_walk.csv", index=False)
+    assert "| joint | 5 (shared defaults) | -5.000 |" in loss_search.write_page(str(tmp_path))
