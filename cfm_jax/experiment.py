@@ -223,7 +223,9 @@ class Experiment:
     # losses x seeds changes the batch size XLA:CPU compiles each matrix product for, and
     # with it the rounding of the last bits (seen on the tiny test networks), so a loss's
     # numbers would depend on which other losses ran beside it. In a loop (lax.map) every
-    # loss runs the single-loss program's computation, bit for bit; the loss-specific part,
+    # loss runs the single-loss program's computation (bit for bit on the tests' tiny
+    # configs; on larger ones and one core the loop body's last bits can differ from the
+    # program alone: docs/performance.md, found 2026-11-28); the loss-specific part,
     # the controller's refit, is picked by lax.switch on the loss's index (one branch runs).
 
     def init_losses(self, losses, keys, knobs: Knobs | None = None, data=None) -> TrainState:
@@ -264,8 +266,10 @@ class Experiment:
         seeds: :func:`cfm_jax.algorithm.collect` (the rollouts and their metrics: the
         simulator), then :func:`cfm_jax.algorithm.refit_forward` and the loss's
         :func:`cfm_jax.algorithm.refit_controller` (no simulator, so JAX's persistent
-        compilation cache keeps this program, the larger one). Each loss's slice is bit for
-        bit that loss's :meth:`iteration`. Returns ``(state, metrics)``, metrics with leading
+        compilation cache keeps this program, the larger one). Each loss's slice equals that
+        loss's :meth:`iteration` bit for bit on the tests' tiny configs, not on every config
+        (XLA compiles the loop's body apart; docs/performance.md). Returns ``(state,
+        metrics)``, metrics with leading
         ``(loss, seed)`` axes.
 
         Args:
