@@ -22,6 +22,10 @@ runs:
 * The loss's configuration for the comparison "each at its best" is its trial with the
   lowest score (ties: the earlier trial). The test cells then run each loss with its own
   configuration, beside the shared defaults.
+* Amendment 2 (``AMENDMENT_DEFAULTS``, after every study's 12 trials): each study then also
+  scores the shared defaults (``defaults_values``), one trial queued after its TPE trials,
+  and the lowest of the 13 is the loss's choice; on the walk no TPE trial of the joint, task
+  or distal loss had left the failure floor, while the defaults walk.
 
 Resumable: each study lives in a journal file (``--out/<task>/<loss>/journal.log``, a few
 kB, committed with the records so that a fresh machine resumes it); a trial killed while
