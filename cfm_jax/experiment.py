@@ -224,9 +224,10 @@ class Experiment:
     # with it the rounding of the last bits (seen on the tiny test networks), so a loss's
     # numbers would depend on which other losses ran beside it. In a loop (lax.map) every
     # loss runs the single-loss program's computation (bit for bit on the tests' tiny
-    # configs; on larger ones and one core the loop body's last bits can differ from the
-    # program alone: docs/performance.md, found 2026-11-28); the loss-specific part,
-    # the controller's refit, is picked by lax.switch on the loss's index (one branch runs).
+    # configs; the rollouts of the rigid-body iiwa and of the walk can differ from the
+    # program alone in the last bits: docs/performance.md, found 2026-11-28); the
+    # loss-specific part, the controller's refit, is picked by lax.switch on the loss's
+    # index (one branch runs).
 
     def init_losses(self, losses, keys, knobs: Knobs | None = None, data=None) -> TrainState:
         """:meth:`init` for every loss of ``losses`` and every seed of ``keys``: :meth:`prepare`
