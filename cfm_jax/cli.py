@@ -141,8 +141,8 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
 
 
 def _train_losses(base, names, out, resume, data, quiet, experiment, progress_fn=None):
-    """Train the losses together (:func:`cfm_jax.train` with ``losses``: one program, one
-    babbling and initial fit of f per seed), each into OUT/<loss>; the top-level metrics.csv
+    """Train the losses together (:func:`cfm_jax.train` with ``losses``: one babbling and
+    initial fit of f per seed), each into OUT/<loss>; the top-level metrics.csv
     is rewritten after every iteration from the losses' own files, the other combined files
     at the end. ``progress_fn`` (e.g. the TensorBoard writer) is called as train calls it."""
     from cfm_jax import training as train_lib

@@ -219,20 +219,24 @@ class Experiment:
 
     # ----- compiled, over losses and seeds -------------------------------------------------
     #
-    # The loss is a loop axis of one program, not a vmap axis: vmapping the networks over
-    # losses x seeds changes the batch size XLA:CPU compiles each matrix product for, and
-    # with it the rounding of the last bits (seen on the tiny test networks), so a loss's
-    # numbers would depend on which other losses ran beside it. In a loop (lax.map) every
-    # loss runs the single-loss program's computation (bit for bit on the tests' tiny
-    # configs; the rollouts of the rigid-body iiwa and of the walk can differ from the
-    # program alone in the last bits: docs/performance.md, found 2026-11-28); the
-    # loss-specific part, the controller's refit, is picked by lax.switch on the loss's
-    # index (one branch runs).
+    # Losses trained together share what does not depend on the loss: the babbling data and
+    # the start from them (:meth:`prepare`, once per seed) and the compiled rollout program
+    # (one compile for every loss). Everything else runs, one loss after the other, through
+    # the programs of that loss trained alone: a loss's numbers never depend on which losses
+    # ran beside it, by construction. A loss axis inside one program does not give that:
+    # vmapped over losses x seeds, the networks' matrix products compile for another batch
+    # size and round differently in the last bits; as a lax.map over the losses (this
+    # library's form until 2026-11-28), XLA compiles the loop's body apart, and the
+    # rigid-body models' rollouts and refits came out different from the loss alone in the
+    # last bits. The simulator and the updates run one loss after the other in either form;
+    # what a loss axis saved was compiling the forward model's refit once, not per loss.
+    # The programs keep a leading loss axis of length 1 (the single-loss programs' form
+    # since issue 46, so that single-loss numbers stay what they were).
 
-    def init_losses(self, losses, keys, knobs: Knobs | None = None, data=None) -> TrainState:
-        """:meth:`init` for every loss of ``losses`` and every seed of ``keys``: :meth:`prepare`
+    def init_each(self, losses, keys, knobs: Knobs | None = None, data=None) -> list[TrainState]:
+        """:meth:`init` for each loss of ``losses`` and every seed of ``keys``: :meth:`prepare`
         once per seed (every loss starts from it, with the same key), then each loss's initial
-        controller fit, all losses in one program. Leaves have leading ``(loss, seed)`` axes.
+        controller fit. One state per loss, its leaves with leading ``(1, seed)`` axes.
 
         Args:
           losses: distinct controller-loss names.
@@ -242,9 +246,9 @@ class Experiment:
 
         Examples:
           >>> # not run: the initial fits take seconds to minutes
-          >>> state = exp.init_losses(("joint", "task"), keys)  # doctest: +SKIP
-          >>> state.iteration.shape  # (losses, seeds)  # doctest: +SKIP
-          (2, 3)
+          >>> joint, task = exp.init_each(("joint", "task"), keys)  # doctest: +SKIP
+          >>> joint.iteration.shape  # (1, seeds)  # doctest: +SKIP
+          (1, 3)
         """
         losses, knobs = loss_names(losses), self._knobs(knobs)
         if data is None:
@@ -252,25 +256,39 @@ class Experiment:
         else:
             prepared, key_fit = self._prepare_from_data(keys, knobs, data)
 
-        def fits(prepared, key_fit, knobs):
-            def fit(loss, _):
+        def program(loss):
+            def fit(prepared, key_fit, knobs):
                 fn = functools.partial(algorithm.fit_initial_controller, self.setup, loss)
-                return jax.vmap(fn, in_axes=(0, 0, None))(prepared, key_fit, knobs)
+                return _stack([jax.vmap(fn, in_axes=(0, 0, None))(prepared, key_fit, knobs)])
 
-            return _loop_losses(losses, None, per_loss=fit)
+            return self._jit(f"init[{loss}]", fit)
 
-        return self._jit(f"init[{','.join(losses)}]", fits)(prepared, key_fit, knobs)
+        return [program(loss)(prepared, key_fit, knobs) for loss in losses]
+
+    def init_losses(self, losses, keys, knobs: Knobs | None = None, data=None) -> TrainState:
+        """:meth:`init_each`, the losses stacked: leaves have leading ``(loss, seed)`` axes.
+
+        Args:
+          losses: distinct controller-loss names.
+          keys: one PRNG key per seed.
+          knobs: the runtime values (None: this experiment's).
+          data: babbling data ``(chunk, valid)`` with a seed axis instead of babbling, or None.
+
+        Examples:
+          >>> state = exp.init_losses(("joint", "task"), keys)  # doctest: +SKIP
+          >>> state.iteration.shape  # (losses, seeds)  # doctest: +SKIP
+          (2, 3)
+        """
+        return _concatenate(self.init_each(losses, keys, knobs, data))
 
     def iteration_losses(self, losses, state: TrainState, knobs: Knobs | None = None, data=None):
         """:func:`cfm_jax.algorithm.iteration` for every loss and seed of ``state`` (leading
-        ``(loss, seed)`` axes), in two programs, each a loop over the losses vmapped over
-        seeds: :func:`cfm_jax.algorithm.collect` (the rollouts and their metrics: the
-        simulator), then :func:`cfm_jax.algorithm.refit_forward` and the loss's
+        ``(loss, seed)`` axes), for each loss in two programs: :func:`cfm_jax.algorithm.collect`
+        (the rollouts and their metrics: the simulator; one program for every loss), then
+        :func:`cfm_jax.algorithm.refit_forward` and the loss's
         :func:`cfm_jax.algorithm.refit_controller` (no simulator, so JAX's persistent
-        compilation cache keeps this program, the larger one). Each loss's slice equals that
-        loss's :meth:`iteration` bit for bit on the tests' tiny configs, not on every config
-        (XLA compiles the loop's body apart; docs/performance.md). Returns ``(state,
-        metrics)``, metrics with leading
+        compilation cache keeps this program, the larger one). Each loss's slice is that loss
+        trained alone, bit for bit. Returns ``(state, metrics)``, metrics with leading
         ``(loss, seed)`` axes.
 
         Args:
@@ -287,49 +305,36 @@ class Experiment:
           (2, 3, 5)
         """
         losses, knobs = loss_names(losses), self._knobs(knobs)
+        if len(losses) == 1:  # no copy of the state
+            return self._iteration_of_one(losses[0], state, knobs, data)
+        steps = [
+            self._iteration_of_one(loss, _slice(state, i), knobs, data)
+            for i, loss in enumerate(losses)
+        ]
+        return _concatenate([s for s, _ in steps]), _concatenate([m for _, m in steps])
+
+    def _iteration_of_one(self, loss: str, state: TrainState, knobs: Knobs, data):
+        """One loss's iteration, ``state`` with leading ``(1, seed)`` axes."""
 
         def collect(state, knobs):
-            def one(state):
-                fn = functools.partial(algorithm.collect, self.setup)
-                return jax.vmap(fn, in_axes=(0, None))(state, knobs)
-
-            return _loop_losses(losses, state, common=one)
+            fn = functools.partial(algorithm.collect, self.setup)
+            return _stack([jax.vmap(fn, in_axes=(0, None))(_index(state, 0), knobs)])
 
         def refit(state, data, knobs):
-            def forward(entry):  # the same for every loss: outside the switch, compiled once
-                fn = functools.partial(algorithm.refit_forward, self.setup)
-                return jax.vmap(fn, in_axes=(0, 0, None))(*entry, knobs)
+            state, data = _index((state, data), 0)
+            fn = functools.partial(algorithm.refit_forward, self.setup)
+            state, forward_loss, key = jax.vmap(fn, in_axes=(0, 0, None))(state, data, knobs)
+            fn = functools.partial(algorithm.refit_controller, self.setup, loss)
+            state, controller_loss = jax.vmap(fn, in_axes=(0, 0, None))(state, key, knobs)
+            return _stack([(state, forward_loss, controller_loss)])
 
-            def controller(loss, entry):
-                state, forward_loss, key = entry
-                fn = functools.partial(algorithm.refit_controller, self.setup, loss)
-                state, controller_loss = jax.vmap(fn, in_axes=(0, 0, None))(state, key, knobs)
-                return state, forward_loss, controller_loss
-
-            return _loop_losses(losses, (state, data), common=forward, per_loss=controller)
-
-        out, collected = self._jit(f"collect[{len(losses)}]", collect)(state, knobs)
-        if data is not None:  # a replay: every loss adds the recorded data
-            collected = jax.tree.map(lambda x: jnp.broadcast_to(x, (len(losses), *x.shape)), data)
-        state, out["forward_loss"], out["controller_loss"] = self._jit(
-            f"refit[{','.join(losses)}]", refit
-        )(state, collected, knobs)
+        out, collected = self._jit("collect[1]", collect)(state, knobs)
+        if data is not None:  # a replay: the recorded data
+            collected = jax.tree.map(lambda x: x[None], data)
+        state, out["forward_loss"], out["controller_loss"] = self._jit(f"refit[{loss}]", refit)(
+            state, collected, knobs
+        )
         return state, out
-
-    def evaluate_losses(self, state: TrainState, knobs: Knobs | None = None) -> dict:
-        """:meth:`evaluate` of each loss of a state with leading ``(loss, seed)`` axes, with the
-        programs of :meth:`evaluate` (metrics with the same leading axes).
-
-        Args:
-          state: the :class:`TrainState` of :meth:`iteration_losses`.
-          knobs: the runtime values (None: this experiment's).
-
-        Examples:
-          >>> exp.evaluate_losses(state)["tracking_mse"].shape  # doctest: +SKIP
-          (2, 3, 5)
-        """
-        count = state.iteration.shape[0]
-        return _stack([self.evaluate(_index(state, i), knobs) for i in range(count)])
 
     def rollout(
         self, policy: rollout.MixedPolicy, keys, knobs: Knobs | None = None
@@ -408,32 +413,21 @@ def loss_names(losses) -> tuple[str, ...]:
     return names
 
 
-def _loop_losses(losses: tuple[str, ...], xs, common=None, per_loss=None):
-    """For each loss and its entry ``x`` of ``xs``'s leading axis (``xs`` None: ``x`` None):
-    ``common(x)``, the part that does not depend on the loss, then ``per_loss(loss, ·)`` on
-    its result, picked by a ``lax.switch`` on the loss's index (one branch runs; only this
-    part is in the program once per loss); results stacked. A ``lax.map`` over the losses;
-    one loss: the single-loss program itself. ``common``/``per_loss`` None: the identity."""
-    common = common or (lambda x: x)
-
-    def branch(loss):
-        return functools.partial(per_loss, loss) if per_loss else lambda x: x
-
-    if len(losses) == 1:
-        return _stack([branch(losses[0])(common(None if xs is None else _index(xs, 0)))])
-    branches = [branch(loss) for loss in losses]
-
-    def one(entry):
-        index, x = entry
-        x = common(x)
-        return jax.lax.switch(index, branches, x) if per_loss else x
-
-    return jax.lax.map(one, (jnp.arange(len(losses)), xs))
-
-
 def _stack(trees):
     """The pytrees ``trees`` stacked along a new leading axis."""
     return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)
+
+
+def _concatenate(trees):
+    """The pytrees ``trees`` joined along their leading axis (one tree: itself, no copy)."""
+    if len(trees) == 1:
+        return trees[0]
+    return jax.tree.map(lambda *xs: jnp.concatenate(xs), *trees)
+
+
+def _slice(tree, i: int):
+    """Entry ``i`` of a pytree's leading axis, the axis kept (length 1)."""
+    return jax.tree.map(lambda x: x[i : i + 1], tree)
 
 
 def _index(tree, i: int):

@@ -113,9 +113,10 @@ class Recorder:
         self._save(state, 0, final=self.config.loop.iterations == 0)
         return state, 0
 
-    def iteration(self, i: int, state: TrainState, previous: TrainState, metrics) -> TrainState:
+    def iteration(self, i: int, state: TrainState, previous, metrics) -> TrainState:
         """After iteration ``i``: stop the seeds whose update went non-finite (they keep
-        ``previous``), :meth:`record` the metrics, checkpoint when due; the state to go on from."""
+        ``previous``: the state before the iteration, or a function that returns it, called
+        only then), :meth:`record` the metrics, checkpoint when due; the state to go on from."""
         state = _stop_nonfinite(state, previous, metrics, i, self.config.loss, self.seeds,
                                 self.stopped)  # fmt: skip
         self.record(i, metrics)
@@ -230,7 +231,8 @@ def _nonfinite(state: TrainState, metrics: dict, n_seeds: int) -> list[str | Non
 
 
 def _stop_nonfinite(state, previous, metrics, iteration, loss, seeds, stopped) -> TrainState:
-    """Stop the seeds whose update went non-finite: they keep ``previous`` and join ``stopped``."""
+    """Stop the seeds whose update went non-finite: they keep ``previous`` (a state, or a
+    function that returns it) and join ``stopped``."""
     n = len(seeds)
     gone = {entry["seed"] for entry in stopped}
     for s, quantity in enumerate(_nonfinite(state, metrics, n)):
@@ -243,6 +245,7 @@ def _stop_nonfinite(state, previous, metrics, iteration, loss, seeds, stopped) -
     if not keep_old.any():
         return state
     index = np.flatnonzero(keep_old)
+    previous = previous() if callable(previous) else previous
     return jax.tree.map(lambda a, b: a.at[index].set(b[index]), state, previous)
 
 

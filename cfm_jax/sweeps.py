@@ -463,8 +463,8 @@ def run_cells(
     progress: bool = False,
 ) -> list[CellOutput]:
     """Run cells that differ only in the loss together: :func:`cfm_jax.train` with ``losses``
-    (one program, one babbling and initial fit of f per seed; each loss's numbers are those of
-    its cell run alone). What :func:`sweep` runs when no ``runner`` is given.
+    (one babbling and initial fit of f per seed; each loss's numbers are those of its cell
+    run alone, bit for bit). What :func:`sweep` runs when no ``runner`` is given.
 
     Each cell's ``run_dir`` holding checkpoints of an interrupted attempt resumes from its
     newest valid one; a corrupt checkpoint restarts the cells from the beginning (warned).

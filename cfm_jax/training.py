@@ -6,6 +6,7 @@ display and the replay of a recorded data set."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -19,7 +20,7 @@ from cfm_jax import algorithm, dataset
 from cfm_jax import checkpoint as ckpt_lib
 from cfm_jax import config as config_lib
 from cfm_jax.algorithm import METRIC_COLUMNS, Knobs, TrainState  # noqa: F401 (Knobs: re-export)
-from cfm_jax.experiment import Experiment, _index, _stack, loss_names
+from cfm_jax.experiment import Experiment, _concatenate, _index, _stack, loss_names
 from cfm_jax.recorder import Recorder, progress_bar
 
 # Experiment, TrainState, Knobs and METRIC_COLUMNS are imported here for the shell's use
@@ -195,18 +196,20 @@ def train(
         recorder.open(exp.metric_columns)
     try:
         with progress_bar(progress) as bar:
-            state, compile_seconds = _run(exp, config, recorders, recorded, knobs, bar)
+            states, compile_seconds = _run(exp, config, recorders, recorded, knobs, bar)
     finally:  # a run stopped by an exception keeps its last checkpoint whole
         for recorder in recorders.values():
             recorder.flush()
     baselines = exp.baselines(knobs)
-    for j, name in enumerate(names):
-        recorders[name].finish(_index(state, j), baselines, recorded)
+    for name in names:
+        recorders[name].finish(_index(states[name], 0), baselines, recorded)
     return TrainResult(
         config=config if several else config.replace(loss=names[0]),
         metrics=pd.concat([r.metrics() for r in recorders.values()], ignore_index=True),
         baselines=baselines,
-        state=state if several else _index(state, 0),
+        state=_concatenate([states.pop(name) for name in names])
+        if several
+        else _index(states[names[0]], 0),
         rms_reach=exp.task_for(config).tracking_scale,
         seconds=time.perf_counter() - start,
         compile_seconds=compile_seconds,
@@ -216,11 +219,13 @@ def train(
     )
 
 
-def _run(exp, config, recorders: dict, recorded, knobs, bar) -> tuple[TrainState, float]:
-    """:func:`train`'s loop: the losses' initial fits in one program, each loss's start (or
-    resumed checkpoint), the iterations of the losses that start at the same iteration
-    together, the final evaluation. Returns the final state (loss and seed axes) and the
-    first iteration's wall time, its compilation included."""
+def _run(exp, config, recorders: dict, recorded, knobs, bar) -> tuple[dict, float]:
+    """:func:`train`'s loop: the losses' start (babbling and the fit of f once per seed, then
+    each loss's initial fit, or its resumed checkpoint), each iteration for each loss that
+    has reached it (:meth:`Experiment.iteration_losses` of that loss alone, one loss after
+    the other: only one loss's iteration is in memory beside the states), the final
+    evaluation. Returns each loss's final state (leading axes ``(1, seed)``) and the first
+    iteration's wall time, its compilation included."""
     names, iterations = tuple(recorders), config.loop.iterations
     label = f"{config.robot} {','.join(names)}"
     task = bar.add_task(f"{label}: babbling + initial fit", total=iterations + 2)
@@ -228,43 +233,37 @@ def _run(exp, config, recorders: dict, recorded, knobs, bar) -> tuple[TrainState
     chunk = None
     if recorded is not None:
         chunk = recorded.chunk(0, config.loop.babbling_rollouts * exp.transitions_per_rollout)
-    state = jax.block_until_ready(exp.init_losses(names, keys, knobs, data=chunk))
+    initial = exp.init_each(names, keys, knobs, data=chunk)
     states, firsts = {}, {}
-    for j, name in enumerate(names):
-        states[name], firsts[name] = recorders[name].start(_index(state, j))
+    for name in names:
+        start, firsts[name] = recorders[name].start(_index(initial.pop(0), 0))
+        states[name] = _stack([start])
+        del start
     earliest = min(firsts.values())
     bar.advance(task, 1 + earliest)
     compile_seconds = float("nan")
-    # Losses resumed from different iterations run in groups (usually one: all losses).
-    for first in sorted(set(firsts.values())):
-        group = tuple(name for name in names if firsts[name] == first)
-        state = _stack([states[name] for name in group])
-        for i in range(first, iterations):
-            bar.update(task, description=f"{label}: iteration {i + 1}")
-            t0 = time.perf_counter()
-            chunk = None if recorded is None else recorded.chunk(i + 1, exp.transitions_per_rollout)
-            new, metrics = exp.iteration_losses(group, state, knobs, data=chunk)
-            metrics = jax.device_get(metrics)
-            if np.isnan(compile_seconds):
-                compile_seconds = time.perf_counter() - t0
-            slices = [_index(new, j) for j in range(len(group))]
-            kept = [
-                recorders[name].iteration(i, slices[j], _index(state, j), _index(metrics, j))
-                for j, name in enumerate(group)
-            ]
+    for i in range(earliest, iterations):  # a resumed loss goes on from its own iteration
+        bar.update(task, description=f"{label}: iteration {i + 1}")
+        t0 = time.perf_counter()
+        chunk = None if recorded is None else recorded.chunk(i + 1, exp.transitions_per_rollout)
+        for name in (name for name in names if firsts[name] <= i):
+            new, metrics = exp.iteration_losses((name,), states[name], knobs, data=chunk)
+            metrics = jax.device_get(_index(metrics, 0))
+            one = _index(new, 0)
+            previous = functools.partial(_index, states[name], 0)  # copied only if needed
+            kept = recorders[name].iteration(i, one, previous, metrics)
             # A seed stopped by a non-finite update keeps its previous state.
-            same = all(k is n for k, n in zip(kept, slices, strict=True))
-            state = new if same else _stack(kept)
-            if first == earliest:
-                bar.advance(task)
-        states.update({name: _index(state, j) for j, name in enumerate(group)})
+            states[name] = new if kept is one else _stack([kept])
+            del new, one, previous, kept
+        if np.isnan(compile_seconds):
+            compile_seconds = time.perf_counter() - t0
+        bar.advance(task)
     bar.update(task, description=f"{label}: final evaluation")
-    state = _stack([states[name] for name in names])
-    final = jax.device_get(exp.evaluate_losses(state, knobs))
-    for j, name in enumerate(names):
-        recorders[name].record(iterations, _index(final, j))
+    for name in names:
+        final = exp.evaluate(_index(states[name], 0), knobs)
+        recorders[name].record(iterations, jax.device_get(final))
     bar.advance(task)
-    return state, compile_seconds
+    return states, compile_seconds
 
 
 def _run_dir(folder, loss: str, several: bool) -> str | None:

@@ -14,6 +14,11 @@ The cells (:func:`cells`), per task (iiwa14 ``inverse_dynamics`` and ``opspace``
   shared-defaults trial: ``loss_search.AMENDMENT_DEFAULTS``), so that no test cell sees a
   half-finished search.
 
+A shared cell reuses each finished own run of its task whose config is the shared cell's for
+that loss (:func:`reuse_own_runs`; on the Solo12 the joint, task and distal losses chose the
+shared defaults): a loss trained beside the others is the same computation as that loss
+alone, bit for bit (``cfm_jax.train``; tests/test_train.py), so it would only repeat it.
+
 Every cell: the seeds ``FIRST_SEED`` to ``FIRST_SEED + SEEDS - 1`` (10-19: no selection used
 them; the first selection run used 0-2, the per-loss search 100-102), the test motions of
 ``cfm_jax.config.for_task``, the iterations the search scored at
@@ -39,6 +44,7 @@ import argparse
 import dataclasses
 import json
 import os
+import shutil
 import sys
 
 import _study
@@ -48,6 +54,7 @@ import select_defaults
 
 from cfm_jax import config as config_lib
 from cfm_jax import losses as losses_lib
+from cfm_jax import sweeps
 
 TASKS = ("inverse_dynamics", "opspace", "walk", "jump")
 SEEDS = 10
@@ -173,10 +180,47 @@ def run_cell(cell: Cell, args) -> float:
         json.dump(config_lib.to_dict(config), f, indent=1, sort_keys=True)
         f.write("\n")
     base = config.replace(loop=dataclasses.replace(config.loop, seeds=1))
+    if not cell.own:
+        ids = [c.id for c in sweeps.grid(base, seeds=seeds, losses=list(cell.losses))]
+        reused = reuse_own_runs(cell, args.runs, ids)
+        if reused and not args.quiet:
+            print(f"comparison: {cell.task}/{cell.name} reuses the finished own runs of "
+                  f"{', '.join(reused)} (the same configs)", flush=True)  # fmt: skip
     seconds = _study.timed_sweep(base, seeds, list(cell.losses), run_dir(args.runs, cell),
                                  args.quiet)  # fmt: skip
     select_defaults.keep_record(args.runs, args.out, cell)
     return seconds
+
+
+def reuse_own_runs(cell: Cell, runs: str, ids) -> list[str]:
+    """The losses of the shared ``cell`` whose own cell's sweep holds a finished run of the
+    same config, a cell of one of the shared sweep's ``ids`` (``cfm_jax.sweeps.cell_id``:
+    ``<loss>-<hash of the whole config>``), copied now into the shared cell's sweep folder.
+    The sweep loads them as finished (their ``seconds`` those of the own runs) and trains only
+    the other losses. A loss trained beside the others is the same computation as that loss
+    alone, bit for bit (``cfm_jax.train``, tests/test_train.py), so training it again would
+    only repeat it; the copy is of the own run's files, not of its checkpoints."""
+    reused = []
+    shared_cells = os.path.join(run_dir(runs, cell), "cells")
+    for loss in cell.losses:
+        own_cells = os.path.join(run_dir(runs, Cell(cell.task, f"own-{loss}", (loss,))), "cells")
+        if not os.path.isdir(own_cells):
+            continue
+        for name in sorted(set(os.listdir(own_cells)) & set(ids)):
+            source, target = os.path.join(own_cells, name), os.path.join(shared_cells, name)
+            if not all(os.path.isfile(os.path.join(source, f)) for f in _CELL_FILES):
+                continue  # not finished
+            if os.path.isfile(os.path.join(target, "metrics.csv")):
+                continue  # finished there already
+            os.makedirs(target, exist_ok=True)
+            for f in _CELL_FILES:  # metrics.csv last: it marks the cell finished
+                shutil.copyfile(os.path.join(source, f), os.path.join(target, f))
+            reused.append(loss)
+    return reused
+
+
+_CELL_FILES = ("config.json", "cell.json", "baselines.csv", "metrics.csv")
+"""A finished sweep cell's files (``cfm_jax.sweeps``), in the order they are written."""
 
 
 def main(argv=None) -> None:

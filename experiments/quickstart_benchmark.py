@@ -92,6 +92,7 @@ def split() -> tuple[dict, float, dict]:
 
     import cfm_jax
     from cfm_jax import cli, experiment, recorder
+    from cfm_jax import losses as losses_lib
 
     compile_events: dict = collections.defaultdict(float)
 
@@ -127,17 +128,17 @@ def split() -> tuple[dict, float, dict]:
     timed(exp_cls, "__init__", "build the experiment (robot, task, models)")
     timed(exp_cls, "prepare", "babbling rollouts")
     timed(exp_cls, "_prepare_from_data", "initial fit of f (once per seed, every loss)")
-    timed(exp_cls, "init_losses", "initial controller fits (every loss, one program)")
+    timed(exp_cls, "init_each", "initial controller fits (each loss)")
     timed(
         exp_cls,
         "iteration_losses",
-        lambda call: (
+        lambda call: (  # one call per loss and iteration, the losses in turn
             "first iteration, compilation included (every loss)"
-            if call == 0
+            if call < len(losses_lib.PAPER_LOSSES)
             else "the other iterations (every loss)"
         ),
     )
-    timed(exp_cls, "evaluate_losses", "final evaluation")
+    timed(exp_cls, "evaluate", "final evaluation")
     timed(exp_cls, "baselines", "baselines (oracle, PD-only)")
     for name in ("start", "iteration", "record", "finish", "flush", "open"):
         timed(rec_cls, name, "writing (metrics, checkpoints, data set)")

@@ -2,7 +2,7 @@
 own search's choice and all four at the shared defaults, on the test motions and seeds 10-19.
 
 Oracles: the library's defaults (``for_task``), a search record written by hand (its lowest
-trial known), and one tiny own cell run end to end.
+trial known), and tiny own cells and a shared cell run end to end.
 """
 
 from __future__ import annotations
@@ -98,25 +98,48 @@ def test_the_legged_cells_take_the_walks_search_and_a_stale_choice_is_refused(tm
         comparison.cells(["jump"], str(tmp_path))
 
 
-def test_a_tiny_own_cell_runs_and_keeps_its_record(tmp_path):
-    _search(tmp_path, "inverse_dynamics", {"task": _runs(ARM, OTHER, loss_search.TRIALS)})
-    out = tmp_path / "out"
-    comparison.main(["--only", "inverse_dynamics", "--cells", "own", "--quick", "--quiet",
-                     "--search", str(tmp_path), "--runs", str(tmp_path / "runs"),
-                     "--out", str(out)])  # fmt: skip
-    record = out / "cells" / "inverse_dynamics" / "own-task"
-    metrics = pd.read_csv(record / "metrics.csv")
-    assert set(metrics.loss) == {"task"} and sorted(set(metrics.seed)) == [10, 11]
-    with open(record / "config.json") as f:
+def test_tiny_own_cells_keep_their_records_and_the_shared_cell_reuses_a_run_of_its_config(
+    tmp_path,
+):
+    # The joint loss's search chose other values than the defaults; the task loss's chose
+    # the shared defaults (its defaults trial scores lowest), as joint, task and distal did
+    # on the walk. Oracles: the search record written here, and the own cells' records. The
+    # shared cell takes the own task run as it is (not trained again: no run folder in its
+    # sweep) and trains the joint loss, whose config differs.
+    defaults = loss_search.defaults_values("inverse_dynamics")
+    others = [(-1.0, {**OTHER, "controller learning rate": 2e-3 + 1e-5 * k})
+              for k in range(loss_search.TRIALS - 1)]  # fmt: skip
+    _search(tmp_path, "inverse_dynamics", {
+        "joint": _runs(ARM, OTHER, loss_search.TRIALS),
+        "task": [(-2.0, OTHER), *others, (-5.0, defaults)],
+    })  # fmt: skip
+    runs, out = tmp_path / "runs", tmp_path / "out"
+    flags = ["--only", "inverse_dynamics", "--quick", "--quiet", "--search", str(tmp_path),
+             "--out", str(out)]  # fmt: skip
+    comparison.main([*flags, "--runs", str(runs), "--cells", "own"])
+    cells = out / "cells" / "inverse_dynamics"
+    metrics = pd.read_csv(cells / "own-joint" / "metrics.csv")
+    assert set(metrics.loss) == {"joint"} and sorted(set(metrics.seed)) == [10, 11]
+    with open(cells / "own-joint" / "config.json") as f:
         ran = json.load(f)
     assert ran["loop"]["babbling"] == "home" and ran["forward"]["kind"] == "mlp"
     assert ran["controller"]["learning_rate"] == 5e-4
     # A finished cell is not run again: its record stays as it is.
-    before = (record / "metrics.csv").read_bytes()
-    comparison.main(["--only", "inverse_dynamics", "--cells", "own", "--quick", "--quiet",
-                     "--search", str(tmp_path), "--runs", str(tmp_path / "none"),
-                     "--out", str(out)])  # fmt: skip
-    assert (record / "metrics.csv").read_bytes() == before
+    before = (cells / "own-joint" / "metrics.csv").read_bytes()
+    comparison.main([*flags, "--runs", str(tmp_path / "none"), "--cells", "own"])
+    assert (cells / "own-joint" / "metrics.csv").read_bytes() == before
+    comparison.main([*flags, "--runs", str(runs), "--cells", "shared"])
+    shared = pd.read_csv(cells / "shared" / "metrics.csv")
+    for loss, reused in (("task", True), ("joint", False)):
+        own = pd.read_csv(cells / f"own-{loss}" / "metrics.csv")
+        mine = shared[shared.loss == loss].drop(columns="cell").reset_index(drop=True)
+        if reused:
+            pd.testing.assert_frame_equal(mine, own.drop(columns="cell"), check_exact=True)
+        else:
+            assert not mine.tracking_mse.equals(own.tracking_mse)
+        sweep_cells = runs / "inverse_dynamics" / "shared" / "cells"
+        (cell,) = [c for c in sweep_cells.iterdir() if c.name.startswith(f"{loss}-")]
+        assert (cell / "run").exists() != reused
 
 
 def test_a_cell_refuses_to_run_on_more_than_one_core(tmp_path, monkeypatch):

@@ -30,8 +30,8 @@ def test_every_loss_learns_mjx(mjx):
     check_learns(summarise(mjx[1]), factor=FACTOR, best_below_pd=BEST_BELOW_PD)
 
 
-# Issue 46 on MJX, where the losses' rollouts are one on-device program under lax.map (on
-# native, tests/test_train.py): a slice inside the batch (distal, index 2 of 4) against
+# Issue 46 on MJX, where the rollouts are one on-device program (on native,
+# tests/test_train.py): a loss trained with the others (distal, index 2 of 4) against
 # distal trained alone, bit for bit.
 def test_a_loss_of_the_batch_equals_it_alone_mjx(mjx):
     experiment, result = mjx

@@ -205,9 +205,9 @@ def test_value_overrides_compile_once_and_equal_separate_runs(tmp_path):
     )
     assert len(sweeps._EXPERIMENTS) == 1
     counts = next(iter(sweeps._EXPERIMENTS.values())).compilations()
-    # The two losses of a cell's values train together: one program for both.
-    names = ("babbling_data", "prepare_from_data", "init[joint,task]", "collect[2]")
-    for name in (*names, "refit[joint,task]"):
+    # The two losses of a cell's values train together: one rollout program for both.
+    names = ("babbling_data", "prepare_from_data", "collect[1]", "init[joint]", "init[task]")
+    for name in (*names, "refit[joint]", "refit[task]"):
         assert counts[name] == 1, counts
     assert counts["evaluate"] == 1, counts
     frame = result.metrics
