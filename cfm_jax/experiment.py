@@ -265,22 +265,6 @@ class Experiment:
 
         return [program(loss)(prepared, key_fit, knobs) for loss in losses]
 
-    def init_losses(self, losses, keys, knobs: Knobs | None = None, data=None) -> TrainState:
-        """:meth:`init_each`, the losses stacked: leaves have leading ``(loss, seed)`` axes.
-
-        Args:
-          losses: distinct controller-loss names.
-          keys: one PRNG key per seed.
-          knobs: the runtime values (None: this experiment's).
-          data: babbling data ``(chunk, valid)`` with a seed axis instead of babbling, or None.
-
-        Examples:
-          >>> state = exp.init_losses(("joint", "task"), keys)  # doctest: +SKIP
-          >>> state.iteration.shape  # (losses, seeds)  # doctest: +SKIP
-          (2, 3)
-        """
-        return _concatenate(self.init_each(losses, keys, knobs, data))
-
     def iteration_losses(self, losses, state: TrainState, knobs: Knobs | None = None, data=None):
         """:func:`cfm_jax.algorithm.iteration` for every loss and seed of ``state`` (leading
         ``(loss, seed)`` axes), for each loss in two programs: :func:`cfm_jax.algorithm.collect`
@@ -293,7 +277,8 @@ class Experiment:
 
         Args:
           losses: the losses of ``state``'s first axis, in order.
-          state: the :class:`TrainState` of :meth:`init_losses` or of the last call.
+          state: the :class:`TrainState` of the last call or of :meth:`init_each` (one loss),
+            or those stacked along their first axis.
           knobs: the runtime values (None: this experiment's).
           data: ``(chunk, valid)`` with a seed axis to add instead of the rollouts' (a replay:
             every loss adds the same data), or None.

@@ -166,8 +166,8 @@ def test_one_compiled_function_per_loss_iteration(experiment, two_seeds):
 
 
 def test_losses_batched_equal_each_loss_alone(experiment, two_seeds):
-    # The loss as a batch axis (issue 46): the four paper losses trained in one program,
-    # from one babbling and one initial fit of f per seed, against each loss alone.
+    # The losses trained together (issue 46): the four paper losses from one babbling and
+    # one initial fit of f per seed, against each loss alone.
     losses = ("joint", "task", "distal", "supervised")
     result = cfm_jax.train(TINY, progress=False, experiment=experiment, losses=losses)
     assert result.losses == losses
@@ -181,6 +181,16 @@ def test_losses_batched_equal_each_loss_alone(experiment, two_seeds):
         assert before[f"init[{loss}]"] == before[f"refit[{loss}]"] == 1
     cfm_jax.train(TINY, progress=False, experiment=experiment, losses=losses)
     assert experiment.compilations() == before
+    # An iteration of the stacked state: each loss's slice is that loss's iteration.
+    stacked = experiment.iteration_losses(losses, result.state)
+    assert stacked[1]["tracking_mse"].shape == (4, 2, TARGETS)
+    for i, loss in enumerate(losses):
+        one = experiment.iteration_losses((loss,), jax.tree.map(lambda x, i=i: x[i : i + 1],
+                                                                result.state))  # fmt: skip
+        for got, alone in zip(jax.tree.leaves(stacked), jax.tree.leaves(one), strict=True):
+            if jnp.issubdtype(got.dtype, jax.dtypes.prng_key):
+                got, alone = jax.random.key_data(got), jax.random.key_data(alone)
+            np.testing.assert_array_equal(np.asarray(got[i : i + 1]), np.asarray(alone))
     # A single loss of the batch is that loss's slice: the joint run of the fixture.
     pd.testing.assert_frame_equal(
         result.of("joint").metrics[["loss", "seed", "iteration", "target", "tracking_mse"]],
