@@ -111,6 +111,19 @@ def _same_baselines(task: str, loss: str, own: pd.DataFrame, shared: pd.DataFram
         )
 
 
+def _same_runs(own: pd.DataFrame, shared: pd.DataFrame) -> str:
+    """A note naming the losses whose own cell is the shared cell's run (the same sweep cell,
+    ``cfm_jax.sweeps.cell_id``: the same config), or ``""``."""
+    if "cell" not in own or "cell" not in shared:
+        return ""
+    same = [n for n in LOSSES
+            if set(own[own.loss == n].cell) == set(shared[shared.loss == n].cell)]  # fmt: skip
+    if not same:
+        return ""
+    return (f" ({', '.join(same)}: their search chose the shared defaults, so these are the "
+            "shared cell's runs)")  # fmt: skip
+
+
 def arms(comparison_dir: str, robustness: dict) -> dict:
     """``{task: {"shared": Arm | None, "own": Arm | None}}`` from the comparison's records
     (the robustness study's default cell standing in for a shared cell not run yet)."""
@@ -130,7 +143,8 @@ def arms(comparison_dir: str, robustness: dict) -> dict:
             for loss, (_, baselines) in zip(LOSSES, own, strict=True):
                 _same_baselines(task, loss, baselines, shared.baselines)
             metrics = pd.concat([m for m, _ in own], ignore_index=True)
-            own_arm = Arm(metrics, shared.baselines, "the comparison's own cells")
+            own_arm = Arm(metrics, shared.baselines, "the comparison's own cells" +
+                          _same_runs(metrics, shared.metrics))  # fmt: skip
         else:
             own_arm = None
         out[task] = {"shared": shared, "own": own_arm}

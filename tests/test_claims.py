@@ -137,6 +137,18 @@ def test_arms_take_the_comparisons_cells_and_the_robustness_default_until_then(t
     arm.baselines.to_csv(f"{folder}/baselines.csv", index=False)
     own = claims.arms(str(tmp_path), robustness)["jump"]["own"]
     assert sorted(set(own.metrics.loss)) == sorted(LOSSES) and len(own.metrics) == len(arm.metrics)
+    assert own.source == "the comparison's own cells"
+    # An own cell that is the shared cell's run (the same sweep cell, so the same config) is
+    # named: here the joint loss's.
+    for name, losses in (("shared", LOSSES), ("own-joint", ("joint",)), ("own-task", ("task",))):
+        record = comparison.record_dir(str(tmp_path), comparison.Cell("jump", name, losses))
+        mine = arm.metrics[arm.metrics.loss.isin(losses)]
+        same = name in ("shared", "own-joint")
+        mine.assign(cell=mine.loss + ("-0" if same else "-1")).to_csv(f"{record}/metrics.csv",
+                                                                        index=False)  # fmt: skip
+    own = claims.arms(str(tmp_path), robustness)["jump"]["own"]
+    assert own.source == ("the comparison's own cells (joint: their search chose the shared "
+                          "defaults, so these are the shared cell's runs)")  # fmt: skip
     # An own cell on other motions (another PD-only) cannot be compared: refused.
     arm.baselines.assign(tracking_mse=2e-2).to_csv(f"{folder}/baselines.csv", index=False)
     with pytest.raises(ValueError, match="jump: the own-supervised cell's PD-only differs"):
