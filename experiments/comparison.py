@@ -35,6 +35,7 @@ also on a fresh clone. ``experiments/claims.py`` reads the records.
 Usage (one core per process, ``CORES``; two processes on disjoint tasks side by side):
   taskset -c 0 python experiments/comparison.py --only inverse_dynamics --budget 3000
   taskset -c 1 python experiments/comparison.py --only walk --cells own
+  taskset -c 1 python experiments/comparison.py --only walk --cells own --losses supervised
   python experiments/comparison.py --quick --runs /tmp/c --out /tmp/c  # smoke test
 """
 
@@ -192,6 +193,14 @@ def run_cell(cell: Cell, args) -> float:
     return seconds
 
 
+def selected(found, which: str, losses) -> list[Cell]:
+    """The cells of ``found`` that ``--cells which`` (all, shared, own) and ``--losses``
+    (the own cells of these losses; the shared cell has all four) select."""
+    return [c for c in found
+            if (which == "all" or (which == "own") == c.own)
+            and (not c.own or c.losses[0] in losses)]  # fmt: skip
+
+
 def reuse_own_runs(cell: Cell, runs: str, ids) -> list[str]:
     """The losses of the shared ``cell`` whose own cell's sweep holds a finished run of the
     same config, a cell of one of the shared sweep's ``ids`` (``cfm_jax.sweeps.cell_id``:
@@ -230,14 +239,20 @@ def main(argv=None) -> None:
     parser.add_argument("--search", default=SEARCH_OUT, help="the per-loss search's records")
     parser.add_argument("--only", default=",".join(TASKS), help="comma-separated tasks")
     parser.add_argument("--cells", default="all", choices=("all", "shared", "own"))
+    parser.add_argument("--losses", default=",".join(losses_lib.PAPER_LOSSES),
+                        help="comma-separated: the own cells of these losses only (two "
+                             "processes on one task's own cells side by side)")  # fmt: skip
     parser.add_argument("--budget", type=float, default=float("inf"),
                         help="seconds: start no further cell after this (a piece)")  # fmt: skip
     parser.add_argument("--quick", action="store_true", help="tiny networks, 2 seeds, 1 it.")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
     tasks = _study.tasks_of(parser, args.only, TASKS)
-    todo = [c for c in cells(tasks, args.search)
-            if args.cells == "all" or (args.cells == "own") == c.own]  # fmt: skip
+    losses = [n.strip() for n in args.losses.split(",") if n.strip()]
+    if not losses or set(losses) - set(losses_lib.PAPER_LOSSES):
+        parser.error(f"--losses={args.losses!r} is not allowed: names from "
+                     f"{', '.join(losses_lib.PAPER_LOSSES)}")  # fmt: skip
+    todo = selected(cells(tasks, args.search), args.cells, losses)
     _study.run_cells("comparison", todo, args, run_cell, finished,
                      label=lambda cell: f"({', '.join(cell.losses)})")  # fmt: skip
     done = sum(finished(args.runs, args.out, c) for c in todo)

@@ -142,6 +142,23 @@ def test_tiny_own_cells_keep_their_records_and_the_shared_cell_reuses_a_run_of_i
         assert (cell / "run").exists() != reused
 
 
+def test_cells_and_losses_select_the_cells_to_run(tmp_path):
+    shared = comparison.Cell("walk", "shared", ("joint", "task", "distal", "supervised"))
+    found = [shared, *(comparison.Cell("walk", f"own-{n}", (n,)) for n in ("joint", "supervised"))]
+
+    def names(which, losses):
+        return [c.name for c in comparison.selected(found, which, losses)]
+
+    assert names("all", ["supervised"]) == ["shared", "own-supervised"]
+    assert names("own", ["joint", "supervised"]) == ["own-joint", "own-supervised"]
+    assert names("shared", ["joint"]) == ["shared"]
+    flags = ["--search", str(tmp_path), "--runs", str(tmp_path / "runs"),
+             "--out", str(tmp_path / "out")]  # fmt: skip
+    with pytest.raises(SystemExit):  # an unknown loss: a usage error, nothing run
+        comparison.main(["--only", "walk", "--losses", "walks", *flags])
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_cell_refuses_to_run_on_more_than_one_core(tmp_path, monkeypatch):
     """Every cell runs pinned to one core (``comparison.CORES``: jaxlib 0.10's LAPACK stall,
     and the thread count changes the numbers): a process that may use two is refused before
