@@ -568,8 +568,11 @@ def _plain(text: str) -> str:
 
 
 def _attribute_help(cls) -> dict[str, str]:
-    """Each field's paragraph of the ``Attributes:`` section of ``cls``'s docstring."""
-    lines = inspect.cleandoc(cls.__doc__).splitlines()
+    """Each field's paragraph of the ``Attributes:`` section of ``cls``'s docstring (none
+    without one: a user's registered kind need not write it)."""
+    lines = inspect.cleandoc(cls.__doc__ or "").splitlines()
+    if "Attributes:" not in lines:
+        return {}
     found, name = {}, None
     for line in lines[lines.index("Attributes:") + 1 :]:
         if line and not line.startswith("  "):
@@ -706,13 +709,21 @@ def _option_fields():
     for kind, cls in config_lib.FORWARD_OPTIONS.items():
         helps = _attribute_help(cls)
         for field in dataclasses.fields(cls):
-            text = f"forward.kind={kind}: {helps[field.name]}"
+            text = f"forward.kind={kind}: {helps.get(field.name, 'its own option')}"
             default = field.default
             if field.name in found:
                 _, earlier, default = found[field.name]
                 text = earlier + "; " + text
-            found[field.name] = (field.type, text, default)
+            found[field.name] = (_type_text(field.type), text, default)
     return found
+
+
+def _type_text(annotation) -> str:
+    """A field's annotation as text: the library's modules postpone annotations (strings); a
+    user's class may not (``float``, ``tuple[float, ...]``)."""
+    if isinstance(annotation, str):
+        return annotation
+    return annotation.__name__ if isinstance(annotation, type) else str(annotation)
 
 
 def _options_class(forward: config_lib.ForwardModelConfig):

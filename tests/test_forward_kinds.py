@@ -4,6 +4,8 @@ library module; the learning loop calls its ``objective``, ``predict`` and ``sta
 knows nothing of its parameters."""
 
 import dataclasses
+import json
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -11,8 +13,8 @@ import numpy as np
 from tiny import tiny_config
 
 import cfm_jax
+from cfm_jax import cli, forward_models, networks
 from cfm_jax import config as config_lib
-from cfm_jax import forward_models, networks
 
 KIND = "linear_test"
 
@@ -70,6 +72,21 @@ def test_a_kinds_options_are_its_own_checked_by_it_and_saved():
     assert config_lib.to_dict(config)["forward"]["options"] == {"init_scale": 0.05}
     assert config_lib.from_dict(config_lib.to_dict(config)) == config
     assert forward_models.describe(with_options) == f"`forward.kind={KIND!r}` (init 0.05)"
+
+
+def test_the_cli_takes_a_registered_kinds_options_without_attributes_in_its_docstring(
+    monkeypatch, capsys
+):
+    # LinearOptions documents no "Attributes:" section and its annotations are classes, not
+    # postponed strings, as a user's class may well be: the CLI, which builds a flag per
+    # option from them, failed on every command once such a kind was registered
+    # ("'Attributes:' is not in list", then "'float' has no attribute 'startswith'").
+    _register()
+    monkeypatch.setattr(sys, "argv", ["cfm-jax", "config", "--forward.kind", KIND,
+                                      "--forward.options.init-scale", "0.05"])  # fmt: skip
+    cli.main()
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["forward"]["options"] == {"init_scale": 0.05}
 
 
 def test_a_forward_model_kind_written_outside_the_library_trains_end_to_end():
