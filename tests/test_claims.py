@@ -8,6 +8,7 @@ page and the README's results are regenerated bit for bit.
 from __future__ import annotations
 
 import os
+import re
 import sys
 
 import numpy as np
@@ -176,6 +177,18 @@ def test_committed_claims_page_is_its_records(tmp_path):
     with open(os.path.join(results, "claims.md")) as f:
         assert got == f.read()
     assert (tmp_path / "claims_profiles.png").stat().st_size > 10_000
+
+
+def test_every_comparison_the_readme_quotes_is_on_the_claims_page():
+    """The README's prose quotes comparisons of the claims page ("joint - task +0.61 [+0.29,
+    +0.89]": the IQM of per-seed log10 differences and its Holm-level interval); each must
+    be the page's, as the page is today (its intervals move with the number of comparisons
+    Holm corrects together)."""
+    readme = open(os.path.join(ROOT, "README.md")).read()
+    page = open(os.path.join(ROOT, "docs", "results", "claims.md")).read()
+    quoted = re.findall(r"[+-]\d+\.\d\d \[[+-]\d+\.\d\d, [+-]\d+\.\d\d\]", readme)
+    assert len(quoted) >= 10  # the README's results text quotes them
+    assert [q for q in quoted if q not in page] == []
 
 
 def test_readme_results_table_is_the_committed_records():
