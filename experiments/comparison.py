@@ -19,11 +19,11 @@ that loss (:func:`reuse_own_runs`; on the Solo12 the joint, task and distal loss
 shared defaults): a loss trained beside the others is the same computation as that loss
 alone, bit for bit (``cfm_jax.train``; tests/test_train.py), so it would only repeat it.
 
-Every cell: the seeds ``FIRST_SEED`` to ``FIRST_SEED + SEEDS - 1`` (10-19: no selection used
-them; the first selection run used 0-2, the per-loss search 100-102), the test motions of
-``cfm_jax.config.for_task``, the iterations the search scored at
-(``loss_search.ITERATIONS``: 10 for the arm, 30 for the legged tasks, the authors' count), so
-that a loss is tested at the budget it was chosen at.
+Every cell: the seeds 10-29 in blocks of ``SEEDS`` (:data:`BLOCKS`: 10-19 ran for issue 43,
+20-29 for issue 68's exact test; no selection used any of them: the first selection run used
+0-2, the per-loss search 100-102), the test motions of ``cfm_jax.config.for_task``, the
+iterations the search scored at (``loss_search.ITERATIONS``: 10 for the arm, 30 for the
+legged tasks, the authors' count), so that a loss is tested at the budget it was chosen at.
 
 Outputs: the runs in ``--runs`` (large: one sweep folder per cell; an interrupted cell
 resumes from its checkpoints, so a piece may be killed at any time and started again), and
@@ -59,10 +59,17 @@ from cfm_jax import sweeps
 
 TASKS = ("inverse_dynamics", "opspace", "walk", "jump")
 SEEDS = 10
-"""Seeds per cell (the headline cells of issue 43: at least 10)."""
+"""Seeds per block of a cell (one sweep of that many seeds)."""
 FIRST_SEED = 10
-"""The cells' seeds are 10-19: disjoint from every selection's (``select_defaults``: 0-2,
-``loss_search.SEEDS``: 100-102)."""
+"""The first block's seeds are 10-19: disjoint from every selection's (``select_defaults``:
+0-2, ``loss_search.SEEDS``: 100-102)."""
+BLOCKS = (10, 20)
+"""The first seed of each block of ``SEEDS`` seeds: seeds 10-29, 20 per cell. Issue 68 sized
+this from the claims page's exact paired test (``docs/results/claims_plan.md``, written
+before the second block ran): with Holm over the primary family of 50 comparisons an exact
+sign-flip test needs at least 11 seeds to reach its first level (2 / 2^n <= 0.05 / 50),
+and 20 leave it room for a few seeds of the other sign. The first block (10-19) ran for
+issue 43; each block is its own sweep, recorded apart (:func:`record_dir`)."""
 ITERATIONS = loss_search.ITERATIONS
 CORES = 1
 """Every cell runs in a process pinned to one core (``taskset -c N``), so that XLA's CPU pool
@@ -96,21 +103,35 @@ class Cell:
     name: str
     losses: tuple
     changes: tuple = ()
+    first_seed: int = FIRST_SEED
 
     @property
     def own(self) -> bool:
         return self.name != SHARED
 
+    @property
+    def folder(self) -> str:
+        """The cell's folder under its task: its name for the first block, ``<name>/seeds-
+        <first>-<last>`` for a later block (:data:`BLOCKS`)."""
+        if self.first_seed == FIRST_SEED:
+            return self.name
+        return f"{self.name}/seeds-{self.first_seed}-{self.first_seed + SEEDS - 1}"
+
+    def block(self, first_seed: int) -> Cell:
+        """The same cell on the block of seeds that starts at ``first_seed``."""
+        return dataclasses.replace(self, first_seed=first_seed)
+
     def config(self, seeds: int = SEEDS, quick: bool = False) -> config_lib.Config:
         """The cell's config: the task's defaults with ``changes``, its iterations and seeds
-        (``FIRST_SEED`` first)."""
+        (``first_seed`` first)."""
         config = config_lib.for_task(self.task, robot=_study.ROBOT[self.task])
         changes = {**dict(self.changes), "loop.iterations": ITERATIONS[self.task]}
         config = _study.with_changes(config, changes)
         if quick:
             config = _study.quick_config(config)
             config = config.replace(loop=dataclasses.replace(config.loop, iterations=1))
-        return config.replace(seed=FIRST_SEED, loop=dataclasses.replace(config.loop, seeds=seeds))
+        return config.replace(seed=self.first_seed,
+                              loop=dataclasses.replace(config.loop, seeds=seeds))  # fmt: skip
 
 
 def searched_on(task: str) -> str:
@@ -141,14 +162,21 @@ def own_changes(task: str, loss: str, search_out: str = SEARCH_OUT) -> tuple | N
     return tuple(sorted(changes.items()))
 
 
-def cells(tasks=TASKS, search_out: str = SEARCH_OUT) -> list[Cell]:
-    """The shared cell of each task, then the own cells whose search is complete."""
-    out = [Cell(t, SHARED, losses_lib.PAPER_LOSSES) for t in tasks]
-    for task in tasks:
-        for loss in losses_lib.PAPER_LOSSES:
-            changes = own_changes(task, loss, search_out)
-            if changes is not None:
-                out.append(Cell(task, f"own-{loss}", (loss,), changes))
+def cells(tasks=TASKS, search_out: str = SEARCH_OUT, blocks=BLOCKS) -> list[Cell]:
+    """Per block of seeds (:data:`BLOCKS`): the shared cell of each task, then the own cells
+    whose search is complete; a later block runs a task's own cells before its shared cell
+    (which then reuses the own runs of its config, :func:`reuse_own_runs`)."""
+    out = []
+    for first in blocks:
+        own = {t: [Cell(t, f"own-{loss}", (loss,), changes, first)
+                   for loss in losses_lib.PAPER_LOSSES
+                   if (changes := own_changes(t, loss, search_out)) is not None]
+               for t in tasks}  # fmt: skip
+        shared = [Cell(t, SHARED, losses_lib.PAPER_LOSSES, (), first) for t in tasks]
+        if first == FIRST_SEED:  # the order issue 43 ran its cells in
+            out += shared + [c for t in tasks for c in own[t]]
+        else:
+            out += [c for t, s in zip(tasks, shared, strict=True) for c in (*own[t], s)]
     return out
 
 
@@ -158,13 +186,22 @@ def pending(tasks=TASKS, search_out: str = SEARCH_OUT) -> list[str]:
             if own_changes(t, loss, search_out) is None]  # fmt: skip
 
 
-# A cell's run and record folders, kept as the selection run keeps its own (a cell is named
-# by its task and name in both).
-run_dir, record_dir, finished = (
-    select_defaults.run_dir,
-    select_defaults.record_dir,
-    select_defaults.finished,
-)
+def run_dir(runs: str, cell: Cell) -> str:
+    """The cell's sweep folder (large; not committed)."""
+    return os.path.join(runs, cell.task, cell.folder)
+
+
+def record_dir(out: str, cell: Cell) -> str:
+    """The cell's record folder (committed): ``out/cells/<task>/<folder>``."""
+    return os.path.join(out, "cells", cell.task, cell.folder)
+
+
+def finished(runs: str, out: str, cell: Cell) -> bool:
+    """Whether ``cell`` has a record (kept from its finished sweep if it has none yet)."""
+    if not _study.recorded(record_dir(out, cell)):
+        _study.keep_record(run_dir(runs, cell), record_dir(out, cell),
+                           select_defaults.RECORD_FILES)  # fmt: skip
+    return _study.recorded(record_dir(out, cell))
 
 
 def run_cell(cell: Cell, args) -> float:
@@ -189,7 +226,7 @@ def run_cell(cell: Cell, args) -> float:
                   f"{', '.join(reused)} (the same configs)", flush=True)  # fmt: skip
     seconds = _study.timed_sweep(base, seeds, list(cell.losses), run_dir(args.runs, cell),
                                  args.quiet)  # fmt: skip
-    select_defaults.keep_record(args.runs, args.out, cell)
+    finished(args.runs, args.out, cell)
     return seconds
 
 
@@ -212,7 +249,8 @@ def reuse_own_runs(cell: Cell, runs: str, ids) -> list[str]:
     reused = []
     shared_cells = os.path.join(run_dir(runs, cell), "cells")
     for loss in cell.losses:
-        own_cells = os.path.join(run_dir(runs, Cell(cell.task, f"own-{loss}", (loss,))), "cells")
+        own = Cell(cell.task, f"own-{loss}", (loss,), (), cell.first_seed)
+        own_cells = os.path.join(run_dir(runs, own), "cells")
         if not os.path.isdir(own_cells):
             continue
         for name in sorted(set(os.listdir(own_cells)) & set(ids)):
@@ -242,6 +280,9 @@ def main(argv=None) -> None:
     parser.add_argument("--losses", default=",".join(losses_lib.PAPER_LOSSES),
                         help="comma-separated: the own cells of these losses only (two "
                              "processes on one task's own cells side by side)")  # fmt: skip
+    parser.add_argument("--blocks", default=",".join(map(str, BLOCKS)),
+                        help="comma-separated first seeds: the blocks of seeds to run "
+                             f"(each {SEEDS} seeds; default: all, {BLOCKS})")  # fmt: skip
     parser.add_argument("--budget", type=float, default=float("inf"),
                         help="seconds: start no further cell after this (a piece)")  # fmt: skip
     parser.add_argument("--quick", action="store_true", help="tiny networks, 2 seeds, 1 it.")
@@ -252,7 +293,13 @@ def main(argv=None) -> None:
     if not losses or set(losses) - set(losses_lib.PAPER_LOSSES):
         parser.error(f"--losses={args.losses!r} is not allowed: names from "
                      f"{', '.join(losses_lib.PAPER_LOSSES)}")  # fmt: skip
-    todo = selected(cells(tasks, args.search), args.cells, losses)
+    try:
+        blocks = [int(b) for b in args.blocks.split(",") if b.strip()]
+    except ValueError:
+        blocks = []
+    if not blocks or set(blocks) - set(BLOCKS):
+        parser.error(f"--blocks={args.blocks!r} is not allowed: first seeds from {BLOCKS}")
+    todo = selected(cells(tasks, args.search, blocks), args.cells, losses)
     _study.run_cells("comparison", todo, args, run_cell, finished,
                      label=lambda cell: f"({', '.join(cell.losses)})")  # fmt: skip
     done = sum(finished(args.runs, args.out, c) for c in todo)

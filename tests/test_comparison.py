@@ -55,7 +55,7 @@ def test_an_own_cell_is_the_defaults_with_its_lowest_trial_on_the_test_motions(t
         "distal": [(-9.0, ARM), (-8.0, OTHER)] + [(-7.0, ARM)] * (n - 2),  # two distinct
         "task": _runs(ARM, OTHER, n)[:-1],  # its TPE trials, not yet the shared defaults
     })  # fmt: skip
-    cells = {c.name: c for c in comparison.cells([task], str(tmp_path))}
+    cells = {c.name: c for c in comparison.cells([task], str(tmp_path), blocks=(10,))}
     assert set(cells) == {"shared", "own-joint"}  # distal and task wait for their search
     assert comparison.pending([task], str(tmp_path)) == [
         f"{task}/own-{loss}" for loss in ("task", "distal", "supervised")]  # fmt: skip
@@ -114,32 +114,60 @@ def test_tiny_own_cells_keep_their_records_and_the_shared_cell_reuses_a_run_of_i
         "task": [(-2.0, OTHER), *others, (-5.0, defaults)],
     })  # fmt: skip
     runs, out = tmp_path / "runs", tmp_path / "out"
+    # The second block of seeds (20-29; quick: 20-21), recorded in its own folders.
     flags = ["--only", "inverse_dynamics", "--quick", "--quiet", "--search", str(tmp_path),
-             "--out", str(out)]  # fmt: skip
+             "--out", str(out), "--blocks", "20"]  # fmt: skip
     comparison.main([*flags, "--runs", str(runs), "--cells", "own"])
     cells = out / "cells" / "inverse_dynamics"
-    metrics = pd.read_csv(cells / "own-joint" / "metrics.csv")
-    assert set(metrics.loss) == {"joint"} and sorted(set(metrics.seed)) == [10, 11]
-    with open(cells / "own-joint" / "config.json") as f:
+    block = "seeds-20-29"
+    assert not (cells / "own-joint" / "metrics.csv").exists()  # the first block: not run
+    metrics = pd.read_csv(cells / "own-joint" / block / "metrics.csv")
+    assert set(metrics.loss) == {"joint"} and sorted(set(metrics.seed)) == [20, 21]
+    with open(cells / "own-joint" / block / "config.json") as f:
         ran = json.load(f)
     assert ran["loop"]["babbling"] == "home" and ran["forward"]["kind"] == "mlp"
     assert ran["controller"]["learning_rate"] == 5e-4
     # A finished cell is not run again: its record stays as it is.
-    before = (cells / "own-joint" / "metrics.csv").read_bytes()
+    before = (cells / "own-joint" / block / "metrics.csv").read_bytes()
     comparison.main([*flags, "--runs", str(tmp_path / "none"), "--cells", "own"])
-    assert (cells / "own-joint" / "metrics.csv").read_bytes() == before
+    assert (cells / "own-joint" / block / "metrics.csv").read_bytes() == before
     comparison.main([*flags, "--runs", str(runs), "--cells", "shared"])
-    shared = pd.read_csv(cells / "shared" / "metrics.csv")
+    shared = pd.read_csv(cells / "shared" / block / "metrics.csv")
     for loss, reused in (("task", True), ("joint", False)):
-        own = pd.read_csv(cells / f"own-{loss}" / "metrics.csv")
+        own = pd.read_csv(cells / f"own-{loss}" / block / "metrics.csv")
         mine = shared[shared.loss == loss].drop(columns="cell").reset_index(drop=True)
         if reused:
             pd.testing.assert_frame_equal(mine, own.drop(columns="cell"), check_exact=True)
         else:
             assert not mine.tracking_mse.equals(own.tracking_mse)
-        sweep_cells = runs / "inverse_dynamics" / "shared" / "cells"
+        sweep_cells = runs / "inverse_dynamics" / "shared" / block / "cells"
         (cell,) = [c for c in sweep_cells.iterdir() if c.name.startswith(f"{loss}-")]
         assert (cell / "run").exists() != reused
+
+
+def test_the_blocks_of_seeds_are_disjoint_and_a_later_block_runs_own_cells_first(tmp_path):
+    """Seeds 10-29 in two blocks (issue 68), each cell's block its own sweep and record
+    folder; in the second block a task's own cells come before its shared cell, so that the
+    shared cell can reuse their runs. Oracle: the seeds written out by hand."""
+    values = {"normaliser": "data", "forward model": "rigid_body", "controller goal": "desired",
+              "loss form": "norm", "fit start": "warm", "s*": "pd",
+              "forward learning rate": 3e-4, "controller learning rate": 1e-3}  # fmt: skip
+    _search(tmp_path, "walk", {"task": _runs(values, {**values, "s*": "next_velocity"},
+                                             loss_search.TRIALS, "walk")})  # fmt: skip
+    found = comparison.cells(["walk"], str(tmp_path))
+    assert [(c.name, c.first_seed) for c in found] == [
+        ("shared", 10), ("own-task", 10), ("own-task", 20), ("shared", 20)]
+    seeds = {(c.name, c.first_seed): config_lib.seeds_of(c.config()) for c in found}
+    assert seeds[("shared", 10)] == seeds[("own-task", 10)] == tuple(range(10, 20))
+    assert seeds[("shared", 20)] == seeds[("own-task", 20)] == tuple(range(20, 30))
+    assert [c.folder for c in found] == ["shared", "own-task", "own-task/seeds-20-29",
+                                         "shared/seeds-20-29"]  # fmt: skip
+    record = comparison.record_dir("out", found[-1])
+    assert record == os.path.join("out", "cells", "walk", "shared", "seeds-20-29")
+    with pytest.raises(SystemExit):  # a block that is not one of BLOCKS: a usage error
+        comparison.main(["--only", "walk", "--blocks", "15", "--search", str(tmp_path),
+                         "--runs", str(tmp_path / "r"), "--out", str(tmp_path / "o")])  # fmt: skip
+    assert not (tmp_path / "o").exists()
 
 
 def test_cells_and_losses_select_the_cells_to_run(tmp_path):
