@@ -156,7 +156,11 @@ def test_the_blocks_of_seeds_are_disjoint_and_a_later_block_runs_own_cells_first
                                              loss_search.TRIALS, "walk")})  # fmt: skip
     found = comparison.cells(["walk"], str(tmp_path))
     assert [(c.name, c.first_seed) for c in found] == [
-        ("shared", 10), ("own-task", 10), ("own-task", 20), ("shared", 20)]
+        ("shared", 10),
+        ("own-task", 10),
+        ("own-task", 20),
+        ("shared", 20),
+    ]
     seeds = {(c.name, c.first_seed): config_lib.seeds_of(c.config()) for c in found}
     assert seeds[("shared", 10)] == seeds[("own-task", 10)] == tuple(range(10, 20))
     assert seeds[("shared", 20)] == seeds[("own-task", 20)] == tuple(range(20, 30))
