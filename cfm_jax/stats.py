@@ -1,8 +1,11 @@
-"""Statistics for comparing learning methods on few runs (issue 43): the interquartile mean
-(IQM) with stratified bootstrap confidence intervals, the probability of improvement and
-performance profiles, as defined by rliable (Agarwal et al., "Deep Reinforcement Learning at
-the Edge of the Statistical Precipice", NeurIPS 2021), and Holm's correction for many
-comparisons, with intervals at the level Holm tests each comparison at.
+"""Statistics for comparing learning methods on few runs: the interquartile mean (IQM) with
+stratified bootstrap confidence intervals, the probability of improvement and performance
+profiles, as defined by rliable (Agarwal et al., "Deep Reinforcement Learning at the Edge of
+the Statistical Precipice", NeurIPS 2021), as effect sizes (issue 43); and the decision
+(issue 68): the exact sign-flip test of paired differences, with Holm's correction for many
+comparisons and the intervals that invert the test at the level Holm tests each comparison
+at. A decision has no random number in it; a bootstrap interval (its p-value floor is
+``1 / reps``, below what few seeds can support) never decides.
 
 Scores are arrays of shape ``(runs, tasks)`` (a run: one seed; a task: one robot and task,
 or one cell of a study), higher is better: :func:`score` turns a tracking MSE into orders of
@@ -262,49 +265,170 @@ def holm(p_values, alpha: float = 0.05) -> pd.DataFrame:
     return pd.DataFrame({"p": p, "adjusted": adjusted, "reject": reject, "level": level})
 
 
-def paired_comparisons(
-    differences: Mapping[str, np.ndarray], statistic: str = "mean", alpha: float = 0.05,
-    reps: int = 10000, seed: int = 0,
-) -> pd.DataFrame:  # fmt: skip
-    """Many paired comparisons at once, corrected for their number (Holm).
+MAX_EXACT_RUNS = 44
+"""The most paired runs :func:`sign_flip_p` enumerates (2^44 sign assignments, as two halves
+of 2^22 sums each)."""
 
-    Each comparison is the per-run difference of two methods' scores on the same runs
-    (seeds) and tasks. Its bootstrap distribution (stratified, ``reps`` resamples) gives a
-    two-sided p-value for "no difference" (twice the smaller tail beyond 0) and percentile
-    intervals; Holm's procedure over all comparisons decides which differences are clear,
-    and each comparison's interval is at Holm's level for it (``1 - level``): a clear
-    difference's interval excludes 0.
+
+def _signed_sums(values: np.ndarray) -> np.ndarray:
+    """The sums of ``values`` under all 2^k assignments of signs, sorted."""
+    sums = np.zeros(1)
+    for v in values:
+        sums = np.concatenate([sums + v, sums - v])
+    return np.sort(sums)
+
+
+def _paired_runs(name: str, differences) -> np.ndarray:
+    array = np.asarray(differences, dtype=float)
+    if array.ndim == 2:  # (runs, tasks): one value per run, its mean over the tasks
+        array = array.mean(axis=1)
+    if array.ndim != 1 or len(array) < 1 or not np.all(np.isfinite(array)):
+        raise ValueError(f"{name}: a finite array of paired differences, one per run (or "
+                         f"(runs, tasks)), got shape {np.shape(differences)}")  # fmt: skip
+    if len(array) > MAX_EXACT_RUNS:
+        raise ValueError(f"{name}: {len(array)} runs; the exact test enumerates at most "
+                         f"{MAX_EXACT_RUNS} (MAX_EXACT_RUNS)")  # fmt: skip
+    return array
+
+
+def sign_flip_p(differences) -> float:
+    """The two-sided exact sign-flip (paired permutation) test of "no difference": under it
+    each run's difference is as likely positive as negative, and ``p`` is the fraction of all
+    2^n assignments of signs to the n differences whose sum is at least as far from 0 as the
+    observed sum. Every assignment is counted (two halves of the runs, each half's 2^(n/2)
+    signed sums sorted, pairs counted by binary search): no random number, no resampling.
+    The smallest p at n runs is ``2 / 2^n``.
 
     Args:
-      differences: per comparison an array ``(runs, tasks)`` of paired differences.
-      statistic: the aggregate of the differences, one of :data:`STATISTICS`.
-      alpha: the family-wise error rate.
-      reps: bootstrap resamples per comparison.
-      seed: the resampling's seed.
+      differences: paired differences, one per run (``(runs, tasks)``: each run's mean over
+        its tasks).
 
     Returns:
-      A frame, one row per comparison: ``comparison, point, low, high, confidence, p,
-      adjusted, clear``.
+      The p-value in ``(0, 1]``.
 
     Examples:
-      >>> frame = paired_comparisons({"a - b": [-1.0, -2.0, -1.5, -1.2]})
-      >>> bool(frame.clear[0])
-      True
+      >>> sign_flip_p([1.0, 2.0, 3.0])  # all positive: 2 of the 8 assignments (all +, all -)
+      0.25
+      >>> sign_flip_p([1.0, -1.0])
+      1.0
+    """
+    d = _paired_runs("differences", differences)
+    observed = abs(float(d.sum()))
+    # The observed sum is one of the enumerated ones, summed in another order: a tolerance of
+    # a few ulps of the largest possible sum keeps it (and its mirror) counted.
+    tolerance = 1e-9 * float(np.abs(d).sum())
+    if observed <= tolerance:
+        return 1.0
+    half = len(d) // 2
+    low, high = _signed_sums(d[:half]), _signed_sums(d[half:])
+    threshold = observed - tolerance
+    # Pairs (x, y) with x + y >= threshold, and by symmetry as many with x + y <= -threshold.
+    at_least = len(high) - np.searchsorted(high, threshold - low, side="left")
+    return float(2 * at_least.sum() / (len(low) * len(high)))
+
+
+def sign_flip_interval(differences, level: float) -> tuple[float, float]:
+    """The interval of shifts ``delta`` that the exact sign-flip test of ``differences -
+    delta`` does not reject at ``level``: the confidence interval of the mean difference
+    (coverage ``1 - level``) that goes with :func:`sign_flip_p`, so that it excludes 0 where
+    the test rejects at that level. Its ends are found by bisection to 1e-9 of the
+    differences' spread (an end where the p-value jumps, a shift of exactly 0 or of one of the
+    differences, is that point). Where n runs cannot reach ``level`` (``2 / 2^n > level``) no shift
+    is rejected: ``(-inf, inf)``.
+
+    Args:
+      differences: paired differences, one per run.
+      level: the test's level, in (0, 1).
+
+    Examples:
+      >>> sign_flip_interval([1.0, 2.0, 3.0], 0.05)
+      (-inf, inf)
+    """
+    d = _paired_runs("differences", differences)
+    if not 0 < level < 1:
+        raise ValueError(f"level={level}: between 0 and 1")
+    if 2.0 / 2.0 ** len(d) > level:
+        return -np.inf, np.inf
+    center = float(d.mean())
+    reach = float(np.ptp(d)) + float(np.abs(d).max()) + 1.0  # beyond it every sign agrees
+    step = 1e-9 * reach
+
+    def end(direction: float) -> float:
+        inside, outside = center, center + direction * reach
+        while abs(outside - inside) > step:
+            middle = 0.5 * (inside + outside)
+            if sign_flip_p(d - middle) > level:
+                inside = middle
+            else:
+                outside = middle
+        # The test's p jumps where a shifted difference is exactly 0 (a shift of 0 or of one
+        # of the differences): such a point at the end, not rejected, closes the interval.
+        for point in sorted({0.0, *d.tolist()}, key=lambda x: -direction * x):
+            if min(inside, outside) <= point <= max(inside, outside):
+                if sign_flip_p(d - point) > level:
+                    return point
+        return inside
+
+    return end(-1.0), end(1.0)
+
+
+def paired_comparisons(
+    differences: Mapping[str, np.ndarray], alpha: float = 0.05, statistic: str = "iqm",
+    reps: int = 4000, seed: int = 0, confidence: float = 0.95,
+) -> pd.DataFrame:  # fmt: skip
+    """Many paired comparisons at once, decided by an exact test and corrected for their
+    number (Holm).
+
+    Each comparison is one paired difference per run (seed) of two methods. Its decision:
+    the exact sign-flip test (:func:`sign_flip_p`), and Holm's procedure over all the
+    comparisons given (the family) at family-wise error ``alpha``: ``clear`` when Holm
+    rejects "no difference". No random number enters the decision. Effect sizes beside it:
+    the mean difference with the interval that inverts the same test at the level Holm
+    tests that comparison at (:func:`sign_flip_interval`; it excludes 0 where the test
+    rejects at that level), and the ``statistic`` (IQM by default) of the differences with
+    its ``confidence`` bootstrap interval (``reps`` resamples, ``seed``: these move with the
+    seed, the decision does not).
+
+    Args:
+      differences: per comparison the paired differences, one per run (or ``(runs,
+        tasks)``: each run's mean over its tasks for the test).
+      alpha: the family-wise error rate.
+      statistic: the bootstrap effect size's aggregate, one of :data:`STATISTICS`.
+      reps: bootstrap resamples per comparison.
+      seed: the bootstrap's seed (effect sizes only).
+      confidence: the bootstrap interval's coverage.
+
+    Returns:
+      A frame, one row per comparison: ``comparison, runs, mean, low, high, level, p,
+      adjusted, clear, reachable`` (whether 2 / 2^runs is at most ``level``: the test can
+      reject at all) and ``effect, effect_low, effect_high`` (the bootstrap effect size).
+
+    Examples:
+      >>> frame = paired_comparisons({"a - b": [-1.0, -2.0, -1.5, -1.2, -0.8, -1.1]})
+      >>> float(frame.p[0]), bool(frame.clear[0])
+      (0.03125, True)
     """
     aggregate = _aggregate(statistic)
     rows = []
     for name, values in differences.items():
-        array = _matrix(name, values)
-        draws = _bootstrap([array], aggregate, reps, seed)
-        # Two-sided, (1 + count) / (1 + reps): never 0 from a finite number of resamples.
-        tail = min(np.sum(draws <= 0), np.sum(draws >= 0))
-        p = min(1.0, 2 * (1 + tail) / (1 + reps))
-        rows.append({"comparison": name, "point": float(aggregate(array)), "p": p, "draws": draws})
+        d = _paired_runs(name, values)
+        rows.append({"comparison": name, "runs": len(d), "mean": float(d.mean()),
+                     "p": sign_flip_p(d), "d": d})  # fmt: skip
     corrected = holm([row["p"] for row in rows], alpha)
     out = []
     for row, (_, holm_row) in zip(rows, corrected.iterrows(), strict=True):
-        low, high = _percentiles(row.pop("draws"), 1 - holm_row.level)
-        out.append({**row, "low": low, "high": high, "confidence": 1 - holm_row.level,
-                    "adjusted": holm_row.adjusted, "clear": bool(holm_row.reject)})  # fmt: skip
-    columns = ["comparison", "point", "low", "high", "confidence", "p", "adjusted", "clear"]
+        d = row.pop("d")
+        low, high = sign_flip_interval(d, holm_row.level)
+        if len(d) >= 2:
+            draws = _bootstrap([d[:, None]], aggregate, reps, seed)
+            effect_low, effect_high = _percentiles(draws, confidence)
+            effect = float(aggregate(d[:, None]))
+        else:
+            effect = effect_low = effect_high = float(d[0])
+        out.append({**row, "low": low, "high": high, "level": holm_row.level,
+                    "adjusted": holm_row.adjusted, "clear": bool(holm_row.reject),
+                    "reachable": 2.0 / 2.0 ** len(d) <= holm_row.level, "effect": effect,
+                    "effect_low": effect_low, "effect_high": effect_high})  # fmt: skip
+    columns = ["comparison", "runs", "mean", "low", "high", "level", "p", "adjusted", "clear",
+               "reachable", "effect", "effect_low", "effect_high"]  # fmt: skip
     return pd.DataFrame(out, columns=columns)

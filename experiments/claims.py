@@ -3,29 +3,38 @@
 Reads:
 
 * the comparison's cell records (``experiments/comparison.py``,
-  ``docs/results/comparison/cells/<task>/<cell>/``): per task the four losses at the shared
-  library defaults (``shared``) and each loss at its own search's choice (``own-<loss>``),
-  10 seeds x the task's test motions: the headline. Until a task's 10-seed shared cell has
-  run, the robustness study's 5-seed default cell stands in for it (the page says so);
-  until all four own cells of a task have run, "each at its best" is "not run yet";
+  ``docs/results/comparison/cells/<task>/<cell>/`` and a later block of seeds in
+  ``<cell>/seeds-<first>-<last>/``): per task the four losses at the shared library defaults
+  (``shared``) and each loss at its own search's choice (``own-<loss>``), every block of
+  seeds that has run (20 seeds, 10-29, once both have): the headline. Until a task's shared
+  cell has run, the robustness study's 5-seed default cell stands in for it (the page says
+  so); until all four own cells of a task have run, "each at its best" is "not run yet";
 * the robustness study's other cells (``docs/results/robustness/cells``; 3-5 seeds):
   exploratory, which loss is lowest in each (no interval, no verdict);
 * the data-set swap, ``docs/results/swap/swap_metrics.csv`` (``swap_study.py``);
 * the 1-D theory, recomputed (``theory_1d.run_sweeps``, seconds).
 
-and writes ``docs/results/claims.md`` (and ``claims_profiles.png``). Statistics
-(:mod:`cfm_jax.stats`, rliable's definitions): per loss the interquartile mean (IQM) of its
-runs' scores, orders of magnitude below PD-only (a failed run at most -3), with a 95%
-stratified bootstrap interval (runs: seeds, strata: test motions) and the probability that
-a joint-loss run beats a run of each other loss; per claim the paired comparisons over the
-same seeds (IQM of the per-seed differences of log10 errors, each seed averaged over its
-motions), all the page's comparisons corrected together (Holm, family-wise 5%), each
-interval at the level Holm tests it at. A verdict follows a fixed rule (:data:`RULE`), the
-same for every claim, loss and configuration, so no verdict is a judgement call.
+and writes ``docs/results/claims.md``, its figures (``claims_forest.png``: every comparison
+of the primary family with its interval; ``claims_profiles.png``) and
+``claims_comparisons.csv`` (each comparison's per-seed differences, p-value, Holm level and
+decision: what a reader needs to check every verdict).
+
+The rule (:data:`RULE`; written down with the primary family and the seed count in
+``docs/results/claims_plan.md`` before the second block of seeds ran, issue 68): a comparison
+A - B is the per-seed difference of log10 errors (each seed averaged over its motions); it is
+*clear* when the exact sign-flip test (:func:`cfm_jax.stats.sign_flip_p`, every sign
+assignment enumerated: no random number) is rejected by Holm's procedure over the primary
+family, the paper's claims, each comparison counted once (the same runs in both
+configurations: one comparison). A verdict follows from the clear comparisons by a fixed rule,
+the same for every claim, loss and configuration. Effect sizes (they decide nothing): the mean
+difference with the interval that inverts the exact test at its Holm level, the IQM with a
+bootstrap interval, per loss the IQM score with its stratified bootstrap interval and the
+probability of improvement (:mod:`cfm_jax.stats`, rliable's definitions). ``--seed`` changes
+the bootstrap's seed: the intervals of the effect sizes move, no verdict does (tested).
 
 Usage:
   python experiments/claims.py
-  python experiments/claims.py --comparison DIR --records DIR --swap FILE --out FILE
+  python experiments/claims.py --comparison DIR --records DIR --swap FILE --out FILE --seed 0
 """
 
 from __future__ import annotations
@@ -45,24 +54,37 @@ import select_defaults  # noqa: E402
 
 from cfm_jax import report, stats  # noqa: E402
 
+PLAN = "docs/results/claims_plan.md"
+"""Where the primary family, the rule and the seed count are written down (before the rerun)."""
+ALPHA = 0.05
+"""Holm's family-wise error over the primary family."""
+MARGIN = 0.3
+"""A claim of similar performance: the exact interval at its Holm level inside +-MARGIN (log10
+error: a factor of 2)."""
 RULE = (
-    "A claim that loss A beats loss B *reproduces* when the comparison A - B (the IQM over "
-    "seeds of the per-seed difference of log10 errors) is clearly below 0 for every B the "
-    "claim names, *does not reproduce* when it is clearly above 0 for some B (B clearly "
-    "better), and is *not resolved* otherwise. Clearly: Holm's correction over all the "
-    "comparisons on this page rejects 'no difference' at a family-wise 5% (the interval "
-    "shown, at the level Holm tests that comparison at, excludes 0). A claim of no "
-    "difference reproduces when the difference is not clear. A claim is judged on each "
-    "configuration apart (the shared defaults; each loss at its own search's best)."
+    "A comparison A - B is the per-seed difference of log10 errors (each seed averaged over "
+    "its test motions). It is *clear* when Holm's procedure over the primary family (the "
+    "paper's claims below, each comparison counted once: runs that are the same in both "
+    "configurations are one comparison), at a family-wise 5%, rejects 'no difference' by the "
+    "two-sided exact sign-flip test of the mean difference (all 2^n assignments of signs "
+    "to the n seeds' differences enumerated; no random number enters a verdict). A claim that "
+    "loss A beats loss B *reproduces* when A - B is clearly below 0 for every B the claim "
+    "names, *does not reproduce* when it is clearly above 0 for some B, and is *not resolved* "
+    "otherwise; 'only the joint loss succeeds' is such a claim on each seed's fraction of "
+    "failed runs. A claim that two perform similarly *reproduces* when the exact interval of "
+    f"their difference lies inside +-{MARGIN:g} (a factor of {10**MARGIN:.0f} in the "
+    "error), *does not reproduce* when the difference is clear and its interval is not "
+    "inside, and is *not resolved* otherwise. A "
+    "claim is judged on each configuration apart (the shared defaults; each loss at its own "
+    "search's best)."
 )
 OTHERS = ("task", "distal", "supervised")
 LOSSES = ("joint", *OTHERS)
 ARMS = {"shared": "shared defaults", "own": "each at its best"}
 STATISTIC = "iqm"
-ALPHA = 0.05
 REPS = 4000
-"""Bootstrap resamples per comparison and interval (fixed seed 0: the page is regenerated
-bit for bit)."""
+"""Bootstrap resamples per effect-size interval (effect sizes only; the page's default seed
+is 0, so that it is regenerated bit for bit)."""
 FAILED_SCORE = -float(np.log10(select_defaults.FAILURE_FACTOR))
 """A failed run's highest score (fell or diverged): the selection rule's floor, 3 orders of
 magnitude above PD-only."""
@@ -81,12 +103,41 @@ class Arm:
     def seeds(self) -> int:
         return int(self.metrics.seed.nunique())
 
+    def runs(self, loss: str):
+        """The sweep cells that hold ``loss``'s runs (``cfm_jax.sweeps.cell_id``s), or None
+        where the records do not name them: two comparisons of the same runs are one."""
+        if "cell" not in self.metrics:
+            return None
+        return frozenset(self.metrics[self.metrics.loss == loss].cell.unique())
+
 
 def _read(folder: str) -> tuple[pd.DataFrame, pd.DataFrame] | None:
     if not os.path.isfile(os.path.join(folder, "metrics.csv")):
         return None
     return (pd.read_csv(os.path.join(folder, "metrics.csv")),
             pd.read_csv(os.path.join(folder, "baselines.csv")))  # fmt: skip
+
+
+def _same(a: pd.DataFrame, b: pd.DataFrame) -> bool:
+    key = ["baseline", "target"]
+    a, b = (f.set_index(key).sort_index() for f in (a, b))
+    return a.index.equals(b.index) and np.allclose(a.tracking_mse, b.tracking_mse, rtol=1e-6)
+
+
+def read_blocks(comparison_dir: str, cell) -> tuple[pd.DataFrame, pd.DataFrame] | None:
+    """A comparison cell's records over every block of seeds that has run
+    (``comparison.BLOCKS``, in order; the first block must have run): the metrics together,
+    the baselines (of the test motions, the same in every block) once."""
+    found = [_read(comparison.record_dir(comparison_dir, cell.block(first)))
+             for first in comparison.BLOCKS]  # fmt: skip
+    if found[0] is None:
+        return None
+    found = [r for r in found if r is not None]
+    for _, baselines in found[1:]:
+        if not _same(baselines, found[0][1]):
+            raise ValueError(f"{cell.task}/{cell.name}: a block of seeds has other baselines "
+                             "than the first (other test motions or gains?)")  # fmt: skip
+    return pd.concat([m for m, _ in found], ignore_index=True), found[0][1]
 
 
 def records(out: str):
@@ -102,9 +153,7 @@ def records(out: str):
 def _same_baselines(task: str, loss: str, own: pd.DataFrame, shared: pd.DataFrame) -> None:
     """Both configurations are scored against one PD-only: an own cell's (of the same test
     motions) must be the shared cell's. (The oracle's may differ with ``s*``.)"""
-    key = ["baseline", "target"]
-    a, b = (f[f.baseline == "pd_only"].set_index(key).sort_index() for f in (own, shared))
-    if not (a.index.equals(b.index) and np.allclose(a.tracking_mse, b.tracking_mse, rtol=1e-6)):
+    if not _same(*(f[f.baseline == "pd_only"] for f in (own, shared))):
         raise ValueError(
             f"{task}: the own-{loss} cell's PD-only differs from the shared cell's (other "
             "test motions or gains?): the two cannot be compared"
@@ -129,15 +178,14 @@ def arms(comparison_dir: str, robustness: dict) -> dict:
     (the robustness study's default cell standing in for a shared cell not run yet)."""
     out = {}
     for task in comparison.TASKS:
-        cell = comparison.Cell(task, comparison.SHARED, LOSSES)
-        shared = _read(comparison.record_dir(comparison_dir, cell))
+        shared = read_blocks(comparison_dir, comparison.Cell(task, comparison.SHARED, LOSSES))
         if shared is not None:
             shared = Arm(*shared, "the comparison's shared cell")
         else:
             default = [c for c in robustness if c.task == task and c.default]
             shared = Arm(*robustness[default[0]], "the robustness study's default cell (the "
                          "10-seed shared cell has not run yet)") if default else None  # fmt: skip
-        own = [_read(comparison.record_dir(comparison_dir, comparison.Cell(task, f"own-{n}", (n,))))
+        own = [read_blocks(comparison_dir, comparison.Cell(task, f"own-{n}", (n,)))
                for n in LOSSES]  # fmt: skip
         if shared is not None and all(r is not None for r in own):
             for loss, (_, baselines) in zip(LOSSES, own, strict=True):
@@ -154,11 +202,14 @@ def arms(comparison_dir: str, robustness: dict) -> dict:
 def per_seed(arm: Arm, column: str, over: str = "last") -> dict[str, pd.Series]:
     """Each loss's log10 error per seed: ``column`` per run (the tracking MSE with a failed
     run's floor, :func:`select_defaults.scores`; other columns, and runs without baselines,
-    plain, non-finite runs skipped), averaged over the seed's motions at the last iteration
+    plain, non-finite runs skipped; ``"failed"``: 1 for a failed run, 0 else, not logged),
+    averaged over the seed's motions at the last iteration
     (``over="last"``) or over its motions and all iterations (``"all"``: the paper's "during
     learning")."""
     metrics = arm.metrics
-    if column == "tracking_mse" and arm.baselines is not None:
+    if column == "failed":
+        frame = metrics.assign(score=report.failed_runs(metrics).astype(float))
+    elif column == "tracking_mse" and arm.baselines is not None:
         frame = select_defaults.scores(metrics, arm.baselines)
     else:
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -183,32 +234,61 @@ def run_scores(arm: Arm) -> dict[str, np.ndarray]:
     return {loss: table[loss] for loss in LOSSES if loss in table}
 
 
+def _signed(value: float) -> str:
+    """``value`` to two decimals with its sign (a value that rounds to 0 is +0.00)."""
+    return f"{np.round(value, 2) + 0.0:+.2f}"
+
+
 class Family:
-    """All the paired comparisons of the page, corrected together (Holm)."""
+    """The primary family: every comparison of the paper's claims, each counted once, decided
+    together (exact sign-flip tests, Holm). A comparison is added under a display name; two
+    names whose runs are the same (the same ``key``: the compared column and the sweep cells
+    on both sides) are one comparison."""
 
     def __init__(self):
-        self.differences: dict[str, np.ndarray] = {}
+        self.differences: dict[str, pd.Series] = {}  # comparison id -> per-seed A - B
+        self.ids: dict[str, str] = {}  # display name -> comparison id
+        self._keys: dict = {}
         self.table = None
 
-    def add(self, name: str, a: pd.Series, b: pd.Series) -> str:
+    def add(self, name: str, a: pd.Series, b: pd.Series, key=None) -> str:
+        """Add ``a - b`` over the seeds both have as ``name`` (an existing comparison of the
+        same ``key``, when given and known, is reused); returns ``name``."""
+        if key is not None and key in self._keys:
+            self.ids[name] = self._keys[key]
+            return name
         common = a.index.intersection(b.index)
-        self.differences[name] = (a[common] - b[common]).to_numpy()
+        self.differences[name] = a[common] - b[common]
+        self.ids[name] = name
+        if key is not None:
+            self._keys[key] = name
         return name
 
-    def solve(self) -> None:
-        table = stats.paired_comparisons(self.differences, STATISTIC, ALPHA, REPS)
+    def solve(self, seed: int = 0) -> None:
+        """Decide every comparison (``seed``: the bootstrap's, effect sizes only)."""
+        values = {n: d.to_numpy() for n, d in self.differences.items()}
+        table = stats.paired_comparisons(values, ALPHA, STATISTIC, REPS, seed)
         self.table = table.set_index("comparison")
+
+    def row(self, name: str) -> pd.Series:
+        return self.table.loc[self.ids[name]]
 
     def sign(self, name: str) -> int:
         """-1 or +1: clearly below or above 0; 0: not clear."""
-        row = self.table.loc[name]
-        return int(np.sign(row.point)) if row.clear else 0
+        row = self.row(name)
+        return int(np.sign(row["mean"])) if row.clear else 0
+
+    def interval(self, name: str) -> str:
+        row = self.row(name)
+        if not np.isfinite(row.low):
+            return f"{_signed(row['mean'])} [unbounded: {row.runs} seeds cannot reach its level]"
+        return f"{_signed(row['mean'])} [{_signed(row.low)}, {_signed(row.high)}]"
 
     def text(self, name: str, label: str) -> str:
-        row = self.table.loc[name]
-        clear = " clear" if row.clear else ""
-        return (f"{label} {row.point:+.2f} [{row.low:+.2f}, {row.high:+.2f}] "
-                f"({100 * row.confidence:.2f}%{clear})")  # fmt: skip
+        row = self.row(name)
+        clear = ", clear" if row.clear else ""
+        return (f"{label} {self.interval(name)} (p = {row.p:.1e}, Holm level {row.level:.1e}"
+                f"{clear})")  # fmt: skip
 
 
 def beats_verdict(signs) -> str:
@@ -219,15 +299,14 @@ def beats_verdict(signs) -> str:
     return "reproduces" if signs and all(s < 0 for s in signs) else "not resolved"
 
 
-def success_verdict(arm: Arm) -> tuple[str, str]:
-    """Fig. 5's "only the joint loss succeeds": at the last iteration the joint loss has no
-    fallen run and every other loss has some (counts over seeds x motions, no interval)."""
-    final = arm.metrics[arm.metrics.iteration == arm.metrics.iteration.max()]
-    falls = final.assign(failed=report.failed_runs(final)).groupby("loss").failed.sum()
-    runs = final.groupby("loss").size()
-    ok = falls.get("joint", 1) == 0 and all(falls.get(n, 0) > 0 for n in OTHERS)
-    text = ", ".join(f"{n} {int(falls.get(n, 0))}/{int(runs.get(n, 0))}" for n in LOSSES)
-    return ("reproduces" if ok else "does not reproduce"), text
+def similar_verdict(clear: bool, low: float, high: float, margin: float = MARGIN) -> str:
+    """The rule's verdict on "A and B perform similarly" (amendment 1 of the plan): an exact
+    interval (at its Holm level) inside ``+-margin`` shows it, even where a smaller
+    difference is detectable; a clear difference whose interval is not inside refutes it;
+    else not resolved."""
+    if -margin < low and high < margin:
+        return "reproduces"
+    return "does not reproduce" if clear else "not resolved"
 
 
 def exploratory(robustness: dict, task: str, column: str, over: str) -> str:
@@ -250,20 +329,13 @@ def exploratory(robustness: dict, task: str, column: str, over: str) -> str:
     )
 
 
-def failures_text(metrics) -> str:
-    """The failed runs per loss at the last iteration under the library's one rule
-    (:func:`cfm_jax.report.failed_runs`: fell, or the simulation diverged), beside every
-    claim's means; the diverged ones are named apart when there are any."""
-    final = metrics[metrics.iteration == metrics.iteration.max()]
-    final = final.assign(failed=report.failed_runs(final), div=report.diverged_runs(final))
-    parts = []
-    for loss, f in final.groupby("loss", sort=False):
-        part = f"{loss} {int(f.failed.sum())}/{len(f)}"
-        if f["div"].any():
-            part += f" ({int(f['div'].sum())} diverged)"
-        parts.append(part)
-    what = "fell or diverged" if "fell" in final.columns else "diverged"
-    return f"failed at the last iteration ({what}): " + ", ".join(parts)
+def failures_text(arm: Arm) -> str:
+    """The failed runs per loss at the last iteration (:func:`cfm_jax.report.failed_runs`:
+    fell, or the simulation diverged)."""
+    final = arm.metrics[arm.metrics.iteration == arm.metrics.iteration.max()]
+    failed = final.assign(f=report.failed_runs(final)).groupby("loss").f.agg(["sum", "size"])
+    return ", ".join(f"{n} {int(failed.loc[n, 'sum'])}/{int(failed.loc[n, 'size'])}"
+                     for n in LOSSES if n in failed.index)  # fmt: skip
 
 
 def _combined(verdicts) -> str:
@@ -273,10 +345,11 @@ def _combined(verdicts) -> str:
 
 
 THEORY_RULE = (
-    "The 1-D claim *reproduces* when, over the model biases where the joint iteration "
-    "converges and the task loss leaves an error (|task error| > 1e-4), the joint loss ends "
-    "closer to s_d than the task loss in every one; *does not reproduce* when in none; is "
-    "*mixed* when in some; and is *not resolved* when there is no such bias."
+    "The 1-D claim (no seeds: closed forms over a grid of model biases) *reproduces* when, "
+    "over the model biases where the joint iteration converges and the task loss leaves an "
+    "error (|task error| > 1e-4), the joint loss ends closer to s_d than the task loss in "
+    "every one; *does not reproduce* when in none; is *mixed* when in some; and is *not "
+    "resolved* when there is no such bias."
 )
 
 
@@ -311,7 +384,22 @@ def theory_claim():
     return theory_verdict(cases, closer), lines
 
 
-RANKING = (
+@dataclasses.dataclass
+class Claim:
+    """One claim of the paper: its label, what the paper says, how it is decided (``kind``:
+    ``beats``, one comparison per loser; ``parts``, each comparison a claim of its own, the
+    verdicts combined; ``similar``) and per configuration its comparisons as (name, label),
+    or None where the configuration has not run (``"-"``: the claim has one configuration)."""
+
+    label: str
+    paper: str
+    kind: str
+    parts: dict
+    note: str = ""
+    seeds: str = ""
+
+
+CLAIMS = (
     ("Fig. 3a", "iiwa inverse dynamics: the joint loss converges faster and more stably than "
      "the others and learns a very good tracking controller in < 10 iterations",
      "inverse_dynamics", "tracking_mse", "last"),
@@ -323,45 +411,34 @@ RANKING = (
 LEGGED = ("walk", "jump")
 
 
-def _ranking(family, tasks, claim, task, column, over) -> dict:
+def _seeds_text(arms) -> str:
+    counts = sorted({int(a.metrics.groupby("loss").seed.nunique().min())
+                     for a in arms if a is not None})  # fmt: skip
+    return " / ".join(str(c) for c in counts)
+
+
+def _ranking(family, tasks, claim, task, column, over, pairs) -> dict:
+    """Per configuration the comparisons ``pairs`` (A, B) of ``column`` on ``task``."""
     parts = {}
     for key, arm in tasks[task].items():
         if arm is None:
             parts[key] = None
             continue
         values = per_seed(arm, column, over)
-        parts[key] = [
-            (
-                family.add(f"{claim} | {key} | joint - {n}", values["joint"], values[n]),
-                f"joint - {n}",
-            )
-            for n in OTHERS
-        ]
-    return parts
-
-
-def _fig4(family, tasks, task) -> dict:
-    parts = {}
-    for key, arm in tasks[task].items():
-        if arm is None:
-            parts[key] = None
-            continue
-        error = per_seed(arm, "prediction_error", "all")
-        predicted = per_seed(arm, "predicted_task_error", "all")
-        claim = f"Fig. 4 ({task}) | {key}"
-        parts[key] = [
-            (family.add(f"{claim} | prediction", error["joint"], error["task"]),
-             "prediction error joint - task"),
-            (family.add(f"{claim} | predicted", predicted["task"], predicted["joint"]),
-             "predicted task error task - joint"),
-        ]  # fmt: skip
+        names = []
+        for a, b in pairs:
+            runs = (arm.runs(a), arm.runs(b))
+            same = None if None in runs else (task, column, over, *runs)
+            name = family.add(f"{claim} | {ARMS[key]} | {a} - {b}", values[a], values[b], same)
+            names.append((name, f"{a} - {b}"))
+        parts[key] = names
     return parts
 
 
 def _swap(family, path: str):
-    """The data-set swap's comparisons (5 seeds, on the defaults of its time): per retraining
-    loss the joint-loss data minus the task-loss data; per data set the joint minus the task
-    retrain."""
+    """The data-set swap's comparisons (retrains of the inverse-dynamics defaults of their
+    time): per retraining loss the joint-loss data minus the task-loss data; per data set the
+    joint minus the task retrain."""
     if not os.path.isfile(path):
         return None
     metrics = pd.read_csv(path)
@@ -374,29 +451,143 @@ def _swap(family, path: str):
     similar = [(family.add(f"Fig. 3c | on the {d}-loss data", values[d]["joint"],
                            values[d]["task"]), f"on the {d}-loss data: joint - task retrain")
                for d in ("task", "joint")]  # fmt: skip
-    return better, similar, int(metrics.seed.nunique())
+    return better, similar, str(int(metrics.seed.nunique()))
 
 
-def _measured(family, parts) -> tuple[dict, str]:
-    """Per configuration the rule's verdict, and the comparisons' text."""
-    verdicts, lines = {}, []
-    for key, names in parts.items():
-        if names is None:
-            verdicts[key] = "not run yet"
+def plan_claims(family: Family, tasks: dict, robustness: dict, swap_path: str) -> list[Claim]:
+    """The paper's claims in the page's order, their comparisons added to ``family`` (the
+    primary family of ``claims_plan.md``)."""
+    beats = [("joint", n) for n in OTHERS]
+    out = []
+    for label, paper, task, column, over in CLAIMS:
+        out.append(Claim(label, paper, "beats",
+                         _ranking(family, tasks, label, task, column, over, beats),
+                         exploratory(robustness, task, column, over),
+                         _seeds_text(tasks[task].values())))  # fmt: skip
+    for task in LEGGED:
+        seeds = _seeds_text(tasks[task].values())
+        label = f"Fig. 5 ({task})"
+        out.append(Claim(label, f"Solo12 {task}: the joint loss tracks the base best", "beats",
+                         _ranking(family, tasks, label, task, "tracking_mse", "last", beats),
+                         exploratory(robustness, task, "tracking_mse", "last"), seeds))  # fmt: skip
+        label = f"Fig. 5 ({task}, success)"
+        parts = _ranking(family, tasks, label, task, "failed", "last", beats)
+        falls = "; ".join(f"{ARMS[k]}: failed runs {failures_text(a)}"
+                          for k, a in tasks[task].items() if a is not None)  # fmt: skip
+        out.append(Claim(label, f"Solo12 {task}: only the joint loss succeeds (fraction of "
+                         "failed runs per seed)", "beats", parts, falls, seeds))  # fmt: skip
+        label = f"Table I ({task})"
+        out.append(Claim(label, f"Solo12 {task}: the joint loss tracks the foot forces best",
+                         "beats", _ranking(family, tasks, label, task, "force_mse", "last", beats),
+                         exploratory(robustness, task, "force_mse", "last"), seeds))  # fmt: skip
+        label = f"Fig. 4 ({task})"
+        error = _ranking(family, tasks, f"{label} prediction error", task, "prediction_error",
+                         "all", [("joint", "task")])  # fmt: skip
+        predicted = _ranking(family, tasks, f"{label} predicted task error", task,
+                             "predicted_task_error", "all", [("task", "joint")])  # fmt: skip
+        parts = {k: None if error[k] is None else
+                 [(error[k][0][0], "prediction error joint - task"),
+                  (predicted[k][0][0], "predicted task error task - joint")]
+                 for k in error}  # fmt: skip
+        out.append(Claim(label, f"Solo12 {task}: during learning the joint loss's forward-model "
+                         "prediction error is lower than the task loss's, whose predicted task "
+                         "error is lower", "parts", parts, "", seeds))  # fmt: skip
+    swap = _swap(family, swap_path)
+    if swap is None:
+        out.append(Claim("Fig. 3c", "data-set swap", "parts", {"shared": None, "own": "-"}))
+    else:
+        better, similar, seeds = swap
+        note = "the data sets of the inverse-dynamics defaults of their time"
+        out.append(Claim("Fig. 3c", "data-set swap: both losses do better on the data the "
+                         "joint loss collected", "parts", {"shared": better, "own": "-"}, note,
+                         seeds))  # fmt: skip
+        out.append(Claim("Fig. 3c", "on the same data the task and joint losses perform "
+                         "similarly", "similar", {"shared": similar, "own": "-"}, note,
+                         seeds))  # fmt: skip
+    return out
+
+
+def verdict(family: Family, claim: Claim, key: str) -> str:
+    """The rule's verdict of ``claim`` in configuration ``key`` (``family`` solved)."""
+    names = claim.parts[key]
+    if names is None:
+        return "not run yet"
+    if names == "-":
+        return "-"
+    if claim.kind == "beats":
+        return beats_verdict([family.sign(n) for n, _ in names])
+    if claim.kind == "parts":
+        return _combined([beats_verdict([family.sign(n)]) for n, _ in names])
+    rows = [family.row(n) for n, _ in names]
+    return _combined([similar_verdict(r.clear, r.low, r.high) for r in rows])
+
+
+def _measured(family: Family, claim: Claim) -> str:
+    lines = []
+    for key, names in claim.parts.items():
+        if names is None or names == "-":
             continue
-        verdicts[key] = beats_verdict([family.sign(n) for n, _ in names])
-        lines.append(f"{ARMS[key]}: " + "; ".join(family.text(n, label) for n, label in names))
-    return verdicts, "<br>".join(lines)
+        prefix = f"{ARMS[key]}: " if claim.parts.get("own") != "-" else ""
+        lines.append(prefix + "; ".join(family.text(n, label) for n, label in names))
+    return "<br>".join(lines)
 
 
-def _agreement(verdicts: dict) -> str:
-    if "not run yet" in verdicts.values():
+def _same_runs_note(family: Family, claim: Claim) -> str:
+    """Whether both configurations' verdicts rest on the same comparisons (the same runs)."""
+    shared, own = claim.parts.get("shared"), claim.parts.get("own")
+    if not isinstance(shared, list) or not isinstance(own, list):
         return ""
-    return "agree" if len(set(verdicts.values())) == 1 else "**disagree**"
+    same = [family.ids[a] == family.ids[b] for (a, _), (b, _) in zip(shared, own, strict=True)]
+    if all(same):
+        return "both configurations: the same runs"
+    if any(same):
+        return "partly the same runs in both configurations"
+    return ""
 
 
-def headline_table(task: str, pair: dict) -> list[str]:
-    """Per loss and configuration the IQM score [95% CI], failed runs and P(joint > loss)."""
+def claim_rows(family: Family, claims: list[Claim]) -> list[tuple]:
+    """The detailed table's rows: claim, the paper, each configuration's verdict, what was
+    measured, the notes."""
+    rows = []
+    for claim in claims:
+        note = "; ".join(x for x in (_same_runs_note(family, claim), claim.note) if x)
+        rows.append((claim.label, claim.paper, verdict(family, claim, "shared"),
+                     verdict(family, claim, "own"), _measured(family, claim),
+                     note))  # fmt: skip
+    return rows
+
+
+def summary_rows(family: Family, claims: list[Claim], theory: tuple) -> list[tuple]:
+    """The page's first table: per claim its verdicts, its comparisons' effects (mean per-seed
+    difference [exact interval at the Holm level]; in bold the clear ones) and seeds."""
+    rows = []
+    for claim in claims:
+        effects = []
+        for key, names in claim.parts.items():
+            if names is None or names == "-":
+                continue
+            done = set()
+            for name, label in names:
+                if family.ids[name] in done and key == "own":
+                    continue
+                shown = f"{label} {family.interval(name)}"
+                effects.append(f"**{shown}**" if family.row(name).clear else shown)
+            done |= {family.ids[n] for n, _ in names}
+            if key == "shared" and isinstance(claim.parts.get("own"), list):
+                own = [n for n, _ in claim.parts["own"] if family.ids[n] not in done]
+                if not own:
+                    break  # the own configuration's are the same comparisons
+                effects.append(f"*{ARMS['own']}:*")
+        rows.append((claim.label, verdict(family, claim, "shared"), verdict(family, claim, "own"),
+                     "<br>".join(effects), claim.seeds))  # fmt: skip
+    verdict_1d, _ = theory
+    rows.append(("III-B (1-D)", verdict_1d, "-", "closed forms (no seeds)", "-"))
+    return rows
+
+
+def headline_table(task: str, pair: dict, seed: int = 0) -> list[str]:
+    """Per loss and configuration the IQM score [95% CI], failed runs and P(joint > loss)
+    (bootstrap seed ``seed``)."""
     lines = [f"### {task}", ""]
     for key, arm in pair.items():
         if arm is not None:
@@ -411,16 +602,17 @@ def headline_table(task: str, pair: dict) -> list[str]:
             cells[key] = {n: ("not run yet", "", "") for n in LOSSES}
             continue
         scores = run_scores(arm)
-        est = stats.interval_estimates(scores, statistic=STATISTIC).set_index("method")
+        est = stats.interval_estimates(scores, statistic=STATISTIC, seed=seed)
+        est = est.set_index("method")
         final = arm.metrics[arm.metrics.iteration == arm.metrics.iteration.max()]
         failed = final.assign(f=report.failed_runs(final)).groupby("loss").f.agg(["sum", "size"])
         cells[key] = {}
         for n in LOSSES:
             p = (
                 ""
-                if n == "joint"
+                if n == "joint" or scores[n].shape != scores["joint"].shape
                 else "{:.2f} [{:.2f}, {:.2f}]".format(
-                    *stats.probability_of_improvement(scores["joint"], scores[n])
+                    *stats.probability_of_improvement(scores["joint"], scores[n], seed=seed)
                 )
             )
             cells[key][n] = (
@@ -433,143 +625,144 @@ def headline_table(task: str, pair: dict) -> list[str]:
     return lines + [""]
 
 
-def profiles(tasks: dict, path: str) -> None:
+def profiles(tasks: dict, path: str, seed: int = 0) -> None:
     """The performance profiles (rliable): per task the fraction of runs above each score,
-    solid the shared defaults, dashed each at its best."""
+    solid the shared defaults, dashed each at its best; two by two."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(tasks), figsize=(4 * len(tasks), 3.2), sharey=True)
+    columns = min(2, len(tasks))
+    rows = -(-len(tasks) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(5 * columns, 3.4 * rows), squeeze=False)
     taus = np.linspace(-3, 6, 91)
-    for ax, (task, pair) in zip(np.atleast_1d(axes), tasks.items(), strict=True):
+    for ax, (task, pair) in zip(axes.flat, tasks.items(), strict=False):
         for key, style in (("shared", "-"), ("own", "--")):
             if pair[key] is None:
                 continue
-            frame = stats.performance_profile(run_scores(pair[key]), taus, reps=500)
+            frame = stats.performance_profile(run_scores(pair[key]), taus, reps=500, seed=seed)
             for k, (loss, f) in enumerate(frame.groupby("method", sort=False)):
                 ax.plot(f.threshold, f.fraction, style, color=f"C{k}",
                         label=f"{loss} ({ARMS[key]})")  # fmt: skip
                 ax.fill_between(f.threshold, f.low, f.high, color=f"C{k}", alpha=0.1)
-        ax.set(title=task, xlabel="score tau (orders of magnitude below PD-only)")
+        ax.set(title=task, xlabel="score tau (orders of magnitude below PD-only)",
+               ylabel="fraction of runs with score > tau")  # fmt: skip
         ax.axvline(0, color="grey", lw=0.5)
-    np.atleast_1d(axes)[0].set_ylabel("fraction of runs with score > tau")
-    np.atleast_1d(axes)[0].legend(fontsize=6)
+    for ax in list(axes.flat)[len(tasks) :]:
+        ax.set_visible(False)
+    axes.flat[0].legend(fontsize=6)
     fig.tight_layout()
     fig.savefig(path, dpi=110, metadata={"Software": None})
     plt.close(fig)
 
 
-def _plans(family: Family, tasks: dict, robustness: dict) -> list[tuple]:
-    """The claims on the headline cells, in the page's order, as (claim, what the paper
-    says, its parts, the exploratory note); their comparisons are added to ``family``."""
-    plans = []
-    for claim, paper, task, column, over in RANKING:
-        plans.append((claim, paper, _ranking(family, tasks, claim, task, column, over),
-                      exploratory(robustness, task, column, over)))  # fmt: skip
-    for task in LEGGED:
-        plans.append((f"Fig. 5 ({task})", f"Solo12 {task}: the joint loss tracks the base best",
-                      _ranking(family, tasks, f"Fig. 5 ({task})", task, "tracking_mse", "last"),
-                      exploratory(robustness, task, "tracking_mse", "last")))  # fmt: skip
-        plans.append((f"Fig. 5 ({task}, success)", f"Solo12 {task}: only the joint loss "
-                      "succeeds", "success", ""))  # fmt: skip
-        plans.append((f"Table I ({task})", f"Solo12 {task}: the joint loss tracks the foot "
-                      "forces best", _ranking(family, tasks, f"Table I ({task})", task,
-                                              "force_mse", "last"),
-                      exploratory(robustness, task, "force_mse", "last")))  # fmt: skip
-        plans.append((f"Fig. 4 ({task})", f"Solo12 {task}: during learning the joint loss's "
-                      "forward-model prediction error is lower than the task loss's, whose "
-                      "predicted task error is lower", _fig4(family, tasks, task), ""))  # fmt: skip
-    return plans
+def forest(family: Family, path: str) -> None:
+    """Every comparison of the primary family: its mean per-seed difference with the exact
+    interval at its Holm level (unbounded: an arrow to the edge), against 0; clear ones in
+    colour."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    table = family.table
+    finite = np.concatenate([table[["low", "high"]].to_numpy()[np.isfinite(table.low)].ravel(),
+                             table["mean"].to_numpy()])  # fmt: skip
+    edge = 1.1 * float(np.max(np.abs(finite))) if len(finite) else 1.0
+    fig, ax = plt.subplots(figsize=(8, 0.22 * len(table) + 1.2))
+    for y, (_, row) in enumerate(table.iloc[::-1].iterrows()):
+        colour = ("C3" if row["mean"] > 0 else "C0") if row.clear else "0.55"
+        low = row.low if np.isfinite(row.low) else -edge
+        high = row.high if np.isfinite(row.high) else edge
+        ax.plot([low, high], [y, y], color=colour, lw=1.5)
+        ax.plot(row["mean"], y, "o", color=colour, ms=4)
+        if not np.isfinite(row.low):
+            ax.annotate("", (-edge, y), (-0.9 * edge, y), arrowprops={"arrowstyle": "->",
+                                                                     "color": colour})  # fmt: skip
+            ax.annotate("", (edge, y), (0.9 * edge, y), arrowprops={"arrowstyle": "->",
+                                                                   "color": colour})  # fmt: skip
+    ax.axvline(0, color="k", lw=0.8)
+    ax.set_yticks(range(len(table)), [n.replace(" | ", ", ") for n in table.index[::-1]],
+                  fontsize=6)  # fmt: skip
+    ax.set_xlim(-edge, edge)
+    ax.set_xlabel("A - B, mean per-seed difference of log10 errors (success: of failed "
+                  "fractions; < 0: A lower), exact interval at its Holm level",
+                  fontsize=7)  # fmt: skip
+    ax.set_title("The primary family: blue A clearly lower, red A clearly higher, grey not "
+                 "clear", fontsize=8)  # fmt: skip
+    ax.tick_params(axis="x", labelsize=7)
+    fig.savefig(path, dpi=110, bbox_inches="tight", metadata={"Software": None})
+    plt.close(fig)
 
 
-def _claim_row(family: Family, tasks: dict, claim, paper, parts, where) -> tuple:
-    """One claim's row of the table (``family`` solved): its verdict in each configuration,
-    what was measured and the notes."""
-    if parts == "success":
-        task = claim.split("(")[1].split(",")[0]
-        verdicts, lines = {}, []
-        for key, arm in tasks[task].items():
-            if arm is None:
-                verdicts[key] = "not run yet"
-                continue
-            verdicts[key], text = success_verdict(arm)
-            lines.append(f"{ARMS[key]}: failed runs at the last iteration: {text}")
-        measured = "<br>".join(lines)
-    elif claim.startswith("Fig. 4"):
-        verdicts, lines = {}, []
-        for key, names in parts.items():
-            if names is None:
-                verdicts[key] = "not run yet"
-                continue
-            both = [beats_verdict([family.sign(n)]) for n, _ in names]
-            verdicts[key] = _combined(both)
-            lines.append(f"{ARMS[key]}: " + "; ".join(family.text(n, label)
-                                                      for n, label in names))  # fmt: skip
-        measured = "<br>".join(lines)
-    else:
-        verdicts, measured = _measured(family, parts)
-    note = "; ".join(x for x in (_agreement(verdicts), where) if x)
-    return (claim, paper, verdicts["shared"], verdicts["own"], measured, note)
+COMPARISON_COLUMNS = ["comparison", "names", "seeds", "differences", "runs", "mean", "low",
+                      "high", "level", "p", "adjusted", "clear"]  # fmt: skip
 
 
-def _swap_rows(family: Family, swap) -> list[tuple]:
-    """The data-set swap's two rows (Fig. 3c), ``family`` solved."""
-    if swap is None:
-        return [("Fig. 3c", "", "not run yet", "", "", "")]
-    better, similar, seeds = swap
-    v = _combined([beats_verdict([family.sign(n)]) for n, _ in better])
-    rows = [("Fig. 3c", "data-set swap: both losses do better on the data the joint loss "
-             "collected", v, "-", "<br>".join(family.text(n, label) for n, label in better),
-             f"{seeds} seeds, the default cell's data sets")]  # fmt: skip
-    v = _combined(["does not reproduce" if family.sign(n) else "reproduces"
-                   for n, _ in similar])  # fmt: skip
-    rows.append(("Fig. 3c", "on the same data the task and joint losses perform similarly",
-                 v, "-", "<br>".join(family.text(n, label) for n, label in similar),
-                 f"{seeds} seeds, the default cell's data sets"))  # fmt: skip
-    return rows
+def comparisons_frame(family: Family) -> pd.DataFrame:
+    """The primary family as a table: per comparison the display names that share it, its
+    seeds and per-seed differences (space-separated, full precision) and the decision."""
+    names = {}
+    for name, key in family.ids.items():
+        names.setdefault(key, []).append(name)
+    rows = []
+    for key, d in family.differences.items():
+        row = family.table.loc[key]
+        rows.append({"comparison": key, "names": "; ".join(names[key]),
+                     "seeds": " ".join(str(int(s)) for s in d.index),
+                     "differences": " ".join(repr(float(v)) for v in d.to_numpy()),
+                     **{c: row[c] for c in COMPARISON_COLUMNS[4:]}})  # fmt: skip
+    return pd.DataFrame(rows, columns=COMPARISON_COLUMNS)
 
 
-def _theory_row() -> tuple:
-    """The 1-D theory's row (section III-B)."""
-    verdict, theory = theory_claim()
-    return ("III-B (1-D)", "the joint loss rests at s_p = (s_d + s_a)/2, which drives "
-            "s_a to s_d: it corrects a biased model where the task loss does not",
-            verdict, "-", "<br>".join(theory), "closed forms in docs/theory.md")  # fmt: skip
-
-
-def _page(tasks: dict, rows: list[tuple], comparisons: int) -> str:
-    """The page's text: how it is made, the headline tables, the claims table."""
+def _page(tasks: dict, summary: list[tuple], rows: list[tuple], family: Family) -> str:
+    """The page: the verdicts first, then the forest plot, the rule, the headline cells and
+    the detailed table."""
+    seeds = sorted({a.seeds for p in tasks.values() for a in p.values() if a is not None})
     lines = [
         "# The paper's claims under the faithful protocol",
         "",
-        "Written by `experiments/claims.py` from the committed records: "
-        "`experiments/comparison.py` (per task the four losses at the shared defaults and "
-        "each loss at its own search's best, 10 seeds x the test motions; a task's "
-        "robustness default cell, 5 seeds, stands in until its shared cell has run), "
-        "`experiments/swap_study.py`, the robustness study's other cells (exploratory) and "
-        "the 1-D theory. Statistics by `cfm_jax.stats` (rliable's definitions): scores are "
-        "orders of magnitude below PD-only (a failed run: at most "
-        f"{FAILED_SCORE:g}); IQM: the interquartile mean over seeds x motions; 95% stratified "
-        "bootstrap intervals; P(joint > loss): the probability that a joint-loss run scores "
-        "above a run of that loss on the same motion. The claims' comparisons: the IQM over "
-        "seeds of the per-seed difference of log10 errors (-1: ten times lower), "
-        f"{comparisons} comparisons Holm-corrected together, each interval at "
-        "the level Holm tests it at (in brackets after it).",
+        "| claim | shared defaults | each at its best | effects: A - B, mean per-seed "
+        "difference of log10 errors [exact interval at its Holm level] (bold: clear) | seeds |",
+        "|---|---|---|---|---|",
+        *(f"| {' | '.join(row)} |" for row in summary),
+        "",
+        f"Decided by an exact test over a primary family of {len(family.differences)} "
+        "comparisons written down before the rerun ([the plan](claims_plan.md)); "
+        f"{int(family.table.clear.sum())} are clear. Negative: the first loss's error is "
+        "lower (-1: ten times lower). Seeds per headline cell: "
+        f"{', '.join(map(str, seeds))} (per claim in the table).",
+        "",
+        "![every comparison of the primary family with its interval](claims_forest.png)",
+        "",
+        "## How it is decided",
         "",
         f"Rule: {RULE} {THEORY_RULE}",
         "",
-        "## The headline cells",
+        "Written by `experiments/claims.py` from the committed records: "
+        "`experiments/comparison.py` (per task the four losses at the shared defaults and "
+        "each loss at its own search's best, the test motions; a task's robustness default "
+        "cell, 5 seeds, stands in until its shared cell has run), "
+        "`experiments/swap_study.py`, the robustness study's other cells (exploratory) and "
+        "the 1-D theory. Every comparison's per-seed differences, p-value and Holm level: "
+        "[claims_comparisons.csv](claims_comparisons.csv). Effect sizes, which decide "
+        "nothing (by `cfm_jax.stats`, rliable's definitions): scores are orders of magnitude "
+        f"below PD-only (a failed run: at most {FAILED_SCORE:g}); IQM: the interquartile mean "
+        "over seeds x motions; 95% stratified bootstrap intervals; P(joint > loss): the "
+        "probability that a joint-loss run scores above a run of that loss on the same "
+        "motion.",
+        "",
+        "## The headline cells (exploratory: effect sizes)",
         "",
         "![performance profiles](claims_profiles.png)",
         "",
     ]
     for task, pair in tasks.items():
         if pair["shared"] is not None:
-            lines += headline_table(task, pair)
+            lines += headline_table(task, pair, _page.seed)
     lines += [
-        "## The claims",
+        "## The claims in detail",
         "",
         f"| claim | the paper says | {ARMS['shared']} | {ARMS['own']} | measured | notes |",
         "|---|---|---|---|---|---|",
@@ -578,24 +771,42 @@ def _page(tasks: dict, rows: list[tuple], comparisons: int) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write(comparison_dir: str, records_dir: str, swap_path: str, out: str) -> str:
-    """Write the claims page ``out`` and its profiles figure beside it from the comparison
-    records (``comparison_dir``), the robustness records (``records_dir``, the stand-ins
-    and the exploratory notes) and the swap study's metrics (``swap_path``); returns the
-    page's text."""
+_page.seed = 0
+
+
+def decide(comparison_dir: str, records_dir: str, swap_path: str, seed: int = 0):
+    """The headline cells per task, the primary family decided (bootstrap ``seed``: effect
+    sizes only) and the paper's claims: ``(tasks, family, claims)``; :func:`verdict` gives
+    each claim's verdicts."""
     robustness = records(records_dir)
     tasks = arms(comparison_dir, robustness)
     family = Family()
-    plans = _plans(family, tasks, robustness)
-    swap = _swap(family, swap_path)
-    family.solve()  # every comparison on the page is added: Holm over all of them
-    rows = [_claim_row(family, tasks, *plan) for plan in plans]
-    rows += _swap_rows(family, swap) + [_theory_row()]
-    figure = os.path.join(os.path.dirname(os.path.abspath(out)), "claims_profiles.png")
-    os.makedirs(os.path.dirname(figure), exist_ok=True)
-    profiles({t: p for t, p in tasks.items() if p["shared"] is not None}, figure)
-    text = _page(tasks, rows, len(family.differences))
-    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+    claims = plan_claims(family, tasks, robustness, swap_path)
+    family.solve(seed)  # the whole primary family is added: Holm over all of it
+    return tasks, family, claims
+
+
+def write(comparison_dir: str, records_dir: str, swap_path: str, out: str, seed: int = 0) -> str:
+    """Write the claims page ``out``, its figures and ``claims_comparisons.csv`` beside it
+    from the comparison records (``comparison_dir``), the robustness records
+    (``records_dir``, the stand-ins and the exploratory notes) and the swap study's metrics
+    (``swap_path``); ``seed``: the bootstrap's (effect sizes only). Returns the page's text."""
+    tasks, family, claims = decide(comparison_dir, records_dir, swap_path, seed)
+    theory = theory_claim()
+    rows = claim_rows(family, claims)
+    verdict_1d, theory_lines = theory
+    rows.append(("III-B (1-D)", "the joint loss rests at s_p = (s_d + s_a)/2, which drives "
+                 "s_a to s_d: it corrects a biased model where the task loss does not",
+                 verdict_1d, "-", "<br>".join(theory_lines),
+                 "closed forms in docs/theory.md"))  # fmt: skip
+    folder = os.path.dirname(os.path.abspath(out))
+    os.makedirs(folder, exist_ok=True)
+    profiles({t: p for t, p in tasks.items() if p["shared"] is not None},
+             os.path.join(folder, "claims_profiles.png"), seed)  # fmt: skip
+    forest(family, os.path.join(folder, "claims_forest.png"))
+    comparisons_frame(family).to_csv(os.path.join(folder, "claims_comparisons.csv"), index=False)
+    _page.seed = seed
+    text = _page(tasks, summary_rows(family, claims, theory), rows, family)
     with open(out, "w") as f:
         f.write(text)
     return text
@@ -607,8 +818,14 @@ def main() -> None:
     parser.add_argument("--records", default="docs/results/robustness")
     parser.add_argument("--swap", default="docs/results/swap/swap_metrics.csv")
     parser.add_argument("--out", default="docs/results/claims.md")
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="the bootstrap's seed (effect sizes only; no verdict moves)",
+    )
     args = parser.parse_args()
-    print(write(args.comparison, args.records, args.swap, args.out))
+    print(write(args.comparison, args.records, args.swap, args.out, args.seed))
 
 
 if __name__ == "__main__":

@@ -23,9 +23,7 @@ import comparison  # noqa: E402
 
 LOSSES = ("joint", "task", "distal", "supervised")
 ROOT = os.path.join(os.path.dirname(__file__), "..")
-SEEDS = pd.Index(range(10), name="seed")
-MODERATE = [-0.5, -0.4, -0.3, -0.2, 0.1, 0.05, -0.6, -0.35, -0.25, 0.1]
-"""A difference whose bootstrap p-value is about 0.011: clear alone, not among 30."""
+SEEDS = pd.Index(range(20), name="seed")
 
 
 def _family(**differences):
@@ -37,12 +35,12 @@ def _family(**differences):
     return family
 
 
-def test_verdicts_follow_the_rule_and_holm_corrects_for_the_pages_comparisons():
+def test_verdicts_follow_the_rule_and_holm_corrects_for_the_family():
     rng = np.random.default_rng(0)
     family = _family(
-        task=-1.0 + 0.1 * rng.normal(size=10),  # joint ten times lower on every seed
-        distal=np.array([1.0, -1.0] * 5),  # no difference on average
-        supervised=1.0 + 0.1 * rng.normal(size=10),  # supervised ten times lower
+        task=-1.0 + 0.1 * rng.normal(size=20),  # joint ten times lower on every seed
+        distal=np.array([1.0, -1.0] * 10),  # no difference on average
+        supervised=1.0 + 0.1 * rng.normal(size=20),  # supervised ten times lower
     )
     signs = {n: family.sign(n) for n in ("task", "distal", "supervised")}
     assert signs == {"task": -1, "distal": 0, "supervised": 1}
@@ -50,19 +48,41 @@ def test_verdicts_follow_the_rule_and_holm_corrects_for_the_pages_comparisons():
     assert claims.beats_verdict([signs["distal"]]) == "not resolved"
     assert claims.beats_verdict([signs["task"], signs["distal"]]) == "not resolved"
     assert claims.beats_verdict(list(signs.values())) == "does not reproduce"
-    row = family.table.loc["task"]
+    row = family.row("task")
+    assert row.p == 2 / 2**20  # every seed below 0: the exact test's smallest p
     assert family.text("task", "joint - task") == (
-        f"joint - task {row.point:+.2f} [{row.low:+.2f}, {row.high:+.2f}] "
-        f"({100 * row.confidence:.2f}% clear)"
+        f"joint - task {row['mean']:+.2f} [{row.low:+.2f}, {row.high:+.2f}] "
+        f"(p = {row.p:.1e}, Holm level {row.level:.1e}, clear)"
     )
-    assert row.confidence == pytest.approx(1 - 0.05 / 3)  # Holm: the smallest p of 3 (a tie)
-    # The same moderate difference: clear alone, not clear among 30 comparisons.
-    assert _family(m=MODERATE).sign("m") == -1
-    nulls = {f"null{k}": np.array([1.0, -1.0] * 5) + 0.01 * k for k in range(29)}
-    crowded = _family(m=MODERATE, **nulls)
-    assert crowded.sign("m") == 0
-    row = crowded.table.loc["m"]
-    assert row.low < 0 < row.high and row.confidence > 0.95
+    # 6 seeds below 0 and 14 at +-0.01: p = 2 x 2^14 / 2^20 ... clear alone, not among 40.
+    moderate = np.array([-0.5] * 6 + [0.01, -0.01] * 7)
+    assert _family(m=moderate).sign("m") == -1
+    nulls = {f"null{k}": np.array([1.0, -1.0] * 10) + 0.01 * k for k in range(39)}
+    crowded = _family(m=moderate, **nulls)
+    assert crowded.sign("m") == 0 and crowded.row("m").level == 0.05 / 40
+    assert crowded.row("m").low < 0 < crowded.row("m").high
+
+
+def test_similar_is_shown_by_an_interval_inside_the_margin_and_refuted_by_a_clear_difference():
+    assert claims.similar_verdict(True, 0.05, 0.4) == "does not reproduce"
+    assert claims.similar_verdict(False, -0.29, 0.29) == "reproduces"
+    assert claims.similar_verdict(False, -0.31, 0.1) == "not resolved"  # not shown either way
+    assert claims.similar_verdict(False, -np.inf, np.inf) == "not resolved"  # 5 seeds
+    # A small difference on every seed: clear, and shown to be within a factor of 2.
+    close = _family(c=0.01 * np.array([1.0, -1.0] * 10) + 0.02)
+    row = close.row("c")
+    assert row.clear and claims.similar_verdict(row.clear, row.low, row.high) == "reproduces"
+
+
+def test_the_same_runs_in_both_configurations_are_one_comparison():
+    family = claims.Family()
+    a, b = pd.Series([1.0, 2.0], index=[0, 1]), pd.Series([0.0, 0.0], index=[0, 1])
+    key = ("walk", "tracking_mse", "last", frozenset({"joint-1"}), frozenset({"task-1"}))
+    family.add("shared | joint - task", a, b, key)
+    family.add("own | joint - task", a + 5, b, key)  # same runs: the first is kept
+    family.add("own | joint - distal", a, b, key[:3] + (frozenset({"joint-1"}), frozenset()))
+    assert list(family.differences) == ["shared | joint - task", "own | joint - distal"]
+    assert family.ids["own | joint - task"] == "shared | joint - task"
 
 
 def _arm(mse: dict, failed=(), pd_only=1e-2, iterations=(0, 3)):
@@ -107,15 +127,15 @@ def test_headline_table_scores_runs_below_pd_only_with_failures_floored():
     )
 
 
-def test_success_counts_the_falls_of_the_last_iteration():
-    """Fig. 5's "only the joint loss succeeds": the joint loss never falls at the last
-    iteration, every other loss does once (its fall before that does not count)."""
-    others = [(n, 0, 0) for n in LOSSES[1:]]
-    arm = _arm(dict.fromkeys(LOSSES, 1e-3), failed=others)
-    verdict, text = claims.success_verdict(arm)
-    assert verdict == "reproduces" and text == "joint 0/4, task 1/4, distal 1/4, supervised 1/4"
-    arm = _arm(dict.fromkeys(LOSSES, 1e-3), failed=[*others, ("joint", 1, 1)])
-    assert claims.success_verdict(arm)[0] == "does not reproduce"
+def test_success_is_the_per_seed_fraction_of_failed_runs_at_the_last_iteration():
+    """Fig. 5's "only the joint loss succeeds" is decided on each seed's fraction of failed
+    runs at the last iteration (a fall before it does not count)."""
+    arm = _arm(dict.fromkeys(LOSSES, 1e-3), failed=[("task", 0, 0), ("task", 0, 1),
+                                                   ("distal", 1, 1), ("joint", 1, 0)])  # fmt: skip
+    failed = claims.per_seed(arm, "failed")
+    assert failed["task"].tolist() == [1.0, 0.0] and failed["distal"].tolist() == [0.0, 0.5]
+    assert failed["joint"].tolist() == [0.0, 0.5] and failed["supervised"].tolist() == [0.0, 0.0]
+    assert claims.failures_text(arm) == "joint 1/4, task 2/4, distal 1/4, supervised 0/4"
 
 
 def test_arms_take_the_comparisons_cells_and_the_robustness_default_until_then(tmp_path):
@@ -150,6 +170,20 @@ def test_arms_take_the_comparisons_cells_and_the_robustness_default_until_then(t
     own = claims.arms(str(tmp_path), robustness)["jump"]["own"]
     assert own.source == ("the comparison's own cells (joint: their search chose the shared "
                           "defaults, so these are the shared cell's runs)")  # fmt: skip
+    # A second block of seeds (seeds-20-29) joins the first; one with other baselines is
+    # refused.
+    second = arm.metrics.assign(seed=arm.metrics.seed + 20)
+    block = comparison.Cell("jump", "shared", LOSSES).block(comparison.BLOCKS[1])
+    record = comparison.record_dir(str(tmp_path), block)
+    os.makedirs(record)
+    second.to_csv(f"{record}/metrics.csv", index=False)
+    arm.baselines.to_csv(f"{record}/baselines.csv", index=False)
+    shared = claims.arms(str(tmp_path), robustness)["jump"]["shared"]
+    assert sorted(set(shared.metrics.seed)) == [0, 1, 20, 21] and shared.seeds == 4
+    arm.baselines.assign(tracking_mse=3e-2).to_csv(f"{record}/baselines.csv", index=False)
+    with pytest.raises(ValueError, match="jump/shared: a block of seeds has other baselines"):
+        claims.arms(str(tmp_path), robustness)
+    arm.baselines.to_csv(f"{record}/baselines.csv", index=False)
     # An own cell on other motions (another PD-only) cannot be compared: refused.
     arm.baselines.assign(tracking_mse=2e-2).to_csv(f"{folder}/baselines.csv", index=False)
     with pytest.raises(ValueError, match="jump: the own-supervised cell's PD-only differs"):
@@ -176,7 +210,178 @@ def test_committed_claims_page_is_its_records(tmp_path):
                        str(tmp_path / "claims.md"))  # fmt: skip
     with open(os.path.join(results, "claims.md")) as f:
         assert got == f.read()
+    with open(os.path.join(results, "claims_comparisons.csv")) as f:
+        assert (tmp_path / "claims_comparisons.csv").read_text() == f.read()
     assert (tmp_path / "claims_profiles.png").stat().st_size > 10_000
+    assert (tmp_path / "claims_forest.png").stat().st_size > 10_000
+
+
+def _page_verdicts(text: str) -> dict:
+    """The page's first table: claim (numbered when repeated) -> (shared, own) verdicts."""
+    verdicts = {}
+    for line in text.split("\n\n")[1].splitlines()[2:]:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        label = cells[0] if cells[0] not in verdicts else f"{cells[0]} #2"
+        verdicts[label] = (cells[1], cells[2])
+    return verdicts
+
+
+def test_no_verdict_moves_with_the_bootstraps_seed():
+    """The claims page with other bootstrap seeds: the effect sizes' intervals move, every
+    p-value, Holm level, decision, exact interval and verdict stays (issue 68)."""
+    results = os.path.join(ROOT, "docs", "results")
+    paths = (os.path.join(results, "comparison"), os.path.join(results, "robustness"),
+             os.path.join(results, "swap", "swap_metrics.csv"))  # fmt: skip
+    decided = []
+    for seed in (0, 1, 123):
+        _, family, found = claims.decide(*paths, seed=seed)
+        verdicts = [(c.label, claims.verdict(family, c, k)) for c in found for k in c.parts]
+        decided.append((family.table, verdicts))
+    columns = ["p", "level", "adjusted", "clear", "mean", "low", "high"]
+    for table, verdicts in decided[1:]:
+        pd.testing.assert_frame_equal(table[columns], decided[0][0][columns])
+        assert verdicts == decided[0][1]
+        assert not np.allclose(table.effect_low, decided[0][0].effect_low)
+
+
+# The comparisons' names -> (task, column, over) on the headline cells; written out here.
+_COLUMNS = {
+    "Fig. 3a": ("inverse_dynamics", "tracking_mse", "last"),
+    "Fig. 3a (during learning)": ("inverse_dynamics", "tracking_mse", "all"),
+    "Fig. 3b": ("opspace", "tracking_mse", "last"),
+    **{label.format(t): (t, column, over) for t in ("walk", "jump")
+       for label, column, over in (("Fig. 5 ({})", "tracking_mse", "last"),
+                                   ("Fig. 5 ({}, success)", "failed", "last"),
+                                   ("Table I ({})", "force_mse", "last"),
+                                   ("Fig. 4 ({}) prediction error", "prediction_error", "all"),
+                                   ("Fig. 4 ({}) predicted task error", "predicted_task_error",
+                                    "all"))},
+}  # fmt: skip
+
+
+def _plain_records(task: str, configuration: str, losses) -> pd.DataFrame:
+    """The comparison's records of ``task`` for ``losses`` in one configuration, every block
+    of seeds, read with plain pandas (the own configuration: each loss's own cell)."""
+    base = os.path.join(ROOT, "docs", "results", "comparison", "cells", task)
+    frames = []
+    for loss in losses:
+        cell = os.path.join(base, "shared" if configuration == "shared defaults" else f"own-{loss}")
+        for folder in [cell] + sorted(
+            os.path.join(cell, b) for b in os.listdir(cell) if b.startswith("seeds-")
+        ):
+            if os.path.isfile(os.path.join(folder, "metrics.csv")):  # a finished block
+                frame = pd.read_csv(os.path.join(folder, "metrics.csv"))
+                frames.append(frame[frame.loss == loss])
+    baselines = pd.read_csv(os.path.join(base, "shared", "baselines.csv"))
+    pd_only = baselines[baselines.baseline == "pd_only"].set_index("target").tracking_mse
+    return pd.concat(frames).assign(pd_only=lambda f: f.target.map(pd_only))
+
+
+def _plain_per_seed(frame: pd.DataFrame, column: str, over: str) -> pd.Series:
+    """Per seed the mean over motions (and iterations, ``over="all"``) of the log10 error,
+    a failed run (fell or diverged) at least 1000 x PD-only's; ``failed``: the fraction."""
+    if over == "last":
+        frame = frame[frame.iteration == frame.iteration.max()]
+    failed = (frame.get("fell", 0.0) == 1) | (frame.diverged == 1)
+    if column == "failed":
+        values = failed.astype(float)
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            values = np.log10(frame[column].astype(float))
+        if column == "tracking_mse":
+            floor = np.log10(1000 * frame.pd_only)
+            values = values.where(~failed, np.maximum(values.fillna(np.inf), floor))
+            values = values.where(np.isfinite(values) | ~failed, floor)
+        values = values.where(np.isfinite(values))
+    return values.groupby(frame.seed).mean().dropna()
+
+
+def _plain_p(d: np.ndarray) -> float:
+    """The exact sign-flip p-value: every one of the 2^n sign vectors written out (bits of
+    0 .. 2^n - 1), not cfm_jax.stats."""
+    n = len(d)
+    signs = 1 - 2 * ((np.arange(2**n)[:, None] >> np.arange(n)) & 1).astype(np.int8)
+    sums = np.abs(signs @ d)
+    return float(np.mean(sums >= abs(d.sum()) - 1e-9 * np.abs(d).sum()))
+
+
+def test_every_verdict_recomputed_with_a_plain_exact_test_from_the_records():
+    """Independently of cfm_jax.stats and of claims.py's arithmetic: each comparison's
+    per-seed differences recomputed from the records with plain pandas (those of the
+    comparison cells; the swap's from its metrics), its p-value by enumerating every sign
+    vector, Holm's procedure as a plain loop, each verdict by the rule written out here; all
+    equal to the committed page and its claims_comparisons.csv (issue 68)."""
+    results = os.path.join(ROOT, "docs", "results")
+    table = pd.read_csv(os.path.join(results, "claims_comparisons.csv"))
+    swap = pd.read_csv(os.path.join(results, "swap", "swap_metrics.csv"))
+    differences = {}
+    for _, row in table.iterrows():
+        claim, configuration, *pair = (part.strip() for part in row.comparison.split(" | "))
+        if claim == "Fig. 3c":
+            last = swap[swap.iteration == swap.iteration.max()]
+            seeds = np.log10(last.tracking_mse).groupby([last.data, last.loss, last.seed]).mean()
+            if configuration.startswith("retrained with"):
+                loss = configuration.split()[-1]
+                d = seeds["joint"][loss] - seeds["task"][loss]
+            else:
+                data = configuration.split()[2].split("-")[0]
+                d = seeds[data]["joint"] - seeds[data]["task"]
+        else:
+            task, column, over = _COLUMNS[claim]
+            a, b = pair[0].split(" - ")
+            values = {loss: _plain_per_seed(_plain_records(task, configuration, [loss]), column,
+                                            over) for loss in (a, b)}  # fmt: skip
+            d = (values[a] - values[b]).dropna()
+        assert row.seeds == " ".join(str(s) for s in d.index), row.comparison
+        np.testing.assert_allclose(np.array(row.differences.split(), float), d.to_numpy(),
+                                   rtol=1e-12, atol=1e-12, err_msg=row.comparison)  # fmt: skip
+        differences[row.comparison] = d.to_numpy()
+    p = {name: _plain_p(d) for name, d in differences.items()}
+    np.testing.assert_allclose(table.set_index("comparison").p[list(p)], list(p.values()),
+                               rtol=1e-12)  # fmt: skip
+    clear, going = {}, True
+    for rank, name in enumerate(sorted(p, key=lambda n: p[n])):
+        going = going and p[name] <= 0.05 / (len(p) - rank)
+        clear[name] = going
+    assert table.set_index("comparison").clear[list(clear)].tolist() == list(clear.values())
+    # The verdicts by the rule, claim by claim, from the names that share each comparison.
+    sign, mean = {}, dict(zip(table.comparison, table["mean"], strict=True))
+    for _, row in table.iterrows():
+        for name in row.names.split("; "):
+            sign[name] = int(np.sign(mean[row.comparison])) if clear[row.comparison] else 0
+    page = open(os.path.join(results, "claims.md")).read()
+    shown = _page_verdicts(page)
+
+    def beats(signs):
+        if 1 in signs:
+            return "does not reproduce"
+        return "reproduces" if signs and all(s == -1 for s in signs) else "not resolved"
+
+    for label in {name.split(" | ")[0] for name in sign}:
+        claim = label.replace(" prediction error", "").replace(" predicted task error", "")
+        if claim == "Fig. 3c" or claim.startswith("Fig. 4"):
+            continue  # parts: below
+        for k, configuration in enumerate(("shared defaults", "each at its best")):
+            signs = [s for n, s in sign.items() if n.startswith(f"{label} | {configuration}")]
+            assert shown[claim][k] == beats(signs), (claim, configuration)
+    for task in ("walk", "jump"):
+        for k, configuration in enumerate(("shared defaults", "each at its best")):
+            parts = [beats([sign[f"Fig. 4 ({task}) {what} | {configuration} | {pair}"]])
+                     for what, pair in (("prediction error", "joint - task"),
+                                        ("predicted task error", "task - joint"))]  # fmt: skip
+            expected = parts[0] if parts[0] == parts[1] else "mixed: " + ", ".join(parts)
+            assert shown[f"Fig. 4 ({task})"][k] == expected
+    parts = [beats([sign[f"Fig. 3c | retrained with {loss}"]]) for loss in ("task", "joint")]
+    expected = parts[0] if parts[0] == parts[1] else "mixed: " + ", ".join(parts)
+    assert shown["Fig. 3c"][0] == expected
+    similar = []
+    for data in ("task", "joint"):
+        row = table.set_index("comparison").loc[f"Fig. 3c | on the {data}-loss data"]
+        inside = -claims.MARGIN < row.low and row.high < claims.MARGIN
+        similar.append("reproduces" if inside else
+                       "does not reproduce" if clear[row.name] else "not resolved")  # fmt: skip
+    expected = similar[0] if similar[0] == similar[1] else "mixed: " + ", ".join(similar)
+    assert shown["Fig. 3c #2"][0] == expected
 
 
 def test_every_comparison_the_readme_quotes_is_on_the_claims_page():

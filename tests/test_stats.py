@@ -1,9 +1,13 @@
-"""cfm_jax.stats (issue 43): the few-run statistics against hand computations, closed forms
-and plain loops written here."""
+"""cfm_jax.stats (issues 43 and 68): the few-run statistics against hand computations, closed
+forms and plain loops written here (the exact test against every assignment of signs
+enumerated with itertools)."""
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
+import pandas as pd
 import pytest
 from scipy.stats import mannwhitneyu
 
@@ -84,18 +88,78 @@ def test_holm_on_a_hand_worked_example():
     np.testing.assert_allclose(frame.level, [0.05 / 3, 0.05, 0.05 / 2, 0.05 / 4])
 
 
-def test_paired_comparisons_decide_by_holm_and_show_its_intervals():
+def _plain_sign_flip(d) -> float:
+    """Every assignment of signs, one by one (itertools): the fraction whose |sum| reaches
+    the observed |sum| (a relative tolerance of 1e-9 for the sums' rounding)."""
+    observed = abs(sum(d))
+    tolerance = 1e-9 * sum(abs(v) for v in d)
+    hits = sum(abs(sum(s * v for s, v in zip(signs, d, strict=True))) >= observed - tolerance
+               for signs in itertools.product((1, -1), repeat=len(d)))  # fmt: skip
+    return hits / 2 ** len(d)
+
+
+def test_sign_flip_p_counts_every_assignment_of_signs_as_a_plain_loop_does():
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 5, 8, 11):
+        for _ in range(3):
+            d = rng.normal(rng.normal(), 1.0, size=n)
+            d[rng.random(n) < 0.2] = 0.0  # exact zeros: they flip to themselves
+            assert stats.sign_flip_p(d) == pytest.approx(_plain_sign_flip(d), abs=1e-15)
+    # All of one sign: only the two assignments that keep every sign together reach it.
+    for n in (4, 10, 20):
+        assert stats.sign_flip_p(np.linspace(0.1, 1.0, n)) == 2 / 2**n
+    assert stats.sign_flip_p(np.zeros(6)) == 1.0
+    assert stats.sign_flip_p([[1.0, 3.0], [2.0, 2.0]]) == stats.sign_flip_p([2.0, 2.0])
+
+
+def test_sign_flip_interval_inverts_the_test_and_is_unbounded_where_it_cannot_reject():
+    rng = np.random.default_rng(6)
+    for level in (0.05, 0.01, 0.002):
+        d = rng.normal(0.4, 1.0, size=12)
+        low, high = stats.sign_flip_interval(d, level)
+        assert low < d.mean() < high
+        step = 1e-6 * (high - low)
+        # Just inside each end the shifted differences are not rejected, just outside they are.
+        assert stats.sign_flip_p(d - (low + step)) > level >= stats.sign_flip_p(d - (low - step))
+        assert stats.sign_flip_p(d - (high - step)) > level >= stats.sign_flip_p(d - (high + step))
+        # 0 outside the interval exactly when the test rejects at that level.
+        assert (stats.sign_flip_p(d) <= level) == (not low <= 0 <= high)
+    # 10 seeds: 2 / 2^10 = 2.0e-3 > 1e-3, no shift can be rejected at 1e-3.
+    assert stats.sign_flip_interval(np.ones(10), 1e-3) == (-np.inf, np.inf)
+    # One seed of ten moved off 0: p = 1 at a shift of 0 (the interval's closed end), every
+    # positive shift makes all ten negative (p = 2 / 2^10 <= 0.01): the interval ends at 0.
+    low, high = stats.sign_flip_interval([0.0] * 9 + [-0.2], 0.01)
+    assert high == 0.0 and low < -0.02
+
+
+def test_paired_comparisons_decide_by_the_exact_test_and_holm_with_no_random_number():
     rng = np.random.default_rng(3)
     clear = -1.0 + 0.1 * rng.normal(size=10)  # every seed below 0
     unclear = np.array([1.0, -1.0] * 5) + 0.01 * rng.normal(size=10)  # centred on 0
-    frame = stats.paired_comparisons({"a - b": clear, "a - c": unclear}, reps=4000)
-    first, second = frame.iloc[0], frame.iloc[1]
-    assert first.clear and not second.clear
-    assert first.p == pytest.approx(2 / 4001)  # no resample at or above 0: (1 + 0) / (1 + reps)
-    # Two comparisons: the smaller p is tested at alpha / 2, the other at alpha.
-    assert first.confidence == pytest.approx(0.975) and second.confidence == pytest.approx(0.95)
-    assert first.high < 0 and second.low < 0 < second.high
-    assert first.point == pytest.approx(clear.mean())
+    moderate = np.array([-0.5, -0.4, -0.3, -0.2, 0.1, 0.05, -0.6, -0.35, -0.25, 0.1])
+    frame = stats.paired_comparisons({"a - b": clear, "a - c": unclear, "a - d": moderate})
+    p = [_plain_sign_flip(d) for d in (clear, unclear, moderate)]
+    np.testing.assert_allclose(frame.p, p, rtol=1e-12)
+    assert frame.p[0] == 2 / 2**10  # the smallest p 10 seeds can give
+    # Holm by hand: sorted p's against 0.05/3, 0.05/2, 0.05/1, stopping at the first miss.
+    order = np.argsort(p)
+    reject, going = [False] * 3, True
+    for rank, k in enumerate(order):
+        going = going and p[k] <= 0.05 / (3 - rank)
+        reject[k] = going
+    assert frame.clear.tolist() == reject == [True, False, True]
+    assert frame["mean"][0] == pytest.approx(clear.mean())
+    assert frame.high[0] < 0 and frame.low[1] < 0 < frame.high[1]
+    assert frame.reachable.all()
+    # The bootstrap's seed moves the effect size's interval, never the decision.
+    other = stats.paired_comparisons({"a - b": clear, "a - c": unclear, "a - d": moderate},
+                                     seed=7)  # fmt: skip
+    decision = ["p", "level", "clear", "low", "high", "mean"]
+    pd.testing.assert_frame_equal(other[decision], frame[decision])
+    assert not np.allclose(other.effect_low, frame.effect_low)
+    # 54 comparisons of 10 seeds: Holm's first level 0.05 / 54 is below 2 / 2^10: unreachable.
+    many = stats.paired_comparisons({f"c{k}": clear for k in range(54)})
+    assert not many.clear.any() and not many.reachable[many.level.idxmin()]
 
 
 @pytest.mark.parametrize(
@@ -109,6 +173,9 @@ def test_paired_comparisons_decide_by_holm_and_show_its_intervals():
         (lambda: stats.holm([0.5, 1.5]), r"p_values: a list of numbers in \[0, 1\]"),
         (lambda: stats.probability_of_improvement([[1.0], [2.0]], [[1.0], [2.0], [3.0]]),
          r"x and y: the same runs and tasks"),
+        (lambda: stats.sign_flip_p([1.0, np.inf]), r"differences: a finite array"),
+        (lambda: stats.sign_flip_p(np.ones(45)), r"45 runs; the exact test enumerates at most 44"),
+        (lambda: stats.sign_flip_interval([1.0, 2.0], 5.0), r"level=5.0: between 0 and 1"),
     ],
 )  # fmt: skip
 def test_bad_input_names_the_argument(call, message):
