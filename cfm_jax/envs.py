@@ -4,9 +4,22 @@
 same robot, references, control period, torque limits, start state, MuJoCo C physics
 (:class:`cfm_jax.native.Stepper`) and tracking error as the ``native`` simulator. An episode
 is one reference. The observation is the controller's input ``(s_t, s*_t)`` scaled by the
-robot's own scales (:func:`cfm_jax.tasks.scales.robot_scales`), float32; the action ``a`` in
-``[-1, 1]`` is the torque ``a * tau_max``; the reward is minus the mean square of the next
-state's tracking error (an episode's mean ``-reward`` is :func:`cfm_jax.rollout.tracking_mse`).
+robot's own scales (:func:`cfm_jax.tasks.scales.robot_scales`), float32. The action ``a`` in
+``[-1, 1]`` becomes a torque by one of :data:`ACTIONS`:
+
+* ``limit``: ``a * tau_max``;
+* ``scale``: through the torque scale cfm_jax's controller acts through
+  (:func:`cfm_jax.algorithm.torque_scale` of ``config.loop.torque_scale``, the coupled scale
+  ``T`` built from the mass matrix for the arms), the controller's own squashing
+  :meth:`cfm_jax.networks.Normaliser.torque_output` of ``u = reach * a``, ``reach`` (
+  :func:`action_reach`) the output at which every joint gets to ``tanh(2)`` (96%) of its
+  limit;
+* ``residual``: the task's PD feedback torque (the PD-only baseline's,
+  :meth:`cfm_jax.tasks.JointSpaceTask.feedback`) plus the ``scale`` torque of ``a``, clipped
+  to the limits as :func:`cfm_jax.rollout.run` clips: ``a = 0`` is PD-only.
+
+The reward is minus the mean square of the next state's tracking error times
+``reward_scale`` (with 1, an episode's mean ``-reward`` is :func:`cfm_jax.rollout.tracking_mse`).
 Episodes are truncated after the reference's steps and terminated when the simulation
 diverges (``info["diverged"]``, with the reward of the last good state).
 
@@ -29,6 +42,29 @@ from cfm_jax.tasks import scales
 
 REFERENCES = ("training", "test")
 """Values of :class:`TrackingEnv`'s ``references``."""
+ACTIONS = ("limit", "scale", "residual")
+"""Values of :class:`TrackingEnv`'s ``action`` (see the module)."""
+REACH = 2.0
+"""``u = REACH x limit_j / T_jj`` drives joint ``j`` alone to ``tanh(REACH)`` of its limit."""
+
+
+def action_reach(torque_limit, torque_scale) -> float:
+    """The controller output ``u`` of the action ``a = 1`` (``scale``/``residual`` actions):
+    ``REACH x max_j limit_j / T_jj``, so that every joint can get to ``tanh(REACH)`` (96%) of
+    its limit through :meth:`cfm_jax.networks.Normaliser.torque_output` while a unit action
+    still means alike accelerations on every joint. ``torque_scale``: ``(n,)``, ``(n, n)`` or
+    None (the limits: ``REACH``).
+
+    Examples:
+      >>> action_reach(np.array([10.0, 4.0]), np.array([5.0, 4.0]))
+      4.0
+    """
+    limit = np.asarray(torque_limit, np.float64)
+    if torque_scale is None:
+        return REACH
+    scale = np.asarray(torque_scale, np.float64)
+    diagonal = np.diag(scale) if scale.ndim == 2 else scale
+    return float(REACH * np.max(limit / diagonal))
 
 
 class TrackingEnv(gymnasium.Env):
@@ -42,6 +78,9 @@ class TrackingEnv(gymnasium.Env):
         the test references; or ``test``, the task's test references in turn (evaluation).
       experiment: an :class:`cfm_jax.experiment.Experiment` of ``config`` to take the robot
         and task from (saves building them again), or None.
+      action: one of :data:`ACTIONS` (see the module): ``limit``, ``scale`` or ``residual``.
+      reward_scale: a positive factor of the reward (the peers: ``1 / PD-only's MSE``, so that
+        PD-only's reward is about -1 a step).
 
     Attributes:
       task: the library's task object.
@@ -49,7 +88,8 @@ class TrackingEnv(gymnasium.Env):
       control_dt: the control period (s); an episode is ``task.steps`` of them.
 
     Raises:
-      ConfigError: a legged task, the ``mjx`` simulator, or an unknown ``references``.
+      ConfigError: a legged task, the ``mjx`` simulator, an unknown ``references`` or
+        ``action``, or a ``reward_scale`` that is not a positive number.
 
     Examples:
       >>> import numpy as np
@@ -66,11 +106,23 @@ class TrackingEnv(gymnasium.Env):
 
     metadata = {"render_modes": []}
 
-    def __init__(self, config: config_lib.Config, references: str = "training", experiment=None):
+    def __init__(
+        self,
+        config: config_lib.Config,
+        references: str = "training",
+        experiment=None,
+        action: str = "limit",
+        reward_scale: float = 1.0,
+    ):
+        from cfm_jax import algorithm
         from cfm_jax.experiment import Experiment
 
         if references not in REFERENCES:
             config_lib.fail("references", references, f"one of {REFERENCES}")
+        if action not in ACTIONS:
+            config_lib.fail("action", action, f"one of {ACTIONS}")
+        if not (isinstance(reward_scale, (int, float)) and 0 < reward_scale < np.inf):
+            config_lib.fail("reward_scale", reward_scale, "a finite number > 0")
         if config.simulator != "native":
             config_lib.fail(
                 "simulator",
@@ -91,6 +143,12 @@ class TrackingEnv(gymnasium.Env):
         self._stepper = native.Stepper(robot.mj_model, rollout.substeps(robot, self.control_dt))
         self._limit = np.asarray(robot.torque_limit, np.float32)
         self._fns = _compiled(task, robot)
+        self.action = action
+        self.reward_scale = float(reward_scale)
+        self.torque_scale = algorithm.torque_scale(config, robot)
+        self.reach = action_reach(robot.torque_limit, self.torque_scale)
+        if action != "limit":
+            self._torque = _action_torque(task, robot, self.torque_scale, self.reach, action)
         size = task.state_dim + task.desired_dim
         self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (size,), np.float32)
         self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (task.action_dim,), np.float32)
@@ -139,7 +197,7 @@ class TrackingEnv(gymnasium.Env):
         return self._observation(), info
 
     def step(self, action):
-        """One control period with the torque ``action * tau_max`` held.
+        """One control period with the torque of ``action`` (see the module) held.
 
         Args:
           action: ``(action_dim,)`` in ``[-1, 1]`` (clipped).
@@ -150,8 +208,12 @@ class TrackingEnv(gymnasium.Env):
         """
         if self._reference is None:
             raise RuntimeError("TrackingEnv.step before reset")
-        tau = np.clip(np.asarray(action, np.float32), -1.0, 1.0) * self._limit
-        ctrl = self._fns.ctrl(tau)
+        action = np.clip(np.asarray(action, np.float32), -1.0, 1.0)
+        if self.action == "limit":
+            ctrl = self._fns.ctrl(action * self._limit)
+        else:
+            ref_t = jax.tree.map(lambda x: x[self._t], self._reference)
+            ctrl = self._torque.ctrl(action, ref_t, self._qpos, self._qvel, self._feat)
         qpos, qvel, sensors = self._stepper(
             np.asarray(self._qpos, np.float32),
             np.asarray(self._qvel, np.float32),
@@ -166,7 +228,7 @@ class TrackingEnv(gymnasium.Env):
         else:
             features, error, observation = self._fns.after(ref_next, qpos, qvel, sensors)
             error = np.asarray(error)
-        reward = -float(np.mean(np.square(error, dtype=np.float64)))
+        reward = -self.reward_scale * float(np.mean(np.square(error, dtype=np.float64)))
         self._qpos, self._qvel, self._feat = qpos, qvel, features
         self._t += 1
         truncated = self._t >= self.task.steps and not diverged
@@ -218,4 +280,47 @@ def _compiled(task, robot) -> _Compiled:
         error=jax.jit(task.tracking_error),
         start=jax.jit(task.start),
         training=jax.jit(lambda key: task.babbling_reference("reaching", key)),
+    )
+
+
+class _ActionTorque(NamedTuple):
+    """``torque(a, ref_t, q, qd, f)``: the torque of a ``scale``/``residual`` action (clipped to
+    the limits); ``ctrl``: the same as the actuators' controls."""
+
+    torque: Any
+    ctrl: Any
+
+
+def _action_torque(task, robot, torque_scale, reach: float, action: str) -> _ActionTorque:
+    """The compiled torque of ``action`` (``scale`` or ``residual``): the controller's squashing
+    of the library (:meth:`cfm_jax.networks.Normaliser.torque_output`) with ``torque_scale``,
+    plus the task's PD feedback for ``residual``."""
+    from cfm_jax import rollout as rollout_lib
+
+    normaliser = networks.Normaliser.identity(
+        task.state_dim,
+        task.output_dim,
+        robot.torque_limit,
+        task.desired_index,
+        torque_scale=torque_scale,
+    )
+    limit = jnp.asarray(robot.torque_limit, jnp.float32)
+
+    def torque(a, ref_t, q, qd, f):
+        tau = normaliser.torque_output(jnp.float32(reach) * a)
+        if action == "residual":
+            step = rollout_lib.Step(
+                t=jnp.int32(0),
+                qpos=q,
+                qvel=qd,
+                features=f,
+                state=task.state(q, qd, f),
+                desired=task.desired(ref_t, q, qd, f),
+                reference=ref_t,
+            )
+            tau = tau + task.feedback(step)
+        return jnp.clip(tau, -limit, limit)
+
+    return _ActionTorque(
+        torque=jax.jit(torque), ctrl=jax.jit(lambda *a: robot.torque_to_ctrl(torque(*a)))
     )

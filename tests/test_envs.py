@@ -119,6 +119,10 @@ def test_refused_configs_name_the_field(change, field):
         envs.TrackingEnv(CONFIG.replace(**change))
     with pytest.raises(config_lib.ConfigError, match="references='eval'"):
         envs.TrackingEnv(CONFIG, references="eval")
+    with pytest.raises(config_lib.ConfigError, match="action='torque'.*'residual'"):
+        envs.TrackingEnv(CONFIG, action="torque")
+    with pytest.raises(config_lib.ConfigError, match="reward_scale=0.0.*> 0"):
+        envs.TrackingEnv(CONFIG, reward_scale=0.0)
 
 
 def test_environments_of_one_experiment_share_compilation_not_state(experiment):
@@ -137,3 +141,77 @@ def test_environments_of_one_experiment_share_compilation_not_state(experiment):
         second.step(-a)
         got.append(first.step(a)[0])
     np.testing.assert_array_equal(np.stack(got), np.stack(expected))
+
+
+def _mass_diagonal_by_hand(robot, qpos):
+    """diag M(q) from MuJoCo C's full mass matrix."""
+    import mujoco
+
+    data = mujoco.MjData(robot.mj_model)
+    data.qpos[:] = qpos
+    mujoco.mj_forward(robot.mj_model, data)
+    full = np.zeros((robot.mj_model.nv, robot.mj_model.nv))
+    mujoco.mj_fullM(robot.mj_model, data, full)
+    return np.diag(full)
+
+
+def test_residual_action_at_zero_is_the_task_pd_and_scores_pd_only(experiment):
+    # The residual on PD at zero action: the PD-only baseline's torque, K_p (q_ref - q) +
+    # K_d (qd_ref - qd), K = (kp, kd) diag M(start pose) from the config's gains (100, 20 by
+    # default) and MuJoCo's mass matrix; its episodes score the library's PD-only rollout.
+    env = envs.TrackingEnv(CONFIG, references="test", experiment=experiment, action="residual")
+    task, robot = experiment.task, experiment.robot
+    inertia = _mass_diagonal_by_hand(robot, np.asarray(task.reference.q[0, 0]))
+    kp, kd = 100.0, 20.0
+    assert (float(task.kp), float(task.kd)) == (kp, kd)
+    zero = np.zeros(task.action_dim, np.float32)
+    mses = []
+    for k in range(task.targets):
+        env.reset(options={"target": k})
+        errors = []
+        for t in range(task.steps):
+            q, qd = np.asarray(env._qpos, np.float64), np.asarray(env._qvel, np.float64)
+            ref_q, ref_qd = np.asarray(task.reference.q[k, t]), np.asarray(task.reference.qd[k, t])
+            pd = kp * inertia * (ref_q - q) + kd * inertia * (ref_qd - qd)
+            pd = np.clip(pd, -robot.torque_limit, robot.torque_limit)
+            ref_t = jax.tree.map(lambda x, k=k, t=t: np.asarray(x)[k, t], task.reference)
+            got = np.asarray(env._torque.torque(zero, ref_t, env._qpos, env._qvel, env._feat))
+            np.testing.assert_allclose(got, pd, rtol=1e-4, atol=1e-4)
+            _, reward, _, _, info = env.step(zero)
+            errors.append(np.mean(np.square(info["tracking_error"], dtype=np.float64)))
+        mses.append(np.mean(errors))
+    # The library's own rollout of the PD-only policy (the baseline's).
+    out = jax.jit(lambda: rollout.run(task, lambda step, key: task.feedback(step),
+                                      jax.random.key(0)))()  # fmt: skip
+    np.testing.assert_allclose(mses, np.asarray(rollout.tracking_mse(out)), rtol=1e-5)
+
+
+def test_scale_action_is_the_controller_squashing_through_the_coupled_scale(experiment):
+    # tau = limit tanh(T (reach a) / limit), T the robot's coupled torque scale at the task's
+    # feedback frequency (sqrt(kp) = 10 rad/s), computed here from the robot's method; the
+    # step applies that torque (the "limit" environment given tau / limit moves alike).
+    scaled = envs.TrackingEnv(CONFIG, references="test", experiment=experiment, action="scale",
+                              reward_scale=3.0)  # fmt: skip
+    plain = envs.TrackingEnv(CONFIG, references="test", experiment=experiment)
+    robot, task = experiment.robot, experiment.task
+    limit = np.asarray(robot.torque_limit, np.float64)
+    coupled = robot.coupled_torque_scale(10.0)
+    reach = 2.0 * np.max(limit / np.diag(coupled))
+    assert scaled.reach == pytest.approx(reach)
+    scaled.reset(options={"target": 1})
+    plain.reset(options={"target": 1})
+    for a in np.random.default_rng(2).uniform(-1, 1, (5, task.action_dim)).astype(np.float32):
+        tau = limit * np.tanh(coupled @ (reach * a) / limit)
+        ref_t = jax.tree.map(lambda x: np.asarray(x)[1, scaled._t], task.reference)
+        got = scaled._torque.torque(a, ref_t, scaled._qpos, scaled._qvel, scaled._feat)
+        np.testing.assert_allclose(np.asarray(got), tau, rtol=1e-5, atol=1e-5)
+        obs, reward, *_ = scaled.step(a)
+        obs_plain, reward_plain, *_ = plain.step((tau / limit).astype(np.float32))
+        np.testing.assert_allclose(obs, obs_plain, rtol=1e-4, atol=1e-5)
+        assert reward == pytest.approx(3.0 * reward_plain, rel=1e-4)  # the reward scale
+    # a = +-1 on one joint alone drives it to at least tanh(2) of its limit.
+    for j in range(task.action_dim):
+        unit = np.eye(task.action_dim, dtype=np.float32)[j]
+        got = np.asarray(scaled._torque.torque(unit, ref_t, scaled._qpos, scaled._qvel,
+                                               scaled._feat))  # fmt: skip
+        assert got[j] >= np.tanh(2.0) * limit[j] * (1 - 1e-6)
