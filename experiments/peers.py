@@ -1,5 +1,5 @@
 """Robot-seconds to a working controller: cfm_jax's four losses against SAC and PPO on the
-same tracking task, one command (issue 42).
+same tracking task, one command (issues 42 and 68).
 
 Not a test: a study. It runs
 
@@ -9,39 +9,43 @@ Not a test: a study. It runs
   controller of iteration ``i`` was fitted on the babbling and ``i`` iterations' rollouts:
   ``babbling_rollouts x targets x duration + i x targets x duration`` robot-seconds
   (20 + 10 i s on the quickstart);
-* **the peers**, SAC and PPO of Stable-Baselines3 (PyTorch, CPU; SB3's own defaults for
-  continuous control, :data:`HYPERPARAMETERS`), on :class:`cfm_jax.envs.TrackingEnv` of the
-  very config the cfm_jax run recorded: the same robot, control period, torque limits, start
-  state and references. Their episodes follow the task's references in turn, the references
+* **the peers**, SAC and PPO of Stable-Baselines3 (PyTorch, CPU), each in two variants
+  (:data:`PEERS`, :data:`ACTION`): acting through the torque scale cfm_jax's controller acts
+  through (``sac``, ``ppo``), and as a residual on the task's PD feedback (``sac_residual``,
+  ``ppo_residual``: zero action is PD-only, what a roboticist would run on a real arm); on
+  :class:`cfm_jax.envs.TrackingEnv` of the very config the cfm_jax run recorded: the same
+  robot, control period, torque limits, start state and references. Observations and
+  rewards are normalised by SB3's ``VecNormalize`` (saved with the model; frozen when
+  evaluating), the reward scaled to order 1 first (:func:`reward_scale`: 1 / PD-only's MSE on
+  the selection motions). Their episodes follow the task's references in turn, the references
   every iteration of Algorithm 1 rolls out on (the babbling knows none of them; neither
-  method sees the reference controller). Every peer is evaluated at fixed robot-second
-  checkpoints (``--checkpoints``; robot-seconds = environment steps x control period) with
+  method sees the reference controller). Every peer is evaluated every ``--every``
+  robot-seconds (100 by default; robot-seconds = environment steps x control period) with
   its deterministic policy on each test reference; evaluation episodes are not learning
   data. The tracking MSE is the library's metric (``tests/test_envs.py``);
 
 then writes ``--page`` (``docs/results/peers.md``): a log-log figure of test tracking MSE
 against robot-seconds (mean over seeds and its 95% bootstrap band; PD-only and oracle as
-lines) and a table per method: robot-seconds to PD-only's MSE and to 10x below it (median
-over the seeds that reach it, and how many do), the MSE at cfm_jax's budget and at the
+lines) and a table per method: robot-seconds to PD-only's MSE (the median of the seeds' first
+crossings, and each seed's) and to 10x below it, the MSE at cfm_jax's budget and at the
 peers' largest, and the wall-clock time. A seed's MSE at a checkpoint is its mean over the
 test references; a rollout that diverged makes that checkpoint a failure for the seed.
 
 Resumable: a finished cfm_jax loss or peer seed is read, not run again; an interrupted
 cfm_jax loss resumes from its checkpoints; an interrupted peer resumes from its last
-robot-second checkpoint (its model, optimiser and replay buffer as SB3 saves them; a resumed
-peer is not bit-identical to an uninterrupted one: SB3 does not save its random state).
-``--records`` (the page's data, committed) is rewritten after every finished piece.
+robot-second checkpoint (its model, normalisation, optimiser and replay buffer as SB3 saves
+them; a resumed peer is not bit-identical to an uninterrupted one: SB3 does not save its
+random state). ``--records`` (the page's data, committed) is rewritten after every piece.
 
-The peers' hyperparameters: SB3's defaults for continuous control, changed where a small
-selection says so (:data:`SELECTION_GRID`, :data:`SELECTION_RULE`): each candidate runs
-``--select-seeds`` seeds for ``--select-budget`` robot-seconds on the *selection motions*
-(five reaches to other targets, never a test motion), the same rule for both peers; the
-choice and every candidate's score go to ``--selection`` (committed) and are reused while the
-grid, seeds and budget stay the same.
+The peers' hyperparameters: each peer's choice of its search (``experiments/peers_search.py``,
+on the selection motions, by a rule committed before its first trial; ``--hyper``), SB3's
+defaults for a peer whose search is not complete. ``--peer-budgets`` gives a peer its own
+budget (PPO is cheap: run it until its curve is flat).
 
 Usage:
-  python experiments/peers.py [--seeds 5] [--methods joint,task,distal,supervised,sac,ppo]
-      [--budget 2000] [--out results/peers] [--page docs/results/peers.md]
+  python experiments/peers.py [--seeds 5] [--methods joint,...,sac,sac_residual,ppo,...]
+      [--budget 2000] [--peer-budgets ppo=20000,ppo_residual=20000] [--every 100]
+      [--out results/peers] [--page docs/results/peers.md] [--hyper FILE]
       [--records docs/results/peers_records.csv] [--train-flags "..."] [--jobs 2]
       [--page-only]
 """
@@ -64,31 +68,54 @@ import pandas as pd
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LOSSES = ("joint", "task", "distal", "supervised")
-PEERS = ("sac", "ppo")
+PEERS = ("sac", "sac_residual", "ppo", "ppo_residual")
+"""The peers: SB3's SAC and PPO, each in two variants (:data:`ACTION`)."""
 METHODS = LOSSES + PEERS
-HYPERPARAMETERS = {"sac": {}, "ppo": {}}
+ACTION = {"sac": "scale", "sac_residual": "residual", "ppo": "scale", "ppo_residual": "residual"}
+"""Each peer's action (:data:`cfm_jax.envs.ACTIONS`): ``scale``, the torque through the torque
+scale cfm_jax's controller acts through; ``residual``, that torque added to the task's PD
+feedback (the PD-only baseline at zero action)."""
+HYPERPARAMETERS = {peer: {} for peer in PEERS}
 """Arguments given to SB3's ``SAC`` / ``PPO`` beyond ``"MlpPolicy"``, the environment and
-the seed: none, SB3's own defaults for continuous control (SAC: learning rate 3e-4, batch 256,
-buffer 1e6, automatic entropy with target ``-action_dim``; PPO: learning rate 3e-4, 2048 steps
-per update, 10 epochs of batches of 64)."""
+the seed where no tuning record is given: none, SB3's own defaults for continuous control
+(SAC: learning rate 3e-4, batch 256, buffer 1e6, automatic entropy with target
+``-action_dim``; PPO: learning rate 3e-4, 2048 steps per update, 10 epochs of batches of 64).
+The tuned ones: ``experiments/peers_search.py``."""
 COLUMNS = ["method", "seed", "robot_s", "target", "tracking_mse", "diverged", "wall_s"]
 """The records: one row per method, seed, robot-second checkpoint and test reference;
 ``wall_s`` the method's wall-clock seconds (this seed) up to that checkpoint (cfm_jax: the
 whole run of the loss, all seeds, on every row)."""
+EVERY = 100.0
+"""Robot-seconds between the peers' evaluations (``--every``)."""
 
 
-def default_checkpoints(budget: float) -> list[float]:
-    """Robot-second checkpoints: 1, 2, 5 times powers of ten from 10 s up to ``budget``.
+def algorithm_of(method: str) -> str:
+    """``sac`` or ``ppo``: the SB3 algorithm of a peer (:data:`PEERS`).
 
     Examples:
-      >>> default_checkpoints(2000)
-      [10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 2000.0]
+      >>> algorithm_of("ppo_residual")
+      'ppo'
     """
-    points, scale = [], 10.0
-    while scale <= budget:
-        points += [x * scale for x in (1, 2, 5) if x * scale <= budget]
-        scale *= 10
-    return points
+    if method not in PEERS:
+        raise ValueError(f"method={method!r}: not a peer; one of {PEERS}")
+    return method.split("_")[0]
+
+
+def default_checkpoints(budget: float, every: float = EVERY) -> list[float]:
+    """Robot-second checkpoints on a linear grid: every ``every`` s up to ``budget`` (and
+    ``budget`` itself where the grid misses it), fine enough that robot-seconds to a level are
+    not set by the grid.
+
+    Examples:
+      >>> default_checkpoints(450)
+      [100.0, 200.0, 300.0, 400.0, 450.0]
+    """
+    if not (every > 0 and budget > 0):
+        raise ValueError(f"every={every!r}, budget={budget!r}: both must be > 0 (robot-seconds)")
+    points = [every * k for k in range(1, int(np.floor(budget / every + 1e-9)) + 1)]
+    if not points or points[-1] < budget - 1e-9:
+        points.append(float(budget))
+    return [float(p) for p in points]
 
 
 # ----- cfm_jax --------------------------------------------------------------------------
@@ -148,17 +175,20 @@ def cfm_records(loss: str, out: str) -> pd.DataFrame:
 # ----- the peers ------------------------------------------------------------------------
 
 
-def evaluate(model, env) -> list[tuple[int, float, int]]:
+def evaluate(model, env, normalise=None) -> list[tuple[int, float, int]]:
     """``(target, tracking MSE, diverged)`` of the deterministic policy on each test
     reference of ``env`` (a ``references="test"`` :class:`cfm_jax.envs.TrackingEnv`): the
     mean over the episode's steps of the squared tracking error (the library's metric);
-    NaN for an episode that diverged."""
+    NaN for an episode that diverged. ``normalise``: the observation normalisation the
+    policy learned with, frozen (SB3's ``VecNormalize.normalize_obs``, which updates no
+    statistic), or None."""
     rows = []
     for k in range(env.task.targets):
         obs, _ = env.reset(options={"target": k})
         errors, diverged = [], False
         while True:
-            action, _ = model.predict(obs, deterministic=True)
+            shown = obs if normalise is None else normalise(obs)
+            action, _ = model.predict(shown, deterministic=True)
             obs, _, terminated, truncated, info = env.step(action)
             errors.append(np.mean(np.square(info["tracking_error"], dtype=np.float64)))
             if terminated or truncated:
@@ -168,16 +198,48 @@ def evaluate(model, env) -> list[tuple[int, float, int]]:
     return rows
 
 
+def pd_only_mse(config, experiment=None) -> float:
+    """PD-only's tracking MSE on ``config``'s references (the mean over them): the ``residual``
+    environment at zero action, which is the task's PD feedback alone."""
+    from cfm_jax import envs
+
+    env = envs.TrackingEnv(config, references="test", experiment=experiment, action="residual")
+    zero = np.zeros(env.action_space.shape, np.float32)
+    return float(np.nanmean([mse for _, mse, _ in evaluate(_Constant(zero), env)]))
+
+
+class _Constant:
+    """A policy of one action (SB3's ``predict`` interface)."""
+
+    def __init__(self, action):
+        self.action = action
+
+    def predict(self, obs, deterministic=True):
+        return self.action, None
+
+
+def reward_scale(config) -> float:
+    """The peers' reward factor: ``1 / PD-only's tracking MSE on the selection motions``
+    (:func:`selection_config`), so that PD-only's reward is -1 a step on average on motions
+    that are not the test ones, whatever the robot and its units; the same factor in the
+    tuning and the study."""
+    return 1.0 / pd_only_mse(selection_config(config))
+
+
 def run_peer(
     method: str, seed: int, config, out: str, checkpoints: list[float], hyper: dict | None = None
 ) -> None:
-    """Train ``method`` (SAC or PPO) with ``seed`` up to the last checkpoint, evaluating at
+    """Train ``method`` (:data:`PEERS`) with ``seed`` up to the last checkpoint, evaluating at
     each; ``OUT/records.csv`` gains the rows of each checkpoint as it is reached, and the
-    model (and SAC's replay buffer) is saved there, so an interruption loses at most the
-    piece since the last checkpoint. ``hyper``: arguments for SB3's constructor (None:
+    model, its observation and reward normalisation (SB3's ``VecNormalize``) and SAC's replay
+    buffer are saved there, so an interruption loses at most the piece since the last
+    checkpoint. The environment: :class:`cfm_jax.envs.TrackingEnv` with the peer's
+    :data:`ACTION` and the reward scaled by :func:`reward_scale`; evaluation with the
+    normalisation's statistics frozen. ``hyper``: arguments for SB3's constructor (None:
     :data:`HYPERPARAMETERS`); a resumed run must have the ones it began with."""
     import stable_baselines3
     import torch
+    from stable_baselines3.common import vec_env
 
     from cfm_jax import envs
     from cfm_jax.experiment import Experiment
@@ -186,13 +248,12 @@ def run_peer(
     hyper = dict(HYPERPARAMETERS[method] if hyper is None else hyper)
     os.makedirs(out, exist_ok=True)
     experiment = Experiment(config)
-    env = envs.TrackingEnv(config, references="test", experiment=experiment)
-    probe = envs.TrackingEnv(config, references="test", experiment=experiment)
-    algorithm = {"sac": stable_baselines3.SAC, "ppo": stable_baselines3.PPO}[method]
     records = os.path.join(out, "records.csv")
     state_path = os.path.join(out, "state.json")
     model_path = os.path.join(out, "model.zip")
     buffer_path = os.path.join(out, "buffer.pkl")
+    normaliser_path = os.path.join(out, "vecnormalize.pkl")
+    algorithm = {"sac": stable_baselines3.SAC, "ppo": stable_baselines3.PPO}[algorithm_of(method)]
     if os.path.exists(state_path):
         with open(state_path) as f:
             state = json.load(f)
@@ -201,13 +262,24 @@ def run_peer(
                 f"peers: {out} began with hyperparameters {state.get('hyper', {})}, not "
                 f"{hyper}: give another --out, or remove the folder to start again"
             )
-        model = algorithm.load(model_path, env=env, device="cpu")
-        if method == "sac":
+        scale = state["reward_scale"]
+    else:
+        scale = reward_scale(config)
+        state = {"wall_s": 0.0, "done": [], "hyper": hyper, "reward_scale": scale}
+    env = envs.TrackingEnv(config, references="test", experiment=experiment,
+                           action=ACTION[method], reward_scale=scale)  # fmt: skip
+    probe = envs.TrackingEnv(config, references="test", experiment=experiment,
+                             action=ACTION[method])  # fmt: skip
+    arguments = _arguments(hyper, env)
+    if os.path.exists(model_path):
+        venv = vec_env.VecNormalize.load(normaliser_path, vec_env.DummyVecEnv([lambda: env]))
+        model = algorithm.load(model_path, env=venv, device="cpu")
+        if algorithm_of(method) == "sac":
             model.load_replay_buffer(buffer_path)
     else:
-        state = {"wall_s": 0.0, "done": [], "hyper": hyper}
-        model = algorithm("MlpPolicy", env, seed=seed, device="cpu", verbose=0,
-                          **_arguments(hyper, env))  # fmt: skip
+        venv = vec_env.VecNormalize(vec_env.DummyVecEnv([lambda: env]),
+                                    gamma=arguments.get("gamma", 0.99))  # fmt: skip
+        model = algorithm("MlpPolicy", venv, seed=seed, device="cpu", verbose=0, **arguments)
         pd.DataFrame(columns=COLUMNS).to_csv(records, index=False)
     dt = env.control_dt
     for point in checkpoints:
@@ -219,18 +291,19 @@ def run_peer(
             model.learn(remaining, reset_num_timesteps=False)
         state["wall_s"] += time.perf_counter() - start
         if model.num_timesteps == state.get("evaluated"):
-            # PPO learns in whole rollouts (2048 steps): it may pass several checkpoints in
+            # PPO learns in whole rollouts (n_steps): it may pass several checkpoints in
             # one; a model is evaluated once.
             state["done"].append(point)
             continue
         state["evaluated"] = model.num_timesteps
         rows = [
             (method, seed, model.num_timesteps * dt, k, mse, diverged, state["wall_s"])
-            for k, mse, diverged in evaluate(model, probe)
+            for k, mse, diverged in evaluate(model, probe, venv.normalize_obs)
         ]
         pd.DataFrame(rows, columns=COLUMNS).to_csv(records, mode="a", header=False, index=False)
         model.save(model_path)
-        if method == "sac":
+        venv.save(normaliser_path)
+        if algorithm_of(method) == "sac":
             model.save_replay_buffer(buffer_path)
         state["done"].append(point)
         with open(state_path, "w") as f:
@@ -247,13 +320,26 @@ def _peer_finished(out: str, checkpoints: list[float]) -> bool:
         return False
 
 
+ACTIVATIONS = ("tanh", "relu")
+
+
 def _arguments(hyper: dict, env) -> dict:
-    """SB3's constructor arguments of ``hyper``: ``target_entropy_per_action`` (the
-    selection's form, a multiple of the action dimension) becomes SAC's ``target_entropy``."""
-    arguments = dict(hyper)
+    """SB3's constructor arguments of ``hyper`` (JSON: the records keep it): SAC's
+    ``target_entropy_per_action`` (a multiple of the action dimension) becomes its
+    ``target_entropy``, ``policy_kwargs.activation_fn`` (one of :data:`ACTIVATIONS`) the
+    PyTorch module."""
+    import torch
+
+    arguments = json.loads(json.dumps(hyper))
     per_action = arguments.pop("target_entropy_per_action", None)
     if per_action is not None:
         arguments["target_entropy"] = float(per_action * env.action_space.shape[0])
+    policy = arguments.get("policy_kwargs", {})
+    if "activation_fn" in policy:
+        name = policy["activation_fn"]
+        if name not in ACTIVATIONS:
+            raise ValueError(f"policy_kwargs.activation_fn={name!r}: one of {ACTIVATIONS}")
+        policy["activation_fn"] = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}[name]
     return arguments
 
 
@@ -302,31 +388,7 @@ def run_pieces(pieces: list[Piece], jobs: int):
             yield future.result()
 
 
-# ----- the peers' hyperparameters -----------------------------------------------------
-
-SELECTION_GRID = {
-    "sac": [
-        {},
-        {"learning_rate": 1e-4},
-        {"learning_rate": 1e-3},
-        {"target_entropy_per_action": -2.0},
-        {"target_entropy_per_action": -4.0},
-    ],
-    "ppo": [{}, {"learning_rate": 1e-4}, {"learning_rate": 1e-3}],
-}
-"""The candidates of the selection (``--select``), each a change of SB3's defaults: the
-learning rate a factor of 3 either side of SB3's 3e-4, for both peers; for SAC also the
-entropy target at 2 and 4 times SB3's ``-action_dim`` (a tracking task wants precise
-actions). One factor at a time; the rule picks per factor, then the picks together."""
-SELECTION_RULE = (
-    "Score of a run: log10 of the mean tracking MSE over the five selection motions at the "
-    "selection budget (a diverged motion, or an MSE above 1000 x PD-only's: log10(1000 x "
-    "PD-only)). Score of a candidate: mean over seeds. Per factor the candidate with the "
-    "lowest score is chosen if its score is lower than SB3's default's; the chosen values "
-    "together are the study's hyperparameters. The same rule for SAC and PPO; the "
-    "selection motions are five reaches to other targets (references.SELECTION_SEED), never "
-    "a test motion."
-)
+# ----- the selection motions ---------------------------------------------------------
 
 
 def selection_config(config):
@@ -347,60 +409,7 @@ def selection_config(config):
 
 
 def _name(hyper: dict) -> str:
-    return "defaults" if not hyper else "-".join(f"{k}={v:g}" for k, v in sorted(hyper.items()))
-
-
-def select(config, out: str, seeds: int, budget: float, pd_only: float, jobs: int = 1) -> dict:
-    """Run every candidate of :data:`SELECTION_GRID` for ``seeds`` seeds up to ``budget``
-    robot-seconds on the selection motions (resumable, as the study; ``jobs`` pieces at
-    once) and apply :data:`SELECTION_RULE`; returns ``{peer: {"chosen": hyper, "scores":
-    {name: score}}}``. ``pd_only``: PD-only's MSE on the selection motions."""
-
-    def cell(method, hyper, seed):
-        return os.path.join(out, "select", method, _name(hyper), f"seed{seed}")
-
-    pieces = [
-        Piece(method, 100 + seed, config, cell(method, hyper, seed), (budget,), hyper)
-        for method, grid in SELECTION_GRID.items()
-        for hyper in grid
-        for seed in range(seeds)
-    ]
-    for _ in run_pieces(pieces, jobs):
-        pass
-    chosen = {}
-    cap = np.log10(1000 * pd_only)
-    for method, grid in SELECTION_GRID.items():
-        scores = {}
-        for hyper in grid:
-            runs = []
-            for seed in range(seeds):
-                rows = pd.read_csv(os.path.join(cell(method, hyper, seed), "records.csv"))
-                last = rows[rows.robot_s == rows.robot_s.max()]
-                mse = last.tracking_mse.mean()
-                bad = last.diverged.any() or not np.isfinite(mse)
-                runs.append(cap if bad else min(float(np.log10(mse)), cap))
-            scores[_name(hyper)] = float(np.mean(runs))
-        chosen[method] = {"chosen": choose(grid, scores), "scores": scores}
-    return chosen
-
-
-def choose(grid: list[dict], scores: dict) -> dict:
-    """:data:`SELECTION_RULE` on candidate scores (``{_name(hyper): score}``, lower is
-    better): per factor the best candidate if it beats the defaults; the picks together.
-
-    Examples:
-      >>> grid = [{}, {"learning_rate": 1e-4}, {"learning_rate": 1e-3}, {"gamma": 0.9}]
-      >>> choose(grid, {"defaults": -3.0, "learning_rate=0.0001": -3.5,
-      ...               "learning_rate=0.001": -4.0, "gamma=0.9": -2.0})
-      {'learning_rate': 0.001}
-    """
-    picked = {}
-    for factor in sorted({k for hyper in grid for k in hyper}):
-        candidates = [h for h in grid if set(h) == {factor}]
-        best = min(candidates, key=lambda h: scores[_name(h)])
-        if scores[_name(best)] < scores["defaults"]:
-            picked.update(best)
-    return picked
+    return "defaults" if not hyper else json.dumps(hyper, sort_keys=True)
 
 
 # ----- the page -------------------------------------------------------------------------
@@ -416,15 +425,21 @@ def seed_curves(records: pd.DataFrame) -> pd.DataFrame:
     return curves
 
 
+def first_crossings(curves: pd.DataFrame, level: float) -> dict:
+    """Per seed, the first checkpoint (robot-seconds) whose MSE is at or below ``level``, or
+    None where none is."""
+    firsts = {}
+    for seed, mine in curves.groupby("seed"):
+        reached = mine[mine.tracking_mse <= level].robot_s
+        firsts[int(seed)] = float(reached.min()) if len(reached) else None
+    return firsts
+
+
 def time_to(curves: pd.DataFrame, level: float) -> tuple[float | None, int, int]:
     """``(median robot-seconds, seeds that reach it, seeds)``: per seed the first checkpoint
-    whose MSE is at or below ``level``; the median over the seeds that reach it (None if
-    none does)."""
-    firsts = []
-    for _, seed in curves.groupby("seed"):
-        reached = seed[seed.tracking_mse <= level].robot_s
-        if len(reached):
-            firsts.append(float(reached.min()))
+    whose MSE is at or below ``level`` (:func:`first_crossings`); the median over the seeds
+    that reach it (None if none does)."""
+    firsts = [x for x in first_crossings(curves, level).values() if x is not None]
     seeds = curves.seed.nunique()
     return (float(np.median(firsts)) if firsts else None), len(firsts), seeds
 
@@ -458,6 +473,7 @@ def summary_rows(records: pd.DataFrame, pd_only: float) -> list[dict]:
         rows.append(dict(
             method=method,
             to_pd=time_to(mine, pd_only),
+            crossings=first_crossings(mine, pd_only),
             to_tenth=time_to(mine, pd_only / 10),
             at_cfm=_mse_at(mine, cfm_budget) if np.isfinite(cfm_budget) else (None, None, 0),
             at_peer=(
@@ -478,6 +494,10 @@ def _time_text(result, last: float) -> str:
     return f"{median:.3g} s ({reached}/{seeds})"
 
 
+def _crossings_text(crossings: dict) -> str:
+    return ", ".join("-" if x is None else f"{x:.4g}" for _, x in sorted(crossings.items()))
+
+
 def _mse_text(result) -> str:
     from cfm_jax import report
 
@@ -492,14 +512,15 @@ def _mse_text(result) -> str:
 def table(records: pd.DataFrame, pd_only: float, oracle: float) -> str:
     """The page's table (Markdown) from the records: the same records give the same text."""
     lines = [
-        "| method | robot-s to PD-only | robot-s to 10x below PD-only | MSE at cfm_jax's budget "
-        "| MSE at the peers' budget | wall-clock (s; cfm_jax: all seeds in one run, a peer: "
-        "per seed) |",
-        "|---|---|---|---|---|---:|",
+        "| method | robot-s to PD-only | first checkpoint at or below PD-only, per seed (s; "
+        "-: none) | robot-s to 10x below PD-only | MSE at cfm_jax's budget | MSE at the peers' "
+        "budget | wall-clock (s; cfm_jax: all seeds in one run, a peer: per seed) |",
+        "|---|---|---|---|---|---|---:|",
     ]
     for row in summary_rows(records, pd_only):
         lines.append(
             f"| {row['method']} | {_time_text(row['to_pd'], row['last'])} | "
+            f"{_crossings_text(row['crossings'])} | "
             f"{_time_text(row['to_tenth'], row['last'])} | {_mse_text(row['at_cfm'])} | "
             f"{_mse_text(row['at_peer'])} | {row['wall']:.0f} |"
         )
@@ -540,15 +561,20 @@ def figure(records: pd.DataFrame, pd_only: float, oracle: float, path: str) -> N
     plt.close(fig)
 
 
-def describe(config, command: str, checkpoints: list[float], hypers: dict) -> dict:
+def describe(config, command: str, checkpoints: dict, hypers: dict, source: str) -> dict:
     """What the page says of a run, kept beside the records (``RECORDS`` with ``.json``):
-    the command, date, machine, the task and the peers' versions and settings."""
+    the command, date, machine, the task and the peers' versions and settings.
+    ``checkpoints``: each peer's robot-second checkpoints; ``source``: where ``hypers`` come
+    from."""
     import stable_baselines3
     import torch
 
     from cfm_jax.experiment import Experiment
 
     task = Experiment(config).task
+    grids = sorted({_grid_text(points) for points in checkpoints.values()})
+    scaled = ", ".join(p for p in PEERS if ACTION[p] == "scale")
+    residual = ", ".join(p for p in PEERS if ACTION[p] == "residual")
     return {
         "command": command,
         "date": datetime.date.today().isoformat(),
@@ -561,11 +587,52 @@ def describe(config, command: str, checkpoints: list[float], hypers: dict) -> di
         "control_dt": task.control_dt,
         "peers": (
             f"stable-baselines3 {stable_baselines3.__version__}, torch {torch.__version__} "
-            f"(CPU, 1 thread); changes of SB3's default hyperparameters chosen by the "
-            f"selection (`peers_selection.json`): {hypers}"
+            f"(CPU, 1 thread); observations and rewards normalised by SB3's VecNormalize "
+            f"(its statistics frozen when evaluating); the reward is minus the squared "
+            f"tracking error over PD-only's MSE on the selection motions "
+            f"({1 / reward_scale(config):.3g} rad^2); actions through cfm_jax's "
+            f"`{config.loop.torque_scale}` torque scale ({scaled}) "
+            f"and the same added to the task's PD feedback "
+            f"({residual}); hyperparameters "
+            f"({source}): {hypers}; evaluated {' / '.join(grids)}"
         ),
         "checkpoints": checkpoints,
     }
+
+
+def _grid_text(points) -> str:
+    """``every D s from A to B s`` for an evenly spaced grid, else the points.
+
+    Examples:
+      >>> _grid_text([100.0, 200.0, 300.0]), _grid_text([10.0, 20.0, 50.0])
+      ('every 100 s from 100 to 300 s', 'at 10, 20, 50 s')
+    """
+    points = [float(p) for p in points]
+    steps = np.diff(points)
+    if len(points) > 2 and np.allclose(steps, steps[0]):
+        return f"every {steps[0]:g} s from {points[0]:g} to {points[-1]:g} s"
+    return "at " + ", ".join(f"{p:g}" for p in points) + " s"
+
+
+def shown_command(command: str) -> str:
+    """``command`` as a page names it: an absolute ``--out`` (one machine's scratch folder,
+    which changes no number) left out; a relative one kept.
+
+    Examples:
+      >>> shown_command("python experiments/peers.py --jobs 1 --out /work/results_peers")
+      'python experiments/peers.py --jobs 1'
+      >>> shown_command("python experiments/peers.py --out=results/peers")
+      'python experiments/peers.py --out=results/peers'
+    """
+    words, shown, skip = shlex.split(command), [], False
+    for i, word in enumerate(words):
+        if skip:
+            skip = False
+        elif word == "--out" and i + 1 < len(words) and os.path.isabs(words[i + 1]):
+            skip = True
+        elif not (word.startswith("--out=") and os.path.isabs(word[len("--out=") :])):
+            shown.append(word)
+    return " ".join(shlex.quote(w) for w in shown)
 
 
 def page(records: pd.DataFrame, meta: dict, figure_name: str) -> str:
@@ -576,8 +643,9 @@ def page(records: pd.DataFrame, meta: dict, figure_name: str) -> str:
     return "\n".join([
         "# Robot-seconds to a working controller: cfm_jax against SAC and PPO",
         "",
-        f"Written by `{meta['command']}`, {meta['date']} ({meta['machine']}), from its records "
-        f"(`{RECORDS}`). The task: {meta['task']}. Peers: {meta['peers']}. Robot-seconds: "
+        f"Written by `{shown_command(meta['command'])}`, {meta['date']} ({meta['machine']}), "
+        f"from its records (`{RECORDS}`). The task: {meta['task']}. Peers: {meta['peers']}. "
+        "Robot-seconds: "
         "simulated time of all data a method learned from (cfm_jax: babbling and every "
         "iteration's rollouts; a peer: its environment steps x "
         f"{meta['control_dt']:g} s); the peers' evaluation rollouts on the test references "
@@ -632,6 +700,44 @@ def write_page(records_path: str, page_path: str) -> None:
         f.write(page(records, meta, name))
 
 
+def _budgets(text: str, default: float) -> dict:
+    """Each peer's robot-second budget: ``default``, or ``PEER=SECONDS`` of ``text``
+    (comma-separated).
+
+    Examples:
+      >>> _budgets("ppo=20000", 2000.0)["ppo"], _budgets("", 2000.0)["sac"]
+      (20000.0, 2000.0)
+    """
+    budgets = dict.fromkeys(PEERS, float(default))
+    for item in [x for x in text.split(",") if x]:
+        name, _, value = item.partition("=")
+        if name not in PEERS:
+            raise ValueError(f"--peer-budgets: {name!r} is not a peer; one of {list(PEERS)}")
+        try:
+            budgets[name] = float(value)
+        except ValueError:
+            raise ValueError(f"--peer-budgets: {item!r}: want PEER=SECONDS") from None
+        if not budgets[name] > 0:
+            raise ValueError(f"--peer-budgets: {item!r}: the seconds must be > 0")
+    return budgets
+
+
+def tuned(path: str) -> tuple[dict, str]:
+    """The peers' hyperparameters: each finished study's choice in the tuning record ``path``
+    (``experiments/peers_search.py``), SB3's defaults (:data:`HYPERPARAMETERS`) for a peer
+    without one; and a sentence saying which is which."""
+    hypers = dict(HYPERPARAMETERS)
+    chosen = {}
+    if os.path.exists(path):
+        with open(path) as f:
+            chosen = {k: v for k, v in json.load(f)["chosen"].items() if v.get("complete")}
+    for peer, record in chosen.items():
+        hypers[peer] = record["hyper"]
+    names = ", ".join(sorted(chosen)) or "none"
+    source = f"tuned by `experiments/peers_search.py` ({path}): {names}; SB3's defaults otherwise"
+    return hypers, source
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -641,26 +747,29 @@ def main(argv: list[str] | None = None) -> None:
         "--budget",
         type=float,
         default=2000.0,
-        help="the peers' robot-seconds (default 2000: 2e5 steps)",
+        help="each peer's robot-seconds (default 2000: 2e5 steps)",
+    )
+    parser.add_argument(
+        "--peer-budgets",
+        default="",
+        help="PEER=SECONDS,... : a peer's own budget (PPO run until its curve is flat)",
+    )
+    parser.add_argument(
+        "--every", type=float, default=EVERY, help="robot-seconds between evaluations"
     )
     parser.add_argument(
         "--checkpoints",
         default=None,
-        help="comma-separated robot-seconds (default 1-2-5 from 10 s)",
+        help="comma-separated robot-seconds for every peer (default: every --every s)",
     )
     parser.add_argument("--out", default="results/peers")
     parser.add_argument("--page", default="docs/results/peers.md")
     parser.add_argument("--records", default=RECORDS)
     parser.add_argument(
-        "--select-seeds",
-        type=int,
-        default=2,
-        help="seeds per candidate of the peers' selection (0: SB3's defaults)",
+        "--hyper",
+        default="docs/results/peers_search/chosen.json",
+        help="the tuning's record (experiments/peers_search.py); SB3's defaults without one",
     )
-    parser.add_argument(
-        "--select-budget", type=float, default=300.0, help="robot-seconds of each selection run"
-    )
-    parser.add_argument("--selection", default="docs/results/peers_selection.json")
     parser.add_argument(
         "--jobs",
         type=int,
@@ -682,10 +791,17 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--seeds={args.seeds}: a positive number")
     if args.jobs < 1:
         parser.error(f"--jobs={args.jobs}: a positive number")
-    checkpoints = (
-        [float(x) for x in args.checkpoints.split(",")] if args.checkpoints
-        else default_checkpoints(args.budget)
-    )  # fmt: skip
+    if not args.every > 0:
+        parser.error(f"--every={args.every}: a positive number of robot-seconds")
+    try:
+        budgets = _budgets(args.peer_budgets, args.budget)
+    except ValueError as error:
+        parser.error(str(error))
+    checkpoints = {
+        peer: [float(x) for x in args.checkpoints.split(",")] if args.checkpoints
+        else default_checkpoints(budgets[peer], args.every)
+        for peer in PEERS
+    }  # fmt: skip
     command = " ".join(["python experiments/peers.py", *(shlex.quote(a) for a in argv)])
     if not args.page_only:
         from cfm_jax import config as config_lib
@@ -700,17 +816,15 @@ def main(argv: list[str] | None = None) -> None:
         with open(os.path.join(first, runs[0], "config.json")) as f:
             config = config_lib.from_dict(json.load(f))
         peers = [m for m in methods if m in PEERS]
-        hypers = {m: HYPERPARAMETERS[m] for m in PEERS}
-        if peers and args.select_seeds > 0:
-            hypers = selected(config, args)
-        meta = describe(config, command, checkpoints, hypers)
+        hypers, source = tuned(args.hyper)
+        meta = describe(config, command, {p: checkpoints[p] for p in peers}, hypers, source)
         pieces = [
             Piece(
                 method,
                 seed,
                 config,
                 os.path.join(args.out, method, f"seed{seed}"),
-                tuple(checkpoints),
+                tuple(checkpoints[method]),
                 hypers[method],
             )  # fmt: skip
             for seed in range(args.seeds)
@@ -723,30 +837,6 @@ def main(argv: list[str] | None = None) -> None:
         collect(args.out, first, methods, args.seeds, args.records, meta)
     write_page(args.records, args.page)
     print(f"peers: wrote {args.page} and {args.records}")
-
-
-def selected(config, args) -> dict:
-    """The peers' hyperparameters: read from ``--selection`` where it holds a selection of
-    the same grid, seeds and budget, else chosen by :func:`select` (resumable) and written
-    there with a page beside it (``.md``)."""
-    from cfm_jax.experiment import Experiment
-
-    wanted = {"grid": SELECTION_GRID, "seeds": args.select_seeds, "budget": args.select_budget}
-    if os.path.exists(args.selection):
-        with open(args.selection) as f:
-            record = json.load(f)
-        if all(record.get(k) == json.loads(json.dumps(v)) for k, v in wanted.items()):
-            return {m: record["peers"][m]["chosen"] for m in PEERS}
-    chosen_config = selection_config(config)
-    base = Experiment(chosen_config).baselines()
-    pd_only = float(base[base.baseline == "pd_only"].tracking_mse.mean())
-    peers = select(chosen_config, args.out, args.select_seeds, args.select_budget, pd_only,
-                   args.jobs)  # fmt: skip
-    record = {**wanted, "pd_only": pd_only, "rule": SELECTION_RULE, "peers": peers}
-    os.makedirs(os.path.dirname(os.path.abspath(args.selection)), exist_ok=True)
-    with open(args.selection, "w") as f:
-        json.dump(record, f, indent=1)
-    return {m: peers[m]["chosen"] for m in PEERS}
 
 
 def collect(out: str, first: str, methods, seeds: int, records_path: str, meta: dict) -> None:

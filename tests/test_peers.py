@@ -1,8 +1,9 @@
-"""experiments/peers.py (issue 42): a tiny run of each peer (SAC and PPO of Stable-Baselines3
-on the two-link arm's tracking environment, seconds) with its checkpoints, resumption and
-records; the robot-seconds of a cfm_jax run by hand; the table's numbers by hand; and the
-committed page regenerated from its committed records (the study itself is not run here:
-hours)."""
+"""experiments/peers.py (issues 42 and 68): a tiny run of each peer (SAC and PPO of
+Stable-Baselines3 on the two-link arm's tracking environment, seconds) with its checkpoints,
+observation and reward normalisation, resumption and records; the reward scale against the
+library's PD-only baseline; the robot-seconds of a cfm_jax run by hand; the linear grid and
+the table's numbers (first crossings per seed by a plain loop) by hand; and the committed page
+regenerated from its committed records (the study itself is not run here: hours)."""
 
 from __future__ import annotations
 
@@ -35,15 +36,21 @@ def test_cfm_robot_seconds_by_hand():
 
 def test_sac_checkpoints_resume_and_records(tmp_path):
     out = str(tmp_path / "sac")
-    peers.run_peer("sac", 0, CONFIG, out, [0.3, 0.6])
+    peers.run_peer("sac_residual", 0, CONFIG, out, [0.3, 0.6])
     first = pd.read_csv(os.path.join(out, "records.csv"))
     # Each checkpoint: the 5 test references, at steps x control period robot-seconds.
     assert list(first.robot_s.unique()) == pytest.approx([0.3, 0.6])
     assert sorted(first.target.unique()) == [0, 1, 2, 3, 4] and len(first) == 10
     assert (first.tracking_mse > 0).all() and (first.diverged == 0).all()
-    # A longer budget later resumes from the saved model and replay buffer: the first
-    # checkpoints' rows stay, the new one follows after 60 + 30 steps in all.
-    peers.run_peer("sac", 0, CONFIG, out, [0.3, 0.6, 0.9])
+    from stable_baselines3.common import vec_env
+
+    saved = vec_env.VecNormalize.load(os.path.join(out, "vecnormalize.pkl"),
+                                      vec_env.DummyVecEnv([lambda: _env("residual")]))  # fmt: skip
+    assert saved.obs_rms.count == pytest.approx(60 + 1, abs=1)  # 60 steps (and the reset)
+    # A longer budget later resumes from the saved model, normalisation and replay buffer:
+    # the first checkpoints' rows stay, the new one follows after 60 + 30 steps in all, and
+    # the normalisation's statistics go on from where they were.
+    peers.run_peer("sac_residual", 0, CONFIG, out, [0.3, 0.6, 0.9])
     again = pd.read_csv(os.path.join(out, "records.csv"))
     pd.testing.assert_frame_equal(again.iloc[:10], first)
     assert list(again.robot_s.unique()) == pytest.approx([0.3, 0.6, 0.9])
@@ -52,16 +59,63 @@ def test_sac_checkpoints_resume_and_records(tmp_path):
     model = stable_baselines3.SAC.load(os.path.join(out, "model.zip"))
     model.load_replay_buffer(os.path.join(out, "buffer.pkl"))
     assert model.num_timesteps == 90 and model.replay_buffer.size() == 90
+    path = os.path.join(out, "vecnormalize.pkl")
+    resumed = vec_env.VecNormalize.load(path, vec_env.DummyVecEnv([lambda: _env("residual")]))
+    assert resumed.obs_rms.count > saved.obs_rms.count + 29
+
+
+def _env(action="limit", config=CONFIG):
+    return envs.TrackingEnv(config, references="test", action=action)
 
 
 def test_ppo_evaluates_each_model_once(tmp_path):
-    # PPO learns in rollouts of 2048 steps (SB3's default): both checkpoints fall inside
-    # the first, so one evaluation, at 2048 steps.
+    # PPO learns in whole rollouts (here of 64 steps): both checkpoints fall inside the
+    # first, so one evaluation, at 64 steps.
     out = str(tmp_path / "ppo")
-    peers.run_peer("ppo", 1, CONFIG, out, [0.2, 0.4])
+    peers.run_peer("ppo", 1, CONFIG, out, [0.2, 0.4], {"n_steps": 64, "batch_size": 32})
     records = pd.read_csv(os.path.join(out, "records.csv"))
-    assert list(records.robot_s.unique()) == pytest.approx([20.48]) and len(records) == 5
+    assert list(records.robot_s.unique()) == pytest.approx([0.64]) and len(records) == 5
     assert peers._peer_finished(out, [0.2, 0.4]) and not peers._peer_finished(out, [0.2, 30])
+
+
+def test_evaluation_sees_observations_through_frozen_statistics():
+    # The policy is evaluated on (obs - mean) / sqrt(var + 1e-8), clipped to +-10, with the
+    # statistics of training, which evaluation does not change.
+    from stable_baselines3.common import vec_env
+
+    venv = vec_env.VecNormalize(vec_env.DummyVecEnv([lambda: _env("scale")]))
+    venv.reset()
+    for _ in range(7):
+        venv.step(np.zeros((1, 2), np.float32))
+    mean, var = venv.obs_rms.mean.copy(), venv.obs_rms.var.copy()
+    seen = []
+
+    class Recorder:
+        def predict(self, obs, deterministic):
+            seen.append(obs)
+            return np.zeros(2, np.float32), None
+
+    env = _env("scale")
+    peers.evaluate(Recorder(), env, venv.normalize_obs)
+    np.testing.assert_array_equal(venv.obs_rms.mean, mean)
+    np.testing.assert_array_equal(venv.obs_rms.var, var)
+    obs, _ = env.reset(options={"target": 0})
+    np.testing.assert_allclose(seen[0], np.clip((obs - mean) / np.sqrt(var + 1e-8), -10, 10),
+                               rtol=1e-6)  # fmt: skip
+
+
+def test_reward_scale_is_pd_only_on_the_selection_motions():
+    # The library's own rollout of the PD-only policy (the baseline's: the task's feedback)
+    # on the selection motions: PD-only's reward is then -1 a step on average there.
+    import jax
+
+    from cfm_jax import rollout
+    from cfm_jax.experiment import Experiment
+
+    task = Experiment(peers.selection_config(CONFIG)).task
+    out = rollout.run(task, lambda step, key: task.feedback(step), jax.random.key(0))
+    pd_only = float(np.mean(rollout.tracking_mse(out)))
+    assert peers.reward_scale(CONFIG) == pytest.approx(1 / pd_only, rel=1e-5)
 
 
 def test_evaluation_is_the_library_metric_of_the_policy_actions(tmp_path):
@@ -109,8 +163,11 @@ def test_table_numbers_by_hand(tmp_path):
     stats, point, diverged = peers._mse_at(sac, 30.0)  # cfm_jax's budget: the 10 s point
     assert (stats["mean"], stats["n"], point, diverged) == (0.5, 1, 10.0, 1)
     text = peers.table(records, *peers.levels(records))
-    assert "| joint | 25 s (2/2) | 30 s (1/2) | 0.275 [0.05, 0.5] at 30 s | - | 7 |" in text
-    assert "| sac | 55 s (2/2) | not reached within 100 s (0/2) | 0.5 at 10 s; 1 diverged |" in text
+    assert (
+        "| joint | 25 s (2/2) | 20, 30 | 30 s (1/2) | 0.275 [0.05, 0.5] at 30 s | - | 7 |" in text
+    )
+    assert ("| sac | 55 s (2/2) | 10, 100 | not reached within 100 s (0/2) | 0.5 at 10 s; "
+            "1 diverged |") in text  # fmt: skip
 
 
 def test_committed_page_is_its_records():
@@ -132,7 +189,7 @@ def test_readme_headline_is_the_committed_records():
     records = pd.read_csv(os.path.join(ROOT, peers.RECORDS))
     pd_only, _ = peers.levels(records)
     rows = {row["method"]: row for row in peers.summary_rows(records, pd_only)}
-    assert set(rows) == set(peers.METHODS)
+    assert set(peers.LOSSES) | {"sac", "ppo"} <= set(rows)
     assert all(row["to_pd"][2] >= 5 for row in rows.values())  # seeds per method
     losses = [rows[loss] for loss in peers.LOSSES]
     to_pd = {row["to_pd"][0] for row in losses}
@@ -158,37 +215,32 @@ def test_readme_headline_is_the_committed_records():
         assert text.replace("e-0", "e-") in readme, text
 
 
-def test_selection_rule_by_hand():
-    grid = [
-        {},
-        {"learning_rate": 1e-4},
-        {"learning_rate": 1e-3},
-        {"target_entropy_per_action": -2.0},
-    ]
-    scores = {"defaults": -3.0, "learning_rate=0.0001": -3.5, "learning_rate=0.001": -3.2,
-              "target_entropy_per_action=-2": -2.9}  # fmt: skip
-    # The best learning rate beats the defaults; the entropy target does not.
-    assert peers.choose(grid, scores) == {"learning_rate": 1e-4}
-    assert peers.choose(grid, {**scores, "target_entropy_per_action=-2": -4}) == {
-        "learning_rate": 1e-4, "target_entropy_per_action": -2.0}  # fmt: skip
-    assert peers.choose(grid, {k: 0.0 for k in scores}) == {}  # a tie keeps the default
+def test_the_grid_is_linear_and_first_crossings_are_a_plain_loop():
+    assert peers.default_checkpoints(2000) == [100.0 * k for k in range(1, 21)]
+    rng = np.random.default_rng(3)
+    rows = []
+    for seed in range(4):
+        for robot_s in peers.default_checkpoints(1000):
+            rows.append(("ppo", seed, robot_s, 0, 10 ** rng.uniform(-3, 0), 0, 1.0))
+    curves = peers.seed_curves(pd.DataFrame(rows, columns=peers.COLUMNS))
+    level = 0.01
+    expected = {}
+    for seed, robot_s, mse in zip(curves.seed, curves.robot_s, curves.tracking_mse, strict=True):
+        expected.setdefault(int(seed), None)
+        if mse <= level and expected[int(seed)] is None:
+            expected[int(seed)] = float(robot_s)
+    assert peers.first_crossings(curves, level) == expected
+    reached = sorted(x for x in expected.values() if x is not None)
+    median = float(np.median(reached)) if reached else None
+    assert peers.time_to(curves, level) == (median, len(reached), 4)
 
 
-def test_selection_runs_on_other_motions_and_scores_each_candidate(tmp_path, monkeypatch):
-    config = peers.selection_config(CONFIG)
-    test_targets = np.asarray(envs.TrackingEnv(CONFIG, references="test").task.reference.q[:, -1])
-    chosen = np.asarray(envs.TrackingEnv(config, references="test").task.reference.q[:, -1])
-    assert not any(np.allclose(c, t) for c in chosen for t in test_targets)
-    grid = {"sac": [{}, {"target_entropy_per_action": -2.0}], "ppo": []}
-    monkeypatch.setattr(peers, "SELECTION_GRID", grid)
-    result = peers.select(config, str(tmp_path), seeds=1, budget=0.3, pd_only=1.0)
-    # Each candidate's score: log10 of its mean MSE over the five motions at 0.3 s.
-    for name in ("defaults", "target_entropy_per_action=-2"):
-        rows = pd.read_csv(tmp_path / "select" / "sac" / name / "seed0" / "records.csv")
-        assert len(rows) == 5
-        assert result["sac"]["scores"][name] == pytest.approx(np.log10(rows.tracking_mse.mean()))
-    # 30 steps, before SAC's first update (100): the same seed acts alike, a tie, no change.
-    assert result["sac"]["chosen"] == {}
+def test_the_page_names_no_machine_folder():
+    command = "python experiments/peers.py --jobs 1 --out /work/results_peers"
+    assert peers.shown_command(command) == "python experiments/peers.py --jobs 1"
+    committed = open(os.path.join(ROOT, "docs", "results", "peers.md")).read()
+    first = committed.split("Written by `", 1)[1].split("`", 1)[0]
+    assert not any(os.path.isabs(word) for word in first.split()), first
 
 
 def test_command_line_takes_jobs(tmp_path, capsys):
@@ -204,7 +256,7 @@ def test_command_line_takes_jobs(tmp_path, capsys):
         json.dump(meta, f)
     page = str(tmp_path / "peers.md")
     peers.main(["--page-only", "--jobs", "2", "--records", records, "--page", page])
-    assert "| joint | 25 s (2/2) |" in open(page).read()
+    assert "| joint | 25 s (2/2) | 20, 30 |" in open(page).read()
     with pytest.raises(SystemExit) as exit_info:
         peers.main(["--page-only", "--jobs", "0", "--records", records, "--page", page])
     assert exit_info.value.code == 2 and "--jobs=0" in capsys.readouterr().err
