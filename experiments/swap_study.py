@@ -21,8 +21,18 @@ robustness study's ``results/robustness/inverse_dynamics/home-default``) whose f
 cell of the very same config (``cells/<cell id>/run``, found by ``sweeps.cell_id``) is
 used instead of running it again; the table says where each data set came from.
 
+Issue 68 runs it on 20 seeds in two blocks of 10 (seeds 10-19 and 20-29), each block's
+config that of the comparison's shared inverse-dynamics cell of the same block, so that the
+block 20-29 takes its data sets from that cell's sweep (``--collected``), and ``--combine``
+writes the blocks together.
+
 Usage:
   python experiments/swap_study.py --out results/swap            # 5 seeds x 10 iterations
+  python experiments/swap_study.py --seeds 10 --first-seed 10 --out results/swap/seeds-10-19
+  python experiments/swap_study.py --seeds 10 --first-seed 20 --out results/swap/seeds-20-29 \
+      --collected results/comparison/inverse_dynamics/shared/seeds-20-29
+  python experiments/swap_study.py --combine results/swap/seeds-10-19 results/swap/seeds-20-29 \
+      --out docs/results/swap
   python experiments/swap_study.py --out /tmp/swap --quick       # tiny, for a smoke test
   python experiments/swap_study.py --collected results/robustness/inverse_dynamics/home-default
 """
@@ -43,17 +53,21 @@ import _study  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 
 import cfm_jax  # noqa: E402
+from cfm_jax import checkpoint, report, sweeps, training  # noqa: E402
 from cfm_jax import config as config_lib  # noqa: E402
-from cfm_jax import report, sweeps, training  # noqa: E402
 
 LOSSES = ("task", "joint")
 
 
-def base_config(seeds: int, iterations: int, quick: bool) -> config_lib.Config:
+def base_config(seeds: int, iterations: int, quick: bool, first_seed: int = 0) -> config_lib.Config:
+    """The iiwa14's inverse-dynamics defaults (``first_seed`` onwards): with ``first_seed``
+    10 or 20 and 10 seeds, the config of the comparison's shared cell of that block
+    (``experiments/comparison.py``), whose task and joint runs are then step 1's data sets."""
     loop = config_lib.LoopConfig(iterations=iterations, seeds=seeds)
     if quick:  # the two-link arm with the studies' quick networks and fit steps
-        return _study.quick_config(config_lib.Config(robot="two_link_arm", loop=loop))
-    return config_lib.Config(robot="iiwa14", loop=loop)
+        return _study.quick_config(config_lib.Config(robot="two_link_arm", loop=loop,
+                                                     seed=first_seed))  # fmt: skip
+    return config_lib.Config(robot="iiwa14", loop=loop, seed=first_seed)
 
 
 def done(run_dir: str, config: config_lib.Config) -> bool:
@@ -84,12 +98,21 @@ def collect_dir(out: str, config: config_lib.Config, sweep_dirs=()) -> str:
     return os.path.join(out, "collect", config.loss)
 
 
+def _train(config, run_dir: str, progress: bool, experiment, **kwargs) -> None:
+    """``cfm_jax.train`` into ``run_dir``, resumed from its checkpoints where an earlier
+    piece was interrupted (bit for bit, ``cfm_jax.train``'s ``resume``)."""
+    resume = run_dir if checkpoint.has_steps(run_dir) else None
+    cfm_jax.train(config, progress=progress, out_dir=run_dir, experiment=experiment,
+                  resume=resume, **kwargs)  # fmt: skip
+
+
 def run(
-    out: str, seeds: int, iterations: int, quick: bool, progress: bool, sweep_dirs=()
-) -> tuple[pd.DataFrame, dict, dict]:
+    out: str, seeds: int, iterations: int, quick: bool, progress: bool, sweep_dirs=(),
+    first_seed: int = 0,
+) -> tuple[pd.DataFrame, dict, dict]:  # fmt: skip
     """Steps 1 and 2; returns the retrains' metrics (a ``data`` column says which data set),
     the wall times and where each data set came from."""
-    base = base_config(seeds, iterations, quick)
+    base = base_config(seeds, iterations, quick, first_seed)
     experiment = training.Experiment(base)
     frames, walls, sources = [], {}, {}
     for collected in LOSSES:
@@ -98,7 +121,7 @@ def run(
         sources[collected] = run_dir
         start = time.perf_counter()
         if not done(run_dir, config):
-            cfm_jax.train(config, progress=progress, out_dir=run_dir, experiment=experiment)
+            _train(config, run_dir, progress, experiment)
         walls[f"collect {collected}"] = time.perf_counter() - start
         data = os.path.join(run_dir, "dataset.npz")
         for loss in LOSSES:
@@ -106,9 +129,7 @@ def run(
             replay_dir = os.path.join(out, "replay", f"{collected}_data", loss)
             start = time.perf_counter()
             if not done(replay_dir, config):
-                cfm_jax.train(
-                    config, progress=progress, out_dir=replay_dir, experiment=experiment, data=data
-                )
+                _train(config, replay_dir, progress, experiment, data=data)
             walls[f"retrain {loss} on {collected}-loss data"] = time.perf_counter() - start
             metrics = pd.read_csv(os.path.join(replay_dir, "metrics.csv"))
             frames.append(metrics.assign(data=collected))
@@ -171,6 +192,19 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", default="results/swap")
     parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument(
+        "--first-seed",
+        type=int,
+        default=0,
+        help="the first seed (a block of seeds: 10, 20 with --seeds 10)",
+    )
+    parser.add_argument(
+        "--combine",
+        nargs="+",
+        metavar="OUT",
+        help="write the table and figure of these finished blocks' "
+        "swap_metrics.csv together into --out (nothing is trained)",
+    )
     parser.add_argument("--iterations", type=int, default=10)
     parser.add_argument("--quick", action="store_true", help="two-link arm, tiny networks")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -181,13 +215,24 @@ def main() -> None:
     )  # fmt: skip
     args = parser.parse_args()
     os.makedirs(args.out, exist_ok=True)
+    if args.combine:
+        combine(args.combine, args.out)
+        return
     start = time.perf_counter()
     metrics, walls, sources = run(
-        args.out, args.seeds, args.iterations, args.quick, not args.quiet, args.collected
+        args.out,
+        args.seeds,
+        args.iterations,
+        args.quick,
+        not args.quiet,
+        args.collected,
+        args.first_seed,
     )
     summary = table(metrics)
     markdown = _markdown(summary)
-    protocol = report.protocol(base_config(args.seeds, args.iterations, args.quick))
+    protocol = report.protocol(
+        base_config(args.seeds, args.iterations, args.quick, args.first_seed)
+    )
     origin = "; ".join(f"{loss}-loss data from `{path}`" for loss, path in sources.items())
     with open(os.path.join(args.out, "swap_table.md"), "w") as f:
         f.write(protocol + "\n\n" + markdown + "\n\nData sets: " + origin + ".\n")
@@ -196,6 +241,32 @@ def main() -> None:
     for name, seconds in walls.items():
         print(f"{name}: {seconds:.0f} s")
     print(f"total {time.perf_counter() - start:.0f} s; results in {args.out}/")
+
+
+def combine(blocks, out: str) -> pd.DataFrame:
+    """The finished blocks of seeds (their ``--out`` folders) as one study in ``out``: their
+    ``swap_metrics.csv`` together (disjoint seeds), ``swap_table.md`` with each block's
+    protocol and data sets, the figure, and ``wall_times.json`` per block."""
+    frames, texts, walls = [], [], {}
+    for block in blocks:
+        frames.append(pd.read_csv(os.path.join(block, "swap_metrics.csv")))
+        with open(os.path.join(block, "swap_table.md")) as f:
+            texts.append(f.read().split("\n\n")[0])
+        with open(os.path.join(block, "wall_times.json")) as f:
+            walls[os.path.basename(os.path.normpath(block))] = json.load(f)
+    seeds = [set(f.seed) for f in frames]
+    if sum(map(len, seeds)) != len(set().union(*seeds)):
+        raise ValueError(f"--combine: the blocks {blocks} share seeds; each block its own")
+    metrics = pd.concat(frames, ignore_index=True)
+    metrics.to_csv(os.path.join(out, "swap_metrics.csv"), index=False)
+    markdown = _markdown(table(metrics))
+    with open(os.path.join(out, "swap_table.md"), "w") as f:
+        f.write("\n\n".join(texts) + "\n\n" + markdown + "\n")
+    with open(os.path.join(out, "wall_times.json"), "w") as f:
+        json.dump(walls, f, indent=2)
+    figure(metrics, os.path.join(out, "swap_study.png"))
+    print(markdown)
+    return metrics
 
 
 def _markdown(frame: pd.DataFrame) -> str:

@@ -201,3 +201,32 @@ def test_a_cell_refuses_to_run_on_more_than_one_core(tmp_path, monkeypatch):
                          "--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "out"),
                          "--search", str(tmp_path)])  # fmt: skip
     assert not (tmp_path / "out").exists() and not (tmp_path / "runs").exists()
+
+
+def test_a_swap_block_is_the_shared_cells_config_of_its_seeds_and_blocks_combine_apart(tmp_path):
+    """Issue 68's swap runs two blocks of 10 seeds; a block's task and joint collection is
+    the comparison's shared inverse-dynamics cell of the same block, config for config (the
+    sweep cell ``--collected`` finds by its id), and ``--combine`` refuses blocks that
+    share a seed. Oracle: the comparison's cell config, and two metrics files written here."""
+    import swap_study
+
+    from cfm_jax import sweeps
+
+    for first in comparison.BLOCKS:
+        shared = comparison.Cell("inverse_dynamics", "shared", ("task", "joint"), (), first)
+        for loss in ("task", "joint"):
+            mine = swap_study.base_config(comparison.SEEDS, 10, False, first).replace(loss=loss)
+            assert mine == shared.config().replace(loss=loss)
+            assert [c.id for c in sweeps.grid(shared.config(), losses=[loss])] == [
+                sweeps.cell_id(mine)
+            ]
+    for name, seeds in (("a", [10, 11]), ("b", [11, 12])):
+        block = tmp_path / name
+        block.mkdir()
+        frame = pd.DataFrame({"seed": seeds, "loss": "task", "data": "task", "iteration": 0,
+                              "target": 0, "tracking_mse": 1.0})  # fmt: skip
+        frame.to_csv(block / "swap_metrics.csv")
+        (block / "swap_table.md").write_text("protocol\n\ntable\n")
+        (block / "wall_times.json").write_text("{}")
+    with pytest.raises(ValueError, match="share seeds"):
+        swap_study.combine([str(tmp_path / "a"), str(tmp_path / "b")], str(tmp_path))
