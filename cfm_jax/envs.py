@@ -52,8 +52,15 @@ def action_reach(torque_limit, torque_scale) -> float:
     """The controller output ``u`` of the action ``a = 1`` (``scale``/``residual`` actions):
     ``REACH x max_j limit_j / T_jj``, so that every joint can get to ``tanh(REACH)`` (96%) of
     its limit through :meth:`cfm_jax.networks.Normaliser.torque_output` while a unit action
-    still means alike accelerations on every joint. ``torque_scale``: ``(n,)``, ``(n, n)`` or
-    None (the limits: ``REACH``).
+    still means alike accelerations on every joint.
+
+    Args:
+      torque_limit: ``(n,)`` each joint's torque limit.
+      torque_scale: ``(n,)`` or ``(n, n)`` torque scale ``T``
+        (:func:`cfm_jax.algorithm.torque_scale`), or None (the limits: ``REACH``).
+
+    Returns:
+      The factor ``reach`` of ``u = reach x a`` (float).
 
     Examples:
       >>> action_reach(np.array([10.0, 4.0]), np.array([5.0, 4.0]))
