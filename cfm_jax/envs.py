@@ -12,7 +12,7 @@ robot's own scales (:func:`cfm_jax.tasks.scales.robot_scales`), float32. The act
   (:func:`cfm_jax.algorithm.torque_scale` of ``config.loop.torque_scale``, the coupled scale
   ``T`` built from the mass matrix for the arms), the controller's own squashing
   :meth:`cfm_jax.networks.Normaliser.torque_output` of ``u = reach * a``, ``reach`` (
-  :func:`action_reach`) the output at which every joint gets to ``tanh(2)`` (96%) of its
+  :func:`action_reach`) the output at which every joint gets to ``tanh(1)`` (76%) of its
   limit;
 * ``residual``: the task's PD feedback torque (the PD-only baseline's,
   :meth:`cfm_jax.tasks.JointSpaceTask.feedback`) plus the ``scale`` torque of ``a``, clipped
@@ -44,13 +44,16 @@ REFERENCES = ("training", "test")
 """Values of :class:`TrackingEnv`'s ``references``."""
 ACTIONS = ("limit", "scale", "residual")
 """Values of :class:`TrackingEnv`'s ``action`` (see the module)."""
-REACH = 2.0
-"""``u = REACH x limit_j / T_jj`` drives joint ``j`` alone to ``tanh(REACH)`` of its limit."""
+REACH = 1.0
+"""``u = REACH x limit_j / T_jj`` drives joint ``j`` alone to ``tanh(REACH)`` of its limit. One,
+not more: the torques a task needs are a small part of the limits (PD-only's on the iiwa14's
+reaches: ``|u| <= 0.31``), and a larger reach squeezes them into a smaller part of the
+action box, where the peers' exploration (a unit Gaussian in SB3) is too coarse."""
 
 
 def action_reach(torque_limit, torque_scale) -> float:
     """The controller output ``u`` of the action ``a = 1`` (``scale``/``residual`` actions):
-    ``REACH x max_j limit_j / T_jj``, so that every joint can get to ``tanh(REACH)`` (96%) of
+    ``REACH x max_j limit_j / T_jj``, so that every joint can get to ``tanh(REACH)`` (76%) of
     its limit through :meth:`cfm_jax.networks.Normaliser.torque_output` while a unit action
     still means alike accelerations on every joint.
 
@@ -64,7 +67,7 @@ def action_reach(torque_limit, torque_scale) -> float:
 
     Examples:
       >>> action_reach(np.array([10.0, 4.0]), np.array([5.0, 4.0]))
-      4.0
+      2.0
     """
     limit = np.asarray(torque_limit, np.float64)
     if torque_scale is None:

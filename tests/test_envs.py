@@ -196,7 +196,7 @@ def test_scale_action_is_the_controller_squashing_through_the_coupled_scale(expe
     robot, task = experiment.robot, experiment.task
     limit = np.asarray(robot.torque_limit, np.float64)
     coupled = robot.coupled_torque_scale(10.0)
-    reach = 2.0 * np.max(limit / np.diag(coupled))
+    reach = 1.0 * np.max(limit / np.diag(coupled))
     assert scaled.reach == pytest.approx(reach)
     scaled.reset(options={"target": 1})
     plain.reset(options={"target": 1})
@@ -209,9 +209,9 @@ def test_scale_action_is_the_controller_squashing_through_the_coupled_scale(expe
         obs_plain, reward_plain, *_ = plain.step((tau / limit).astype(np.float32))
         np.testing.assert_allclose(obs, obs_plain, rtol=1e-4, atol=1e-5)
         assert reward == pytest.approx(3.0 * reward_plain, rel=1e-4)  # the reward scale
-    # a = +-1 on one joint alone drives it to at least tanh(2) of its limit.
+    # a = +-1 on one joint alone drives it to at least tanh(1) of its limit.
     for j in range(task.action_dim):
         unit = np.eye(task.action_dim, dtype=np.float32)[j]
         got = np.asarray(scaled._torque.torque(unit, ref_t, scaled._qpos, scaled._qvel,
                                                scaled._feat))  # fmt: skip
-        assert got[j] >= np.tanh(2.0) * limit[j] * (1 - 1e-6)
+        assert got[j] >= np.tanh(1.0) * limit[j] * (1 - 1e-6)
