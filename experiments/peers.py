@@ -28,7 +28,8 @@ then writes ``--page`` (``docs/results/peers.md``): a log-log figure of test tra
 against robot-seconds (mean over seeds and its 95% bootstrap band; PD-only and oracle as
 lines) and a table per method: robot-seconds to PD-only's MSE (the median of the seeds' first
 crossings, and each seed's) and to 10x below it, the MSE at cfm_jax's budget and at the
-peers' largest, and the wall-clock time. A seed's MSE at a checkpoint is its mean over the
+peers' largest, how much the curve still falls over the last fifth of its budget (is it
+flat?), and the wall-clock time. A seed's MSE at a checkpoint is its mean over the
 test references; a rollout that diverged makes that checkpoint a failure for the seed.
 
 Resumable: a finished cfm_jax loss or peer seed is read, not run again; an interrupted
@@ -435,6 +436,23 @@ def first_crossings(curves: pd.DataFrame, level: float) -> dict:
     return firsts
 
 
+def late_change(curves: pd.DataFrame, fraction: float = 0.2) -> float | None:
+    """Whether a curve is flat: the mean over seeds of ``log10`` MSE at the last checkpoint
+    minus at the last checkpoint at or before ``(1 - fraction)`` of it (seeds that diverged
+    at either left out); None where no seed has both. Near 0: flat; below: still improving."""
+    changes = []
+    for _, mine in curves.groupby("seed"):
+        last = mine.robot_s.max()
+        before = mine[mine.robot_s <= (1 - fraction) * last + 1e-9]
+        if before.empty:
+            continue
+        end = mine[mine.robot_s == last].tracking_mse.iloc[0]
+        start = before[before.robot_s == before.robot_s.max()].tracking_mse.iloc[0]
+        if np.isfinite(end) and np.isfinite(start) and end > 0 and start > 0:
+            changes.append(np.log10(end) - np.log10(start))
+    return float(np.mean(changes)) if changes else None
+
+
 def time_to(curves: pd.DataFrame, level: float) -> tuple[float | None, int, int]:
     """``(median robot-seconds, seeds that reach it, seeds)``: per seed the first checkpoint
     whose MSE is at or below ``level`` (:func:`first_crossings`); the median over the seeds
@@ -482,6 +500,7 @@ def summary_rows(records: pd.DataFrame, pd_only: float) -> list[dict]:
                 else (None, None, 0)
             ),
             last=float(mine.robot_s.max()),
+            late=late_change(mine),
             wall=float(wall.iloc[0]) if method in LOSSES else float(wall.mean()),
         ))  # fmt: skip
     return rows
@@ -496,6 +515,10 @@ def _time_text(result, last: float) -> str:
 
 def _crossings_text(crossings: dict) -> str:
     return ", ".join("-" if x is None else f"{x:.4g}" for _, x in sorted(crossings.items()))
+
+
+def _change_text(change) -> str:
+    return "-" if change is None else f"{change:+.2f}"
 
 
 def _mse_text(result) -> str:
@@ -514,15 +537,16 @@ def table(records: pd.DataFrame, pd_only: float, oracle: float) -> str:
     lines = [
         "| method | robot-s to PD-only | first checkpoint at or below PD-only, per seed (s; "
         "-: none) | robot-s to 10x below PD-only | MSE at cfm_jax's budget | MSE at the peers' "
-        "budget | wall-clock (s; cfm_jax: all seeds in one run, a peer: per seed) |",
-        "|---|---|---|---|---|---|---:|",
+        "budget | log10 MSE change over the last fifth (near 0: flat) | wall-clock (s; "
+        "cfm_jax: all seeds in one run, a peer: per seed) |",
+        "|---|---|---|---|---|---|---|---:|",
     ]
     for row in summary_rows(records, pd_only):
         lines.append(
             f"| {row['method']} | {_time_text(row['to_pd'], row['last'])} | "
             f"{_crossings_text(row['crossings'])} | "
             f"{_time_text(row['to_tenth'], row['last'])} | {_mse_text(row['at_cfm'])} | "
-            f"{_mse_text(row['at_peer'])} | {row['wall']:.0f} |"
+            f"{_mse_text(row['at_peer'])} | {_change_text(row['late'])} | {row['wall']:.0f} |"
         )
     lines += ["", f"PD-only: {pd_only:.3g} rad^2; oracle: {oracle:.3g} rad^2."]
     return "\n".join(lines) + "\n"
