@@ -163,11 +163,15 @@ def test_table_numbers_by_hand(tmp_path):
     stats, point, diverged = peers._mse_at(sac, 30.0)  # cfm_jax's budget: the 10 s point
     assert (stats["mean"], stats["n"], point, diverged) == (0.5, 1, 10.0, 1)
     text = peers.table(records, *peers.levels(records))
-    assert (
-        "| joint | 25 s (2/2) | 20, 30 | 30 s (1/2) | 0.275 [0.05, 0.5] at 30 s | - | 7 |" in text
-    )
+    # The last fifth: joint from 20 to 30 s, log10 of 0.05 / 0.9 and 0.5 / 1.5, mean -0.87;
+    # sac from 10 to 100 s, seed 0 only (seed 1 diverged at 10 s): log10(0.2 / 0.5) = -0.40.
+    assert peers.late_change(joint) == pytest.approx(
+        (np.log10(0.05 / 0.9) + np.log10(0.5 / 1.5)) / 2)  # fmt: skip
+    assert peers.late_change(sac) == pytest.approx(np.log10(0.2 / 0.5))
+    assert ("| joint | 25 s (2/2) | 20, 30 | 30 s (1/2) | 0.275 [0.05, 0.5] at 30 s | - | -0.87 "
+            "| 7 |") in text  # fmt: skip
     assert ("| sac | 55 s (2/2) | 10, 100 | not reached within 100 s (0/2) | 0.5 at 10 s; "
-            "1 diverged |") in text  # fmt: skip
+            "1 diverged | 0.2 [0.2, 0.2] at 100 s | -0.40 | 14 |") in text  # fmt: skip
 
 
 def test_committed_page_is_its_records():
