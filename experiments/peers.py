@@ -638,24 +638,40 @@ def _grid_text(points) -> str:
     return "at " + ", ".join(f"{p:g}" for p in points) + " s"
 
 
-def shown_command(command: str) -> str:
-    """``command`` as a page names it: an absolute ``--out`` (one machine's scratch folder,
-    which changes no number) left out; a relative one kept.
+PLACES = ("--out", "--page", "--records")
+"""Flags that only say where files go: an absolute value outside the repository (one
+machine's folder, which changes no number) is left out of the command a page names."""
+
+
+def shown_command(command: str, root: str = ROOT) -> str:
+    """``command`` as a committed page names it: an absolute path inside ``root`` (the
+    repository) relative to it; an absolute :data:`PLACES` value elsewhere left out (with
+    its flag); everything else as it is.
 
     Examples:
-      >>> shown_command("python experiments/peers.py --jobs 1 --out /work/results_peers")
+      >>> shown_command("python experiments/peers.py --jobs 1 --out /work/results_peers", "/r")
       'python experiments/peers.py --jobs 1'
-      >>> shown_command("python experiments/peers.py --out=results/peers")
-      'python experiments/peers.py --out=results/peers'
+      >>> shown_command("python experiments/peers.py --page=/r/docs/p.md --out=results/p", "/r")
+      'python experiments/peers.py --page=docs/p.md --out=results/p'
     """
-    words, shown, skip = shlex.split(command), [], False
-    for i, word in enumerate(words):
-        if skip:
-            skip = False
-        elif word == "--out" and i + 1 < len(words) and os.path.isabs(words[i + 1]):
-            skip = True
-        elif not (word.startswith("--out=") and os.path.isabs(word[len("--out=") :])):
-            shown.append(word)
+    words, shown = shlex.split(command), []
+    i = 0
+    while i < len(words):
+        flag, joined, value = words[i].partition("=")
+        if not joined:
+            flag, value = words[i], words[i + 1] if i + 1 < len(words) else ""
+        taken = 1 if joined else 2
+        if flag.startswith("--") and os.path.isabs(value):
+            inside = os.path.commonpath([os.path.abspath(value), os.path.abspath(root)])
+            if inside == os.path.abspath(root):
+                relative = os.path.relpath(value, root)
+                shown += [f"{flag}={relative}"] if joined else [flag, relative]
+            elif flag not in PLACES:
+                shown += words[i : i + taken]
+            i += taken
+            continue
+        shown.append(words[i])
+        i += 1
     return " ".join(shlex.quote(w) for w in shown)
 
 
