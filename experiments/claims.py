@@ -723,7 +723,7 @@ def comparisons_frame(family: Family) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=COMPARISON_COLUMNS)
 
 
-def _page(tasks: dict, summary: list[tuple], rows: list[tuple], family: Family) -> str:
+def _page(tasks: dict, summary: list[tuple], rows: list[tuple], family: Family, seed: int) -> str:
     """The page: the verdicts first, then the forest plot, the rule, the headline cells and
     the detailed table."""
     lines = [
@@ -768,7 +768,7 @@ def _page(tasks: dict, summary: list[tuple], rows: list[tuple], family: Family) 
     ]
     for task, pair in tasks.items():
         if pair["shared"] is not None:
-            lines += headline_table(task, pair, _page.seed)
+            lines += headline_table(task, pair, seed)
     lines += [
         "## The claims in detail",
         "",
@@ -777,9 +777,6 @@ def _page(tasks: dict, summary: list[tuple], rows: list[tuple], family: Family) 
     ]
     lines += [f"| {' | '.join(row)} |" for row in rows]
     return "\n".join(lines) + "\n"
-
-
-_page.seed = 0
 
 
 def decide(comparison_dir: str, records_dir: str, swap_path: str, seed: int = 0):
@@ -813,8 +810,7 @@ def write(comparison_dir: str, records_dir: str, swap_path: str, out: str, seed:
              os.path.join(folder, "claims_profiles.png"), seed)  # fmt: skip
     forest(family, os.path.join(folder, "claims_forest.png"))
     comparisons_frame(family).to_csv(os.path.join(folder, "claims_comparisons.csv"), index=False)
-    _page.seed = seed
-    text = _page(tasks, summary_rows(family, claims, theory), rows, family)
+    text = _page(tasks, summary_rows(family, claims, theory), rows, family, seed)
     with open(out, "w") as f:
         f.write(text)
     return text
