@@ -15,8 +15,10 @@ robot's own scales (:func:`cfm_jax.tasks.scales.robot_scales`), float32. The act
   :func:`action_reach`) the output at which every joint gets to ``tanh(1)`` (76%) of its
   limit;
 * ``residual``: the task's PD feedback torque (the PD-only baseline's,
-  :meth:`cfm_jax.tasks.JointSpaceTask.feedback`) plus the ``scale`` torque of ``a``, clipped
-  to the limits as :func:`cfm_jax.rollout.run` clips: ``a = 0`` is PD-only.
+  :meth:`cfm_jax.tasks.JointSpaceTask.feedback`) plus ``residual_scale`` times the ``scale``
+  torque of ``a``, clipped to the limits as :func:`cfm_jax.rollout.run` clips: ``a = 0`` is
+  PD-only. Residual-RL practice scales the residual down (a small ``residual_scale``) so that
+  early exploration perturbs the feedback instead of overriding it.
 
 The reward is minus the mean square of the next state's tracking error times
 ``reward_scale`` (with 1, an episode's mean ``-reward`` is :func:`cfm_jax.rollout.tracking_mse`).
@@ -91,6 +93,8 @@ class TrackingEnv(gymnasium.Env):
       action: one of :data:`ACTIONS` (see the module): ``limit``, ``scale`` or ``residual``.
       reward_scale: a positive factor of the reward (the peers: ``1 / PD-only's MSE``, so that
         PD-only's reward is about -1 a step).
+      residual_scale: the factor of the policy's torque on top of the PD feedback
+        (``residual`` only; 1 for the other actions).
 
     Attributes:
       task: the library's task object.
@@ -99,7 +103,8 @@ class TrackingEnv(gymnasium.Env):
 
     Raises:
       ConfigError: a legged task, the ``mjx`` simulator, an unknown ``references`` or
-        ``action``, or a ``reward_scale`` that is not a positive number.
+        ``action``, a ``reward_scale`` or ``residual_scale`` that is not a positive number, or
+        a ``residual_scale`` other than 1 without the ``residual`` action.
 
     Examples:
       >>> import numpy as np
@@ -123,6 +128,7 @@ class TrackingEnv(gymnasium.Env):
         experiment=None,
         action: str = "limit",
         reward_scale: float = 1.0,
+        residual_scale: float = 1.0,
     ):
         from cfm_jax import algorithm
         from cfm_jax.experiment import Experiment
@@ -133,6 +139,10 @@ class TrackingEnv(gymnasium.Env):
             config_lib.fail("action", action, f"one of {ACTIONS}")
         if not (isinstance(reward_scale, (int, float)) and 0 < reward_scale < np.inf):
             config_lib.fail("reward_scale", reward_scale, "a finite number > 0")
+        if not (isinstance(residual_scale, (int, float)) and 0 < residual_scale < np.inf):
+            config_lib.fail("residual_scale", residual_scale, "a finite number > 0")
+        if action != "residual" and residual_scale != 1.0:
+            config_lib.fail("residual_scale", residual_scale, "1 unless action='residual'")
         if config.simulator != "native":
             config_lib.fail(
                 "simulator",
@@ -155,10 +165,13 @@ class TrackingEnv(gymnasium.Env):
         self._fns = _compiled(task, robot)
         self.action = action
         self.reward_scale = float(reward_scale)
+        self.residual_scale = float(residual_scale)
         self.torque_scale = algorithm.torque_scale(config, robot)
         self.reach = action_reach(robot.torque_limit, self.torque_scale)
         if action != "limit":
-            self._torque = _action_torque(task, robot, self.torque_scale, self.reach, action)
+            self._torque = _action_torque(
+                task, robot, self.torque_scale, self.reach, action, self.residual_scale
+            )
         size = task.state_dim + task.desired_dim
         self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (size,), np.float32)
         self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (task.action_dim,), np.float32)
@@ -301,10 +314,12 @@ class _ActionTorque(NamedTuple):
     ctrl: Any
 
 
-def _action_torque(task, robot, torque_scale, reach: float, action: str) -> _ActionTorque:
+def _action_torque(
+    task, robot, torque_scale, reach: float, action: str, residual_scale: float = 1.0
+) -> _ActionTorque:
     """The compiled torque of ``action`` (``scale`` or ``residual``): the controller's squashing
-    of the library (:meth:`cfm_jax.networks.Normaliser.torque_output`) with ``torque_scale``,
-    plus the task's PD feedback for ``residual``."""
+    of the library (:meth:`cfm_jax.networks.Normaliser.torque_output`) with ``torque_scale``;
+    for ``residual``, ``residual_scale`` times it plus the task's PD feedback."""
     from cfm_jax import rollout as rollout_lib
 
     normaliser = networks.Normaliser.identity(
@@ -328,7 +343,7 @@ def _action_torque(task, robot, torque_scale, reach: float, action: str) -> _Act
                 desired=task.desired(ref_t, q, qd, f),
                 reference=ref_t,
             )
-            tau = tau + task.feedback(step)
+            tau = jnp.float32(residual_scale) * tau + task.feedback(step)
         return jnp.clip(tau, -limit, limit)
 
     return _ActionTorque(

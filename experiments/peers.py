@@ -237,7 +237,8 @@ def run_peer(
     checkpoint. The environment: :class:`cfm_jax.envs.TrackingEnv` with the peer's
     :data:`ACTION` and the reward scaled by :func:`reward_scale`; evaluation with the
     normalisation's statistics frozen. ``hyper``: arguments for SB3's constructor (None:
-    :data:`HYPERPARAMETERS`); a resumed run must have the ones it began with."""
+    :data:`HYPERPARAMETERS`) and, for a residual peer, the environment's ``residual_scale``
+    (default 1); a resumed run must have the ones it began with."""
     import stable_baselines3
     import torch
     from stable_baselines3.common import vec_env
@@ -267,10 +268,12 @@ def run_peer(
     else:
         scale = reward_scale(config)
         state = {"wall_s": 0.0, "done": [], "hyper": hyper, "reward_scale": scale}
+    residual = float(hyper.get("residual_scale", 1.0))
     env = envs.TrackingEnv(config, references="test", experiment=experiment,
-                           action=ACTION[method], reward_scale=scale)  # fmt: skip
+                           action=ACTION[method], reward_scale=scale,
+                           residual_scale=residual)  # fmt: skip
     probe = envs.TrackingEnv(config, references="test", experiment=experiment,
-                             action=ACTION[method])  # fmt: skip
+                             action=ACTION[method], residual_scale=residual)  # fmt: skip
     arguments = _arguments(hyper, env)
     if os.path.exists(model_path):
         venv = vec_env.VecNormalize.load(normaliser_path, vec_env.DummyVecEnv([lambda: env]))
@@ -328,10 +331,11 @@ def _arguments(hyper: dict, env) -> dict:
     """SB3's constructor arguments of ``hyper`` (JSON: the records keep it): SAC's
     ``target_entropy_per_action`` (a multiple of the action dimension) becomes its
     ``target_entropy``, ``policy_kwargs.activation_fn`` (one of :data:`ACTIVATIONS`) the
-    PyTorch module."""
+    PyTorch module; ``residual_scale`` (the environment's) is left out."""
     import torch
 
     arguments = json.loads(json.dumps(hyper))
+    arguments.pop("residual_scale", None)  # the environment's, not SB3's
     per_action = arguments.pop("target_entropy_per_action", None)
     if per_action is not None:
         arguments["target_entropy"] = float(per_action * env.action_space.shape[0])

@@ -27,6 +27,10 @@ before any trial ran; the program stops if the committed rule differs from this 
   the seeds. Lower is better.
 * A peer's configuration for the study is its lowest-scoring trial of the 13 (ties: the
   earlier trial).
+* Amendment 1 (:data:`AMENDMENTS`, 2026-11-29, before any further residual trial): the
+  residual peers also search ``residual_scale`` (:data:`RESIDUAL_SPACE`, log-uniform on
+  0.01-1; their defaults point has 1); the one residual trial before it stays on record,
+  outside the count.
 
 Resumable and in pieces (``--budget`` seconds: no trial starts after them): each study lives
 in a journal file (``--out/<peer>/journal.log``, committed) and each trial's runs in
@@ -138,6 +142,33 @@ DEFAULTS = {
 }
 """SB3's defaults (2.9) as points of the spaces (PPO's entropy coefficient 0 as the space's
 floor, 1e-8); ``tests/test_peers_search.py`` checks them against SB3's constructors."""
+RESIDUAL_SPACE = {"residual_scale": ("log", 0.01, 1.0)}
+"""Amendment 1: the residual peers' spaces add the factor of the policy's torque on top of the
+PD feedback (:class:`cfm_jax.envs.TrackingEnv`'s ``residual_scale``); their defaults point
+has 1, the environment without the factor."""
+RESIDUAL_DEFAULTS = {"residual_scale": 1.0}
+AMENDMENTS = (
+    {
+        "number": 1,
+        "date": "2026-11-29",
+        "text": (
+            "Both residual peers (sac_residual, ppo_residual) search a residual scale as well: "
+            "the policy's torque is residual_scale x the scale action's torque, added to the "
+            "PD feedback; residual_scale log-uniform on 0.01-1 (1: the environment before the "
+            "amendment, the defaults trial's value). Why: the first ppo_residual trial (the "
+            "same draw as ppo's first) sat 10-100x above PD-only's error, its exploration "
+            "(SB3's unit Gaussian on the action) adding torques as large as the PD "
+            "feedback's; residual-RL practice keeps the residual small at the start (Silver "
+            "et al. 2018 initialise its output layer at zero), and a scale on the residual "
+            "is the knob that does so under that exploration. Decided from that one "
+            "trial's learning curve, before any further residual trial and before any SAC "
+            "trial. That trial stays on record (ppo_residual/journal_before_amendment_1.log, "
+            "trials_before_amendment_1.csv) and is outside the count: the residual studies "
+            "start again with the amended space. The plain peers' studies are unchanged."
+        ),
+    },
+)
+"""The rule's amendments, dated, each written before the trials it governs."""
 RULE = (
     "One TPE study per peer (sac, sac_residual, ppo, ppo_residual), the per-loss search's "
     "sampler (seed {seed} plus the finished trials, {startup} random trials first) and count: "
@@ -168,9 +199,23 @@ SIZING = (
 )
 
 
+def space(peer: str) -> dict:
+    """``peer``'s space: its algorithm's (:data:`SPACES`), with :data:`RESIDUAL_SPACE` for a
+    residual peer (amendment 1)."""
+    extra = RESIDUAL_SPACE if peer.endswith("_residual") else {}
+    return {**SPACES[peers.algorithm_of(peer)], **extra}
+
+
+def defaults(peer: str) -> dict:
+    """``peer``'s defaults point: SB3's defaults (:data:`DEFAULTS`), with
+    :data:`RESIDUAL_DEFAULTS` for a residual peer."""
+    extra = RESIDUAL_DEFAULTS if peer.endswith("_residual") else {}
+    return {**DEFAULTS[peers.algorithm_of(peer)], **extra}
+
+
 def rule(every: float = peers.EVERY) -> dict:
     """The rule's record (``rule.json``): the text, the spaces, their changes, the defaults
-    points, the seeds, the budgets and the sizing."""
+    points, the seeds, the budgets, the sizing and the amendments."""
     text = RULE.format(
         seed=loss_search.SAMPLER_SEED,
         startup=loss_search.STARTUP,
@@ -184,7 +229,8 @@ def rule(every: float = peers.EVERY) -> dict:
         "rule": text, "spaces": SPACES, "space_changes": SPACE_CHANGES, "net_arch": NET_ARCH,
         "defaults": DEFAULTS, "seeds": list(SEEDS), "budget": BUDGET, "every": every,
         "trials": TRIALS, "sampler_seed": loss_search.SAMPLER_SEED,
-        "startup": loss_search.STARTUP, "sizing": SIZING,
+        "startup": loss_search.STARTUP, "sizing": SIZING, "residual_space": RESIDUAL_SPACE,
+        "residual_defaults": RESIDUAL_DEFAULTS, "amendments": list(AMENDMENTS),
     }))  # fmt: skip
 
 
@@ -212,10 +258,10 @@ def check_rule(out: str, every: float = peers.EVERY, write: bool = False) -> dic
     return committed
 
 
-def suggest(trial, algorithm: str) -> dict:
-    """The trial's values (``{name: value}``) in ``algorithm``'s space."""
+def suggest(trial, peer: str) -> dict:
+    """The trial's values (``{name: value}``) in ``peer``'s space (:func:`space`)."""
     values = {}
-    for name, (kind, *args) in SPACES[algorithm].items():
+    for name, (kind, *args) in space(peer).items():
         if kind == "categorical":
             values[name] = trial.suggest_categorical(name, args[0])
         elif kind == "log":
@@ -223,13 +269,14 @@ def suggest(trial, algorithm: str) -> dict:
         elif kind == "uniform":
             values[name] = trial.suggest_float(name, *args)
         else:
-            raise ValueError(f"SPACES[{algorithm!r}][{name!r}]: kind {kind!r} unknown")
+            raise ValueError(f"space({peer!r})[{name!r}]: kind {kind!r} unknown")
     return values
 
 
-def hyper(algorithm: str, values: dict) -> dict:
+def hyper(peer: str, values: dict) -> dict:
     """SB3's constructor arguments (JSON, as ``peers.run_peer`` takes them) of a point of
-    ``algorithm``'s space, converted as rl-zoo3 converts its samples.
+    ``peer``'s space, converted as rl-zoo3 converts its samples (a residual peer's
+    ``residual_scale`` kept as it is: ``run_peer`` gives it to the environment).
 
     Examples:
       >>> sac = hyper("sac", DEFAULTS["sac"])
@@ -237,6 +284,7 @@ def hyper(algorithm: str, values: dict) -> dict:
       ({'net_arch': [256, 256]}, 1)
     """
     values = dict(values)
+    algorithm = peers.algorithm_of(peer)
     if algorithm == "ppo":
         arguments = {k: v for k, v in values.items() if k not in ("net_arch", "activation_fn")}
         arguments["gamma"] = 1 - arguments.pop("one_minus_gamma")
@@ -249,7 +297,7 @@ def hyper(algorithm: str, values: dict) -> dict:
         arguments["gradient_steps"] = arguments["train_freq"]
         arguments["policy_kwargs"] = {"net_arch": NET_ARCH["sac"][values["net_arch"]]}
         return arguments
-    raise ValueError(f"algorithm={algorithm!r}: one of {sorted(SPACES)}")
+    raise ValueError(f"peer={peer!r}: one of {list(peers.PEERS)}")
 
 
 def run_score(records: pd.DataFrame, pd_only: float) -> float:
@@ -294,12 +342,12 @@ def distinct(search, peer: str) -> int:
 
     done = search.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
     keys = {loss_search._key(t.params) for t in done}
-    keys.discard(loss_search._key(DEFAULTS[peers.algorithm_of(peer)]))
+    keys.discard(loss_search._key(defaults(peer)))
     return len(keys)
 
 
 def _has_defaults(search, peer: str, states) -> bool:
-    values = loss_search._key(DEFAULTS[peers.algorithm_of(peer)])
+    values = loss_search._key(defaults(peer))
     return any(loss_search._key(loss_search._values(t)) == values
                for t in search.get_trials(deepcopy=False, states=states))  # fmt: skip
 
@@ -316,7 +364,7 @@ def next_peer(searches: dict, trials: int = TRIALS) -> str | None:
         done[peer] = distinct(search, peer)
         if done[peer] >= trials and not _has_defaults(search, peer, complete):
             if not _has_defaults(search, peer, alive):
-                search.enqueue_trial(DEFAULTS[peers.algorithm_of(peer)])
+                search.enqueue_trial(defaults(peer))
             done[peer] = trials - 0.5
     todo = [peer for peer in searches if done[peer] < trials]
     return min(todo, key=lambda p: (done[p], list(searches).index(p)), default=None)
@@ -346,7 +394,7 @@ def run_trial(search, peer: str, config, pd_only: float, args) -> dict:
     """Ask, run the peer on each selection seed (resumable), score, tell; the trial's record."""
     algorithm = peers.algorithm_of(peer)
     trial = loss_search.ask(search)
-    values = suggest(trial, algorithm)
+    values = suggest(trial, peer)
     budget = args.run_budget or BUDGET[algorithm]
     checkpoints = peers.default_checkpoints(budget, args.every)
     seeds = list(SEEDS[:1] if args.quick else SEEDS)
@@ -354,7 +402,7 @@ def run_trial(search, peer: str, config, pd_only: float, args) -> dict:
     scores = []
     for seed in seeds:
         out = os.path.join(args.runs, peer, _hash(values), f"seed{seed}")
-        peers.run_peer(peer, seed, config, out, checkpoints, hyper(algorithm, values))
+        peers.run_peer(peer, seed, config, out, checkpoints, hyper(peer, values))
         scores.append(run_score(pd.read_csv(os.path.join(out, "records.csv")), pd_only))
     seconds = time.perf_counter() - start
     value = float(np.mean(scores))
@@ -387,20 +435,19 @@ def chosen(frame: pd.DataFrame, trials: int = TRIALS) -> dict:
     defaults)."""
     out = {}
     for peer, mine in frame.groupby("peer", sort=False):
-        algorithm = peers.algorithm_of(peer)
         best = mine.sort_values(["score", "trial"]).iloc[0]
-        values = typed(algorithm, best)
-        keys = {loss_search._key(typed(algorithm, r)) for _, r in mine.iterrows()}
-        defaults = loss_search._key(DEFAULTS[algorithm])
-        complete = defaults in keys and len(keys - {defaults}) >= trials
+        values = typed(peer, best)
+        keys = {loss_search._key(typed(peer, r)) for _, r in mine.iterrows()}
+        point = loss_search._key(defaults(peer))
+        complete = point in keys and len(keys - {point}) >= trials
         out[peer] = {"trial": int(best["trial"]), "score": float(best["score"]),
-                     "values": values, "hyper": hyper(algorithm, values),
+                     "values": values, "hyper": hyper(peer, values),
                      "complete": bool(complete), "trials": len(mine)}  # fmt: skip
     return out
 
 
-def typed(algorithm: str, row) -> dict:
-    """The values of ``algorithm``'s space in a record's row, as the space has them (a table's
+def typed(peer: str, row) -> dict:
+    """The values of ``peer``'s space in a record's row, as the space has them (a table's
     column of integers with gaps reads back as floats).
 
     Examples:
@@ -408,12 +455,12 @@ def typed(algorithm: str, row) -> dict:
       1000000
     """
     values = {}
-    for name, (kind, *args) in SPACES[algorithm].items():
+    for name, (kind, *args) in space(peer).items():
         value = row[name]
         if kind == "categorical":
             matches = [v for v in args[0] if v == value]
             if not matches:
-                raise ValueError(f"{algorithm}: {name}={value!r} is not one of {args[0]}")
+                raise ValueError(f"{peer}: {name}={value!r} is not one of {args[0]}")
             value = matches[0]
         else:
             value = float(value)

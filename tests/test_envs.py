@@ -123,6 +123,10 @@ def test_refused_configs_name_the_field(change, field):
         envs.TrackingEnv(CONFIG, action="torque")
     with pytest.raises(config_lib.ConfigError, match="reward_scale=0.0.*> 0"):
         envs.TrackingEnv(CONFIG, reward_scale=0.0)
+    with pytest.raises(config_lib.ConfigError, match="residual_scale=-1.*> 0"):
+        envs.TrackingEnv(CONFIG, action="residual", residual_scale=-1.0)
+    with pytest.raises(config_lib.ConfigError, match="residual_scale=0.1.*action='residual'"):
+        envs.TrackingEnv(CONFIG, action="scale", residual_scale=0.1)
 
 
 def test_environments_of_one_experiment_share_compilation_not_state(experiment):
@@ -215,3 +219,32 @@ def test_scale_action_is_the_controller_squashing_through_the_coupled_scale(expe
         got = np.asarray(scaled._torque.torque(unit, ref_t, scaled._qpos, scaled._qvel,
                                                scaled._feat))  # fmt: skip
         assert got[j] >= np.tanh(1.0) * limit[j] * (1 - 1e-6)
+
+
+def test_a_residual_scale_multiplies_the_policy_torque_not_the_feedback(experiment):
+    # tau = clip(PD + s * scale-torque(a)): the PD part from the residual environment at zero
+    # action, the policy's part from the scale environment (unclipped there for these small
+    # actions); s = 1 is the environment without the factor, bit for bit.
+    s = 0.05
+    small = envs.TrackingEnv(CONFIG, references="test", experiment=experiment,
+                             action="residual", residual_scale=s)  # fmt: skip
+    full = envs.TrackingEnv(CONFIG, references="test", experiment=experiment, action="residual")
+    one = envs.TrackingEnv(CONFIG, references="test", experiment=experiment, action="residual",
+                           residual_scale=1.0)  # fmt: skip
+    scale = envs.TrackingEnv(CONFIG, references="test", experiment=experiment, action="scale")
+    task, robot = experiment.task, experiment.robot
+    limit = np.asarray(robot.torque_limit, np.float64)
+    small.reset(options={"target": 0})
+    zero = np.zeros(task.action_dim, np.float32)
+    for a in np.random.default_rng(3).uniform(-1, 1, (6, task.action_dim)).astype(np.float32):
+        ref_t = jax.tree.map(lambda x: np.asarray(x)[0, small._t], task.reference)
+        state = (ref_t, small._qpos, small._qvel, small._feat)
+        pd = np.asarray(full._torque.torque(zero, *state), np.float64)
+        policy = np.asarray(scale._torque.torque(a, *state), np.float64)
+        got = np.asarray(small._torque.torque(a, *state), np.float64)
+        np.testing.assert_allclose(got, np.clip(pd + s * policy, -limit, limit), rtol=1e-5,
+                                   atol=1e-6)  # fmt: skip
+        np.testing.assert_array_equal(np.asarray(one._torque.torque(a, *state)),
+                                      np.asarray(full._torque.torque(a, *state)))  # fmt: skip
+        assert not np.allclose(got, np.asarray(full._torque.torque(a, *state)))
+        small.step(a)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import sys
 
 import numpy as np
@@ -50,11 +51,16 @@ def test_the_defaults_trial_is_sb3s_defaults():
                 assert getattr(ours, field) == pytest.approx(getattr(sb3, field)), field
             assert ours.clip_range(1.0) == sb3.clip_range(1.0)
             assert ours.ent_coef == pytest.approx(sb3.ent_coef, abs=1e-8)  # the space's floor
-    # Every default is a point of its space.
-    for name, space in peers_search.SPACES.items():
-        for factor, (kind, *args) in space.items():
-            value = peers_search.DEFAULTS[name][factor]
+    # Every peer's defaults point is a point of its space, and a residual peer's is the
+    # environment before amendment 1 (residual scale 1).
+    for peer in peers.PEERS:
+        point = peers_search.defaults(peer)
+        assert set(point) == set(peers_search.space(peer))
+        for factor, (kind, *args) in peers_search.space(peer).items():
+            value = point[factor]
             assert value in args[0] if kind == "categorical" else args[0] <= value <= args[1]
+        assert point.get("residual_scale", 1.0) == 1.0
+        assert ("residual_scale" in point) == (peers.ACTION[peer] == "residual")
 
 
 def test_equal_footing_with_the_per_loss_search():
@@ -100,15 +106,17 @@ def test_round_robin_then_the_defaults_then_done(tmp_path):
         order.append(peer)
         search = searches[peer]
         trial = search.ask()
-        values = peers_search.suggest(trial, peers.algorithm_of(peer))
+        values = peers_search.suggest(trial, peer)
         search.tell(trial, -float(len(order)))
+        assert ("residual_scale" in values) == (peer == "sac_residual")
         if len(order) > 4:
-            assert values == peers_search.DEFAULTS[peers.algorithm_of(peer)]
+            assert values == peers_search.defaults(peer)
     assert order == ["ppo", "sac_residual"] * 3
     assert peers_search.next_peer(searches, trials=2) is None
     chosen = peers_search.chosen(peers_search.records(out, peers.PEERS), trials=2)
     assert chosen["ppo"]["trial"] == 2 and chosen["ppo"]["complete"]  # the lowest: -5
-    assert chosen["sac_residual"]["values"] == peers_search.DEFAULTS["sac"]
+    assert chosen["sac_residual"]["values"] == {**peers_search.DEFAULTS["sac"],
+                                                "residual_scale": 1.0}  # fmt: skip
     assert chosen["sac_residual"]["hyper"]["gradient_steps"] == 1
 
 
@@ -126,13 +134,47 @@ def test_the_program_runs_a_tiny_search_and_records_it(tmp_path):
     assert chosen["complete"] and chosen["score"] == trials.score.min()
     # A trial's score is its run's, from the run's records (selection motions, seed 100).
     best = trials.sort_values("score").iloc[0]
-    values = peers_search.typed("sac", best)
+    values = peers_search.typed("sac_residual", best)
     records = pd.read_csv(os.path.join(runs, "sac_residual", peers_search._hash(values),
                                        "seed100", "records.csv"))  # fmt: skip
-    assert list(records.robot_s.unique()) == pytest.approx([0.1, 0.2])
+    # One evaluation per checkpoint, at the step that reached it (SAC collects train_freq
+    # steps at a time, so it may pass a checkpoint by up to train_freq - 1 steps).
+    steps = np.round(records.robot_s.unique() / 0.01)
+    assert (
+        len(steps) == 2
+        and ((steps >= [10, 20]) & (steps < np.add([10, 20], values["train_freq"]))).all()
+    )
+    with open(os.path.join(runs, "sac_residual", peers_search._hash(values), "seed100",
+                           "state.json")) as f:  # fmt: skip
+        assert json.load(f)["hyper"]["residual_scale"] == values["residual_scale"]
     pd_only = peers.pd_only_mse(peers_search.base_config(quick=True))
     assert chosen["score"] == pytest.approx(peers_search.run_score(records, pd_only))
     # The study's command reads the choice.
     hypers, source = peers.tuned(os.path.join(out, "chosen.json"))
     assert hypers["sac_residual"] == chosen["hyper"] and hypers["ppo"] == {}
     assert "sac_residual" in source
+
+
+def test_the_residual_studies_count_only_trials_under_amendment_1(tmp_path):
+    # Amendment 1 (a searched residual scale) is in the committed rule, dated; every trial of
+    # a residual study in the committed journals has a residual scale in its space, and the
+    # one trial before the amendment is kept apart, with none.
+    folder = os.path.join(ROOT, "docs", "results", "peers_search")
+    with open(os.path.join(folder, "rule.json")) as f:
+        rule = json.load(f)
+    assert [a["number"] for a in rule["amendments"]] == [1]
+    assert rule["residual_space"] == {"residual_scale": ["log", 0.01, 1.0]}
+    for peer in ("ppo_residual", "sac_residual"):
+        journal = os.path.join(folder, peer, "journal.log")
+        if not os.path.exists(journal):
+            continue
+        os.makedirs(tmp_path / peer)
+        shutil.copy(journal, tmp_path / peer / "journal.log")  # opening a study writes to it
+        for trial in peers_search.study(str(tmp_path), peer).get_trials(deepcopy=False):
+            if trial.params:
+                assert 0.01 <= trial.params["residual_scale"] <= 1.0, (peer, trial.number)
+    before = pd.read_csv(os.path.join(folder, "trials_before_amendment_1.csv"))
+    assert list(before.peer) == ["ppo_residual"] and "residual_scale" not in before
+    counted = pd.read_csv(os.path.join(folder, "trials.csv"))
+    residual = counted[counted.peer.str.endswith("_residual")]
+    assert residual.empty or residual.residual_scale.between(0.01, 1.0).all()
