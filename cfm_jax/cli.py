@@ -25,7 +25,7 @@ from tyro.conf import arg as tyro_arg
 
 import cfm_jax  # (sets the XLA flag before JAX starts)
 from cfm_jax import config as config_lib
-from cfm_jax import losses, plots, report
+from cfm_jax import plots, report
 from cfm_jax._files import write_atomic, write_text
 
 
@@ -59,7 +59,8 @@ def train(
         jump).
       task: task name (inverse_dynamics, opspace, walk, jump); None: the config file's,
         else inverse_dynamics.
-      loss: a controller loss (joint, task, distal, supervised, distal_literal), a
+      loss: a controller loss (joint, task, distal, supervised, distal_literal, or one
+        registered with cfm_jax.losses.register: cfm-jax --import MODULE train ...), a
         comma-separated list of them, or "all" (the paper's four).
       seeds: number of seeds (run together as a vmap axis); None: the config's (1).
       iterations: iterations of Algorithm 1; None: the config file's, else 4.
@@ -427,16 +428,7 @@ def _scalar(text: str):
 
 
 def _losses(spec: str, flag: str = "--loss") -> list[str]:
-    if spec == "all":
-        return list(losses.PAPER_LOSSES)
-    names = [s.strip() for s in spec.split(",") if s.strip()]
-    bad = [n for n in names if n not in losses.CONTROLLER_LOSSES]
-    if not names or bad or len(set(names)) != len(names):
-        raise config_lib.ConfigError(
-            f"{flag}={spec!r} is not allowed: 'all' or a comma-separated list of distinct "
-            f"names from {losses.CONTROLLER_LOSSES}"
-        )
-    return names
+    return list(config_lib.loss_names(spec, flag))
 
 
 def _concat(frames):
@@ -795,7 +787,14 @@ def _config_of(flags, base: config_lib.Config, loss: str) -> config_lib.Config:
 
 
 _OUT_HELP = "output directory."
-_LOSS_NAMES = ", ".join(config_lib.CONTROLLER_LOSSES)  # the loss names, said once (config)
+
+
+def _loss_names() -> str:
+    """The registered loss names, said once (config), with the way to add one."""
+    return (", ".join(config_lib.CONTROLLER_LOSSES) + "; a loss of your own: cfm-jax --import "
+            "MODULE COMMAND ..., MODULE calling cfm_jax.losses.register")  # fmt: skip
+
+
 _PAPER_NAMES = ", ".join(config_lib.PAPER_LOSSES)
 _QUIET_HELP = "no progress output."
 
@@ -805,7 +804,7 @@ def _train_command(argv: list[str]) -> None:
     base = _prescan(argv, listed)
     extra = [
         ("loss", Annotated[str, tyro_arg(metavar="NAMES", help="a controller loss "
-         f"({_LOSS_NAMES}), a comma-separated list of them, or all (the paper's four); "
+         f"({_loss_names()}), a comma-separated list of them, or all (the paper's four); "
          "default: all, or the losses a --config file lists.")],
          listed[0] if listed else "all"),
         ("out", Annotated[str, tyro_arg(metavar="DIR", help=_OUT_HELP)], "results/train"),
@@ -836,7 +835,7 @@ def _sweep_command(argv: list[str]) -> None:
     base = _prescan(argv, listed)
     extra = [
         ("losses", Annotated[str, tyro_arg(metavar="NAMES", help="all (the paper's four: "
-         f"{_PAPER_NAMES}), or a comma-separated list of controller losses ({_LOSS_NAMES}); "
+         f"{_PAPER_NAMES}), or a comma-separated list of controller losses ({_loss_names()}); "
          "default: all, or the losses a --config file lists.")],
          listed[0] if listed else "all"),
         ("out", Annotated[str, tyro_arg(metavar="DIR", help=_OUT_HELP)], "results/sweep"),
@@ -867,7 +866,7 @@ def _config_command(argv: list[str]) -> None:
     base = _prescan(argv)
     extra = [
         ("loss", Annotated[str, tyro_arg(metavar="NAME",
-         help=f"the controller loss ({_LOSS_NAMES}).")], base.loss),
+         help=f"the controller loss ({_loss_names()}).")], base.loss),
     ]  # fmt: skip
     flags_cls = _flags_class("config", base, extra)
     flags = _parse(flags_cls, argv, "config", _description(print_config))
@@ -968,6 +967,7 @@ def main() -> None:
         "robot": _robot_command,
     }
     try:
+        argv = _imports(argv)
         if argv[:1] == ["--version"]:
             print(f"cfm-jax {_version()}")
         elif argv[:1] and argv[0] in commands:
@@ -983,7 +983,9 @@ def main() -> None:
                 },
                 prog="cfm-jax",
                 description=f"cfm-jax {_version()}: coupled forward and inverse models "
-                "(Bechtle et al., ICRA 2021). cfm-jax COMMAND --help lists a command's flags.",
+                "(Bechtle et al., ICRA 2021). cfm-jax COMMAND --help lists a command's flags. "
+                "cfm-jax --import MODULE COMMAND ... first imports MODULE (a module name or a "
+                ".py file), which may register losses, forward kinds or tasks of your own.",
             )
     except (config_lib.ConfigError, RobotError) as error:
         one_line = " ".join(str(error).split())  # MuJoCo's parser messages span lines
@@ -996,6 +998,47 @@ def main() -> None:
             raise
         print(f"cfm-jax: error: {error}", file=sys.stderr)
         raise SystemExit(1) from None
+
+
+def _imports(argv: list[str]) -> list[str]:
+    """Import the modules of the leading ``--import MODULE`` options (repeatable; a module
+    name importable from the working directory, or a ``.py`` file), in order, so that what
+    they register (:func:`cfm_jax.losses.register`, :func:`cfm_jax.forward_models.register`,
+    :func:`cfm_jax.tasks.register`) is known before the command parses; the rest of
+    ``argv``.
+
+    Raises:
+      ConfigError: ``--import`` without a value, or a module that cannot be imported.
+    """
+    import importlib
+    import importlib.util
+    import os
+    import sys
+
+    while argv and (argv[0] == "--import" or argv[0].startswith("--import=")):
+        if argv[0] == "--import":
+            if len(argv) < 2:
+                config_lib.fail("--import", None, "a module name or a .py file")
+            name, argv = argv[1], argv[2:]
+        else:
+            name, argv = argv[0].split("=", 1)[1], argv[1:]
+        try:
+            if name.endswith(".py"):
+                path = os.path.abspath(name)
+                if not os.path.isfile(path):
+                    raise ImportError(f"no file {path}")
+                module = os.path.splitext(os.path.basename(path))[0]
+                spec = importlib.util.spec_from_file_location(module, path)
+                loaded = importlib.util.module_from_spec(spec)
+                sys.modules[module] = loaded
+                spec.loader.exec_module(loaded)
+            else:
+                if os.getcwd() not in sys.path and "" not in sys.path:
+                    sys.path.insert(0, os.getcwd())
+                importlib.import_module(name)
+        except ImportError as error:
+            config_lib.fail("--import", name, f"a module Python can import or a .py file ({error})")
+    return argv
 
 
 def _version() -> str:

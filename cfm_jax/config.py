@@ -206,8 +206,63 @@ PAPER_LOSSES = ("joint", "task", "distal", "supervised")
 """The paper's four controller losses (:mod:`cfm_jax.losses`), in reporting order (``all``)."""
 
 CONTROLLER_LOSSES = PAPER_LOSSES + ("distal_literal",)
-"""Values of ``Config.loss``: :data:`PAPER_LOSSES` and ``distal_literal`` (the distal teacher
-as a loss over the whole data set, :func:`cfm_jax.losses.distal_literal`)."""
+"""Values of ``Config.loss``: :data:`PAPER_LOSSES`, ``distal_literal`` (the distal teacher
+as a loss over the whole data set, :func:`cfm_jax.losses.distal_literal`) and every loss
+registered since (:func:`cfm_jax.losses.register` calls :func:`add_loss_name`)."""
+
+
+def add_loss_name(name: str) -> None:
+    """Allow ``name`` as ``Config.loss`` (:func:`cfm_jax.losses.register` calls this; a name
+    already in :data:`CONTROLLER_LOSSES` changes nothing)."""
+    global CONTROLLER_LOSSES
+    if name not in CONTROLLER_LOSSES:
+        CONTROLLER_LOSSES = CONTROLLER_LOSSES + (name,)
+
+
+def loss_names(losses, field: str = "losses") -> tuple[str, ...]:
+    """The one reading of "several losses": ``"all"`` (the paper's four), a name, a
+    comma-separated string of names, or a sequence of names, as a tuple of distinct
+    registered names (:data:`CONTROLLER_LOSSES`).
+
+    Args:
+      losses: as above.
+      field: how the error names the value (``losses``, ``--loss``, ...).
+
+    Raises:
+      ConfigError: an unknown or repeated name, or none.
+
+    Examples:
+      >>> loss_names("all")
+      ('joint', 'task', 'distal', 'supervised')
+      >>> loss_names("task, joint")
+      ('task', 'joint')
+      >>> loss_names(["task", "task"], field="--loss")
+      Traceback (most recent call last):
+      ...
+      cfm_jax.config.ConfigError: --loss=['task', 'task'] is not allowed: 'all', a name or a
+      comma-separated list of distinct names from ('joint', 'task', ..., 'distal_literal'...)
+    """
+    if isinstance(losses, str) and losses.strip() == "all":
+        return tuple(PAPER_LOSSES)
+    if isinstance(losses, str):
+        names = tuple(s.strip() for s in losses.split(",") if s.strip())
+    else:
+        try:
+            names = tuple(losses)
+        except TypeError:
+            names = ()
+    unknown = [n for n in names if not isinstance(n, str) or n not in CONTROLLER_LOSSES]
+    if not names or len(set(names)) != len(names) or unknown:
+        fail(
+            field,
+            losses,
+            f"'all', a name or a comma-separated list of distinct names from {CONTROLLER_LOSSES}"
+            + (f"; not registered: {unknown}" if unknown else "")
+            + " (a loss of your own: cfm_jax.losses.register it first; on the command line, "
+            "cfm-jax --import MODULE ..., MODULE registering it)",
+        )
+    return names
+
 
 BABBLING_BEFORE = {
     "inverse_dynamics": "reference_pd",
@@ -800,7 +855,11 @@ class Config:
                     "file (containing a path separator or ending in .xml)",
                 )
         if self.loss not in CONTROLLER_LOSSES:
-            allowed = f"one of {CONTROLLER_LOSSES}"
+            allowed = (
+                f"one of {CONTROLLER_LOSSES} (a loss of your own: cfm_jax.losses.register "
+                "it before the config is made; on the command line, cfm-jax --import MODULE "
+                "train ..., MODULE registering it)"
+            )
             if isinstance(self.loss, str) and "," in self.loss:
                 allowed += (
                     " (a config holds one loss: the config.json of a several-loss run lists "

@@ -16,6 +16,7 @@ import pandas as pd
 from cfm_jax import _xla, algorithm, dataset, rollout, tasks
 from cfm_jax import config as config_lib
 from cfm_jax.algorithm import METRIC_COLUMNS, Knobs, TrainState
+from cfm_jax.config import loss_names
 
 
 class Experiment:
@@ -369,33 +370,6 @@ class Experiment:
                 rows.append(row)
         cache[cache_key] = pd.DataFrame(rows)
         return cache[cache_key].copy()
-
-
-def loss_names(losses) -> tuple[str, ...]:
-    """``losses`` as a tuple of distinct controller-loss names (``"all"``: the paper's four).
-
-    Args:
-      losses: a loss name, a sequence of them, or ``"all"``.
-
-    Raises:
-      ConfigError: an unknown or repeated name, or none (a ``ValueError``).
-
-    Examples:
-      >>> loss_names("all")
-      ('joint', 'task', 'distal', 'supervised')
-    """
-    if losses == "all":
-        return tuple(config_lib.PAPER_LOSSES)
-    names = (losses,) if isinstance(losses, str) else tuple(losses)
-    if (
-        not names
-        or len(set(names)) != len(names)
-        or any(n not in config_lib.CONTROLLER_LOSSES for n in names)
-    ):
-        config_lib.fail(
-            "losses", losses, f"'all' or distinct names from {config_lib.CONTROLLER_LOSSES}"
-        )
-    return names
 
 
 def _stack(trees):

@@ -4,17 +4,21 @@ Per-sample losses take ``(..., d)`` arrays and sum over the last axis, shape ``(
 Notation: ``s_p = f(s, g(s, s_d))`` predicted, ``s_d`` desired, ``s_a`` observed next state,
 ``p' = df/dg dg/dbeta``. Gradients, rest points and the ``squared`` and ``norm`` forms
 (``controller.loss_form``): docs/concepts/losses.md.
+
+Every controller loss is a registered function (:func:`register`, :data:`REGISTRY`): the
+library's five are registered at the bottom of this module the way a user registers their
+own, and ``Config.loss``, the CLI, sweeps and resume accept any registered name.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
-# The loss names live with the other names of choices in the config, the bottom of the
-# import graph; re-exported here, next to the functions they name.
-from cfm_jax.config import CONTROLLER_LOSSES, PAPER_LOSSES  # noqa: F401
+from cfm_jax import config as config_lib
+from cfm_jax.config import PAPER_LOSSES, ConfigError  # noqa: F401  (re-exported)
 
 
 def task(predicted_next, desired_next):
@@ -132,13 +136,15 @@ def controller_loss(
       >>> float(controller_loss("joint", p, d, o, select=lambda y: y[..., :1]))
       5.0
     """
-    if name not in MODEL_BASED:
+    loss = get(name)
+    if not loss.forward:
         raise ValueError(
-            f"loss={name!r} is not a model-based controller loss; allowed: 'task', 'joint', "
-            "'distal', 'distal_literal' ('supervised' is computed by losses.supervised)"
+            f"loss={loss.name!r} is not a model-based controller loss: it compares actions "
+            "(update.controller_objective computes it); model-based: "
+            f"{tuple(n for n, entry in REGISTRY.items() if entry.forward)}"
         )
-    if name == "distal" and predicted_run is None:
-        raise ValueError("loss='distal' needs predicted_run = f(s, tau_run)")
+    if loss.run and predicted_run is None:
+        raise ValueError(f"loss={loss.name!r} needs predicted_run = f(s, tau_run)")
     if select is None:
         select = lambda y: y  # noqa: E731
     if groups is None:  # squared: every distance a sum of squares
@@ -152,7 +158,7 @@ def controller_loss(
         def d_output(x, y):
             return grouped(x - y, groups)
 
-    quantities = _Quantities(
+    quantities = Quantities(
         predicted=select(predicted_next),
         predicted_next=predicted_next,
         desired=desired_next,
@@ -160,11 +166,21 @@ def controller_loss(
         observed=select(observed_next),
         run=None if predicted_run is None else select(predicted_run),
     )
-    return MODEL_BASED[name](quantities, d_desired, d_output)
+    return loss.fn(quantities, d_desired, d_output)
 
 
-class _Quantities(NamedTuple):
-    """A model-based loss's terms: ``P s_p, s_p, s_d, s_a, P s_a, P s_p,run``."""
+class Quantities(NamedTuple):
+    """What a model-based loss receives (:func:`register`), in normalised units, each with the
+    minibatch's leading axes.
+
+    Attributes:
+      predicted: ``P s_p``, the prediction's entries that ``s*`` specifies.
+      predicted_next: ``s_p``, everything the forward model predicts.
+      desired: ``s_d`` (``s*``).
+      observed_next: ``s_a``, the observed next state (the model's output coordinates).
+      observed: ``P s_a``.
+      run: ``P s_p,run = P f(s, tau_run)`` for a loss registered with ``run=True``; None else.
+    """
 
     predicted: Any
     predicted_next: Any
@@ -193,9 +209,117 @@ def _distal_literal(q, d_desired, d_output):
     return d_desired(q.predicted, q.desired) - d_desired(q.predicted, q.observed)
 
 
-MODEL_BASED = {"task": _task, "joint": _joint, "distal": _distal, "distal_literal": _distal_literal}
-"""Each model-based loss, ``loss(quantities, d_desired, d_output)``, once for both forms: the
-distances are sums of squares (``squared``) or :func:`grouped` norms (``norm``)."""
+def _supervised(predicted_action, executed_action, distance):
+    return distance(predicted_action, executed_action)
+
+
+class Loss(NamedTuple):
+    """A registered controller loss (:func:`register`).
+
+    Attributes:
+      name: its name (``Config.loss``).
+      fn: the per-sample loss: with ``forward``, ``fn(q, d_desired, d_output)``, ``q`` the
+        :class:`Quantities`; without, ``fn(predicted_action, executed_action, d_action)``.
+      forward: whether it goes through the forward model (``s_p = f(s, g(s, s*))``); if not,
+        it compares the controller's action ``g(s, P s_a)`` with the executed ``tau_run``.
+      run: whether it needs ``P f(s, tau_run)`` (``q.run``).
+    """
+
+    name: str
+    fn: Callable
+    forward: bool = True
+    run: bool = False
+
+
+REGISTRY: dict[str, Loss] = {}
+"""Every controller loss by name (:func:`register`): the library's five, then the user's."""
+
+
+def register(name: str, fn: Callable, *, forward: bool = True, run: bool = False) -> Loss:
+    """Register a controller loss, so that ``Config.loss``, ``cfm_jax.train(config,
+    losses=...)``, ``cfm-jax train --loss``, sweeps and resume accept ``name``.
+
+    The contract. ``fn`` returns the per-sample loss (the minibatch's leading shape; the
+    update takes its mean and differentiates it in the controller's parameters only):
+
+    * ``forward=True`` (model-based, like ``task``, ``joint``, ``distal``):
+      ``fn(q, d_desired, d_output)``. ``q`` is a :class:`Quantities` (``P s_p``, ``s_p``,
+      ``s_d``, ``s_a``, ``P s_a`` and, with ``run=True``, ``P f(s, tau_run)``);
+      ``d_desired(x, y)`` and ``d_output(x, y)`` are the distances of the config's
+      ``controller.loss_form`` in ``s*``'s entries and in the forward model's output
+      (sums of squares for ``squared``, weighted group norms for ``norm``). Write the loss
+      with them and it follows the form.
+    * ``forward=False`` (like ``supervised``: no forward model in the controller's loss):
+      ``fn(predicted_action, executed_action, d_action)``, the controller's action
+      ``g(s, P s_a)`` and the executed ``tau_run`` in the forward model's scaled torque
+      units, ``d_action(x, y)`` the form's distance.
+
+    Register before the config that names the loss is made (for the CLI:
+    ``cfm-jax --import MODULE train ...``, where ``MODULE`` registers it on import).
+
+    Args:
+      name: a new name (a non-empty string without commas or spaces).
+      fn: the per-sample loss, a pure JAX function (traced inside the compiled update).
+      forward: see above.
+      run: the loss needs ``P f(s, tau_run)`` (``forward`` losses only).
+
+    Returns:
+      the registered :class:`Loss`.
+
+    Raises:
+      ValueError: a bad or taken name, ``fn`` not callable, ``run`` without ``forward``.
+
+    Examples:
+      >>> def mix(q, d_desired, d_output):  # 0.7 task + 0.3 joint, in either form
+      ...     return 0.7 * d_desired(q.predicted, q.desired) + 0.3 * (
+      ...         d_desired(q.predicted, q.desired) + d_output(q.predicted_next, q.observed_next))
+      >>> # register("mix", mix); then Config(loss="mix") trains it (docs/concepts/losses.md)
+      >>> register("task", mix)
+      Traceback (most recent call last):
+      ValueError: name='task' is not allowed: a controller loss of that name exists
+    """
+    if not isinstance(name, str) or not name or any(c in name for c in ", \t\n"):
+        raise ValueError(f"name={name!r} is not allowed: a non-empty string without commas "
+                         "or spaces")  # fmt: skip
+    if name in REGISTRY:
+        raise ValueError(f"name={name!r} is not allowed: a controller loss of that name exists")
+    if not callable(fn):
+        raise ValueError(f"fn={fn!r} is not allowed: a function")
+    if run and not forward:
+        raise ValueError("run=True is not allowed without forward=True: f(s, tau_run) is the "
+                         "forward model's")  # fmt: skip
+    loss = Loss(name, fn, bool(forward), bool(run))
+    REGISTRY[name] = loss
+    config_lib.add_loss_name(name)
+    return loss
+
+
+def get(loss) -> Loss:
+    """The registered :class:`Loss` of a name (a :class:`Loss` is returned as it is).
+
+    Raises:
+      ConfigError: no loss of that name is registered.
+
+    Examples:
+      >>> get("distal").run, get("supervised").forward
+      (True, False)
+    """
+    if isinstance(loss, Loss):
+        return loss
+    if loss not in REGISTRY:
+        raise ConfigError(f"loss={loss!r} is not allowed: one of {tuple(REGISTRY)} (register "
+                          "a loss of your own with cfm_jax.losses.register)")  # fmt: skip
+    return REGISTRY[loss]
+
+
+for _name, _fn, _forward, _run in (
+    ("joint", _joint, True, False),
+    ("task", _task, True, False),
+    ("distal", _distal, True, True),
+    ("supervised", _supervised, False, False),
+    ("distal_literal", _distal_literal, True, False),
+):
+    register(_name, _fn, forward=_forward, run=_run)
 
 
 def safe_norm(x):

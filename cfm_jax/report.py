@@ -401,7 +401,8 @@ def _require(frame: pd.DataFrame, columns: Iterable[str]) -> None:
 
 
 def loss_order(names) -> list[str]:
-    """Distinct loss names in table order: ``losses.CONTROLLER_LOSSES`` first, then others.
+    """Distinct loss names in table order: the registered losses' (:data:`cfm_jax.losses.REGISTRY`)
+    first, then others.
 
     Args:
       names: loss names, repeats allowed (a metrics table's ``loss`` column).
@@ -411,8 +412,8 @@ def loss_order(names) -> list[str]:
       ['joint', 'task', 'mine']
     """
     present = list(dict.fromkeys(names))
-    known = [name for name in losses.CONTROLLER_LOSSES if name in present]
-    return known + [name for name in present if name not in losses.CONTROLLER_LOSSES]
+    known = [name for name in losses.REGISTRY if name in present]
+    return known + [name for name in present if name not in losses.REGISTRY]
 
 
 # ----- tables -------------------------------------------------------------------------

@@ -26,7 +26,6 @@ from typing import Any
 import pandas as pd
 
 from cfm_jax import config as config_lib
-from cfm_jax import losses as losses_lib
 from cfm_jax import plots, report
 from cfm_jax._files import write_atomic, write_text
 
@@ -277,19 +276,7 @@ def _seeds(base: config_lib.Config, seeds) -> tuple[int, int]:
 
 
 def _losses(base: config_lib.Config, losses) -> list[str]:
-    if losses is None:
-        return [base.loss]
-    if losses == "all":
-        return list(losses_lib.PAPER_LOSSES)
-    names = [losses] if isinstance(losses, str) else list(losses)
-    bad = [n for n in names if n not in losses_lib.CONTROLLER_LOSSES]
-    if not names or bad or len(set(names)) != len(names):
-        config_lib.fail(
-            "losses",
-            losses,
-            f"'all' or distinct names from {losses_lib.CONTROLLER_LOSSES}",
-        )
-    return names
+    return [base.loss] if losses is None else list(config_lib.loss_names(losses))
 
 
 def _overrides(base: config_lib.Config, overrides) -> tuple[list[str], list[list[Any]]]:

@@ -18,7 +18,7 @@ from cfm_jax import dataset, losses
 def controller_objective(
     controller_params,
     forward_params,
-    loss: str,
+    loss,
     forward,
     controller,
     normaliser,
@@ -29,15 +29,16 @@ def controller_objective(
 ):
     """Mean controller loss over a minibatch, in normalised units (the controller's training loss).
 
-    Model-based losses compare ``s_p = f(s, g(s, s*))`` (ensemble mean) with ``s*``
-    (:func:`cfm_jax.losses.controller_loss`); ``supervised`` compares ``g(s, P s_a)`` with
-    ``tau_run`` in the forward model's scaled torque units (a norm in the ``norm`` form).
+    Model-based losses (``loss.forward``) compare ``s_p = f(s, g(s, s*))`` (ensemble mean)
+    with ``s*`` (:func:`cfm_jax.losses.controller_loss`); the others, like ``supervised``,
+    compare ``g(s, P s_a)`` with ``tau_run`` in the forward model's scaled torque units (a
+    norm in the ``norm`` form).
     ``goal="observed"`` gives ``g`` the observed ``P s_a`` for ``s*``; see docs/concepts/losses.md.
 
     Args:
       controller_params: the controller's parameters (differentiated).
       forward_params: the forward ensemble's parameters (held fixed).
-      loss: one of ``losses.CONTROLLER_LOSSES``.
+      loss: a registered :class:`cfm_jax.losses.Loss` or its name (:func:`cfm_jax.losses.get`).
       forward: the forward :class:`cfm_jax.networks.Model`.
       controller: the controller :class:`cfm_jax.networks.Model`.
       normaliser: the :class:`cfm_jax.networks.Normaliser`.
@@ -59,21 +60,21 @@ def controller_objective(
     """
     if goal not in ("desired", "observed"):
         raise ValueError(f"goal={goal!r} is not allowed: 'desired' or 'observed'")
-    if loss == "supervised":
+    loss = losses.get(loss)
+    if not loss.forward:
         achieved = normaliser.select(batch.observed)
         predicted = controller.apply(controller_params, normaliser, batch.state, achieved)
         # In the scaled torque space the forward model's input uses (tau / S, T^-1 tau, or
         # the limits): a unit error there moves every joint alike, so the wrist's small
         # torques weigh as much as the shoulder's large ones.
         predicted, executed = normaliser.torque(predicted), normaliser.torque(batch.action)
-        if groups is not None:
-            return _mean(losses.safe_norm(predicted - executed), weights)
-        return _mean(losses.supervised(predicted, executed), weights)
+        distance = losses.supervised if groups is None else _norm_distance
+        return _mean(loss.fn(predicted, executed, distance), weights)
     goal_input = batch.desired if goal == "desired" else normaliser.select(batch.observed)
     tau = controller.apply(controller_params, normaliser, batch.state, goal_input)
     predicted = forward.predict(forward_params, normaliser, batch.state, tau, terms=batch.terms)
     predicted_run = None
-    if loss == "distal":  # f(s, tau_run): no controller parameter in it
+    if loss.run:  # f(s, tau_run): no controller parameter in it
         predicted_run = forward.predict(
             forward_params, normaliser, batch.state, batch.action, terms=batch.terms
         )
@@ -88,6 +89,11 @@ def controller_objective(
         desired_index=normaliser.desired_index,
     )
     return _mean(per_sample, weights)
+
+
+def _norm_distance(x, y):
+    """The ``norm`` form's distance between actions: ``|x - y|``."""
+    return losses.safe_norm(x - y)
 
 
 def _mean(per_sample, weights):
@@ -165,7 +171,7 @@ def fit_controller(
     """``steps`` optimiser steps of :func:`controller_objective` in the controller's parameters.
 
     Args:
-      loss: one of ``losses.CONTROLLER_LOSSES`` (static).
+      loss: a registered :class:`cfm_jax.losses.Loss` or its name (static).
       forward: the forward :class:`cfm_jax.networks.Model`.
       controller: the controller :class:`cfm_jax.networks.Model`.
       optimizer: an ``optax`` optimiser.

@@ -166,7 +166,11 @@ def test_distal_objective_value(setup):
 
 def test_unknown_loss_name_raises(setup):
     rest = (setup["fm"], setup["ctrl"], setup["norm"], setup["batch"])
-    with pytest.raises(ValueError, match="allowed: 'task', 'joint', 'distal', 'distal_literal'"):
+    with pytest.raises(
+        ValueError,
+        match=r"loss='mse' is not allowed: one of \('joint', 'task', "
+        r"'distal', 'supervised', 'distal_literal'.*cfm_jax.losses.register",
+    ):
         update.controller_objective(setup["cp"], setup["fp"], "mse", *rest)
 
 
@@ -336,3 +340,78 @@ def test_selected_output_gradient_matches_hand_built_chain_rule(loss):
     scale = max(float(jnp.max(jnp.abs(x))) for x in jax.tree.leaves(expected))
     tree_allclose(got, expected, rtol=1e-4, atol=1e-5 * scale)  # as in the tests above
     assert scale > 0
+
+
+# ---- registered losses ----------------------------------------------------------------------
+
+
+@pytest.fixture
+def registry(monkeypatch):
+    """The loss registry, restored after the test (a test's losses stay out of the others)."""
+    from cfm_jax import config as config_lib
+    from cfm_jax import losses
+
+    monkeypatch.setattr(losses, "REGISTRY", dict(losses.REGISTRY))
+    monkeypatch.setattr(config_lib, "CONTROLLER_LOSSES", config_lib.CONTROLLER_LOSSES)
+    return losses
+
+
+@pytest.mark.parametrize("groups", [None, ((1.0, (0,)), (2.0, (1,)))])
+def test_a_registered_loss_is_computed_by_its_function_in_either_form(setup, registry, groups):
+    # Oracles: the library's task, joint and supervised objectives (the gradient is checked
+    # against the chain rule above); a registered loss gets the same quantities and distances.
+    rest = (setup["fm"], setup["ctrl"], setup["norm"], setup["batch"], "desired", groups)
+
+    def objective(loss):
+        return jax.value_and_grad(update.controller_objective)(setup["cp"], setup["fp"], loss,
+                                                               *rest)  # fmt: skip
+
+    def mix(q, d_desired, d_output):
+        task = d_desired(q.predicted, q.desired)
+        assert q.run is None  # not asked for
+        return 0.7 * task + 0.3 * (task + d_output(q.predicted_next, q.observed_next))
+
+    registry.register("mix", mix)
+    registry.register("twice_supervised", lambda p, e, d: 2.0 * d(p, e), forward=False)
+    seen = []
+    registry.register("sees_run", lambda q, dd, do: seen.append(q.run) or dd(q.run, q.desired),
+                      run=True)  # fmt: skip
+    (task, g_task), (joint, g_joint) = objective("task"), objective("joint")
+    value, grads = objective("mix")
+    np.testing.assert_allclose(value, 0.7 * task + 0.3 * joint, rtol=1e-5)
+    tree_allclose(grads, jax.tree.map(lambda a, b: 0.7 * a + 0.3 * b, g_task, g_joint),
+                  rtol=1e-4, atol=1e-7)  # fmt: skip
+    supervised, g_supervised = objective("supervised")
+    value, grads = objective("twice_supervised")
+    np.testing.assert_allclose(value, 2.0 * supervised, rtol=1e-6)
+    tree_allclose(grads, jax.tree.map(lambda a: 2.0 * a, g_supervised), rtol=1e-5, atol=1e-8)
+    # run=True: P f(s, tau_run), which has no controller parameter in it (zero gradient).
+    value, grads = objective("sees_run")
+    assert seen and seen[0] is not None
+    assert value > 0 and all(not np.any(np.asarray(g)) for g in jax.tree.leaves(grads))
+    # A registered name is a config's loss; the registry's losses are its allowed names.
+    from cfm_jax import config as config_lib
+
+    assert config_lib.Config(loss="mix").loss == "mix"
+    assert config_lib.loss_names("task, mix") == ("task", "mix")
+
+
+def test_register_refuses_what_cannot_be_a_loss(registry):
+    from cfm_jax import config as config_lib
+
+    with pytest.raises(ValueError, match="name='joint' is not allowed: .* exists"):
+        registry.register("joint", lambda q, dd, do: 0.0)
+    with pytest.raises(ValueError, match="name='a,b' is not allowed"):
+        registry.register("a,b", lambda q, dd, do: 0.0)
+    with pytest.raises(ValueError, match="fn=3 is not allowed: a function"):
+        registry.register("three", 3)
+    with pytest.raises(ValueError, match="run=True is not allowed without forward=True"):
+        registry.register("r", lambda p, e, d: 0.0, forward=False, run=True)
+    assert "three" not in registry.REGISTRY and "three" not in config_lib.CONTROLLER_LOSSES
+    with pytest.raises(config_lib.ConfigError, match="losses='task,nope' is not allowed.*"
+                       r"not registered: \['nope'\].*--import MODULE"):  # fmt: skip
+        config_lib.loss_names("task,nope")
+    with pytest.raises(config_lib.ConfigError, match=r"--loss=\('task', 'task'\)"):
+        config_lib.loss_names(("task", "task"), field="--loss")
+    assert config_lib.loss_names("all") == config_lib.PAPER_LOSSES
+    assert config_lib.loss_names(["distal"]) == ("distal",)
