@@ -212,8 +212,15 @@ registered since (:func:`cfm_jax.losses.register` calls :func:`add_loss_name`)."
 
 
 def add_loss_name(name: str) -> None:
-    """Allow ``name`` as ``Config.loss`` (:func:`cfm_jax.losses.register` calls this; a name
-    already in :data:`CONTROLLER_LOSSES` changes nothing)."""
+    """Allow ``name`` as ``Config.loss`` (:func:`cfm_jax.losses.register` calls this).
+
+    Args:
+      name: the new loss's name; a name already in :data:`CONTROLLER_LOSSES` changes nothing.
+
+    Examples:
+      >>> add_loss_name("joint"); CONTROLLER_LOSSES
+      ('joint', 'task', 'distal', 'supervised', 'distal_literal'...)
+    """
     global CONTROLLER_LOSSES
     if name not in CONTROLLER_LOSSES:
         CONTROLLER_LOSSES = CONTROLLER_LOSSES + (name,)

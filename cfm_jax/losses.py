@@ -180,6 +180,12 @@ class Quantities(NamedTuple):
       observed_next: ``s_a``, the observed next state (the model's output coordinates).
       observed: ``P s_a``.
       run: ``P s_p,run = P f(s, tau_run)`` for a loss registered with ``run=True``; None else.
+
+    Examples:
+      >>> x = jnp.array([[1.0, 2.0]])
+      >>> q = Quantities(x[:, :1], x, jnp.array([[3.0]]), x, x[:, :1], None)
+      >>> float(REGISTRY["task"].fn(q, task, task)[0])  # |P s_p - s_d|^2
+      4.0
     """
 
     predicted: Any
@@ -223,6 +229,10 @@ class Loss(NamedTuple):
       forward: whether it goes through the forward model (``s_p = f(s, g(s, s*))``); if not,
         it compares the controller's action ``g(s, P s_a)`` with the executed ``tau_run``.
       run: whether it needs ``P f(s, tau_run)`` (``q.run``).
+
+    Examples:
+      >>> REGISTRY["distal"].forward, REGISTRY["distal"].run
+      (True, True)
     """
 
     name: str
@@ -296,6 +306,9 @@ def register(name: str, fn: Callable, *, forward: bool = True, run: bool = False
 
 def get(loss) -> Loss:
     """The registered :class:`Loss` of a name (a :class:`Loss` is returned as it is).
+
+    Args:
+      loss: a registered name or a :class:`Loss`.
 
     Raises:
       ConfigError: no loss of that name is registered.

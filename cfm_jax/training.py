@@ -104,6 +104,73 @@ class TrainResult:
             losses=(),
         )
 
+    def policy(self, seed: int | None = None, experiment: Experiment | None = None):
+        """The learned controller of one seed as a plain function, to run on a robot or in a
+        simulator of your own (brax's ``make_inference_fn``)::
+
+            tau = policy(q, qd, s_star)            # features=...: see below
+
+        ``q``, ``qd``: the robot's joint positions and velocities (MuJoCo's ``qpos``,
+        ``qvel``); ``s_star``: the desired quantity the controller was trained to reach, the
+        task's ``s*`` (for the joint-space arm task the desired joint accelerations
+        ``qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``,
+        :func:`cfm_jax.references.desired_acceleration`; for the op-space task the site's);
+        ``tau``: the joint torques, clipped to the robot's limits as the library's rollout
+        clips them (``data.ctrl = tau`` for torque actuators; servo-converted robots:
+        ``robot.torque_to_ctrl``). ``features``: the task's extra measurements
+        (``task.features``; the legged tasks' foot contact forces); None computes them from
+        ``q`` and ``qd``, which the arm tasks allow. Jitted; one call per control step. A
+        worked example in MuJoCo: docs/how-to/use-the-controller.md.
+
+        Args:
+          seed: which seed (a number of ``config.seed .. config.seed + loop.seeds - 1``);
+            None: the first.
+          experiment: an :class:`Experiment` of the run's config to take the task from (saves
+            building it), or None.
+
+        Raises:
+          ValueError: a run of several losses (take ``result.of(loss).policy()``), or a seed
+            the run does not have.
+
+        Examples:
+          >>> policy = cfm_jax.train(config).policy()  # doctest: +SKIP
+          >>> tau = policy(data.qpos, data.qvel, s_star)  # doctest: +SKIP
+        """
+        if self.losses:
+            raise ValueError(
+                f"this result holds several losses {self.losses}: take one first, "
+                "result.of(loss).policy(seed)"
+            )
+        first, count = self.config.seed, self.config.loop.seeds
+        seed = first if seed is None else seed
+        if not isinstance(seed, int) or not first <= seed < first + count:
+            config_lib.fail("seed", seed, f"one of the run's seeds, {first} to {first + count - 1}")
+        one = _index(self.state, seed - first)
+        experiment = experiment or Experiment(self.config)
+        task, controller = experiment.task, experiment.setup.controller
+        limit = jnp.asarray(experiment.robot.torque_limit, jnp.float32)
+
+        @jax.jit
+        def apply(q, qd, s_star, features):
+            state = task.state(q, qd, features)
+            tau = controller.apply(one.controller_params, one.normaliser, state, s_star)
+            return jnp.clip(tau, -limit, limit)
+
+        def policy(q, qd, s_star, features=None):
+            q, qd, s_star = (jnp.asarray(x, jnp.float32) for x in (q, qd, s_star))
+            if features is None:
+                try:
+                    features = task.features(q, qd, None)
+                except (TypeError, IndexError):
+                    raise ValueError(
+                        f"the {self.config.task.name} task's controller sees measurements "
+                        "beyond q and qd (task.features of the simulator's sensors): give "
+                        "features=..."
+                    ) from None
+            return apply(q, qd, s_star, jnp.asarray(features, jnp.float32))
+
+        return policy
+
     @property
     def params(self) -> dict:
         """Final parameters: ``{"forward": ..., "controller": ...}`` (leading seed axis)."""

@@ -447,3 +447,37 @@ def test_progress_in_a_log_is_one_line_per_step(capsys):
     with recorder.progress_bar(False) as bar:  # --quiet: nothing
         bar.advance(bar.add_task("x", total=1))
     assert capsys.readouterr().out == ""
+
+
+def test_the_learned_controller_as_a_function_tracks_in_plain_mujoco(two_seeds, experiment):
+    # Oracle: MuJoCo C stepped in a plain Python loop with the policy's torques and s*
+    # computed here with NumPy from the references (qdd_ref + kp (q_ref - q) + kd (qd_ref -
+    # qd)); its tracking MSE per target is the library's final evaluation of that seed.
+    import mujoco
+
+    robot, task = experiment.robot, experiment.task
+    policy = two_seeds.policy(seed=1, experiment=experiment)
+    model = robot.mj_model
+    data = mujoco.MjData(model)
+    n_sub = int(round(task.control_dt / model.opt.timestep))
+    kp, kd = float(task.kp), float(task.kd)
+    ref = jax.tree.map(np.asarray, task.reference)
+    final = two_seeds.final()
+    for k in range(task.targets):
+        mujoco.mj_resetData(model, data)
+        data.qpos[:], data.qvel[:] = ref.q[k, 0], 0.0
+        errors = []
+        for t in range(task.steps):
+            q, qd = data.qpos.copy(), data.qvel.copy()
+            s_star = ref.qdd[k, t] + kp * (ref.q[k, t] - q) + kd * (ref.qd[k, t] - qd)
+            tau = np.asarray(policy(q, qd, s_star))
+            assert np.all(np.abs(tau) <= robot.torque_limit)
+            data.ctrl[:] = tau
+            for _ in range(n_sub):
+                mujoco.mj_step(model, data)
+            errors.append(np.mean(np.square(data.qpos - ref.q[k, t + 1])))
+        library = final[(final.seed == 1) & (final.target == k)].tracking_mse.item()
+        # The library's stepper rounds the state to float32 each control step (1e-6 seen).
+        np.testing.assert_allclose(np.mean(errors), library, rtol=1e-5)
+    with pytest.raises(config_lib.ConfigError, match="seed=5 is not allowed: one of the run's"):
+        two_seeds.policy(seed=5, experiment=experiment)
