@@ -9,6 +9,7 @@ space the Khatib controller (:class:`HostOpspaceOracle`, :func:`opspace_oracle`,
 
 from __future__ import annotations
 
+import copy
 from typing import NamedTuple
 
 import jax
@@ -46,6 +47,13 @@ def inverse_dynamics_oracle(robot, simulator="native"):
 
     ``tau = M qdd* + h D qdd* + bias - passive`` with ``qdd* = step.desired``; the
     :func:`implicit_damping` term ``h D qdd*`` makes one Euler step realise ``qdd*`` exactly.
+    Where constraint forces act at every step (:func:`constraints_act`: dry friction,
+    ``frictionloss``, or equality constraints), that closed form leaves them out and the
+    oracle is no lower bound (issue 64: on arms with dry friction it tracked no better than
+    PD-only); there it is MuJoCo's own ``mj_inverse`` in discrete time
+    (``mjENBL_INVDISCRETE``): the force that makes one step of the model's integrator, its
+    constraint forces included, realise ``qdd*``. (Elsewhere the two agree up to rounding,
+    and the closed form keeps the recorded numbers bit for bit.)
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot` with a fixed base.
@@ -62,6 +70,8 @@ def inverse_dynamics_oracle(robot, simulator="native"):
     """
     mj = robot.mj_model
     damping = implicit_damping(mj)
+    if constraints_act(mj):
+        return _constrained_oracle(mj, simulator)
 
     if simulator == "native":
         inverse = _native_inverse(mj, damping)
@@ -86,6 +96,88 @@ def inverse_dynamics_oracle(robot, simulator="native"):
         data = mjx.fwd_velocity(model, data)
         inertial = mjx.mul_m(model, data, step.desired) + damping * step.desired
         return inertial + data.qfrc_bias - data.qfrc_passive
+
+    return policy
+
+
+def constraints_act(mj_model) -> bool:
+    """Whether constraint forces act on the model at every step, not only at a limit or a
+    contact: dry friction of a joint or tendon (``frictionloss``) or an equality constraint.
+
+    Args:
+      mj_model: a ``mujoco.MjModel``.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> constraints_act(robots.load("two_link_arm").mj_model)
+      False
+    """
+    return bool(
+        np.any(mj_model.dof_frictionloss > 0)
+        or np.any(mj_model.tendon_frictionloss > 0)
+        or mj_model.neq > 0
+    )
+
+
+def _discrete_inverse_model(mj_model, integrators=("EULER", "IMPLICITFAST", "IMPLICIT")):
+    """A copy of ``mj_model`` whose ``mj_inverse`` inverts one step of its integrator, where
+    the integrator is one of ``integrators`` (MuJoCo has no discrete inverse of RK4: there
+    the continuous one)."""
+    model = copy.copy(mj_model)
+    kinds = [int(getattr(mujoco.mjtIntegrator, f"mjINT_{name}")) for name in integrators]
+    if int(model.opt.integrator) in kinds:
+        model.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_INVDISCRETE)
+    return model
+
+
+def _constrained_oracle(mj_model, simulator: str):
+    """:func:`inverse_dynamics_oracle` through ``mj_inverse`` (discrete time), its
+    constraint forces included: MuJoCo C on the host, or ``mjx.inverse``."""
+    if simulator == "native":
+        model = _discrete_inverse_model(mj_model)
+        data = mujoco.MjData(model)
+        nq, nv = model.nq, model.nv
+
+        def inverse(qpos, qvel, qacc):
+            shape = np.shape(qacc)
+            qpos = np.asarray(qpos, np.float64).reshape(-1, nq)
+            qvel = np.asarray(qvel, np.float64).reshape(-1, nv)
+            qacc = np.asarray(qacc, np.float64).reshape(-1, nv)
+            out = np.empty_like(qacc)
+            for i in range(qacc.shape[0]):
+                data.qpos[:], data.qvel[:], data.qacc[:] = qpos[i], qvel[i], qacc[i]
+                mujoco.mj_inverse(model, data)
+                out[i] = data.qfrc_inverse
+            return out.astype(np.float32).reshape(shape)
+
+        def policy(step, key):
+            del key
+            shape = jax.ShapeDtypeStruct(jnp.shape(step.desired), jnp.float32)
+            return jax.pure_callback(
+                inverse, shape, step.qpos, step.qvel, step.desired, vmap_method="broadcast_all"
+            )
+
+        return policy
+
+    # MJX's discrete inverse of the Euler step tests the damping with a Python `if` on an
+    # array (it fails under jit): that step's conversion is done here, as MuJoCo does it,
+    # qacc = M^-1 (M + h D) qacc*, and MJX inverts the continuous dynamics at qacc.
+    damping = np.asarray(implicit_damping(mj_model), np.float32)
+    euler = bool(np.any(damping != 0))
+    device_model = mjx.put_model(
+        _discrete_inverse_model(mj_model, () if euler else ("IMPLICITFAST",))
+    )
+    blank = mjx.make_data(device_model)
+
+    def policy(step, key):
+        del key
+        data = blank.replace(qpos=step.qpos, qvel=step.qvel)
+        qacc = step.desired
+        if euler:
+            data = mjx.fwd_position(device_model, data)
+            qfrc = mjx.mul_m(device_model, data, qacc) + damping * qacc
+            qacc = jnp.linalg.solve(mjx.full_m(device_model, data), qfrc)
+        return mjx.inverse(device_model, data.replace(qacc=qacc)).qfrc_inverse
 
     return policy
 

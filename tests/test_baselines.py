@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from sites import mujoco_site_acceleration, random_states
 
-from cfm_jax import baselines, opspace, references, robots, rollout, tasks
+from cfm_jax import _shipped, baselines, opspace, references, robots, rollout, tasks
 from cfm_jax.config import SIMULATORS
 
 # ---- oracle -----------------------------------------------------------------------------
@@ -256,3 +256,61 @@ def test_oracle_policy_realises_desired_acceleration(arm, simulator):
     # And against the closed form of the reference the only error is the Euler
     # discretisation, O(h * reach) = 0.002 * 0.05 * 15/8 / 0.1 ~ 2e-4 rad: tiny.
     assert np.max(np.abs(np.asarray(out.tracking_error[0]))) < 3e-4
+
+
+@pytest.fixture(scope="module")
+def friction_arm(tmp_path_factory):
+    """The two-link arm with dry friction on both joints (``frictionloss`` 0.5 N m, a fifth
+    of the elbow's torque at rest-to-reach accelerations), as published arms have it."""
+    text = (_shipped.robot_dir() / "two_link_arm.xml").read_text()
+    text = text.replace('damping="0.1"', 'damping="0.1" frictionloss="0.5"', 1)
+    path = tmp_path_factory.mktemp("friction") / "friction_arm.xml"
+    path.write_text(text)
+    return robots.load(str(path))
+
+
+@pytest.mark.parametrize("simulator", SIMULATORS)
+def test_the_oracle_counts_dry_friction(friction_arm, simulator):
+    # Oracle: MuJoCo's own step (the rollout's physics) with the oracle's torque; kp = kd = 0
+    # and one physics step per control step, as above. With frictionloss the closed form
+    # M qdd* + h D qdd* + bias - passive misses the friction force and the arm lags its
+    # reference; MuJoCo's discrete-time inverse (constraint forces included) realises qdd*.
+    arm = friction_arm
+    assert baselines.constraints_act(arm.mj_model)
+    dt = arm.timestep
+    ref = references.quintic(
+        arm.home, arm.home + np.array([0.05, -0.05]), duration=0.1, control_dt=dt
+    )
+    task = tasks.JointSpaceTask(arm, ref, kp=0.0, kd=0.0, control_dt=dt)
+
+    def run(oracle):
+        return jax.jit(lambda: rollout.run(task, oracle, key=jax.random.key(0),
+                                           simulator=simulator))()  # fmt: skip
+
+    out = run(baselines.inverse_dynamics_oracle(arm, simulator))
+    qdd_ref = ref.qdd[0, :-1]
+    observed = np.asarray(out.transitions.observed[0])
+    # The constraint solver's tolerance and float32 velocities: allow 1e-2 of up to 29 rad/s^2
+    # (the closed form's error is 100x that, below).
+    np.testing.assert_allclose(observed, qdd_ref, atol=1e-2)
+    # The closed form (what the oracle computed before) on the same states.
+    inverse = baselines._native_inverse(arm.mj_model, baselines.implicit_damping(arm.mj_model))
+    tau = inverse(
+        np.asarray(out.transitions.state[0, :, :2]),
+        np.asarray(out.transitions.state[0, :, 2:]),
+        qdd_ref,
+    )
+    data = mujoco.MjData(arm.mj_model)
+    realised = []
+    for t in range(len(qdd_ref)):
+        data.qpos[:] = out.transitions.state[0, t, :2]
+        data.qvel[:] = out.transitions.state[0, t, 2:]
+        data.ctrl[:] = tau[t]
+        before = data.qvel.copy()
+        mujoco.mj_step(arm.mj_model, data)
+        realised.append((data.qvel - before) / dt)
+    assert np.max(np.abs(np.asarray(realised) - qdd_ref)) > 1.0  # the closed form misses
+    # The oracle's torques carry the friction: they differ from the closed form's by up to
+    # the frictionloss, no more.
+    gap = np.abs(np.asarray(out.transitions.action[0]) - tau)
+    assert 0.3 < gap.max() <= 0.5 + 1e-3
