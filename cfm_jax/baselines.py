@@ -74,16 +74,7 @@ def inverse_dynamics_oracle(robot, simulator="native"):
         return _constrained_oracle(mj, simulator)
 
     if simulator == "native":
-        inverse = _native_inverse(mj, damping)
-
-        def policy(step, key):
-            del key
-            shape = jax.ShapeDtypeStruct(jnp.shape(step.desired), jnp.float32)
-            return jax.pure_callback(
-                inverse, shape, step.qpos, step.qvel, step.desired, vmap_method="broadcast_all"
-            )
-
-        return policy
+        return _host_policy(_native_inverse(mj, damping))
 
     model = robot.mjx_model
     blank = mjx.make_data(model)
@@ -136,28 +127,13 @@ def _constrained_oracle(mj_model, simulator: str):
     if simulator == "native":
         model = _discrete_inverse_model(mj_model)
         data = mujoco.MjData(model)
-        nq, nv = model.nq, model.nv
 
-        def inverse(qpos, qvel, qacc):
-            shape = np.shape(qacc)
-            qpos = np.asarray(qpos, np.float64).reshape(-1, nq)
-            qvel = np.asarray(qvel, np.float64).reshape(-1, nv)
-            qacc = np.asarray(qacc, np.float64).reshape(-1, nv)
-            out = np.empty_like(qacc)
-            for i in range(qacc.shape[0]):
-                data.qpos[:], data.qvel[:], data.qacc[:] = qpos[i], qvel[i], qacc[i]
-                mujoco.mj_inverse(model, data)
-                out[i] = data.qfrc_inverse
-            return out.astype(np.float32).reshape(shape)
+        def row(qpos, qvel, qacc):
+            data.qpos[:], data.qvel[:], data.qacc[:] = qpos, qvel, qacc
+            mujoco.mj_inverse(model, data)
+            return data.qfrc_inverse
 
-        def policy(step, key):
-            del key
-            shape = jax.ShapeDtypeStruct(jnp.shape(step.desired), jnp.float32)
-            return jax.pure_callback(
-                inverse, shape, step.qpos, step.qvel, step.desired, vmap_method="broadcast_all"
-            )
-
-        return policy
+        return _host_policy(_rows(row, model.nq, model.nv))
 
     # MJX's discrete inverse of the Euler step tests the damping with a Python `if` on an
     # array (it fails under jit): that step's conversion is done here, as MuJoCo does it,
@@ -203,7 +179,21 @@ def implicit_damping(mj_model) -> np.ndarray:
 def _native_inverse(mj_model, implicit_damping):
     """Host ``(qpos, qvel, qacc) -> M qacc + h D qacc + bias - passive``, float32, batched."""
     data = mujoco.MjData(mj_model)
-    nq, nv = mj_model.nq, mj_model.nv
+    inertial = np.empty(mj_model.nv)
+
+    def row(qpos, qvel, qacc):
+        data.qpos[:], data.qvel[:] = qpos, qvel
+        mujoco.mj_fwdPosition(mj_model, data)
+        mujoco.mj_fwdVelocity(mj_model, data)
+        mujoco.mj_mulM(mj_model, data, inertial, qacc)
+        return inertial + implicit_damping * qacc + data.qfrc_bias - data.qfrc_passive
+
+    return _rows(row, mj_model.nq, mj_model.nv)
+
+
+def _rows(row, nq: int, nv: int):
+    """The batched host function ``(qpos, qvel, qacc) -> float32`` of ``row``, a float64
+    function of one state and acceleration, applied to each row of any leading shape."""
 
     def inverse(qpos, qvel, qacc):
         shape = np.shape(qacc)
@@ -211,16 +201,25 @@ def _native_inverse(mj_model, implicit_damping):
         qvel = np.asarray(qvel, np.float64).reshape(-1, nv)
         qacc = np.asarray(qacc, np.float64).reshape(-1, nv)
         out = np.empty_like(qacc)
-        inertial = np.empty(nv)
         for i in range(qacc.shape[0]):
-            data.qpos[:], data.qvel[:] = qpos[i], qvel[i]
-            mujoco.mj_fwdPosition(mj_model, data)
-            mujoco.mj_fwdVelocity(mj_model, data)
-            mujoco.mj_mulM(mj_model, data, inertial, qacc[i])
-            out[i] = inertial + implicit_damping * qacc[i] + data.qfrc_bias - data.qfrc_passive
+            out[i] = row(qpos[i], qvel[i], qacc[i])
         return out.astype(np.float32).reshape(shape)
 
     return inverse
+
+
+def _host_policy(inverse):
+    """``policy(step, key) -> tau``: the host function ``inverse(qpos, qvel, qdd*)`` through
+    ``jax.pure_callback`` (batched over any vmapped axis)."""
+
+    def policy(step, key):
+        del key
+        shape = jax.ShapeDtypeStruct(jnp.shape(step.desired), jnp.float32)
+        return jax.pure_callback(
+            inverse, shape, step.qpos, step.qvel, step.desired, vmap_method="broadcast_all"
+        )
+
+    return policy
 
 
 def joint_pd_gains(robot, kp: float, kd: float, home) -> tuple[np.ndarray, np.ndarray]:
