@@ -607,6 +607,41 @@ def fresh_model(robot: Robot) -> mujoco.MjModel:
     return model
 
 
+def nonfinite_fields(mj_model) -> list[str]:
+    """The names of the compiled model's floating-point arrays and options that hold a NaN or
+    an infinity (a model with ``mass="nan"`` compiles), sorted; empty for a sound model.
+
+    Args:
+      mj_model: a ``mujoco.MjModel``.
+
+    Examples:
+      >>> model = mujoco.MjModel.from_xml_string(
+      ...     '<mujoco><worldbody><body><joint/><geom size="0.1"/></body></worldbody></mujoco>')
+      >>> nonfinite_fields(model)
+      []
+      >>> model.dof_damping[0] = float("inf"); nonfinite_fields(model)
+      ['dof_damping']
+    """
+    bad = []
+    for owner, prefix in ((mj_model, ""), (mj_model.opt, "opt.")):
+        for field in dir(owner):
+            if field.startswith("_"):
+                continue
+            try:
+                value = getattr(owner, field)
+            except Exception:  # a property MuJoCo does not serve for this model
+                continue
+            if isinstance(value, float):
+                value = np.asarray(value)
+            if (
+                isinstance(value, np.ndarray)
+                and value.dtype.kind == "f"
+                and not np.all(np.isfinite(value))
+            ):
+                bad.append(prefix + field)
+    return sorted(bad)
+
+
 def load(
     name_or_path: str,
     timestep: float | None = None,
@@ -632,14 +667,31 @@ def load(
     if actuators not in ACTUATORS:
         raise RobotError(f"actuators={actuators!r} is not allowed: one of {ACTUATORS}")
     path = resolve(name_or_path)
+    warned = []  # MuJoCo's parser warns of a 'nan' it then ignores (mass="nan": density)
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(warned.append)
     try:
         model = compile_file(path)
     except Exception as error:  # mujoco raises ValueError with the parser's message
         raise RobotError(
             f"robot={name_or_path!r}: MJCF file {path} does not parse: {error}"
         ) from error
+    finally:
+        mujoco.set_mju_user_warning(previous)
     name = os.path.splitext(os.path.basename(path))[0]
     where = f"robot={name_or_path!r} ({path})"
+    bad = nonfinite_fields(model)
+    if bad or any("NaN" in message for message in warned):
+        found = f"in {bad}" if bad else "in the file (MuJoCo: 'XML contains a NaN')"
+        raise RobotError(
+            f"{where}: NaN or infinite values {found}; a model needs finite numbers "
+            "(MuJoCo compiles them, and the simulation would not be what the file says)"
+        )
+    for message in warned:  # any other parser warning goes where MuJoCo would send it
+        if previous is not None:
+            previous(message)
+        else:
+            print(f"WARNING: {message}\n")
     servos = {}
     held, keep = held_joints(model)
     if actuators == "torque":

@@ -7,6 +7,7 @@ in tests/test_robot_models.py, not here.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import jax
@@ -248,6 +249,30 @@ def test_mjcf_that_does_not_parse(tmp_path):
     path = write(tmp_path, "<mujoco><worldbody><body></worldbody></mujoco>")
     with pytest.raises(RobotError, match="does not parse"):
         robots.load(path)
+
+
+@pytest.mark.parametrize(
+    "change, found",
+    [
+        (('mass="1"', 'mass="nan"'), "in the file (MuJoCo: 'XML contains a NaN')"),
+        (('range="-1 1"', 'range="-1 1" damping="inf"'), "in ['dof_damping']"),
+        (('mass="0.5"', 'mass="0.5" pos="0 0 inf"'), "in ["),
+    ],
+)
+def test_a_model_with_nan_or_inf_is_refused(tmp_path, capfd, change, found):
+    # MuJoCo compiles all three (mass="nan" takes the density's mass and only warns), so
+    # the model would train; the loader refuses them, naming what it found.
+    text = mjcf(
+        TWO_HINGES, '<motor joint="j1" ctrlrange="-1 1"/><motor joint="j2" ctrlrange="-1 1"/>'
+    )
+    assert change[0] in text
+    path = write(tmp_path, text.replace(change[0], change[1], 1))
+    mujoco.MjModel.from_xml_path(path)  # MuJoCo's compiler accepts it
+    with pytest.raises(RobotError, match="NaN or infinite values " + re.escape(found)):
+        robots.load(path)
+    assert mujoco.get_mju_user_warning() is None  # MuJoCo's warning handler put back
+    capfd.readouterr()
+    robots.load(write(tmp_path, text, "sound.xml"))  # the same model with finite numbers
 
 
 def test_mjcf_with_unknown_joint_reference(tmp_path):
