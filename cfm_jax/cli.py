@@ -120,6 +120,15 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
     experiment = train_lib.Experiment(base)  # checks robot and config: nothing written yet
     if data is not None:  # a bad --data is refused before anything is written
         train_lib.recorded_for(experiment, base, data)
+    runs = [os.path.join(out, "config.json")]
+    runs += [os.path.join(out, name, "config.json") for name in names]
+    if resume and not any(os.path.isfile(path) for path in runs):
+        config_lib.fail(
+            "--out",
+            out,
+            "--resume continues a run, and there is none here (no config.json in it or in "
+            "its loss folders); start it without --resume",
+        )
     if not resume:  # a new run would meet the old one's checkpoints after its babbling
         held = [name for name in names if checkpoint.has_steps(os.path.join(out, name))]
         if held:
@@ -957,6 +966,7 @@ def main() -> None:
     import sys
 
     from cfm_jax import bench
+    from cfm_jax.checkpoint import CheckpointError
     from cfm_jax.robots import RobotError
 
     argv = sys.argv[1:]
@@ -987,7 +997,7 @@ def main() -> None:
                 "cfm-jax --import MODULE COMMAND ... first imports MODULE (a module name or a "
                 ".py file), which may register losses, forward kinds or tasks of your own.",
             )
-    except (config_lib.ConfigError, RobotError) as error:
+    except (config_lib.ConfigError, RobotError, CheckpointError) as error:
         one_line = " ".join(str(error).split())  # MuJoCo's parser messages span lines
         print(f"cfm-jax: error: {one_line}", file=sys.stderr)
         raise SystemExit(2) from None

@@ -164,6 +164,17 @@ CASES = [
 ]  # fmt: skip
 
 
+# --resume where there is no run: it trained a new run from scratch and exited 0 (issue 67).
+CASES.append(
+    (
+        "resume where there is no run",
+        {},
+        ["train", "--robot", "two_link_arm", "--loss", "joint,task", "--resume"],
+        ["--out=", "--resume continues a run", "there is none here", "without --resume"],
+    )
+)  # fmt: skip
+
+
 # A model MJX cannot build (a cylinder-box collision pair) asked for on MJX: the pair named.
 CASES.append(
     (
@@ -263,3 +274,24 @@ def test_an_out_that_is_a_file_or_cannot_be_made_is_one_error_line(
     for word in words:
         assert word in lines[0], (word, lines[0])
     assert (tmp_path / "file.txt").read_text() == "a user's file\n"
+
+
+def test_a_checkpoint_that_cannot_be_used_is_one_error_line(tmp_path, monkeypatch, capsys):
+    # The library's CheckpointError (a damaged only checkpoint) ended the CLI in a traceback
+    # (issue 67); its message, which says what to do, is now the one error line, exit 2.
+    from cfm_jax import checkpoint
+
+    message = ("checkpoint step 0 is not usable (its manifest does not parse); no earlier "
+               "valid checkpoint exists: start the run again")  # fmt: skip
+
+    def damaged(*args, **kwargs):
+        raise checkpoint.CheckpointError(message)
+
+    monkeypatch.setattr(cli, "_run_train", damaged)
+    argv = ["cfm-jax", "train", "--robot", "two_link_arm", "--resume"]
+    monkeypatch.setattr(sys, "argv", [*argv, "--out", str(tmp_path), "--quiet"])
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main()
+    assert exit_info.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == [f"cfm-jax: error: {message}"]
