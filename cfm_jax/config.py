@@ -9,6 +9,7 @@ bad value and what is allowed. Configs round-trip through JSON (:func:`to_dict` 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 from collections.abc import Callable, Sequence
@@ -945,6 +946,47 @@ GENERIC: dict[str, dict[str, Any]] = {
 }
 """Generic value of each field left at :data:`TASK_DEFAULT` by section (``config``: top
 level; a class: its defaults), where a task's ``default_config`` does not state one."""
+
+
+SECTIONS = {"task": TaskConfig, "forward": ForwardModelConfig, "controller": ControllerConfig,
+            "loop": LoopConfig}  # fmt: skip
+"""The sections of a :class:`Config`, by field name."""
+
+
+def _field_names(cls) -> set[str]:
+    return {field.name for field in dataclasses.fields(cls)}
+
+
+def _naming_the_section(cls) -> None:
+    """Give ``cls``'s constructor an error that says where a misplaced field belongs:
+    ``Config(iterations=2)`` names ``Config(loop=LoopConfig(iterations=...))``."""
+    generated = cls.__init__
+    own = _field_names(cls)
+
+    @functools.wraps(generated)
+    def __init__(self, *args, **kwargs):
+        unknown = [name for name in kwargs if name not in own]
+        if unknown:
+            name = unknown[0]
+            homes = [(key, section) for key, section in SECTIONS.items()
+                     if section is not cls and name in _field_names(section)]  # fmt: skip
+            if name in _field_names(Config) and cls is not Config:
+                hint = f"it is a field of Config: Config({name}=...)"
+            elif homes:
+                key, section = homes[0]
+                hint = (f"it is a field of {section.__name__}: "
+                        f"Config({key}={section.__name__}({name}=...))")  # fmt: skip
+            else:
+                hint = f"the fields are {sorted(own)}"
+            raise TypeError(f"{cls.__name__}() got an unexpected keyword argument {name!r}: "
+                            f"{hint}")  # fmt: skip
+        generated(self, *args, **kwargs)
+
+    cls.__init__ = __init__
+
+
+for _cls in (Config, *SECTIONS.values()):
+    _naming_the_section(_cls)
 
 
 def to_dict(config: Config) -> dict:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 
 import pytest
 
@@ -348,3 +349,22 @@ def test_each_field_is_documented_once_where_the_cli_help_comes_from(cls):
         name = line.strip().split(":")[0]
         if name in fields and i > 0:
             assert not lines[i - 1].strip().startswith("#"), f"{cls.__name__}.{name}"
+
+
+@pytest.mark.parametrize(
+    "make, words",
+    [
+        (lambda: Config(iterations=2), "Config(loop=LoopConfig(iterations=...))"),
+        (lambda: Config(kp=100.0), "Config(task=TaskConfig(kp=...))"),
+        (lambda: LoopConfig(robot="iiwa14"), "it is a field of Config: Config(robot"),
+        (lambda: Config(nonsense=1), "the fields are ['controller', 'forward'"),
+    ],
+)
+def test_a_field_in_the_wrong_section_names_its_section(make, words):
+    # Oracle: where each field is declared (dataclasses.fields), written out by hand here.
+    with pytest.raises(TypeError, match=re.escape(words)):
+        make()
+    # The constructors, replace and the JSON round trip still take every real field.
+    made = Config(loop=LoopConfig(iterations=2), seed=3)
+    assert made.loop.iterations == 2 and made.replace(seed=4).seed == 4
+    assert config.from_dict(config.to_dict(made)) == made
