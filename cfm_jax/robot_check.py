@@ -93,6 +93,47 @@ def _dynamics_lines(robot: Robot) -> list[str]:
     return lines
 
 
+SMALL_RANGE = 0.2
+"""A hinge range narrower than this (rad, 11.5 degrees) is small for an arm's joint."""
+
+
+def degrees_trap(model, path: str) -> str | None:
+    """A warning when every limited hinge's range is narrower than :data:`SMALL_RANGE` and
+    the file reads angles in degrees (MuJoCo's default without ``<compiler
+    angle="radian"/>``): ranges meant as radians became degrees. None otherwise.
+
+    Args:
+      model: the compiled ``mujoco.MjModel``.
+      path: its MJCF file (for the compiler's angle unit).
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> degrees_trap(robots.load("iiwa14").mj_model, robots.resolve("iiwa14")) is None
+      True
+    """
+    hinges = [j for j in range(model.njnt)
+              if int(model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE)
+              and bool(model.jnt_limited[j])]  # fmt: skip
+    if not hinges:
+        return None
+    spans = model.jnt_range[hinges, 1] - model.jnt_range[hinges, 0]
+    if float(spans.max()) >= SMALL_RANGE:
+        return None
+    try:
+        degrees = bool(mujoco.MjSpec.from_file(path).compiler.degree)
+    except Exception:  # the file compiled; a spec that does not load changes nothing here
+        degrees = False
+    if not degrees:
+        return None
+    return (
+        f"every hinge's range spans less than {SMALL_RANGE:g} rad (the widest "
+        f"{float(spans.max()):.3g} rad = {np.degrees(float(spans.max())):.3g} degrees), and "
+        'the file reads angles in degrees (no <compiler angle="radian"/>, MuJoCo\'s '
+        "default): ranges written in radians became degrees. Add the compiler line if so; "
+        "the reaches are drawn inside these ranges."
+    )
+
+
 def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Check:
     """Load a file as the library would; report what it found and which tasks can run.
 
@@ -125,6 +166,9 @@ def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Ch
         limited = bool(raw.jnt_limited[j])
         rng = f"range [{raw.jnt_range[j, 0]:g}, {raw.jnt_range[j, 1]:g}]" if limited else "no range"
         lines.append(f"  {robots.joint_name(raw, j)}: {kind}, {rng}")
+    trap = degrees_trap(raw, path)
+    if trap:
+        lines.append(f"  ! {trap}")
     held, keep = robots.held_joints(raw)
     try:
         servos = robots.servo_limits(raw, torque_limit, where, keep)

@@ -408,3 +408,24 @@ def test_shipped_robots_found_from_a_checkout_without_package_data(monkeypatch):
     monkeypatch.setattr(_shipped, "__file__", str(ROBOT_DIR.parent / "cfm_jax" / "_shipped.py"))
     assert {"iiwa14", "two_link_arm"} <= set(robots.registered())
     assert robots.resolve("iiwa14") == str(ROBOT_DIR / "iiwa14.xml")
+
+
+def test_robot_check_warns_of_ranges_read_in_degrees(tmp_path):
+    # A home-made file without <compiler angle="radian"/>: MuJoCo reads range="-1 1" as
+    # +-1 degree (0.035 rad), and the reaches are drawn inside it. The check says so; the same
+    # file with the compiler line, and every robot shipped or in the development set, does not.
+    body = TWO_HINGES.replace('type="slide" axis="1 0 0"', 'type="hinge" axis="0 1 0" range="-1 1"')
+    actuators = '<motor joint="j1" ctrlrange="-1 1"/><motor joint="j2" ctrlrange="-1 1"/>'
+    radians = mjcf(body, actuators)
+    degrees = radians.replace(
+        '<compiler angle="radian" autolimits="true"/>', '<compiler autolimits="true"/>'
+    )
+    assert degrees != radians
+    text = robot_check.check(write(tmp_path, degrees, "degrees.xml")).text
+    warned = [line for line in text.splitlines() if "reads angles in degrees" in line]
+    assert len(warned) == 1 and "0.0349 rad = 2 degrees" in warned[0]
+    assert "reads angles in degrees" not in robot_check.check(write(tmp_path, radians)).text
+    dev = Path(__file__).resolve().parent / "robots"
+    for name in [*robots.registered(), *sorted(str(p) for p in dev.glob("*.xml"))]:
+        model = robots.compile_file(robots.resolve(name))
+        assert robot_check.degrees_trap(model, robots.resolve(name)) is None, name
