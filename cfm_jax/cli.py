@@ -120,9 +120,8 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
     experiment = train_lib.Experiment(base)  # checks robot and config: nothing written yet
     if data is not None:  # a bad --data is refused before anything is written
         train_lib.recorded_for(experiment, base, data)
-    runs = [os.path.join(out, "config.json")]
-    runs += [os.path.join(out, name, "config.json") for name in names]
-    if resume and not any(os.path.isfile(path) for path in runs):
+    runs = [out] + [os.path.join(out, name) for name in names]
+    if resume and not any(os.path.isfile(os.path.join(run, "config.json")) for run in runs):
         config_lib.fail(
             "--out",
             out,

@@ -20,7 +20,8 @@ from cfm_jax import algorithm, dataset
 from cfm_jax import checkpoint as ckpt_lib
 from cfm_jax import config as config_lib
 from cfm_jax.algorithm import METRIC_COLUMNS, Knobs, TrainState  # noqa: F401 (Knobs: re-export)
-from cfm_jax.experiment import Experiment, _concatenate, _index, _stack, loss_names
+from cfm_jax.config import loss_names
+from cfm_jax.experiment import Experiment, _concatenate, _index, _stack
 from cfm_jax.recorder import Recorder, progress_bar
 
 # Experiment, TrainState, Knobs and METRIC_COLUMNS are imported here for the shell's use
@@ -150,24 +151,33 @@ class TrainResult:
         task, controller = experiment.task, experiment.setup.controller
         limit = jnp.asarray(experiment.robot.torque_limit, jnp.float32)
 
+        robot = experiment.robot
+        spec = jax.ShapeDtypeStruct
+        try:  # do the task's features follow from q and qd (the arm tasks)?
+            jax.eval_shape(task.features, spec((robot.nq,), jnp.float32),
+                           spec((robot.nv,), jnp.float32), None)  # fmt: skip
+            from_state = True
+        except (TypeError, IndexError):  # the legged tasks read the simulator's sensors
+            from_state = False
+
         @jax.jit
         def apply(q, qd, s_star, features):
+            if features is None:
+                features = task.features(q, qd, None)
             state = task.state(q, qd, features)
             tau = controller.apply(one.controller_params, one.normaliser, state, s_star)
             return jnp.clip(tau, -limit, limit)
 
         def policy(q, qd, s_star, features=None):
-            q, qd, s_star = (jnp.asarray(x, jnp.float32) for x in (q, qd, s_star))
-            if features is None:
-                try:
-                    features = task.features(q, qd, None)
-                except (TypeError, IndexError):
-                    raise ValueError(
-                        f"the {self.config.task.name} task's controller sees measurements "
-                        "beyond q and qd (task.features of the simulator's sensors): give "
-                        "features=..."
-                    ) from None
-            return apply(q, qd, s_star, jnp.asarray(features, jnp.float32))
+            if features is None and not from_state:
+                raise ValueError(
+                    f"the {self.config.task.name} task's controller sees measurements "
+                    "beyond q and qd (task.features of the simulator's sensors): give "
+                    "features=..."
+                )
+            if features is not None:
+                features = jnp.asarray(features, jnp.float32)
+            return apply(*(jnp.asarray(x, jnp.float32) for x in (q, qd, s_star)), features)
 
         return policy
 
