@@ -419,3 +419,11 @@ def gaussian_nll(mean, log_variance, target):
       4.0
     """
     return jnp.sum(jnp.square(target - mean) * jnp.exp(-log_variance) + log_variance, axis=-1)
+
+
+def __getattr__(name):
+    """``losses.CONTROLLER_LOSSES``: the config's registered names as they are now (a copy
+    bound at import would miss the losses registered since)."""
+    if name == "CONTROLLER_LOSSES":
+        return config_lib.CONTROLLER_LOSSES
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
