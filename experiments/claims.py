@@ -593,20 +593,23 @@ def summary_rows(family: Family, claims: list[Claim], theory: tuple) -> list[tup
 
 
 def headline_table(task: str, pair: dict, seed: int = 0) -> list[str]:
-    """Per loss and configuration the IQM score [95% CI], failed runs and P(joint > loss)
-    (bootstrap seed ``seed``)."""
+    """Per loss and configuration the IQM score [95% CI], failed runs, the seeds whose
+    controller ends below PD-only (the mean of its runs' scores over the test motions above
+    0: a geometric-mean error below PD-only's) and P(joint > loss) (bootstrap seed
+    ``seed``)."""
     lines = [f"### {task}", ""]
     for key, arm in pair.items():
         if arm is not None:
             lines.append(f"- {ARMS[key]}: {arm.source}, {arm.seeds} seeds x "
                          f"{arm.metrics.target.nunique()} test motions")  # fmt: skip
-    lines += ["", "| loss | " + " | ".join(f"{ARMS[k]}: IQM [95% CI] | failed | P(joint > loss)"
+    lines += ["", "| loss | " + " | ".join(f"{ARMS[k]}: IQM [95% CI] | failed | "
+                                         "seeds below PD-only | P(joint > loss)"
                                          for k in pair) + " |",
-              "|---|" + "---|---|---|" * len(pair)]  # fmt: skip
+              "|---|" + "---|---|---|---|" * len(pair)]  # fmt: skip
     cells = {}
     for key, arm in pair.items():
         if arm is None:
-            cells[key] = {n: ("not run yet", "", "") for n in LOSSES}
+            cells[key] = {n: ("not run yet", "", "", "") for n in LOSSES}
             continue
         scores = run_scores(arm)
         est = stats.interval_estimates(scores, statistic=STATISTIC, seed=seed)
@@ -625,6 +628,7 @@ def headline_table(task: str, pair: dict, seed: int = 0) -> list[str]:
             cells[key][n] = (
                 f"{est.point[n]:.2f} [{est.low[n]:.2f}, {est.high[n]:.2f}]",
                 f"{int(failed.loc[n, 'sum'])}/{int(failed.loc[n, 'size'])}",
+                f"{int((scores[n].mean(axis=1) > 0).sum())}/{scores[n].shape[0]}",
                 p,
             )
     for n in LOSSES:
@@ -757,7 +761,10 @@ def _page(tasks: dict, summary: list[tuple], rows: list[tuple], family: Family, 
         "[claims_comparisons.csv](claims_comparisons.csv). Effect sizes, which decide "
         "nothing (by `cfm_jax.stats`, rliable's definitions): scores are orders of magnitude "
         f"below PD-only (a failed run: at most {FAILED_SCORE:g}); IQM: the interquartile mean "
-        "over seeds x motions; 95% stratified bootstrap intervals; P(joint > loss): the "
+        "over seeds x motions; 95% stratified bootstrap intervals; seeds below PD-only: the "
+        "seeds whose runs score above 0 on average over the test motions (a geometric-mean "
+        "error below PD-only's: does the learned controller beat the feedback it is added "
+        "to?); P(joint > loss): the "
         "probability that a joint-loss run scores above a run of that loss on the same "
         "motion.",
         "",

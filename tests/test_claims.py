@@ -118,12 +118,20 @@ def test_headline_table_scores_runs_below_pd_only_with_failures_floored():
     np.testing.assert_allclose(scores["joint"], [[2.0, 2.0], [2.0, 2.0]])
     np.testing.assert_allclose(scores["distal"], -3.0)  # failed: at most 3 above PD-only
     lines = claims.headline_table("walk", {"shared": arm, "own": None})
-    assert "| joint | 2.00 [2.00, 2.00] | 0/4 |  | not run yet |  |  |" in lines
+    # Seeds below PD-only (1e-2): joint's and task's 2 of 2; distal failed everywhere, 0;
+    # supervised sits at PD-only (score 0, not below), 0.
+    assert "| joint | 2.00 [2.00, 2.00] | 0/4 | 2/2 |  | not run yet |  |  |  |" in lines
     assert (
-        "| distal | -3.00 [-3.00, -3.00] | 4/4 | 1.00 [1.00, 1.00] | not run yet |  |  |" in lines
+        "| task | 1.00 [1.00, 1.00] | 0/4 | 2/2 | 1.00 [1.00, 1.00] | not run yet |  |  |  |"
+        in lines
     )
     assert (
-        "| supervised | 0.00 [0.00, 0.00] | 0/4 | 1.00 [1.00, 1.00] | not run yet |  |  |" in lines
+        "| distal | -3.00 [-3.00, -3.00] | 4/4 | 0/2 | 1.00 [1.00, 1.00] | not run yet |  |  |  |"
+        in lines
+    )
+    assert (
+        "| supervised | 0.00 [0.00, 0.00] | 0/4 | 0/2 | 1.00 [1.00, 1.00] | not run yet |  |  |  |"
+        in lines
     )
 
 
