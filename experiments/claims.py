@@ -42,17 +42,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
-import sys
 
+import comparison
 import numpy as np
 import pandas as pd
+import robustness_study
+import select_defaults
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import comparison  # noqa: E402
-import robustness_study  # noqa: E402
-import select_defaults  # noqa: E402
-
-from cfm_jax import report, stats  # noqa: E402
+from cfm_jax import report, stats
 
 PLAN = "docs/results/claims_plan.md"
 """Where the primary family, the rule and the seed count are written down (before the rerun)."""

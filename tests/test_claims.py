@@ -9,17 +9,14 @@ from __future__ import annotations
 
 import os
 import re
-import sys
 
+import claims
+import comparison
 import numpy as np
 import pandas as pd
 import pytest
 
 from cfm_jax import report
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
-import claims  # noqa: E402
-import comparison  # noqa: E402
 
 LOSSES = ("joint", "task", "distal", "supervised")
 ROOT = os.path.join(os.path.dirname(__file__), "..")

@@ -9,16 +9,13 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 
+import comparison
+import loss_search
 import pandas as pd
 import pytest
 
 from cfm_jax import config as config_lib
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
-import comparison  # noqa: E402
-import loss_search  # noqa: E402
 
 
 def _search(folder, task: str, trials: dict) -> None:

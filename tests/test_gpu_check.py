@@ -7,12 +7,9 @@ errors it reports are recomputed from a hand-written metrics table.
 from __future__ import annotations
 
 import os
-import sys
 
+import gpu_check
 import pytest
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
-import gpu_check  # noqa: E402
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 
 import numpy as np
 import pandas as pd
@@ -18,7 +17,6 @@ import pytest
 from cfm_jax import locomotion
 
 optuna = pytest.importorskip("optuna")
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
 import loss_search  # noqa: E402
 from tiny import assert_targets_are_not_the_test_targets  # noqa: E402
 

@@ -9,16 +9,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
-import sys
 
+import mjx_vs_native as study
 import pandas as pd
 import pytest
+import robustness_study
 
 from cfm_jax import config as config_lib
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
-import mjx_vs_native as study  # noqa: E402
-import robustness_study  # noqa: E402
 
 # Final seed means (each seed's 2 targets average to it), per (task, simulator, loss):
 # walk: native joint lower on both seeds, MJX task lower on both -> no common lower loss,

@@ -8,18 +8,16 @@ regenerated from its committed records (the study itself is not run here: hours)
 from __future__ import annotations
 
 import os
-import sys
 
 import numpy as np
 import pandas as pd
 import pytest
 
 pytest.importorskip("stable_baselines3")
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
-import peers  # noqa: E402
+import peers
 
-from cfm_jax import config as config_lib  # noqa: E402
-from cfm_jax import envs  # noqa: E402
+from cfm_jax import config as config_lib
+from cfm_jax import envs
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 CONFIG = config_lib.Config(robot="two_link_arm", task=config_lib.TaskConfig(duration=0.2))

@@ -10,7 +10,6 @@ import json
 import math
 import os
 import shutil
-import sys
 
 import numpy as np
 import pandas as pd
@@ -18,7 +17,6 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 optuna = pytest.importorskip("optuna")
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
 import peers  # noqa: E402
 import peers_search  # noqa: E402
 

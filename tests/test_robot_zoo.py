@@ -5,12 +5,9 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 
 import pytest
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
-import robot_zoo  # noqa: E402
+import robot_zoo
 
 
 def test_summary_of_a_run_by_hand(tmp_path):

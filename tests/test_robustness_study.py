@@ -12,18 +12,15 @@ import dataclasses
 import json
 import os
 import shutil
-import sys
 
+import _study
 import numpy as np
 import pandas as pd
 import pytest
+import robustness_study as study
 
 from cfm_jax import config as config_lib
 from cfm_jax import report
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
-import _study  # noqa: E402
-import robustness_study as study  # noqa: E402
 
 
 def _as_run_today(recorded: dict) -> dict:

@@ -11,18 +11,15 @@ from __future__ import annotations
 import json
 import math
 import os
-import sys
 
+import _study
 import pandas as pd
 import pytest
+import select_defaults as select
+from tiny import assert_targets_are_not_the_test_targets
 
 from cfm_jax import config as config_lib
 from cfm_jax import locomotion
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
-import _study  # noqa: E402
-import select_defaults as select  # noqa: E402
-from tiny import assert_targets_are_not_the_test_targets  # noqa: E402
 
 LOSSES = ("joint", "task", "distal", "supervised")
 RECORDS = os.path.join(os.path.dirname(__file__), "..", "docs", "results", "selection")
