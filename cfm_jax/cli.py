@@ -878,12 +878,17 @@ def _config_command(argv: list[str]) -> None:
     ]  # fmt: skip
     flags_cls = _flags_class("config", base, extra)
     flags = _parse(flags_cls, argv, "config", _description(print_config))
-    print(json.dumps(config_lib.to_dict(_config_of(flags, base, flags.loss)), indent=2))
+    config = _config_of(flags, base, flags.loss)
+    from cfm_jax import robot_check
+
+    robot_check.refuse_unfit(config)  # what training would refuse, refused now
+    print(json.dumps(config_lib.to_dict(config), indent=2))
 
 
 def print_config() -> None:
     """Print the config that cfm-jax train runs with the same flags, as JSON (the file
-    --config reads).
+    --config reads); a robot that does not load or that the task cannot run on is refused
+    here, with the reason cfm-jax robot check gives.
 
     Examples:
       cfm-jax config --task walk > walk.json

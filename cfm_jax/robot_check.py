@@ -259,3 +259,37 @@ def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Ch
         extra = f" ({notes[name]})" if notes.get(name) else ""
         lines.append(f"  {name}: " + ("yes" + extra if reason is None else f"no: {reason}"))
     return Check("\n".join(lines), tasks, robot)
+
+
+def refuse_unfit(config) -> None:
+    """Refuse, before any training, a config whose robot does not load or whose task cannot
+    run on it (``cfm-jax config``): the robot loaded as training loads it, then the task's
+    ``fits`` (:class:`cfm_jax.tasks.TaskSpec`), the check ``cfm-jax robot check`` reports.
+
+    Args:
+      config: a :class:`cfm_jax.config.Config`.
+
+    Raises:
+      ConfigError: the task does not fit the robot (the task's reason, naming the robot).
+      robots.RobotError: the robot does not load (its reason).
+
+    Examples:
+      >>> from cfm_jax.config import Config, TaskConfig
+      >>> refuse_unfit(Config(robot="two_link_arm", task=TaskConfig(name="walk")))
+      Traceback (most recent call last):
+      cfm_jax.config.ConfigError: task.name='walk' does not fit robot='two_link_arm': ...
+    """
+    from cfm_jax.config import ConfigError
+
+    robot = robots.load(
+        config.robot, actuators=config.robot_actuators, torque_limit=config.robot_torque_limit
+    )
+    spec = tasks_lib.load(config.task.name)
+    if spec.fits is None:
+        return
+    try:
+        spec.fits(robot)
+    except ConfigError as error:
+        raise ConfigError(
+            f"task.name={config.task.name!r} does not fit robot={config.robot!r}: {error}"
+        ) from None

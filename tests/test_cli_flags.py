@@ -97,6 +97,33 @@ def test_config_output_round_trips_through_config(tmp_path, monkeypatch, capsys)
     assert base == config_lib.from_dict(printed)
 
 
+@pytest.mark.parametrize(
+    ("task", "robot", "reason"),
+    [
+        # An arm for a legged task: no floating base (tasks/legged.py's fits).
+        ("walk", "iiwa14", "need a floating base"),
+        # A published quadruped other than the Solo12: not the Solo12's legs.
+        ("jump", "tests/robots/quadrupeds/go2.xml", "is not allowed for the legged tasks"),
+        # A planar arm for the op-space task: no 3-D site to control.
+        ("opspace", "two_link_arm", None),
+    ],
+)
+def test_config_refuses_a_robot_its_task_cannot_run_on(task, robot, reason, monkeypatch, capsys):
+    """``cfm-jax config`` refuses, in one line and before any training, what ``cfm-jax robot
+    check`` reports the task cannot run on, with the same reason."""
+    from cfm_jax import robot_check
+
+    why = robot_check.check(robot).tasks[task]
+    assert why is not None and (reason is None or reason in why)
+    monkeypatch.setattr(sys, "argv", ["cfm-jax", "config", "--task", task, "--robot", robot])
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main()
+    captured = capsys.readouterr()
+    assert exit_info.value.code == 2 and captured.out == ""
+    line = f"cfm-jax: error: task.name={task!r} does not fit robot={robot!r}: "
+    assert captured.err == line + " ".join(why.split()) + "\n"
+
+
 def test_version_is_the_package_metadata(monkeypatch, capsys):
     from importlib import metadata
 

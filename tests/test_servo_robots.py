@@ -306,7 +306,17 @@ def test_cli_flags_reach_the_config(monkeypatch, capsys):
     monkeypatch.setattr(
         sys,
         "argv",
-        ["cfm-jax", "config", "--robot-actuators", "torque", "--robot-torque-limit", "3", "4"],
+        [
+            "cfm-jax",
+            "config",
+            "--robot",
+            "two_link_arm",
+            "--robot-actuators",
+            "torque",
+            "--robot-torque-limit",
+            "3",
+            "4",
+        ],  # fmt: skip
     )
     cli.main()
     printed = json.loads(capsys.readouterr().out)
