@@ -320,8 +320,9 @@ def sweep(
     """Run a grid of experiments (override values x losses, seeds vmapped in each cell).
 
     Writes OUT/cells/<cell>/ as each cell finishes (a re-run skips finished cells), then
-    OUT/metrics.csv and OUT/metrics.parquet (one row per cell, seed, iteration, target,
-    with a column per override), OUT/baselines.csv, OUT/cells.csv, OUT/sweep.json,
+    OUT/metrics.csv and, with pyarrow installed, OUT/metrics.parquet (one row per cell,
+    seed, iteration, target, with a column per override), OUT/baselines.csv, OUT/cells.csv,
+    OUT/sweep.json,
     OUT/summary.md (the protocol line; mean and std over seeds at the last iteration, a
     bootstrap 95% CI over seeds and the paired comparison of the joint loss) and
     OUT/curves.png, and prints the summary table.

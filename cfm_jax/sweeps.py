@@ -14,6 +14,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import hashlib
+import importlib.util
 import itertools
 import json
 import numbers
@@ -870,15 +871,27 @@ def _summary_sections(metrics, baselines, paths, iteration) -> list[str]:
     return sections
 
 
+def parquet_available() -> bool:
+    """Whether pyarrow is installed (the ``parquet`` extra): then a sweep also writes its
+    table as ``metrics.parquet``, beside ``metrics.csv``.
+
+    Examples:
+      >>> isinstance(parquet_available(), bool)
+      True
+    """
+    return importlib.util.find_spec("pyarrow") is not None
+
+
 def _write_tables(out_dir: str, result: SweepResult, base_config, cells, labels) -> None:
     """The sweep's files (tables, grid, summary, figure), each written whole and renamed."""
     write_atomic(
         os.path.join(out_dir, "metrics.csv"), lambda tmp: result.metrics.to_csv(tmp, index=False)
     )
-    write_atomic(
-        os.path.join(out_dir, "metrics.parquet"),
-        lambda tmp: result.metrics.to_parquet(tmp, index=False, engine="pyarrow"),
-    )
+    if parquet_available():
+        write_atomic(
+            os.path.join(out_dir, "metrics.parquet"),
+            lambda tmp: result.metrics.to_parquet(tmp, index=False, engine="pyarrow"),
+        )
     write_atomic(
         os.path.join(out_dir, "baselines.csv"),
         lambda tmp: result.baselines.to_csv(tmp, index=False),

@@ -173,6 +173,21 @@ def test_tidy_table_and_files(local):
     assert "| joint | 100.0 | 2 |" in (out / "summary.md").read_text()
 
 
+def test_without_pyarrow_a_sweep_writes_the_csv_alone(local, tmp_path, monkeypatch):
+    # pyarrow is the optional `parquet` extra: without it (parquet_available() False) a
+    # re-run of the finished sweep (every cell read back, none trained) writes the same
+    # metrics.csv and no metrics.parquet, and fails nowhere.
+    shutil.copytree(local[1], tmp_path / "out")
+    (tmp_path / "out" / "metrics.parquet").unlink()
+    monkeypatch.setattr(sweeps, "parquet_available", lambda: False)
+    again = _sweep(tmp_path / "out")
+    assert not (tmp_path / "out" / "metrics.parquet").exists()
+    pd.testing.assert_frame_equal(again.metrics, local[0].metrics, check_exact=True)
+    assert (tmp_path / "out" / "metrics.csv").read_bytes() == (
+        local[1] / "metrics.csv"
+    ).read_bytes()
+
+
 def test_a_cell_equals_train_of_its_config_with_the_seeds_vmapped(local):
     # Oracle: cfm_jax.train of the cell's config, all seeds in one vmapped call: the sweep's
     # rows must equal it bit for bit (a cell is that call). That a vmapped seed equals the
