@@ -195,7 +195,8 @@ class Checkpointer:
                 f"the previous valid checkpoint is step {earlier[-1]}: delete "
                 f"{os.path.join(self.directory, str(step))} to resume from it"
                 if earlier
-                else "no earlier valid checkpoint exists: start the run again"
+                else "no earlier valid checkpoint exists: start the run again (cfm-jax "
+                "train --restart moves the old run aside first)"
             )
             raise CheckpointError(f"checkpoint step {step} is not usable: {problem}; {offer}")
         ocp = self._ocp

@@ -16,6 +16,7 @@ import inspect
 import json
 import os
 import re
+import sys
 import tempfile
 import time
 from typing import Annotated
@@ -46,6 +47,7 @@ def train(
     babbling: str | None = None,
     quiet: bool = False,
     tensorboard: str | None = None,
+    restart: bool = False,
 ) -> None:
     """Learn a tracking controller with Algorithm 1 and compare controller losses.
 
@@ -74,6 +76,9 @@ def train(
       resume: continue an interrupted run in OUT (same flags and config): every loss
         resumes from its newest valid checkpoint in OUT/<loss>/checkpoints (finished losses
         are only re-evaluated), losses without checkpoints start fresh.
+      restart: start the run in OUT again from nothing (for a run whose checkpoints are all
+        damaged): what OUT holds is first moved aside, whole, to OUT.replaced-TIME (nothing
+        is deleted).
       data: replay a recorded data set instead of collecting data (a run's
         OUT/<loss>/dataset.npz): every loss trains f and g from scratch on it, revealed
         iteration by iteration as it was recorded; the controller is evaluated on the
@@ -104,11 +109,12 @@ def train(
     )
     if babbling is not None:
         base = base.replace(loop=dataclasses.replace(base.loop, babbling=babbling))
-    _run_train(base, names, out, resume, data, quiet, tensorboard)
+    _run_train(base, names, out, resume, data, quiet, tensorboard, restart)
 
 
-def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
-    """Train every loss of ``names`` on ``base`` into ``out`` and print the tables."""
+def _run_train(base, names, out, resume, data, quiet, tensorboard=None, restart=False) -> None:
+    """Train every loss of ``names`` on ``base`` into ``out`` and print the tables
+    (``restart``: after the checks, what ``out`` holds is moved aside, :func:`_move_aside`)."""
     from cfm_jax import checkpoint
     from cfm_jax import tensorboard as tensorboard_lib
     from cfm_jax import training as train_lib
@@ -128,6 +134,16 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
             "--resume continues a run, and there is none here (no config.json in it or in "
             "its loss folders); start it without --resume",
         )
+    if resume and restart:
+        config_lib.fail(
+            "--restart",
+            True,
+            "--resume continues the run in --out and --restart starts it "
+            "again from nothing: give one of them",
+        )
+    if restart and os.path.isdir(out) and os.listdir(out):
+        aside = _move_aside(out)
+        print(f"cfm-jax: --restart: the old run in {out} is now in {aside}", file=sys.stderr)
     if not resume:  # a new run would meet the old one's checkpoints after its babbling
         held = [name for name in names if checkpoint.has_steps(os.path.join(out, name))]
         if held:
@@ -147,6 +163,19 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None) -> None:
         )
     wall = time.perf_counter() - start
     _print_train(base, experiment, frames, result, notes, out, wall)
+
+
+def _move_aside(out: str) -> str:
+    """Move the folder ``out`` whole to ``OUT.replaced-<UTC time>`` (a number added if that
+    exists) and return the new path: ``--restart`` deletes nothing."""
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    aside = f"{os.path.normpath(out)}.replaced-{stamp}"
+    number = 1
+    while os.path.exists(aside):
+        number += 1
+        aside = f"{os.path.normpath(out)}.replaced-{stamp}-{number}"
+    os.rename(out, aside)
+    return aside
 
 
 def _train_losses(base, names, out, resume, data, quiet, experiment, progress_fn=None):
@@ -821,6 +850,9 @@ def _train_command(argv: list[str]) -> None:
          "flags and config): every loss resumes from its newest valid checkpoint in "
          "OUT/LOSS/checkpoints (finished losses are only re-evaluated); losses without "
          "checkpoints start fresh.")], False),
+        ("restart", Annotated[bool, tyro_arg(help="start the run in --out again from nothing "
+         "(for a run whose checkpoints are all damaged): what --out holds is first moved "
+         "aside, whole, to OUT.replaced-TIME (nothing is deleted).")], False),
         ("data", Annotated[str | None, tyro_arg(metavar="FILE", help_behavior_hint="", help=
          "replay a recorded data set (a run's OUT/LOSS/dataset.npz) instead of collecting "
          "data: every loss trains f and g from scratch on it, revealed iteration by iteration "
@@ -836,7 +868,7 @@ def _train_command(argv: list[str]) -> None:
     flags = _parse(flags_cls, argv, "train", _description(train))
     names = _losses(flags.loss)
     _run_train(_config_of(flags, base, names[0]), names, flags.out, flags.resume, flags.data,
-               flags.quiet, flags.tensorboard)  # fmt: skip
+               flags.quiet, flags.tensorboard, flags.restart)  # fmt: skip
 
 
 def _sweep_command(argv: list[str]) -> None:

@@ -342,6 +342,36 @@ def test_cli_resume_continues_each_loss(tmp_path):
     assert "seed (0 in the run, 3 now)" in refused.stderr and "Traceback" not in refused.stderr
 
 
+def test_cli_restart_after_every_checkpoint_is_damaged(tmp_path):
+    # A run whose every checkpoint is damaged cannot resume (one error line naming
+    # --restart, exit 2); --restart moves the old run aside, whole, and trains the run again
+    # from nothing: the same numbers as the first run (same config and seed). Oracle: the
+    # first run's own tables.
+    out = tmp_path / "cli"
+    command = cli_command(CFG, tmp_path, out, "joint", seeds=1, iterations=1)
+    first = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr[-3000:]
+    complete = pd.read_csv(out / "metrics.csv")
+    manifests = sorted((out / "joint" / "checkpoints").glob(f"*/{checkpoint.MANIFEST}"))
+    assert manifests
+    for manifest in manifests:
+        manifest.write_text("{")
+    refused = subprocess.run(command + ["--resume"], capture_output=True, text=True, timeout=600)
+    lines = refused.stderr.strip().splitlines()
+    assert refused.returncode == 2 and lines[-1].startswith("cfm-jax: error: checkpoint step")
+    assert "no earlier valid checkpoint" in lines[-1] and "--restart" in lines[-1]
+    both = subprocess.run(command + ["--resume", "--restart"], capture_output=True, text=True)
+    assert both.returncode == 2 and "--restart=True is not allowed" in both.stderr
+    again = subprocess.run(command + ["--restart"], capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr[-3000:]
+    pd.testing.assert_frame_equal(pd.read_csv(out / "metrics.csv"), complete, check_exact=True)
+    (aside,) = tmp_path.glob("cli.replaced-*")  # the old run, whole: nothing deleted
+    assert f"now in {aside}" in again.stderr
+    assert (aside / "joint" / "checkpoints" / manifests[0].parent.name / checkpoint.MANIFEST
+            ).read_text() == "{"  # fmt: skip
+    pd.testing.assert_frame_equal(pd.read_csv(aside / "metrics.csv"), complete, check_exact=True)
+
+
 def test_orbax_timing_note_is_not_printed_other_absl_warnings_are(tmp_path, caplog):
     """Orbax logs "Waiting for previous save to complete took N seconds" as an absl WARNING
     when a save waits (seen on busy cores in a --quiet run): a Checkpointer drops that

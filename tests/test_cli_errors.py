@@ -282,7 +282,8 @@ def test_a_checkpoint_that_cannot_be_used_is_one_error_line(tmp_path, monkeypatc
     from cfm_jax import checkpoint
 
     message = ("checkpoint step 0 is not usable (its manifest does not parse); no earlier "
-               "valid checkpoint exists: start the run again")  # fmt: skip
+               "valid checkpoint exists: start the run again (cfm-jax train --restart moves "
+               "the old run aside first)")  # fmt: skip
 
     def damaged(*args, **kwargs):
         raise checkpoint.CheckpointError(message)
