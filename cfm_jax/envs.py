@@ -25,6 +25,12 @@ The reward is minus the mean square of the next state's tracking error times
 Episodes are truncated after the reference's steps and terminated when the simulation
 diverges (``info["diverged"]``, with the reward of the last good state).
 
+``render_mode="rgb_array"`` makes :meth:`TrackingEnv.render` return the current frame
+(MuJoCo's offscreen renderer, :mod:`cfm_jax.render`; needs OpenGL). The environments are
+registered with Gymnasium under :data:`IDS` when this module is imported:
+``gymnasium.make("cfm_jax.envs:cfm_jax/Tracking-v0")`` imports it and builds the quickstart
+task (the iiwa14's joint-space reaches); keyword arguments reach :func:`make`.
+
 Needs ``gymnasium`` (``pip install "cfm_jax[peers]"``). The legged tasks are not wrapped yet.
 """
 
@@ -46,6 +52,8 @@ REFERENCES = ("training", "test")
 """Values of :class:`TrackingEnv`'s ``references``."""
 ACTIONS = ("limit", "scale", "residual")
 """Values of :class:`TrackingEnv`'s ``action`` (see the module)."""
+RENDER_WIDTH, RENDER_HEIGHT = 320, 240
+"""The size of :meth:`TrackingEnv.render`'s frames (at most the model's offscreen size)."""
 REACH = 1.0
 """``u = REACH x limit_j / T_jj`` drives joint ``j`` alone to ``tanh(REACH)`` of its limit. One,
 not more: the torques a task needs are a small part of the limits (PD-only's on the iiwa14's
@@ -95,6 +103,8 @@ class TrackingEnv(gymnasium.Env):
         PD-only's reward is about -1 a step).
       residual_scale: the factor of the policy's torque on top of the PD feedback
         (``residual`` only; 1 for the other actions).
+      render_mode: None, or ``"rgb_array"``: :meth:`render` returns the current frame,
+        ``(RENDER_HEIGHT, RENDER_WIDTH, 3)`` uint8.
 
     Attributes:
       task: the library's task object.
@@ -119,7 +129,7 @@ class TrackingEnv(gymnasium.Env):
       (True, False, False)
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
 
     def __init__(
         self,
@@ -129,6 +139,7 @@ class TrackingEnv(gymnasium.Env):
         action: str = "limit",
         reward_scale: float = 1.0,
         residual_scale: float = 1.0,
+        render_mode: str | None = None,
     ):
         from cfm_jax import algorithm
         from cfm_jax.experiment import Experiment
@@ -143,6 +154,8 @@ class TrackingEnv(gymnasium.Env):
             config_lib.fail("residual_scale", residual_scale, "a finite number > 0")
         if action != "residual" and residual_scale != 1.0:
             config_lib.fail("residual_scale", residual_scale, "1 unless action='residual'")
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            config_lib.fail("render_mode", render_mode, "None or 'rgb_array'")
         if config.simulator != "native":
             config_lib.fail(
                 "simulator",
@@ -177,6 +190,45 @@ class TrackingEnv(gymnasium.Env):
         self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (task.action_dim,), np.float32)
         self._next_target = 0
         self._reference = None
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / self.control_dt)}
+        self._renderer = None
+
+    def render(self):
+        """The current state as an RGB frame ``(RENDER_HEIGHT, RENDER_WIDTH, 3)`` uint8
+        (``render_mode="rgb_array"``; the free camera of :func:`cfm_jax.render.render_frames`),
+        or None without a render mode.
+
+        Raises:
+          RuntimeError: before :meth:`reset`.
+          cfm_jax.render.RenderUnavailable: no offscreen OpenGL context can be made.
+        """
+        if self.render_mode is None:
+            return None
+        if self._reference is None:
+            raise RuntimeError("TrackingEnv.render before reset")
+        import mujoco
+
+        from cfm_jax import render
+
+        model = self.robot.mj_model
+        if self._renderer is None:
+            width = min(RENDER_WIDTH, model.vis.global_.offwidth)
+            height = min(RENDER_HEIGHT, model.vis.global_.offheight)
+            self._renderer = render._renderer(model, height, width)
+            self._render_data = mujoco.MjData(model)
+        data = self._render_data
+        data.qpos[:], data.qvel[:] = np.asarray(self._qpos), np.asarray(self._qvel)
+        mujoco.mj_forward(model, data)
+        self._renderer.update_scene(data, camera=render._camera(model, data, None, True))
+        return self._renderer.render().copy()
+
+    def close(self):
+        """Release the renderer, if one was made."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        super().close()
 
     def _pick(self, seed_target: int | None):
         """One reference ``(steps + 1, ...)``: a drawn training reach or a test target."""
@@ -349,3 +401,34 @@ def _action_torque(
     return _ActionTorque(
         torque=jax.jit(torque), ctrl=jax.jit(lambda *a: robot.torque_to_ctrl(torque(*a)))
     )
+
+
+def make(task: str = "inverse_dynamics", robot: str | None = None, **kwargs) -> TrackingEnv:
+    """A :class:`TrackingEnv` of ``task``'s defaults (:func:`cfm_jax.config.for_task`), on
+    ``robot`` if given: what the registered ids (:data:`IDS`) build.
+
+    Args:
+      task: an arm task, ``inverse_dynamics`` or ``opspace``.
+      robot: a registered robot name or an MJCF path; None: the task's robot.
+      **kwargs: :class:`TrackingEnv`'s other arguments (``config`` replaces the defaults).
+
+    Examples:
+      >>> env = make(robot="two_link_arm")
+      >>> env.task.action_dim
+      2
+    """
+    config = kwargs.pop("config", None) or config_lib.for_task(task)
+    if robot is not None:
+        config = config.replace(robot=robot)
+    return TrackingEnv(config, **kwargs)
+
+
+IDS = {
+    "cfm_jax/Tracking-v0": {"task": "inverse_dynamics"},
+    "cfm_jax/OpSpaceTracking-v0": {"task": "opspace"},
+}
+"""Gymnasium ids registered at import, each :func:`make` with these arguments."""
+
+for _id, _kwargs in IDS.items():
+    if _id not in gymnasium.envs.registry:
+        gymnasium.register(_id, entry_point="cfm_jax.envs:make", kwargs=_kwargs)

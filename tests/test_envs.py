@@ -248,3 +248,40 @@ def test_a_residual_scale_multiplies_the_policy_torque_not_the_feedback(experime
                                       np.asarray(full._torque.torque(a, *state)))  # fmt: skip
         assert not np.allclose(got, np.asarray(full._torque.torque(a, *state)))
         small.step(a)
+
+
+def test_registered_ids_build_the_environment_gymnasium_checks_and_renders():
+    """``gymnasium.make`` of a registered id (the module imported by the id's prefix) is the
+    environment built directly: the same observations and rewards for the same seed and
+    actions. Gymnasium's own checker passes it, render check included, and a frame is the
+    one :func:`cfm_jax.render.render_frames` draws of the same state (its own renderer)."""
+    import gymnasium
+
+    from cfm_jax import render
+
+    made = gymnasium.make("cfm_jax.envs:cfm_jax/Tracking-v0", config=CONFIG)
+    direct = envs.TrackingEnv(CONFIG)
+    assert set(envs.IDS) <= set(gymnasium.envs.registry)
+    actions = np.random.default_rng(0).uniform(-0.2, 0.2, (5, 2)).astype(np.float32)
+    for env in (made, direct):
+        env.reset(seed=3)
+    for action in actions:
+        a, b = made.step(action), direct.step(action)
+        np.testing.assert_array_equal(a[0], b[0])
+        assert a[1:4] == b[1:4]
+    with pytest.raises(config_lib.ConfigError, match="render_mode='human' is not allowed"):
+        envs.TrackingEnv(CONFIG, render_mode="human")
+    assert direct.render() is None  # no render mode: nothing drawn
+    available, why = render.render_available()
+    if not available:
+        pytest.skip(f"no offscreen OpenGL: {why}")
+    drawn = envs.TrackingEnv(CONFIG, render_mode="rgb_array")
+    check_env(drawn, skip_render_check=False)
+    drawn.reset(seed=0)
+    drawn.step(actions[0])
+    frame = drawn.render()
+    qpos = np.asarray(drawn._qpos, float)
+    reference = render.render_frames(drawn.robot.mj_model, qpos)[0]
+    assert frame.shape == (envs.RENDER_HEIGHT, envs.RENDER_WIDTH, 3) and frame.dtype == np.uint8
+    np.testing.assert_array_equal(frame, reference)
+    drawn.close()
