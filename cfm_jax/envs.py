@@ -410,7 +410,7 @@ def make(task: str = "inverse_dynamics", robot: str | None = None, **kwargs) -> 
     Args:
       task: an arm task, ``inverse_dynamics`` or ``opspace``.
       robot: a registered robot name or an MJCF path; None: the task's robot.
-      **kwargs: :class:`TrackingEnv`'s other arguments (``config`` replaces the defaults).
+      kwargs: :class:`TrackingEnv`'s other arguments (``config`` replaces the defaults).
 
     Examples:
       >>> env = make(robot="two_link_arm")
