@@ -287,7 +287,7 @@ def test_nan_in_one_loss_of_a_batch_stops_that_loss_seed_only(uninterrupted, mon
     assert all(np.all(np.isfinite(np.asarray(x[1]))) for x in leaves)
 
 
-def test_cli_resume_continues_each_loss(tmp_path):
+def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path):
     # Run the CLI for two iterations of two losses, then leave the files as a kill during
     # the second loss's last iteration would: its last checkpoint gone, its metrics up to
     # iteration 1, the run's table with the first loss only. Resume: the second loss's last
@@ -340,25 +340,16 @@ def test_cli_resume_continues_each_loss(tmp_path):
     )
     assert refused.returncode == 2
     assert "seed (0 in the run, 3 now)" in refused.stderr and "Traceback" not in refused.stderr
-
-
-def test_cli_restart_after_every_checkpoint_is_damaged(tmp_path):
-    # A run whose every checkpoint is damaged cannot resume (one error line naming
-    # --restart, exit 2); --restart moves the old run aside, whole, and trains the run again
-    # from nothing: the same numbers as the first run (same config and seed). Oracle: the
-    # first run's own tables.
-    out = tmp_path / "cli"
-    command = cli_command(CFG, tmp_path, out, "joint", seeds=1, iterations=1)
-    first = subprocess.run(command, capture_output=True, text=True, timeout=600)
-    assert first.returncode == 0, first.stderr[-3000:]
-    complete = pd.read_csv(out / "metrics.csv")
-    manifests = sorted((out / "joint" / "checkpoints").glob(f"*/{checkpoint.MANIFEST}"))
-    assert manifests
+    # Every checkpoint damaged: --resume cannot continue (one error line naming --restart,
+    # exit 2); --restart moves the old run aside, whole, and trains the run again from
+    # nothing: the same tables as the first run (same config and seed).
+    manifests = sorted(out.glob(f"*/checkpoints/*/{checkpoint.MANIFEST}"))
+    assert {m.parent.parent.parent.name for m in manifests} == {"joint", "task"}
     for manifest in manifests:
         manifest.write_text("{")
-    refused = subprocess.run(command + ["--resume"], capture_output=True, text=True, timeout=600)
-    lines = refused.stderr.strip().splitlines()
-    assert refused.returncode == 2 and lines[-1].startswith("cfm-jax: error: checkpoint step")
+    damaged = subprocess.run(command + ["--resume"], capture_output=True, text=True, timeout=600)
+    lines = damaged.stderr.strip().splitlines()
+    assert damaged.returncode == 2 and lines[-1].startswith("cfm-jax: error: checkpoint step")
     assert "no earlier valid checkpoint" in lines[-1] and "--restart" in lines[-1]
     both = subprocess.run(command + ["--resume", "--restart"], capture_output=True, text=True)
     assert both.returncode == 2 and "--restart=True is not allowed" in both.stderr
@@ -367,8 +358,7 @@ def test_cli_restart_after_every_checkpoint_is_damaged(tmp_path):
     pd.testing.assert_frame_equal(pd.read_csv(out / "metrics.csv"), complete, check_exact=True)
     (aside,) = tmp_path.glob("cli.replaced-*")  # the old run, whole: nothing deleted
     assert f"now in {aside}" in again.stderr
-    assert (aside / "joint" / "checkpoints" / manifests[0].parent.name / checkpoint.MANIFEST
-            ).read_text() == "{"  # fmt: skip
+    assert (aside / manifests[0].relative_to(out)).read_text() == "{"
     pd.testing.assert_frame_equal(pd.read_csv(aside / "metrics.csv"), complete, check_exact=True)
 
 
