@@ -115,10 +115,14 @@ class Stepper:
             threads = min(2, os.cpu_count() or 1)
         self.threads = max(1, int(threads))
         self.datas = [mujoco.MjData(self.model) for _ in range(self.threads)]
-        # The C++ rollout objects themselves (``Rollout.rollout_``): the Python wrapper's
-        # argument checks cost more than stepping a small batch.
+        # MuJoCo's public ``Rollout.rollout`` with ``skip_checks``: the buffers are right by
+        # construction, and the wrapper's argument checks cost more than stepping a small
+        # batch. Where a MuJoCo does not take that call, the checked call (:meth:`_rollout`).
         self._single = mj_rollout.Rollout(nthread=0)
         self._pool = mj_rollout.Rollout(nthread=self.threads) if self.threads > 1 else None
+        self.unchecked = True
+        """Whether the next batch goes through ``skip_checks=True`` (False after a MuJoCo
+        refused that call: every later batch takes the checked call)."""
         self._buffers: dict[int, _Buffers] = {}
         self._lock = threading.Lock()
 
@@ -172,18 +176,33 @@ class Stepper:
         )
 
     def _rollout(self, runner, buffers, datas, batch):
-        runner.rollout_.rollout(
-            buffers.models,
-            datas,
-            self.n_sub,
-            self.ctrl_spec,
-            buffers.state,
-            None,
-            buffers.control,
-            buffers.out,
-            buffers.sensors,
-            -(-batch // len(datas)),  # chunk size: one chunk per thread
+        """Steps ``buffers.state`` with ``buffers.control`` into ``buffers.out`` and
+        ``buffers.sensors`` through MuJoCo's public ``Rollout.rollout``: unchecked while this
+        MuJoCo takes ``skip_checks``, else checked (the same C++ call after the wrapper's
+        shape checks; the results are copied into the buffers if it returns new arrays)."""
+        arguments = dict(
+            control_spec=self.ctrl_spec,
+            nstep=self.n_sub,
+            state=buffers.out,
+            sensordata=buffers.sensors,
+            chunk_size=-(-batch // len(datas)),  # one chunk per thread
         )
+        if self.unchecked:
+            try:
+                runner.rollout(
+                    buffers.models, datas, buffers.state, buffers.control, skip_checks=True,
+                    **arguments,
+                )  # fmt: skip
+                return
+            except TypeError:  # this MuJoCo's rollout has no skip_checks
+                self.unchecked = False
+        out, sensors = runner.rollout(
+            buffers.models, datas, buffers.state, buffers.control, **arguments
+        )
+        if out is not buffers.out:
+            buffers.out[:] = out
+        if sensors is not buffers.sensors:
+            buffers.sensors[:] = sensors
 
 
 # ----- the JAX operation ------------------------------------------------------------------

@@ -109,6 +109,55 @@ def test_stepper_leading_batch_shape_and_nan_control(sensor_arm):
     np.testing.assert_allclose(qd[keep], want_qd, rtol=1e-6, atol=1e-6)
 
 
+class NoSkipChecks:
+    """A ``mujoco.rollout.Rollout`` as a MuJoCo without ``skip_checks`` would have it: the
+    unchecked call is refused with the TypeError Python gives an unknown keyword."""
+
+    def __init__(self, runner):
+        self.runner, self.checked_calls = runner, 0
+
+    def rollout(self, *args, skip_checks=None, **kwargs):
+        if skip_checks is not None:
+            raise TypeError("rollout() got an unexpected keyword argument 'skip_checks'")
+        self.checked_calls += 1
+        return self.runner.rollout(*args, **kwargs)
+
+
+@pytest.mark.parametrize("threads, batch", [(1, 3), (2, 17)])
+def test_stepper_falls_back_to_the_checked_rollout(sensor_arm, threads, batch):
+    # The public fallback path: MuJoCo's checked Rollout.rollout gives the same numbers,
+    # bit for bit, as the unchecked call and matches mj_step; once refused, the unchecked
+    # call is not tried again.
+    qpos, qvel, ctrl = random_inputs(sensor_arm, batch, seed=11)
+    want = native.Stepper(sensor_arm, n_sub=4, threads=threads)(qpos, qvel, ctrl)
+    stepper = native.Stepper(sensor_arm, n_sub=4, threads=threads)
+    stepper._single = NoSkipChecks(stepper._single)
+    if stepper._pool is not None:
+        stepper._pool = NoSkipChecks(stepper._pool)
+    runner = stepper._pool if batch >= stepper.threaded_batch and threads > 1 else stepper._single
+    for call in range(2):
+        got = stepper(qpos, qvel, ctrl)
+        assert not stepper.unchecked and runner.checked_calls == call + 1
+        for a, b in zip(got, want, strict=True):
+            np.testing.assert_array_equal(a, b)
+    want_q, want_qd, want_sensors = oracle(sensor_arm, qpos, qvel, ctrl, 4)
+    np.testing.assert_allclose(got[0], want_q, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(got[2], want_sensors, rtol=1e-6, atol=1e-6)
+
+
+def test_stepper_checked_rollout_without_sensors():
+    # A model without sensors (sensordata of width 0) through the checked call.
+    robot = robots.load("iiwa14")
+    qpos, qvel, ctrl = random_inputs(robot.mj_model, 4, seed=5)
+    stepper = native.Stepper(robot.mj_model, n_sub=5, threads=1)
+    stepper._single = NoSkipChecks(stepper._single)
+    got = stepper(qpos, qvel, ctrl)
+    assert stepper._single.checked_calls == 1
+    want = native.Stepper(robot.mj_model, n_sub=5, threads=1)(qpos, qvel, ctrl)
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_stepper_iiwa_matches_mj_step():
     robot = robots.load("iiwa14")
     stepper = native.Stepper(robot.mj_model, n_sub=5)
