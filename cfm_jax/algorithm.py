@@ -155,8 +155,8 @@ class Setup:
 
     Examples:
       >>> setup = Setup.of(cfm_jax.Config(robot="two_link_arm"))
-      >>> setup.capacity, setup.transitions_per_rollout  # 2 babbling rollouts + 10 iterations
-      (12000, 1000)
+      >>> setup.capacity, setup.transitions_per_rollout  # 2 babbling rollouts + 4 iterations
+      (6000, 1000)
     """
 
     config: config_lib.Config

@@ -65,7 +65,7 @@ def train(
         registered with cfm_jax.losses.register: cfm-jax --import MODULE train ...), a
         comma-separated list of them, or "all" (the paper's four).
       seeds: number of seeds (run together as a vmap axis); None: the config's (1).
-      iterations: iterations of Algorithm 1; None: the config file's, else 4.
+      iterations: iterations of Algorithm 1; None: the config file's, else the task's (4).
       out: output directory.
       seed: first seed; None: the config's (0).
       config: JSON file of a full config (as written to config.json); the arguments above
@@ -254,14 +254,14 @@ def _print_train(base, experiment, frames, result, notes, out, wall) -> None:
 def _base_config(
     robot, task, loss, seed, seeds, iterations, config, simulator, control_dt, site
 ) -> config_lib.Config:
-    """The config of :func:`train`'s arguments: the --config file (else the task's defaults
-    with 4 iterations) with the arguments that are not None: robot, task, seed, seeds,
-    iterations, simulator, control_dt and site; and ``loss``."""
+    """The config of :func:`train`'s arguments: the --config file (else the task's defaults,
+    :func:`cfm_jax.config.for_task`, what Python's ``Config`` gives) with the arguments
+    that are not None: robot, task, seed, seeds, iterations, simulator, control_dt and
+    site; and ``loss``."""
     if config is not None:
         base = config_lib.from_dict(_read_config(config))
     else:
         base = config_lib.for_task(task or "inverse_dynamics")
-        base = base.replace(loop=dataclasses.replace(base.loop, iterations=4))
     data = config_lib.to_dict(base)
     data["loss"] = loss
     for section, name, value in (
@@ -365,7 +365,7 @@ def sweep(
       losses: "all" (the paper's four: joint, task, distal, supervised), or a
         comma-separated list of controller losses (those and distal_literal).
       seeds: number of seeds (a vmap axis inside every cell); None: the config's (1).
-      iterations: iterations of Algorithm 1; None: the config file's, else 4.
+      iterations: iterations of Algorithm 1; None: the config file's, else the task's (4).
       out: output directory.
       override: grid axes, each PATH=V1,V2,... (values parsed as JSON numbers, true/false,
         null, else text) or PATH=[JSON list] for values that contain commas, e.g.
@@ -580,7 +580,7 @@ _TOP_HELP = {
     "has no forcerange or joint actuatorfrcrange; one number for all joints or one per joint.",
     "config": "JSON file of a full config (a run's config.json, or the output of cfm-jax "
     "config): the base of every config flag; only the flags given override it. Without it, "
-    "the task's defaults (cfm_jax.config.for_task) with 4 iterations.",
+    "the task's defaults (cfm_jax.config.for_task), as in Python.",
 }
 
 
@@ -772,9 +772,9 @@ def _options_class(forward: config_lib.ForwardModelConfig):
 
 def _prescan(argv: list[str], losses: list | None = None) -> config_lib.Config:
     """The base config of a command line: the --config file, else the defaults of its
-    --task (cfm_jax.config.for_task) with the CLI's 4 iterations. A file of a several-loss
-    run (``"loss": "joint,task"``, the top-level config.json) gives its first loss, and its
-    list is appended to ``losses`` (the default of --loss)."""
+    --task (cfm_jax.config.for_task: what Python's ``Config`` of that task is). A file of a
+    several-loss run (``"loss": "joint,task"``, the top-level config.json) gives its first
+    loss, and its list is appended to ``losses`` (the default of --loss)."""
     parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     parser.add_argument("--config")
     parser.add_argument("--task", "--task.name", dest="task")
@@ -791,8 +791,7 @@ def _prescan(argv: list[str], losses: list | None = None) -> config_lib.Config:
     task = known.task or "inverse_dynamics"
     if task not in config_lib.TASKS:
         config_lib.fail("task.name", task, f"one of {config_lib.TASKS}")
-    base = config_lib.for_task(task)
-    return base.replace(loop=dataclasses.replace(base.loop, iterations=4))
+    return config_lib.for_task(task)
 
 
 def _config_of(flags, base: config_lib.Config, loss: str) -> config_lib.Config:

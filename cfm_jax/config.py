@@ -731,7 +731,8 @@ class LoopConfig:
     """Algorithm 1: motor babbling, then iterations of rollout / refit f / refit g.
 
     Attributes:
-      iterations: iterations of Algorithm 1.
+      iterations: iterations of Algorithm 1 (default 4, for every task: the CLI's and
+        Python's default alike; the studies give theirs).
       seeds: number of independent runs (seeds ``Config.seed + k``), a ``vmap`` axis.
       babbling: the initial data, one of :data:`BABBLING`, each with torque noise:
         ``reaching`` (default; PD feedback reaching random poses within the joint limits),
@@ -757,7 +758,7 @@ class LoopConfig:
       2
     """
 
-    iterations: int = 10
+    iterations: int = 4
     seeds: int = 1
     babbling: str = "reaching"
     babbling_rollouts: int = 2

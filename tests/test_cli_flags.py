@@ -30,9 +30,8 @@ def printed_config(argv, monkeypatch, capsys) -> dict:
 
 
 def cli_default(task: str = "inverse_dynamics") -> config_lib.Config:
-    """What the CLI runs without flags: the task's defaults with 4 iterations."""
-    base = config_lib.for_task(task)
-    return base.replace(loop=dataclasses.replace(base.loop, iterations=4))
+    """What the CLI runs without flags: the task's defaults, as Python's ``Config``."""
+    return config_lib.for_task(task)
 
 
 @pytest.mark.parametrize(
@@ -84,6 +83,19 @@ def test_config_file_plus_one_flag_changes_only_that_field(tmp_path, monkeypatch
     expected = json.loads(path.read_text())
     expected["loop"]["babbling_noise"] = 0.3
     assert printed == expected
+
+
+@pytest.mark.parametrize("task", config_lib.TASKS)
+def test_config_prints_what_python_runs_for_every_task(task, monkeypatch, capsys):
+    # Issue 67: one experiment per task, the CLI's and Python's alike in every field (the
+    # walk's iterations were 4 in the CLI and 10 in Python), written out field by field.
+    printed = printed_config(["--task", task], monkeypatch, capsys)
+    python = config_lib.to_dict(config_lib.Config(task=config_lib.TaskConfig(name=task)))
+    python = json.loads(json.dumps(python))  # as printed: tuples are JSON lists
+    assert printed.keys() == python.keys()
+    for key, value in python.items():
+        assert printed[key] == value, key
+    assert printed["loop"]["iterations"] == 4
 
 
 def test_config_output_round_trips_through_config(tmp_path, monkeypatch, capsys):
