@@ -177,11 +177,7 @@ class Setup:
           RobotError: the robot does not load, or MJX (``simulator='mjx'``,
             ``forward.kind='rigid_body'``) cannot build it (what it lacks is named).
         """
-        robot = robots.load(
-            config.robot,
-            actuators=config.robot_actuators,
-            torque_limit=config.robot_torque_limit,
-        )
+        robot = robots.of_config(config)
         needs_mjx = [
             name
             for name, needed in (

@@ -130,6 +130,8 @@ class TrackingEnv(gymnasium.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
+    """Gymnasium's metadata: the render modes, and render_fps of the default control period
+    (0.01 s); each environment holds its own copy with ``1 / control_dt``."""
 
     def __init__(
         self,
@@ -207,21 +209,13 @@ class TrackingEnv(gymnasium.Env):
             return None
         if self._reference is None:
             raise RuntimeError("TrackingEnv.render before reset")
-        import mujoco
-
         from cfm_jax import render
 
-        model = self.robot.mj_model
         if self._renderer is None:
-            width = min(RENDER_WIDTH, model.vis.global_.offwidth)
-            height = min(RENDER_HEIGHT, model.vis.global_.offheight)
-            self._renderer = render._renderer(model, height, width)
-            self._render_data = mujoco.MjData(model)
-        data = self._render_data
-        data.qpos[:], data.qvel[:] = np.asarray(self._qpos), np.asarray(self._qvel)
-        mujoco.mj_forward(model, data)
-        self._renderer.update_scene(data, camera=render._camera(model, data, None, True))
-        return self._renderer.render().copy()
+            self._renderer = render.FrameRenderer(
+                self.robot.mj_model, width=RENDER_WIDTH, height=RENDER_HEIGHT
+            )
+        return self._renderer.frame(np.asarray(self._qpos), np.asarray(self._qvel))
 
     def close(self):
         """Release the renderer, if one was made."""

@@ -92,6 +92,66 @@ def _camera(model, data, camera, track: bool):
     return cam
 
 
+class FrameRenderer:
+    """RGB frames of one model's states through one offscreen renderer (else
+    :class:`RenderUnavailable`): what :func:`render_frames` and
+    :meth:`cfm_jax.envs.TrackingEnv.render` draw with.
+
+    Args:
+      model: a ``mujoco.MjModel``.
+      width: image width in pixels (at most the model's ``offwidth``).
+      height: image height in pixels (at most ``offheight``).
+      camera: a camera name or id, or a dict of free-camera ``distance``, ``azimuth``, etc.
+      track: the free camera follows body 1's subtree COM (height fixed by ``lookat``).
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> arm = robots.load("two_link_arm")
+      >>> with FrameRenderer(arm.mj_model) as renderer:  # needs OpenGL  # doctest: +SKIP
+      ...     renderer.frame(arm.home).shape
+      (240, 320, 3)
+    """
+
+    def __init__(
+        self,
+        model,
+        width: int = 320,
+        height: int = 240,
+        camera: str | int | dict | None = None,
+        track: bool = True,
+    ):
+        import mujoco
+
+        self.model, self.camera, self.track = model, camera, track
+        width = min(width, model.vis.global_.offwidth)
+        height = min(height, model.vis.global_.offheight)
+        self._renderer = _renderer(model, height, width)
+        self._data = mujoco.MjData(model)
+
+    def frame(self, qpos, qvel=None) -> np.ndarray:
+        """The frame ``(height, width, 3)`` uint8 of the state ``qpos`` (and ``qvel``)."""
+        import mujoco
+
+        data = self._data
+        data.qpos[:] = qpos
+        if qvel is not None:
+            data.qvel[:] = qvel
+        mujoco.mj_forward(self.model, data)
+        camera = _camera(self.model, data, self.camera, self.track)
+        self._renderer.update_scene(data, camera=camera)
+        return self._renderer.render().copy()
+
+    def close(self) -> None:
+        """Release the offscreen renderer."""
+        self._renderer.close()
+
+    def __enter__(self) -> FrameRenderer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 def render_frames(
     model,
     qpos: np.ndarray,
@@ -117,23 +177,9 @@ def render_frames(
       >>> render_frames(arm.mj_model, arm.home).shape  # needs OpenGL  # doctest: +SKIP
       (1, 240, 320, 3)
     """
-    import mujoco
-
     qpos = np.atleast_2d(np.asarray(qpos, float))
-    width = min(width, model.vis.global_.offwidth)
-    height = min(height, model.vis.global_.offheight)
-    renderer = _renderer(model, height, width)
-    data = mujoco.MjData(model)
-    frames = []
-    try:
-        for q in qpos:
-            data.qpos[:] = q
-            mujoco.mj_forward(model, data)
-            renderer.update_scene(data, camera=_camera(model, data, camera, track))
-            frames.append(renderer.render().copy())
-    finally:
-        renderer.close()
-    return np.stack(frames)
+    with FrameRenderer(model, width, height, camera, track) as renderer:
+        return np.stack([renderer.frame(q) for q in qpos])
 
 
 def frame_strip(

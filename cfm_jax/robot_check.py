@@ -263,8 +263,9 @@ def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Ch
 
 def refuse_unfit(config) -> None:
     """Refuse, before any training, a config whose robot does not load or whose task cannot
-    run on it (``cfm-jax config``): the robot loaded as training loads it, then the task's
-    ``fits`` (:class:`cfm_jax.tasks.TaskSpec`), the check ``cfm-jax robot check`` reports.
+    run on it (``cfm-jax config``): the robot loaded as training loads it
+    (:func:`cfm_jax.robots.of_config`), then the task's ``fits``
+    (:class:`cfm_jax.tasks.TaskSpec`), the check ``cfm-jax robot check`` reports.
 
     Args:
       config: a :class:`cfm_jax.config.Config`.
@@ -281,9 +282,7 @@ def refuse_unfit(config) -> None:
     """
     from cfm_jax.config import ConfigError
 
-    robot = robots.load(
-        config.robot, actuators=config.robot_actuators, torque_limit=config.robot_torque_limit
-    )
+    robot = robots.of_config(config)  # as training loads it
     spec = tasks_lib.load(config.task.name)
     if spec.fits is None:
         return

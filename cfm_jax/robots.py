@@ -642,6 +642,26 @@ def nonfinite_fields(mj_model) -> list[str]:
     return sorted(bad)
 
 
+def of_config(config) -> Robot:
+    """The robot of ``config`` as training loads it: :func:`load` of its ``robot``,
+    ``robot_actuators`` and ``robot_torque_limit``.
+
+    Args:
+      config: a :class:`cfm_jax.config.Config`.
+
+    Raises:
+      RobotError: as :func:`load`.
+
+    Examples:
+      >>> import cfm_jax
+      >>> of_config(cfm_jax.Config(robot="two_link_arm")).nq
+      2
+    """
+    return load(
+        config.robot, actuators=config.robot_actuators, torque_limit=config.robot_torque_limit
+    )
+
+
 def load(
     name_or_path: str,
     timestep: float | None = None,
