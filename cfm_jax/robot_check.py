@@ -93,6 +93,19 @@ def _dynamics_lines(robot: Robot) -> list[str]:
     return lines
 
 
+def _legs_lines(robot: Robot) -> list[str]:
+    """The report's lines on a floating-base robot's legs (:func:`cfm_jax.quadruped.describe`)."""
+    from cfm_jax import quadruped
+
+    try:
+        found = quadruped.describe(robot.mj_model)
+    except quadruped.QuadrupedError as error:
+        return [f"quadruped: no: {error}"]
+    return ["quadruped: yes, read from the file (cfm_jax.quadruped):"] + [
+        "  " + line for line in found.summary().splitlines()
+    ]
+
+
 SMALL_RANGE = 0.2
 """A hinge range narrower than this (rad, 11.5 degrees) is small for an arm's joint."""
 
@@ -254,6 +267,8 @@ def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Ch
         )
         if not robot.floating_base:
             lines += _dynamics_lines(robot)
+        else:
+            lines += _legs_lines(robot)
     lines.append("tasks:")
     for name, reason in tasks.items():
         extra = f" ({notes[name]})" if notes.get(name) else ""

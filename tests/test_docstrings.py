@@ -50,6 +50,7 @@ DOCTEST_MODULES = (
     "robots",
     "robot_check",
     "rollout",
+    "quadruped",
     "solo12",
     "stats",
     "sweeps",

@@ -1,0 +1,284 @@
+"""A quadruped as data: its legs, feet, hips and standing pose, derived from the MJCF alone.
+
+:func:`describe` reads any floating-base model with four legs (MuJoCo Menagerie's Unitree,
+ANYbotics and Google quadrupeds as published, the Solo12) without names or constants of its
+own: the base is the body of the free joint; a leg is the chain of hinge joints below one of
+the base's children; its foot is the lowest sphere among the collision geoms (those with a
+contype or conaffinity, or in a ``<contact><pair>``) of the chain's last body and below (else
+its lowest collision geom) at the standing pose; legs are named by where their
+feet stand, front/hind (``F``/``H``) along the base's x axis and left/right (``L``/``R``)
+along its y axis. The standing pose is the keyframe ``home`` (else the file's first keyframe),
+or, in a file without one, the model's ``qpos0`` joints with the base raised until its lowest
+foot touches the ground plane z = 0.
+
+What :func:`describe` finds is what ``cfm-jax robot check`` reports for a floating-base robot;
+the legged tasks' references still use the Solo12's own kinematics (:mod:`cfm_jax.solo12`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+LEG_NAMES = ("FL", "FR", "HL", "HR")
+"""The legs' order: front left, front right, hind left, hind right (the Solo12's)."""
+
+
+class QuadrupedError(ValueError):
+    """A model that :func:`describe` cannot read as a quadruped; the message says why.
+
+    Examples:
+      >>> from cfm_jax import robots
+      >>> describe(robots.load("iiwa14").mj_model)
+      Traceback (most recent call last):
+      cfm_jax.quadruped.QuadrupedError: it has 0 free joints; a quadruped has one, its base's
+    """
+
+
+@dataclasses.dataclass(frozen=True)
+class Leg:
+    """One leg of a :class:`Quadruped`; positions in the base frame at the standing pose (m).
+
+    Attributes:
+      name: ``FL``, ``FR``, ``HL`` or ``HR`` (:data:`LEG_NAMES`).
+      joints: the leg's hinge joints, from the base to the foot.
+      qpos: their addresses in ``qpos``.
+      dofs: their addresses in ``qvel``.
+      foot_geom: the foot's geom (its name, else ``"geom <id>"``).
+      foot_id: its id in the model.
+      foot_radius: the foot sphere's radius (0 for a foot that is not a sphere).
+      hip: the anchor of the leg's first joint.
+      foot: the foot's centre.
+      length: the chain's length, joint anchor to joint anchor to the foot's centre.
+
+    Examples:
+      >>> from cfm_jax import solo12
+      >>> leg = describe(solo12.load_model()).legs[1]
+      >>> leg.name, leg.foot_geom, leg.qpos, round(leg.foot_radius, 3)
+      ('FR', 'FR_foot', (10, 11, 12), 0.017)
+    """
+
+    name: str
+    joints: tuple[str, ...]
+    qpos: tuple[int, ...]
+    dofs: tuple[int, ...]
+    foot_geom: str
+    foot_id: int
+    foot_radius: float
+    hip: np.ndarray
+    foot: np.ndarray
+    length: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Quadruped:
+    """A quadruped's legs and standing pose, from :func:`describe`.
+
+    Attributes:
+      base: the floating base's body.
+      legs: the four :class:`Leg` in :data:`LEG_NAMES` order.
+      standing: the standing pose, ``qpos (nq,)``.
+      standing_from: where it comes from (a keyframe, or how it was computed).
+
+    Examples:
+      >>> from cfm_jax import solo12
+      >>> robot = describe(solo12.load_model())
+      >>> robot.standing_from, round(robot.standing_height, 4), robot.feet.shape
+      ("keyframe 'home'", 0.2384, (4, 3))
+    """
+
+    base: str
+    legs: tuple[Leg, ...]
+    standing: np.ndarray
+    standing_from: str
+
+    @property
+    def standing_height(self) -> float:
+        """Height (m) of the base's origin at the standing pose."""
+        return float(self.standing[2])
+
+    @property
+    def feet(self) -> np.ndarray:
+        """The four feet's centres at the standing pose, base frame, ``(4, 3)``."""
+        return np.stack([leg.foot for leg in self.legs])
+
+    def summary(self) -> str:
+        """One line per leg and one for the stance, as ``cfm-jax robot check`` prints them."""
+        lines = [
+            f"standing pose: {self.standing_from}; base {self.base!r} at "
+            f"{self.standing_height:.3g} m"
+        ]
+        for leg in self.legs:
+            foot = ", ".join(f"{x:+.3f}" for x in leg.foot)
+            lines.append(
+                f"{leg.name}: joints {', '.join(leg.joints)}; foot {leg.foot_geom} (radius "
+                f"{leg.foot_radius:.3g} m) at ({foot}) m from the base, leg length "
+                f"{leg.length:.3g} m"
+            )
+        return "\n".join(lines)
+
+
+def _body_name(model, body: int) -> str:
+    name = model.body(body).name
+    return name if name else f"body {body}"
+
+
+def _geom_name(model, geom: int) -> str:
+    name = model.geom(geom).name
+    return name if name else f"geom {geom}"
+
+
+def _standing(model) -> tuple[np.ndarray, str | None]:
+    """The keyframe ``home`` (else the first keyframe) and its name, else ``qpos0`` and None."""
+    if model.nkey:
+        names = [model.key(k).name for k in range(model.nkey)]
+        k = names.index("home") if "home" in names else 0
+        label = names[k] or f"keyframe {k}"
+        return np.array(model.key_qpos[k], dtype=float), label
+    return np.array(model.qpos0, dtype=float), None
+
+
+def _in_base(data, base: int, points: np.ndarray) -> np.ndarray:
+    """World ``points (..., 3)`` in the frame of body ``base``."""
+    rotation = data.xmat[base].reshape(3, 3)
+    return (np.asarray(points) - data.xpos[base]) @ rotation
+
+
+def describe(model) -> Quadruped:
+    """Read ``model`` as a quadruped (the rules: this module's docstring).
+
+    Args:
+      model: a ``mujoco.MjModel``.
+
+    Raises:
+      QuadrupedError: the model has no floating base, not four legs of hinge joints, a leg
+        without a collision geom at its end, or feet that do not stand one in each quadrant
+        around the base; the message names what was found.
+
+    Examples:
+      >>> from cfm_jax import solo12
+      >>> robot = describe(solo12.load_model())
+      >>> [leg.name for leg in robot.legs], robot.legs[0].joints
+      (['FL', 'FR', 'HL', 'HR'], ('FL_HAA', 'FL_HFE', 'FL_KFE'))
+    """
+    import mujoco
+
+    free, hinge = int(mujoco.mjtJoint.mjJNT_FREE), int(mujoco.mjtJoint.mjJNT_HINGE)
+    frees = [j for j in range(model.njnt) if int(model.jnt_type[j]) == free]
+    if len(frees) != 1:
+        raise QuadrupedError(f"it has {len(frees)} free joints; a quadruped has one, its base's")
+    base = int(model.jnt_bodyid[frees[0]])
+    if int(model.body_parentid[base]) != 0:
+        raise QuadrupedError(
+            f"its free joint's body {_body_name(model, base)!r} is not a child of the world"
+        )
+    others = [j for j in range(model.njnt) if j != frees[0]]
+    wrong = [model.joint(j).name or f"joint {j}" for j in others if model.jnt_type[j] != hinge]
+    if wrong:
+        raise QuadrupedError(f"its joints {wrong} are not hinges; a leg here is a chain of hinges")
+
+    def top(body: int) -> int:
+        """The child of the base whose subtree holds ``body`` (-1: not below the base)."""
+        while body > 0 and int(model.body_parentid[body]) != base:
+            body = int(model.body_parentid[body])
+        return body if body > 0 else -1
+
+    chains: dict[int, list[int]] = {}
+    for j in others:
+        root = top(int(model.jnt_bodyid[j]))
+        if root < 0:
+            raise QuadrupedError(f"its joint {model.joint(j).name!r} is not below the base")
+        chains.setdefault(root, []).append(j)
+    if len(chains) != 4:
+        found = {_body_name(model, r): len(js) for r, js in chains.items()}
+        raise QuadrupedError(
+            f"the base {_body_name(model, base)!r} carries {len(chains)} jointed limbs "
+            f"(bodies and their joints: {found}); a quadruped has four legs"
+        )
+    qpos, label = _standing(model)
+    standing_from = f"keyframe {label!r}" if label is not None else None
+    data = mujoco.MjData(model)
+    if label is None:
+        qpos[3:7] = (1.0, 0.0, 0.0, 0.0)
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+
+    sphere = int(mujoco.mjtGeom.mjGEOM_SPHERE)
+    # Geoms that can touch anything: by contype/conaffinity, or named in a <contact><pair>.
+    touching = {g for g in range(model.ngeom) if model.geom_contype[g] or model.geom_conaffinity[g]}
+    touching |= {int(g) for g in (*model.pair_geom1, *model.pair_geom2)}
+    legs = []
+    for root, joints in chains.items():
+        bodies = [int(model.jnt_bodyid[j]) for j in joints]
+        for a, b in zip(bodies, bodies[1:], strict=False):  # each joint below the one before
+            up = b
+            while up not in (a, base, 0):
+                up = int(model.body_parentid[up])
+            if up != a:
+                raise QuadrupedError(
+                    f"the limb of body {_body_name(model, root)!r} branches (joints "
+                    f"{[model.joint(j).name for j in joints]}); a leg here is one chain"
+                )
+        last = bodies[-1]
+        below = [b for b in range(model.nbody) if b == last or _descends(model, b, last)]
+        geoms = [
+            g for g in range(model.ngeom) if int(model.geom_bodyid[g]) in below and g in touching
+        ]
+        if not geoms:
+            raise QuadrupedError(
+                f"the leg of joints {[model.joint(j).name for j in joints]} has no collision "
+                "geom at its end (its foot)"
+            )
+        spheres = [g for g in geoms if int(model.geom_type[g]) == sphere]
+        pool = spheres or geoms
+        foot = min(pool, key=lambda g: (data.geom_xpos[g][2], g))
+        anchors = [np.array(data.xanchor[j]) for j in joints]
+        points = [*anchors, np.array(data.geom_xpos[foot])]
+        length = float(sum(np.linalg.norm(b - a) for a, b in zip(points, points[1:], strict=False)))
+        legs.append(
+            dict(
+                joints=tuple(model.joint(j).name for j in joints),
+                qpos=tuple(int(model.jnt_qposadr[j]) for j in joints),
+                dofs=tuple(int(model.jnt_dofadr[j]) for j in joints),
+                foot_geom=_geom_name(model, foot),
+                foot_id=foot,
+                foot_radius=float(model.geom_size[foot][0]) if foot in spheres else 0.0,
+                hip=_in_base(data, base, anchors[0]),
+                foot=_in_base(data, base, data.geom_xpos[foot]),
+                length=length,
+            )
+        )
+    if label is None:  # raise the base until the lowest foot touches z = 0
+        lowest = min(float(data.geom_xpos[leg["foot_id"]][2]) - leg["foot_radius"] for leg in legs)
+        qpos[2] -= lowest
+        standing_from = "computed: qpos0's joints, the lowest foot on the ground z = 0"
+    named = {}
+    for leg in legs:
+        x, y = leg["foot"][0], leg["foot"][1]
+        name = ("F" if x > 0 else "H") + ("L" if y > 0 else "R")
+        if name in named or x == 0 or y == 0:
+            feet = {tuple(np.round(leg["foot"], 3)): leg["joints"][0] for leg in legs}
+            raise QuadrupedError(
+                "its feet do not stand one in each quadrant around the base (front/hind along "
+                f"its x axis, left/right along y) at the standing pose: feet {feet}"
+            )
+        named[name] = leg
+    ordered = []
+    for name in LEG_NAMES:
+        ordered.append(Leg(name=name, **named[name]))
+    return Quadruped(
+        base=_body_name(model, base),
+        legs=tuple(ordered),
+        standing=qpos,
+        standing_from=standing_from,
+    )
+
+
+def _descends(model, body: int, ancestor: int) -> bool:
+    """Whether ``body`` lies below ``ancestor`` in the kinematic tree."""
+    while body > 0:
+        body = int(model.body_parentid[body])
+        if body == ancestor:
+            return True
+    return False

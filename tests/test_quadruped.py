@@ -1,0 +1,126 @@
+"""A quadruped read from its MJCF alone (issue 65, item 1): legs, feet, hips and standing pose.
+
+Oracles: the Solo12's closed-form leg kinematics (cfm_jax.solo12, from the robot's facts
+sheet); the published quadrupeds' own joint names, whose leg prefixes are written out here by
+hand; MuJoCo's forward kinematics for the computed standing pose; hand-written MJCF files for
+the models that are not quadrupeds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from cfm_jax import quadruped, robot_check, solo12
+
+QUADRUPEDS = Path(__file__).parent / "robots" / "quadrupeds"
+
+# Each published file's names for the legs FL, FR, HL, HR (as its authors spell them).
+PUBLISHED = {
+    "go2": ("FL_", "FR_", "RL_", "RR_"),
+    "anymal_c": ("LF_", "RF_", "LH_", "RH_"),
+    "barkour_vb_mjx": ("_front_left", "_front_right", "_hind_left", "_hind_right"),
+}
+
+
+def test_the_solo12_read_from_its_file_is_its_closed_form():
+    found = quadruped.describe(solo12.load_model())
+    assert [leg.name for leg in found.legs] == list(solo12.LEGS)
+    assert sum((leg.joints for leg in found.legs), ()) == solo12.JOINTS
+    assert [leg.foot_geom for leg in found.legs] == [f"{leg}_foot" for leg in solo12.LEGS]
+    # Feet at the home pose: the facts sheet's closed form (leg_fk at HOME_JOINTS).
+    np.testing.assert_allclose(found.feet, solo12.hip_positions(), rtol=0, atol=1e-12)
+    hips = [[sx * solo12.HAA_X, sy * solo12.HAA_Y, 0.0] for sx, sy in solo12.LEG_SIGNS]
+    np.testing.assert_allclose([leg.hip for leg in found.legs], hips, rtol=0, atol=1e-12)
+    assert all(leg.foot_radius == solo12.FOOT_RADIUS for leg in found.legs)
+    np.testing.assert_array_equal(found.standing[7:], solo12.HOME_JOINTS)
+    assert found.standing_from == "keyframe 'home'"
+    # qpos / qvel addresses: the free joint's 7 / 6, then the legs in order.
+    assert sum((leg.qpos for leg in found.legs), ()) == tuple(range(7, 19))
+    assert sum((leg.dofs for leg in found.legs), ()) == tuple(range(6, 18))
+    # The chain's length: HAA -> HFE (19.5 mm inboard, 14 mm out) -> KFE -> foot (16 cm each).
+    first = float(np.hypot(solo12.HFE_DX, 0.014))
+    lower = float(np.hypot(solo12.L_LOWER, 0.009))  # the foot sits 9 mm out from the knee
+    want = first + float(np.hypot(solo12.L_UPPER, 0.03745)) + lower
+    assert all(abs(leg.length - want) < 1e-9 for leg in found.legs)
+
+
+@pytest.mark.parametrize("name", sorted(PUBLISHED))
+def test_published_quadrupeds_are_read_without_names_of_their_own(name):
+    model = mujoco.MjModel.from_xml_path(str(QUADRUPEDS / f"{name}.xml"))
+    found = quadruped.describe(model)
+    for leg, label in zip(found.legs, PUBLISHED[name], strict=True):
+        assert len(leg.joints) == 3 and all(label in joint for joint in leg.joints), leg.joints
+    # Left and right mirror each other across the base's x-z plane (all three published
+    # files are built symmetric; front and hind differ).
+    feet = found.feet
+    for left, right in ((0, 1), (2, 3)):
+        np.testing.assert_allclose(feet[left] * [1, -1, 1], feet[right], atol=2e-3)
+    # The standing pose: a keyframe where the file has one, else computed so that the lowest
+    # foot sphere touches z = 0 (MuJoCo's forward kinematics at that pose).
+    data = mujoco.MjData(model)
+    data.qpos[:] = found.standing
+    mujoco.mj_kinematics(model, data)
+    bottoms = [data.geom_xpos[leg.foot_id][2] - leg.foot_radius for leg in found.legs]
+    if model.nkey:
+        assert found.standing_from == "keyframe 'home'"
+        np.testing.assert_array_equal(found.standing, model.key("home").qpos)
+    else:
+        assert found.standing_from.startswith("computed")
+        assert abs(min(bottoms)) < 1e-12
+    assert all(leg.foot_radius > 0 for leg in found.legs)  # each foot is a sphere
+
+
+TRIPOD = """
+<mujoco>
+  <worldbody>
+    <body name="base" pos="0 0 0.3">
+      <freejoint/>
+      <geom type="box" size="0.1 0.1 0.02"/>
+      {legs}
+    </body>
+  </worldbody>
+</mujoco>
+"""
+LEG = """
+      <body pos="{x} {y} 0">
+        <joint name="hip{k}" axis="0 1 0"/>
+        <geom type="capsule" fromto="0 0 0 0 0 -0.2" size="0.02"/>
+        <body pos="0 0 -0.2">
+          <joint name="knee{k}" axis="0 1 0"/>
+          <geom type="sphere" pos="0 0 -0.1" size="0.02"/>
+        </body>
+      </body>"""
+
+
+def _legged(corners) -> mujoco.MjModel:
+    legs = "".join(LEG.format(x=x, y=y, k=k) for k, (x, y) in enumerate(corners))
+    return mujoco.MjModel.from_xml_string(TRIPOD.format(legs=legs))
+
+
+def test_a_hand_written_quadruped_is_read_and_not_quadrupeds_are_refused_saying_why():
+    found = quadruped.describe(_legged([(0.1, 0.1), (-0.1, -0.1), (0.1, -0.1), (-0.1, 0.1)]))
+    # Named by where the feet stand, whatever the file's order: FL, FR, HL, HR.
+    assert [leg.joints[0] for leg in found.legs] == ["hip0", "hip2", "hip3", "hip1"]
+    np.testing.assert_allclose(found.legs[0].foot, [0.1, 0.1, -0.3], atol=1e-12)
+    np.testing.assert_allclose(found.legs[0].hip, [0.1, 0.1, 0.0], atol=1e-12)
+    assert abs(found.standing_height - 0.32) < 1e-12  # foot centre 0.3 below, radius 0.02
+    assert abs(found.legs[0].length - 0.3) < 1e-12
+    refusals = [
+        (_legged([(0.1, 0.1), (-0.1, -0.1), (0.1, -0.1)]), "carries 3 jointed limbs"),
+        (_legged([(0.1, 0.1), (0.1, 0.2), (-0.1, -0.1), (-0.1, -0.2)]), "one in each quadrant"),
+        (mujoco.MjModel.from_xml_path(str(Path(solo12.model_path()).parent / "iiwa14.xml")),
+         "it has 0 free joints"),
+    ]  # fmt: skip
+    for model, reason in refusals:
+        with pytest.raises(quadruped.QuadrupedError, match=reason):
+            quadruped.describe(model)
+
+
+def test_robot_check_reports_the_legs_it_read():
+    text = robot_check.check(str(QUADRUPEDS / "go2.xml")).text
+    assert "quadruped: yes, read from the file" in text
+    assert "FL: joints FL_hip_joint, FL_thigh_joint, FL_calf_joint; foot FL" in text
+    assert "HL: joints RL_hip_joint" in text and "standing pose: keyframe 'home'" in text
