@@ -12,7 +12,9 @@ or, in a file without one, the model's ``qpos0`` joints with the base raised unt
 foot touches the ground plane z = 0.
 
 What :func:`describe` finds is what ``cfm-jax robot check`` reports for a floating-base robot;
-the legged tasks' references still use the Solo12's own kinematics (:mod:`cfm_jax.solo12`).
+:meth:`Quadruped.leg_ik` is any such leg's inverse kinematics (on the Solo12 it gives the
+closed form of :func:`cfm_jax.solo12.leg_ik`). The legged tasks' references still use the
+Solo12's own kinematics (:mod:`cfm_jax.solo12`).
 """
 
 from __future__ import annotations
@@ -80,6 +82,7 @@ class Quadruped:
       legs: the four :class:`Leg` in :data:`LEG_NAMES` order.
       standing: the standing pose, ``qpos (nq,)``.
       standing_from: where it comes from (a keyframe, or how it was computed).
+      model: the ``mujoco.MjModel`` it was read from (for :meth:`leg_ik`).
 
     Examples:
       >>> from cfm_jax import solo12
@@ -92,6 +95,7 @@ class Quadruped:
     legs: tuple[Leg, ...]
     standing: np.ndarray
     standing_from: str
+    model: object = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def standing_height(self) -> float:
@@ -102,6 +106,58 @@ class Quadruped:
     def feet(self) -> np.ndarray:
         """The four feet's centres at the standing pose, base frame, ``(4, 3)``."""
         return np.stack([leg.foot for leg in self.legs])
+
+    def leg_ik(self, leg: int, foot, start=None, tolerance: float = 1e-12) -> np.ndarray:
+        """Joints of leg ``leg`` that put its foot's centre at ``foot`` (base frame, m):
+        Newton's method on MuJoCo's Jacobian of the foot geom (damped where the leg is near
+        straight), from ``start`` (None: the standing pose's joints, whose knee branch it
+        keeps), within the joints' ranges where they have them.
+
+        Args:
+          leg: 0, 1, 2 or 3 (FL, FR, HL, HR).
+          foot: ``(3,)`` target of the foot centre in the base frame (m).
+          start: the leg's joints to start from, or None.
+          tolerance: the largest foot error (m) at which it stops (else after 100 steps).
+
+        Returns:
+          the leg's joint angles ``(len(joints),)``; for a target out of reach, those of the
+          closest foot position it found.
+
+        Examples:
+          >>> from cfm_jax import solo12
+          >>> robot = describe(solo12.load_model())
+          >>> np.round(robot.leg_ik(0, solo12.leg_fk([0.1, 0.7, -1.4], 0)), 9).tolist()
+          [0.1, 0.7, -1.4]
+        """
+        import mujoco
+
+        model, spec = self.model, self.legs[leg]
+        data = mujoco.MjData(model)
+        data.qpos[:] = self.standing
+        data.qpos[:3], data.qpos[3:7] = 0.0, (1.0, 0.0, 0.0, 0.0)  # base frame = world frame
+        q = np.array(self.standing[list(spec.qpos)] if start is None else start, dtype=float)
+        joints = [model.joint(name).id for name in spec.joints]
+        low = np.where(model.jnt_limited[joints], model.jnt_range[joints, 0], -np.inf)
+        high = np.where(model.jnt_limited[joints], model.jnt_range[joints, 1], np.inf)
+        target = np.asarray(foot, dtype=float)
+        jacobian = np.zeros((3, model.nv))
+        best, best_error = q.copy(), np.inf
+        for _ in range(100):
+            data.qpos[list(spec.qpos)] = q
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_comPos(model, data)
+            error = target - data.geom_xpos[spec.foot_id]
+            size = float(np.linalg.norm(error))
+            if size < best_error:
+                best, best_error = q.copy(), size
+            if size <= tolerance:
+                break
+            mujoco.mj_jacGeom(model, data, jacobian, None, spec.foot_id)
+            j = jacobian[:, list(spec.dofs)]
+            damping = 1e-12 + 1e-6 * size  # vanishes at the solution: Newton's steps there
+            step = j.T @ np.linalg.solve(j @ j.T + damping * np.eye(3), error)
+            q = np.clip(q + step, low, high)
+        return best
 
     def summary(self) -> str:
         """One line per leg and one for the stance, as ``cfm-jax robot check`` prints them."""
@@ -272,6 +328,7 @@ def describe(model) -> Quadruped:
         legs=tuple(ordered),
         standing=qpos,
         standing_from=standing_from,
+        model=model,
     )
 
 

@@ -124,3 +124,47 @@ def test_robot_check_reports_the_legs_it_read():
     assert "quadruped: yes, read from the file" in text
     assert "FL: joints FL_hip_joint, FL_thigh_joint, FL_calf_joint; foot FL" in text
     assert "HL: joints RL_hip_joint" in text and "standing pose: keyframe 'home'" in text
+
+
+def test_the_numeric_leg_ik_is_the_solo12_closed_form():
+    # 200 targets that the legs reach (the closed-form leg_fk of joints near home): MuJoCo-
+    # Jacobian Newton steps give the facts sheet's closed-form leg_ik, knee branch included.
+    found = quadruped.describe(solo12.load_model())
+    rng = np.random.default_rng(0)
+    for k in range(200):
+        leg = k % 4
+        joints = solo12.HOME_JOINTS[3 * leg : 3 * leg + 3] + rng.uniform(-0.4, 0.4, 3)
+        foot = solo12.leg_fk(joints, leg)
+        got = found.leg_ik(leg, foot)
+        np.testing.assert_allclose(got, solo12.leg_ik(foot, leg), rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", sorted(PUBLISHED))
+def test_the_numeric_leg_ik_inverts_mujocos_kinematics(name):
+    model = mujoco.MjModel.from_xml_path(str(QUADRUPEDS / f"{name}.xml"))
+    found = quadruped.describe(model)
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(1)
+    for k in range(40):
+        leg = found.legs[k % 4]
+        ids = [model.joint(name).id for name in leg.joints]
+        limited = model.jnt_limited[ids].astype(bool)  # targets reached within the ranges
+        low = np.where(limited, model.jnt_range[ids, 0], -np.inf)
+        high = np.where(limited, model.jnt_range[ids, 1], np.inf)
+        joints = np.clip(found.standing[list(leg.qpos)] + rng.uniform(-0.25, 0.25, 3), low, high)
+        data.qpos[:] = found.standing
+        data.qpos[:3], data.qpos[3:7] = 0.0, (1.0, 0.0, 0.0, 0.0)  # base frame = world
+        data.qpos[list(leg.qpos)] = joints
+        mujoco.mj_kinematics(model, data)
+        target = data.geom_xpos[leg.foot_id].copy()
+        data.qpos[list(leg.qpos)] = found.leg_ik(k % 4, target)
+        mujoco.mj_kinematics(model, data)
+        assert np.linalg.norm(data.geom_xpos[leg.foot_id] - target) < 1e-9
+
+
+def test_the_numeric_leg_ik_of_a_target_out_of_reach_is_the_closest_foot():
+    # The hand-written legs hang straight (0.3 m, hip to foot centre) at their standing pose:
+    # a target 1 m below the hip gives the straight leg, its foot 0.3 m below.
+    found = quadruped.describe(_legged([(0.1, 0.1), (-0.1, -0.1), (0.1, -0.1), (-0.1, 0.1)]))
+    joints = found.leg_ik(0, [0.1, 0.1, -1.0])
+    np.testing.assert_allclose(joints, [0.0, 0.0], atol=1e-12)
