@@ -13,8 +13,10 @@ foot touches the ground plane z = 0.
 
 What :func:`describe` finds is what ``cfm-jax robot check`` reports for a floating-base robot;
 :meth:`Quadruped.leg_ik` is any such leg's inverse kinematics (on the Solo12 it gives the
-closed form of :func:`cfm_jax.solo12.leg_ik`). The legged tasks' references still use the
-Solo12's own kinematics (:mod:`cfm_jax.solo12`).
+closed form of :func:`cfm_jax.solo12.leg_ik`), and :func:`with_foot_sensors` gives a file
+without them the ground and the foot contact sensors whose forces the legged tasks put in
+the state. The legged tasks' references still use the Solo12's own kinematics
+(:mod:`cfm_jax.solo12`).
 """
 
 from __future__ import annotations
@@ -339,3 +341,85 @@ def _descends(model, body: int, ancestor: int) -> bool:
         if body == ancestor:
             return True
     return False
+
+
+FOOT_SENSOR_DATA = 99
+"""The contact sensor's ``data="found force normal tangent"`` (MuJoCo's bit set, 10 numbers)."""
+
+
+def with_foot_sensors(path: str):
+    """The model of the MJCF at ``path`` with what the legged tasks read of the ground: a
+    ground plane (where the world body has no plane: ``floor``, z = 0, the contact defaults)
+    and one contact sensor per foot of :func:`describe` (``data="found force normal
+    tangent"``, ``reduce="mindist"``, ``num=1``, as ``robots/solo12.xml`` declares them),
+    named ``<leg>_contact`` and added in the order FL, FR, HL, HR after the file's sensors;
+    an unnamed foot geom is named ``<leg>_foot``. A file whose feet each have such a sensor
+    already is compiled as it is.
+
+    Args:
+      path: an MJCF file of a quadruped (:func:`describe`).
+
+    Returns:
+      ``(model, added)``: the compiled ``mujoco.MjModel`` and what was added, in words (an
+      empty list: nothing).
+
+    Raises:
+      QuadrupedError: as :func:`describe`.
+
+    Examples:
+      >>> from cfm_jax import solo12
+      >>> with_foot_sensors(solo12.model_path())[1]  # it declares its own
+      []
+    """
+    import mujoco
+
+    spec = mujoco.MjSpec.from_file(path)
+    model = spec.compile()
+    found = describe(model)
+    plane = int(mujoco.mjtGeom.mjGEOM_PLANE)
+    contact = int(mujoco.mjtSensor.mjSENS_CONTACT)
+    planes = [
+        g for g in range(model.ngeom) if model.geom_type[g] == plane and model.geom_bodyid[g] == 0
+    ]
+    feet = [leg.foot_id for leg in found.legs]
+    sensed = set()
+    for i in range(model.nsensor):
+        if int(model.sensor_type[i]) == contact and int(model.sensor_dim[i]) == 10:
+            pair = {int(model.sensor_objid[i]), int(model.sensor_refid[i])}
+            sensed |= {f for f in feet if f in pair and pair - {f} <= set(planes)}
+    if planes and set(feet) <= sensed:
+        return model, []
+    added = []
+    geoms = list(spec.geoms)
+    if planes:
+        floor = geoms[planes[0]]
+        if not floor.name:
+            floor.name = "floor"
+    else:
+        floor = spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE,
+                                        size=[0.0, 0.0, 0.05])  # fmt: skip
+        added.append("a ground plane 'floor' at z = 0")
+    for leg in found.legs:
+        geom = geoms[leg.foot_id]
+        if not geom.name:
+            geom.name = f"{leg.name}_foot"
+        spec.add_sensor(
+            name=f"{leg.name}_contact",
+            type=mujoco.mjtSensor.mjSENS_CONTACT,
+            objtype=mujoco.mjtObj.mjOBJ_GEOM,
+            objname=geom.name,
+            reftype=mujoco.mjtObj.mjOBJ_GEOM,
+            refname=floor.name,
+            intprm=[FOOT_SENSOR_DATA, 1, 1],
+        )
+    added.append(
+        "a contact sensor per foot ("
+        + ", ".join(f"{leg.name}: {geoms[leg.foot_id].name}" for leg in found.legs)
+        + f" on {floor.name!r})"
+    )
+    names = [geoms[leg.foot_id].name for leg in found.legs]  # the spec's geoms are the
+    model = spec.compile()  # model's, in order: checked on the model compiled again
+    again = [model.geom(g).name for g in (leg.foot_id for leg in describe(model).legs)]
+    if again != names:
+        raise QuadrupedError(f"its feet {names} were not found again after adding the sensors")
+    return model, added

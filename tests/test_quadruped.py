@@ -168,3 +168,45 @@ def test_the_numeric_leg_ik_of_a_target_out_of_reach_is_the_closest_foot():
     found = quadruped.describe(_legged([(0.1, 0.1), (-0.1, -0.1), (0.1, -0.1), (-0.1, 0.1)]))
     joints = found.leg_ik(0, [0.1, 0.1, -1.0])
     np.testing.assert_allclose(joints, [0.0, 0.0], atol=1e-12)
+
+
+def _foot_rows(model, found) -> np.ndarray:
+    """The 40 sensordata rows of the four feet's contact sensors, FL, FR, HL, HR."""
+    adr = [int(model.sensor_adr[model.sensor(f"{leg.name}_contact").id]) for leg in found.legs]
+    return np.concatenate([np.arange(a, a + 10) for a in adr])
+
+
+def test_a_published_quadruped_gets_a_ground_and_foot_sensors_that_read_the_contact_forces():
+    model, added = quadruped.with_foot_sensors(str(QUADRUPEDS / "go2.xml"))
+    assert added[0] == "a ground plane 'floor' at z = 0" and "HL: RL" in added[1]
+    found = quadruped.describe(model)
+    # Stand on the ground under joint PD for 2 s, from 2 cm above the standing pose.
+    data = mujoco.MjData(model)
+    data.qpos[:] = found.standing
+    data.qpos[2] += 0.02
+    qpos = [a for leg in found.legs for a in leg.qpos]
+    dofs = [a for leg in found.legs for a in leg.dofs]
+    motor = {int(model.jnt_qposadr[model.actuator_trnid[a, 0]]): a for a in range(model.nu)}
+    for _ in range(int(2.0 / model.opt.timestep)):
+        tau = 100.0 * (found.standing[qpos] - data.qpos[qpos]) - 4.0 * data.qvel[dofs]
+        data.ctrl[[motor[a] for a in qpos]] = tau
+        mujoco.mj_step(model, data)
+    mujoco.mj_forward(model, data)
+    forces = solo12.foot_forces(data.sensordata[_foot_rows(model, found)])
+    # Oracle 1: MuJoCo's own contact force of each foot's contact with the floor, in the world.
+    for leg, force in zip(found.legs, forces, strict=True):
+        (c,) = [
+            c
+            for c in range(data.ncon)
+            if leg.foot_id in (data.contact[c].geom1, data.contact[c].geom2)
+        ]
+        local = np.zeros(6)
+        mujoco.mj_contactForce(model, data, c, local)
+        world = data.contact[c].frame.reshape(3, 3).T @ local[:3]
+        np.testing.assert_allclose(force, world, rtol=1e-12, atol=1e-9)
+    # Oracle 2: standing still, the floor carries the robot's weight.
+    weight = float(np.sum(model.body_mass)) * -model.opt.gravity[2]
+    assert abs(forces[:, 2].sum() - weight) < 1e-3 * weight
+    # A file that declares its own sensors (the Solo12) is compiled as it is.
+    solo, nothing = quadruped.with_foot_sensors(solo12.model_path())
+    assert nothing == [] and solo.nsensor == solo12.load_model().nsensor
