@@ -1,6 +1,8 @@
-"""Solo12 walk and jump references, recorded from a whole-body controller in MuJoCo (in place
-of the paper's planner; docs/locomotion.md): :func:`walk_reference`, :func:`jump_reference`,
-their on-disk cache, and the checks that replay them (:func:`replay`)."""
+"""Walk and jump references, recorded from a whole-body controller in MuJoCo (in place of the
+paper's planner; docs/locomotion.md): :func:`walk_reference`, :func:`jump_reference`, their
+on-disk cache, and the checks that replay them (:func:`replay`). The controller reads the
+robot through :class:`Legs`: the Solo12's closed forms, or any motor-driven quadruped's
+description (:mod:`cfm_jax.quadruped`) with the Solo12's motions scaled to its size."""
 
 from __future__ import annotations
 
@@ -99,7 +101,7 @@ class PhysicsRecording(NamedTuple):
 
 @dataclasses.dataclass(frozen=True)
 class WalkParams:
-    """Trot: diagonal pairs (FL+HR, FR+HL) alternate, feet by :func:`cfm_jax.solo12.leg_ik`.
+    """Trot: diagonal pairs (FL+HR, FR+HL) alternate, feet placed by the legs' IK (:class:`Legs`).
 
     Attributes:
       duration: length of the reference (s), standing included.
@@ -158,14 +160,218 @@ def _total_mass(model) -> float:
     return float(np.sum(model.body_mass))
 
 
+SOLO12_STANDING_HEIGHT = 0.2384
+"""Base height (m) of the Solo12's keyframe ``home``: the length the references' parameters
+(:class:`WalkParams`, :class:`JumpParams`) are given in, scaled for another quadruped."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Legs:
+    """What the reference controllers use of a quadruped: its legs' kinematics, gains and
+    foot sensors. :meth:`solo12` gives the Solo12's closed forms (its facts sheet);
+    :meth:`of` reads any motor-driven quadruped (:func:`cfm_jax.quadruped.describe`) and
+    scales the Solo12's gains to it by dynamic similarity.
+
+    Attributes:
+      model: the ``mujoco.MjModel``, with one contact sensor per foot
+        (:func:`cfm_jax.quadruped.with_foot_sensors`).
+      nominal: the feet at the standing pose, base frame, ``(4, 3)``.
+      foot_radius: each foot's radius ``(4,)`` (m).
+      kp: the joints' PD gain (N m/rad).
+      kd: its derivative gain (N m s/rad).
+      scale: the robot's standing height over the Solo12's (:data:`SOLO12_STANDING_HEIGHT`).
+      ik: ``ik(foot, leg)``: the leg's joints that put its foot centre at ``foot``.
+      fk: ``fk(joints, leg)``: the leg's foot centre, base frame.
+      sites: the Solo12's foot sites (Jacobians of the foot centre), or None: the foot geoms.
+      foot_geoms: each foot's geom id.
+      dofs: ``(4, 3)`` each leg's joints as indices into the joint vector (``qvel[6:]``).
+      motors: the actuator of each joint, ``(nu,)``.
+      sensor_rows: the four feet's contact sensor rows of ``sensordata``, ``(40,)``.
+      key: the keyframe the references start from, or None (``standing``).
+      standing: the standing pose, ``qpos (nq,)``.
+
+    Examples:
+      >>> legs = Legs.solo12()
+      >>> legs.nominal.shape, legs.dofs[1].tolist()  # FR's joints: the 4th to 6th
+      ((4, 3), [3, 4, 5])
+    """
+
+    model: object
+    nominal: np.ndarray
+    foot_radius: np.ndarray
+    kp: float
+    kd: float
+    scale: float
+    ik: object
+    fk: object
+    sites: list | None
+    foot_geoms: list
+    dofs: np.ndarray
+    motors: np.ndarray
+    sensor_rows: np.ndarray
+    key: int | None
+    standing: np.ndarray
+
+    @classmethod
+    def solo12(cls, model=None) -> Legs:
+        """The Solo12's legs: its closed-form kinematics, gains and foot sites.
+
+        Examples:
+          >>> Legs.solo12().kp, Legs.solo12().scale
+          (5.0, 1.0)
+        """
+        model = model if model is not None else solo12.load_model()
+        key = model.key("home").id
+        return cls(
+            model=model,
+            nominal=solo12.hip_positions(),
+            foot_radius=np.full(4, solo12.FOOT_RADIUS),
+            kp=solo12.KP,
+            kd=solo12.KD,
+            scale=1.0,
+            ik=solo12.leg_ik,
+            fk=solo12.leg_fk,
+            sites=[model.site(f"{leg}_foot").id for leg in solo12.LEGS],
+            foot_geoms=[model.geom(f"{leg}_foot").id for leg in solo12.LEGS],
+            dofs=np.arange(12).reshape(4, 3),
+            motors=np.arange(12),
+            sensor_rows=np.arange(4 * solo12.SENSOR_SLOT),
+            key=key,
+            standing=np.array(model.key_qpos[key]),
+        )
+
+    @classmethod
+    def of(cls, model) -> Legs:
+        """Any motor-driven quadruped's legs (:func:`cfm_jax.quadruped.describe`): numeric
+        leg kinematics on MuJoCo's Jacobians; the Solo12's gains scaled by dynamic
+        similarity (``kp`` with ``M g L``, ``kd`` with ``M L sqrt(g L)``: mass ``M``, leg
+        length ``L``), so that the robot's motions are the Solo12's at its size.
+
+        Args:
+          model: a ``mujoco.MjModel`` with one contact sensor per foot on the ground
+            (:func:`cfm_jax.quadruped.with_foot_sensors`) and a torque motor on each joint.
+
+        Raises:
+          cfm_jax.quadruped.QuadrupedError: not a quadruped, a joint without its own motor,
+            or a foot without a contact sensor.
+
+        Examples:
+          >>> from cfm_jax import quadruped
+          >>> legs = Legs.of(quadruped.with_foot_sensors(solo12.model_path())[0])
+          >>> round(legs.kp, 6), legs.scale  # the Solo12 read as any quadruped
+          (5.0, 1.0)
+        """
+        import mujoco
+
+        from cfm_jax import quadruped
+
+        found = quadruped.describe(model)
+        reference = quadruped.describe(solo12.load_model())
+        g = float(-model.opt.gravity[2])
+
+        def size(robot, mass):
+            length = float(np.mean([leg.length for leg in robot.legs]))
+            return mass * g * length, mass * length * np.sqrt(g * length)
+
+        stiff, damp = size(found, _total_mass(model))
+        stiff0, damp0 = size(reference, _total_mass(solo12.load_model()))
+        motors = np.full(model.nv - 6, -1)
+        for a in range(model.nu):
+            if int(model.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
+                continue
+            if model.actuator_biastype[a] != 0 or model.actuator_gainprm[a, 0] != 1.0:
+                continue  # a servo, not a torque motor
+            motors[int(model.jnt_dofadr[model.actuator_trnid[a, 0]]) - 6] = a
+        if (motors < 0).any():
+            missing = [
+                model.joint(int(model.dof_jntid[6 + i])).name for i in np.where(motors < 0)[0]
+            ]
+            raise quadruped.QuadrupedError(
+                f"its joints {missing} have no torque motor of their own (servos: load it "
+                "with robot_actuators='torque' first)"
+            )
+        contact = int(mujoco.mjtSensor.mjSENS_CONTACT)
+        rows = []
+        for leg in found.legs:
+            sensors = [
+                i
+                for i in range(model.nsensor)
+                if int(model.sensor_type[i]) == contact
+                and int(model.sensor_dim[i]) == 10
+                and int(model.sensor_objid[i]) == leg.foot_id
+            ]
+            if not sensors:
+                raise quadruped.QuadrupedError(
+                    f"its {leg.name} foot has no contact sensor (quadruped.with_foot_sensors)"
+                )
+            rows.append(np.arange(model.sensor_adr[sensors[0]], model.sensor_adr[sensors[0]] + 10))
+
+        def fk(joints, leg):
+            data = mujoco.MjData(model)
+            data.qpos[:] = found.standing
+            data.qpos[:3], data.qpos[3:7] = 0.0, (1.0, 0.0, 0.0, 0.0)
+            data.qpos[list(found.legs[leg].qpos)] = joints
+            mujoco.mj_kinematics(model, data)
+            return data.geom_xpos[found.legs[leg].foot_id].copy()
+
+        names = [model.key(k).name for k in range(model.nkey)]
+        key = names.index("home") if "home" in names else (0 if names else None)
+        return cls(
+            model=model,
+            nominal=found.feet,
+            foot_radius=np.array([leg.foot_radius for leg in found.legs]),
+            kp=solo12.KP * stiff / stiff0,
+            kd=solo12.KD * damp / damp0,
+            scale=found.standing_height / SOLO12_STANDING_HEIGHT,
+            ik=lambda foot, leg: found.leg_ik(leg, foot),
+            fk=fk,
+            sites=None,
+            foot_geoms=[leg.foot_id for leg in found.legs],
+            dofs=np.array([[d - 6 for d in leg.dofs] for leg in found.legs]),
+            motors=motors,
+            sensor_rows=np.concatenate(rows),
+            key=key,
+            standing=found.standing,
+        )
+
+    def contact(self, sensordata, xp=np):
+        """Whether each foot touches the ground, ``(..., 4)``."""
+        return solo12.foot_contact(sensordata[..., self.sensor_rows], xp=xp)
+
+    def forces(self, sensordata, xp=np):
+        """The ground's force on each foot, world frame, ``(..., 4, 3)`` (N)."""
+        return solo12.foot_forces(sensordata[..., self.sensor_rows], xp=xp)
+
+
+def legs_of(model) -> Legs:
+    """The :class:`Legs` of ``model``: the Solo12's closed forms where its kinematics are the
+    Solo12's (:func:`cfm_jax.solo12.check_model`), else :meth:`Legs.of`.
+
+    Args:
+      model: a ``mujoco.MjModel`` of a quadruped with its foot contact sensors.
+
+    Examples:
+      >>> legs_of(solo12.load_model()).sites is not None  # the Solo12's foot sites
+      True
+    """
+    from cfm_jax.config import ConfigError
+
+    try:
+        solo12.check_model(model)
+    except ConfigError:
+        return Legs.of(model)
+    return Legs.solo12(model)
+
+
 class _Sim:
     """MuJoCo simulation at the control rate with per-physics-step recording."""
 
-    def __init__(self, model, control_dt: float):
+    def __init__(self, legs: Legs, control_dt: float):
         import mujoco
 
         self.mj = mujoco
-        self.m = model
+        self.legs = legs
+        self.m = model = legs.model
         self.d = mujoco.MjData(model)
         n_sub = control_dt / model.opt.timestep
         if abs(n_sub - round(n_sub)) > 1e-9:
@@ -175,12 +381,14 @@ class _Sim:
             )
         self.n_sub = int(round(n_sub))
         self.control_dt = control_dt
-        mujoco.mj_resetDataKeyframe(model, self.d, model.key("home").id)
+        if legs.key is not None:
+            mujoco.mj_resetDataKeyframe(model, self.d, legs.key)
+        else:
+            self.d.qpos[:] = legs.standing
         mujoco.mj_forward(model, self.d)
-        self.site = [model.site(f"{leg}_foot").id for leg in solo12.LEGS]
         self.jac = np.zeros((3, model.nv))
         self.rec = {k: [] for k in ("qpos", "qvel", "qacc", "tau", "sensordata")}
-        self.limit = model.actuator_ctrlrange[:, 1].copy()
+        self.limit = model.actuator_ctrlrange[legs.motors, 1].copy()
 
     @property
     def q(self):
@@ -191,24 +399,27 @@ class _Sim:
         return self.d.qvel[6:]
 
     def contact(self):
-        return solo12.foot_contact(self.d.sensordata)
+        return self.legs.contact(self.d.sensordata)
 
     def leg_jacobian(self, leg: int) -> np.ndarray:
         """3x3 world-frame Jacobian of the foot centre w.r.t. the leg's joints."""
-        self.mj.mj_jacSite(self.m, self.d, self.jac, None, self.site[leg])
-        return self.jac[:, 6 + 3 * leg : 9 + 3 * leg].copy()
+        if self.legs.sites is not None:
+            self.mj.mj_jacSite(self.m, self.d, self.jac, None, self.legs.sites[leg])
+        else:
+            self.mj.mj_jacGeom(self.m, self.d, self.jac, None, self.legs.foot_geoms[leg])
+        return self.jac[:, 6 + self.legs.dofs[leg]].copy()
 
     def ff_force(self, forces) -> np.ndarray:
         """Joint torques ``-J^T f`` producing the ground forces ``forces (4, 3)`` (world)."""
         tau = np.zeros(12)
         for leg in range(4):
             if np.any(forces[leg]):
-                tau[3 * leg : 3 * leg + 3] = -self.leg_jacobian(leg).T @ forces[leg]
+                tau[self.legs.dofs[leg]] = -self.leg_jacobian(leg).T @ forces[leg]
         return tau
 
     def step(self, tau):
         tau = np.clip(tau, -self.limit, self.limit)
-        self.d.ctrl[:] = tau
+        self.d.ctrl[self.legs.motors] = tau
         for _ in range(self.n_sub):
             self.rec["qpos"].append(self.d.qpos.copy())
             self.rec["qvel"].append(self.d.qvel.copy())
@@ -228,11 +439,11 @@ class _Sim:
         )
 
 
-def _to_reference(rec: PhysicsRecording, n_sub, control_dt, kind, params) -> LocomotionReference:
+def _to_reference(rec: PhysicsRecording, legs: Legs, n_sub, control_dt, kind, params):
     k = len(rec.tau)
     steps = k // n_sub
     idx = np.arange(steps + 1) * n_sub
-    force = solo12.foot_forces(rec.sensordata)  # (K+1, 4, 3); entry K is the final state's
+    force = legs.forces(rec.sensordata)  # (K+1, 4, 3); entry K is the final state's
     qvel = rec.qvel[idx]
     return LocomotionReference(
         control_dt=control_dt,
@@ -242,9 +453,9 @@ def _to_reference(rec: PhysicsRecording, n_sub, control_dt, kind, params) -> Loc
         tau=rec.tau[idx[:-1]],
         foot_force=force[idx],
         foot_force_mean=force[:k].reshape(steps, n_sub, 4, 3).mean(axis=1),
-        contact=solo12.foot_contact(rec.sensordata)[idx],
-        kp=solo12.KP,
-        kd=solo12.KD,
+        contact=legs.contact(rec.sensordata)[idx],
+        kp=legs.kp,
+        kd=legs.kd,
         kind=kind,
         params=json.dumps(params, sort_keys=True),
     )
@@ -258,13 +469,15 @@ def _stance_feedforward(sim: _Sim, stance: np.ndarray, weight: float) -> np.ndar
     return sim.ff_force(forces)
 
 
-def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT):
-    """Run the trot controller from keyframe ``home``: ``(LocomotionReference, PhysicsRecording)``.
+def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT, legs=None):
+    """Run the trot controller from the standing pose: ``(LocomotionReference, PhysicsRecording)``.
 
     Args:
-      params: the :class:`WalkParams`.
+      params: the :class:`WalkParams` (lengths and times of the Solo12; another robot's are
+        scaled by :attr:`Legs.scale`, times by its square root).
       model: the ``mujoco.MjModel`` (None: :func:`cfm_jax.solo12.load_model`).
       control_dt: control period (s), a whole number of physics steps.
+      legs: the robot's :class:`Legs` (None: :func:`legs_of` ``model``).
 
     Raises:
       ValueError: ``control_dt`` is not a whole number of physics steps.
@@ -274,22 +487,28 @@ def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT
       >>> ref.horizon, len(rec.tau)
       (50, 100)
     """
-    model = model if model is not None else solo12.load_model()
-    sim = _Sim(model, control_dt)
+    if legs is None:
+        legs = legs_of(model if model is not None else solo12.load_model())
+    model = legs.model
+    sim = _Sim(legs, control_dt)
     weight = _total_mass(model) * -model.opt.gravity[2]
-    nominal = solo12.hip_positions()
-    half = params.period / 2
+    nominal = legs.nominal
+    length, clock = legs.scale, np.sqrt(legs.scale)  # dynamic similarity to the Solo12
+    half = params.period * clock / 2
+    stand, ramp = params.stand * clock, params.ramp * clock
+    height, swing = params.height * length, params.swing_height * length
+    cruise = params.speed * length / clock
     steps = int(round(params.duration / control_dt))
     x_base = 0.0
     for step in range(steps):
         t = step * control_dt
-        tw = t - params.stand  # walking clock
-        speed = params.speed * np.clip(tw / params.ramp, 0.0, 1.0) if tw > 0 else 0.0
+        tw = t - stand  # walking clock
+        speed = cruise * np.clip(tw / ramp, 0.0, 1.0) if tw > 0 else 0.0
         targets = np.zeros(12)
         stance = np.ones(4, bool)
         for leg in range(4):
             foot = nominal[leg].copy()
-            foot[2] = -params.height + solo12.FOOT_RADIUS  # depth of the foot centre below the base
+            foot[2] = -height + legs.foot_radius[leg]  # depth of the foot centre below the base
             if tw > 0:
                 pair = 0 if leg in (0, 3) else 1
                 phase = ((tw / half) + pair) % 2.0  # [0, 1): swing, [1, 2): stance
@@ -297,57 +516,64 @@ def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT
                 if phase < 1.0:
                     s = phase
                     foot[0] += stride * (s - 0.5)
-                    foot[2] += params.swing_height * np.sin(np.pi * s)
+                    foot[2] += swing * np.sin(np.pi * s)
                     stance[leg] = False
                 else:
                     s = phase - 1.0
                     foot[0] += stride * (0.5 - s)
-            targets[3 * leg : 3 * leg + 3] = solo12.leg_ik(foot, leg)
+            targets[legs.dofs[leg]] = legs.ik(foot, leg)
         # the first half-cycle: pair 1 (FR+HL) starts in stance, pair 0 swings
-        tau = solo12.KP * (targets - sim.q) - solo12.KD * sim.qd
+        tau = legs.kp * (targets - sim.q) - legs.kd * sim.qd
         tau += _stance_feedforward(sim, stance, weight)
         sim.step(tau)
         x_base += speed * control_dt
     rec = sim.recording()
-    ref = _to_reference(rec, sim.n_sub, control_dt, "walk", dataclasses.asdict(params))
+    ref = _to_reference(rec, legs, sim.n_sub, control_dt, "walk", dataclasses.asdict(params))
     return ref, rec
 
 
-def _jump_run(params: JumpParams, push_force: float, model, control_dt):
-    sim = _Sim(model, control_dt)
+def _jump_run(params: JumpParams, push_force: float, legs: Legs, control_dt):
+    sim = _Sim(legs, control_dt)
+    model = legs.model
     weight = _total_mass(model) * -model.opt.gravity[2]
-    nominal = solo12.hip_positions()
-    stand_depth = -nominal[0, 2] if params.stand_depth is None else params.stand_depth
-    crouch_depth = params.crouch_height - solo12.FOOT_RADIUS
+    nominal = legs.nominal
+    length, clock = legs.scale, np.sqrt(legs.scale)  # dynamic similarity to the Solo12
+    radius = float(np.max(legs.foot_radius))
+    stand_depth = -nominal[0, 2] if params.stand_depth is None else params.stand_depth * length
+    crouch_depth = params.crouch_height * length - radius
+    settle, crouch = params.settle * clock, params.crouch * clock
+    extension = params.extension * length
     steps = int(round(params.duration / control_dt))
     phase = "settle"
     t_phase = 0.0
     for step in range(steps):
         t = step * control_dt
         contact = sim.contact()
-        if phase == "settle" and t >= params.settle:
+        if phase == "settle" and t >= settle:
             phase, t_phase = "crouch", t
-        if phase == "crouch" and t - t_phase >= params.crouch:
+        if phase == "crouch" and t - t_phase >= crouch:
             phase, t_phase = "push", t
         if phase == "push":
-            depth = np.mean([-solo12.leg_fk(sim.q[3 * i : 3 * i + 3], i)[2] for i in range(4)])
-            if depth >= params.extension or not contact.any():
+            depth = np.mean([-legs.fk(sim.q[legs.dofs[i]], i)[2] for i in range(4)])
+            if depth >= extension or not contact.any():
                 phase, t_phase = "flight", t
         if phase == "flight" and t - t_phase > 0.02 and contact.any():
             phase, t_phase = "land", t
         if phase in ("settle", "flight", "land"):
             depth = stand_depth
         elif phase == "crouch":
-            s = 0.5 - 0.5 * np.cos(np.pi * min((t - t_phase) / params.crouch, 1.0))
+            s = 0.5 - 0.5 * np.cos(np.pi * min((t - t_phase) / crouch, 1.0))
             depth = stand_depth + s * (crouch_depth - stand_depth)
         else:  # push: hold the lateral posture, legs extend under the force
-            depth = params.extension
-        targets = np.concatenate(
-            [solo12.leg_ik(nominal[i] * [1, 1, 0] + [0, 0, -depth], i) for i in range(4)]
-        )
-        tau = solo12.KP * (targets - sim.q) - solo12.KD * sim.qd
+            depth = extension
+        targets = np.zeros(12)
+        for i in range(4):
+            targets[legs.dofs[i]] = legs.ik(nominal[i] * [1, 1, 0] + [0, 0, -depth], i)
+        tau = legs.kp * (targets - sim.q) - legs.kd * sim.qd
         if phase == "push":
-            tau = solo12.KP * (targets - sim.q) * np.tile([1.0, 0.0, 0.0], 4) - solo12.KD * sim.qd
+            abduction = np.zeros(12)
+            abduction[legs.dofs[:, 0]] = 1.0  # only the first joint of each leg holds
+            tau = legs.kp * (targets - sim.q) * abduction - legs.kd * sim.qd
             forces = np.zeros((4, 3))
             forces[:, 2] = push_force
             tau = tau + sim.ff_force(forces)
@@ -357,11 +583,12 @@ def _jump_run(params: JumpParams, push_force: float, model, control_dt):
     return sim
 
 
-def jump_clearance(ref_or_rec) -> float:
+def jump_clearance(ref_or_rec, legs: Legs | None = None) -> float:
     """Largest foot clearance (m): max over time of the lowest foot bottom above the floor.
 
     Args:
       ref_or_rec: a :class:`LocomotionReference` or :class:`PhysicsRecording` (its ``qpos``).
+      legs: the robot's :class:`Legs` (None: the Solo12's closed form).
 
     Examples:
       >>> round(jump_clearance(simulate_jump(JumpParams(duration=0.8, push_force=30.0))[1]), 2)
@@ -370,28 +597,39 @@ def jump_clearance(ref_or_rec) -> float:
     qpos = ref_or_rec.qpos
     rot = solo12.quat_to_mat(qpos[:, 3:7])
     lowest = np.full(len(qpos), np.inf)
+    fk = solo12.leg_fk if legs is None else legs.fk
     for leg in range(4):
-        feet = np.array([solo12.leg_fk(q[7 + 3 * leg : 10 + 3 * leg], leg) for q in qpos])
-        z = qpos[:, 2] + np.einsum("tj,tj->t", rot[:, 2, :], feet) - solo12.FOOT_RADIUS
+        if legs is None:
+            joints, radius = slice(7 + 3 * leg, 10 + 3 * leg), solo12.FOOT_RADIUS
+        else:
+            joints, radius = 7 + legs.dofs[leg], legs.foot_radius[leg]
+        feet = np.array([fk(q[joints], leg) for q in qpos])
+        z = qpos[:, 2] + np.einsum("tj,tj->t", rot[:, 2, :], feet) - radius
         lowest = np.minimum(lowest, z)
     return float(lowest.max())
 
 
-def simulate_jump(params: JumpParams, model=None, control_dt: float = CONTROL_DT):
+def simulate_jump(params: JumpParams, model=None, control_dt: float = CONTROL_DT, legs=None):
     """Run the jump controller, as :func:`simulate_walk`; ``params.push_force`` None is
     bisected until :func:`jump_clearance` is ``params.height`` to 2 % (kept in ``ref.params``).
 
     Args:
-      params: the :class:`JumpParams`.
+      params: the :class:`JumpParams` (the Solo12's; another robot's scaled as the walk's,
+        the requested clearance included).
       model: the ``mujoco.MjModel`` (None: :func:`cfm_jax.solo12.load_model`).
       control_dt: control period (s), a whole number of physics steps.
+      legs: the robot's :class:`Legs` (None: :func:`legs_of` ``model``).
 
     Examples:
       >>> ref, _ = simulate_jump(JumpParams(height=0.1, duration=0.8))  # bisection
       >>> abs(jump_clearance(ref) - 0.1) <= 0.002
       True
     """
-    model = model if model is not None else solo12.load_model()
+    if legs is None:
+        legs = legs_of(model if model is not None else solo12.load_model())
+    model = legs.model
+    solo = legs.sites is not None  # the Solo12's closed form measures its clearance
+    height = params.height * legs.scale
     weight = _total_mass(model) * -model.opt.gravity[2]
     if params.push_force is not None:
         force = params.push_force
@@ -400,15 +638,15 @@ def simulate_jump(params: JumpParams, model=None, control_dt: float = CONTROL_DT
         force = hi
         for _ in range(30):
             force = 0.5 * (lo + hi)
-            rec = _jump_run(params, force, model, control_dt).recording()
-            got = jump_clearance(rec)
-            if abs(got - params.height) <= 0.02 * params.height:
+            rec = _jump_run(params, force, legs, control_dt).recording()
+            got = jump_clearance(rec, None if solo else legs)
+            if abs(got - height) <= 0.02 * height:
                 break
-            lo, hi = (force, hi) if got < params.height else (lo, force)
+            lo, hi = (force, hi) if got < height else (lo, force)
         params = dataclasses.replace(params, push_force=float(force))
-    sim = _jump_run(params, force, model, control_dt)
+    sim = _jump_run(params, force, legs, control_dt)
     rec = sim.recording()
-    ref = _to_reference(rec, sim.n_sub, control_dt, "jump", dataclasses.asdict(params))
+    ref = _to_reference(rec, legs, sim.n_sub, control_dt, "jump", dataclasses.asdict(params))
     return ref, rec
 
 
@@ -577,7 +815,11 @@ def cache_dir(path: str | os.PathLike | None = None) -> Path:
     return Path.home() / ".cache" / "cfm_jax" / "references"
 
 
-GENERATOR_FILES = (Path(__file__), Path(solo12.__file__))
+GENERATOR_FILES = (
+    Path(__file__),
+    Path(solo12.__file__),
+    Path(solo12.__file__).with_name("quadruped.py"),
+)
 """The reference generator's sources: their bytes are part of the cache key."""
 
 
@@ -608,12 +850,33 @@ def _load(path: Path) -> LocomotionReference:
     return LocomotionReference(**fields)
 
 
+def legs_of_file(path: str) -> Legs:
+    """The :class:`Legs` of the quadruped in the MJCF file at ``path``: :func:`legs_of` its
+    model, given the ground and foot sensors it lacks
+    (:func:`cfm_jax.quadruped.with_foot_sensors`).
+
+    Args:
+      path: an MJCF file of a motor-driven quadruped.
+
+    Examples:
+      >>> legs_of_file(solo12.model_path()).kp  # the Solo12's closed forms and gains
+      5.0
+    """
+    from cfm_jax import quadruped
+
+    model = solo12.load_model(path)
+    try:
+        return legs_of(model)
+    except quadruped.QuadrupedError:
+        return legs_of(quadruped.with_foot_sensors(path)[0])
+
+
 def _cached(kind, params, control_dt, model_file, cache, use_cache, simulate):
     model_file = model_file or solo12.model_path()
     path = cache_dir(cache) / f"{kind}-{_cache_key(kind, params, control_dt, model_file)}.npz"
     if use_cache and path.is_file():
         return _load(path)
-    ref, _ = simulate(params, solo12.load_model(model_file), control_dt)
+    ref, _ = simulate(params, None, control_dt, legs=legs_of_file(model_file))
     if use_cache:
         _save(ref, path)
     return ref

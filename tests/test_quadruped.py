@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import quadruped, robot_check, solo12
+from cfm_jax import locomotion, quadruped, robot_check, solo12
 
 QUADRUPEDS = Path(__file__).parent / "robots" / "quadrupeds"
 
@@ -210,3 +210,46 @@ def test_a_published_quadruped_gets_a_ground_and_foot_sensors_that_read_the_cont
     # A file that declares its own sensors (the Solo12) is compiled as it is.
     solo, nothing = quadruped.with_foot_sensors(solo12.model_path())
     assert nothing == [] and solo.nsensor == solo12.load_model().nsensor
+
+
+# ---- references from the description (cfm_jax.locomotion.Legs.of) ---------------------------
+
+
+def test_the_general_legs_on_the_solo12_give_its_closed_form_references():
+    # The Solo12 read as any quadruped (numeric IK, foot geoms, gains by dynamic similarity
+    # to itself) against its facts sheet's closed forms: the same gains and, through the
+    # contacts of a walk and a jump, the same motion to 1e-9.
+    model, _ = quadruped.with_foot_sensors(solo12.model_path())
+    legs = locomotion.Legs.of(model)
+    assert (legs.kp, legs.kd, legs.scale) == pytest.approx((solo12.KP, solo12.KD, 1.0), abs=1e-12)
+    for simulate, params in (
+        (locomotion.simulate_walk, locomotion.WalkParams(duration=0.6)),
+        (locomotion.simulate_jump, locomotion.JumpParams(duration=0.8, push_force=30.0)),
+    ):
+        general, _ = simulate(params, legs=legs)
+        closed, _ = simulate(params)
+        np.testing.assert_allclose(general.qpos, closed.qpos, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(general.tau, closed.tau, rtol=0, atol=1e-8)
+
+
+def test_a_published_quadrupeds_jump_and_trot_from_its_file():
+    legs = locomotion.legs_of_file(str(QUADRUPEDS / "go2.xml"))
+    standing = quadruped.describe(legs.model).standing_height
+    # A jump at a push force the bisection found for the default jump (0.1 m on the
+    # Solo12, scaled by the Go2's size): its feet clear the floor by that much, it stays
+    # upright by the library's fall rule (tilt under solo12.FALL.max_tilt, 0.8 rad; it
+    # reaches 0.29) and lands on its four feet.
+    jump, _ = locomotion.simulate_jump(
+        locomotion.JumpParams(duration=1.5, push_force=232.79436547171883), legs=legs
+    )
+    assert abs(locomotion.jump_clearance(jump, legs) - 0.1 * legs.scale) < 0.02 * 0.1 * legs.scale
+    tilt = np.arccos(solo12.quat_to_mat(jump.qpos[:, 3:7])[:, 2, 2])
+    assert tilt.max() < solo12.FALL.max_tilt and jump.contact[-1].all()
+    assert abs(jump.qpos[-1, 2] - standing) < 0.03
+    # The trot: diagonal pairs alternate (FL+HR, then FR+HL) and the robot stays upright
+    # (it barely moves forward: 1.5 cm in 2 s of the 0.54 m commanded, issue 65).
+    walk, _ = locomotion.simulate_walk(locomotion.WalkParams(duration=1.0), legs=legs)
+    pairs = {(1, 0, 0, 1), (0, 1, 1, 0)}
+    assert pairs <= {tuple(c) for c in walk.contact.astype(int)}
+    tilt = np.arccos(solo12.quat_to_mat(walk.qpos[:, 3:7])[:, 2, 2])
+    assert tilt.max() < solo12.FALL.max_tilt and walk.qpos[:, 2].min() > 0.8 * standing
