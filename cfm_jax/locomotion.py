@@ -266,7 +266,8 @@ class Legs:
         from cfm_jax import quadruped
 
         found = quadruped.describe(model)
-        reference = quadruped.describe(solo12.load_model())
+        solo = solo12.load_model()
+        reference = quadruped.describe(solo)
         g = float(-model.opt.gravity[2])
 
         def size(robot, mass):
@@ -274,7 +275,7 @@ class Legs:
             return mass * g * length, mass * length * np.sqrt(g * length)
 
         stiff, damp = size(found, _total_mass(model))
-        stiff0, damp0 = size(reference, _total_mass(solo12.load_model()))
+        stiff0, damp0 = size(reference, _total_mass(solo))
         motors = np.full(model.nv - 6, -1)
         for a in range(model.nu):
             if int(model.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
@@ -306,14 +307,6 @@ class Legs:
                 )
             rows.append(np.arange(model.sensor_adr[sensors[0]], model.sensor_adr[sensors[0]] + 10))
 
-        def fk(joints, leg):
-            data = mujoco.MjData(model)
-            data.qpos[:] = found.standing
-            data.qpos[:3], data.qpos[3:7] = 0.0, (1.0, 0.0, 0.0, 0.0)
-            data.qpos[list(found.legs[leg].qpos)] = joints
-            mujoco.mj_kinematics(model, data)
-            return data.geom_xpos[found.legs[leg].foot_id].copy()
-
         names = [model.key(k).name for k in range(model.nkey)]
         key = names.index("home") if "home" in names else (0 if names else None)
         return cls(
@@ -324,7 +317,7 @@ class Legs:
             kd=solo12.KD * damp / damp0,
             scale=found.standing_height / SOLO12_STANDING_HEIGHT,
             ik=lambda foot, leg: found.leg_ik(leg, foot),
-            fk=fk,
+            fk=lambda joints, leg: found.foot_position(leg, joints),
             sites=None,
             foot_geoms=[leg.foot_id for leg in found.legs],
             dofs=np.array([[d - 6 for d in leg.dofs] for leg in found.legs]),

@@ -134,9 +134,6 @@ class Quadruped:
         import mujoco
 
         model, spec = self.model, self.legs[leg]
-        data = mujoco.MjData(model)
-        data.qpos[:] = self.standing
-        data.qpos[:3], data.qpos[3:7] = 0.0, (1.0, 0.0, 0.0, 0.0)  # base frame = world frame
         q = np.array(self.standing[list(spec.qpos)] if start is None else start, dtype=float)
         joints = [model.joint(name).id for name in spec.joints]
         low = np.where(model.jnt_limited[joints], model.jnt_range[joints, 0], -np.inf)
@@ -145,8 +142,7 @@ class Quadruped:
         jacobian = np.zeros((3, model.nv))
         best, best_error = q.copy(), np.inf
         for _ in range(100):
-            data.qpos[list(spec.qpos)] = q
-            mujoco.mj_kinematics(model, data)
+            data = self._posed(leg, q)
             mujoco.mj_comPos(model, data)
             error = target - data.geom_xpos[spec.foot_id]
             size = float(np.linalg.norm(error))
@@ -160,6 +156,33 @@ class Quadruped:
             step = j.T @ np.linalg.solve(j @ j.T + damping * np.eye(3), error)
             q = np.clip(q + step, low, high)
         return best
+
+    def foot_position(self, leg: int, joints) -> np.ndarray:
+        """Leg ``leg``'s foot centre (base frame, m) with its joints at ``joints``, the others
+        standing: MuJoCo's forward kinematics.
+
+        Examples:
+          >>> from cfm_jax import solo12
+          >>> robot = describe(solo12.load_model())
+          >>> np.round(robot.foot_position(0, [0.0, 0.8, -1.6]), 4).tolist()
+          [0.1946, 0.148, -0.2229]
+        """
+        return self._posed(leg, joints).geom_xpos[self.legs[leg].foot_id].copy()
+
+    def _posed(self, leg: int, joints):
+        """The kinematics (one ``MjData``, reused) of the standing pose with the base at the
+        origin (base frame = world frame) and leg ``leg``'s joints at ``joints``."""
+        import mujoco
+
+        data = self.__dict__.get("_data")
+        if data is None:
+            data = mujoco.MjData(self.model)
+            object.__setattr__(self, "_data", data)
+        data.qpos[:] = self.standing
+        data.qpos[:3], data.qpos[3:7] = 0.0, (1.0, 0.0, 0.0, 0.0)
+        data.qpos[list(self.legs[leg].qpos)] = joints
+        mujoco.mj_kinematics(self.model, data)
+        return data
 
     def summary(self) -> str:
         """One line per leg and one for the stance, as ``cfm-jax robot check`` prints them."""
