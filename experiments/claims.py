@@ -121,12 +121,22 @@ def _same(a: pd.DataFrame, b: pd.DataFrame) -> bool:
     return a.index.equals(b.index) and np.allclose(a.tracking_mse, b.tracking_mse, rtol=1e-6)
 
 
-def read_blocks(comparison_dir: str, cell) -> tuple[pd.DataFrame, pd.DataFrame] | None:
-    """A comparison cell's records over every block of seeds that has run
-    (``comparison.BLOCKS``, in order; the first block must have run): the metrics together,
-    the baselines (of the test motions, the same in every block) once."""
-    found = [_read(comparison.record_dir(comparison_dir, cell.block(first)))
-             for first in comparison.BLOCKS]  # fmt: skip
+def complete_blocks(comparison_dir: str, cells) -> tuple[int, ...]:
+    """The blocks of seeds (``comparison.BLOCKS``, their first seeds) that every one of
+    ``cells`` has run: the blocks a comparison between them may use."""
+    return tuple(first for first in comparison.BLOCKS
+                 if all(_read(comparison.record_dir(comparison_dir, c.block(first))) is not None
+                        for c in cells))  # fmt: skip
+
+
+def read_blocks(comparison_dir: str, cell,
+                blocks=comparison.BLOCKS) -> tuple[pd.DataFrame, pd.DataFrame] | None:  # fmt: skip
+    """A comparison cell's records over the ``blocks`` of seeds (their first seeds, in
+    order) that it has run (the first of them must have run): the metrics together, the
+    baselines (of the test motions, the same in every block) once."""
+    if not blocks:
+        return None
+    found = [_read(comparison.record_dir(comparison_dir, cell.block(first))) for first in blocks]
     if found[0] is None:
         return None
     found = [r for r in found if r is not None]
@@ -175,15 +185,20 @@ def arms(comparison_dir: str, robustness: dict) -> dict:
     (the robustness study's default cell standing in for a shared cell not run yet)."""
     out = {}
     for task in comparison.TASKS:
-        shared = read_blocks(comparison_dir, comparison.Cell(task, comparison.SHARED, LOSSES))
+        cells = [comparison.Cell(task, comparison.SHARED, LOSSES),
+                 *(comparison.Cell(task, f"own-{n}", (n,)) for n in LOSSES)]  # fmt: skip
+        # Once every cell of the task has run a block, only such blocks count: both
+        # configurations then compare the same seeds, and a block still running (some of
+        # its cells finished) changes nothing on the page, nor the family's count.
+        blocks = complete_blocks(comparison_dir, cells) or comparison.BLOCKS
+        shared = read_blocks(comparison_dir, cells[0], blocks)
         if shared is not None:
             shared = Arm(*shared, "the comparison's shared cell")
         else:
             default = [c for c in robustness if c.task == task and c.default]
             shared = Arm(*robustness[default[0]], "the robustness study's default cell (the "
                          "10-seed shared cell has not run yet)") if default else None  # fmt: skip
-        own = [read_blocks(comparison_dir, comparison.Cell(task, f"own-{n}", (n,)))
-               for n in LOSSES]  # fmt: skip
+        own = [read_blocks(comparison_dir, cell, blocks) for cell in cells[1:]]
         if shared is not None and all(r is not None for r in own):
             for loss, (_, baselines) in zip(LOSSES, own, strict=True):
                 _same_baselines(task, loss, baselines, shared.baselines)

@@ -175,22 +175,33 @@ def test_arms_take_the_comparisons_cells_and_the_robustness_default_until_then(t
     own = claims.arms(str(tmp_path), robustness)["jump"]["own"]
     assert own.source == ("the comparison's own cells (joint: their search chose the shared "
                           "defaults, so these are the shared cell's runs)")  # fmt: skip
-    # A second block of seeds (seeds-20-29) joins the first; one with other baselines is
-    # refused.
+    # A second block of seeds (seeds-20-29) joins the first once every cell of the task has
+    # run it: until then (here the shared cell and two own cells have) neither configuration
+    # sees it, so both compare the same seeds; one with other baselines is refused.
     second = arm.metrics.assign(seed=arm.metrics.seed + 20)
-    block = comparison.Cell("jump", "shared", LOSSES).block(comparison.BLOCKS[1])
-    record = comparison.record_dir(str(tmp_path), block)
-    os.makedirs(record)
-    second.to_csv(f"{record}/metrics.csv", index=False)
-    arm.baselines.to_csv(f"{record}/baselines.csv", index=False)
-    shared = claims.arms(str(tmp_path), robustness)["jump"]["shared"]
-    assert sorted(set(shared.metrics.seed)) == [0, 1, 20, 21] and shared.seeds == 4
+    cells = [comparison.Cell("jump", "shared", LOSSES),
+             *(comparison.Cell("jump", f"own-{n}", (n,)) for n in LOSSES)]  # fmt: skip
+    for cell in cells:
+        record = comparison.record_dir(str(tmp_path), cell.block(comparison.BLOCKS[1]))
+        os.makedirs(record)
+        second[second.loss.isin(cell.losses)].to_csv(f"{record}/metrics.csv", index=False)
+        arm.baselines.to_csv(f"{record}/baselines.csv", index=False)
+        got = claims.arms(str(tmp_path), robustness)["jump"]
+        every = cell is cells[-1]
+        assert sorted(set(got["shared"].metrics.seed)) == ([0, 1, 20, 21] if every else [0, 1])
+        assert sorted(set(got["own"].metrics.seed)) == ([0, 1, 20, 21] if every else [0, 1])
+    assert got["shared"].seeds == got["own"].seeds == 4
+    assert claims.complete_blocks(str(tmp_path), cells) == comparison.BLOCKS
+    record = comparison.record_dir(str(tmp_path), cells[0].block(comparison.BLOCKS[1]))
     arm.baselines.assign(tracking_mse=3e-2).to_csv(f"{record}/baselines.csv", index=False)
     with pytest.raises(ValueError, match="jump/shared: a block of seeds has other baselines"):
         claims.arms(str(tmp_path), robustness)
     arm.baselines.to_csv(f"{record}/baselines.csv", index=False)
-    # An own cell on other motions (another PD-only) cannot be compared: refused.
-    arm.baselines.assign(tracking_mse=2e-2).to_csv(f"{folder}/baselines.csv", index=False)
+    # An own cell on other motions (another PD-only, in both its blocks) cannot be compared:
+    # refused.
+    for first in comparison.BLOCKS:
+        record = comparison.record_dir(str(tmp_path), cells[-1].block(first))
+        arm.baselines.assign(tracking_mse=2e-2).to_csv(f"{record}/baselines.csv", index=False)
     with pytest.raises(ValueError, match="jump: the own-supervised cell's PD-only differs"):
         claims.arms(str(tmp_path), robustness)
 
