@@ -38,8 +38,9 @@ class LocomotionReference(NamedTuple):
       foot_force: ``(T+1, 4, 3)`` floor force on each foot (world, N), state ``t`` under ``tau[t]``.
       foot_force_mean: ``(T, 4, 3)`` that force's mean over the physics steps of period ``t``.
       contact: ``(T+1, 4)`` bool, the foot touches the floor.
-      kp: joint gain (N m/rad) of the feedback ``tau[t] + kp (q_ref - q) + kd (qd_ref - qd)``.
-      kd: its derivative gain (N m s/rad).
+      kp: joint gain (N m/rad) of the feedback ``tau[t] + kp (q_ref - q) + kd (qd_ref - qd)``:
+        one for all joints (the Solo12's), or one per joint ``(12,)`` (:meth:`Legs.of`).
+      kd: its derivative gain (N m s/rad), likewise.
       kind: ``"walk"`` or ``"jump"``.
       params: the :class:`WalkParams` or :class:`JumpParams` used, as JSON.
 
@@ -56,8 +57,8 @@ class LocomotionReference(NamedTuple):
     foot_force: np.ndarray
     foot_force_mean: np.ndarray
     contact: np.ndarray
-    kp: float
-    kd: float
+    kp: float | np.ndarray
+    kd: float | np.ndarray
     kind: str
     params: str
 
@@ -160,6 +161,20 @@ def _total_mass(model) -> float:
     return float(np.sum(model.body_mass))
 
 
+def _joint_inertia(model, qpos) -> np.ndarray:
+    """Each joint's effective inertia at ``qpos``: the diagonal of the joint-space mass
+    matrix (armature included) over the joint vector ``qvel[6:]``, the other joints and
+    the base held."""
+    import mujoco
+
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    mujoco.mj_forward(model, data)
+    full = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, full)
+    return np.diag(full)[6:].copy()
+
+
 SOLO12_STANDING_HEIGHT = 0.2384
 """Base height (m) of the Solo12's keyframe ``home``: the length the references' parameters
 (:class:`WalkParams`, :class:`JumpParams`) are given in, scaled for another quadruped."""
@@ -170,15 +185,16 @@ class Legs:
     """What the reference controllers use of a quadruped: its legs' kinematics, gains and
     foot sensors. :meth:`solo12` gives the Solo12's closed forms (its facts sheet);
     :meth:`of` reads any motor-driven quadruped (:func:`cfm_jax.quadruped.describe`) and
-    scales the Solo12's gains to it by dynamic similarity.
+    gives each of its joints the Solo12's closed-loop dynamics at the robot's size.
 
     Attributes:
       model: the ``mujoco.MjModel``, with one contact sensor per foot
         (:func:`cfm_jax.quadruped.with_foot_sensors`).
       nominal: the feet at the standing pose, base frame, ``(4, 3)``.
       foot_radius: each foot's radius ``(4,)`` (m).
-      kp: the joints' PD gain (N m/rad).
-      kd: its derivative gain (N m s/rad).
+      kp: the joints' PD gain (N m/rad): one for all joints, or one per joint ``(12,)``
+        (joint vector order, ``qvel[6:]``).
+      kd: its derivative gain (N m s/rad), likewise.
       scale: the robot's standing height over the Solo12's (:data:`SOLO12_STANDING_HEIGHT`).
       ik: ``ik(foot, leg)``: the leg's joints that put its foot centre at ``foot``.
       fk: ``fk(joints, leg)``: the leg's foot centre, base frame.
@@ -199,8 +215,8 @@ class Legs:
     model: object
     nominal: np.ndarray
     foot_radius: np.ndarray
-    kp: float
-    kd: float
+    kp: float | np.ndarray
+    kd: float | np.ndarray
     scale: float
     ik: object
     fk: object
@@ -243,9 +259,16 @@ class Legs:
     @classmethod
     def of(cls, model) -> Legs:
         """Any motor-driven quadruped's legs (:func:`cfm_jax.quadruped.describe`): numeric
-        leg kinematics on MuJoCo's Jacobians; the Solo12's gains scaled by dynamic
-        similarity (``kp`` with ``M g L``, ``kd`` with ``M L sqrt(g L)``: mass ``M``, leg
-        length ``L``), so that the robot's motions are the Solo12's at its size.
+        leg kinematics on MuJoCo's Jacobians, and gains per joint from the Solo12's joint at
+        the same place in the leg (counted from the foot: knee, hip, abduction). ``kp`` is
+        the larger of the Solo12's ``KP`` scaled by the body's load (``M g L``: mass,
+        gravity, leg length) and the gain that gives the joint the Solo12's joint's natural
+        frequency at the robot's time scale (the square root of :attr:`scale`):
+        ``KP (I / I_solo) / scale``, with ``I`` the joint's effective inertia (the joint-space
+        mass matrix's diagonal at the standing pose, rotor armature included). ``kd`` keeps
+        the Solo12's joint's damping ratio at that ``kp``, the joint's passive damping ``b``
+        (``dof_damping``) counted in: ``kd + b = KD sqrt(kp I / (KP I_solo))``, ``kd`` at
+        least 0. On the Solo12 itself these are its ``KP`` and ``KD``.
 
         Args:
           model: a ``mujoco.MjModel`` with one contact sensor per foot on the ground
@@ -258,8 +281,8 @@ class Legs:
         Examples:
           >>> from cfm_jax import quadruped
           >>> legs = Legs.of(quadruped.with_foot_sensors(solo12.model_path())[0])
-          >>> round(legs.kp, 6), legs.scale  # the Solo12 read as any quadruped
-          (5.0, 1.0)
+          >>> set(legs.kp.tolist()), set(legs.kd.tolist()), legs.scale  # the Solo12's own
+          ({5.0}, {0.1}, 1.0)
         """
         import mujoco
 
@@ -268,14 +291,24 @@ class Legs:
         found = quadruped.describe(model)
         solo = solo12.load_model()
         reference = quadruped.describe(solo)
+        scale = found.standing_height / SOLO12_STANDING_HEIGHT
         g = float(-model.opt.gravity[2])
 
-        def size(robot, mass):
-            length = float(np.mean([leg.length for leg in robot.legs]))
-            return mass * g * length, mass * length * np.sqrt(g * length)
+        def load(robot, mass):  # the body's load on a joint: M g L
+            return mass * g * float(np.mean([leg.length for leg in robot.legs]))
 
-        stiff, damp = size(found, _total_mass(model))
-        stiff0, damp0 = size(reference, _total_mass(solo))
+        similar = load(found, _total_mass(model)) / load(reference, _total_mass(solo))
+        # Each joint against the Solo12's joint at its place from the foot, of the same leg.
+        inertia = _joint_inertia(model, found.standing)
+        inertia0 = _joint_inertia(solo, reference.standing)
+        solo_inertia = np.zeros(model.nv - 6)
+        for leg, leg0 in zip(found.legs, reference.legs, strict=True):
+            n0 = len(leg0.dofs)
+            for j, dof in enumerate(leg.dofs):
+                solo_inertia[dof - 6] = inertia0[leg0.dofs[max(n0 - len(leg.dofs) + j, 0)] - 6]
+        kp = solo12.KP * np.maximum(similar, inertia / solo_inertia / scale)
+        damping = solo12.KD * np.sqrt(kp * inertia / (solo12.KP * solo_inertia))
+        kd = np.maximum(damping - model.dof_damping[6:], 0.0)
         motors = np.full(model.nv - 6, -1)
         for a in range(model.nu):
             if int(model.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
@@ -313,9 +346,9 @@ class Legs:
             model=model,
             nominal=found.feet,
             foot_radius=np.array([leg.foot_radius for leg in found.legs]),
-            kp=solo12.KP * stiff / stiff0,
-            kd=solo12.KD * damp / damp0,
-            scale=found.standing_height / SOLO12_STANDING_HEIGHT,
+            kp=kp,
+            kd=kd,
+            scale=scale,
             ik=lambda foot, leg: found.leg_ik(leg, foot),
             fk=lambda joints, leg: found.foot_position(leg, joints),
             sites=None,
@@ -464,6 +497,8 @@ def _stance_feedforward(sim: _Sim, stance: np.ndarray, weight: float) -> np.ndar
 
 def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT, legs=None):
     """Run the trot controller from the standing pose: ``(LocomotionReference, PhysicsRecording)``.
+    Its feed-forward carries the stance feet's share of the weight and, on joints with
+    passive damping or dry friction (none on the Solo12), their torque along the plan.
 
     Args:
       params: the :class:`WalkParams` (lengths and times of the Solo12; another robot's are
@@ -492,9 +527,9 @@ def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT
     height, swing = params.height * length, params.swing_height * length
     cruise = params.speed * length / clock
     steps = int(round(params.duration / control_dt))
-    x_base = 0.0
-    for step in range(steps):
-        t = step * control_dt
+
+    def plan(t):
+        """The joint targets and the feet in stance at time ``t``."""
         tw = t - stand  # walking clock
         speed = cruise * np.clip(tw / ramp, 0.0, 1.0) if tw > 0 else 0.0
         targets = np.zeros(12)
@@ -515,11 +550,23 @@ def simulate_walk(params: WalkParams, model=None, control_dt: float = CONTROL_DT
                     s = phase - 1.0
                     foot[0] += stride * (0.5 - s)
             targets[legs.dofs[leg]] = legs.ik(foot, leg)
+        return targets, stance
+
+    # The joints' passive torques along the planned motion (none on the Solo12): viscous
+    # damping at the targets' velocity and dry friction against their direction.
+    damping, friction = model.dof_damping[6:], model.dof_frictionloss[6:]
+    passive = bool(damping.any() or friction.any())
+    targets, stance = plan(0.0)
+    for step in range(steps):
         # the first half-cycle: pair 1 (FR+HL) starts in stance, pair 0 swings
         tau = legs.kp * (targets - sim.q) - legs.kd * sim.qd
         tau += _stance_feedforward(sim, stance, weight)
+        upcoming = plan((step + 1) * control_dt)
+        if passive:
+            velocity = (upcoming[0] - targets) / control_dt
+            tau += damping * velocity + friction * np.sign(velocity)
         sim.step(tau)
-        x_base += speed * control_dt
+        targets, stance = upcoming
     rec = sim.recording()
     ref = _to_reference(rec, legs, sim.n_sub, control_dt, "walk", dataclasses.asdict(params))
     return ref, rec
@@ -836,8 +883,9 @@ def _save(ref: LocomotionReference, path: Path) -> None:
 def _load(path: Path) -> LocomotionReference:
     with np.load(path) as z:
         fields = {k: z[k] for k in LocomotionReference._fields}
-    for k in ("control_dt", "kp", "kd"):
-        fields[k] = float(fields[k])
+    fields["control_dt"] = float(fields["control_dt"])
+    for k in ("kp", "kd"):  # one gain, or one per joint
+        fields[k] = float(fields[k]) if fields[k].ndim == 0 else np.array(fields[k])
     for k in ("kind", "params"):
         fields[k] = str(fields[k])
     return LocomotionReference(**fields)
