@@ -15,8 +15,10 @@ What :func:`describe` finds is what ``cfm-jax robot check`` reports for a floati
 :meth:`Quadruped.leg_ik` is any such leg's inverse kinematics (on the Solo12 it gives the
 closed form of :func:`cfm_jax.solo12.leg_ik`), and :func:`with_foot_sensors` gives a file
 without them the ground and the foot contact sensors whose forces the legged tasks put in
-the state. The legged tasks' references still use the Solo12's own kinematics
-(:mod:`cfm_jax.solo12`).
+the state (:func:`cfm_jax.robots.load` adds them to a quadruped's file that lacks them);
+:func:`fall_rule` is the Solo12's fall rule read from any quadruped's model. The legged tasks
+use the Solo12's closed forms (:mod:`cfm_jax.solo12`) on the Solo12 and this module's
+description on any other motor-driven quadruped (:func:`cfm_jax.locomotion.legs_of`).
 """
 
 from __future__ import annotations
@@ -446,3 +448,171 @@ def with_foot_sensors(path: str):
     if again != names:
         raise QuadrupedError(f"its feet {names} were not found again after adding the sensors")
     return model, added
+
+
+@dataclasses.dataclass(frozen=True)
+class FallRule:
+    """When a quadruped has fallen, from its pose alone (traceable under ``jit``/``vmap``):
+    the rule of :func:`cfm_jax.solo12.fell` for any quadruped, its lengths scaled by the
+    robot's standing height over the Solo12's. Fallen: the base origin below
+    ``min_base_height``, the base tilted more than ``max_tilt``, a corner of the base's
+    collision geoms' bounding boxes or a knee (each leg's last joint anchor) less than
+    ``body_clearance`` above the floor, or (given the foot forces) a foot pulling the floor.
+
+    Attributes:
+      corners: the base's points, base frame, ``(k, 3)``: the 8 corners of each collision
+        geom's bounding box (MuJoCo's ``geom_aabb``) of the base body.
+      knees: per leg, what :meth:`knees` composes: ``(qpos address or -1, body position,
+        body rotation, joint anchor, joint axis)`` per step from the base to the knee.
+      min_base_height: lowest base origin height (m).
+      max_tilt: largest angle between the base's and the world's z axes (rad).
+      body_clearance: least height (m) of the base corners and knees above the floor.
+      max_pull: largest downward force (N) a foot may exert on the floor.
+
+    Examples:
+      >>> from cfm_jax import solo12
+      >>> rule = fall_rule(describe(solo12.load_model()), scale=1.0)
+      >>> bool(rule(solo12.load_model().key("home").qpos)), rule.min_base_height
+      (False, 0.1)
+    """
+
+    corners: np.ndarray
+    knees: tuple
+    min_base_height: float
+    max_tilt: float
+    body_clearance: float
+    max_pull: float
+
+    def knee_positions(self, qpos, xp=np):
+        """The four knees (each leg's last joint anchor), base frame, ``(..., 4, 3)``.
+
+        Args:
+          qpos: ``(..., nq)`` positions.
+          xp: the array module, ``numpy`` or ``jax.numpy``.
+
+        Examples:
+          >>> from cfm_jax import solo12
+          >>> rule = fall_rule(describe(solo12.load_model()), scale=1.0)
+          >>> np.round(rule.knee_positions(solo12.load_model().key("home").qpos)[:, 2], 4)
+          array([-0.1115, -0.1115, -0.1115, -0.1115])
+        """
+        out = []
+        for steps in self.knees:
+            position = xp.zeros(qpos.shape[:-1] + (3,), dtype=qpos.dtype)
+            rotation = xp.broadcast_to(xp.eye(3, dtype=qpos.dtype), qpos.shape[:-1] + (3, 3))
+            anchor = None
+            for address, body_pos, body_rot, anchor, axis in steps:
+                if address < 0:  # a body: its pose in its parent's frame
+                    position = position + xp.einsum("...ij,j->...i", rotation, body_pos)
+                    rotation = xp.einsum("...ij,jk->...ik", rotation, body_rot)
+                    continue
+                # a hinge about ``axis`` through ``anchor`` (the body's frame)
+                turn = _rotation(axis, qpos[..., address], xp)
+                shift = anchor - xp.einsum("...ij,j->...i", turn, anchor)
+                position = position + xp.einsum("...ij,...j->...i", rotation, shift)
+                rotation = xp.einsum("...ij,...jk->...ik", rotation, turn)
+            out.append(position + xp.einsum("...ij,j->...i", rotation, anchor))
+        return xp.stack(out, axis=-2)
+
+    def __call__(self, qpos, foot_force=None, xp=np):
+        """Where the robot has fallen, ``(...)`` bool (the rule: the class docstring).
+
+        Args:
+          qpos: ``(..., nq)`` positions (base pose first).
+          foot_force: ``(..., 4, 3)`` floor forces on the feet (world frame), or None.
+          xp: the array module, ``numpy`` or ``jax.numpy``.
+        """
+        from cfm_jax import solo12
+
+        qpos = np.asarray(qpos, float) if xp is np else xp.asarray(qpos)
+        quat = qpos[..., 3:7] / xp.linalg.norm(qpos[..., 3:7], axis=-1, keepdims=True)
+        up = solo12.quat_to_mat(quat, xp=xp)[..., 2, :]  # world z of the base's axes
+        height = qpos[..., 2]
+        corners = xp.asarray(self.corners, dtype=qpos.dtype)
+        lowest = xp.min(height[..., None] + xp.einsum("kj,...j->...k", corners, up), axis=-1)
+        knee_z = height[..., None] + xp.einsum(
+            "...j,...kj->...k", up, self.knee_positions(qpos, xp)
+        )
+        lowest = xp.minimum(lowest, xp.min(knee_z, axis=-1))
+        out = (
+            (height < self.min_base_height)
+            | (xp.arccos(xp.clip(up[..., 2], -1.0, 1.0)) > self.max_tilt)
+            | (lowest < self.body_clearance)
+        )
+        if foot_force is not None:
+            out = out | xp.any(xp.asarray(foot_force)[..., 2] < -self.max_pull, axis=-1)
+        return xp.asarray(out)
+
+
+def _rotation(axis, angle, xp):
+    """Rotation matrices about the unit ``axis`` by ``angle`` ``(...)``: ``(..., 3, 3)``."""
+    x, y, z = (float(a) for a in axis)
+    cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    s, c = xp.sin(angle)[..., None, None], xp.cos(angle)[..., None, None]
+    return np.eye(3) + s * cross + (1.0 - c) * (cross @ cross)
+
+
+def fall_rule(robot: Quadruped, scale: float, limits=None) -> FallRule:
+    """The :class:`FallRule` of ``robot``: the Solo12's limits (``limits``, None:
+    :data:`cfm_jax.solo12.FALL`) with the base height and the body clearance times
+    ``scale`` (the robot's standing height over the Solo12's), the base corners from its
+    collision geoms and the knees from its kinematic tree.
+
+    Args:
+      robot: a :class:`Quadruped` (:func:`describe`).
+      scale: the length scale to the Solo12.
+      limits: a :class:`cfm_jax.solo12.FallLimits` to scale.
+
+    Examples:
+      >>> from cfm_jax import solo12
+      >>> fall_rule(describe(solo12.load_model()), scale=2.0).min_base_height
+      0.2
+    """
+    import mujoco
+
+    from cfm_jax import solo12
+
+    limits = solo12.FALL if limits is None else limits
+    model = robot.model
+    base = model.body(robot.base).id
+    touching = [
+        g
+        for g in range(model.ngeom)
+        if int(model.geom_bodyid[g]) == base
+        and (model.geom_contype[g] or model.geom_conaffinity[g])
+    ]
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    corners = [np.zeros((1, 3))]  # the base origin where the base has no collision geom
+    for g in touching:
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, model.geom_quat[g])
+        local = model.geom_aabb[g, :3] + signs * model.geom_aabb[g, 3:]
+        corners.append(model.geom_pos[g] + local @ rot.reshape(3, 3).T)
+    corners = np.concatenate(corners[1:] or corners)
+    knees = []
+    for leg in robot.legs:
+        last = model.joint(leg.joints[-1]).id
+        chain, body = [], int(model.jnt_bodyid[last])
+        while body != base:
+            chain.append(body)
+            body = int(model.body_parentid[body])
+        steps = []
+        for body in reversed(chain):
+            rot = np.zeros(9)
+            mujoco.mju_quat2Mat(rot, model.body_quat[body])
+            steps.append((-1, np.array(model.body_pos[body]), rot.reshape(3, 3), None, None))
+            first, count = int(model.body_jntadr[body]), int(model.body_jntnum[body])
+            for j in range(first, first + count):
+                steps.append((int(model.jnt_qposadr[j]), None, None,
+                              np.array(model.jnt_pos[j]), np.array(model.jnt_axis[j])))  # fmt: skip
+                if j == last:
+                    break
+        knees.append(tuple(steps))
+    return FallRule(
+        corners=corners,
+        knees=tuple(knees),
+        min_base_height=limits.min_base_height * scale,
+        max_tilt=limits.max_tilt,
+        body_clearance=limits.body_clearance * scale,
+        max_pull=limits.max_pull,
+    )

@@ -101,9 +101,12 @@ def _legs_lines(robot: Robot) -> list[str]:
         found = quadruped.describe(robot.mj_model)
     except quadruped.QuadrupedError as error:
         return [f"quadruped: no: {error}"]
-    return ["quadruped: yes, read from the file (cfm_jax.quadruped):"] + [
-        "  " + line for line in found.summary().splitlines()
-    ]
+    added = [f"  added at load time: {what}" for what in robot.added]
+    return (
+        ["quadruped: yes, read from the file (cfm_jax.quadruped):"]
+        + ["  " + line for line in found.summary().splitlines()]
+        + added
+    )
 
 
 SMALL_RANGE = 0.2

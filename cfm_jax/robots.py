@@ -95,7 +95,8 @@ class Robot:
       torque_limit: ``(action_dim,)`` symmetric torque limit per actuated joint (N m or N).
       gear: ``(action_dim,)`` actuator gear per actuated joint; ``ctrl = tau / gear``.
       actuator_of_joint: ``(action_dim,)`` index of the actuator of each actuated joint.
-      home: ``(nq,)`` the keyframe ``home`` if present, else ``qpos0``.
+      home: ``(nq,)`` the keyframe ``home`` if present, else (a quadruped) its standing
+        pose (:func:`cfm_jax.quadruped.describe`), else ``qpos0``.
       actuated_dofs: ``(action_dim,)`` dof (``qvel``) index of each actuated joint.
       floating_base: whether the root is a free joint (not actuated).
       actuators: how the file's actuators were taken, one of :data:`ACTUATORS`.
@@ -104,6 +105,8 @@ class Robot:
       held_joints: joints coupled by an equality constraint, not driven (:func:`held_joints`).
       passive_joints: hinge/slide joints with no actuator and no coupling.
       hold_ctrl: ``(nu,)`` set points of the held joints' actuators; None if nothing is held.
+      added: what loading added to the file, in words: a quadruped's ground plane and foot
+        contact sensors where it lacks them (:func:`cfm_jax.quadruped.with_foot_sensors`).
 
     Examples:
       >>> load("two_link_arm").torque_limit.tolist()
@@ -127,6 +130,7 @@ class Robot:
     held_joints: tuple[str, ...] = ()
     passive_joints: tuple[str, ...] = ()
     hold_ctrl: np.ndarray | None = None
+    added: tuple[str, ...] = ()
 
     @property
     def nq(self) -> int:
@@ -521,6 +525,25 @@ def convert(path: str, model, torque_limit=None, where: str = "robot", keep=()):
         raise RobotError(f"{where}: the converted model does not compile: {error}") from error
 
 
+def _as_quadruped(path: str, model, sensors: bool = True):
+    """``(model, added, standing)``: a quadruped's model with (``sensors``) the ground and
+    the foot contact sensors the legged tasks read (:func:`cfm_jax.quadruped.with_foot_sensors`;
+    ``model`` itself where it has them), what was added and its standing pose; any other
+    model as it is, ``()`` and None."""
+    from cfm_jax import quadruped
+
+    try:
+        found = quadruped.describe(model)
+        if not sensors:
+            return model, (), found.standing
+        sensed, added = quadruped.with_foot_sensors(path)
+    except (quadruped.QuadrupedError, ValueError):
+        return model, (), None  # not a quadruped (or its keyframes do not compile alone)
+    if added:
+        model, found = sensed, quadruped.describe(sensed)
+    return model, tuple(added), found.standing
+
+
 def compile_file(path: str):
     """``mujoco.MjModel`` of an MJCF file, without keyframe ``ctrl``/``act`` that do not fit.
 
@@ -712,6 +735,10 @@ def load(
             previous(message)
         else:
             print(f"WARNING: {message}\n")
+    # A quadruped gets its ground and foot sensors (not a converted one: the legged tasks,
+    # which read them, simulate their references from the file and refuse it) and, without
+    # a keyframe 'home', its standing pose as home.
+    model, added, standing = _as_quadruped(path, model, sensors=actuators != "torque")
     servos = {}
     held, keep = held_joints(model)
     if actuators == "torque":
@@ -808,6 +835,8 @@ def load(
     )
     key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
     home = model.key_qpos[key].copy() if key >= 0 else model.qpos0.copy()
+    if key < 0 and standing is not None:
+        home = standing.copy()
     joint_names = tuple(
         mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}"
         for j in range(model.njnt)
@@ -838,6 +867,7 @@ def load(
         held_joints=tuple(joint_names[j] for j in sorted(held)),
         passive_joints=tuple(joint_names[int(model.dof_jntid[d])] for d in passive),
         hold_ctrl=hold_ctrl,
+        added=tuple(added),
     )
     # Build the device copy now, never inside a jit trace. A model MJX cannot build still
     # loads: the native simulator runs it, and whatever needs MJX raises the RobotError.

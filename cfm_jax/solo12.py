@@ -75,8 +75,10 @@ KINEMATICS_TOLERANCE = 1e-6
 
 
 def check_model(model, name: str = "solo12") -> None:
-    """Check that ``model`` is built like the Solo12 (as the legged tasks assume): free base,
-    :data:`JOINTS`, 12 actuators, feet and knees where :func:`leg_fk`, :func:`knee_positions` say.
+    """Check that ``model`` is built like the Solo12 (where the legged tasks use this module's
+    closed forms, :func:`cfm_jax.locomotion.legs_of`; any other quadruped is read from its
+    file): free base, :data:`JOINTS`, 12 actuators, feet and knees where :func:`leg_fk`,
+    :func:`knee_positions` say.
 
     Args:
       model: a ``mujoco.MjModel``; masses, inertias, friction, gains and timestep may differ.
@@ -92,8 +94,8 @@ def check_model(model, name: str = "solo12") -> None:
 
     def fail(what: str) -> None:
         raise ConfigError(
-            f"robot {name!r} is not allowed for the legged tasks: they generate their "
-            f"references with the Solo12's leg kinematics (cfm_jax.solo12), and {what}"
+            f"robot {name!r} is not built like the Solo12 (the closed-form kinematics of "
+            f"cfm_jax.solo12 do not apply to it): {what}"
         )
 
     if model.nq != 19 or model.nv != 18 or model.nu != 12:

@@ -110,24 +110,28 @@ def test_config_output_round_trips_through_config(tmp_path, monkeypatch, capsys)
 
 
 @pytest.mark.parametrize(
-    ("task", "robot", "reason"),
+    ("task", "robot", "actuators", "reason"),
     [
         # An arm for a legged task: no floating base (tasks/legged.py's fits).
-        ("walk", "iiwa14", "need a floating base"),
-        # A published quadruped other than the Solo12: not the Solo12's legs.
-        ("jump", "tests/robots/quadrupeds/go2.xml", "is not allowed for the legged tasks"),
+        ("walk", "iiwa14", "strict", "need a floating base"),
+        # A published quadruped driven by position servos, converted at load time: its
+        # references are simulated from the file, whose actuators are servos.
+        ("jump", "tests/robots/quadrupeds/anymal_c.xml", "torque", "must be motors in the file"),
         # A planar arm for the op-space task: no 3-D site to control.
-        ("opspace", "two_link_arm", None),
+        ("opspace", "two_link_arm", "strict", None),
     ],
 )
-def test_config_refuses_a_robot_its_task_cannot_run_on(task, robot, reason, monkeypatch, capsys):
+def test_config_refuses_a_robot_its_task_cannot_run_on(
+    task, robot, actuators, reason, monkeypatch, capsys
+):
     """``cfm-jax config`` refuses, in one line and before any training, what ``cfm-jax robot
     check`` reports the task cannot run on, with the same reason."""
     from cfm_jax import robot_check
 
-    why = robot_check.check(robot).tasks[task]
+    why = robot_check.check(robot, actuators=actuators).tasks[task]
     assert why is not None and (reason is None or reason in why)
-    monkeypatch.setattr(sys, "argv", ["cfm-jax", "config", "--task", task, "--robot", robot])
+    argv = ["cfm-jax", "config", "--task", task, "--robot", robot]
+    monkeypatch.setattr(sys, "argv", argv + ["--robot-actuators", actuators])
     with pytest.raises(SystemExit) as exit_info:
         cli.main()
     captured = capsys.readouterr()

@@ -15,12 +15,16 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 
 import cfm_jax
 from cfm_jax import algorithm, locomotion, robots, rollout, solo12, tasks, training
 from cfm_jax import config as config_lib
+from cfm_jax.tasks import legged
+
+QUADRUPEDS = Path(__file__).parent / "robots" / "quadrupeds"
 
 
 @pytest.fixture(scope="module")
@@ -221,11 +225,12 @@ def test_motion_family_selection_follows_the_selection_gait(solo):
         config_lib.TaskConfig(name="walk", motion_family="train")
 
 
-def test_legged_tasks_refuse_legs_other_than_the_solo12s(tmp_path):
-    """The references are generated with the Solo12's closed-form leg kinematics, so a
-    robot whose legs differ is refused with what differs (a front-left shin 1 cm longer, a
-    joint renamed); a Solo12 with other physics (friction, a heavier base) is accepted. The
-    oracle of what differs is MuJoCo's own kinematics of the edited file."""
+def test_a_quadruped_whose_legs_are_not_the_solo12s_is_read_from_its_file(tmp_path):
+    """The Solo12's closed-form legs serve a robot whose kinematics are the Solo12's (a
+    Solo12 with other physics: friction); any other quadruped (a front-left shin 1 cm
+    longer, a joint renamed) is read from its file (locomotion.Legs.of) and its references
+    made with its own kinematics. The oracle of what differs is MuJoCo's own kinematics of
+    the edited file: the longer shin's foot stands 1 cm lower than the closed form's."""
     text = Path(solo12.model_path()).read_text()
     knee = '<body name="FL_lower_leg" pos="0 0.03745 -0.16">'
     assert text.count(knee) == 1 and text.count('friction="1.0 ') == 2
@@ -236,12 +241,58 @@ def test_legged_tasks_refuse_legs_other_than_the_solo12s(tmp_path):
     }
     for name, edited in edits.items():
         (tmp_path / name).write_text(edited)
-    longer = robots.load(str(tmp_path / "longer_shin.xml"))
-    with pytest.raises(config_lib.ConfigError, match=r"legged tasks: .* its FL foot lies 0.0"):
-        tasks.make(longer, config_lib.TaskConfig(name="walk", control_dt=0.004), 0.004)
     with pytest.raises(config_lib.ConfigError, match=r"its joints are .*'HR_knee'"):
         solo12.check_model(robots.load(str(tmp_path / "renamed.xml")).mj_model, "renamed")
     solo12.check_model(robots.load(str(tmp_path / "slippery.xml")).mj_model)  # accepted
+    assert legged.legs_of(robots.load(str(tmp_path / "slippery.xml"))).sites is not None
+    longer = robots.load(str(tmp_path / "longer_shin.xml"))
+    legs = legged.legs_of(longer)
+    assert legs.sites is None  # read from the file, not the Solo12's closed forms
+    moved = legs.nominal - solo12.hip_positions()
+
+    def fl_foot(model):  # MuJoCo's kinematics at the keyframe, base at the origin, level
+        data = mujoco.MjData(model)
+        data.qpos[:] = model.key("home").qpos
+        data.qpos[:3], data.qpos[3:7] = 0.0, (1.0, 0.0, 0.0, 0.0)
+        mujoco.mj_kinematics(model, data)
+        return data.geom_xpos[model.geom("FL_foot").id].copy()
+
+    expected = fl_foot(longer.mj_model) - fl_foot(solo12.load_model())
+    assert np.linalg.norm(expected) == pytest.approx(0.01)  # the shin's extra centimetre
+    np.testing.assert_allclose(moved[0], expected, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(moved[1:], 0.0, atol=1e-9)
+    assert legged.fits(longer) == ""  # MJX builds it: the defaults run
+
+
+def test_a_published_quadruped_runs_the_walk_with_its_oracle_on_the_reference():
+    """The Unitree Go2 as MuJoCo Menagerie publishes it (no ground, no foot sensors; loading
+    adds them): the walk task reads its legs, feet and fall rule from the file, and its
+    baselines roll out on the native simulator: the oracle (the reference's own feed-forward
+    and PD) retraces the recorded reference to round-off and does not fall; PD-only, the
+    feedback alone, tracks worse. MJX cannot build the Go2 (cylinder-box collisions), which
+    robot check and ``fits`` say: the defaults' rigid-body forward model needs it."""
+    from tiny import tiny_config
+
+    go2 = robots.load(str(QUADRUPEDS / "go2.xml"))
+    assert go2.added == (
+        "a ground plane 'floor' at z = 0",
+        "a contact sensor per foot (FL: FL, FR: FR, HL: RL, HR: RR on 'floor')",
+    )
+    np.testing.assert_array_equal(go2.home, go2.mj_model.key("home").qpos)
+    assert "forward.kind='rigid_body' needs MJX" in legged.fits(go2)
+    config = tiny_config(iterations=1, seeds=1).replace(
+        robot=str(QUADRUPEDS / "go2.xml"),
+        task=config_lib.TaskConfig(name="walk", desired="pd", kp=100.0, kd=20.0, motions=(0.3,)),
+    )
+    experiment = training.Experiment(config)
+    task = experiment.task
+    # the feet's sensors in the legs' order FL, FR, HL, HR, as loading added them
+    adr = [go2.mj_model.sensor(f"{leg}_contact").adr[0] for leg in ("FL", "FR", "HL", "HR")]
+    np.testing.assert_array_equal(task.sensor_rows.reshape(4, 10)[:, 0], adr)
+    assert task.gain_p.shape == (12,)  # the Go2's per-joint reference gains
+    base = experiment.baselines().set_index("baseline")
+    assert base.loc["oracle", "tracking_mse"] < 1e-10 and base.loc["oracle", "fell"] == 0
+    assert base.loc["pd_only", "tracking_mse"] > 1e3 * base.loc["oracle", "tracking_mse"]
 
 
 @pytest.mark.parametrize("name", ["jump", "walk"])

@@ -124,6 +124,7 @@ def test_robot_check_reports_the_legs_it_read():
     assert "quadruped: yes, read from the file" in text
     assert "FL: joints FL_hip_joint, FL_thigh_joint, FL_calf_joint; foot FL" in text
     assert "HL: joints RL_hip_joint" in text and "standing pose: keyframe 'home'" in text
+    assert "added at load time: a ground plane 'floor' at z = 0" in text  # Menagerie's has none
 
 
 def test_the_numeric_leg_ik_is_the_solo12_closed_form():
@@ -278,3 +279,44 @@ def test_a_published_quadruped_trots_forward_from_its_file():
     # The diagonal pairs alternate (FL+HR, then FR+HL).
     pairs = {(1, 0, 0, 1), (0, 1, 1, 0)}
     assert pairs <= {tuple(c) for c in walk.contact.astype(int)}
+
+
+def test_the_fall_rule_of_any_quadruped_finds_its_knees_as_mujoco_does():
+    """quadruped.fall_rule reads a quadruped's knees (each leg's last joint anchor) from its
+    kinematic tree: on the Solo12 they are the closed form's (solo12.knee_positions), on the
+    Go2 MuJoCo's own joint anchors (mj_kinematics), at random joint angles. The rule's
+    verdicts follow it: standing is no fall; the Go2 lowered until a knee is at the floor, or
+    tipped past max_tilt, has fallen, as has a foot pulling the floor."""
+    rng = np.random.default_rng(0)
+    solo = solo12.load_model()
+    rule = quadruped.fall_rule(quadruped.describe(solo), scale=1.0)
+    qpos = np.tile(solo.key("home").qpos, (20, 1))
+    qpos[:, 7:] += rng.normal(0.0, 0.5, (20, 12))
+    np.testing.assert_allclose(
+        rule.knee_positions(qpos), solo12.knee_positions(qpos[:, 7:]), rtol=0, atol=1e-12
+    )
+    model, _ = quadruped.with_foot_sensors(str(QUADRUPEDS / "go2.xml"))
+    go2 = quadruped.describe(model)
+    scale = go2.standing_height / locomotion.SOLO12_STANDING_HEIGHT
+    rule = quadruped.fall_rule(go2, scale=scale)
+    data = mujoco.MjData(model)
+    for _ in range(10):
+        data.qpos[:] = go2.standing
+        data.qpos[:3], data.qpos[3:7] = 0.0, (1.0, 0.0, 0.0, 0.0)  # base frame = world
+        data.qpos[7:] += rng.normal(0.0, 0.5, 12)
+        mujoco.mj_kinematics(model, data)
+        anchors = [data.xanchor[model.joint(leg.joints[-1]).id] for leg in go2.legs]
+        np.testing.assert_allclose(rule.knee_positions(data.qpos.copy()), anchors, atol=1e-12)
+    standing = go2.standing.copy()
+    assert not rule(standing)
+    knees = rule.knee_positions(standing)
+    low = standing.copy()
+    low[2] = -knees[:, 2].min() + 0.5 * rule.body_clearance  # the lowest knee at the floor
+    assert rule(low) and low[2] > rule.min_base_height  # the knees decide, not the height
+    tipped = standing.copy()
+    tipped[3:7] = (np.cos(0.45), np.sin(0.45), 0.0, 0.0)  # rolled 0.9 rad > max_tilt 0.8
+    assert rule(tipped)
+    pulling = np.zeros((4, 3))
+    pulling[2, 2] = -1.0
+    assert rule(standing, foot_force=pulling) and not rule(standing, foot_force=-pulling)
+    assert rule.min_base_height == pytest.approx(0.10 * scale)

@@ -3,10 +3,12 @@ recorded reference motions, with foot contact forces in its state."""
 
 from __future__ import annotations
 
+import functools
+
 import jax.numpy as jnp
 import numpy as np
 
-from cfm_jax import babbling, locomotion, solo12
+from cfm_jax import babbling, locomotion, quadruped, solo12
 from cfm_jax.config import (
     Config,
     ConfigError,
@@ -40,13 +42,17 @@ CONVERTED_REFUSED = (
 
 class LeggedTask(JointSpaceTask):
     """Legged locomotion (``walk``, ``jump``; paper section IV-B; docs/locomotion.md) for a
-    floating-base robot with one contact sensor per foot (:func:`cfm_jax.solo12.foot_forces`).
+    quadruped with one contact sensor per foot (:func:`cfm_jax.solo12.foot_forces`; a file
+    without them is given them when loaded, :func:`cfm_jax.quadruped.with_foot_sensors`).
 
     State ``[qpos, f, qvel]`` (``f``: mean foot forces of the last period), output ``[qacc dt, f]``,
-    ``qacc* = qacc_ref + kp e + kd (qvel_ref - qvel)``; a fall (:attr:`FALL_LIMITS`) is terminal.
+    ``qacc* = qacc_ref + kp e + kd (qvel_ref - qvel)``; a fall (:attr:`fall`) is terminal. The
+    robot is read through :func:`cfm_jax.locomotion.legs_of`: the Solo12's closed forms, or any
+    motor-driven quadruped's description, whose references are the Solo12's scaled to it.
 
     Args:
-      robot: a floating-base :class:`cfm_jax.robots.Robot` (:func:`cfm_jax.solo12.check_model`).
+      robot: a quadruped :class:`cfm_jax.robots.Robot` (:func:`cfm_jax.quadruped.describe`)
+        with a torque motor on each leg joint.
       task: the :class:`cfm_jax.config.TaskConfig`; ``motions`` None: the 5 test references;
         ``duration`` is not used, ``targets`` and ``home`` must be None.
       control_dt: control period (s), at most :attr:`MAX_CONTROL_DT`.
@@ -67,18 +73,14 @@ class LeggedTask(JointSpaceTask):
     output_unit = "(m/s, rad/s)$^2$ and N$^2$"
     metric_names = ("force_mse", "fell", "base_position_mse", "base_orientation_mse")
     MAX_CONTROL_DT = 0.004
-    FALL_LIMITS = solo12.FALL  # the rule of the metric ``fell`` and of terminal steps
 
     def __init__(self, robot, task: TaskConfig, control_dt: float):
-        import mujoco
-
         self.name = task.name
         if not robot.floating_base:
             raise ConfigError(
                 f"task.name={task.name!r} is not allowed for robot {robot.name!r}: it needs a "
                 "legged robot with a floating base (for example robot='solo12')"
             )
-        solo12.check_model(robot.mj_model, robot.name)
         others = getattr(robot, "held_joints", ()) + getattr(robot, "passive_joints", ())
         if others:
             raise ConfigError(
@@ -94,19 +96,7 @@ class LeggedTask(JointSpaceTask):
                 f"legged references need {self.MAX_CONTROL_DT} s (250 Hz, the paper's rate) or "
                 "a smaller multiple of the robot's timestep"
             )
-        model = robot.mj_model
-        contact = int(mujoco.mjtSensor.mjSENS_CONTACT)
-        feet = [
-            int(model.sensor_adr[i])
-            for i in range(model.nsensor)
-            if int(model.sensor_type[i]) == contact and int(model.sensor_dim[i]) == 10
-        ]
-        if len(feet) == 0:
-            raise ConfigError(
-                f"task.name={task.name!r} is not allowed for robot {robot.name!r}: it needs one "
-                '<contact> sensor per foot with data="found force normal tangent" (see '
-                "robots/solo12.xml)"
-            )
+        self.legs = legs_of(robot, f"task.name={task.name!r} is not allowed for robot")
         for field in ("targets", "home"):
             if getattr(task, field) is not None:
                 raise ConfigError(
@@ -115,8 +105,9 @@ class LeggedTask(JointSpaceTask):
                     "recorded references, cfm_jax.locomotion.WALK_DURATIONS / JUMP_HEIGHTS)"
                 )
         self.robot = robot
-        self.sensor_rows = np.concatenate([np.arange(a, a + 10) for a in feet])
-        self.feet = len(feet)
+        self.sensor_rows = np.asarray(self.legs.sensor_rows)  # FL, FR, HL, HR
+        self.feet = len(self.legs.foot_geoms)
+        self.fall = fall_rule(robot, self.legs)  # the metric ``fell``, and terminal steps
         kwargs = dict(control_dt=control_dt, model_file=robot.path)
         if task.motion_family == "selection":
             kwargs.update(locomotion.SELECTION_MOTIONS[task.name])
@@ -130,8 +121,9 @@ class LeggedTask(JointSpaceTask):
         self.reference = as_jax_legged(refs)
         self.control_dt = float(control_dt)
         self.__dict__.update(self._desired_gains(task))
-        self.gain_p = jnp.float32(refs[0].kp)
-        self.gain_d = jnp.float32(refs[0].kd)
+        # the references' joint PD: one gain (the Solo12's), or one per joint (Legs.of)
+        self.gain_p = jnp.asarray(refs[0].kp, jnp.float32)
+        self.gain_d = jnp.asarray(refs[0].kd, jnp.float32)
         nq, nv, na = robot.nq, robot.nv, robot.action_dim
         self.targets, self.steps = len(refs), max(r.horizon for r in refs)
         forces = 3 * self.feet
@@ -257,7 +249,7 @@ class LeggedTask(JointSpaceTask):
         return error * ref_next.active  # beyond the horizon: no error
 
     def record(self, step, tau, qpos_next, qvel_next, features_next):
-        fell = solo12.fell(qpos_next, limits=self.FALL_LIMITS, xp=jnp)
+        fell = self.fall(qpos_next, xp=jnp)
         return {
             "active": step.reference.active > 0,
             "force_error": features_next - step.reference.force,
@@ -311,15 +303,61 @@ class LeggedTask(JointSpaceTask):
         return policy
 
 
+def legs_of(robot, refused: str = "the legged tasks cannot use robot") -> locomotion.Legs:
+    """The :class:`cfm_jax.locomotion.Legs` the references of ``robot`` are made with.
+
+    Args:
+      robot: a :class:`cfm_jax.robots.Robot`.
+      refused: the start of the error's message.
+
+    Raises:
+      ConfigError: ``robot`` is not a quadruped with a torque motor per joint and a contact
+        sensor per foot; the message says what was found.
+
+    Examples:
+      >>> legs_of(cfm_jax.robots.load("solo12")).kp  # the Solo12's closed forms
+      5.0
+    """
+    try:
+        return locomotion.legs_of(robot.mj_model)
+    except quadruped.QuadrupedError as error:
+        raise ConfigError(f"{refused} {robot.name!r}: {error}") from None
+
+
+def fall_rule(robot, legs: locomotion.Legs):
+    """``fell(qpos, foot_force=None, xp=np)`` of ``robot``: the Solo12's :func:`cfm_jax.solo12.fell`
+    (:data:`cfm_jax.solo12.FALL`) where its kinematics are the Solo12's, else the same rule
+    read from the robot's model (:func:`cfm_jax.quadruped.fall_rule`, lengths scaled by
+    ``legs.scale``).
+
+    Args:
+      robot: a quadruped :class:`cfm_jax.robots.Robot`.
+      legs: its :class:`cfm_jax.locomotion.Legs` (:func:`legs_of`).
+
+    Examples:
+      >>> solo = cfm_jax.robots.load("solo12")
+      >>> bool(fall_rule(solo, legs_of(solo))(solo.home))
+      False
+    """
+    try:
+        solo12.check_model(robot.mj_model, robot.name)
+    except ConfigError:
+        return quadruped.fall_rule(quadruped.describe(robot.mj_model), legs.scale)
+    return functools.partial(solo12.fell, limits=solo12.FALL)
+
+
 def fits(robot) -> str:
     """Whether the legged tasks can run on ``robot`` (``cfm-jax robot check``).
 
     Args:
       robot: a :class:`cfm_jax.robots.Robot`.
 
+    Returns:
+      ``""``, or a note where the task runs but not with its defaults.
+
     Raises:
-      ConfigError: no floating base, not the Solo12's joints and feet, or servos converted
-        at load time.
+      ConfigError: no floating base, not a quadruped with a torque motor per joint and a
+        contact sensor per foot, or servos converted at load time.
 
     Examples:
       >>> fits(cfm_jax.robots.load("solo12"))
@@ -327,9 +365,14 @@ def fits(robot) -> str:
     """
     if not robot.floating_base:
         raise ConfigError("the legged tasks need a floating base (a free joint at the root)")
-    solo12.check_model(robot.mj_model, robot.name)
     if robot.converted:
         raise ConfigError(CONVERTED_REFUSED)
+    legs_of(robot)
+    if robot.mjx_error is not None:  # the defaults' rigid-body forward model runs on MJX
+        return (
+            "not with its defaults: forward.kind='rigid_body' needs MJX, which cannot build "
+            "this model (see above); forward.kind='mlp' runs on the native simulator"
+        )
     return ""
 
 
