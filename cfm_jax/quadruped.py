@@ -7,9 +7,11 @@ the base's children; its foot is the lowest sphere among the collision geoms (th
 contype or conaffinity, or in a ``<contact><pair>``) of the chain's last body and below (else
 its lowest collision geom) at the standing pose; legs are named by where their
 feet stand, front/hind (``F``/``H``) along the base's x axis and left/right (``L``/``R``)
-along its y axis. The standing pose is the keyframe ``home`` (else the file's first keyframe),
-or, in a file without one, the model's ``qpos0`` joints with the base raised until its lowest
-foot touches the ground plane z = 0.
+along its y axis (read at ``qpos0``, base level, where the file has no keyframe). The standing
+pose is the keyframe ``home`` (else the file's first keyframe), or, in a file without one,
+computed from the model alone: each foot under its hip, the Solo12's fraction of the leg's
+reach below it (:func:`standing_depth`), the knee bent toward the body's middle where its
+range allows, the base level and raised until the feet touch the ground plane z = 0.
 
 What :func:`describe` finds is what ``cfm-jax robot check`` reports for a floating-base robot;
 :meth:`Quadruped.leg_ik` is any such leg's inverse kinematics (on the Solo12 it gives the
@@ -24,6 +26,7 @@ description on any other motor-driven quadruped (:func:`cfm_jax.locomotion.legs_
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -280,10 +283,23 @@ def describe(model) -> Quadruped:
             f"(bodies and their joints: {found}); a quadruped has four legs"
         )
     qpos, label = _standing(model)
-    standing_from = f"keyframe {label!r}" if label is not None else None
+    if label is not None:
+        return _read(model, base, chains, qpos, f"keyframe {label!r}")
+    # No keyframe: the legs read at qpos0 (base level, lowest foot on the ground), then
+    # each foot placed under its hip at the Solo12's depth and read again there.
+    qpos[3:7] = (1.0, 0.0, 0.0, 0.0)
+    rough = _read(model, base, chains, qpos, "qpos0")
+    return _read(model, base, chains, *_computed_standing(rough))
+
+
+def _read(model, base: int, chains: dict, qpos: np.ndarray, standing_from: str) -> Quadruped:
+    """The :class:`Quadruped` of ``model``'s legs ``chains`` at pose ``qpos``; a pose not
+    from a keyframe (``standing_from`` not ``keyframe ...``) has its base raised or lowered
+    until its lowest foot touches the ground z = 0."""
+    import mujoco
+
+    qpos = np.array(qpos, dtype=float)
     data = mujoco.MjData(model)
-    if label is None:
-        qpos[3:7] = (1.0, 0.0, 0.0, 0.0)
     data.qpos[:] = qpos
     mujoco.mj_kinematics(model, data)
 
@@ -332,10 +348,9 @@ def describe(model) -> Quadruped:
                 length=length,
             )
         )
-    if label is None:  # raise the base until the lowest foot touches z = 0
+    if not standing_from.startswith("keyframe"):  # the lowest foot on the ground z = 0
         lowest = min(float(data.geom_xpos[leg["foot_id"]][2]) - leg["foot_radius"] for leg in legs)
         qpos[2] -= lowest
-        standing_from = "computed: qpos0's joints, the lowest foot on the ground z = 0"
     named = {}
     for leg in legs:
         x, y = leg["foot"][0], leg["foot"][1]
@@ -356,6 +371,101 @@ def describe(model) -> Quadruped:
         standing=qpos,
         standing_from=standing_from,
         model=model,
+    )
+
+
+@functools.cache
+def standing_depth() -> float:
+    """The Solo12's standing depth as a fraction of its legs' reach: at its keyframe
+    ``home`` each foot centre stands this fraction of the leg's reach (the chain's length
+    from the hip, the leg's second-to-last joint, to the foot centre) below its hip
+    (0.2229 m of 0.3246 m). A quadruped without keyframe stands at this depth
+    (:func:`describe`).
+
+    Examples:
+      >>> round(standing_depth(), 4)
+      0.6869
+    """
+    from cfm_jax import solo12
+
+    solo = describe(solo12.load_model())
+    return float(np.mean([depth / reach for depth, reach in _hip_depths(solo)]))
+
+
+def _hip_depths(robot: Quadruped) -> list[tuple[float, float]]:
+    """Per leg ``(depth, reach)`` at the standing pose: its foot centre's depth below its
+    hip (the anchor of its second-to-last joint; its only joint's for a one-joint leg) and
+    the chain's length from the hip to the foot centre."""
+    out = []
+    for leg in range(4):
+        points = _hip_to_foot(robot, leg, robot.standing[list(robot.legs[leg].qpos)])
+        reach = sum(np.linalg.norm(b - a) for a, b in zip(points, points[1:], strict=False))
+        out.append((float(points[0][2] - points[-1][2]), float(reach)))
+    return out
+
+
+def _hip_to_foot(robot: Quadruped, leg: int, joints) -> list[np.ndarray]:
+    """The anchors of leg ``leg``'s joints from its hip down, then its foot centre, base
+    frame, with its joints at ``joints`` (MuJoCo's kinematics)."""
+    spec, model = robot.legs[leg], robot.model
+    data = robot._posed(leg, joints)
+    hip = max(len(spec.joints) - 2, 0)
+    anchors = [data.xanchor[model.joint(name).id].copy() for name in spec.joints[hip:]]
+    return [*anchors, data.geom_xpos[spec.foot_id].copy()]
+
+
+def _computed_standing(rough: Quadruped) -> tuple[np.ndarray, str]:
+    """``(qpos, standing_from)``: the standing pose of a quadruped without keyframe, from
+    its legs ``rough`` read at ``qpos0`` with the base level. Each foot centre is placed
+    under its hip (the anchor of the leg's second-to-last joint) in x, at its ``qpos0``
+    lateral place in y, and :func:`standing_depth` of the leg's reach below the hip (the
+    depths of the four legs averaged, so all four feet touch the ground when the legs
+    differ slightly); :meth:`Quadruped.leg_ik` solves each leg from both knee bends
+    (the last joint at +1 and -1 rad, where its range allows) and keeps, of the solutions
+    that reach the foot, the one whose knee (the last joint's anchor) points toward the
+    middle of the body along x, as the Solo12's do (front knees behind their feet, hind
+    knees ahead of theirs), else the other, else the closest. The base is then lowered
+    until the feet touch z = 0 (:func:`_read`)."""
+    model = rough.model
+    ratio = standing_depth()
+    qpos = rough.standing.copy()
+    targets, solved = [], []
+    for leg, spec in enumerate(rough.legs):
+        points = _hip_to_foot(rough, leg, qpos[list(spec.qpos)])
+        reach = sum(np.linalg.norm(b - a) for a, b in zip(points, points[1:], strict=False))
+        hip, foot = points[0], points[-1]
+        targets.append([hip[0], foot[1], hip[2] - ratio * reach])
+    # One body height for all four feet: each foot bottom on the same plane.
+    bottom = np.mean([t[2] - spec.foot_radius for t, spec in zip(targets, rough.legs, strict=True)])
+    for leg, spec in enumerate(rough.legs):
+        target = np.array(targets[leg])
+        target[2] = bottom + spec.foot_radius
+        joints = [model.joint(name).id for name in spec.joints]
+        low, high = model.jnt_range[joints[-1]]
+        limited = bool(model.jnt_limited[joints[-1]])
+        found = []
+        for bend in (1.0, -1.0):
+            if limited and not low <= bend <= high:
+                continue
+            start = np.array(qpos[list(spec.qpos)], dtype=float)
+            start[-1] = bend
+            if len(start) > 1:
+                start[-2] = -bend / 2
+            q = rough.leg_ik(leg, target, start=start)
+            error = float(np.linalg.norm(rough.foot_position(leg, q) - target))
+            knee = _hip_to_foot(rough, leg, q)[-2]
+            inward = (knee[0] - target[0]) * np.sign(target[0]) < 0
+            found.append((error > 1e-9, not inward, error, q))
+        if not found:  # a knee whose range holds neither bend: leave it at qpos0
+            found.append((True, True, np.inf, qpos[list(spec.qpos)]))
+        best = min(found, key=lambda f: f[:3])
+        qpos[list(spec.qpos)] = best[3]
+        solved.append(not best[0])
+    where = "under its hip" if all(solved) else "under its hip where it reaches"
+    return qpos, (
+        f"computed: each foot {where}, {ratio:.3f} of the leg's reach below it (the "
+        "Solo12's), knees toward the body's middle where their ranges allow, on the ground "
+        "z = 0"
     )
 
 

@@ -222,11 +222,16 @@ def check(name_or_path: str, actuators: str = "strict", torque_limit=None) -> Ch
     ]
     lines.append(f"sites: {', '.join(sites) if sites else 'none'}")
     keys = [mujoco.mj_id2name(raw, mujoco.mjtObj.mjOBJ_KEY, i) or f"#{i}" for i in range(raw.nkey)]
-    home = "home" in keys
-    lines.append(
-        f"keyframes: {', '.join(keys) if keys else 'none'} "
-        f"(start pose: {'keyframe home' if home else 'qpos0'})"
-    )
+    start = "keyframe home" if "home" in keys else "qpos0"
+    if start == "qpos0" and free:
+        from cfm_jax import quadruped
+
+        try:  # a quadruped starts from its standing pose (robots.load's home)
+            quadruped.describe(raw)
+            start = "the quadruped's standing pose, below"
+        except (quadruped.QuadrupedError, ValueError):
+            pass
+    lines.append(f"keyframes: {', '.join(keys) if keys else 'none'} (start pose: {start})")
     tasks: dict = {}
     robot = None
     try:

@@ -104,9 +104,12 @@ def test_a_hand_written_quadruped_is_read_and_not_quadrupeds_are_refused_saying_
     found = quadruped.describe(_legged([(0.1, 0.1), (-0.1, -0.1), (0.1, -0.1), (-0.1, 0.1)]))
     # Named by where the feet stand, whatever the file's order: FL, FR, HL, HR.
     assert [leg.joints[0] for leg in found.legs] == ["hip0", "hip2", "hip3", "hip1"]
-    np.testing.assert_allclose(found.legs[0].foot, [0.1, 0.1, -0.3], atol=1e-12)
+    # No keyframe: each foot under its hip (the first joint of these two-joint legs), the
+    # Solo12's fraction of the leg's 0.3 m reach below it, radius 0.02 on the ground.
+    depth = quadruped.standing_depth() * 0.3
+    np.testing.assert_allclose(found.legs[0].foot, [0.1, 0.1, -depth], atol=1e-9)
     np.testing.assert_allclose(found.legs[0].hip, [0.1, 0.1, 0.0], atol=1e-12)
-    assert abs(found.standing_height - 0.32) < 1e-12  # foot centre 0.3 below, radius 0.02
+    assert abs(found.standing_height - (depth + 0.02)) < 1e-9
     assert abs(found.legs[0].length - 0.3) < 1e-12
     refusals = [
         (_legged([(0.1, 0.1), (-0.1, -0.1), (0.1, -0.1)]), "carries 3 jointed limbs"),
@@ -117,6 +120,69 @@ def test_a_hand_written_quadruped_is_read_and_not_quadrupeds_are_refused_saying_
     for model, reason in refusals:
         with pytest.raises(quadruped.QuadrupedError, match=reason):
             quadruped.describe(model)
+
+
+def test_the_standing_depth_is_the_solo12s_from_its_facts_sheet():
+    # The closed form's feet stand 0.2229 m below the HFE axis (z 0 in the base frame); the
+    # reach from the HFE is the upper and lower legs with their lateral offsets.
+    reach = float(np.hypot(solo12.L_UPPER, 0.03745) + np.hypot(solo12.L_LOWER, 0.009))
+    depth = -float(solo12.hip_positions()[0, 2])
+    assert quadruped.standing_depth() == pytest.approx(depth / reach, rel=0, abs=1e-12)
+
+
+def test_the_solo12_without_its_keyframe_stands_as_its_keyframe(tmp_path):
+    """The computed standing pose of the Solo12's file with its keyframe removed is the pose
+    its authors chose (each foot under its HFE, knees toward the body's middle), base on
+    rigid contact: the foot centres 0.2229 m below it plus the feet's 17 mm radius (the
+    keyframe's 0.2384 m sinks 1.5 mm into the floor)."""
+    text = Path(solo12.model_path()).read_text()
+    start, end = text.index("<keyframe>"), text.index("</keyframe>") + len("</keyframe>")
+    (tmp_path / "solo12.xml").write_text(text[:start] + text[end:])
+    found = quadruped.describe(mujoco.MjModel.from_xml_path(str(tmp_path / "solo12.xml")))
+    assert found.standing_from.startswith("computed: each foot under its hip")
+    np.testing.assert_allclose(found.standing[7:], solo12.HOME_JOINTS, rtol=0, atol=1e-9)
+    height = -float(solo12.hip_positions()[0, 2]) + solo12.FOOT_RADIUS
+    assert found.standing_height == pytest.approx(height, rel=0, abs=1e-9)
+
+
+@pytest.mark.parametrize("name", ["anymal_c", "barkour_vb_mjx"])
+def test_a_quadruped_without_keyframe_stands_on_bent_legs_under_its_hips(name):
+    """ANYmal C's qpos0 has straight legs and Barkour vB's folded ones; their computed
+    standing pose, checked with MuJoCo's forward kinematics: the base level, each foot on
+    the floor, under its hip (the anchor of the leg's second-to-last joint) and at its
+    qpos0 lateral place, standing_depth of the leg's reach below the hip (the four legs'
+    depths averaged: Barkour's differ by 0.2 mm), the joints within their ranges and the
+    knees bent toward the body's middle where the ranges allow (ANYmal's knees bend either
+    way; Barkour's bend one way only, its hind knees behind their feet)."""
+    model = mujoco.MjModel.from_xml_path(str(QUADRUPEDS / f"{name}.xml"))
+    assert model.nkey == 0
+    found = quadruped.describe(model)
+    assert found.standing_from.startswith("computed: each foot under its hip,")
+    np.testing.assert_array_equal(found.standing[3:7], [1.0, 0.0, 0.0, 0.0])
+    data = mujoco.MjData(model)
+    data.qpos[:] = found.standing
+    mujoco.mj_kinematics(model, data)
+    level = mujoco.MjData(model)  # qpos0, the base level
+    level.qpos[:] = model.qpos0
+    level.qpos[3:7] = (1.0, 0.0, 0.0, 0.0)
+    mujoco.mj_kinematics(model, level)
+    for leg in found.legs:
+        ids = [model.joint(joint).id for joint in leg.joints]
+        hip, knee = data.xanchor[ids[-2]], data.xanchor[ids[-1]]
+        foot = data.geom_xpos[leg.foot_id]
+        assert abs(foot[2] - leg.foot_radius) < 1e-9  # on the floor
+        assert abs(foot[0] - hip[0]) < 1e-9  # under the hip
+        assert abs(foot[1] - level.geom_xpos[leg.foot_id][1]) < 1e-9
+        reach = np.linalg.norm(knee - hip) + np.linalg.norm(foot - knee)
+        assert abs(hip[2] - foot[2] - quadruped.standing_depth() * reach) < 5e-4
+        q = found.standing[list(leg.qpos)]
+        low, high = model.jnt_range[ids].T
+        assert np.all((low <= q) & (q <= high))
+        thigh, shank = knee - hip, foot - knee
+        bend = np.arccos(thigh @ shank / np.linalg.norm(thigh) / np.linalg.norm(shank))
+        assert bend > 0.5  # not straight
+        inward = (knee[0] - foot[0]) * np.sign(foot[0] - found.standing[0]) < 0
+        assert inward or (name == "barkour_vb_mjx" and leg.name[0] == "H"), leg.name
 
 
 def test_robot_check_reports_the_legs_it_read():
@@ -164,10 +230,10 @@ def test_the_numeric_leg_ik_inverts_mujocos_kinematics(name):
 
 
 def test_the_numeric_leg_ik_of_a_target_out_of_reach_is_the_closest_foot():
-    # The hand-written legs hang straight (0.3 m, hip to foot centre) at their standing pose:
+    # The hand-written legs hang straight (0.3 m, hip to foot centre) at qpos0: from there,
     # a target 1 m below the hip gives the straight leg, its foot 0.3 m below.
     found = quadruped.describe(_legged([(0.1, 0.1), (-0.1, -0.1), (0.1, -0.1), (-0.1, 0.1)]))
-    joints = found.leg_ik(0, [0.1, 0.1, -1.0])
+    joints = found.leg_ik(0, [0.1, 0.1, -1.0], start=[0.0, 0.0])
     np.testing.assert_allclose(joints, [0.0, 0.0], atol=1e-12)
 
 
