@@ -2,7 +2,9 @@
 paper's planner; docs/locomotion.md): :func:`walk_reference`, :func:`jump_reference`, their
 on-disk cache, and the checks that replay them (:func:`replay`). The controller reads the
 robot through :class:`Legs`: the Solo12's closed forms, or any motor-driven quadruped's
-description (:mod:`cfm_jax.quadruped`) with the Solo12's motions scaled to its size."""
+description (:mod:`cfm_jax.quadruped`) with the Solo12's motions scaled to its size; a
+quadruped driven by servos runs on the torque motors :func:`cfm_jax.robots.load` converts
+them to (``actuators="torque"``), the references simulated on that loaded model."""
 
 from __future__ import annotations
 
@@ -272,11 +274,13 @@ class Legs:
 
         Args:
           model: a ``mujoco.MjModel`` with one contact sensor per foot on the ground
-            (:func:`cfm_jax.quadruped.with_foot_sensors`) and a torque motor on each joint.
+            (:func:`cfm_jax.quadruped.with_foot_sensors`) and a torque motor on each joint
+            (any gear; servos converted by :func:`cfm_jax.robots.convert` are such motors).
 
         Raises:
-          cfm_jax.quadruped.QuadrupedError: not a quadruped, a joint without its own motor,
-            or a foot without a contact sensor.
+          cfm_jax.quadruped.QuadrupedError: not a quadruped, a joint without its own motor
+            (a servo: load the robot with ``robot_actuators='torque'``), or a foot without
+            a contact sensor.
 
         Examples:
           >>> from cfm_jax import quadruped
@@ -309,20 +313,25 @@ class Legs:
         kp = solo12.KP * np.maximum(similar, inertia / solo_inertia / scale)
         damping = solo12.KD * np.sqrt(kp * inertia / (solo12.KP * solo_inertia))
         kd = np.maximum(damping - model.dof_damping[6:], 0.0)
-        motors = np.full(model.nv - 6, -1)
+        motors, servos = np.full(model.nv - 6, -1), set()
         for a in range(model.nu):
             if int(model.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
                 continue
+            dof = int(model.jnt_dofadr[model.actuator_trnid[a, 0]]) - 6
             if model.actuator_biastype[a] != 0 or model.actuator_gainprm[a, 0] != 1.0:
-                continue  # a servo, not a torque motor
-            motors[int(model.jnt_dofadr[model.actuator_trnid[a, 0]]) - 6] = a
+                servos.add(dof)  # a servo, not a torque motor
+                continue
+            motors[dof] = a
         if (motors < 0).any():
-            missing = [
-                model.joint(int(model.dof_jntid[6 + i])).name for i in np.where(motors < 0)[0]
-            ]
+            missing = np.where(motors < 0)[0]
+            names = [model.joint(int(model.dof_jntid[6 + i])).name for i in missing]
+            hint = (
+                " (servos: load it with robot_actuators='torque')"
+                if servos & set(missing.tolist())
+                else "; each leg joint needs one"
+            )
             raise quadruped.QuadrupedError(
-                f"its joints {missing} have no torque motor of their own (servos: load it "
-                "with robot_actuators='torque' first)"
+                f"its joints {names} have no torque motor of their own{hint}"
             )
         contact = int(mujoco.mjtSensor.mjSENS_CONTACT)
         rows = []
@@ -389,6 +398,16 @@ def legs_of(model) -> Legs:
     return Legs.solo12(model)
 
 
+def _torque_limits(model, motors) -> np.ndarray:
+    """Each motor's joint torque limit (N m): the tightest of its ``ctrlrange`` and
+    ``forcerange`` times its gear and its joint's ``actuatorfrcrange``
+    (:func:`cfm_jax.robots.actuator_torque_limit`), infinite where none is given."""
+    from cfm_jax import robots
+
+    bounds = [robots.actuator_torque_limit(model, int(a)) for a in motors]
+    return np.array([np.inf if bound is None else bound[0] for bound in bounds])
+
+
 class _Sim:
     """MuJoCo simulation at the control rate with per-physics-step recording."""
 
@@ -414,7 +433,8 @@ class _Sim:
         mujoco.mj_forward(model, self.d)
         self.jac = np.zeros((3, model.nv))
         self.rec = {k: [] for k in ("qpos", "qvel", "qacc", "tau", "sensordata")}
-        self.limit = model.actuator_ctrlrange[legs.motors, 1].copy()
+        self.gear = model.actuator_gear[legs.motors, 0].copy()
+        self.limit = _torque_limits(model, legs.motors)
 
     @property
     def q(self):
@@ -445,7 +465,7 @@ class _Sim:
 
     def step(self, tau):
         tau = np.clip(tau, -self.limit, self.limit)
-        self.d.ctrl[self.legs.motors] = tau
+        self.d.ctrl[self.legs.motors] = tau / self.gear
         for _ in range(self.n_sub):
             self.rec["qpos"].append(self.d.qpos.copy())
             self.rec["qvel"].append(self.d.qvel.copy())
@@ -859,16 +879,35 @@ GENERATOR_FILES = (
     Path(__file__),
     Path(solo12.__file__),
     Path(solo12.__file__).with_name("quadruped.py"),
+    Path(solo12.__file__).with_name("robots.py"),  # the motors' torque limits
 )
 """The reference generator's sources: their bytes are part of the cache key."""
 
 
-def _cache_key(kind: str, params, control_dt: float, model_file: str) -> str:
+def model_bytes(model) -> bytes:
+    """The compiled ``model`` as MuJoCo saves it (``mj_saveModel``): all of its numbers,
+    so two models with the same bytes simulate alike. Part of the references' cache key.
+
+    Args:
+      model: a ``mujoco.MjModel``.
+
+    Examples:
+      >>> model_bytes(solo12.load_model()) == model_bytes(solo12.load_model())
+      True
+    """
+    import mujoco
+
+    buffer = np.zeros(mujoco.mj_sizeModel(model), dtype=np.uint8)
+    mujoco.mj_saveModel(model, None, buffer)
+    return buffer.tobytes()
+
+
+def _cache_key(kind: str, params, control_dt: float, model) -> str:
     h = hashlib.sha256()
     meta = {"kind": kind, "params": dataclasses.asdict(params), "control_dt": control_dt}
     meta["format"] = _FORMAT_VERSION
     h.update(json.dumps(meta, sort_keys=True).encode())
-    h.update(Path(model_file).read_bytes())
+    h.update(model_bytes(model))
     for source in GENERATOR_FILES:
         h.update(Path(source).read_bytes())
     return h.hexdigest()[:24]
@@ -912,12 +951,14 @@ def legs_of_file(path: str) -> Legs:
         return legs_of(quadruped.with_foot_sensors(path)[0])
 
 
-def _cached(kind, params, control_dt, model_file, cache, use_cache, simulate):
-    model_file = model_file or solo12.model_path()
-    path = cache_dir(cache) / f"{kind}-{_cache_key(kind, params, control_dt, model_file)}.npz"
+def _cached(kind, params, control_dt, model_file, model, cache, use_cache, simulate):
+    if model is not None and model_file is not None:
+        raise ValueError("give model or model_file, not both")
+    legs = legs_of(model) if model is not None else legs_of_file(model_file or solo12.model_path())
+    path = cache_dir(cache) / f"{kind}-{_cache_key(kind, params, control_dt, legs.model)}.npz"
     if use_cache and path.is_file():
         return _load(path)
-    ref, _ = simulate(params, None, control_dt, legs=legs_of_file(model_file))
+    ref, _ = simulate(params, None, control_dt, legs=legs)
     if use_cache:
         _save(ref, path)
     return ref
@@ -928,6 +969,7 @@ def walk_reference(
     *,
     control_dt: float = CONTROL_DT,
     model_file: str | None = None,
+    model=None,
     cache: str | os.PathLike | None = None,
     use_cache: bool = True,
     **params,
@@ -937,17 +979,26 @@ def walk_reference(
     Args:
       duration: length of the reference (s).
       control_dt: control period (s).
-      model_file: the MJCF file, or None for :func:`cfm_jax.solo12.model_path`.
+      model_file: the MJCF file (given the ground and foot sensors it lacks,
+        :func:`legs_of_file`), or None for :func:`cfm_jax.solo12.model_path`.
+      model: or the compiled ``mujoco.MjModel`` itself, with its foot sensors (a
+        :class:`cfm_jax.robots.Robot`'s ``mj_model``: servos converted, sensors added, its
+        timestep), the references then simulated on it (:func:`legs_of`).
       cache: the cache folder, or None for :func:`cache_dir`'s default.
       use_cache: read and write the cache; False simulates every time and writes nothing.
       params: further :class:`WalkParams` fields (``speed``, ``period``, ...).
+
+    Raises:
+      ValueError: both ``model_file`` and ``model`` given.
+      cfm_jax.quadruped.QuadrupedError: the model is not a quadruped with a torque motor
+        per leg joint and a contact sensor per foot (:meth:`Legs.of`).
 
     Examples:
       >>> walk_reference(0.2, use_cache=False, speed=0.2).horizon  # 0.2 s at 250 Hz
       50
     """
     p = WalkParams(duration=duration, **params)
-    return _cached("walk", p, control_dt, model_file, cache, use_cache, simulate_walk)
+    return _cached("walk", p, control_dt, model_file, model, cache, use_cache, simulate_walk)
 
 
 def jump_reference(
@@ -955,6 +1006,7 @@ def jump_reference(
     *,
     control_dt: float = CONTROL_DT,
     model_file: str | None = None,
+    model=None,
     cache: str | os.PathLike | None = None,
     use_cache: bool = True,
     **params,
@@ -964,17 +1016,24 @@ def jump_reference(
     Args:
       height: requested foot clearance (m).
       control_dt: control period (s).
-      model_file: the MJCF file, or None for :func:`cfm_jax.solo12.model_path`.
+      model_file: the MJCF file (given the ground and foot sensors it lacks,
+        :func:`legs_of_file`), or None for :func:`cfm_jax.solo12.model_path`.
+      model: or the compiled ``mujoco.MjModel`` itself, with its foot sensors (a
+        :class:`cfm_jax.robots.Robot`'s ``mj_model``: servos converted, sensors added, its
+        timestep), the references then simulated on it (:func:`legs_of`).
       cache: the cache folder, or None for :func:`cache_dir`'s default.
       use_cache: read and write the cache; False simulates every time and writes nothing.
       params: further :class:`JumpParams` fields (``duration``, ``push_force``, ...).
+
+    Raises:
+      ValueError, cfm_jax.quadruped.QuadrupedError: as :func:`walk_reference`.
 
     Examples:
       >>> abs(jump_clearance(jump_reference(0.1, use_cache=False, duration=0.8)) - 0.1) <= 0.002
       True
     """
     p = JumpParams(height=height, **params)
-    return _cached("jump", p, control_dt, model_file, cache, use_cache, simulate_jump)
+    return _cached("jump", p, control_dt, model_file, model, cache, use_cache, simulate_jump)
 
 
 def default_walks(**kwargs) -> list[LocomotionReference]:

@@ -15,12 +15,13 @@ range allows, the base level and raised until the feet touch the ground plane z 
 
 What :func:`describe` finds is what ``cfm-jax robot check`` reports for a floating-base robot;
 :meth:`Quadruped.leg_ik` is any such leg's inverse kinematics (on the Solo12 it gives the
-closed form of :func:`cfm_jax.solo12.leg_ik`), and :func:`with_foot_sensors` gives a file
-without them the ground and the foot contact sensors whose forces the legged tasks put in
-the state (:func:`cfm_jax.robots.load` adds them to a quadruped's file that lacks them);
-:func:`fall_rule` is the Solo12's fall rule read from any quadruped's model. The legged tasks
-use the Solo12's closed forms (:mod:`cfm_jax.solo12`) on the Solo12 and this module's
-description on any other motor-driven quadruped (:func:`cfm_jax.locomotion.legs_of`).
+closed form of :func:`cfm_jax.solo12.leg_ik`), and :func:`with_foot_sensors` /
+:func:`add_foot_sensors` give a file without them the ground and the foot contact sensors
+whose forces the legged tasks put in the state (:func:`cfm_jax.robots.load` adds them to a
+quadruped's file that lacks them, its servos converted or not); :func:`fall_rule` is the
+Solo12's fall rule read from any quadruped's model. The legged tasks use the Solo12's closed
+forms (:mod:`cfm_jax.solo12`) on the Solo12 and this module's description on any other
+quadruped with a torque motor per joint (:func:`cfm_jax.locomotion.legs_of`).
 """
 
 from __future__ import annotations
@@ -483,13 +484,9 @@ FOOT_SENSOR_DATA = 99
 
 
 def with_foot_sensors(path: str):
-    """The model of the MJCF at ``path`` with what the legged tasks read of the ground: a
-    ground plane (where the world body has no plane: ``floor``, z = 0, the contact defaults)
-    and one contact sensor per foot of :func:`describe` (``data="found force normal
-    tangent"``, ``reduce="mindist"``, ``num=1``, as ``robots/solo12.xml`` declares them),
-    named ``<leg>_contact`` and added in the order FL, FR, HL, HR after the file's sensors;
-    an unnamed foot geom is named ``<leg>_foot``. A file whose feet each have such a sensor
-    already is compiled as it is.
+    """The model of the MJCF at ``path`` with what the legged tasks read of the ground
+    (:func:`add_foot_sensors`). A file whose feet each have such a sensor already is
+    compiled as it is.
 
     Args:
       path: an MJCF file of a quadruped (:func:`describe`).
@@ -509,6 +506,37 @@ def with_foot_sensors(path: str):
     import mujoco
 
     spec = mujoco.MjSpec.from_file(path)
+    added = add_foot_sensors(spec)
+    return spec.compile(), added
+
+
+def add_foot_sensors(spec) -> list[str]:
+    """Give the quadruped of ``spec`` (a ``mujoco.MjSpec``, edited in place) what the legged
+    tasks read of the ground: a ground plane (where the world body has no plane: ``floor``,
+    z = 0, the contact defaults) and one contact sensor per foot of :func:`describe`
+    (``data="found force normal tangent"``, ``reduce="mindist"``, ``num=1``, as
+    ``robots/solo12.xml`` declares them), named ``<leg>_contact`` and added in the order
+    FL, FR, HL, HR after the spec's sensors; an unnamed foot geom is named ``<leg>_foot``.
+    Nothing is added where each foot has such a sensor already. Any other edit of the spec
+    (actuators: :func:`cfm_jax.robots.convert`) composes with this one.
+
+    Args:
+      spec: a ``mujoco.MjSpec`` of a quadruped (:func:`describe` of its compiled model).
+
+    Returns:
+      what was added, in words (an empty list: nothing).
+
+    Raises:
+      QuadrupedError: as :func:`describe`.
+
+    Examples:
+      >>> import mujoco
+      >>> from cfm_jax import solo12
+      >>> add_foot_sensors(mujoco.MjSpec.from_file(solo12.model_path()))  # it has its own
+      []
+    """
+    import mujoco
+
     model = spec.compile()
     found = describe(model)
     plane = int(mujoco.mjtGeom.mjGEOM_PLANE)
@@ -523,7 +551,7 @@ def with_foot_sensors(path: str):
             pair = {int(model.sensor_objid[i]), int(model.sensor_refid[i])}
             sensed |= {f for f in feet if f in pair and pair - {f} <= set(planes)}
     if planes and set(feet) <= sensed:
-        return model, []
+        return []
     added = []
     geoms = list(spec.geoms)
     if planes:
@@ -557,7 +585,7 @@ def with_foot_sensors(path: str):
     again = [model.geom(g).name for g in (leg.foot_id for leg in describe(model).legs)]
     if again != names:
         raise QuadrupedError(f"its feet {names} were not found again after adding the sensors")
-    return model, added
+    return added
 
 
 @dataclasses.dataclass(frozen=True)

@@ -474,16 +474,19 @@ def servo_limits(model, torque_limit=None, where: str = "robot", keep=()):
     return found
 
 
-def convert(path: str, model, torque_limit=None, where: str = "robot", keep=()):
+def convert(path: str, model, torque_limit=None, where: str = "robot", keep=(), spec=None):
     """``(model, servos)``: ``path``'s model with each servo on a joint replaced by a torque
     motor of the same joint, gear and limit (:func:`servo_limits`), keyframe ``ctrl`` 0.
 
     Args:
       path: the MJCF file (edited through ``mujoco.MjSpec``, not written).
-      model: its ``mujoco.MjModel`` as compiled from the file.
+      model: its ``mujoco.MjModel`` as compiled from the file (or from ``spec``).
       torque_limit: the user's limits (see :func:`servo_limits`), or None.
       where: the robot, for the messages.
       keep: actuators left as published, their keyframe ``ctrl`` kept.
+      spec: the file's ``mujoco.MjSpec`` with other edits that leave its actuators as they
+        are (a quadruped's foot sensors, :func:`cfm_jax.quadruped.add_foot_sensors`), to
+        edit further; None: read from ``path``.
 
     Raises:
       RobotError: as :func:`servo_limits`, or the converted model does not compile.
@@ -496,7 +499,7 @@ def convert(path: str, model, torque_limit=None, where: str = "robot", keep=()):
     servos = servo_limits(model, torque_limit, where, keep)
     if not servos:
         return model, servos
-    spec = mujoco.MjSpec.from_file(path)
+    spec = mujoco.MjSpec.from_file(path) if spec is None else spec
     for a, (_, limit, _) in servos.items():
         act = spec.actuators[a]
         gear = abs(float(model.actuator_gear[a, 0]))
@@ -525,23 +528,24 @@ def convert(path: str, model, torque_limit=None, where: str = "robot", keep=()):
         raise RobotError(f"{where}: the converted model does not compile: {error}") from error
 
 
-def _as_quadruped(path: str, model, sensors: bool = True):
-    """``(model, added, standing)``: a quadruped's model with (``sensors``) the ground and
-    the foot contact sensors the legged tasks read (:func:`cfm_jax.quadruped.with_foot_sensors`;
-    ``model`` itself where it has them), what was added and its standing pose; any other
-    model as it is, ``()`` and None."""
+def _as_quadruped(path: str, model):
+    """``(model, added, standing, spec)``: a quadruped's model with the ground and the foot
+    contact sensors the legged tasks read (:func:`cfm_jax.quadruped.add_foot_sensors`;
+    ``model`` itself where it has them), what was added, its standing pose and the edited
+    ``mujoco.MjSpec`` (None where nothing was added), which :func:`convert` edits further;
+    any other model as it is, ``()``, None and None."""
     from cfm_jax import quadruped
 
     try:
         found = quadruped.describe(model)
-        if not sensors:
-            return model, (), found.standing
-        sensed, added = quadruped.with_foot_sensors(path)
+        spec = mujoco.MjSpec.from_file(path)
+        added = quadruped.add_foot_sensors(spec)
+        if not added:
+            return model, (), found.standing, None
+        sensed = spec.compile()
     except (quadruped.QuadrupedError, ValueError):
-        return model, (), None  # not a quadruped (or its keyframes do not compile alone)
-    if added:
-        model, found = sensed, quadruped.describe(sensed)
-    return model, tuple(added), found.standing
+        return model, (), None, None  # not a quadruped (or its keyframes do not compile alone)
+    return sensed, tuple(added), quadruped.describe(sensed).standing, spec
 
 
 def compile_file(path: str):
@@ -615,7 +619,8 @@ def conversion_note(name_or_path: str, torque_limit=None) -> str:
 
 
 def fresh_model(robot: Robot) -> mujoco.MjModel:
-    """A new ``mujoco.MjModel`` of ``robot``'s file, converted as :func:`load` did, to edit.
+    """A new ``mujoco.MjModel`` of ``robot``'s file, given what :func:`load` added and
+    converted as it did, to edit.
 
     Args:
       robot: a :class:`Robot`.
@@ -624,9 +629,12 @@ def fresh_model(robot: Robot) -> mujoco.MjModel:
       >>> fresh_model(load("two_link_arm")).nu
       2
     """
-    model = compile_file(robot.path)
+    model, spec = compile_file(robot.path), None
+    if robot.added:  # a quadruped's ground and foot sensors, in the spec convert edits
+        model, _, _, spec = _as_quadruped(robot.path, model)
     if robot.actuators == "torque":
-        model, _ = convert(robot.path, model, tuple(robot.torque_limit.tolist()), robot.name)
+        limits = tuple(robot.torque_limit.tolist())
+        model, _ = convert(robot.path, model, limits, robot.name, spec=spec)
     return model
 
 
@@ -735,14 +743,13 @@ def load(
             previous(message)
         else:
             print(f"WARNING: {message}\n")
-    # A quadruped gets its ground and foot sensors (not a converted one: the legged tasks,
-    # which read them, simulate their references from the file and refuse it) and, without
-    # a keyframe 'home', its standing pose as home.
-    model, added, standing = _as_quadruped(path, model, sensors=actuators != "torque")
+    # A quadruped gets its ground and foot sensors (converted or not: one MjSpec takes both
+    # edits) and, without a keyframe 'home', its standing pose as home.
+    model, added, standing, spec = _as_quadruped(path, model)
     servos = {}
     held, keep = held_joints(model)
     if actuators == "torque":
-        model, servos = convert(path, model, torque_limit, where, keep)
+        model, servos = convert(path, model, torque_limit, where, keep, spec=spec)
     floating_base = False
     unactuated = set()
     for j in range(model.njnt):

@@ -109,25 +109,37 @@ def test_config_output_round_trips_through_config(tmp_path, monkeypatch, capsys)
     assert base == config_lib.from_dict(printed)
 
 
+KNEELESS_GO2 = "the Go2 without its front-left knee motor"
+
+
 @pytest.mark.parametrize(
     ("task", "robot", "actuators", "reason"),
     [
         # An arm for a legged task: no floating base (tasks/legged.py's fits).
         ("walk", "iiwa14", "strict", "need a floating base"),
-        # A published quadruped driven by position servos, converted at load time: its
-        # references are simulated from the file, whose actuators are servos.
-        ("jump", "tests/robots/quadrupeds/anymal_c.xml", "torque", "must be motors in the file"),
+        # A published quadruped with a leg joint that no motor drives (the Go2 with its
+        # front-left knee motor removed, written below): the legged tasks drive every leg
+        # joint. (A quadruped driven by servos runs, converted at load time.)
+        ("jump", KNEELESS_GO2, "strict", "have no torque motor of their own"),
         # A planar arm for the op-space task: no 3-D site to control.
         ("opspace", "two_link_arm", "strict", None),
     ],
 )
 def test_config_refuses_a_robot_its_task_cannot_run_on(
-    task, robot, actuators, reason, monkeypatch, capsys
+    task, robot, actuators, reason, monkeypatch, capsys, tmp_path
 ):
     """``cfm-jax config`` refuses, in one line and before any training, what ``cfm-jax robot
     check`` reports the task cannot run on, with the same reason."""
+    from pathlib import Path
+
     from cfm_jax import robot_check
 
+    if robot == KNEELESS_GO2:
+        text = (Path(__file__).parent / "robots" / "quadrupeds" / "go2.xml").read_text()
+        motor = '<motor class="knee" name="FL_calf" joint="FL_calf_joint"/>'
+        assert text.count(motor) == 1
+        robot = str(tmp_path / "go2_kneeless.xml")
+        Path(robot).write_text(text.replace(motor, ""))
     why = robot_check.check(robot, actuators=actuators).tasks[task]
     assert why is not None and (reason is None or reason in why)
     argv = ["cfm-jax", "config", "--task", task, "--robot", robot]

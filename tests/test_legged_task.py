@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 import cfm_jax
-from cfm_jax import algorithm, locomotion, robots, rollout, solo12, tasks, training
+from cfm_jax import algorithm, locomotion, quadruped, robots, rollout, solo12, tasks, training
 from cfm_jax import config as config_lib
 from cfm_jax.tasks import legged
 
@@ -290,6 +290,42 @@ def test_a_published_quadruped_runs_the_walk_with_its_oracle_on_the_reference():
     adr = [go2.mj_model.sensor(f"{leg}_contact").adr[0] for leg in ("FL", "FR", "HL", "HR")]
     np.testing.assert_array_equal(task.sensor_rows.reshape(4, 10)[:, 0], adr)
     assert task.gain_p.shape == (12,)  # the Go2's per-joint reference gains
+    base = experiment.baselines().set_index("baseline")
+    assert base.loc["oracle", "tracking_mse"] < 1e-10 and base.loc["oracle", "fell"] == 0
+    assert base.loc["pd_only", "tracking_mse"] > 1e3 * base.loc["oracle", "tracking_mse"]
+
+
+def test_a_servo_driven_quadruped_converted_at_load_time_runs_the_walk_with_its_oracle():
+    """ANYmal C as MuJoCo Menagerie publishes it: position servos, no keyframe, no ground.
+    Loaded with robot_actuators='torque', one MjSpec takes both edits (servos to torque
+    motors of the servos' 80 N m force range, ground and foot sensors added), home is its
+    computed standing pose, and the walk's references are simulated on that loaded model
+    (the oracle: the references of locomotion.walk_reference on robot.mj_model, bit for
+    bit). Its baselines on the native simulator: the oracle (the reference's feed-forward and
+    PD) retraces the reference to round-off and does not fall; PD-only tracks worse."""
+    from tiny import tiny_config
+
+    path = str(QUADRUPEDS / "anymal_c.xml")
+    anymal = robots.load(path, actuators="torque")
+    assert len(anymal.converted) == 12 and anymal.added[0] == "a ground plane 'floor' at z = 0"
+    assert "FL: FL_foot" in anymal.added[1]
+    np.testing.assert_array_equal(anymal.torque_limit, np.full(12, 80.0))
+    found = quadruped.describe(anymal.mj_model)
+    assert found.standing_from.startswith("computed")
+    np.testing.assert_array_equal(anymal.home, found.standing)
+    assert "forward.kind='rigid_body' needs MJX" in legged.fits(anymal)
+    config = tiny_config(iterations=1, seeds=1).replace(
+        robot=path,
+        robot_actuators="torque",
+        task=config_lib.TaskConfig(name="walk", desired="pd", kp=100.0, kd=20.0, motions=(0.3,)),
+    )
+    experiment = training.Experiment(config)
+    (reference,) = experiment.task.references
+    expected = locomotion.walk_reference(0.3, model=anymal.mj_model)
+    for got, want in zip(reference, expected, strict=True):
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(reference.qpos[0], anymal.home)
+    assert np.abs(reference.tau).max() <= 80.0
     base = experiment.baselines().set_index("baseline")
     assert base.loc["oracle", "tracking_mse"] < 1e-10 and base.loc["oracle", "fell"] == 0
     assert base.loc["pd_only", "tracking_mse"] > 1e3 * base.loc["oracle", "tracking_mse"]

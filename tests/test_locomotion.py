@@ -189,6 +189,38 @@ def test_determinism_and_cache(tmp_path, model):
     assert len(list(tmp_path.glob("walk-*.npz"))) == 3
 
 
+def test_references_of_a_loaded_robots_model_are_its_files_bit_for_bit(tmp_path, model):
+    """The legged tasks simulate their references on the robot's loaded model (``model=``);
+    for the Solo12 that is the file's model, so the references are the same bit for bit and
+    share one cache entry (the key holds the model's bytes, mj_saveModel). The same file
+    with only a comment added compiles to the same model: the same entry; the model at
+    another timestep is another model: another entry, another motion."""
+    import copy
+
+    from cfm_jax import robots
+
+    solo = robots.load("solo12")
+    assert L.model_bytes(solo.mj_model) == L.model_bytes(model)
+    from_model = L.walk_reference(0.5, model=solo.mj_model, cache=tmp_path)
+    from_file = L.walk_reference(0.5, cache=tmp_path)
+    fresh = L.walk_reference(0.5, use_cache=False)
+    assert len(list(tmp_path.glob("walk-*.npz"))) == 1
+    for x, y, z in zip(from_model, from_file, fresh, strict=True):
+        np.testing.assert_array_equal(x, y)
+        np.testing.assert_array_equal(x, z)
+    commented = tmp_path / "solo12_commented.xml"
+    commented.write_text(Path(solo12.model_path()).read_text() + "<!-- a comment -->\n")
+    L.walk_reference(0.5, cache=tmp_path, model_file=str(commented))
+    assert len(list(tmp_path.glob("walk-*.npz"))) == 1
+    finer = copy.deepcopy(solo.mj_model)
+    finer.opt.timestep = 0.001
+    other = L.walk_reference(0.5, model=finer, cache=tmp_path)
+    assert len(list(tmp_path.glob("walk-*.npz"))) == 2
+    assert not np.array_equal(other.qpos, from_model.qpos)
+    with pytest.raises(ValueError, match="model or model_file, not both"):
+        L.walk_reference(0.5, model=model, model_file=solo12.model_path(), use_cache=False)
+
+
 def test_an_edited_generator_is_not_answered_from_the_cache(tmp_path, monkeypatch):
     """The generator's source is part of the key: after an edit of one of its files (here a
     copy of the module with one added comment standing for the edit) the same call

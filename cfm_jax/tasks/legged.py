@@ -33,13 +33,6 @@ def _quat_error(target, quat):
     return v * (2.0 * jnp.arctan2(norm, w) / norm)
 
 
-# Why a robot whose servos were converted at load time cannot run a legged task.
-CONVERTED_REFUSED = (
-    "the legged tasks simulate their references from the MJCF file itself, so its servos "
-    "must be motors in the file (robot_actuators='torque' converts only the loaded model)"
-)
-
-
 class LeggedTask(JointSpaceTask):
     """Legged locomotion (``walk``, ``jump``; paper section IV-B; docs/locomotion.md) for a
     quadruped with one contact sensor per foot (:func:`cfm_jax.solo12.foot_forces`; a file
@@ -48,11 +41,13 @@ class LeggedTask(JointSpaceTask):
     State ``[qpos, f, qvel]`` (``f``: mean foot forces of the last period), output ``[qacc dt, f]``,
     ``qacc* = qacc_ref + kp e + kd (qvel_ref - qvel)``; a fall (:attr:`fall`) is terminal. The
     robot is read through :func:`cfm_jax.locomotion.legs_of`: the Solo12's closed forms, or any
-    motor-driven quadruped's description, whose references are the Solo12's scaled to it.
+    quadruped's description, whose references are the Solo12's motions scaled to it and
+    simulated on the robot's own model (``robot.mj_model``: a servo-driven quadruped loaded
+    with ``robot_actuators='torque'`` runs on its converted motors).
 
     Args:
       robot: a quadruped :class:`cfm_jax.robots.Robot` (:func:`cfm_jax.quadruped.describe`)
-        with a torque motor on each leg joint.
+        with a torque motor on each leg joint (servos converted at load time count).
       task: the :class:`cfm_jax.config.TaskConfig`; ``motions`` None: the 5 test references;
         ``duration`` is not used, ``targets`` and ``home`` must be None.
       control_dt: control period (s), at most :attr:`MAX_CONTROL_DT`.
@@ -88,8 +83,6 @@ class LeggedTask(JointSpaceTask):
                 f"{list(others)} have no torque motor of "
                 "their own; the legged tasks need every joint below the base driven"
             )
-        if getattr(robot, "converted", ()):
-            raise ConfigError(f"robot {robot.name!r} is not allowed: {CONVERTED_REFUSED}")
         if control_dt > self.MAX_CONTROL_DT + 1e-12:
             raise ConfigError(
                 f"task.control_dt={control_dt!r} is not allowed for task {task.name!r}: the "
@@ -108,7 +101,9 @@ class LeggedTask(JointSpaceTask):
         self.sensor_rows = np.asarray(self.legs.sensor_rows)  # FL, FR, HL, HR
         self.feet = len(self.legs.foot_geoms)
         self.fall = fall_rule(robot, self.legs)  # the metric ``fell``, and terminal steps
-        kwargs = dict(control_dt=control_dt, model_file=robot.path)
+        # the references are simulated on the model this task simulates: servos converted
+        # (robot_actuators='torque'), ground and foot sensors added, its timestep
+        kwargs = dict(control_dt=control_dt, model=robot.mj_model)
         if task.motion_family == "selection":
             kwargs.update(locomotion.SELECTION_MOTIONS[task.name])
         if task.name == "walk":
@@ -356,8 +351,8 @@ def fits(robot) -> str:
       ``""``, or a note where the task runs but not with its defaults.
 
     Raises:
-      ConfigError: no floating base, not a quadruped with a torque motor per joint and a
-        contact sensor per foot, or servos converted at load time.
+      ConfigError: no floating base, or not a quadruped with a torque motor per joint (servos
+        converted at load time count) and a contact sensor per foot.
 
     Examples:
       >>> fits(cfm_jax.robots.load("solo12"))
@@ -365,8 +360,6 @@ def fits(robot) -> str:
     """
     if not robot.floating_base:
         raise ConfigError("the legged tasks need a floating base (a free joint at the root)")
-    if robot.converted:
-        raise ConfigError(CONVERTED_REFUSED)
     legs_of(robot)
     if robot.mjx_error is not None:  # the defaults' rigid-body forward model runs on MJX
         return (
