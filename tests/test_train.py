@@ -83,9 +83,12 @@ def test_baselines_bracket_the_problem(two_seeds):
     assert two_seeds.rms_reach > 0.05
 
 
-def test_vmapped_seeds_equal_a_loop_over_seeds():
+def test_vmapped_seeds_equal_a_loop_over_seeds(two_seeds):
     """Oracle: the same seeds run one at a time (seed axis of size 1), on the default
-    (``home``) initial data.
+    (``home``) initial data. The two seeds together are the module's run of TINY
+    (``two_seeds``, which is ``cfm_jax.train(TINY)``); the single-seed runs share one
+    Experiment (the seed is a runtime field: test_runtime_fields_reuse_the_compilations_...
+    checks such a reuse against a fresh Experiment bit for bit).
 
     XLA:CPU may pick different kernels for batched (vmapped) and unbatched matrix products,
     and which it picks depends on the CPU's instruction set, so float32 results agree to
@@ -110,14 +113,14 @@ def test_vmapped_seeds_equal_a_loop_over_seeds():
     still tells seeds apart: the two seeds' metrics differ by >= 17 % (checked below), so a
     mixed-up or shared seed fails by a factor > 30.
     """
-    together = cfm_jax.train(TINY, progress=False)
-    frame = together.metrics.set_index(["seed", "iteration", "target"]).sort_index()
+    frame = two_seeds.metrics.set_index(["seed", "iteration", "target"]).sort_index()
     columns = ("tracking_mse", "prediction_error", "predicted_task_error")
     rtol = {0: 1e-3, 1: 5e-3, 2: 5e-3}
     assert sorted(frame.index.get_level_values("iteration").unique()) == sorted(rtol)
+    one_seed = training.Experiment(TINY.replace(loop=dataclasses.replace(TINY.loop, seeds=1)))
     for seed in (0, 1):
         single = TINY.replace(seed=seed, loop=dataclasses.replace(TINY.loop, seeds=1))
-        alone = cfm_jax.train(single, progress=False).metrics
+        alone = cfm_jax.train(single, progress=False, experiment=one_seed).metrics
         alone = alone.set_index(["seed", "iteration", "target"]).sort_index().loc[seed]
         for iteration, tolerance in rtol.items():
             for column in columns:
