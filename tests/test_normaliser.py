@@ -21,6 +21,7 @@ import pytest
 from tiny import tiny_config
 
 from cfm_jax import algorithm, config, dataset, networks, robots, tasks
+from cfm_jax.experiment import Experiment
 from cfm_jax.tasks import scales
 
 ARM3 = str(Path(__file__).parent / "three_joint_arm.xml")
@@ -261,20 +262,24 @@ def test_the_torque_scale_is_a_value_of_the_config_that_follows_the_gains():
     # runtime field (a sweep over it compiles once): the scale travels in the knobs, and the
     # normaliser the loop builds carries the cell's own. Oracle: Robot.torque_scale at
     # sqrt(kp), from the two-link arm's damping 0.1 and M(home); for the coupled scale (the
-    # default) Robot.coupled_torque_scale at sqrt(kp), whose diagonal is that scale.
+    # default) Robot.coupled_torque_scale at sqrt(kp), whose diagonal is that scale. Per
+    # scale one Experiment (built at the first kp) and one compiled prepare, called with the
+    # knobs of each kp (Experiment.knobs_for, as a sweep over task.kp runs it): each call
+    # carries its own kp's scale.
     arm = robots.load("two_link_arm")
     for scale, of in (("inertia", arm.torque_scale), ("coupled", arm.coupled_torque_scale)):
+        base = tiny_config(normaliser="robot", torque_scale=scale)
+        built = Experiment(base.replace(task=config.TaskConfig(duration=0.1, kp=25.0)))
+        prepare = jax.jit(functools.partial(algorithm.prepare, built.setup))
         for kp in (25.0, 100.0):
-            cfg = tiny_config(normaliser="robot", torque_scale=scale)
-            cfg = cfg.replace(task=config.TaskConfig(duration=0.1, kp=kp))
-            setup = algorithm.Setup.of(cfg)
-            knobs = algorithm.Knobs.of(cfg, setup.robot, setup.task)
+            cfg = base.replace(task=config.TaskConfig(duration=0.1, kp=kp))
+            knobs = built.knobs_for(cfg)
             want = of(np.sqrt(kp))
             np.testing.assert_array_equal(knobs.torque_scale, want.astype(np.float32))
             np.testing.assert_allclose(knobs.babbling_noise_std, 0.1 * want, rtol=1e-6)
-            prepare = functools.partial(algorithm.prepare, setup)
-            state, _ = jax.jit(prepare)(jax.random.key(0), knobs)
+            state, _ = prepare(jax.random.key(0), knobs)
             np.testing.assert_array_equal(state.normaliser.torque_scale, knobs.torque_scale)
+        assert prepare._cache_size() == 1  # the second kp compiled nothing
     assert config.LoopConfig().torque_scale == "coupled"  # the arm tasks' default
     # The damping (0.1 N m s) makes the scales of the two gains differ.
     assert not np.array_equal(arm.torque_scale(5.0), arm.torque_scale(10.0))
