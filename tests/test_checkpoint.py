@@ -287,12 +287,33 @@ def test_nan_in_one_loss_of_a_batch_stops_that_loss_seed_only(uninterrupted, mon
     assert all(np.all(np.isfinite(np.asarray(x[1]))) for x in leaves)
 
 
-def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path):
+def _cli_in_process(monkeypatch, capsys, argv):
+    """``cfm-jax ARGV`` run in this process (``cfm_jax.cli.main``): its exit status and
+    what it wrote to stdout and stderr, as a subprocess's ``CompletedProcess``."""
+    from cfm_jax import cli
+
+    monkeypatch.setattr(sys, "argv", ["cfm-jax", *argv])
+    capsys.readouterr()
+    try:
+        cli.main()
+        code = 0
+    except SystemExit as stop:
+        code = stop.code
+    captured = capsys.readouterr()
+    return subprocess.CompletedProcess(argv, code, captured.out, captured.err)
+
+
+def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path, monkeypatch, capsys):
     # Run the CLI for two iterations of two losses, then leave the files as a kill during
     # the second loss's last iteration would: its last checkpoint gone, its metrics up to
     # iteration 1, the run's table with the first loss only. Resume: the second loss's last
     # iteration reruns (its checkpoint 2 is written again), the finished first loss is not
     # retrained (its checkpoint files untouched), and the final tables are the same.
+    # The first run is a real subprocess of the entry point (its tables are the oracle of
+    # every later command); the later commands run in this process through cli.main, the
+    # same code without a fresh interpreter each, on one Experiment (built once for the
+    # run's config, as the sweeps reuse one: the numbers are those of a fresh one,
+    # test_train.py), each a separate cfm-jax command on the files the previous one left.
     out = tmp_path / "cli"
     command = cli_command(CFG, tmp_path, out, "joint,task", seeds=2, iterations=2)
     first = subprocess.run(command, capture_output=True, text=True, timeout=600)
@@ -300,6 +321,13 @@ def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path):
     complete = pd.read_csv(out / "metrics.csv")
     task_complete = pd.read_csv(out / "task" / "metrics.csv")
     import shutil
+
+    built = {}
+    monkeypatch.setattr(training, "Experiment", lambda config: built.setdefault(
+        "experiment", cfm_jax.Experiment(config)))  # fmt: skip
+
+    def cli(*flags):
+        return _cli_in_process(monkeypatch, capsys, [*command[3:], *flags])
 
     def stamps(folder):
         return {str(p.relative_to(folder)): p.stat().st_mtime_ns for p in folder.rglob("*")}
@@ -310,7 +338,7 @@ def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path):
     shutil.rmtree(out / "task" / "checkpoints" / "2")
     task_complete[task_complete.iteration <= 1].to_csv(out / "task" / "metrics.csv", index=False)
     complete[complete.loss == "joint"].to_csv(out / "metrics.csv", index=False)
-    again = subprocess.run(command + ["--resume"], capture_output=True, text=True, timeout=600)
+    again = cli("--resume")
     assert again.returncode == 0, again.stderr[-3000:]
     rerun = out / "task" / "checkpoints" / "2"
     assert rerun.is_dir()  # the interrupted iteration ran again and was checkpointed
@@ -328,16 +356,15 @@ def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path):
     (out / "task" / "checkpoints").mkdir()
     (out / "task" / "metrics.csv").unlink()
     complete[complete.loss == "joint"].to_csv(out / "metrics.csv", index=False)
-    fresh = subprocess.run(command + ["--resume"], capture_output=True, text=True, timeout=600)
+    fresh = cli("--resume")
     assert fresh.returncode == 0, fresh.stderr[-3000:]
     assert stamps(out / "joint" / "checkpoints") == joint_before
     pd.testing.assert_frame_equal(pd.read_csv(out / "metrics.csv"), complete, check_exact=True)
     pd.testing.assert_frame_equal(
         pd.read_csv(out / "task" / "metrics.csv"), task_complete, check_exact=True
     )
-    refused = subprocess.run(
-        command[:-1] + ["--seed", "3", "--quiet", "--resume"], capture_output=True, text=True
-    )
+    refused = _cli_in_process(monkeypatch, capsys,
+                              [*command[3:-1], "--seed", "3", "--quiet", "--resume"])  # fmt: skip
     assert refused.returncode == 2
     assert "seed (0 in the run, 3 now)" in refused.stderr and "Traceback" not in refused.stderr
     # Every checkpoint damaged: --resume cannot continue (one error line naming --restart,
@@ -347,19 +374,20 @@ def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path):
     assert {m.parent.parent.parent.name for m in manifests} == {"joint", "task"}
     for manifest in manifests:
         manifest.write_text("{")
-    damaged = subprocess.run(command + ["--resume"], capture_output=True, text=True, timeout=600)
+    damaged = cli("--resume")
     lines = damaged.stderr.strip().splitlines()
     assert damaged.returncode == 2 and lines[-1].startswith("cfm-jax: error: checkpoint step")
     assert "no earlier valid checkpoint" in lines[-1] and "--restart" in lines[-1]
-    both = subprocess.run(command + ["--resume", "--restart"], capture_output=True, text=True)
+    both = cli("--resume", "--restart")
     assert both.returncode == 2 and "--restart=True is not allowed" in both.stderr
-    again = subprocess.run(command + ["--restart"], capture_output=True, text=True, timeout=600)
+    again = cli("--restart")
     assert again.returncode == 0, again.stderr[-3000:]
     pd.testing.assert_frame_equal(pd.read_csv(out / "metrics.csv"), complete, check_exact=True)
     (aside,) = tmp_path.glob("cli.replaced-*")  # the old run, whole: nothing deleted
     assert f"now in {aside}" in again.stderr
     assert (aside / manifests[0].relative_to(out)).read_text() == "{"
     pd.testing.assert_frame_equal(pd.read_csv(aside / "metrics.csv"), complete, check_exact=True)
+    assert len(built) == 1  # the in-process commands ran on one Experiment
 
 
 def test_orbax_timing_note_is_not_printed_other_absl_warnings_are(tmp_path, caplog):
