@@ -11,13 +11,27 @@ flags of its own (``{"arm.xml": ["--robot-torque-limit", "40", "20"]}``), e.g. t
 limits for a file that has none. A robot the library refuses, or a run that fails, is a row
 that says why.
 
+Other tasks: ``--tasks walk,jump`` runs the legged tasks instead (e.g. on
+``--robots tests/robots/quadrupeds``), each with its own defaults
+(``cfm_jax.config.for_task(task)`` with the robot replaced) and the CLI's iterations; a
+flag ``--robot-actuators`` in ``robots.json`` replaces the zoo's ``torque``. Where a default
+cannot run on a robot, one general rule replaces it, for every loss of that robot alike
+(:func:`fallback`): a default that needs MJX (``forward.kind='rigid_body'``,
+``simulator='mjx'``) becomes its native counterpart (``mlp``, ``native``) on a robot MJX
+cannot build (the Go2's and ANYmal's cylinder-box collisions); the row says so. A legged
+task's table adds the runs that fell (its ``fell`` metric) beside each tracking MSE.
+
 Resumable: a robot whose folder already holds a finished run (every loss at its last
 iteration) is read, not run again; an interrupted one resumes from its checkpoints
-(``--resume``). Writes ``--table`` (default ``docs/results/robots.md``) after every robot.
+(``--resume``). One folder per robot and task: ``--out/seeds3/ROBOT`` for the inverse
+dynamics, ``--out/TASK_seeds3/ROBOT`` for the others. Writes ``--table`` (default
+``docs/results/robots.md``) after every robot, one table per task.
 
 Usage:
   python experiments/robot_zoo.py [--robots tests/robots] [--seeds 3]
       [--out results/robot_zoo] [--table docs/results/robots.md] [--only NAME,...]
+  python experiments/robot_zoo.py --robots tests/robots/quadrupeds --tasks walk,jump \
+      --seeds 3 --table docs/results/quadrupeds.md
 """
 
 from __future__ import annotations
@@ -38,6 +52,67 @@ LOSSES = ("joint", "task", "distal", "supervised")
 REFUSED = "zoo_refused.txt"  # in a robot's output folder: why its last run failed
 CODE = "zoo_code.txt"  # in a robot's output folder: the commit of the code that ran it
 MACHINE = "zoo_machine.txt"  # and the machine that ran it: JAX's device, cores, JAX version
+ARMS = "inverse_dynamics"  # the default task (the arms' table)
+# The defaults that need MJX, and what replaces them on a robot MJX cannot build.
+NEEDS_MJX = {"forward.kind": ("rigid_body", "mlp"), "simulator": ("mjx", "native")}
+
+
+def defaults_of(task: str) -> dict[str, str]:
+    """The MJX-sensitive defaults of ``task`` (``cfm_jax.config.for_task``), by flag path."""
+    from cfm_jax import config
+
+    base = config.for_task(task)
+    return {"forward.kind": base.forward.kind, "simulator": base.simulator}
+
+
+def fallback(defaults: dict[str, str], mjx_builds: bool) -> list[str]:
+    """The CLI flags of the one fallback rule: on a robot MJX cannot build, each default
+    that needs MJX becomes its native counterpart (:data:`NEEDS_MJX`), for every loss; else
+    none. Never a choice per robot: only whether MJX builds it decides."""
+    if mjx_builds:
+        return []
+    flags: list[str] = []
+    for path, (needs, instead) in NEEDS_MJX.items():
+        if defaults.get(path) == needs:
+            flags += [f"--{path}", instead]
+    return flags
+
+
+def mjx_error(path: str, flags: list[str]) -> str | None:
+    """Why MJX cannot build the robot file ``path`` loaded as its flags say
+    (``--robot-actuators``, default ``torque``; ``--robot-torque-limit``), or None."""
+    from cfm_jax import robots
+
+    parser = argparse.ArgumentParser(add_help=False)
+    parser.add_argument("--robot-actuators", default="torque")
+    parser.add_argument("--robot-torque-limit", nargs="+", type=float)
+    known, _ = parser.parse_known_args(flags)
+    limit = known.robot_torque_limit
+    if limit is not None and len(limit) == 1:
+        limit = limit[0]
+    robot = robots.load(path, actuators=known.robot_actuators, torque_limit=limit)
+    return robot.mjx_error
+
+
+def mjx_builds(path: str, flags: list[str]) -> bool:
+    """:func:`mjx_error` is None, asked of a child process (this one keeps off the GPU);
+    a robot that does not load counts as built (the run itself then says why)."""
+    probe = (
+        "import json, sys; sys.path.insert(0, sys.argv[1]); import robot_zoo; "
+        "print(json.dumps(robot_zoo.mjx_error(sys.argv[2], sys.argv[3:]) is None))"
+    )
+    here = os.path.dirname(os.path.abspath(__file__))
+    done = subprocess.run(
+        [sys.executable, "-c", probe, here, path, *flags], capture_output=True, text=True
+    )
+    lines = done.stdout.strip().splitlines()
+    return done.returncode != 0 or not lines or json.loads(lines[-1])
+
+
+def run_folder(out: str, task: str, seeds: int, tag: str = "") -> str:
+    """The folder of one task's runs (one subfolder per robot)."""
+    name = f"seeds{seeds}{tag and '_' + tag}"
+    return os.path.join(out, name if task == ARMS else f"{task}_{name}")
 
 
 def code_version(root: str = ROOT) -> str:
@@ -99,15 +174,24 @@ def machine() -> str:
     return done.stdout.strip() if done.returncode == 0 else "unknown"
 
 
-def run_robot(path: str, out: str, seeds: int, extra: list[str]) -> dict:
-    """``cfm-jax train`` on one robot (or read its finished run); a summary dict."""
+def run_robot(
+    path: str, out: str, seeds: int, extra: list[str], task: str = ARMS, defaults=None
+) -> dict:
+    """``cfm-jax train`` on one robot (or read its finished run); a summary dict.
+    ``defaults``: the task's MJX-sensitive defaults (:func:`defaults_of`), for the
+    fallback rule and the row's record of it."""
     done = finished(out)
     start = time.perf_counter()
     error = None
+    defaults = defaults if defaults is not None else {}
     if not done:
-        cmd = [sys.executable, "-m", "cfm_jax.cli", "train", "--robot", path,
-               "--robot-actuators", "torque", "--seeds", str(seeds), "--out", out,
-               "--quiet", *extra]  # fmt: skip
+        load = [] if "--robot-actuators" in extra else ["--robot-actuators", "torque"]
+        if any(defaults.get(k) == needs for k, (needs, _) in NEEDS_MJX.items()):
+            extra = [*extra, *fallback(defaults, mjx_builds(path, extra))]
+        if task != ARMS:
+            extra = ["--task", task, *extra]
+        cmd = [sys.executable, "-m", "cfm_jax.cli", "train", "--robot", path, *load,
+               "--seeds", str(seeds), "--out", out, "--quiet", *extra]  # fmt: skip
         if os.path.isdir(os.path.join(out)) and os.listdir(out):
             cmd.append("--resume")
         proc = subprocess.run(cmd, capture_output=True, text=True)
@@ -139,7 +223,23 @@ def run_robot(path: str, out: str, seeds: int, extra: list[str]) -> dict:
     row["machine"] = open(where).read().strip() if os.path.exists(where) else "not recorded"
     if error is None:
         row.update(summarise(out))
+        row["changed"] = changed_defaults(out, defaults)
     return row
+
+
+def changed_defaults(out: str, defaults: dict[str, str]) -> str:
+    """The defaults the run in ``out`` replaced (its ``config.json`` against ``defaults``),
+    e.g. ``forward.kind=mlp``; ``""`` where none."""
+    try:
+        with open(os.path.join(out, "config.json")) as f:
+            config = json.load(f)
+    except (OSError, ValueError):
+        return ""
+    ran = {
+        "forward.kind": config.get("forward", {}).get("kind"),
+        "simulator": config.get("simulator"),
+    }
+    return ", ".join(f"{k}={ran[k]}" for k, v in defaults.items() if ran.get(k) not in (None, v))
 
 
 def summarise(out: str) -> dict:
@@ -153,6 +253,10 @@ def summarise(out: str) -> dict:
     pd_only = float(base[base.baseline == "pd_only"].tracking_mse.mean())
     oracle = float(base[base.baseline == "oracle"].tracking_mse.mean())
     result: dict = dict(pd_only=pd_only, oracle=oracle)
+    if "fell" in base.columns:  # the legged tasks: baseline runs that fell, of how many
+        for name in ("pd_only", "oracle"):
+            rows = base[base.baseline == name]
+            result[f"{name}_fell"] = (int((rows.fell.fillna(0) == 1).sum()), len(rows))
     means = report.seed_means(metrics)
     for loss in LOSSES:
         rows = metrics[metrics.loss == loss]
@@ -167,13 +271,13 @@ def summarise(out: str) -> dict:
             below_pd=int((per_seed < pd_only).sum()),
             seeds=len(per_seed),
         )
+        if "fell" in last.columns:
+            result[loss]["fell"] = int((last.fell.fillna(0) == 1).sum())
     return result
 
 
 def table(rows: list[dict], seeds: int, folder: str, note: str = "") -> str:
     """The results page (Markdown); ``note``: a paragraph on a variant run's flags."""
-    from cfm_jax import report
-
     lines = [
         "# The defaults on published robots",
         "",
@@ -189,6 +293,16 @@ def table(rows: list[dict], seeds: int, folder: str, note: str = "") -> str:
         "compare only on the same machine).",
         *(["", note] if note else []),
         "",
+        *_arm_rows(rows, seeds),
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _arm_rows(rows: list[dict], seeds: int) -> list[str]:
+    """The inverse dynamics' table: header and one line per robot."""
+    from cfm_jax import report
+
+    lines = [
         "| robot | " + " | ".join(LOSSES) + " | PD-only | oracle | wall (s) | code | machine |",
         "|---|" + "---|" * len(LOSSES) + "---:|---:|---:|---|---|",
     ]
@@ -212,6 +326,93 @@ def table(rows: list[dict], seeds: int, folder: str, note: str = "") -> str:
             f"{row['oracle']:.3g} | {row['wall_s']:.0f} | {row.get('code', 'not recorded')} | "
             f"{row.get('machine', 'not recorded')} |"
         )
+    return lines
+
+
+def _fell(counts) -> str:
+    return f"fell {counts[0]}/{counts[1]}"
+
+
+def legged_rows(rows: list[dict], seeds: int) -> list[str]:
+    """A legged task's table: header and one line per robot. Each loss: final tracking MSE
+    (mean over seeds, 95% interval), runs that fell at the last iteration, seeds below
+    PD-only, diverged runs; PD-only's and the oracle's MSE and falls; the defaults the
+    fallback rule replaced."""
+    from cfm_jax import report
+
+    lines = [
+        "| robot | " + " | ".join(LOSSES) + " | PD-only | oracle | defaults replaced | "
+        "wall (s) | code | machine |",
+        "|---|" + "---|" * len(LOSSES) + "---:|---:|---|---:|---|---|",
+    ]
+    for row in rows:
+        if row.get("error"):
+            lines.append(f"| {row['robot']} | {row['error']} " + "| " * (len(LOSSES) + 5) + "|")
+            continue
+        cells = []
+        for loss in LOSSES:
+            r = row.get(loss)
+            if r is None:
+                cells.append("-")
+                continue
+            text = report.ci_text(r["stats"]) if seeds > 1 else f"{r['stats']['mean']:.3g}"
+            if "fell" in r:
+                text += f"; {_fell((r['fell'], r['runs']))}"
+            text += f"; below PD {r['below_pd']}/{r['seeds']}"
+            if r["diverged"]:
+                text += f"; div. {r['diverged']}/{r['runs']}"
+            cells.append(text)
+        base = [
+            f"{row[name]:.3g}"
+            + (f"; {_fell(row[name + '_fell'])}" if name + "_fell" in row else "")
+            for name in ("pd_only", "oracle")
+        ]
+        changed = row.get("changed") or "none"
+        if row.get("changed"):
+            changed += " (MJX cannot build it)"
+        lines.append(
+            f"| {row['robot']} | " + " | ".join(cells + base) + f" | {changed} | "
+            f"{row['wall_s']:.0f} | {row.get('code', 'not recorded')} | "
+            f"{row.get('machine', 'not recorded')} |"
+        )
+    return lines
+
+
+def page(
+    results: dict[str, list[dict]], seeds: int, folder: str, note: str = "", defaults=None
+) -> str:
+    """The results page: the arms' :func:`table` where only the inverse dynamics ran, else
+    one section per task (``defaults``: each task's MJX-sensitive defaults)."""
+    if list(results) == [ARMS]:
+        return table(results[ARMS], seeds, folder, note)
+    defaults = defaults or {}
+    tasks = ",".join(results)
+    lines = [
+        f"# The defaults on published robots: {', '.join(results)}",
+        "",
+        f"Written by `python experiments/robot_zoo.py --robots {folder} --tasks {tasks} "
+        f"--seeds {seeds}`, {datetime.date.today().isoformat()}. "
+        "Each robot and task: `cfm-jax train --robot FILE --task TASK` with the flags of the "
+        "folder's `robots.json` (else `--robot-actuators torque`) and the task's defaults "
+        "(`cfm_jax.config.for_task(TASK)`: the four losses, its iterations and references). "
+        "Where a default needs MJX and MJX cannot build the robot, one rule for every robot "
+        "and every loss alike replaces it by its native counterpart ("
+        + ", ".join(f"`{k}='{a}'` by `'{b}'`" for k, (a, b) in NEEDS_MJX.items())
+        + "): the column `defaults replaced` says where. Cells: final tracking MSE (rad^2), "
+        "mean over seeds of each seed's mean over its references (95% bootstrap interval "
+        "with several seeds); `fell`: runs (seeds x references) whose robot fell at the last "
+        "iteration (the task's `fell` metric; a run that fell still counts in the mean); "
+        "`below PD`: seeds whose mean is below PD-only's; `div.`: runs whose simulation "
+        "diverged, left out of the mean; `code`, `machine`: the commit and machine that "
+        "ran the robot (wall times compare only on the same machine).",
+        *(["", note] if note else []),
+    ]
+    for task, rows in results.items():
+        said = ", ".join(f"{k}='{v}'" for k, v in (defaults.get(task) or {}).items())
+        lines += ["", f"## {task}", ""]
+        if said:
+            lines += [f"Defaults: {said}.", ""]
+        lines += _arm_rows(rows, seeds) if task == ARMS else legged_rows(rows, seeds)
     return "\n".join(lines) + "\n"
 
 
@@ -222,6 +423,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", default=os.path.join(ROOT, "results", "robot_zoo"))
     parser.add_argument("--table", default=os.path.join(ROOT, "docs", "results", "robots.md"))
     parser.add_argument("--only", default="", help="comma-separated file stems")
+    parser.add_argument(
+        "--tasks",
+        default=ARMS,
+        help="comma-separated tasks, each with its own defaults (e.g. walk,jump on "
+        "tests/robots/quadrupeds); default: inverse_dynamics",
+    )
     parser.add_argument(
         "--tag",
         default="",
@@ -247,39 +454,45 @@ def main(argv: list[str] | None = None) -> None:
         with open(args.flags_file) as f:
             for name, flags in json.load(f).items():
                 extra[name] = extra.get(name, []) + list(flags)
-    rows: list[dict] = []
+    tasks = [t for t in args.tasks.split(",") if t]
+    # Each task's defaults that need MJX (the fallback rule); the arms' run as before.
+    defaults = {task: {} if task == ARMS else defaults_of(task) for task in tasks}
+    results: dict[str, list[dict]] = {task: [] for task in tasks}
     folder = os.path.relpath(args.robots, ROOT)
 
     def write() -> None:
         note = ""
         if args.tag:
-            ran = {f"{row['robot']}.xml" for row in rows}
+            ran = {f"{row['robot']}.xml" for rows in results.values() for row in rows}
             note = f"Variant `{args.tag}`: added flags per file " + ", ".join(
                 f"{k}: `{' '.join(v)}`" for k, v in sorted(extra.items()) if k in ran
             )
         os.makedirs(os.path.dirname(os.path.abspath(args.table)), exist_ok=True)
         with open(args.table, "w") as f:
-            f.write(table(rows, args.seeds, folder, note))
+            f.write(page(results, args.seeds, folder, note, defaults))
 
-    for name, stem in zip(files, stems, strict=True):
-        out = os.path.join(args.out, f"seeds{args.seeds}{args.tag and '_' + args.tag}", stem)
-        if stem not in wanted:
-            # Not asked for this time: its finished run or its refusal still goes into the
-            # table, and a robot not yet run says so.
-            if finished(out):
-                rows.append(run_robot(os.path.join(args.robots, name), out, args.seeds, []))
-            elif os.path.exists(os.path.join(out, REFUSED)):
-                with open(os.path.join(out, REFUSED)) as f:
-                    rows.append(dict(robot=stem, error=f.read().strip(), wall_s=float("nan")))
-            else:
-                rows.append(dict(robot=stem, error="not run yet", wall_s=float("nan")))
+    for task in tasks:
+        rows = results[task]
+        for name, stem in zip(files, stems, strict=True):
+            out = os.path.join(run_folder(args.out, task, args.seeds, args.tag), stem)
+            path = os.path.join(args.robots, name)
+            if stem not in wanted:
+                # Not asked for this time: its finished run or its refusal still goes into
+                # the table, and a robot not yet run says so.
+                if finished(out):
+                    rows.append(run_robot(path, out, args.seeds, [], task, defaults[task]))
+                elif os.path.exists(os.path.join(out, REFUSED)):
+                    with open(os.path.join(out, REFUSED)) as f:
+                        rows.append(dict(robot=stem, error=f.read().strip(), wall_s=float("nan")))
+                else:
+                    rows.append(dict(robot=stem, error="not run yet", wall_s=float("nan")))
+                write()
+                continue
+            print(f"robot_zoo: {name} {task} ...", flush=True)
+            row = run_robot(path, out, args.seeds, extra.get(name, []), task, defaults[task])
+            print(f"robot_zoo: {name} {task}: {row.get('error') or 'done'} ({row['wall_s']:.0f} s)")
+            rows.append(row)
             write()
-            continue
-        print(f"robot_zoo: {name} ...", flush=True)
-        row = run_robot(os.path.join(args.robots, name), out, args.seeds, extra.get(name, []))
-        print(f"robot_zoo: {name}: {row.get('error') or 'done'} ({row['wall_s']:.0f} s)")
-        rows.append(row)
-        write()
     print(f"robot_zoo: wrote {args.table}")
 
 

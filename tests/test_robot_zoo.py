@@ -147,3 +147,92 @@ def test_the_machine_that_ran_a_robot_is_in_its_row(tmp_path):
     kind = jax.devices()[0].device_kind
     want = f"{kind} ({platform.machine()}, {os.cpu_count()} cores), jax {jax.__version__}"
     assert robot_zoo.machine() == want
+
+
+def _legged_run(out, forward: str = "mlp") -> None:
+    # One seed, two references, final iteration 1. joint: fell on reference 1 only;
+    # task: fell on both; PD-only fell on reference 0, the oracle never.
+    out.mkdir(parents=True)
+    config = {"loop": {"iterations": 1}, "forward": {"kind": forward}, "simulator": "native"}
+    (out / "config.json").write_text(json.dumps(config))
+    values = {"joint": ([0.2, 0.4], [0, 1]), "task": ([1.0, 3.0], [1, 1]),
+              "distal": ([0.5, 0.5], [0, 0]), "supervised": ([4.0, 6.0], [0, 0])}  # fmt: skip
+    rows = ["loss,seed,iteration,target,tracking_mse,diverged,fell"]
+    for loss, (mse, fell) in values.items():
+        for target in (0, 1):
+            rows.append(f"{loss},0,0,{target},9.0,0,1")
+            rows.append(f"{loss},0,1,{target},{mse[target]},0,{fell[target]}")
+    (out / "metrics.csv").write_text("\n".join(rows) + "\n")
+    (out / "baselines.csv").write_text(
+        "baseline,target,tracking_mse,fell\noracle,0,1e-14,0\noracle,1,3e-14,0\n"
+        "pd_only,0,1.5,1\npd_only,1,2.5,0\n"
+    )
+
+
+def test_a_legged_tasks_table_by_hand(tmp_path):
+    # The walk's table: each loss's mean, its falls of the last iteration and its seeds
+    # below PD-only (mean 2.0, fell 1/2), the oracle's, and the fallback in its row.
+    _legged_run(tmp_path / "go2")
+    s = robot_zoo.summarise(str(tmp_path / "go2"))
+    assert s["pd_only"] == 2.0 and s["pd_only_fell"] == (1, 2) and s["oracle_fell"] == (0, 2)
+    assert s["joint"]["stats"]["mean"] == pytest.approx(0.3) and s["joint"]["fell"] == 1
+    assert s["task"]["fell"] == 2 and s["task"]["below_pd"] == 0
+    defaults = {"forward.kind": "rigid_body", "simulator": "native"}
+    changed = robot_zoo.changed_defaults(str(tmp_path / "go2"), defaults)
+    assert changed == "forward.kind=mlp"
+    row = dict(robot="go2", wall_s=61.0, error=None, changed=changed, code="abc", **s)
+    text = robot_zoo.page({"walk": [row]}, 1, "tests/robots/quadrupeds", "", {"walk": defaults})
+    assert "## walk" in text and "--tasks walk --seeds 1" in text
+    assert (
+        "| go2 | 0.3; fell 1/2; below PD 1/1 | 2; fell 2/2; below PD 0/1 | 0.5; fell 0/2; "
+        "below PD 1/1 | 5; fell 0/2; below PD 0/1 | 2; fell 1/2 | 2e-14; fell 0/2 | "
+        "forward.kind=mlp (MJX cannot build it) | 61 | abc |"
+    ) in text
+    # A robot that kept the defaults says none; a refusal keeps the row's width.
+    assert robot_zoo.changed_defaults(str(tmp_path / "go2"), {"forward.kind": "mlp"}) == ""
+    lines = robot_zoo.legged_rows([dict(robot="x", error="refused: no", wall_s=1.0)], 1)
+    assert lines[-1].count("|") == lines[0].count("|")
+
+
+def test_the_quadrupeds_flags_file_names_each_robots_actuators():
+    folder = os.path.join(os.path.dirname(__file__), "robots", "quadrupeds")
+    flags = robot_zoo.flags_of(folder)
+    assert set(flags) == {f for f in os.listdir(folder) if f.endswith(".xml")}
+    assert flags["go2.xml"] == ["--robot-actuators", "strict"]  # torque motors as published
+    for servos in ("anymal_c.xml", "barkour_vb_mjx.xml"):
+        assert flags[servos] == ["--robot-actuators", "torque"]
+
+
+def test_the_fallback_rule_depends_only_on_whether_mjx_builds_the_robot():
+    # The legged defaults' rigid-body model needs MJX: on a robot MJX cannot build, every
+    # loss gets the native counterpart (one command, all four losses); otherwise nothing.
+    walk = robot_zoo.defaults_of("walk")
+    assert walk["forward.kind"] == "rigid_body"
+    assert robot_zoo.fallback(walk, mjx_builds=False) == ["--forward.kind", "mlp"]
+    assert robot_zoo.fallback(walk, mjx_builds=True) == []
+    assert robot_zoo.fallback({"forward.kind": "rigid_body", "simulator": "mjx"}, False) == [
+        "--forward.kind", "mlp", "--simulator", "native"]  # fmt: skip
+    assert robot_zoo.fallback(robot_zoo.defaults_of("inverse_dynamics"), False) == []
+    folder = os.path.join(os.path.dirname(__file__), "robots", "quadrupeds")
+    flags = robot_zoo.flags_of(folder)
+    go2 = robot_zoo.mjx_error(os.path.join(folder, "go2.xml"), flags["go2.xml"])
+    assert "cannot build" in go2  # cylinder-box collisions: the Go2 gets mlp
+    name = "barkour_vb_mjx.xml"
+    assert robot_zoo.mjx_error(os.path.join(folder, name), flags[name]) is None  # keeps it
+
+
+def test_a_legged_task_has_its_own_folder_and_section(tmp_path):
+    # --tasks walk reads OUT/walk_seeds1/ROBOT (the arms' OUT/seeds1 untouched) and writes
+    # the walk's section; a robot not run yet says so (nothing is run here).
+    robots = tmp_path / "robots"
+    robots.mkdir()
+    for stem in ("a", "b"):
+        (robots / f"{stem}.xml").write_text("<mujoco/>")
+    _legged_run(tmp_path / "out" / "walk_seeds1" / "a", forward="rigid_body")
+    page = tmp_path / "q.md"
+    robot_zoo.main(["--robots", str(robots), "--seeds", "1", "--out", str(tmp_path / "out"),
+                    "--table", str(page), "--tasks", "walk", "--only", "a"])  # fmt: skip
+    text = page.read_text()
+    assert "## walk" in text and "Defaults: forward.kind='rigid_body', simulator='native'." in text
+    assert "| a | 0.3; fell 1/2; below PD 1/1 |" in text and "| none | nan |" in text
+    assert "| b | not run yet |" in text and not (tmp_path / "out" / "seeds1").exists()
