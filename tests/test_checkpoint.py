@@ -268,9 +268,12 @@ def test_nan_in_one_loss_of_a_batch_stops_that_loss_seed_only(uninterrupted, mon
             state = state.replace(controller_params=params)
         return state, metrics
 
-    clean = cfm_jax.train(CFG, progress=False, losses=("joint", "task"))
+    # Both runs on one Experiment: the fault is put in by the patched method, and the clean
+    # run's compiled programs serve the faulty one.
+    experiment = cfm_jax.Experiment(CFG)
+    clean = cfm_jax.train(CFG, progress=False, losses=("joint", "task"), experiment=experiment)
     monkeypatch.setattr(training.Experiment, "iteration_losses", poisoned)
-    result = cfm_jax.train(CFG, progress=False, losses=("joint", "task"))
+    result = cfm_jax.train(CFG, progress=False, losses=("joint", "task"), experiment=experiment)
     assert result.stopped == [
         {"loss": "task", "seed": 1, "iteration": 1, "quantity": "controller parameters"}
     ]
