@@ -53,8 +53,9 @@ import cfm_jax
 from cfm_jax import config as config_lib
 
 config = config_lib.from_dict(json.load(open(sys.argv[1])))
-trained = cfm_jax.train(config, progress=False, out_dir=sys.argv[2])
-resumed = cfm_jax.train(config, progress=False, resume=sys.argv[3])
+experiment = cfm_jax.Experiment(config)  # built once, for both calls
+trained = cfm_jax.train(config, progress=False, out_dir=sys.argv[2], experiment=experiment)
+resumed = cfm_jax.train(config, progress=False, resume=sys.argv[3], experiment=experiment)
 trained.metrics.to_csv(sys.argv[2] + "/trained.csv", index=False)
 resumed.metrics.to_csv(sys.argv[2] + "/resumed.csv", index=False)
 """
@@ -72,7 +73,24 @@ def _cli(tmp_path, *args, timeout=600):
                           cwd=tmp_path)  # fmt: skip
 
 
-def test_a_users_loss_trains_from_the_cli_and_python_and_resumes(tmp_path):
+def _cli_in_process(monkeypatch, capsys, *args):
+    """``cfm-jax ARGS`` in this process (``cfm_jax.cli.main``), as a finished subprocess
+    (exit status, stdout, stderr); the path and working directory as they were after."""
+    from cfm_jax import cli
+
+    monkeypatch.setattr(sys, "argv", ["cfm-jax", *args])
+    monkeypatch.setattr(sys, "path", list(sys.path))  # --import may add the directory
+    capsys.readouterr()
+    try:
+        cli.main()
+        code = 0
+    except SystemExit as stop:
+        code = stop.code
+    captured = capsys.readouterr()
+    return subprocess.CompletedProcess(args, code, captured.out, captured.err)
+
+
+def test_a_users_loss_trains_from_the_cli_and_python_and_resumes(tmp_path, monkeypatch, capsys):
     (tmp_path / "my_losses.py").write_text(USER_FILE)
     (tmp_path / "tiny.json").write_text(json.dumps(config_lib.to_dict(TINY)))
     out = tmp_path / "cli"
@@ -101,12 +119,15 @@ def test_a_users_loss_trains_from_the_cli_and_python_and_resumes(tmp_path):
     assert not np.array_equal(of["mix"].tracking_mse, of["joint"].tracking_mse)
 
     # Without the module the run's config names a loss no one registered: one line, exit 2.
+    # These two refusals import nothing of the user's: they run in this process (cli.main),
+    # in the working directory of the subprocesses.
+    monkeypatch.chdir(tmp_path)
     again = ["train", "--config", str(out / "config.json"), "--resume", "--out", str(out)]
-    refused = _cli(tmp_path, *again, "--quiet", timeout=300)
+    refused = _cli_in_process(monkeypatch, capsys, *again, "--quiet")
     assert refused.returncode == 2 and "Traceback" not in refused.stderr
     assert "'my_joint'" in refused.stderr and "--import MODULE" in refused.stderr
     assert len(refused.stderr.strip().splitlines()) == 1
-    missing = _cli(tmp_path, "--import", "no_such_module", "config", timeout=300)
+    missing = _cli_in_process(monkeypatch, capsys, "--import", "no_such_module", "config")
     assert missing.returncode == 2 and "--import='no_such_module' is not allowed" in missing.stderr
     # The module by name (importable from the working directory): the config command knows
     # the loss.
