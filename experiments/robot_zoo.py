@@ -398,7 +398,8 @@ def page(
         "Where a default needs MJX and MJX cannot build the robot, one rule for every robot "
         "and every loss alike replaces it by its native counterpart ("
         + ", ".join(f"`{k}='{a}'` by `'{b}'`" for k, (a, b) in NEEDS_MJX.items())
-        + "): the column `defaults replaced` says where. Cells: final tracking MSE (rad^2), "
+        + "): the column `defaults replaced` says where. Cells: final tracking MSE (the "
+        "task's `tracking_mse`), "
         "mean over seeds of each seed's mean over its references (95% bootstrap interval "
         "with several seeds); `fell`: runs (seeds x references) whose robot fell at the last "
         "iteration (the task's `fell` metric; a run that fell still counts in the mean); "
