@@ -30,9 +30,17 @@ STEPS = 30  # control steps per rollout (0.3 s at 0.01 s)
 
 
 @pytest.fixture(scope="module")
-def uninterrupted(tmp_path_factory):
+def experiment():
+    """CFG's Experiment, shared by the runs whose point is not a fresh process: the
+    uninterrupted run, the refused and resumed runs of a damaged copy of it, the NaN in the
+    parameters. The determinism check and the resume after SIGKILL build their own."""
+    return cfm_jax.Experiment(CFG)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory, experiment):
     out = tmp_path_factory.mktemp("full")
-    return cfm_jax.train(CFG, progress=False, out_dir=str(out)), out
+    return cfm_jax.train(CFG, progress=False, out_dir=str(out), experiment=experiment), out
 
 
 def test_checkpoints_written_and_pruned(uninterrupted):
@@ -104,7 +112,7 @@ def _copy_run(src, dst):
     return dst
 
 
-def test_truncated_checkpoint_detected_and_previous_offered(uninterrupted, tmp_path):
+def test_truncated_checkpoint_detected_and_previous_offered(uninterrupted, experiment, tmp_path):
     out = _copy_run(uninterrupted[1], tmp_path / "run")
     step_dir = out / "checkpoints" / "4"
     manifest = json.loads((step_dir / checkpoint.MANIFEST).read_text())
@@ -112,19 +120,19 @@ def test_truncated_checkpoint_detected_and_previous_offered(uninterrupted, tmp_p
     path = step_dir / biggest
     path.write_bytes(path.read_bytes()[: manifest[biggest][0] // 2])
     with pytest.raises(checkpoint.CheckpointError) as info:
-        cfm_jax.train(CFG, progress=False, resume=str(out))
+        cfm_jax.train(CFG, progress=False, resume=str(out), experiment=experiment)
     message = str(info.value)
     assert "checkpoint step 4 is not usable" in message and "truncated" in message
     assert str(path) in message
     assert "the previous valid checkpoint is step 3" in message
 
 
-def test_incomplete_last_step_is_skipped_on_resume(uninterrupted, tmp_path):
+def test_incomplete_last_step_is_skipped_on_resume(uninterrupted, experiment, tmp_path):
     # A kill between Orbax's commit and the manifest leaves a step without manifest.
     out = _copy_run(uninterrupted[1], tmp_path / "run")
     os.remove(out / "checkpoints" / "4" / checkpoint.MANIFEST)
     with pytest.warns(UserWarning, match="skipping checkpoint step 4"):
-        resumed = cfm_jax.train(CFG, progress=False, resume=str(out))
+        resumed = cfm_jax.train(CFG, progress=False, resume=str(out), experiment=experiment)
     pd.testing.assert_frame_equal(resumed.metrics, uninterrupted[0].metrics, check_exact=True)
 
 
@@ -148,15 +156,19 @@ def _poison_the_simulator(monkeypatch):
 
 @pytest.fixture(scope="module")
 def nan_run(tmp_path_factory):
-    """A run of CFG whose rollout (seed 0, target 0, iteration index 1) diverges."""
+    """A run of CFG whose rollout (seed 0, target 0, iteration index 1) diverges, and its
+    Experiment: a fresh one, whose babbling calls the simulator (the fault counts the calls).
+    """
     out = tmp_path_factory.mktemp("nan_sim")
+    experiment = cfm_jax.Experiment(CFG)
     with pytest.MonkeyPatch.context() as monkeypatch:
         _poison_the_simulator(monkeypatch)
-        return cfm_jax.train(CFG, progress=False, out_dir=str(out)), out  # no exception
+        result = cfm_jax.train(CFG, progress=False, out_dir=str(out), experiment=experiment)
+    return result, out, experiment  # no exception
 
 
 def test_nan_in_simulator_state_is_a_diverged_rollout_not_an_error(uninterrupted, nan_run):
-    result, out = nan_run
+    result, out, _ = nan_run
     m, full = result.metrics, uninterrupted[0].metrics
     hit = (m.seed == 0) & (m.iteration == 1) & (m.target == 0)
     assert m.loc[hit, "diverged"].tolist() == [1.0]
@@ -186,12 +198,12 @@ def test_resume_after_a_divergence_reproduces_its_flags_bit_for_bit(nan_run, tmp
     # the diverged flags come back from the checkpoint, and iteration 4 learns from the
     # restored data set that lacks the diverged rows; the metrics equal the uninterrupted
     # run's bit for bit, the simulator no longer poisoned.
-    result, out = nan_run
+    result, out, experiment = nan_run
     copy = _copy_run(out, tmp_path / "run")
     import shutil
 
     shutil.rmtree(copy / "checkpoints" / "4")
-    resumed = cfm_jax.train(CFG, progress=False, resume=str(copy))
+    resumed = cfm_jax.train(CFG, progress=False, resume=str(copy), experiment=experiment)
     pd.testing.assert_frame_equal(resumed.metrics, result.metrics, check_exact=True)
     assert resumed.metrics.diverged.sum() == 1
     size = np.asarray(resumed.state.data.size)
@@ -218,8 +230,8 @@ def _keys():
     return jax.vmap(jax.random.key)(jnp.arange(2, dtype=jnp.uint32))
 
 
-def test_nan_in_parameters_stops_that_seed_only_and_names_it(uninterrupted, tmp_path,
-                                                              monkeypatch):  # fmt: skip
+def test_nan_in_parameters_stops_that_seed_only_and_names_it(uninterrupted, experiment,
+                                                              tmp_path, monkeypatch):  # fmt: skip
     original = training.Experiment.iteration_losses
     calls = {"n": 0}
 
@@ -233,7 +245,7 @@ def test_nan_in_parameters_stops_that_seed_only_and_names_it(uninterrupted, tmp_
 
     monkeypatch.setattr(training.Experiment, "iteration_losses", poisoned)
     out = tmp_path / "nan_params"
-    result = cfm_jax.train(CFG, progress=False, out_dir=str(out))
+    result = cfm_jax.train(CFG, progress=False, out_dir=str(out), experiment=experiment)
     expected = [{"loss": "joint", "seed": 1, "iteration": 2, "quantity": "controller parameters"}]
     assert result.stopped == expected
     assert json.loads((out / "stopped.json").read_text()) == expected
@@ -252,7 +264,8 @@ def test_nan_in_parameters_stops_that_seed_only_and_names_it(uninterrupted, tmp_
     assert ckpt.steps()[-1] == CFG.loop.iterations and ckpt.problem(ckpt.steps()[-1]) is None
 
 
-def test_nan_in_one_loss_of_a_batch_stops_that_loss_seed_only(uninterrupted, monkeypatch):
+def test_nan_in_one_loss_of_a_batch_stops_that_loss_seed_only(uninterrupted, experiment,
+                                                               monkeypatch):  # fmt: skip
     # Two losses trained together (issue 46); the task loss's seed 1 gets NaN parameters
     # after iteration index 1. Oracle: the uninterrupted joint run (the fixture) for the
     # joint loss, unchanged bit for bit, and the task loss's seed 0 as in a batch without
@@ -268,9 +281,8 @@ def test_nan_in_one_loss_of_a_batch_stops_that_loss_seed_only(uninterrupted, mon
             state = state.replace(controller_params=params)
         return state, metrics
 
-    # Both runs on one Experiment: the fault is put in by the patched method, and the clean
-    # run's compiled programs serve the faulty one.
-    experiment = cfm_jax.Experiment(CFG)
+    # Both runs on the module's Experiment: the fault is put in by the patched method, and
+    # the clean run's compiled programs serve the faulty one.
     clean = cfm_jax.train(CFG, progress=False, losses=("joint", "task"), experiment=experiment)
     monkeypatch.setattr(training.Experiment, "iteration_losses", poisoned)
     result = cfm_jax.train(CFG, progress=False, losses=("joint", "task"), experiment=experiment)
