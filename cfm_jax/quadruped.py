@@ -662,24 +662,14 @@ class FallRule:
         """
         from cfm_jax import solo12
 
-        qpos = np.asarray(qpos, float) if xp is np else xp.asarray(qpos)
-        quat = qpos[..., 3:7] / xp.linalg.norm(qpos[..., 3:7], axis=-1, keepdims=True)
-        up = solo12.quat_to_mat(quat, xp=xp)[..., 2, :]  # world z of the base's axes
-        height = qpos[..., 2]
-        corners = xp.asarray(self.corners, dtype=qpos.dtype)
-        lowest = xp.min(height[..., None] + xp.einsum("kj,...j->...k", corners, up), axis=-1)
-        knee_z = height[..., None] + xp.einsum(
-            "...j,...kj->...k", up, self.knee_positions(qpos, xp)
+        limits = solo12.FallLimits(
+            min_base_height=self.min_base_height,
+            max_tilt=self.max_tilt,
+            body_clearance=self.body_clearance,
+            max_pull=self.max_pull,
         )
-        lowest = xp.minimum(lowest, xp.min(knee_z, axis=-1))
-        out = (
-            (height < self.min_base_height)
-            | (xp.arccos(xp.clip(up[..., 2], -1.0, 1.0)) > self.max_tilt)
-            | (lowest < self.body_clearance)
-        )
-        if foot_force is not None:
-            out = out | xp.any(xp.asarray(foot_force)[..., 2] < -self.max_pull, axis=-1)
-        return xp.asarray(out)
+        knees = lambda q: self.knee_positions(q, xp)  # noqa: E731
+        return solo12.body_fell(qpos, self.corners, knees, limits, foot_force, xp)
 
 
 def _rotation(axis, angle, xp):

@@ -341,16 +341,40 @@ def fell(qpos, foot_force=None, limits: FallLimits = FALL, xp=np):
       >>> bool(fell(kneel)), bool(fell(kneel, limits=FallLimits(body_clearance=0.0, knees=False)))
       (True, False)
     """
+    knees = None
+    if limits.knees:
+        knees = lambda qpos: knee_positions(qpos[..., 7:19], xp=xp)  # noqa: E731
+    return body_fell(qpos, BASE_CORNERS, knees, limits, foot_force, xp)
+
+
+def body_fell(qpos, corners, knees, limits: FallLimits, foot_force=None, xp=np):
+    """:func:`fell` of a floating base whose body points are ``corners`` (base frame,
+    ``(k, 3)``) and the points ``knees(qpos)`` returns (base frame, ``(..., m, 3)``; None:
+    none), judged by ``limits`` (its ``knees`` field is not read): the rule of every
+    quadruped (:func:`cfm_jax.quadruped.fall_rule`).
+
+    Args:
+      qpos: ``(..., nq)`` positions (base pose first).
+      corners: the base's points, base frame, ``(k, 3)``.
+      knees: a function of ``qpos`` giving further body points, or None.
+      limits: the :class:`FallLimits`.
+      foot_force: ``(..., 4, 3)`` floor forces on the feet (world frame), or None.
+      xp: the array module, ``numpy`` or ``jax.numpy``.
+
+    Examples:
+      >>> bool(body_fell(load_model().key("home").qpos, BASE_CORNERS, None, FALL))
+      False
+    """
     qpos = np.asarray(qpos, float) if xp is np else xp.asarray(qpos)
     quat = qpos[..., 3:7] / xp.linalg.norm(qpos[..., 3:7], axis=-1, keepdims=True)
     rotation = quat_to_mat(quat, xp=xp)
     up = rotation[..., 2, :]  # world z components of the base axes
     height = qpos[..., 2]
-    corners = xp.asarray(BASE_CORNERS, dtype=qpos.dtype)
+    corners = xp.asarray(corners, dtype=qpos.dtype)
     lowest = xp.min(height[..., None] + xp.einsum("kj,...j->...k", corners, up), axis=-1)
-    if limits.knees:
-        knees = knee_positions(qpos[..., 7:19], xp=xp)  # (..., 4, 3), base frame
-        knee_z = height[..., None] + xp.einsum("...j,...kj->...k", up, knees)
+    if knees is not None:
+        points = knees(qpos)  # (..., m, 3), base frame
+        knee_z = height[..., None] + xp.einsum("...j,...kj->...k", up, points)
         lowest = xp.minimum(lowest, xp.min(knee_z, axis=-1))
     out = (
         (height < limits.min_base_height)
