@@ -298,9 +298,30 @@ def table(rows: list[dict], seeds: int, folder: str, note: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
+def _loss_cells(row: dict, seeds: int) -> list[str]:
+    """Each loss's cell of a robot's row: its final tracking MSE (mean over seeds; with
+    several, its 95% interval), the runs that fell (the legged tasks), the seeds below
+    PD-only and the diverged runs; ``-`` for a loss not run."""
+    from cfm_jax import report
+
+    cells = []
+    for loss in LOSSES:
+        r = row.get(loss)
+        if r is None:
+            cells.append("-")
+            continue
+        text = report.ci_text(r["stats"]) if seeds > 1 else f"{r['stats']['mean']:.3g}"
+        if "fell" in r:
+            text += f"; {_fell((r['fell'], r['runs']))}"
+        text += f"; below PD {r['below_pd']}/{r['seeds']}"
+        if r["diverged"]:
+            text += f"; div. {r['diverged']}/{r['runs']}"
+        cells.append(text)
+    return cells
+
+
 def _arm_rows(rows: list[dict], seeds: int) -> list[str]:
     """The inverse dynamics' table: header and one line per robot."""
-    from cfm_jax import report
 
     lines = [
         "| robot | " + " | ".join(LOSSES) + " | PD-only | oracle | wall (s) | code | machine |",
@@ -310,17 +331,7 @@ def _arm_rows(rows: list[dict], seeds: int) -> list[str]:
         if row.get("error"):
             lines.append(f"| {row['robot']} | {row['error']} " + "| " * (len(LOSSES) + 4) + "|")
             continue
-        cells = []
-        for loss in LOSSES:
-            r = row.get(loss)
-            if r is None:
-                cells.append("-")
-                continue
-            text = report.ci_text(r["stats"]) if seeds > 1 else f"{r['stats']['mean']:.3g}"
-            text += f"; below PD {r['below_pd']}/{r['seeds']}"
-            if r["diverged"]:
-                text += f"; div. {r['diverged']}/{r['runs']}"
-            cells.append(text)
+        cells = _loss_cells(row, seeds)
         lines.append(
             f"| {row['robot']} | " + " | ".join(cells) + f" | {row['pd_only']:.3g} | "
             f"{row['oracle']:.3g} | {row['wall_s']:.0f} | {row.get('code', 'not recorded')} | "
@@ -338,7 +349,6 @@ def legged_rows(rows: list[dict], seeds: int) -> list[str]:
     (mean over seeds, 95% interval), runs that fell at the last iteration, seeds below
     PD-only, diverged runs; PD-only's and the oracle's MSE and falls; the defaults the
     fallback rule replaced."""
-    from cfm_jax import report
 
     lines = [
         "| robot | " + " | ".join(LOSSES) + " | PD-only | oracle | defaults replaced | "
@@ -349,19 +359,7 @@ def legged_rows(rows: list[dict], seeds: int) -> list[str]:
         if row.get("error"):
             lines.append(f"| {row['robot']} | {row['error']} " + "| " * (len(LOSSES) + 5) + "|")
             continue
-        cells = []
-        for loss in LOSSES:
-            r = row.get(loss)
-            if r is None:
-                cells.append("-")
-                continue
-            text = report.ci_text(r["stats"]) if seeds > 1 else f"{r['stats']['mean']:.3g}"
-            if "fell" in r:
-                text += f"; {_fell((r['fell'], r['runs']))}"
-            text += f"; below PD {r['below_pd']}/{r['seeds']}"
-            if r["diverged"]:
-                text += f"; div. {r['diverged']}/{r['runs']}"
-            cells.append(text)
+        cells = _loss_cells(row, seeds)
         base = [
             f"{row[name]:.3g}"
             + (f"; {_fell(row[name + '_fell'])}" if name + "_fell" in row else "")
