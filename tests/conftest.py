@@ -5,8 +5,9 @@
 the iiwa compiles and runs about 1000x slower.
 
 The suite runs in two pytest-xdist workers, a test file at a time each
-(``-n 2 --dist loadfile`` in pyproject.toml). :data:`LONGEST_FIRST` puts the longest files
-at the front of the queue, so that neither worker is left with a long file at the end.
+(``-n 2 --dist loadfile --no-loadscope-reorder`` in pyproject.toml). :data:`FILE_SECONDS`
+puts the longest files at the front of the queue, so that neither worker is left with a
+long file at the end.
 
 JAX's persistent compilation cache is on for the test session, in a fresh temporary folder
 (removed at exit; a ``JAX_COMPILATION_CACHE_DIR`` set by the caller is used as it is). Many
@@ -48,25 +49,55 @@ jax.config.update(
 )
 
 
-# The longest test files (``pytest --durations``), started first; the rest follow in
-# collection order. Only the order changes, never which tests run.
-LONGEST_FIRST = (
-    "test_learning_mjx.py",
-    "test_sweep.py",
-    "test_notebooks.py",
-    "test_checkpoint.py",
-    "test_train.py",
-    "test_legged_task.py",
-    "test_learning.py",
-    "test_mjx_tasks.py",
-    "test_replay.py",
-    "test_opspace_task.py",
-)
+# Seconds per test file: the full suite with ``--durations=0``, summed per file (two workers
+# beside two long studies on 2 cores, 2026-11-29; docs/development.md, "CI time"). Only their
+# order matters: the files start longest first and the rest follow in collection order, the
+# two workers taking the next file as they free up (``--dist loadfile
+# --no-loadscope-reorder``), so that no long file is left for the end. Only the order
+# changes, never which tests run. A new long file belongs here. test_learning_mjx.py before
+# test_learning.py also lets the native run load the fits' programs that the MJX run put in
+# the compilation cache.
+FILE_SECONDS = {
+    "test_sweep.py": 479,
+    "test_dev_robots.py": 416,
+    "test_checkpoint.py": 406,
+    "test_learning_mjx.py": 338,
+    "test_train.py": 313,
+    "test_mjx_tasks.py": 305,
+    "test_notebooks.py": 265,
+    "test_legged_task.py": 255,
+    "test_comparison.py": 197,
+    "test_docstrings.py": 179,
+    "test_own_loss.py": 131,
+    "test_servo_robots.py": 96,
+    "test_babbling.py": 93,
+    "test_replay.py": 81,
+    "test_docs.py": 77,
+    "test_baselines.py": 76,
+    "test_claims.py": 75,
+    "test_opspace_task.py": 73,
+    "test_normaliser.py": 70,
+    "test_xla.py": 68,
+    "test_bench.py": 65,
+    "test_update.py": 58,
+    "test_training_options.py": 48,
+    "test_rollout.py": 46,
+    "test_rigid_body.py": 46,
+    "test_solo12.py": 45,
+    "test_networks.py": 44,
+    "test_learning.py": 43,
+    "test_divergence.py": 41,
+    "test_locomotion.py": 41,
+    "test_forward_kinds.py": 41,
+    "test_coupled_scale.py": 35,
+    "test_video.py": 33,
+    "test_robot_models.py": 28,
+    "test_theory.py": 22,
+}
 
 
 def pytest_collection_modifyitems(config, items):
-    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(LONGEST_FIRST)))  # stable
+    items.sort(key=lambda item: -FILE_SECONDS.get(item.path.name, 0))  # stable
 
 
 # The robots most test files use, loaded once per worker (robots.load parses the MJCF).
