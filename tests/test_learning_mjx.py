@@ -24,8 +24,9 @@ def mjx():
 # MJX: the same config, 15 seeds: per seed final / iteration 0 at most 0.13 (joint) and
 # every loss at most 0.079 of PD-only, as on native. The four losses in one batched run:
 # 59 s wall under pytest with the other core busy. In the default run (issue 29 item 1:
-# learning on both simulators); its own file, queued first (tests/conftest.py), so that one
-# worker takes it while the other takes the native one.
+# learning on both simulators); its own file, queued among the longest and before the
+# native one (tests/conftest.py, FILE_SECONDS), whose fits then load from the compilation
+# cache the programs this run compiled.
 def test_every_loss_learns_mjx(mjx):
     check_learns(summarise(mjx[1]), factor=FACTOR, best_below_pd=BEST_BELOW_PD)
 
