@@ -31,9 +31,10 @@ STEPS = 30  # control steps per rollout (0.3 s at 0.01 s)
 
 @pytest.fixture(scope="module")
 def experiment():
-    """CFG's Experiment, shared by the runs whose point is not a fresh process: the
-    uninterrupted run, the refused and resumed runs of a damaged copy of it, the NaN in the
-    parameters. The determinism check and the resume after SIGKILL build their own."""
+    """CFG's Experiment, shared by the runs whose point is not a fresh Experiment: the
+    uninterrupted run, the refused and resumed runs of a damaged copy of it, the resume
+    after the SIGKILL of a training subprocess, the NaN in the parameters. The determinism
+    check builds its own."""
     return cfm_jax.Experiment(CFG)
 
 
@@ -65,7 +66,7 @@ print("FINISHED")
 """
 
 
-def test_sigkill_then_resume_gives_identical_metrics(uninterrupted, tmp_path):
+def test_sigkill_then_resume_gives_identical_metrics(uninterrupted, experiment, tmp_path):
     config_file = tmp_path / "config.json"
     config_file.write_text(json.dumps(config_lib.to_dict(CFG)))
     out = tmp_path / "killed"
@@ -83,7 +84,9 @@ def test_sigkill_then_resume_gives_identical_metrics(uninterrupted, tmp_path):
     assert proc.returncode == -signal.SIGKILL
     partial = pd.read_csv(out / "metrics.csv")
     assert partial.iteration.max() < CFG.loop.iterations  # it really was interrupted
-    resumed = cfm_jax.train(CFG, progress=False, resume=str(out))
+    # The files the killed process left are all the resume has of it; this process's
+    # compiled programs (the module's Experiment) only run it.
+    resumed = cfm_jax.train(CFG, progress=False, resume=str(out), experiment=experiment)
     pd.testing.assert_frame_equal(resumed.metrics, uninterrupted[0].metrics, check_exact=True)
     on_disk = pd.read_csv(out / "metrics.csv")
     assert len(on_disk) == len(uninterrupted[0].metrics)
