@@ -30,7 +30,7 @@ __version__ = "0.1.0"
 _LAZY = {
     "train": "cfm_jax.training",
     "TrainResult": "cfm_jax.training",
-    "Experiment": "cfm_jax.experiment",
+    "Experiment": "cfm_jax.algorithm",
     "METRIC_COLUMNS": "cfm_jax.algorithm",
     "Config": "cfm_jax.config",
     "TaskConfig": "cfm_jax.config",

@@ -1,10 +1,24 @@
-"""Algorithm 1 of the paper as pure functions of one seed (docs/concepts/method.md).
+"""Algorithm 1 of the paper in one place: the whole program from a config to the loss gradient
+(docs/concepts/method.md); :func:`cfm_jax.train` is the impure shell around it (the loop,
+result files, checkpoints: :mod:`cfm_jax.training`, :mod:`cfm_jax.recorder`).
 
-:func:`init` (babbling, normaliser, fresh models, fit f, fit g) and :func:`iteration`
-(rollout, :func:`metrics` before any refit, add the data, refit f, refit g) follow the
-paper's listing; given ``data`` instead of collecting it, they replay a recorded data set.
-:class:`cfm_jax.experiment.Experiment` vmaps them over seeds and compiles them;
-:func:`cfm_jax.train` is the impure shell around them.
+Read top to bottom:
+
+1. **What a run carries**: :class:`Setup` (what a config fixes: robot, task, models; built
+   once), :class:`Knobs` (its runtime values, arguments of the compiled programs) and
+   :class:`TrainState` (parameters, optimiser states, normaliser, data set, key).
+2. **The listing**, pure functions of one seed: :func:`init` (:func:`prepare`: babbling,
+   normaliser, fresh models, fit f; then :func:`fit_initial_controller`) and
+   :func:`iteration` (:func:`collect`: roll g out and measure before any refit;
+   :func:`refit_forward`: add the data, refit f; :func:`refit_controller`: refit g with the
+   loss), :func:`evaluate`. Given ``data`` instead of collecting it, they replay a recorded
+   data set.
+3. **The updates**: :func:`fit_forward` and :func:`fit_controller`, Adam steps under
+   ``lax.scan``; :func:`controller_objective` is where a controller loss
+   (:mod:`cfm_jax.losses`) meets the forward model and is differentiated.
+4. **Rollouts and metrics**: :func:`rollout` on the config's simulator, :func:`metrics`.
+5. **Compiled, vmapped over seeds**: :class:`Experiment` jit-compiles these functions once
+   per config structure and runs them for every seed (and, one after the other, every loss).
 
 Examples:
   >>> from cfm_jax import config as cfg
@@ -28,15 +42,18 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
+import json
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+import pandas as pd
 from flax import struct
 
-from cfm_jax import babbling, dataset, forward_models, networks, robots, tasks, update
+from cfm_jax import _xla, babbling, dataset, forward_models, losses, networks, robots, tasks
 from cfm_jax import config as config_lib
 from cfm_jax import rollout as rollout_lib
 from cfm_jax.tasks import scales
@@ -667,7 +684,7 @@ def _fit_forward(
     setup: Setup, state: TrainState, key, steps: int, knobs: Knobs
 ) -> tuple[TrainState, jax.Array]:
     """``steps`` forward-model updates on ``state.data``; returns the state and mean loss."""
-    params, opt_state, loss = update.fit_forward(
+    params, opt_state, loss = fit_forward(
         setup.forward,
         _forward_optimizer(knobs),
         state.forward_params,
@@ -685,7 +702,7 @@ def _fit_controller(
     setup: Setup, loss: str, state: TrainState, key, steps: int, knobs: Knobs
 ) -> tuple[TrainState, jax.Array]:
     """``steps`` controller updates with ``loss`` through f; returns the state and mean loss."""
-    params, opt_state, mean_loss = update.fit_controller(
+    params, opt_state, mean_loss = fit_controller(
         loss,
         setup.forward,
         setup.controller,
@@ -713,6 +730,233 @@ def _forward_optimizer(knobs: Knobs):
 
 def _controller_optimizer(knobs: Knobs):
     return optax.adam(knobs.controller_learning_rate)
+
+
+# ----- the updates: gradient steps under lax.scan ----------------------------------------
+#
+# fit_forward fits the forward model by its own objective (the ensemble's Gaussian NLL, each
+# member on its own minibatches); fit_controller fits the controller by controller_objective,
+# differentiated in the controller's parameters only, so a controller loss never changes
+# the forward model.
+
+
+def controller_objective(
+    controller_params,
+    forward_params,
+    loss,
+    forward,
+    controller,
+    normaliser,
+    batch,
+    goal: str = "desired",
+    groups=None,
+    weights=None,
+):
+    """Mean controller loss over a minibatch, in normalised units (the controller's training loss).
+
+    Model-based losses (``loss.forward``) compare ``s_p = f(s, g(s, s*))`` (ensemble mean)
+    with ``s*`` (:func:`cfm_jax.losses.controller_loss`); the others, like ``supervised``,
+    compare ``g(s, P s_a)`` with ``tau_run`` in the forward model's scaled torque units (a
+    norm in the ``norm`` form).
+    ``goal="observed"`` gives ``g`` the observed ``P s_a`` for ``s*``; see docs/concepts/losses.md.
+
+    Args:
+      controller_params: the controller's parameters (differentiated).
+      forward_params: the forward ensemble's parameters (held fixed).
+      loss: a registered :class:`cfm_jax.losses.Loss` or its name (:func:`cfm_jax.losses.get`).
+      forward: the forward :class:`cfm_jax.networks.Model`.
+      controller: the controller :class:`cfm_jax.networks.Model`.
+      normaliser: the :class:`cfm_jax.networks.Normaliser`.
+      batch: :class:`cfm_jax.dataset.Transitions` ``(batch, ...)``.
+      goal: ``"desired"`` or ``"observed"`` (static; else ValueError).
+      groups: None (``squared`` form) or the ``norm`` form's groups (static).
+      weights: None (a plain mean) or ``(batch,)`` row weights: ``sum w L / max(sum w, 1)``.
+
+    Examples:
+      >>> from cfm_jax import networks
+      >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
+      >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
+      >>> g = networks.controller(hidden=(8,), nv=2)
+      >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))
+      >>> theta, beta = fm.init(jax.random.key(0), 4), g.init(jax.random.key(1), 4)
+      >>> grads = jax.grad(controller_objective)(beta, theta, "joint", fm, g, norm, rows)
+      >>> jax.tree.structure(grads) == jax.tree.structure(beta)
+      True
+    """
+    if goal not in ("desired", "observed"):
+        raise ValueError(f"goal={goal!r} is not allowed: 'desired' or 'observed'")
+    loss = losses.get(loss)
+    if not loss.forward:
+        achieved = normaliser.select(batch.observed)
+        predicted = controller.apply(controller_params, normaliser, batch.state, achieved)
+        # In the scaled torque space the forward model's input uses (tau / S, T^-1 tau, or
+        # the limits): a unit error there moves every joint alike, so the wrist's small
+        # torques weigh as much as the shoulder's large ones.
+        predicted, executed = normaliser.torque(predicted), normaliser.torque(batch.action)
+        distance = losses.supervised if groups is None else _norm_distance
+        return _mean(loss.fn(predicted, executed, distance), weights)
+    goal_input = batch.desired if goal == "desired" else normaliser.select(batch.observed)
+    tau = controller.apply(controller_params, normaliser, batch.state, goal_input)
+    predicted = forward.predict(forward_params, normaliser, batch.state, tau, terms=batch.terms)
+    predicted_run = None
+    if loss.run:  # f(s, tau_run): no controller parameter in it
+        predicted_run = forward.predict(
+            forward_params, normaliser, batch.state, batch.action, terms=batch.terms
+        )
+    per_sample = losses.controller_loss(
+        loss,
+        predicted,
+        normaliser.desired(batch.desired),
+        normaliser.output(batch.observed),
+        select=None if normaliser.desired_index is None else normaliser.select,
+        predicted_run=predicted_run,
+        groups=groups,
+        desired_index=normaliser.desired_index,
+    )
+    return _mean(per_sample, weights)
+
+
+def _norm_distance(x, y):
+    """The ``norm`` form's distance between actions: ``|x - y|``."""
+    return losses.safe_norm(x - y)
+
+
+def _mean(per_sample, weights):
+    """``jnp.mean(per_sample)``, or its mean weighted by ``weights`` (rows of weight 0 out)."""
+    if weights is None:
+        return jnp.mean(per_sample)
+    per_sample = jnp.where(weights > 0, per_sample, 0.0)  # a NaN in an empty row stays out
+    return jnp.sum(weights * per_sample) / jnp.maximum(jnp.sum(weights), 1.0)
+
+
+def fit_forward(forward, optimizer, params, opt_state, normaliser, data, key, steps, batch_size):
+    """``steps`` optimiser steps of the forward model's ``objective`` under ``lax.scan``.
+
+    Args:
+      forward: the forward :class:`cfm_jax.networks.Model`.
+      optimizer: an ``optax`` optimiser.
+      params: its parameters.
+      opt_state: ``optimizer``'s state for them.
+      normaliser: the :class:`cfm_jax.networks.Normaliser`.
+      data: the :class:`cfm_jax.dataset.Dataset` to sample from.
+      key: PRNG key.
+      steps: number of steps (static; 0 returns the inputs and a NaN loss).
+      batch_size: rows per minibatch; each step draws ``forward.batches(params)`` (static).
+
+    Returns:
+      ``(params, opt_state, mean loss over the steps)``.
+
+    Examples:
+      >>> from cfm_jax import networks
+      >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
+      >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
+      >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))
+      >>> data = dataset.add(dataset.empty(16, state_dim=4, nv=2), rows)
+      >>> params, opt = fm.init(jax.random.key(0), 4), optax.adam(1e-2)
+      >>> params, state, first = fit_forward(fm, opt, params, opt.init(params), norm, data,
+      ...                                    jax.random.key(1), steps=20, batch_size=4)
+      >>> _, _, later = fit_forward(fm, opt, params, state, norm, data, jax.random.key(2),
+      ...                           steps=20, batch_size=4)
+      >>> bool(later < first)
+      True
+    """
+    batches = forward.batches(params)
+
+    def one_step(carry, step_key):
+        params, opt_state = carry
+        keys = jax.random.split(step_key, batches)
+        batch = jax.vmap(lambda k: dataset.sample(data, k, batch_size))(keys)
+        value, grads = jax.value_and_grad(forward.objective)(params, normaliser, batch)
+        updates, opt_state = optimizer.update(grads, opt_state, params)
+        return (optax.apply_updates(params, updates), opt_state), value
+
+    (params, opt_state), values = jax.lax.scan(
+        one_step, (params, opt_state), jax.random.split(key, steps)
+    )
+    return params, opt_state, jnp.mean(values) if steps else jnp.float32(jnp.nan)
+
+
+def fit_controller(
+    loss,
+    forward,
+    controller,
+    optimizer,
+    params,
+    opt_state,
+    forward_params,
+    normaliser,
+    data,
+    key,
+    steps,
+    batch_size,
+    goal="desired",
+    groups=None,
+    full_batch=False,
+):
+    """``steps`` optimiser steps of :func:`controller_objective` in the controller's parameters.
+
+    Args:
+      loss: a registered :class:`cfm_jax.losses.Loss` or its name (static).
+      forward: the forward :class:`cfm_jax.networks.Model`.
+      controller: the controller :class:`cfm_jax.networks.Model`.
+      optimizer: an ``optax`` optimiser.
+      params: the controller's parameters.
+      opt_state: ``optimizer``'s state for them.
+      forward_params: the forward ensemble's parameters (not changed).
+      normaliser: the :class:`cfm_jax.networks.Normaliser`.
+      data: the :class:`cfm_jax.dataset.Dataset` to sample from.
+      key: PRNG key.
+      steps: number of steps (static; 0 returns the inputs and a NaN loss).
+      batch_size: rows per step (static; not used with ``full_batch``).
+      goal: ``"desired"`` or ``"observed"`` (static; :func:`controller_objective`).
+      groups: None (``squared`` form) or the ``norm`` form's groups (static).
+      full_batch: False: a minibatch drawn with replacement per step; True: every row of the
+        buffer, its empty rows weighted 0 (static).
+
+    Returns:
+      ``(params, opt_state, mean loss over the steps)``.
+
+    Examples:
+      >>> from cfm_jax import networks
+      >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
+      >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
+      >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))
+      >>> data = dataset.add(dataset.empty(16, state_dim=4, nv=2), rows)
+      >>> g = networks.controller(hidden=(8,), nv=2)
+      >>> beta, opt = g.init(jax.random.key(1), 4), optax.adam(1e-3)
+      >>> beta, state, loss = fit_controller("task", fm, g, opt, beta, opt.init(beta),
+      ...                                    fm.init(jax.random.key(0), 4), norm, data,
+      ...                                    jax.random.key(2), steps=5, batch_size=4)
+      >>> loss.shape
+      ()
+    """
+
+    filled = None
+    if full_batch:
+        filled = (jnp.arange(data.capacity) < data.size).astype(jnp.float32)
+
+    def one_step(carry, step_key):
+        params, opt_state = carry
+        batch = data.data if full_batch else dataset.sample(data, step_key, batch_size)
+        value, grads = jax.value_and_grad(controller_objective)(
+            params,
+            forward_params,
+            loss,
+            forward,
+            controller,
+            normaliser,
+            batch,
+            goal,
+            groups,
+            filled,
+        )
+        updates, opt_state = optimizer.update(grads, opt_state, params)
+        return (optax.apply_updates(params, updates), opt_state), value
+
+    (params, opt_state), values = jax.lax.scan(
+        one_step, (params, opt_state), jax.random.split(key, steps)
+    )
+    return params, opt_state, jnp.mean(values) if steps else jnp.float32(jnp.nan)
 
 
 def rollout(
@@ -960,3 +1204,391 @@ def _steps(result: rollout_lib.Rollout, before_terminal: bool):
 
 def _broadcast(tree, n: int):
     return jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + jnp.shape(x)), tree)
+
+
+# ----- compiled, vmapped over seeds -----------------------------------------------------
+
+
+class Experiment:
+    """One config's static pieces (robot, reference, models) and its compiled functions.
+
+    Build once and reuse across losses and across the values of
+    :data:`cfm_jax.config.RUNTIME_FIELDS`: those are arguments (:class:`Knobs`), so each function
+    compiles once per experiment. Every method takes the loss and, optionally, the
+    :class:`Knobs` of another config (:meth:`knobs_for`). Its only impurity is the caching of
+    compiled functions and of host-side results (the loss-independent start, the baselines).
+
+    Args:
+      config: the :class:`cfm_jax.config.Config` to build for.
+
+    Attributes:
+      config: that config.
+      setup: its :class:`Setup`; ``robot``, ``task``, ``forward``,
+        ``controller``, ``control_dt``, ``capacity`` are its fields.
+      knobs: the :class:`Knobs` of ``config``.
+
+    Examples:
+      >>> from cfm_jax import config as cfg
+      >>> exp = Experiment(cfg.Config(robot="two_link_arm", task=cfg.TaskConfig(duration=0.3)))
+      >>> exp.task.targets, exp.task.steps, exp.state_dim
+      (5, 30, 4)
+      >>> other = exp.config.replace(seed=4, task=cfg.TaskConfig(duration=0.3, kp=25.0))
+      >>> float(exp.knobs_for(other).task["kp"]), float(exp.knobs.task["kp"])
+      (25.0, 100.0)
+      >>> exp.knobs_for(other.replace(task=cfg.TaskConfig(duration=0.5)))
+      Traceback (most recent call last):
+      ...
+      ValueError: the experiment was built for a config that differs in more than the loss ...
+    """
+
+    def __init__(self, config: config_lib.Config):
+        self.config = config
+        _xla.use_compilation_cache()  # CFM_JAX_COMPILATION_CACHE=0 turns it off
+        if config.simulator == "mjx" and jax.default_backend() == "cpu":
+            _xla.warn_if_slow_mjx()
+        self.setup = Setup.of(config)
+        self._compiled: dict = {}  # name -> jitted function
+        self._cache: dict = {}  # host-side results: prepared states, baselines, tasks
+        self.knobs = Knobs.of(config, self.robot, self.task)
+
+    # The setup's parts, as attributes of the experiment.
+    robot = property(lambda self: self.setup.robot)
+    task = property(lambda self: self.setup.task)
+    control_dt = property(lambda self: self.setup.control_dt)
+    forward = property(lambda self: self.setup.forward)
+    controller = property(lambda self: self.setup.controller)
+    capacity = property(lambda self: self.setup.capacity)
+    state_dim = property(lambda self: self.setup.task.state_dim)
+    transitions_per_rollout = property(lambda self: self.setup.transitions_per_rollout)
+
+    @property
+    def metric_columns(self) -> tuple[str, ...]:
+        """Columns of the metrics table: :data:`METRIC_COLUMNS`, the task's."""
+        return METRIC_COLUMNS + tuple(self.task.metric_names)
+
+    # ----- which configs run on this experiment -------------------------------------------
+
+    def compatible(self, config: config_lib.Config) -> bool:
+        """True when ``config`` can run on these compilations (no :meth:`differences`)."""
+        return not self.differences(config)
+
+    def differences(self, config: config_lib.Config) -> list[str]:
+        """Fields outside ``loss`` and the runtime fields where ``config`` differs, both values."""
+        return [
+            d.replace(" in the run,", " in the experiment,")
+            for d in config_lib.differences(
+                config_lib.structure(self.config), config_lib.structure(config)
+            )
+        ]
+
+    def knobs_for(self, config: config_lib.Config) -> Knobs:
+        """The :class:`Knobs` of ``config``, a config :meth:`compatible` with this one.
+
+        Raises:
+          ValueError: ``config`` differs in a field that changes the compiled program (named).
+        """
+        diff = self.differences(config)
+        if diff:
+            raise ValueError(
+                "the experiment was built for a config that differs in more than the loss "
+                "and the runtime fields (cfm_jax.config.RUNTIME_FIELDS): "
+                + "; ".join(diff)
+                + "; build an Experiment for this config"
+            )
+        return Knobs.of(config, self.robot, self.task_for(config))
+
+    def task_for(self, config: config_lib.Config):
+        """The task object of a :meth:`compatible` ``config``: this experiment's, or one built on
+        the host (the last 8 kept). Its :meth:`values` go to the compiled functions; its host
+        attributes (``tracking_scale``, the NumPy references) describe ``config``."""
+        if config.task == self.config.task:
+            return self.task
+        key = json.dumps(dataclasses.asdict(config.task), sort_keys=True)
+        cache = self._cache.setdefault("tasks", {})
+        if key not in cache:
+            task = tasks.make(self.robot, config.task, self.control_dt, config.simulator)
+            self.task.with_values(task.values())  # the same shapes, or a named error
+            cache[key] = task
+            while len(cache) > 8:
+                cache.pop(next(iter(cache)))
+        return cache[key]
+
+    def _knobs(self, knobs: Knobs | None) -> Knobs:
+        return self.knobs if knobs is None else knobs
+
+    # ----- one seed, uncompiled (for callers that transform them themselves) ---------------
+
+    def rollout_one(
+        self, policy: rollout_lib.MixedPolicy, key, knobs: Knobs | None = None
+    ) -> rollout_lib.Rollout:
+        """:func:`rollout` for one seed (``knobs`` None: this experiment's)."""
+        return rollout(self.setup, policy, key, self._knobs(knobs))
+
+    def babbling_policy(self, knobs: Knobs | None = None) -> rollout_lib.MixedPolicy:
+        """:func:`babbling_policy` of ``knobs`` (None: this experiment's)."""
+        return babbling_policy(self.setup, self._knobs(knobs))
+
+    def learned_policy(self, state: TrainState) -> rollout_lib.MixedPolicy:
+        """:func:`learned_policy` (one seed's ``state``)."""
+        return learned_policy(self.setup, state)
+
+    # ----- compiled, vmapped over seeds ---------------------------------------------------
+
+    def _jit(self, name, fn, **kwargs):
+        if name not in self._compiled:
+            self._compiled[name] = jax.jit(fn, **kwargs)
+        return self._compiled[name]
+
+    def _vmapped(self, fn, *args, in_axes):
+        return jax.vmap(functools.partial(fn, self.setup, *args), in_axes=in_axes)
+
+    def compilations(self) -> dict[str, int]:
+        """How many programs each compiled function holds, ``{name: count}`` (one per argument
+        shape; the values of :class:`Knobs` add none)."""
+        return {name: fn._cache_size() for name, fn in self._compiled.items()}
+
+    def init(self, loss: str, keys, knobs: Knobs | None = None) -> TrainState:
+        """:func:`init` for every seed of ``keys``: :meth:`prepare` (shared by
+        every loss), then the controller's initial fit with ``loss``."""
+        knobs = self._knobs(knobs)
+        prepared, key_fit = self.prepare(keys, knobs)
+        return self._fit_initial(loss, prepared, key_fit, knobs)
+
+    def prepare(self, keys, knobs: Knobs | None = None) -> tuple[TrainState, jax.Array]:
+        """:func:`prepare` for every seed of ``keys`` (cached for the last
+        keys and knobs), in two programs: the babbling rollouts (the simulator), then the
+        start from their data (normaliser, models, fit of f; no simulator, so JAX's
+        persistent compilation cache keeps it)."""
+        knobs = self._knobs(knobs)
+        cache_key = _fingerprint((jax.random.key_data(keys), knobs))
+        cached = self._cache.get("prepared")
+        if cached is None or cached[0] != cache_key:
+
+            def babble(key, knobs):
+                key_babble, _ = jax.random.split(key, 2)
+                return collected(babble_all(self.setup, key_babble, knobs))
+
+            data = self._jit("babbling_data", jax.vmap(babble, in_axes=(0, None)))(keys, knobs)
+            self._cache["prepared"] = (cache_key, self._prepare_from_data(keys, knobs, data))
+        return self._cache["prepared"][1]
+
+    def _prepare_from_data(self, keys, knobs: Knobs, data):
+        def from_data(key, knobs, chunk, valid):
+            return prepare(self.setup, key, knobs, (chunk, valid))
+
+        fn = jax.vmap(from_data, in_axes=(0, None, 0, 0))
+        return self._jit("prepare_from_data", fn)(keys, knobs, *data)
+
+    def init_from_data(
+        self, loss: str, keys, chunk: dataset.Transitions, valid, knobs: Knobs | None = None
+    ) -> TrainState:
+        """:meth:`init` from given babbling data (``chunk``, ``valid`` with a seed axis); the keys
+        are used as :meth:`init` uses them, so the same data and seed give the same state."""
+        knobs = self._knobs(knobs)
+        prepared, key_fit = self._prepare_from_data(keys, knobs, (chunk, valid))
+        return self._fit_initial(loss, prepared, key_fit, knobs)
+
+    def _fit_initial(self, loss: str, prepared, key_fit, knobs: Knobs) -> TrainState:
+        fn = self._vmapped(fit_initial_controller, loss, in_axes=(0, 0, None))
+        return self._jit(f"init/{loss}", fn)(prepared, key_fit, knobs)
+
+    def iteration(self, loss: str, state: TrainState, knobs: Knobs | None = None):
+        """:func:`iteration` for every seed: ``(state, metrics)``."""
+        fn = self._vmapped(iteration, loss, in_axes=(0, None))
+        return self._jit(f"iteration/{loss}", fn)(state, self._knobs(knobs))
+
+    def replay_iteration(
+        self, loss: str, state: TrainState, chunk, valid, knobs: Knobs | None = None
+    ):
+        """:meth:`iteration` on given data (``chunk``, ``valid`` with seed axes), not collected."""
+
+        def replay(state, knobs, chunk, valid):
+            return iteration(self.setup, loss, state, knobs, (chunk, valid))
+
+        fn = jax.vmap(replay, in_axes=(0, None, 0, 0))
+        return self._jit(f"replay/{loss}", fn)(state, self._knobs(knobs), chunk, valid)
+
+    # ----- compiled, over losses and seeds -------------------------------------------------
+    #
+    # Losses trained together share what does not depend on the loss: the babbling data and
+    # the start from them (:meth:`prepare`, once per seed) and the compiled rollout program
+    # (one compile for every loss). Everything else runs, one loss after the other, through
+    # the programs of that loss trained alone: a loss's numbers never depend on which losses
+    # ran beside it, by construction. A loss axis inside one program does not give that:
+    # vmapped over losses x seeds, the networks' matrix products compile for another batch
+    # size and round differently in the last bits; as a lax.map over the losses (this
+    # library's form until 2026-11-28), XLA compiles the loop's body apart, and the
+    # rigid-body models' rollouts and refits came out different from the loss alone in the
+    # last bits. The simulator and the updates run one loss after the other in either form;
+    # what a loss axis saved was compiling the forward model's refit once, not per loss.
+    # The programs keep a leading loss axis of length 1 (the single-loss programs' form
+    # since issue 46, so that single-loss numbers stay what they were).
+
+    def init_each(self, losses, keys, knobs: Knobs | None = None, data=None) -> list[TrainState]:
+        """:meth:`init` for each loss of ``losses`` and every seed of ``keys``: :meth:`prepare`
+        once per seed (every loss starts from it, with the same key), then each loss's initial
+        controller fit. One state per loss, its leaves with leading ``(1, seed)`` axes.
+
+        Args:
+          losses: distinct controller-loss names.
+          keys: one PRNG key per seed.
+          knobs: the runtime values (None: this experiment's).
+          data: babbling data ``(chunk, valid)`` with a seed axis instead of babbling, or None.
+
+        Examples:
+          >>> # not run: the initial fits take seconds to minutes
+          >>> joint, task = exp.init_each(("joint", "task"), keys)  # doctest: +SKIP
+          >>> joint.iteration.shape  # (1, seeds)  # doctest: +SKIP
+          (1, 3)
+        """
+        losses, knobs = config_lib.loss_names(losses), self._knobs(knobs)
+        if data is None:
+            prepared, key_fit = self.prepare(keys, knobs)
+        else:
+            prepared, key_fit = self._prepare_from_data(keys, knobs, data)
+
+        def program(loss):
+            def fit(prepared, key_fit, knobs):
+                fn = functools.partial(fit_initial_controller, self.setup, loss)
+                return _stack([jax.vmap(fn, in_axes=(0, 0, None))(prepared, key_fit, knobs)])
+
+            return self._jit(f"init[{loss}]", fit)
+
+        return [program(loss)(prepared, key_fit, knobs) for loss in losses]
+
+    def iteration_losses(self, losses, state: TrainState, knobs: Knobs | None = None, data=None):
+        """:func:`iteration` for every loss and seed of ``state`` (leading
+        ``(loss, seed)`` axes), for each loss in two programs: :func:`collect`
+        (the rollouts and their metrics: the simulator; one program for every loss), then
+        :func:`refit_forward` and the loss's
+        :func:`refit_controller` (no simulator, so JAX's persistent
+        compilation cache keeps this program, the larger one). Each loss's slice is that loss
+        trained alone, bit for bit. Returns ``(state, metrics)``, metrics with leading
+        ``(loss, seed)`` axes.
+
+        Args:
+          losses: the losses of ``state``'s first axis, in order.
+          state: the :class:`TrainState` of the last call or of :meth:`init_each` (one loss),
+            or those stacked along their first axis.
+          knobs: the runtime values (None: this experiment's).
+          data: ``(chunk, valid)`` with a seed axis to add instead of the rollouts' (a replay:
+            every loss adds the same data), or None.
+
+        Examples:
+          >>> # not run: an iteration trains (seconds)
+          >>> state, metrics = exp.iteration_losses(("joint", "task"), state)  # doctest: +SKIP
+          >>> metrics["tracking_mse"].shape  # (losses, seeds, targets)  # doctest: +SKIP
+          (2, 3, 5)
+        """
+        losses, knobs = config_lib.loss_names(losses), self._knobs(knobs)
+        if len(losses) == 1:  # no copy of the state
+            return self._iteration_of_one(losses[0], state, knobs, data)
+        steps = [
+            self._iteration_of_one(loss, _slice(state, i), knobs, data)
+            for i, loss in enumerate(losses)
+        ]
+        return _concatenate([s for s, _ in steps]), _concatenate([m for _, m in steps])
+
+    def _iteration_of_one(self, loss: str, state: TrainState, knobs: Knobs, data):
+        """One loss's iteration, ``state`` with leading ``(1, seed)`` axes."""
+
+        def collect_all(state, knobs):
+            fn = functools.partial(collect, self.setup)
+            return _stack([jax.vmap(fn, in_axes=(0, None))(_index(state, 0), knobs)])
+
+        def refit(state, data, knobs):
+            state, data = _index((state, data), 0)
+            fn = functools.partial(refit_forward, self.setup)
+            state, forward_loss, key = jax.vmap(fn, in_axes=(0, 0, None))(state, data, knobs)
+            fn = functools.partial(refit_controller, self.setup, loss)
+            state, controller_loss = jax.vmap(fn, in_axes=(0, 0, None))(state, key, knobs)
+            return _stack([(state, forward_loss, controller_loss)])
+
+        out, collected = self._jit("collect[1]", collect_all)(state, knobs)
+        if data is not None:  # a replay: the recorded data
+            collected = jax.tree.map(lambda x: x[None], data)
+        state, out["forward_loss"], out["controller_loss"] = self._jit(f"refit[{loss}]", refit)(
+            state, collected, knobs
+        )
+        return state, out
+
+    def rollout(
+        self, policy: rollout_lib.MixedPolicy, keys, knobs: Knobs | None = None
+    ) -> rollout_lib.Rollout:
+        """Rollouts of ``policy`` (a leading seed axis) for ``keys``, compiled once per shape."""
+        fn = self._vmapped(rollout, in_axes=(0, 0, None))
+        return self._jit("rollout", fn)(policy, keys, self._knobs(knobs))
+
+    def babbling_rollouts(self, keys, knobs: Knobs | None = None) -> rollout_lib.Rollout:
+        """:func:`babble_all` per seed: the babbling rollouts ``(seeds,
+        loop.babbling_rollouts, ...)`` that :meth:`init` starts from (for inspection)."""
+        fn = self._vmapped(babble_all, in_axes=(0, None))
+        key_babble = jax.vmap(lambda k: jax.random.split(k, 2)[0])(keys)
+        return self._jit("babble", fn)(key_babble, self._knobs(knobs))
+
+    def evaluate(self, state: TrainState, knobs: Knobs | None = None) -> dict:
+        """Metrics of a rollout of the current controllers, every seed
+        (:func:`evaluate`, key :func:`evaluation_key`)."""
+        keys = jax.vmap(evaluation_key)(state)
+        policy = jax.vmap(self.learned_policy)(state)
+        result = self.rollout(policy, keys, knobs)
+        fn = self._vmapped(evaluate, in_axes=(0, 0))
+        return self._jit("evaluate", fn)(state, result)
+
+    def baselines(self, knobs: Knobs | None = None) -> pd.DataFrame:
+        """Tracking MSE per target of the oracle (MuJoCo inverse dynamics) and PD-only
+        (with the task values of ``knobs``: gains and references; cached per knobs)."""
+        knobs = self._knobs(knobs)
+        cache = self._cache.setdefault("baselines", {})
+        cache_key = _fingerprint(knobs.task)
+        if cache_key in cache:
+            return cache[cache_key].copy()
+        policies = {
+            "oracle": mixed_policy(self.setup, oracle=1.0),
+            "pd_only": mixed_policy(self.setup, feedback=1.0),
+        }
+        rows = []
+        metrics_fn = jax.vmap(functools.partial(rollout_metrics, self.setup))
+        for name, policy in policies.items():
+            keys = jax.random.split(jax.random.key(0), 1)
+            result = self.rollout(jax.tree.map(lambda x: x[None], policy), keys, knobs)
+            metrics = jax.device_get(metrics_fn(result))
+            names = ["tracking_mse", *self.task.metric_names]
+            for k in range(self.task.targets):
+                row = {"baseline": name, "target": k}
+                row.update({m: float(np.asarray(metrics[m])[0, k]) for m in names})
+                rows.append(row)
+        cache[cache_key] = pd.DataFrame(rows)
+        return cache[cache_key].copy()
+
+
+def _stack(trees):
+    """The pytrees ``trees`` stacked along a new leading axis."""
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)
+
+
+def _concatenate(trees):
+    """The pytrees ``trees`` joined along their leading axis (one tree: itself, no copy)."""
+    if len(trees) == 1:
+        return trees[0]
+    return jax.tree.map(lambda *xs: jnp.concatenate(xs), *trees)
+
+
+def _slice(tree, i: int):
+    """Entry ``i`` of a pytree's leading axis, the axis kept (length 1)."""
+    return jax.tree.map(lambda x: x[i : i + 1], tree)
+
+
+def _index(tree, i: int):
+    """Entry ``i`` of a pytree's leading axis."""
+    return jax.tree.map(lambda x: x[i], tree)
+
+
+def _fingerprint(tree) -> bytes:
+    """Bytes that identify the values, shapes and dtypes of a pytree of arrays."""
+    digest = hashlib.sha256()
+    for leaf in jax.tree.leaves(tree):
+        leaf = np.asarray(leaf)
+        digest.update(f"{leaf.dtype}{leaf.shape}".encode())
+        digest.update(leaf.tobytes())
+    return digest.digest()

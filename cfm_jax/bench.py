@@ -245,7 +245,7 @@ def measure_training(bench: Bench, targets: int, steps: int, fit_steps: int, rep
     import numpy as np
     import optax
 
-    from cfm_jax import dataset, networks, update
+    from cfm_jax import algorithm, dataset, networks
 
     forward, controller = bench.networks()
     roll = bench.rollout_fn(controller, steps)
@@ -273,10 +273,10 @@ def measure_training(bench: Bench, targets: int, steps: int, fit_steps: int, rep
         return dataset.add(data, flat, finite.reshape(-1))
 
     def forward_part(fp, fo, data, key):
-        return update.fit_forward(forward, optimizer, fp, fo, norm, data, key, fit_steps, 256)
+        return algorithm.fit_forward(forward, optimizer, fp, fo, norm, data, key, fit_steps, 256)
 
     def controller_part(cp, co, fp, data, key):
-        return update.fit_controller(
+        return algorithm.fit_controller(
             "joint", forward, controller, optimizer, cp, co, fp, norm, data, key, fit_steps, 256
         )
 

@@ -1118,13 +1118,13 @@ RUNTIME_FIELDS = (
 )
 """Fields that do not change the compiled program (checkpointing and seed are not part of it,
 the others are its arguments, :class:`cfm_jax.algorithm.Knobs`): configs that differ only in
-these and ``loss`` share a :class:`cfm_jax.experiment.Experiment` (see :func:`structure`,
+these and ``loss`` share a :class:`cfm_jax.algorithm.Experiment` (see :func:`structure`,
 docs/how-to/sweep.md)."""
 
 
 def structure(config: Config) -> dict:
     """The part of ``config`` that shapes its compiled program (equal structures share an
-    :class:`cfm_jax.experiment.Experiment`): :func:`to_dict` without ``loss`` and
+    :class:`cfm_jax.algorithm.Experiment`): :func:`to_dict` without ``loss`` and
     :data:`RUNTIME_FIELDS`, with the number of ``task.targets`` (None: the default set) and
     the task's :data:`TASK_STRUCTURAL` fields.
 

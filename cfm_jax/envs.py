@@ -96,7 +96,7 @@ class TrackingEnv(gymnasium.Env):
       references: one of :data:`REFERENCES`: ``training``, reaches drawn as the ``reaching``
         babbling draws them (:mod:`cfm_jax.babbling`), from the environment's seed, blind to
         the test references; or ``test``, the task's test references in turn (evaluation).
-      experiment: an :class:`cfm_jax.experiment.Experiment` of ``config`` to take the robot
+      experiment: an :class:`cfm_jax.algorithm.Experiment` of ``config`` to take the robot
         and task from (saves building them again), or None.
       action: one of :data:`ACTIONS` (see the module): ``limit``, ``scale`` or ``residual``.
       reward_scale: a positive factor of the reward (the peers: ``1 / PD-only's MSE``, so that
@@ -144,7 +144,7 @@ class TrackingEnv(gymnasium.Env):
         render_mode: str | None = None,
     ):
         from cfm_jax import algorithm
-        from cfm_jax.experiment import Experiment
+        from cfm_jax.algorithm import Experiment
 
         if references not in REFERENCES:
             config_lib.fail("references", references, f"one of {REFERENCES}")

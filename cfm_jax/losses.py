@@ -140,7 +140,7 @@ def controller_loss(
     if not loss.forward:
         raise ValueError(
             f"loss={loss.name!r} is not a model-based controller loss: it compares actions "
-            "(update.controller_objective computes it); model-based: "
+            "(algorithm.controller_objective computes it); model-based: "
             f"{tuple(n for n, entry in REGISTRY.items() if entry.forward)}"
         )
     if loss.run and predicted_run is None:

@@ -3,7 +3,7 @@
 A sweep is a grid of *cells* (:func:`grid`): every combination of the ``overrides`` (dotted
 config paths, each with a list of values) times every controller loss. A cell is one
 :func:`cfm_jax.train` call with the seeds as its vmap axis; cells that differ only in the
-loss share one :class:`cfm_jax.experiment.Experiment`. Each finished cell is written at once
+loss share one :class:`cfm_jax.algorithm.Experiment`. Each finished cell is written at once
 to ``out_dir/cells/<cell id>/``, so a re-run skips it. Backends, files and compilation:
 docs/how-to/sweep.md. (The module is ``sweeps`` so that the function ``cfm_jax.sweep``
 never shadows it.)
@@ -379,7 +379,7 @@ _EXPERIMENTS: collections.OrderedDict = collections.OrderedDict()
 
 
 def experiment_for(config: config_lib.Config):
-    """A :class:`cfm_jax.experiment.Experiment` for ``config``, reused for configs of the same
+    """A :class:`cfm_jax.algorithm.Experiment` for ``config``, reused for configs of the same
     :func:`cfm_jax.config.structure`; the last :data:`EXPERIMENT_CACHE_SIZE` are kept.
 
     Args:

@@ -1,6 +1,6 @@
 """PyTorch CPU reference of the two model updates, for the benchmark only (not used by training).
 
-The same networks, losses and optimiser as :mod:`cfm_jax.update` (float32, Adam 1e-3,
+The same networks, losses and optimiser as :mod:`cfm_jax.algorithm` (float32, Adam 1e-3,
 minibatches drawn uniformly with replacement): :class:`ForwardUpdate`, the PETS ensemble as
 batched matrix products over a member axis (``torch.baddbmm``, the fast way in PyTorch), and
 :class:`ControllerUpdate`, the controller trained with the joint loss

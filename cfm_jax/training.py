@@ -1,5 +1,5 @@
 """Algorithm 1's impure shell: :func:`train` runs the compiled functions of an
-:class:`cfm_jax.experiment.Experiment` in a loop around a :class:`cfm_jax.recorder.Recorder`
+:class:`cfm_jax.algorithm.Experiment` in a loop around a :class:`cfm_jax.recorder.Recorder`
 (result files, checkpoints and resume, stopped seeds, ``progress_fn``), with the progress
 display and the replay of a recorded data set."""
 
@@ -19,13 +19,20 @@ import pandas as pd
 from cfm_jax import algorithm, dataset
 from cfm_jax import checkpoint as ckpt_lib
 from cfm_jax import config as config_lib
-from cfm_jax.algorithm import METRIC_COLUMNS, Knobs, TrainState  # noqa: F401 (Knobs: re-export)
+from cfm_jax.algorithm import (  # noqa: F401 (Knobs, METRIC_COLUMNS: re-exports)
+    METRIC_COLUMNS,
+    Experiment,
+    Knobs,
+    TrainState,
+    _concatenate,
+    _index,
+    _stack,
+)
 from cfm_jax.config import loss_names
-from cfm_jax.experiment import Experiment, _concatenate, _index, _stack
 from cfm_jax.recorder import Recorder, progress_bar
 
 # Experiment, TrainState, Knobs and METRIC_COLUMNS are imported here for the shell's use
-# and as the names a user of train() reaches for; their home is experiment and algorithm.
+# and as the names a user of train() reaches for; their home is algorithm.
 __all__ = ["TrainResult", "recorded_for", "rollout_qpos", "train"]
 
 
@@ -389,7 +396,7 @@ def recorded_for(exp: Experiment, config: config_lib.Config, data) -> dataset.Re
     """Load ``data`` and check that ``config`` (on ``exp``) can replay it.
 
     Args:
-      exp: the :class:`cfm_jax.experiment.Experiment` of ``config``.
+      exp: the :class:`cfm_jax.algorithm.Experiment` of ``config``.
       config: the config that would replay the data.
       data: a path to a run's ``dataset.npz``, or a :class:`cfm_jax.dataset.Recorded`.
 

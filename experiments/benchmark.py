@@ -34,7 +34,7 @@ def seed_scaling(seed_counts, fit_steps: int, repeats: int) -> list[dict]:
     import numpy as np
     import optax
 
-    from cfm_jax import dataset, networks, update
+    from cfm_jax import algorithm, dataset, networks
 
     state_dim, nv, rows = 14, 7, 15000
     rng = np.random.default_rng(0)
@@ -52,7 +52,7 @@ def seed_scaling(seed_counts, fit_steps: int, repeats: int) -> list[dict]:
         opt_state = jax.vmap(optimizer.init)(params)
         fit = jax.jit(
             jax.vmap(
-                lambda p, o, k: update.fit_forward(
+                lambda p, o, k: algorithm.fit_forward(
                     forward, optimizer, p, o, norm, data, k, fit_steps, 256
                 )
             )

@@ -144,7 +144,7 @@ def cfm_seconds(config) -> tuple[float, float]:
     """``(babbling, per iteration)`` robot-seconds of a cfm_jax run of ``config``: the
     babbling's ``loop.babbling_rollouts`` rollouts and each iteration's rollout, each
     ``targets x steps x control_dt``."""
-    from cfm_jax.experiment import Experiment
+    from cfm_jax.algorithm import Experiment
 
     task = Experiment(config).task
     rollout = task.targets * task.steps * task.control_dt
@@ -244,7 +244,7 @@ def run_peer(
     from stable_baselines3.common import vec_env
 
     from cfm_jax import envs
-    from cfm_jax.experiment import Experiment
+    from cfm_jax.algorithm import Experiment
 
     torch.set_num_threads(1)
     hyper = dict(HYPERPARAMETERS[method] if hyper is None else hyper)
@@ -597,7 +597,7 @@ def describe(config, command: str, checkpoints: dict, hypers: dict, source: str)
     import stable_baselines3
     import torch
 
-    from cfm_jax.experiment import Experiment
+    from cfm_jax.algorithm import Experiment
 
     task = Experiment(config).task
     grids = sorted({_grid_text(points) for points in checkpoints.values()})

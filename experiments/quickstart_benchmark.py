@@ -13,7 +13,7 @@ Not a test: prints numbers and writes them to ``docs/benchmarks.md`` (the sectio
   (``CFM_JAX_COMPILATION_CACHE``) in a folder of its own, filled by the warm-up run; one
   more run of A with an empty cache folder gives the cold start.
 * **The quickstart's split**, one run in this process with timers around the
-  :class:`cfm_jax.experiment.Experiment` calls of :func:`cfm_jax.train` (each waits for its
+  :class:`cfm_jax.algorithm.Experiment` calls of :func:`cfm_jax.train` (each waits for its
   result) and JAX's compile-time events: building the experiment, babbling and the initial
   fit of f, the initial controller fits, the iterations (the first with its compilation),
   the final evaluation, the baselines, and writing (metrics, checkpoints, data set).
@@ -91,7 +91,7 @@ def split() -> tuple[dict, float, dict]:
     from jax._src import monitoring
 
     import cfm_jax
-    from cfm_jax import cli, experiment, recorder
+    from cfm_jax import algorithm, cli, recorder
     from cfm_jax import losses as losses_lib
 
     compile_events: dict = collections.defaultdict(float)
@@ -124,7 +124,7 @@ def split() -> tuple[dict, float, dict]:
 
         setattr(owner, name, wrapper)
 
-    exp_cls, rec_cls = experiment.Experiment, recorder.Recorder
+    exp_cls, rec_cls = algorithm.Experiment, recorder.Recorder
     timed(exp_cls, "__init__", "build the experiment (robot, task, models)")
     timed(exp_cls, "prepare", "babbling rollouts")
     timed(exp_cls, "_prepare_from_data", "initial fit of f (once per seed, every loss)")

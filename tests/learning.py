@@ -22,14 +22,14 @@ a change that stops learning fails here. Measured (native, mutations not committ
 the ``data`` normaliser that this config had then): the
 controller's Adam at learning rate 0 fails (joint: final / iteration 0 = 0.63, final 0.95
 rad^2 against PD-only 0.021); the forward model's prediction negated where the controller
-losses read it (``update.controller_objective``) fails (joint: 0.57, final 2.4 rad^2).
+losses read it (``algorithm.controller_objective``) fails (joint: 0.57, final 2.4 rad^2).
 """
 
 from __future__ import annotations
 
 import cfm_jax
 from cfm_jax import config as config_lib
-from cfm_jax.experiment import Experiment
+from cfm_jax.algorithm import Experiment
 
 SEEDS = 3
 ITERATIONS = 5

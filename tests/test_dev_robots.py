@@ -26,7 +26,7 @@ import pytest
 
 from cfm_jax import algorithm, babbling, robot_check, robots, tasks
 from cfm_jax import config as config_lib
-from cfm_jax.experiment import Experiment
+from cfm_jax.algorithm import Experiment
 from cfm_jax.tasks import legged
 
 HERE = Path(__file__).parent

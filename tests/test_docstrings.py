@@ -34,7 +34,6 @@ DOCTEST_MODULES = (
     "config",
     "dataset",
     "envs",
-    "experiment",
     "forward_models",
     "locomotion",
     "losses",
@@ -62,7 +61,6 @@ DOCTEST_MODULES = (
     "tensorboard",
     "theory",
     "training",
-    "update",
 )
 NOT_RUN = {
     "checkpoint": "its examples train and resume runs (minutes)",

@@ -12,7 +12,7 @@ from gymnasium.utils.env_checker import check_env
 
 from cfm_jax import config as config_lib
 from cfm_jax import envs, native, rollout
-from cfm_jax.experiment import Experiment
+from cfm_jax.algorithm import Experiment
 from cfm_jax.tasks import scales
 
 CONFIG = config_lib.Config(robot="two_link_arm", task=config_lib.TaskConfig(duration=0.2))

@@ -21,7 +21,7 @@ import pytest
 from tiny import tiny_config
 
 from cfm_jax import algorithm, config, dataset, networks, robots, tasks
-from cfm_jax.experiment import Experiment
+from cfm_jax.algorithm import Experiment
 from cfm_jax.tasks import scales
 
 ARM3 = str(Path(__file__).parent / "three_joint_arm.xml")

@@ -108,7 +108,7 @@ def test_reward_scale_is_pd_only_on_the_selection_motions():
     import jax
 
     from cfm_jax import rollout
-    from cfm_jax.experiment import Experiment
+    from cfm_jax.algorithm import Experiment
 
     task = Experiment(peers.selection_config(CONFIG)).task
     out = rollout.run(task, lambda step, key: task.feedback(step), jax.random.key(0))

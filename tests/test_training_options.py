@@ -15,7 +15,7 @@ import numpy as np
 import optax
 import pytest
 
-from cfm_jax import algorithm, dataset, losses, networks, update
+from cfm_jax import algorithm, dataset, losses, networks
 from cfm_jax import config as cfg
 
 GROUPS = ((1.0, (0, 1, 2)), (10.0, (2,)))
@@ -125,7 +125,7 @@ def test_observed_goal_feeds_g_the_observed_entries(loss, goal):
     norm = networks.Normaliser.identity(4, 3, jnp.ones(2), desired_index=(1, 2))
     fm = networks.forward_model(hidden=(4,), ensemble_size=1, nv=3, action_dim=2)
     g = _Recorder()
-    update.controller_objective(
+    algorithm.controller_objective(
         g.init(None, 4), fm.init(jax.random.key(0), 4), loss, fm, g, norm, batch, goal=goal
     )
     observed_goal = [[20.0, 30.0], [50.0, 60.0]]
@@ -149,12 +149,12 @@ def test_full_batch_step_is_the_mean_over_the_filled_rows():
     theta, beta = fm.init(jax.random.key(0), 4), g.init(jax.random.key(1), 4)
     sgd = optax.sgd(0.1)
     for loss in ("joint", "supervised"):
-        new, _, value = update.fit_controller(
+        new, _, value = algorithm.fit_controller(
             loss, fm, g, sgd, beta, sgd.init(beta), theta, norm, data, jax.random.key(2),
             steps=1, batch_size=3, goal="observed", groups=((1.0, (0, 1)),), full_batch=True,
         )  # fmt: skip
         args = (theta, loss, fm, g, norm, rows, "observed", ((1.0, (0, 1)),))
-        want_value, grads = jax.value_and_grad(update.controller_objective)(beta, *args)
+        want_value, grads = jax.value_and_grad(algorithm.controller_objective)(beta, *args)
         want = jax.tree.map(lambda b, d: b - 0.1 * d, beta, grads)
         np.testing.assert_allclose(float(value), float(want_value), rtol=1e-6)
         for x, y in zip(jax.tree.leaves(new), jax.tree.leaves(want), strict=True):

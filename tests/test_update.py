@@ -1,4 +1,4 @@
-"""Model updates (cfm_jax/update.py): gradient paths and that the fits do their job.
+"""Model updates (the fits of cfm_jax/algorithm.py): gradient paths and that the fits do their job.
 
 Oracles:
 * the chain rule built by hand: ``dL/dbeta = (ds_p/dbeta)^T dL/ds_p`` with ``dL/ds_p`` the
@@ -21,7 +21,7 @@ import numpy as np
 import optax
 import pytest
 
-from cfm_jax import dataset, networks, update
+from cfm_jax import algorithm, dataset, networks
 
 S, NV = 4, 2
 LIMIT = np.array([20.0, 10.0])
@@ -73,7 +73,7 @@ def tree_allclose(a, b, rtol, atol):
 def test_controller_gradient_matches_hand_built_chain_rule(setup, loss):
     fm, ctrl, norm, batch = setup["fm"], setup["ctrl"], setup["norm"], setup["batch"]
     fp, cp = setup["fp"], setup["cp"]
-    grad_fn = jax.jit(jax.grad(update.controller_objective), static_argnums=(2, 3, 4))
+    grad_fn = jax.jit(jax.grad(algorithm.controller_objective), static_argnums=(2, 3, 4))
     got = grad_fn(cp, fp, loss, fm, ctrl, norm, batch)
 
     # Hand-built: s_p(beta) = mean_e f_e(s, g_beta(s, s*)), normalised units.
@@ -101,7 +101,7 @@ def test_controller_gradient_matches_hand_built_chain_rule(setup, loss):
 
 def test_supervised_gradient_matches_hand_built_chain_rule(setup):
     ctrl, norm, batch, cp, fp, fm = (setup[k] for k in ("ctrl", "norm", "batch", "cp", "fp", "fm"))
-    got = jax.grad(update.controller_objective)(cp, fp, "supervised", fm, ctrl, norm, batch)
+    got = jax.grad(algorithm.controller_objective)(cp, fp, "supervised", fm, ctrl, norm, batch)
 
     # g is fed the observed acceleration; residual in torque / limit units.
     def scaled_action(params):
@@ -112,7 +112,7 @@ def test_supervised_gradient_matches_hand_built_chain_rule(setup):
     scale = max(float(jnp.max(jnp.abs(x))) for x in jax.tree.leaves(expected))
     tree_allclose(got, expected, rtol=1e-4, atol=1e-5 * scale)  # as above
     # no forward model on this path: the gradient w.r.t. the forward params is exactly zero
-    g_fp = jax.grad(update.controller_objective, argnums=1)(
+    g_fp = jax.grad(algorithm.controller_objective, argnums=1)(
         cp, fp, "supervised", fm, ctrl, norm, batch
     )
     assert all(np.all(np.asarray(x) == 0) for x in jax.tree.leaves(g_fp))
@@ -127,7 +127,7 @@ def test_supervised_objective_in_the_torque_scale_space(setup, kind):
     ctrl, cp, batch = setup["ctrl"], setup["cp"], setup["batch"]
     scale = np.array([8.0, 0.05]) if kind == "per_joint" else np.array([[8.0, 0.3], [0.3, 0.05]])
     norm = dataclasses.replace(setup["norm"], torque_scale=jnp.asarray(scale, jnp.float32))
-    got = float(update.controller_objective(cp, setup["fp"], "supervised", setup["fm"], ctrl,
+    got = float(algorithm.controller_objective(cp, setup["fp"], "supervised", setup["fm"], ctrl,
                                             norm, batch))  # fmt: skip
     tau = np.asarray(ctrl.apply(cp, norm, batch.state, batch.observed), np.float64)
     error = tau - np.asarray(batch.action, np.float64)
@@ -144,7 +144,7 @@ def test_distal_objective_value(setup):
     args = (setup["fp"],)
     fm, ctrl, norm, batch = rest = (setup["fm"], setup["ctrl"], setup["norm"], setup["batch"])
     values = {
-        name: float(update.controller_objective(setup["cp"], *args, name, *rest))
+        name: float(algorithm.controller_objective(setup["cp"], *args, name, *rest))
         for name in ("task", "joint", "distal_literal", "distal")
     }
     # float32 means of ~256 terms of size ~1-10: rtol 1e-5
@@ -171,7 +171,7 @@ def test_unknown_loss_name_raises(setup):
         match=r"loss='mse' is not allowed: one of \('joint', 'task', "
         r"'distal', 'supervised', 'distal_literal'.*cfm_jax.losses.register",
     ):
-        update.controller_objective(setup["cp"], setup["fp"], "mse", *rest)
+        algorithm.controller_objective(setup["cp"], setup["fp"], "mse", *rest)
 
 
 # ---- fit_controller leaves the forward model alone -------------------------------------------
@@ -182,14 +182,14 @@ def test_fit_controller_changes_only_controller(setup, loss):
     fm, ctrl, norm, data, fp, cp = (setup[k] for k in ("fm", "ctrl", "norm", "data", "fp", "cp"))
     # The controller objective does depend on the forward params (except for supervised),
     # so a gradient step on all parameters would move them; fit_controller must not.
-    g_fp = jax.grad(update.controller_objective, argnums=1)(
+    g_fp = jax.grad(algorithm.controller_objective, argnums=1)(
         cp, fp, loss, fm, ctrl, norm, setup["batch"]
     )
     assert (loss == "supervised") == all(np.all(np.asarray(x) == 0) for x in jax.tree.leaves(g_fp))
     fp_before = jax.tree.map(lambda x: np.array(x, copy=True), fp)
     cp_before = jax.tree.map(lambda x: np.array(x, copy=True), cp)
     optimizer = optax.adam(1e-3)
-    fit = jax.jit(update.fit_controller, static_argnums=(0, 1, 2, 3, 10, 11))
+    fit = jax.jit(algorithm.fit_controller, static_argnums=(0, 1, 2, 3, 10, 11))
     new_cp, _, value = fit(
         loss, fm, ctrl, optimizer, cp, optimizer.init(cp), fp, norm, data, jax.random.key(4), 5, 32
     )
@@ -207,7 +207,7 @@ def test_fit_controller_reduces_task_objective_with_fixed_model(setup):
         setup[k] for k in ("fm", "ctrl", "norm", "data", "fp", "cp", "batch")
     )
     objective = functools.partial(
-        update.controller_objective,
+        algorithm.controller_objective,
         loss="task",
         forward=fm,
         controller=ctrl,
@@ -216,7 +216,7 @@ def test_fit_controller_reduces_task_objective_with_fixed_model(setup):
     )
     before = float(objective(cp, fp))
     optimizer = optax.adam(1e-2)
-    fit = jax.jit(update.fit_controller, static_argnums=(0, 1, 2, 3, 10, 11))
+    fit = jax.jit(algorithm.fit_controller, static_argnums=(0, 1, 2, 3, 10, 11))
     new_cp, _, _ = fit(
         "task",
         fm,
@@ -240,7 +240,7 @@ def test_fit_controller_reduces_task_objective_with_fixed_model(setup):
 def test_zero_steps_returns_nan_loss_and_same_params(setup):
     fm, ctrl, norm, data, fp, cp = (setup[k] for k in ("fm", "ctrl", "norm", "data", "fp", "cp"))
     optimizer = optax.adam(1e-3)
-    new_cp, _, value = update.fit_controller(
+    new_cp, _, value = algorithm.fit_controller(
         "task", fm, ctrl, optimizer, cp, optimizer.init(cp), fp, norm, data, jax.random.key(0), 0, 8
     )
     assert np.isnan(float(value))
@@ -253,7 +253,7 @@ def test_zero_steps_returns_nan_loss_and_same_params(setup):
 def test_fit_forward_learns_linear_map(setup):
     fm, norm, data, fp = setup["fm"], setup["norm"], setup["data"], setup["fp"]
     optimizer = optax.adam(1e-2)
-    fit = jax.jit(update.fit_forward, static_argnums=(0, 1, 7, 8))
+    fit = jax.jit(algorithm.fit_forward, static_argnums=(0, 1, 7, 8))
     rng = np.random.default_rng(7)
     test_s, _, test_tau, test_qdd = make_rows(rng, 300)  # held out, same linear map
     s32, t32 = jnp.asarray(test_s, jnp.float32), jnp.asarray(test_tau, jnp.float32)
@@ -305,7 +305,7 @@ def test_selected_output_gradient_matches_hand_built_chain_rule(loss):
     fm = networks.forward_model(hidden=(16,), ensemble_size=2, nv=out_dim, action_dim=NV)
     ctrl = networks.controller(hidden=(16,), nv=NV, desired_dim=1)
     fp, cp = fm.init(jax.random.key(2), S), ctrl.init(jax.random.key(3), S)
-    got = jax.grad(update.controller_objective)(cp, fp, loss, fm, ctrl, norm, batch)
+    got = jax.grad(algorithm.controller_objective)(cp, fp, loss, fm, ctrl, norm, batch)
 
     mean, std = np.asarray(norm.output_mean), np.asarray(norm.output_std)
     s_d = (desired - mean[2]) / std[2]  # the desired entry, normalised like y_2
@@ -363,7 +363,7 @@ def test_a_registered_loss_is_computed_by_its_function_in_either_form(setup, reg
     rest = (setup["fm"], setup["ctrl"], setup["norm"], setup["batch"], "desired", groups)
 
     def objective(loss):
-        return jax.value_and_grad(update.controller_objective)(setup["cp"], setup["fp"], loss,
+        return jax.value_and_grad(algorithm.controller_objective)(setup["cp"], setup["fp"], loss,
                                                                *rest)  # fmt: skip
 
     def mix(q, d_desired, d_output):
