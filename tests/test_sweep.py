@@ -304,7 +304,7 @@ def test_interrupted_sweep_resumes_and_gives_the_same_table(local, tmp_path, mon
     )
 
 
-def test_cli_sweep_skips_the_finished_cells_of_another_process(local, tmp_path):
+def test_cli_sweep_skips_the_finished_cells_of_another_process(local, tmp_path, cli_in_process):
     # A real subprocess of the CLI on a copy of the finished sweep: the same flags name the
     # same cells, so nothing runs again and the table is the same.
     out = tmp_path / "copy"
@@ -324,9 +324,8 @@ def test_cli_sweep_skips_the_finished_cells_of_another_process(local, tmp_path):
     pd.testing.assert_frame_equal(
         pd.read_csv(out / "metrics.csv"), local[0].metrics, check_exact=True
     )
-    bad_command = [sys.executable, "-m", "cfm_jax.cli", "sweep", "--override", "task.kp",
-                   "--out", str(out)]  # fmt: skip
-    bad = subprocess.run(bad_command, capture_output=True, text=True, timeout=300)
+    # A refusal: in this process (cli.main), no second interpreter needed.
+    bad = cli_in_process("sweep", "--override", "task.kp", "--out", str(out))
     assert bad.returncode == 2
     assert "--override='task.kp' is not allowed: PATH=V1,V2" in bad.stderr
 
