@@ -192,10 +192,14 @@ def test_a_cell_equals_train_of_its_config_with_the_seeds_vmapped(local):
     # Oracle: cfm_jax.train of the cell's config, all seeds in one vmapped call: the sweep's
     # rows must equal it bit for bit (a cell is that call). That a vmapped seed equals the
     # seed run alone (to float32 rounding) is test_train.py's
-    # test_vmapped_seeds_equal_a_loop_over_seeds.
+    # test_vmapped_seeds_equal_a_loop_over_seeds. The call runs on the Experiment the sweep
+    # kept for the cell's structure (a fresh one compiles the same native programs again;
+    # reuse is checked against a fresh Experiment bit for bit in test_train.py, and the
+    # value overrides' cells below against fresh ones).
     frame = local[0].metrics
     frame = frame[frame.loss == "joint"].drop(columns=["cell", *OVERRIDES]).reset_index(drop=True)
-    alone = cfm_jax.train(TINY, progress=False).metrics
+    experiment = sweeps.experiment_for(TINY)
+    alone = cfm_jax.train(TINY, progress=False, experiment=experiment).metrics
     assert sorted(frame.seed.unique()) == [0, 1]
     pd.testing.assert_frame_equal(frame[list(alone.columns)], alone, check_exact=True)
 
