@@ -22,6 +22,8 @@ rollouts) are never cached by JAX.
 import atexit
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
 
 if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
@@ -114,3 +116,29 @@ def arm():
 @pytest.fixture(scope="session")
 def solo():
     return robots.load("solo12")
+
+
+@pytest.fixture
+def cli_in_process(monkeypatch, capsys):
+    """``cli_in_process(*argv)`` runs ``cfm-jax ARGV`` in this process (``cfm_jax.cli.main``)
+    and returns its exit status and what it wrote to stdout and stderr as a finished
+    subprocess's ``CompletedProcess``; ``sys.argv`` and ``sys.path`` (``--import`` may add a
+    directory) are restored after the test. For the commands whose own process is not what
+    is tested (docs/development.md, "CI time"): it saves an interpreter and the imports
+    (a few seconds each), and the command can reuse the test's ``Experiment`` (patch
+    ``training.Experiment``). A command that imports a user's module stays a subprocess."""
+    from cfm_jax import cli
+
+    def run(*argv: str) -> subprocess.CompletedProcess:
+        monkeypatch.setattr(sys, "argv", ["cfm-jax", *argv])
+        monkeypatch.setattr(sys, "path", list(sys.path))
+        capsys.readouterr()
+        try:
+            cli.main()
+            code = 0
+        except SystemExit as stop:
+            code = stop.code
+        captured = capsys.readouterr()
+        return subprocess.CompletedProcess(list(argv), code, captured.out, captured.err)
+
+    return run

@@ -305,23 +305,8 @@ def test_nan_in_one_loss_of_a_batch_stops_that_loss_seed_only(uninterrupted, exp
     assert all(np.all(np.isfinite(np.asarray(x[1]))) for x in leaves)
 
 
-def _cli_in_process(monkeypatch, capsys, argv):
-    """``cfm-jax ARGV`` run in this process (``cfm_jax.cli.main``): its exit status and
-    what it wrote to stdout and stderr, as a subprocess's ``CompletedProcess``."""
-    from cfm_jax import cli
-
-    monkeypatch.setattr(sys, "argv", ["cfm-jax", *argv])
-    capsys.readouterr()
-    try:
-        cli.main()
-        code = 0
-    except SystemExit as stop:
-        code = stop.code
-    captured = capsys.readouterr()
-    return subprocess.CompletedProcess(argv, code, captured.out, captured.err)
-
-
-def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path, monkeypatch, capsys):
+def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path, monkeypatch,
+                                                                 cli_in_process):  # fmt: skip
     # Run the CLI for two iterations of two losses, then leave the files as a kill during
     # the second loss's last iteration would: its last checkpoint gone, its metrics up to
     # iteration 1, the run's table with the first loss only. Resume: the second loss's last
@@ -345,7 +330,7 @@ def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path, monke
         "experiment", cfm_jax.Experiment(config)))  # fmt: skip
 
     def cli(*flags):
-        return _cli_in_process(monkeypatch, capsys, [*command[3:], *flags])
+        return cli_in_process(*command[3:], *flags)
 
     def stamps(folder):
         return {str(p.relative_to(folder)): p.stat().st_mtime_ns for p in folder.rglob("*")}
@@ -381,8 +366,7 @@ def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path, monke
     pd.testing.assert_frame_equal(
         pd.read_csv(out / "task" / "metrics.csv"), task_complete, check_exact=True
     )
-    refused = _cli_in_process(monkeypatch, capsys,
-                              [*command[3:-1], "--seed", "3", "--quiet", "--resume"])  # fmt: skip
+    refused = cli_in_process(*command[3:-1], "--seed", "3", "--quiet", "--resume")
     assert refused.returncode == 2
     assert "seed (0 in the run, 3 now)" in refused.stderr and "Traceback" not in refused.stderr
     # Every checkpoint damaged: --resume cannot continue (one error line naming --restart,

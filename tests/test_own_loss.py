@@ -73,24 +73,8 @@ def _cli(tmp_path, *args, timeout=600):
                           cwd=tmp_path)  # fmt: skip
 
 
-def _cli_in_process(monkeypatch, capsys, *args):
-    """``cfm-jax ARGS`` in this process (``cfm_jax.cli.main``), as a finished subprocess
-    (exit status, stdout, stderr); the path and working directory as they were after."""
-    from cfm_jax import cli
-
-    monkeypatch.setattr(sys, "argv", ["cfm-jax", *args])
-    monkeypatch.setattr(sys, "path", list(sys.path))  # --import may add the directory
-    capsys.readouterr()
-    try:
-        cli.main()
-        code = 0
-    except SystemExit as stop:
-        code = stop.code
-    captured = capsys.readouterr()
-    return subprocess.CompletedProcess(args, code, captured.out, captured.err)
-
-
-def test_a_users_loss_trains_from_the_cli_and_python_and_resumes(tmp_path, monkeypatch, capsys):
+def test_a_users_loss_trains_from_the_cli_and_python_and_resumes(tmp_path, monkeypatch,
+                                                                 cli_in_process):  # fmt: skip
     (tmp_path / "my_losses.py").write_text(USER_FILE)
     (tmp_path / "tiny.json").write_text(json.dumps(config_lib.to_dict(TINY)))
     out = tmp_path / "cli"
@@ -123,11 +107,11 @@ def test_a_users_loss_trains_from_the_cli_and_python_and_resumes(tmp_path, monke
     # in the working directory of the subprocesses.
     monkeypatch.chdir(tmp_path)
     again = ["train", "--config", str(out / "config.json"), "--resume", "--out", str(out)]
-    refused = _cli_in_process(monkeypatch, capsys, *again, "--quiet")
+    refused = cli_in_process(*again, "--quiet")
     assert refused.returncode == 2 and "Traceback" not in refused.stderr
     assert "'my_joint'" in refused.stderr and "--import MODULE" in refused.stderr
     assert len(refused.stderr.strip().splitlines()) == 1
-    missing = _cli_in_process(monkeypatch, capsys, "--import", "no_such_module", "config")
+    missing = cli_in_process("--import", "no_such_module", "config")
     assert missing.returncode == 2 and "--import='no_such_module' is not allowed" in missing.stderr
     # The module by name (importable from the working directory): the config command knows
     # the loss.

@@ -9,8 +9,6 @@ must be the rows each phase added, counted independently from the rollouts' fini
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 import pandas as pd
 import pytest
@@ -105,36 +103,25 @@ def test_replay_rejects_data_that_does_not_fit(recorded_run):
 
 
 def test_cli_replays_a_recorded_data_set(recorded_run, experiment, tmp_path, monkeypatch,
-                                        capsys):  # fmt: skip
+                                        cli_in_process):  # fmt: skip
     # The CLI's --data runs the same replay: its joint-loss metrics equal the recording run's.
     # In-process (cli.main, on the module's Experiment, whose replay programs the tests
     # above compiled); the CLI's own end-to-end subprocess runs are in test_own_loss.py and
     # test_checkpoint.py.
-    from cfm_jax import cli
-
     result, path = recorded_run
     out = tmp_path / "cli_replay"
     command = cli_command(TINY, tmp_path, out, "joint", seeds=2, iterations=2)
     monkeypatch.setattr(training, "Experiment", lambda config: experiment)
 
-    def run(*flags):
-        monkeypatch.setattr(sys, "argv", ["cfm-jax", *command[3:], *flags])
-        capsys.readouterr()
-        try:
-            cli.main()
-            code = 0
-        except SystemExit as stop:
-            code = stop.code
-        return code, capsys.readouterr().err
-
-    code, err = run("--data", str(path))
-    assert code == 0, err[-2000:]
+    done = cli_in_process(*command[3:], "--data", str(path))
+    assert done.returncode == 0, done.stderr[-2000:]
     written = pd.read_csv(out / "joint" / "metrics.csv")
     np.testing.assert_array_equal(
         written.tracking_mse.to_numpy(), result.metrics.tracking_mse.to_numpy()
     )
-    code, err = run("--data", str(tmp_path / "nothing.npz"))
-    assert code == 2 and "no such file" in err and "Traceback" not in err
+    done = cli_in_process(*command[3:], "--data", str(tmp_path / "nothing.npz"))
+    assert done.returncode == 2 and "no such file" in done.stderr
+    assert "Traceback" not in done.stderr
 
 
 def jax_leaves(tree):

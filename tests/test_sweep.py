@@ -192,10 +192,14 @@ def test_a_cell_equals_train_of_its_config_with_the_seeds_vmapped(local):
     # Oracle: cfm_jax.train of the cell's config, all seeds in one vmapped call: the sweep's
     # rows must equal it bit for bit (a cell is that call). That a vmapped seed equals the
     # seed run alone (to float32 rounding) is test_train.py's
-    # test_vmapped_seeds_equal_a_loop_over_seeds.
+    # test_vmapped_seeds_equal_a_loop_over_seeds. The call runs on the Experiment the sweep
+    # kept for the cell's structure (a fresh one compiles the same native programs again;
+    # reuse is checked against a fresh Experiment bit for bit in test_train.py, and the
+    # value overrides' cells below against fresh ones).
     frame = local[0].metrics
     frame = frame[frame.loss == "joint"].drop(columns=["cell", *OVERRIDES]).reset_index(drop=True)
-    alone = cfm_jax.train(TINY, progress=False).metrics
+    experiment = sweeps.experiment_for(TINY)
+    alone = cfm_jax.train(TINY, progress=False, experiment=experiment).metrics
     assert sorted(frame.seed.unique()) == [0, 1]
     pd.testing.assert_frame_equal(frame[list(alone.columns)], alone, check_exact=True)
 
@@ -304,7 +308,7 @@ def test_interrupted_sweep_resumes_and_gives_the_same_table(local, tmp_path, mon
     )
 
 
-def test_cli_sweep_skips_the_finished_cells_of_another_process(local, tmp_path):
+def test_cli_sweep_skips_the_finished_cells_of_another_process(local, tmp_path, cli_in_process):
     # A real subprocess of the CLI on a copy of the finished sweep: the same flags name the
     # same cells, so nothing runs again and the table is the same.
     out = tmp_path / "copy"
@@ -324,9 +328,8 @@ def test_cli_sweep_skips_the_finished_cells_of_another_process(local, tmp_path):
     pd.testing.assert_frame_equal(
         pd.read_csv(out / "metrics.csv"), local[0].metrics, check_exact=True
     )
-    bad_command = [sys.executable, "-m", "cfm_jax.cli", "sweep", "--override", "task.kp",
-                   "--out", str(out)]  # fmt: skip
-    bad = subprocess.run(bad_command, capture_output=True, text=True, timeout=300)
+    # A refusal: in this process (cli.main), no second interpreter needed.
+    bad = cli_in_process("sweep", "--override", "task.kp", "--out", str(out))
     assert bad.returncode == 2
     assert "--override='task.kp' is not allowed: PATH=V1,V2" in bad.stderr
 
