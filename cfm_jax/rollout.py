@@ -111,8 +111,8 @@ def run(task, policy, key, simulator="native") -> Rollout:
     limit = jnp.asarray(robot.torque_limit, jnp.float32)
     physics = native_physics(robot, n_sub) if simulator == "native" else mjx_physics(robot, n_sub)
 
-    def one_target(reference, target_key):
-        qpos0, qvel0, features0 = task.start(reference)
+    def one_target(reference, target_key, start, alive):
+        qpos0, qvel0, features0 = start
 
         def control_step(carry, t):
             qpos, qvel, features, key, alive = carry
@@ -163,7 +163,7 @@ def run(task, policy, key, simulator="native") -> Rollout:
 
         _, (transitions, error, finite, extras) = jax.lax.scan(
             control_step,
-            (qpos0, qvel0, features0, target_key, jnp.bool_(True)),
+            (qpos0, qvel0, features0, target_key, alive),
             jnp.arange(task.steps),
         )
         # Once the state is non-finite, everything after it is too.
@@ -171,7 +171,12 @@ def run(task, policy, key, simulator="native") -> Rollout:
         return Rollout(transitions, error, finite, extras)
 
     keys = jax.random.split(key, task.targets)
-    return jax.vmap(one_target)(task.reference, keys)
+    # The start states as inputs with a target axis, not constants: every carry of the scan
+    # is batched from its first step, so vmap batches the scan's body once, not twice until
+    # the carries' batching settles (tracing MJX's step is most of an MJX program's build).
+    starts = jax.vmap(task.start)(task.reference)
+    alive = jnp.ones(task.targets, bool)
+    return jax.vmap(one_target)(task.reference, keys, starts, alive)
 
 
 MAXVAL = native.MAXVAL

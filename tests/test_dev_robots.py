@@ -95,7 +95,11 @@ def baselines(arm: str, simulator: str):
         simulator=simulator,
         task=config_lib.TaskConfig(duration=0.3),
     )
-    table = Experiment(config).baselines()
+    # MJX's programs without LLVM optimisation: they compile in about 35 s instead of 50 s
+    # (the PiPER, beside two studies) for a rollout of 0.3 s; the numbers move in float32's
+    # last digits, far inside the 1e-3 the test allows against MuJoCo C.
+    options = {"xla_backend_optimization_level": 0} if simulator == "mjx" else None
+    table = Experiment(config, compiler_options=options).baselines()
     return table.pivot(index="target", columns="baseline", values="tracking_mse")
 
 

@@ -218,3 +218,21 @@ def test_compilation_cache_folder_and_off_switch(tmp_path):
     user = str(tmp_path / "user")
     got = _cache_run(tmp_path, JAX_COMPILATION_CACHE_DIR=user)
     assert got[:2] == [user, user]
+
+
+def test_experiment_compiler_options_reach_xla():
+    """``Experiment(config, compiler_options=...)`` compiles its programs with them: an option
+    XLA does not know fails the first compile, and without LLVM's optimisation the baselines
+    are those of the default build up to float32 rounding."""
+    import numpy as np
+
+    import cfm_jax
+
+    config = cfm_jax.Config(robot="two_link_arm", task=cfm_jax.TaskConfig(duration=0.1))
+    default = cfm_jax.Experiment(config).baselines()
+    fast = cfm_jax.Experiment(config, compiler_options={"xla_backend_optimization_level": 0})
+    np.testing.assert_allclose(
+        fast.baselines()["tracking_mse"], default["tracking_mse"], rtol=1e-4, atol=1e-12
+    )
+    with pytest.raises(Exception, match="no_such_xla_option"):
+        cfm_jax.Experiment(config, compiler_options={"no_such_xla_option": 1}).baselines()
