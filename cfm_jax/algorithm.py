@@ -346,9 +346,17 @@ def collect(setup: Setup, state: TrainState, knobs: Knobs) -> tuple[dict, tuple]
       >>> measured, (rows, valid) = collect(setup, state, knobs)  # doctest: +SKIP
     """
     _, key_rollout, _, _ = jax.random.split(state.key, 4)
-    result = rollout(setup, learned_policy(setup, state), key_rollout, knobs)
+    policy = learned_policy(setup, state)
+    result = rollout(setup, policy, key_rollout, knobs)
     result = result._replace(transitions=with_terms(setup, result.transitions))
-    return metrics(setup, state, result), collected(result)
+    measured = metrics(setup, state, result)
+    if not setup.config.loop.restart_on_terminal:
+        return measured, collected(result)
+    # The data from a second rollout that starts again after each fall (the same key: the
+    # same rollout up to the first fall); the metrics stay those of the rollout above.
+    again = _run(setup, _task_of(setup, knobs), policy, key_rollout, restart=True)
+    measured["transitions_added"] = jnp.sum(data_mask(again), axis=-1).astype(jnp.float32)
+    return measured, collected(again)
 
 
 def refit_forward(
@@ -980,14 +988,18 @@ def rollout(
     return _run(setup, _task_of(setup, knobs), policy, key)
 
 
-def _run(setup: Setup, task, policy: rollout_lib.MixedPolicy, key) -> rollout_lib.Rollout:
-    """Roll ``policy`` out on ``task`` (of ``setup``'s structure) with the config's simulator."""
+def _run(
+    setup: Setup, task, policy: rollout_lib.MixedPolicy, key, restart: bool = False
+) -> rollout_lib.Rollout:
+    """Roll ``policy`` out on ``task`` (of ``setup``'s structure) with the config's simulator
+    (``restart``: :func:`cfm_jax.rollout.run`'s)."""
     simulator = setup.config.simulator
     return rollout_lib.run(
         task,
         rollout_lib.mixed_policy(task, setup.controller, policy, simulator),
         key,
         simulator=simulator,
+        restart=restart,
     )
 
 
@@ -1192,12 +1204,16 @@ def _step_mean(result: rollout_lib.Rollout, before_terminal: bool = False):
 
 def _steps(result: rollout_lib.Rollout, before_terminal: bool):
     """``(targets, steps)`` mask of the steps inside each target's horizon and, with
-    ``before_terminal``, before the first terminal step; None when the task marks neither.
+    ``before_terminal``, before the first terminal step (in a rollout that started again
+    after each fall, :func:`cfm_jax.rollout.run`'s ``restart``: every step but the falls);
+    None when the task marks neither.
     After a terminal step (a fall) the dynamics are not the models' to learn: the legged
     models have foot-floor contacts only, so a fallen body sinks through the floor."""
     extras = result.extras if isinstance(result.extras, dict) else {}
     masks = [extras["active"]] if "active" in extras else []
-    if before_terminal and "terminal" in extras:
+    if before_terminal and "restarted" in extras:  # started again after each fall
+        masks.append(~extras["terminal"])
+    elif before_terminal and "terminal" in extras:
         masks.append(jnp.cumsum(extras["terminal"].astype(jnp.int32), axis=-1) == 0)
     return functools.reduce(jnp.logical_and, masks) if masks else None
 

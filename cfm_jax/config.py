@@ -749,6 +749,10 @@ class LoopConfig:
       normaliser: both networks' scaling, one of :data:`NORMALISERS`: ``babbling`` (default;
         the initial data's statistics), ``data`` (the data set's, before every refit) or
         ``robot`` (fixed, from the MJCF and the task: :mod:`cfm_jax.tasks.scales`).
+      restart_on_terminal: the data of each iteration from a rollout that starts again from
+        the reference after each terminal step (a legged robot's fall), so that a controller
+        that falls early still collects data of the whole motion; the metrics stay those of
+        the rollout without restarts (default False: the data end at the first fall).
       checkpoint_every: checkpoint every this many iterations (and after the initial fit and
         the last iteration) when ``train`` has an output directory; 0: none.
       checkpoint_keep: number of most recent checkpoints kept.
@@ -766,6 +770,7 @@ class LoopConfig:
     torque_scale: str = "coupled"
     babbling_gains: str = "lightest"
     normaliser: str = "babbling"
+    restart_on_terminal: bool = False
     checkpoint_every: int = 1
     checkpoint_keep: int = 3
 
@@ -782,6 +787,8 @@ class LoopConfig:
             fail("loop.babbling_gains", self.babbling_gains, f"one of {BABBLING_GAINS}")
         if not isinstance(self.normaliser, str) or self.normaliser not in NORMALISERS:
             fail("loop.normaliser", self.normaliser, f"one of {NORMALISERS}")
+        if not isinstance(self.restart_on_terminal, bool):
+            fail("loop.restart_on_terminal", self.restart_on_terminal, "True or False")
         _nonnegative_int("loop.checkpoint_every", self.checkpoint_every)
         _positive_int("loop.checkpoint_keep", self.checkpoint_keep)
 

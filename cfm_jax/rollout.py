@@ -84,7 +84,7 @@ def substeps(robot, control_dt: float) -> int:
     return count
 
 
-def run(task, policy, key, simulator="native") -> Rollout:
+def run(task, policy, key, simulator="native", restart: bool = False) -> Rollout:
     """Roll a policy out on every target of a task into a :class:`Rollout` (pure; jit it).
 
     A rollout that *diverged* (``qpos``, ``qvel`` or ``qacc`` not :func:`good`) is frozen at
@@ -95,6 +95,11 @@ def run(task, policy, key, simulator="native") -> Rollout:
       policy: ``policy(step, key) -> tau`` of a :class:`Step`, clipped to the torque limits.
       key: PRNG key, split per target and step.
       simulator: one of :data:`cfm_jax.config.SIMULATORS`.
+      restart: after a terminal step (a legged robot's fall: the task's ``record`` marks it
+        ``terminal``), start again from the reference's state of the next step
+        (``task.start`` of the reference from there), so that the rollout covers the whole
+        motion; ``extras["restarted"]`` marks the steps after which it did. Up to the first
+        terminal step the rollout is the one without restarts.
 
     Examples:
       >>> from cfm_jax import references, robots, tasks
@@ -159,6 +164,17 @@ def run(task, policy, key, simulator="native") -> Rollout:
                 key,
                 finite,
             )
+            extras = out[3] if isinstance(out[3], dict) else {}
+            if restart and "terminal" in extras:  # tasks without terminal steps: no restarts
+                again = finite & extras["terminal"]
+                after = jax.tree.map(lambda x: jax.lax.dynamic_slice_in_dim(x, t + 1, 1), reference)
+                fresh = task.start(after)  # the reference's state at step t + 1
+
+                def restarted(new, old):
+                    return jnp.where(again, new, old)
+
+                carry = (*jax.tree.map(restarted, fresh, carry[:3]), key, finite)
+                out = (*out[:3], {**extras, "restarted": again})
             return carry, out
 
         _, (transitions, error, finite, extras) = jax.lax.scan(
