@@ -119,13 +119,31 @@ TASK_CHECK = (
     "op-space's default babbling becomes `home` (for op-space only; inverse dynamics keeps "
     "its own choice) and the headline op-space cell is rerun; otherwise nothing changes."
 )
+WALK_CHECK = (
+    "Written on 2026-11-29, after the diagnosis of the walk's falls (docs/locomotion.md, \"Why "
+    'the learned walks fall": the data ended at the first fall, so the walk was learnt one '
+    "stretch at a time) and before any cell of this check ran. The library gained one option "
+    "for it, `loop.restart_on_terminal` (each iteration's data from a rollout that starts again "
+    "from the reference after each fall; the metrics stay those of the rollout without "
+    "restarts). The walk checks that one factor, and only it: both values from the family's "
+    "defaults (the base: the defaults cell of round 2, already run), on the walk's selection "
+    "motions, same seeds, iterations and rule, all losses alike. If `True` scores lower, the "
+    "walk's default becomes `True` (the walk only: the jump's learned controllers do not "
+    "fall) and the headline walk cells are rerun; otherwise nothing changes."
+)
+CHECK_TEXTS = {"opspace": TASK_CHECK, "walk": WALK_CHECK}
+"""Per task with its own check: why it runs and what it decides, written before it ran."""
 ARM = ("inverse_dynamics", "opspace")
 LEGGED = ("walk", "jump")
 SELECTED_ON = {"arm": "inverse_dynamics", "legged": "walk"}
 """The task on which each family's factors are chosen (see ``SIZING``)."""
-TASK_CHECKS = {"opspace": (("babbling", "loop.babbling", ("reaching", "home")),)}
+TASK_CHECKS = {
+    "opspace": (("babbling", "loop.babbling", ("reaching", "home")),),
+    "walk": (("restart after a fall", "loop.restart_on_terminal", (False, True)),),
+}
 """Per task the factors are not chosen on: factors checked on it from its family's defaults
-(``TASK_CHECK``), the defaults' value first."""
+(``CHECK_TEXTS``; on a task the factors are chosen on, after its rounds), the defaults'
+value first."""
 ROBOT = _study.ROBOT
 ITERATIONS = {"inverse_dynamics": 10, "opspace": 10, "walk": 30, "jump": 30}
 SEEDS = 3
@@ -353,7 +371,7 @@ def cells_of(task: str) -> list[Cell]:
     cells = [Cell(task)]
     for name, _, values in FACTORS[family(task)]:
         cells += [Cell(task, name, v) for v in values[1:]]
-    return cells + [Cell(task, together=True)] + round_two_cells(task)
+    return cells + [Cell(task, together=True)] + round_two_cells(task) + check_cells(task)
 
 
 def run_dir(runs: str, cell: Cell) -> str:
@@ -573,7 +591,7 @@ def tables(out: str, tasks) -> str:
                       f"{chosen_on} (see Sizing).", ""]  # fmt: skip
         if task != chosen_on and task in TASK_CHECKS:
             lines += [f"### {task}, its own check (base: `{defaults_cell(task).name}`, the "
-                      "family's defaults)", "", TASK_CHECK, ""]  # fmt: skip
+                      "family's defaults)", "", CHECK_TEXTS[task], ""]  # fmt: skip
         if not cells:
             lines.append("No cell finished yet.")
             continue
@@ -584,7 +602,7 @@ def tables(out: str, tasks) -> str:
             lines += ["", "Chosen per checked factor (against the family's defaults):", ""]
             lines += [f"* {line}" for _, line in check_choices(frames, task).values()]
             continue
-        first = {c: f for c, f in frames.items() if c.round == 1}
+        first = {c: f for c, f in frames.items() if c.round == 1 and not c.check}
         lines += _table(first, first.get(Cell(task)), task, names, rows, curves)
         lines += ["", "Chosen per factor (lowest score; *clear* when the paired interval "
                   "against the base excludes 0):", ""]  # fmt: skip
@@ -620,6 +638,16 @@ def tables(out: str, tasks) -> str:
                 lines[-1] += (f" On these motions they are the cell `{cell.name}`: score "
                               f"{cell_score(frame):.3f}, {int(last['failed'].sum())}/"
                               f"{len(last)} failed.")  # fmt: skip
+        if task in TASK_CHECKS:
+            base = defaults_cell(task)
+            lines += ["", f"### {task}, its own check (base: `{base.name}`, the family's "
+                      "defaults)", "", CHECK_TEXTS[task], ""]  # fmt: skip
+            checked = {c: f for c, f in frames.items() if c.check}
+            if base in frames:
+                checked = {base: frames[base], **checked}
+            lines += _table(checked, frames.get(base), task, names, rows, curves, own=base)
+            lines += ["", "Chosen per checked factor (against the family's defaults):", ""]
+            lines += [f"* {line}" for _, line in check_choices(frames, task).values()]
     os.makedirs(out, exist_ok=True)
     pd.DataFrame(rows).to_csv(os.path.join(out, "selection.csv"), index=False)
     pd.DataFrame(curves).to_csv(os.path.join(out, "curves.csv"), index=False)

@@ -26,11 +26,13 @@ from cfm_jax import report
 def _as_run_today(recorded: dict) -> dict:
     """A record's config.json with the fields added since it was written
     (``_study.BEFORE_TORQUE_SCALING``: a record that predates them ran on those values;
-    ``task.motion_family``: the test family) and its forward section upgraded
+    ``task.motion_family``: the test family; ``loop.restart_on_terminal``: off) and its forward section upgraded
     (:func:`cfm_jax.config.upgrade_forward`)."""
     loop = dict(recorded["loop"])
     for path, value in _study.BEFORE_TORQUE_SCALING.items():
         loop.setdefault(path.split(".")[1], value)
+    # loop.restart_on_terminal (issue 65) came later: every record's data ended at a fall
+    loop.setdefault("restart_on_terminal", False)
     # task.motion_family (issue 43) came later: every record followed the test motions' family
     task = {**recorded["task"], "motion_family": recorded["task"].get("motion_family", "test")}
     # and the forward section's rigid_body fields as they are read today (forward.options)
