@@ -26,8 +26,8 @@ from cfm_jax import report
 def _as_run_today(recorded: dict) -> dict:
     """A record's config.json with the fields added since it was written
     (``_study.BEFORE_TORQUE_SCALING``: a record that predates them ran on those values;
-    ``task.motion_family``: the test family; ``loop.restart_on_terminal``: off) and its forward section upgraded
-    (:func:`cfm_jax.config.upgrade_forward`)."""
+    ``task.motion_family``: the test family; ``loop.restart_on_terminal``: off) and its
+    forward section upgraded (:func:`cfm_jax.config.upgrade_forward`)."""
     loop = dict(recorded["loop"])
     for path, value in _study.BEFORE_TORQUE_SCALING.items():
         loop.setdefault(path.split(".")[1], value)
