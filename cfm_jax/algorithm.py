@@ -870,11 +870,22 @@ def fit_forward(forward, optimizer, params, opt_state, normaliser, data, key, st
     """
     batches = forward.batches(params)
 
-    def one_step(carry, step_key):
-        params, opt_state = carry
+    def value_and_grad(params, step_key):
         keys = jax.random.split(step_key, batches)
         batch = jax.vmap(lambda k: dataset.sample(data, k, batch_size))(keys)
-        value, grads = jax.value_and_grad(forward.objective)(params, normaliser, batch)
+        return jax.value_and_grad(forward.objective)(params, normaliser, batch)
+
+    return _scan_steps(value_and_grad, optimizer, params, opt_state, key, steps)
+
+
+def _scan_steps(value_and_grad, optimizer, params, opt_state, key, steps: int):
+    """``steps`` optimiser steps under ``lax.scan``, each on ``value_and_grad(params, key)``
+    with a key of its own split from ``key``; returns ``(params, opt_state, mean value)``
+    (a NaN value for 0 steps)."""
+
+    def one_step(carry, step_key):
+        params, opt_state = carry
+        value, grads = value_and_grad(params, step_key)
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), value
 
@@ -943,10 +954,9 @@ def fit_controller(
     if full_batch:
         filled = (jnp.arange(data.capacity) < data.size).astype(jnp.float32)
 
-    def one_step(carry, step_key):
-        params, opt_state = carry
+    def value_and_grad(params, step_key):
         batch = data.data if full_batch else dataset.sample(data, step_key, batch_size)
-        value, grads = jax.value_and_grad(controller_objective)(
+        return jax.value_and_grad(controller_objective)(
             params,
             forward_params,
             loss,
@@ -958,13 +968,8 @@ def fit_controller(
             groups,
             filled,
         )
-        updates, opt_state = optimizer.update(grads, opt_state, params)
-        return (optax.apply_updates(params, updates), opt_state), value
 
-    (params, opt_state), values = jax.lax.scan(
-        one_step, (params, opt_state), jax.random.split(key, steps)
-    )
-    return params, opt_state, jnp.mean(values) if steps else jnp.float32(jnp.nan)
+    return _scan_steps(value_and_grad, optimizer, params, opt_state, key, steps)
 
 
 def rollout(
