@@ -275,18 +275,36 @@ _COLUMNS = {
 }  # fmt: skip
 
 
-def _plain_records(task: str, configuration: str, losses) -> pd.DataFrame:
-    """The comparison's records of ``task`` for ``losses`` in one configuration, every block
-    of seeds, read with plain pandas (the own configuration: each loss's own cell)."""
+def _plain_blocks(task: str) -> set[str] | None:
+    """The page's rule written out plainly: the blocks of seeds (folder names; ``""`` the
+    first) that every cell of ``task`` (shared and each own cell) has finished, or None
+    (every finished block of each cell counts) when no block is finished by all."""
     base = os.path.join(ROOT, "docs", "results", "comparison", "cells", task)
+    finished = []
+    for cell in ("shared", "own-joint", "own-task", "own-distal", "own-supervised"):
+        folder = os.path.join(base, cell)
+        names = [""] + (sorted(os.listdir(folder)) if os.path.isdir(folder) else [])
+        finished.append(
+            {n for n in names if os.path.isfile(os.path.join(folder, n, "metrics.csv"))}
+        )
+    common = set.intersection(*finished)
+    return common or None
+
+
+def _plain_records(task: str, configuration: str, losses) -> pd.DataFrame:
+    """The comparison's records of ``task`` for ``losses`` in one configuration, read with
+    plain pandas (the own configuration: each loss's own cell), over the blocks of seeds
+    ``_plain_blocks`` names."""
+    base = os.path.join(ROOT, "docs", "results", "comparison", "cells", task)
+    blocks = _plain_blocks(task)
     frames = []
     for loss in losses:
         cell = os.path.join(base, "shared" if configuration == "shared defaults" else f"own-{loss}")
-        for folder in [cell] + sorted(
-            os.path.join(cell, b) for b in os.listdir(cell) if b.startswith("seeds-")
-        ):
-            if os.path.isfile(os.path.join(folder, "metrics.csv")):  # a finished block
-                frame = pd.read_csv(os.path.join(folder, "metrics.csv"))
+        for name in [""] + sorted(b for b in os.listdir(cell) if b.startswith("seeds-")):
+            if os.path.isfile(os.path.join(cell, name, "metrics.csv")) and (
+                blocks is None or name in blocks
+            ):
+                frame = pd.read_csv(os.path.join(cell, name, "metrics.csv"))
                 frames.append(frame[frame.loss == loss])
     baselines = pd.read_csv(os.path.join(base, "shared", "baselines.csv"))
     pd_only = baselines[baselines.baseline == "pd_only"].set_index("target").tracking_mse
