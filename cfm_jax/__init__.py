@@ -22,16 +22,16 @@ COMPILATION_CACHE = _xla.use_compilation_cache()
 # config of them takes, and the forward-model kinds their options (FORWARD_OPTIONS): done
 # here, so that a config made after `import cfm_jax` or any `from cfm_jax... import` is the
 # task's experiment with its kind's options.
-from cfm_jax import forward_models as _forward_models  # noqa: E402, F401
 from cfm_jax import tasks as _tasks  # noqa: E402, F401
+from cfm_jax.learning import forward_models as _forward_models  # noqa: E402, F401
 
 __version__ = "0.1.0"
 
 _LAZY = {
-    "train": "cfm_jax.training",
-    "TrainResult": "cfm_jax.training",
-    "Experiment": "cfm_jax.algorithm",
-    "METRIC_COLUMNS": "cfm_jax.algorithm",
+    "train": "cfm_jax.runs.training",
+    "TrainResult": "cfm_jax.runs.training",
+    "Experiment": "cfm_jax.learning.algorithm",
+    "METRIC_COLUMNS": "cfm_jax.learning.algorithm",
     "Config": "cfm_jax.config",
     "TaskConfig": "cfm_jax.config",
     "ForwardModelConfig": "cfm_jax.config",
@@ -39,9 +39,9 @@ _LAZY = {
     "LoopConfig": "cfm_jax.config",
     "ConfigError": "cfm_jax.config",
     "for_task": "cfm_jax.config",
-    "sweep": "cfm_jax.sweeps",
-    "SweepResult": "cfm_jax.sweeps",
-    "SweepError": "cfm_jax.sweeps",
+    "sweep": "cfm_jax.runs.sweeps",
+    "SweepResult": "cfm_jax.runs.sweeps",
+    "SweepError": "cfm_jax.runs.sweeps",
 }
 
 __all__ = sorted(_LAZY)

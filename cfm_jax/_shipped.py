@@ -1,5 +1,5 @@
 """Where the shipped robot files are and their names: the lowest layer, so that
-:mod:`cfm_jax.config` and :mod:`cfm_jax.robots` use it without importing each other."""
+:mod:`cfm_jax.config` and :mod:`cfm_jax.sim.robots` use it without importing each other."""
 
 from __future__ import annotations
 
@@ -18,6 +18,6 @@ def robot_dir():
 
 
 def registered() -> tuple[str, ...]:
-    """Sorted names of the shipped robots (see :func:`cfm_jax.robots.registered`)."""
+    """Sorted names of the shipped robots (see :func:`cfm_jax.sim.robots.registered`)."""
     files = robot_dir()
     return tuple(sorted(p.name[:-4] for p in files.iterdir() if p.name.endswith(".xml")))

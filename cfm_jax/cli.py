@@ -26,8 +26,8 @@ from tyro.conf import arg as tyro_arg
 
 import cfm_jax  # (sets the XLA flag before JAX starts)
 from cfm_jax import config as config_lib
-from cfm_jax import plots, report
 from cfm_jax._files import write_atomic, write_text
+from cfm_jax.analysis import plots, report
 
 
 def train(
@@ -62,7 +62,7 @@ def train(
       task: task name (inverse_dynamics, opspace, walk, jump); None: the config file's,
         else inverse_dynamics.
       loss: a controller loss (joint, task, distal, supervised, distal_literal, or one
-        registered with cfm_jax.losses.register: cfm-jax --import MODULE train ...), a
+        registered with cfm_jax.learning.losses.register: cfm-jax --import MODULE train ...), a
         comma-separated list of them, or "all" (the paper's four).
       seeds: number of seeds (run together as a vmap axis); None: the config's (1).
       iterations: iterations of Algorithm 1; None: the config file's, else the task's (4).
@@ -87,12 +87,12 @@ def train(
       site: opspace: the end-effector site of the MJCF (default: "ee", else "flange", else
         "attachment_site").
       babbling: the initial data, loop.babbling (home, reaching, reference_pd, oracle; see
-        cfm_jax.babbling); default: the config's (the task's default: reaching for the arm
+        cfm_jax.tasks.babbling); default: the config's (the task's default: reaching for the arm
         tasks, home for the legged ones).
       quiet: no progress bar.
       tensorboard: also write TensorBoard event files to this folder (needs tensorboardX:
         pip install 'cfm_jax[tensorboard]'): after every iteration one scalar per loss and
-        metric, tag LOSS/METRIC, the mean over seeds and targets (cfm_jax.tensorboard).
+        metric, tag LOSS/METRIC, the mean over seeds and targets (cfm_jax.analysis.tensorboard).
 
     Examples:
       On the command line (``cfm-jax train --help`` lists every flag)::
@@ -115,9 +115,9 @@ def train(
 def _run_train(base, names, out, resume, data, quiet, tensorboard=None, restart=False) -> None:
     """Train every loss of ``names`` on ``base`` into ``out`` and print the tables
     (``restart``: after the checks, what ``out`` holds is moved aside, :func:`_move_aside`)."""
-    from cfm_jax import checkpoint
-    from cfm_jax import tensorboard as tensorboard_lib
-    from cfm_jax import training as train_lib
+    from cfm_jax.analysis import tensorboard as tensorboard_lib
+    from cfm_jax.runs import checkpoint
+    from cfm_jax.runs import training as train_lib
 
     if tensorboard is not None and not tensorboard_lib.available():
         config_lib.fail("--tensorboard", tensorboard, tensorboard_lib.MISSING)
@@ -183,7 +183,7 @@ def _train_losses(base, names, out, resume, data, quiet, experiment, progress_fn
     initial fit of f per seed), each into OUT/<loss>; the top-level metrics.csv
     is rewritten after every iteration from the losses' own files, the other combined files
     at the end. ``progress_fn`` (e.g. the TensorBoard writer) is called as train calls it."""
-    from cfm_jax import training as train_lib
+    from cfm_jax.runs import training as train_lib
 
     def iteration_done(iteration, rows):
         # train wrote OUT/<loss>/metrics.csv (every row of that loss so far, restored ones
@@ -404,7 +404,7 @@ def sweep(
 
 def _run_sweep(base, names, override, out, backend, address, max_retries, quiet) -> None:
     """Run the sweep of ``base`` over ``names`` and the ``override`` axes; print its table."""
-    from cfm_jax import sweeps
+    from cfm_jax.runs import sweeps
 
     grid_axes: dict = {}
     for text in override:
@@ -829,7 +829,7 @@ _OUT_HELP = "output directory."
 def _loss_names() -> str:
     """The registered loss names, said once (config), with the way to add one."""
     return (", ".join(config_lib.CONTROLLER_LOSSES) + "; a loss of your own: cfm-jax --import "
-            "MODULE COMMAND ..., MODULE calling cfm_jax.losses.register")  # fmt: skip
+            "MODULE COMMAND ..., MODULE calling cfm_jax.learning.losses.register")  # fmt: skip
 
 
 _PAPER_NAMES = ", ".join(config_lib.PAPER_LOSSES)
@@ -911,7 +911,7 @@ def _config_command(argv: list[str]) -> None:
     flags_cls = _flags_class("config", base, extra)
     flags = _parse(flags_cls, argv, "config", _description(print_config))
     config = _config_of(flags, base, flags.loss)
-    from cfm_jax import robot_check
+    from cfm_jax.analysis import robot_check
 
     robot_check.refuse_unfit(config)  # what training would refuse, refused now
     print(json.dumps(config_lib.to_dict(config), indent=2))
@@ -949,7 +949,7 @@ def robot_check(
     Examples:
       cfm-jax robot check path/to/ur5e.xml --robot-actuators torque
     """
-    from cfm_jax import robot_check as checker
+    from cfm_jax.analysis import robot_check as checker
 
     config_lib.Config(robot_actuators=robot_actuators, robot_torque_limit=robot_torque_limit)
     found = checker.check(file, robot_actuators, robot_torque_limit)
@@ -1001,9 +1001,9 @@ def main() -> None:
     """
     import sys
 
-    from cfm_jax import bench
-    from cfm_jax.checkpoint import CheckpointError
-    from cfm_jax.robots import RobotError
+    from cfm_jax.analysis import bench
+    from cfm_jax.runs.checkpoint import CheckpointError
+    from cfm_jax.sim.robots import RobotError
 
     argv = sys.argv[1:]
     commands = {
@@ -1038,7 +1038,7 @@ def main() -> None:
         print(f"cfm-jax: error: {one_line}", file=sys.stderr)
         raise SystemExit(2) from None
     except RuntimeError as error:
-        from cfm_jax.sweeps import SweepError
+        from cfm_jax.runs.sweeps import SweepError
 
         if not isinstance(error, SweepError):
             raise
@@ -1049,9 +1049,9 @@ def main() -> None:
 def _imports(argv: list[str]) -> list[str]:
     """Import the modules of the leading ``--import MODULE`` options (repeatable; a module
     name importable from the working directory, or a ``.py`` file), in order, so that what
-    they register (:func:`cfm_jax.losses.register`, :func:`cfm_jax.forward_models.register`,
-    :func:`cfm_jax.tasks.register`) is known before the command parses; the rest of
-    ``argv``.
+    they register (:func:`cfm_jax.learning.losses.register`,
+    :func:`cfm_jax.learning.forward_models.register`, :func:`cfm_jax.tasks.register`) is known
+    before the command parses; the rest of ``argv``.
 
     Raises:
       ConfigError: ``--import`` without a value, or a module that cannot be imported.

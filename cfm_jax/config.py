@@ -114,7 +114,7 @@ def _resolve(obj: Any, name: str, section: str | None) -> None:
 
 
 FORWARD_KINDS = ("mlp", "rigid_body")
-"""Values of ``Config.forward.kind`` (:mod:`cfm_jax.forward_models`; see
+"""Values of ``Config.forward.kind`` (:mod:`cfm_jax.learning.forward_models`; see
 :class:`ForwardModelConfig`)."""
 
 
@@ -123,7 +123,8 @@ FORWARD_OPTIONS: dict[str, type] = {}
 
 
 def add_forward_kind(name: str, options: type | None = None) -> None:
-    """Allow ``name`` as ``forward.kind`` (:func:`cfm_jax.forward_models.register` calls this).
+    """Allow ``name`` as ``forward.kind`` (:func:`cfm_jax.learning.forward_models.register` calls
+    this).
 
     Args:
       name: the new kind's name; a name already in :data:`FORWARD_KINDS` changes nothing.
@@ -181,7 +182,7 @@ def _kind_options(kind: str, value: Any) -> Any:
 
 
 SIMULATORS = ("native", "mjx")
-"""Values of ``Config.simulator`` (:mod:`cfm_jax.rollout`)."""
+"""Values of ``Config.simulator`` (:mod:`cfm_jax.sim.rollout`)."""
 
 
 def check_simulator(simulator: str) -> None:
@@ -204,16 +205,17 @@ def check_simulator(simulator: str) -> None:
 
 
 PAPER_LOSSES = ("joint", "task", "distal", "supervised")
-"""The paper's four controller losses (:mod:`cfm_jax.losses`), in reporting order (``all``)."""
+"""The paper's four controller losses (:mod:`cfm_jax.learning.losses`), in reporting order
+(``all``)."""
 
 CONTROLLER_LOSSES = PAPER_LOSSES + ("distal_literal",)
 """Values of ``Config.loss``: :data:`PAPER_LOSSES`, ``distal_literal`` (the distal teacher
-as a loss over the whole data set, :func:`cfm_jax.losses.distal_literal`) and every loss
-registered since (:func:`cfm_jax.losses.register` calls :func:`add_loss_name`)."""
+as a loss over the whole data set, :func:`cfm_jax.learning.losses.distal_literal`) and every loss
+registered since (:func:`cfm_jax.learning.losses.register` calls :func:`add_loss_name`)."""
 
 
 def add_loss_name(name: str) -> None:
-    """Allow ``name`` as ``Config.loss`` (:func:`cfm_jax.losses.register` calls this).
+    """Allow ``name`` as ``Config.loss`` (:func:`cfm_jax.learning.losses.register` calls this).
 
     Args:
       name: the new loss's name; a name already in :data:`CONTROLLER_LOSSES` changes nothing.
@@ -266,8 +268,8 @@ def loss_names(losses, field: str = "losses") -> tuple[str, ...]:
             losses,
             f"'all', a name or a comma-separated list of distinct names from {CONTROLLER_LOSSES}"
             + (f"; not registered: {unknown}" if unknown else "")
-            + " (a loss of your own: cfm_jax.losses.register it first; on the command line, "
-            "cfm-jax --import MODULE ..., MODULE registering it)",
+            + " (a loss of your own: cfm_jax.learning.losses.register it first; on the command "
+            "line, cfm-jax --import MODULE ..., MODULE registering it)",
         )
     return names
 
@@ -281,22 +283,23 @@ BABBLING_BEFORE = {
 """Each task's babbling before ``loop.babbling`` existed (:func:`from_dict` of old configs)."""
 
 BABBLING = ("home", "reaching", "reference_pd", "oracle")
-"""Values of ``Config.loop.babbling`` (:mod:`cfm_jax.babbling`; see :class:`LoopConfig`)."""
+"""Values of ``Config.loop.babbling`` (:mod:`cfm_jax.tasks.babbling`; see :class:`LoopConfig`)."""
 
 
 TORQUE_SCALES = ("inertia", "limit", "coupled")
 """Values of ``Config.loop.torque_scale`` (see :class:`LoopConfig`): the formulas are in
-:meth:`cfm_jax.robots.Robot.torque_scale` and :meth:`~cfm_jax.robots.Robot.coupled_torque_scale`,
-why ``coupled`` is the arm default in docs/how-to/own-robot.md."""
+:meth:`cfm_jax.sim.robots.Robot.torque_scale` and
+:meth:`~cfm_jax.sim.robots.Robot.coupled_torque_scale`, why ``coupled`` is the arm default in
+docs/how-to/own-robot.md."""
 
 
 BABBLING_GAINS = ("lightest", "baseline")
-"""Values of ``Config.loop.babbling_gains`` (:func:`cfm_jax.baselines.babbling_joint_gains`).
+"""Values of ``Config.loop.babbling_gains`` (:func:`cfm_jax.tasks.baselines.babbling_joint_gains`).
 The legged and op-space tasks' feedback keeps its own gains either way."""
 
 
 NORMALISERS = ("babbling", "data", "robot")
-"""Values of ``Config.loop.normaliser`` (:class:`cfm_jax.networks.Normaliser`)."""
+"""Values of ``Config.loop.normaliser`` (:class:`cfm_jax.learning.networks.Normaliser`)."""
 
 ROBOT_ACTUATORS = ("strict", "torque")
 """Values of ``Config.robot_actuators`` (see :class:`Config`)."""
@@ -462,9 +465,9 @@ class TaskConfig:
       site: ``opspace``: the end-effector site; None: the first of ``ee``, ``flange`` and
         ``attachment_site``.
       motions: legged tasks only: walk durations (s) or jump foot clearances (m), one reference
-        each; None: the paper's 5 test references (:mod:`cfm_jax.locomotion`).
+        each; None: the paper's 5 test references (:mod:`cfm_jax.tasks.locomotion`).
       motion_family: legged tasks only: ``test`` (default; the test references' gait) or
-        ``selection``, the gait of :data:`cfm_jax.locomotion.SELECTION_MOTIONS`, on which
+        ``selection``, the gait of :data:`cfm_jax.tasks.locomotion.SELECTION_MOTIONS`, on which
         hyperparameters are chosen: no window of its motions is one of a test motion.
       desired: how the legged tasks build ``s*``, one of :data:`DESIRED`: ``pd`` (default;
         the gains above) or ``next_velocity`` (the authors' code: ``v_ref(t+1) - v(t)``; needs
@@ -501,7 +504,8 @@ class TaskConfig:
 
     def feedback_frequency(self, control_dt: float) -> float:
         """Angular frequency (rad/s) of the joints' feedback in ``s*``: ``sqrt`` of their ``kp``,
-        else their ``kd``, else ``1 / control_dt`` (for :meth:`cfm_jax.robots.Robot.torque_scale`).
+        else their ``kd``, else ``1 / control_dt`` (for
+        :meth:`cfm_jax.sim.robots.Robot.torque_scale`).
 
         Examples:
           >>> TaskConfig().feedback_frequency(0.01)  # kp 100
@@ -611,11 +615,11 @@ class ForwardModelConfig:
         code) or ``fresh`` (parameters re-initialised from the iteration's key, new Adam).
       kind: one of :data:`FORWARD_KINDS`: ``mlp`` (default; the paper's text) or
         ``rigid_body`` (the authors' Solo12 code: ``qdd = M(q)^-1 (S tau - h(q, qd)) +
-        residual(s, tau)``, the ensemble the residual; :mod:`cfm_jax.rigid_body`).
+        residual(s, tau)``, the ensemble the residual; :mod:`cfm_jax.learning.rigid_body`).
       options: the kind's own settings (:data:`FORWARD_OPTIONS`): its options object or a
         dict of its fields, checked by the kind; None: its defaults. ``rigid_body``:
-        :class:`cfm_jax.rigid_body.RigidBodyOptions` (``nominal``, ``mass_scale``); ``mlp``:
-        none.
+        :class:`cfm_jax.learning.rigid_body.RigidBodyOptions` (``nominal``, ``mass_scale``);
+        ``mlp``: none.
 
     Examples:
       >>> ForwardModelConfig(hidden=[64, 64]).hidden  # lists become tuples
@@ -676,8 +680,8 @@ class ControllerConfig:
         (the authors' code: the observed next state in ``s*``'s coordinates; ``supervised``
         always uses it).
       loss_form: one of :data:`LOSS_FORMS`: ``norm`` (default; per-sample norms of weighted
-        coordinate groups, the authors' code, :func:`cfm_jax.losses.grouped`) or ``squared``
-        (sums of squares, the paper's text).
+        coordinate groups, the authors' code, :func:`cfm_jax.learning.losses.grouped`) or
+        ``squared`` (sums of squares, the paper's text).
       loss_weights: ``norm`` only: groups ``((weight, (index, ...)), ...)`` of the forward
         model's output ``y``; None: the task's ``loss_weights()``.
       start: how each refit starts, one of :data:`FIT_STARTS` (as ``forward.start``).
@@ -799,7 +803,7 @@ class Config:
 
     Attributes:
       robot: a registered robot name (``iiwa14``, ``two_link_arm``, ``solo12``) or an MJCF
-        path (:func:`cfm_jax.robots.load`).
+        path (:func:`cfm_jax.sim.robots.load`).
       loss: the controller loss, one of :data:`CONTROLLER_LOSSES`.
       seed: base seed; run ``k`` of ``loop.seeds`` uses ``seed + k``.
       simulator: physics of the rollouts, one of :data:`SIMULATORS`: ``native`` (MuJoCo C in
@@ -810,7 +814,7 @@ class Config:
       loop: a :class:`LoopConfig`.
       robot_actuators: one of :data:`ROBOT_ACTUATORS`: ``strict`` (default; torque motors
         only) or ``torque`` (each joint servo becomes a torque motor at load time,
-        :func:`cfm_jax.robots.convert`).
+        :func:`cfm_jax.sim.robots.convert`).
       robot_torque_limit: with ``robot_actuators="torque"``, the limit (N m or N) of servos
         whose file gives none: None (an error), one number, or one per hinge/slide joint.
 
@@ -872,7 +876,7 @@ class Config:
                 )
         if self.loss not in CONTROLLER_LOSSES:
             allowed = (
-                f"one of {CONTROLLER_LOSSES} (a loss of your own: cfm_jax.losses.register "
+                f"one of {CONTROLLER_LOSSES} (a loss of your own: cfm_jax.learning.losses.register "
                 "it before the config is made; on the command line, cfm-jax --import MODULE "
                 "train ..., MODULE registering it)"
             )
@@ -1124,14 +1128,14 @@ RUNTIME_FIELDS = (
     "loop.checkpoint_keep",
 )
 """Fields that do not change the compiled program (checkpointing and seed are not part of it,
-the others are its arguments, :class:`cfm_jax.algorithm.Knobs`): configs that differ only in
-these and ``loss`` share a :class:`cfm_jax.algorithm.Experiment` (see :func:`structure`,
+the others are its arguments, :class:`cfm_jax.learning.algorithm.Knobs`): configs that differ only
+in these and ``loss`` share a :class:`cfm_jax.learning.algorithm.Experiment` (see :func:`structure`,
 docs/how-to/sweep.md)."""
 
 
 def structure(config: Config) -> dict:
     """The part of ``config`` that shapes its compiled program (equal structures share an
-    :class:`cfm_jax.algorithm.Experiment`): :func:`to_dict` without ``loss`` and
+    :class:`cfm_jax.learning.algorithm.Experiment`): :func:`to_dict` without ``loss`` and
     :data:`RUNTIME_FIELDS`, with the number of ``task.targets`` (None: the default set) and
     the task's :data:`TASK_STRUCTURAL` fields.
 

@@ -2,31 +2,32 @@
 
 :class:`TrackingEnv` wraps the library's own task object (:func:`cfm_jax.tasks.make`): the
 same robot, references, control period, torque limits, start state, MuJoCo C physics
-(:class:`cfm_jax.native.Stepper`) and tracking error as the ``native`` simulator. An episode
+(:class:`cfm_jax.sim.native.Stepper`) and tracking error as the ``native`` simulator. An episode
 is one reference. The observation is the controller's input ``(s_t, s*_t)`` scaled by the
 robot's own scales (:func:`cfm_jax.tasks.scales.robot_scales`), float32. The action ``a`` in
 ``[-1, 1]`` becomes a torque by one of :data:`ACTIONS`:
 
 * ``limit``: ``a * tau_max``;
 * ``scale``: through the torque scale cfm_jax's controller acts through
-  (:func:`cfm_jax.algorithm.torque_scale` of ``config.loop.torque_scale``, the coupled scale
-  ``T`` built from the mass matrix for the arms), the controller's own squashing
-  :meth:`cfm_jax.networks.Normaliser.torque_output` of ``u = reach * a``, ``reach`` (
+  (:func:`cfm_jax.learning.algorithm.torque_scale` of ``config.loop.torque_scale``, the coupled
+  scale ``T`` built from the mass matrix for the arms), the controller's own squashing
+  :meth:`cfm_jax.learning.networks.Normaliser.torque_output` of ``u = reach * a``, ``reach`` (
   :func:`action_reach`) the output at which every joint gets to ``tanh(1)`` (76%) of its
   limit;
 * ``residual``: the task's PD feedback torque (the PD-only baseline's,
   :meth:`cfm_jax.tasks.JointSpaceTask.feedback`) plus ``residual_scale`` times the ``scale``
-  torque of ``a``, clipped to the limits as :func:`cfm_jax.rollout.run` clips: ``a = 0`` is
+  torque of ``a``, clipped to the limits as :func:`cfm_jax.sim.rollout.run` clips: ``a = 0`` is
   PD-only. Residual-RL practice scales the residual down (a small ``residual_scale``) so that
   early exploration perturbs the feedback instead of overriding it.
 
 The reward is minus the mean square of the next state's tracking error times
-``reward_scale`` (with 1, an episode's mean ``-reward`` is :func:`cfm_jax.rollout.tracking_mse`).
-Episodes are truncated after the reference's steps and terminated when the simulation
-diverges (``info["diverged"]``, with the reward of the last good state).
+``reward_scale`` (with 1, an episode's mean ``-reward`` is
+:func:`cfm_jax.sim.rollout.tracking_mse`). Episodes are truncated after the reference's steps and
+terminated when the simulation diverges (``info["diverged"]``, with the reward of the last good
+state).
 
 ``render_mode="rgb_array"`` makes :meth:`TrackingEnv.render` return the current frame
-(MuJoCo's offscreen renderer, :mod:`cfm_jax.render`; needs OpenGL). The environments are
+(MuJoCo's offscreen renderer, :mod:`cfm_jax.sim.render`; needs OpenGL). The environments are
 registered with Gymnasium under :data:`IDS` when this module is imported:
 ``gymnasium.make("cfm_jax.envs:cfm_jax/Tracking-v0")`` imports it and builds the quickstart
 task (the iiwa14's joint-space reaches); keyword arguments reach :func:`make`.
@@ -45,7 +46,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from cfm_jax import config as config_lib
-from cfm_jax import native, networks, rollout
+from cfm_jax.learning import networks
+from cfm_jax.sim import native, rollout
 from cfm_jax.tasks import scales
 
 REFERENCES = ("training", "test")
@@ -64,13 +66,13 @@ action box, where the peers' exploration (a unit Gaussian in SB3) is too coarse.
 def action_reach(torque_limit, torque_scale) -> float:
     """The controller output ``u`` of the action ``a = 1`` (``scale``/``residual`` actions):
     ``REACH x max_j limit_j / T_jj``, so that every joint can get to ``tanh(REACH)`` (76%) of
-    its limit through :meth:`cfm_jax.networks.Normaliser.torque_output` while a unit action
+    its limit through :meth:`cfm_jax.learning.networks.Normaliser.torque_output` while a unit action
     still means alike accelerations on every joint.
 
     Args:
       torque_limit: ``(n,)`` each joint's torque limit.
       torque_scale: ``(n,)`` or ``(n, n)`` torque scale ``T``
-        (:func:`cfm_jax.algorithm.torque_scale`), or None (the limits: ``REACH``).
+        (:func:`cfm_jax.learning.algorithm.torque_scale`), or None (the limits: ``REACH``).
 
     Returns:
       The factor ``reach`` of ``u = reach x a`` (float).
@@ -94,9 +96,9 @@ class TrackingEnv(gymnasium.Env):
       config: a :class:`cfm_jax.config.Config` (its robot, task and servo conversion; the
         learner's fields are not used). ``simulator`` must be ``native``.
       references: one of :data:`REFERENCES`: ``training``, reaches drawn as the ``reaching``
-        babbling draws them (:mod:`cfm_jax.babbling`), from the environment's seed, blind to
+        babbling draws them (:mod:`cfm_jax.tasks.babbling`), from the environment's seed, blind to
         the test references; or ``test``, the task's test references in turn (evaluation).
-      experiment: an :class:`cfm_jax.algorithm.Experiment` of ``config`` to take the robot
+      experiment: an :class:`cfm_jax.learning.algorithm.Experiment` of ``config`` to take the robot
         and task from (saves building them again), or None.
       action: one of :data:`ACTIONS` (see the module): ``limit``, ``scale`` or ``residual``.
       reward_scale: a positive factor of the reward (the peers: ``1 / PD-only's MSE``, so that
@@ -108,7 +110,7 @@ class TrackingEnv(gymnasium.Env):
 
     Attributes:
       task: the library's task object.
-      robot: its :class:`cfm_jax.robots.Robot`.
+      robot: its :class:`cfm_jax.sim.robots.Robot`.
       control_dt: the control period (s); an episode is ``task.steps`` of them.
 
     Raises:
@@ -143,8 +145,8 @@ class TrackingEnv(gymnasium.Env):
         residual_scale: float = 1.0,
         render_mode: str | None = None,
     ):
-        from cfm_jax import algorithm
-        from cfm_jax.algorithm import Experiment
+        from cfm_jax.learning import algorithm
+        from cfm_jax.learning.algorithm import Experiment
 
         if references not in REFERENCES:
             config_lib.fail("references", references, f"one of {REFERENCES}")
@@ -198,18 +200,18 @@ class TrackingEnv(gymnasium.Env):
 
     def render(self):
         """The current state as an RGB frame ``(RENDER_HEIGHT, RENDER_WIDTH, 3)`` uint8
-        (``render_mode="rgb_array"``; the free camera of :func:`cfm_jax.render.render_frames`),
+        (``render_mode="rgb_array"``; the free camera of :func:`cfm_jax.sim.render.render_frames`),
         or None without a render mode.
 
         Raises:
           RuntimeError: before :meth:`reset`.
-          cfm_jax.render.RenderUnavailable: no offscreen OpenGL context can be made.
+          cfm_jax.sim.render.RenderUnavailable: no offscreen OpenGL context can be made.
         """
         if self.render_mode is None:
             return None
         if self._reference is None:
             raise RuntimeError("TrackingEnv.render before reset")
-        from cfm_jax import render
+        from cfm_jax.sim import render
 
         if self._renderer is None:
             self._renderer = render.FrameRenderer(
@@ -310,7 +312,7 @@ class TrackingEnv(gymnasium.Env):
 
 class _Compiled(NamedTuple):
     """The task's own functions, compiled once per task: the same float32 operations as
-    :func:`cfm_jax.rollout.run`, so the same actions give the same states and errors."""
+    :func:`cfm_jax.sim.rollout.run`, so the same actions give the same states and errors."""
 
     observe: Any
     normalise: Any
@@ -364,9 +366,9 @@ def _action_torque(
     task, robot, torque_scale, reach: float, action: str, residual_scale: float = 1.0
 ) -> _ActionTorque:
     """The compiled torque of ``action`` (``scale`` or ``residual``): the controller's squashing
-    of the library (:meth:`cfm_jax.networks.Normaliser.torque_output`) with ``torque_scale``;
-    for ``residual``, ``residual_scale`` times it plus the task's PD feedback."""
-    from cfm_jax import rollout as rollout_lib
+    of the library (:meth:`cfm_jax.learning.networks.Normaliser.torque_output`) with
+    ``torque_scale``; for ``residual``, ``residual_scale`` times it plus the task's PD feedback."""
+    from cfm_jax.sim import rollout as rollout_lib
 
     normaliser = networks.Normaliser.identity(
         task.state_dim,

@@ -13,7 +13,7 @@ import time
 
 import cfm_jax
 from cfm_jax import config as config_lib
-from cfm_jax import sweeps
+from cfm_jax.runs import sweeps
 
 QUICK_LOSSES = "joint,task"
 
@@ -57,7 +57,7 @@ on them pin them (``round1-*``), so that their records stay reproducible."""
 
 def with_changes(config: config_lib.Config, changes) -> config_lib.Config:
     """``config`` with ``changes`` (a mapping or pairs of dotted path ``section.field`` and
-    value, e.g. ``{"loop.babbling": "home"}``): the one cell of :func:`cfm_jax.sweeps.grid`
+    value, e.g. ``{"loop.babbling": "home"}``): the one cell of :func:`cfm_jax.runs.sweeps.grid`
     with those overrides, so paths and values are checked as a sweep checks them."""
     overrides = {path: [value] for path, value in dict(changes).items()}
     return sweeps.grid(config, overrides=overrides)[0].config

@@ -1,7 +1,7 @@
 """Write docs/benchmarks.md: ``cfm-jax bench`` for both robots plus scaling sweeps.
 
 Not a test: prints numbers and writes them to ``docs/benchmarks.md``. Everything is
-measured by :mod:`cfm_jax.bench` (see its docstring for what each number means):
+measured by :mod:`cfm_jax.analysis.bench` (see its docstring for what each number means):
 
 * ``cfm-jax bench`` for the iiwa14 (with the training iteration and the PyTorch
   reference) and for Solo12 (rollouts) at batch 16;
@@ -22,7 +22,7 @@ import os
 import time
 
 import cfm_jax  # noqa: F401  (sets the XLA flag before JAX starts)
-from cfm_jax import bench
+from cfm_jax.analysis import bench
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -34,7 +34,8 @@ def seed_scaling(seed_counts, fit_steps: int, repeats: int) -> list[dict]:
     import numpy as np
     import optax
 
-    from cfm_jax import algorithm, dataset, networks
+    from cfm_jax.learning import algorithm, networks
+    from cfm_jax.sim import dataset
 
     state_dim, nv, rows = 14, 7, 15000
     rng = np.random.default_rng(0)

@@ -22,15 +22,15 @@ decision: what a reader needs to check every verdict).
 The rule (:data:`RULE`; written down with the primary family and the seed count in
 ``docs/results/claims_plan.md`` before the second block of seeds ran, issue 68): a comparison
 A - B is the per-seed difference of log10 errors (each seed averaged over its motions); it is
-*clear* when the exact sign-flip test (:func:`cfm_jax.stats.sign_flip_p`, every sign
+*clear* when the exact sign-flip test (:func:`cfm_jax.analysis.stats.sign_flip_p`, every sign
 assignment enumerated: no random number) is rejected by Holm's procedure over the primary
 family, the paper's claims, each comparison counted once (the same runs in both
 configurations: one comparison). A verdict follows from the clear comparisons by a fixed rule,
 the same for every claim, loss and configuration. Effect sizes (they decide nothing): the mean
 difference with the interval that inverts the exact test at its Holm level, the IQM with a
 bootstrap interval, per loss the IQM score with its stratified bootstrap interval and the
-probability of improvement (:mod:`cfm_jax.stats`, rliable's definitions). ``--seed`` changes
-the bootstrap's seed: the intervals of the effect sizes move, no verdict does (tested).
+probability of improvement (:mod:`cfm_jax.analysis.stats`, rliable's definitions). ``--seed``
+changes the bootstrap's seed: the intervals of the effect sizes move, no verdict does (tested).
 
 Usage:
   python experiments/claims.py
@@ -49,7 +49,7 @@ import pandas as pd
 import robustness_study
 import select_defaults
 
-from cfm_jax import report, stats
+from cfm_jax.analysis import report, stats
 
 PLAN = "docs/results/claims_plan.md"
 """Where the primary family, the rule and the seed count are written down (before the rerun)."""
@@ -101,7 +101,7 @@ class Arm:
         return int(self.metrics.seed.nunique())
 
     def runs(self, loss: str):
-        """The sweep cells that hold ``loss``'s runs (``cfm_jax.sweeps.cell_id``s), or None
+        """The sweep cells that hold ``loss``'s runs (``cfm_jax.runs.sweeps.cell_id``s), or None
         where the records do not name them: two comparisons of the same runs are one."""
         if "cell" not in self.metrics:
             return None
@@ -169,7 +169,7 @@ def _same_baselines(task: str, loss: str, own: pd.DataFrame, shared: pd.DataFram
 
 def _same_runs(own: pd.DataFrame, shared: pd.DataFrame) -> str:
     """A note naming the losses whose own cell is the shared cell's run (the same sweep cell,
-    ``cfm_jax.sweeps.cell_id``: the same config), or ``""``."""
+    ``cfm_jax.runs.sweeps.cell_id``: the same config), or ``""``."""
     if "cell" not in own or "cell" not in shared:
         return ""
     same = [n for n in LOSSES
@@ -235,7 +235,7 @@ def per_seed(arm: Arm, column: str, over: str = "last") -> dict[str, pd.Series]:
 
 def run_scores(arm: Arm) -> dict[str, np.ndarray]:
     """Per loss its runs' scores at the last iteration, ``(seeds, motions)``: orders of
-    magnitude below PD-only (:func:`cfm_jax.stats.score`), a failed run at most
+    magnitude below PD-only (:func:`cfm_jax.analysis.stats.score`), a failed run at most
     :data:`FAILED_SCORE`."""
     frame = select_defaults.scores(arm.metrics, arm.baselines)
     frame = frame[frame.iteration == frame.iteration.max()]
@@ -342,7 +342,7 @@ def exploratory(robustness: dict, task: str, column: str, over: str) -> str:
 
 
 def failures_text(arm: Arm) -> str:
-    """The failed runs per loss at the last iteration (:func:`cfm_jax.report.failed_runs`:
+    """The failed runs per loss at the last iteration (:func:`cfm_jax.analysis.report.failed_runs`:
     fell, or the simulation diverged)."""
     final = arm.metrics[arm.metrics.iteration == arm.metrics.iteration.max()]
     failed = final.assign(f=report.failed_runs(final)).groupby("loss").f.agg(["sum", "size"])
@@ -771,9 +771,10 @@ def _page(tasks: dict, summary: list[tuple], rows: list[tuple], family: Family, 
         "`experiments/swap_study.py`, the robustness study's other cells (exploratory) and "
         "the 1-D theory. Every comparison's per-seed differences, p-value and Holm level: "
         "[claims_comparisons.csv](claims_comparisons.csv). Effect sizes, which decide "
-        "nothing (by `cfm_jax.stats`, rliable's definitions): scores are orders of magnitude "
-        f"below PD-only (a failed run: at most {FAILED_SCORE:g}); IQM: the interquartile mean "
-        "over seeds x motions; 95% stratified bootstrap intervals; seeds below PD-only: the "
+        "nothing (by `cfm_jax.analysis.stats`, rliable's definitions): scores are orders of "
+        f"magnitude below PD-only (a failed run: at most {FAILED_SCORE:g}); IQM: the "
+        "interquartile mean over seeds x motions; 95% stratified bootstrap intervals; seeds "
+        "below PD-only: the "
         "seeds whose runs score above 0 on average over the test motions (a geometric-mean "
         "error below PD-only's: does the learned controller beat the feedback it is added "
         "to?); P(joint > loss): the "

@@ -54,8 +54,8 @@ import pandas as pd
 import select_defaults
 
 from cfm_jax import config as config_lib
-from cfm_jax import losses as losses_lib
-from cfm_jax import sweeps
+from cfm_jax.learning import losses as losses_lib
+from cfm_jax.runs import sweeps
 
 TASKS = ("inverse_dynamics", "opspace", "walk", "jump")
 SEEDS = 10
@@ -240,7 +240,7 @@ def selected(found, which: str, losses) -> list[Cell]:
 
 def reuse_own_runs(cell: Cell, runs: str, ids) -> list[str]:
     """The losses of the shared ``cell`` whose own cell's sweep holds a finished run of the
-    same config, a cell of one of the shared sweep's ``ids`` (``cfm_jax.sweeps.cell_id``:
+    same config, a cell of one of the shared sweep's ``ids`` (``cfm_jax.runs.sweeps.cell_id``:
     ``<loss>-<hash of the whole config>``), copied now into the shared cell's sweep folder.
     The sweep loads them as finished (their ``seconds`` those of the own runs) and trains only
     the other losses. A loss trained beside the others is the same computation as that loss
@@ -267,7 +267,7 @@ def reuse_own_runs(cell: Cell, runs: str, ids) -> list[str]:
 
 
 _CELL_FILES = ("config.json", "cell.json", "baselines.csv", "metrics.csv")
-"""A finished sweep cell's files (``cfm_jax.sweeps``), in the order they are written."""
+"""A finished sweep cell's files (``cfm_jax.runs.sweeps``), in the order they are written."""
 
 
 def main(argv=None) -> None:

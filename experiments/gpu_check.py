@@ -242,7 +242,7 @@ def run(out: str, budget: float, train_args: str, tests: bool) -> dict:
                 )
                 record["steps"][name] = step
         step = _step(
-            [py, "-m", "cfm_jax.bench", "--robot", "iiwa14", "--batch", "16", "--no-torch",
+            [py, "-m", "cfm_jax.analysis.bench", "--robot", "iiwa14", "--batch", "16", "--no-torch",
              "--json"],
             min(90, left()),
             log,

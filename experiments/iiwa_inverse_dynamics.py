@@ -23,7 +23,8 @@ import os
 import _study
 
 from cfm_jax import config as config_lib
-from cfm_jax import report, sweeps
+from cfm_jax.analysis import report
+from cfm_jax.runs import sweeps
 
 
 def main() -> None:

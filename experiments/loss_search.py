@@ -58,7 +58,7 @@ import select_defaults
 
 import cfm_jax
 from cfm_jax import config as config_lib
-from cfm_jax import losses as losses_lib
+from cfm_jax.learning import losses as losses_lib
 
 RULE = (
     "One TPE study per (task, loss), the same for every loss: sampler seed {seed}, {startup} "

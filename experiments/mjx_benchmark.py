@@ -58,7 +58,7 @@ def config_for(task: str, simulator: str, fit_steps: int):
 def measure(task: str, simulator: str, repeats: int, fit_steps: int) -> dict:
     import jax
 
-    from cfm_jax import training
+    from cfm_jax.runs import training
 
     exp = training.Experiment(config_for(task, simulator, fit_steps))
     policy = exp.babbling_policy()
@@ -106,7 +106,7 @@ def main() -> None:
     args = parser.parse_args()
     import jax
 
-    from cfm_jax import bench
+    from cfm_jax.analysis import bench
 
     os.makedirs(args.results, exist_ok=True)
     load = os.getloadavg()[0]

@@ -123,7 +123,7 @@ def run_cell(cell: Cell, experiment, config, args) -> float:
 def cell_row(out: str, cell: Cell) -> dict:
     import pandas as pd
 
-    from cfm_jax import report
+    from cfm_jax.analysis import report
 
     folder = record_dir(out, cell)
     metrics = pd.read_csv(os.path.join(folder, "metrics.csv"))
@@ -162,7 +162,7 @@ def paired(out: str, task: str, simulator: str) -> dict | None:
     its targets)."""
     import pandas as pd
 
-    from cfm_jax import report
+    from cfm_jax.analysis import report
 
     per_loss = {}
     for loss in LOSSES:
@@ -176,7 +176,7 @@ def paired(out: str, task: str, simulator: str) -> dict | None:
 
 
 def page(out: str, rows, args, previous: str) -> str:
-    from cfm_jax import report
+    from cfm_jax.analysis import report
 
     text = report.ci_text
     # What the finished cells ran (the flags of this call may differ: --budget 0).
@@ -294,7 +294,7 @@ def main() -> None:
         parser.error(f"--only={args.only!r} is not allowed: names from {', '.join(TASKS)}")
     if not simulators or any(s not in SIMULATORS for s in simulators):
         parser.error(f"--simulators={args.simulators!r}: names from {', '.join(SIMULATORS)}")
-    from cfm_jax import training
+    from cfm_jax.runs import training
 
     start = time.perf_counter()
     experiments: dict = {}

@@ -3,12 +3,12 @@ tracking quality of the oracle and PD-only baselines. Not a test: prints markdow
 (the numbers of ``docs/opspace.md``).
 
 * Kinematics: ``x, xd, J, Jdot qd`` of the end-effector site at every step of a scanned,
-  vmapped loop of 200 steps (batch 5 and 15), (a) :func:`cfm_jax.opspace.kinematics`
+  vmapped loop of 200 steps (batch 5 and 15), (a) :func:`cfm_jax.sim.opspace.kinematics`
   (MuJoCo C through ``jax.pure_callback``) and (b) the same in JAX with MJX
   (``mjx.kinematics``; ``J`` by ``jax.jacfwd``, ``Jdot qd`` by nested ``jax.jvp``).
-* Tracking: :func:`cfm_jax.baselines.host_rollout` of the oracle
-  (:class:`cfm_jax.baselines.HostOpspaceOracle`) and of PD-only
-  (:func:`cfm_jax.baselines.opspace_pd_gains`, ``tau = J^T (K_p e + K_d ed)``) on the 5
+* Tracking: :func:`cfm_jax.tasks.baselines.host_rollout` of the oracle
+  (:class:`cfm_jax.tasks.baselines.HostOpspaceOracle`) and of PD-only
+  (:func:`cfm_jax.tasks.baselines.opspace_pd_gains`, ``tau = J^T (K_p e + K_d ed)``) on the 5
   default Cartesian references (2 s), kp = 100, kd = 20, control_dt 0.01 s (5 physics steps
   of 0.002 s, torque held) and 0.002 s.
 
@@ -27,7 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import cfm_jax  # noqa: F401  (sets the XLA flag before JAX's backend starts)
-from cfm_jax import baselines, opspace, references, robots
+from cfm_jax.sim import opspace, robots
+from cfm_jax.tasks import baselines, references
 
 
 def mjx_kinematics(robot, site):

@@ -144,7 +144,7 @@ def cfm_seconds(config) -> tuple[float, float]:
     """``(babbling, per iteration)`` robot-seconds of a cfm_jax run of ``config``: the
     babbling's ``loop.babbling_rollouts`` rollouts and each iteration's rollout, each
     ``targets x steps x control_dt``."""
-    from cfm_jax.algorithm import Experiment
+    from cfm_jax.learning.algorithm import Experiment
 
     task = Experiment(config).task
     rollout = task.targets * task.steps * task.control_dt
@@ -244,7 +244,7 @@ def run_peer(
     from stable_baselines3.common import vec_env
 
     from cfm_jax import envs
-    from cfm_jax.algorithm import Experiment
+    from cfm_jax.learning.algorithm import Experiment
 
     torch.set_num_threads(1)
     hyper = dict(HYPERPARAMETERS[method] if hyper is None else hyper)
@@ -398,10 +398,11 @@ def run_pieces(pieces: list[Piece], jobs: int):
 
 def selection_config(config):
     """``config`` on the selection motions: the targets of
-    :func:`cfm_jax.references.driven_targets` with ``SELECTION_SEED``."""
+    :func:`cfm_jax.tasks.references.driven_targets` with ``SELECTION_SEED``."""
     import dataclasses
 
-    from cfm_jax import references, robots
+    from cfm_jax.sim import robots
+    from cfm_jax.tasks import references
 
     robot = robots.load(config.robot, actuators=config.robot_actuators,
                         torque_limit=config.robot_torque_limit)  # fmt: skip
@@ -469,7 +470,7 @@ def time_to(curves: pd.DataFrame, level: float) -> tuple[float | None, int, int]
 def _mse_at(curves: pd.DataFrame, budget: float):
     """Mean and CI over seeds of the MSE at the last checkpoint at or below ``budget``
     (diverged seeds left out and counted), and that checkpoint."""
-    from cfm_jax import report
+    from cfm_jax.analysis import report
 
     before = curves[curves.robot_s <= budget + 1e-9]
     if before.empty:
@@ -526,7 +527,7 @@ def _change_text(change) -> str:
 
 
 def _mse_text(result) -> str:
-    from cfm_jax import report
+    from cfm_jax.analysis import report
 
     stats, point, diverged = result
     if point is None:
@@ -564,7 +565,7 @@ def figure(records: pd.DataFrame, pd_only: float, oracle: float, path: str) -> N
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from cfm_jax import report
+    from cfm_jax.analysis import report
 
     curves = seed_curves(records)
     fig, ax = plt.subplots(figsize=(7, 4.5))
@@ -597,7 +598,7 @@ def describe(config, command: str, checkpoints: dict, hypers: dict, source: str)
     import stable_baselines3
     import torch
 
-    from cfm_jax.algorithm import Experiment
+    from cfm_jax.learning.algorithm import Experiment
 
     task = Experiment(config).task
     grids = sorted({_grid_text(points) for points in checkpoints.values()})

@@ -13,7 +13,7 @@ Not a test: prints numbers and writes them to ``docs/benchmarks.md`` (the sectio
   (``CFM_JAX_COMPILATION_CACHE``) in a folder of its own, filled by the warm-up run; one
   more run of A with an empty cache folder gives the cold start.
 * **The quickstart's split**, one run in this process with timers around the
-  :class:`cfm_jax.algorithm.Experiment` calls of :func:`cfm_jax.train` (each waits for its
+  :class:`cfm_jax.learning.algorithm.Experiment` calls of :func:`cfm_jax.train` (each waits for its
   result) and JAX's compile-time events: building the experiment, babbling and the initial
   fit of f, the initial controller fits, the iterations (the first with its compilation),
   the final evaluation, the baselines, and writing (metrics, checkpoints, data set).
@@ -91,8 +91,10 @@ def split() -> tuple[dict, float, dict]:
     from jax._src import monitoring
 
     import cfm_jax
-    from cfm_jax import algorithm, cli, recorder
-    from cfm_jax import losses as losses_lib
+    from cfm_jax import cli
+    from cfm_jax.learning import algorithm
+    from cfm_jax.learning import losses as losses_lib
+    from cfm_jax.runs import recorder
 
     compile_events: dict = collections.defaultdict(float)
 

@@ -81,7 +81,7 @@ def fallback(defaults: dict[str, str], mjx_builds: bool) -> list[str]:
 def mjx_error(path: str, flags: list[str]) -> str | None:
     """Why MJX cannot build the robot file ``path`` loaded as its flags say
     (``--robot-actuators``, default ``torque``; ``--robot-torque-limit``), or None."""
-    from cfm_jax import robots
+    from cfm_jax.sim import robots
 
     parser = argparse.ArgumentParser(add_help=False)
     parser.add_argument("--robot-actuators", default="torque")
@@ -246,7 +246,7 @@ def summarise(out: str) -> dict:
     """Per loss: seed means of the final tracking MSE (runs that diverged left out), their
     mean and bootstrap CI, diverged runs, seeds below PD-only; PD-only's and the oracle's
     means."""
-    from cfm_jax import report
+    from cfm_jax.analysis import report
 
     metrics = pd.read_csv(os.path.join(out, "metrics.csv"))
     base = pd.read_csv(os.path.join(out, "baselines.csv"))
@@ -302,7 +302,7 @@ def _loss_cells(row: dict, seeds: int) -> list[str]:
     """Each loss's cell of a robot's row: its final tracking MSE (mean over seeds; with
     several, its 95% interval), the runs that fell (the legged tasks), the seeds below
     PD-only and the diverged runs; ``-`` for a loss not run."""
-    from cfm_jax import report
+    from cfm_jax.analysis import report
 
     cells = []
     for loss in LOSSES:

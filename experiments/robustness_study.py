@@ -68,7 +68,8 @@ import numpy as np
 import pandas as pd
 
 from cfm_jax import config as config_lib
-from cfm_jax import losses, report
+from cfm_jax.analysis import report
+from cfm_jax.learning import losses
 
 BEFORE = _study.BEFORE_SELECTION
 """The options every task had before the selection run chose the defaults: the cells that

@@ -61,7 +61,10 @@ import numpy as np
 import pandas as pd
 
 from cfm_jax import config as config_lib
-from cfm_jax import losses, references, report, robots
+from cfm_jax.analysis import report
+from cfm_jax.learning import losses
+from cfm_jax.sim import robots
+from cfm_jax.tasks import references
 
 RULE = (
     "Score of a run (loss, seed, target at the last iteration): log10 of its final tracking "
@@ -417,8 +420,8 @@ def run_cell(cell: Cell, args) -> float:
 
 
 def failed(frame: pd.DataFrame) -> pd.Series:
-    """Runs that count as failures: the library's one rule (:func:`cfm_jax.report.failed_runs`:
-    diverged or fell), and a non-finite error."""
+    """Runs that count as failures: the library's one rule
+    (:func:`cfm_jax.analysis.report.failed_runs`: diverged or fell), and a non-finite error."""
     return report.failed_runs(frame) | ~np.isfinite(frame["tracking_mse"].astype(float))
 
 

@@ -1,7 +1,7 @@
 """Print the Solo12 default references' numbers and rewrite the figures of docs/locomotion.md.
 
 Usage: ``python experiments/solo12_references.py [OUT_DIR]`` (default ``docs/figures``).
-The references are recorded once and cached (:mod:`cfm_jax.locomotion`); each is also
+The references are recorded once and cached (:mod:`cfm_jax.tasks.locomotion`); each is also
 replayed from a perturbed start (base 5 mm higher, joints +-0.03 rad) to show how well
 the feed-forward plus PD reference controller holds it.
 """
@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 
 import cfm_jax  # noqa: F401  (first: it sets the XLA flag before JAX starts)
-from cfm_jax import locomotion, plots, render, solo12
+from cfm_jax.analysis import plots
+from cfm_jax.sim import render, solo12
+from cfm_jax.tasks import locomotion
 
 
 def main(out_dir: str = "docs/figures") -> None:

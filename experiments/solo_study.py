@@ -47,7 +47,8 @@ FOOT = "FR"  # the paper's Fig. 6 shows the front right foot
 
 def table_1(metrics: pd.DataFrame, baselines: pd.DataFrame) -> pd.DataFrame:
     """Last-iteration force MSE, falls and base tracking per loss (and the baselines)."""
-    from cfm_jax import losses, report
+    from cfm_jax.analysis import report
+    from cfm_jax.learning import losses
 
     def row(frame: pd.DataFrame, seeds: str) -> dict:
         ci = ""
@@ -102,7 +103,9 @@ def pictures(out: str, config, loss: str, run_dir: str | None = None) -> dict:
     the force plot of the front right foot into ``out``. Returns what was drawn."""
     import jax
 
-    from cfm_jax import plots, render, training
+    from cfm_jax.analysis import plots
+    from cfm_jax.runs import training
+    from cfm_jax.sim import render
 
     run_dir = run_dir or os.path.join(out, loss)
     experiment = training.Experiment(config.replace(loss=loss))
@@ -115,7 +118,7 @@ def pictures(out: str, config, loss: str, run_dir: str | None = None) -> dict:
     target = task.targets - 1  # the longest walk, the highest jump
     ref = task.references[target]
     n = ref.horizon
-    from cfm_jax import algorithm
+    from cfm_jax.learning import algorithm
 
     # The forward model's per-transition terms where its kind has them (rigid_body: M^-1 S
     # and -M^-1 h of each state), as the library's metrics compute them.
@@ -181,8 +184,9 @@ def _from_sweep(sweep_dir: str, task: str):
 
 
 def main() -> None:
-    from cfm_jax import cli, report
+    from cfm_jax import cli
     from cfm_jax import config as config_lib
+    from cfm_jax.analysis import report
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--task", choices=("walk", "jump"), required=True)

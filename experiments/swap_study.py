@@ -53,8 +53,9 @@ import _study  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 
 import cfm_jax  # noqa: E402
-from cfm_jax import checkpoint, report, sweeps, training  # noqa: E402
 from cfm_jax import config as config_lib  # noqa: E402
+from cfm_jax.analysis import report  # noqa: E402
+from cfm_jax.runs import checkpoint, sweeps, training  # noqa: E402
 
 LOSSES = ("task", "joint")
 

@@ -38,7 +38,7 @@ def _config(iterations: int, seeds: int):
 def _run(config, overrides, fresh: bool) -> tuple[float, object, int, list[dict]]:
     """Wall time, result, number of Experiments built and their compilation counts."""
     import cfm_jax
-    from cfm_jax import sweeps
+    from cfm_jax.runs import sweeps
 
     built = []
 
@@ -69,7 +69,7 @@ def main() -> None:
     args = parser.parse_args()
     import pandas as pd
 
-    from cfm_jax import bench
+    from cfm_jax.analysis import bench
 
     load = os.getloadavg()[0]
     config = _config(args.iterations, args.seeds)

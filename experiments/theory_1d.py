@@ -22,7 +22,7 @@ import pandas as pd
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from cfm_jax import theory  # noqa: E402
+from cfm_jax.analysis import theory  # noqa: E402
 
 DESIRED = 1.0
 LINEAR = theory.TrueSystem(gain=1.0, offset=0.0, cubic=0.0)

@@ -23,7 +23,7 @@ import os
 import numpy as np
 import pandas as pd
 
-from cfm_jax import locomotion
+from cfm_jax.tasks import locomotion
 
 CONTROL_DT = locomotion.CONTROL_DT
 

@@ -37,7 +37,7 @@ import jax  # noqa: E402
 import pytest  # noqa: E402
 
 import cfm_jax  # noqa: E402, F401
-from cfm_jax import robots  # noqa: E402
+from cfm_jax.sim import robots  # noqa: E402
 
 # Also when JAX was imported before this file (a plugin) and read the variables too early.
 jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])

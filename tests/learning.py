@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import cfm_jax
 from cfm_jax import config as config_lib
-from cfm_jax.algorithm import Experiment
+from cfm_jax.learning.algorithm import Experiment
 
 SEEDS = 3
 ITERATIONS = 5

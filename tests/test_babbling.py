@@ -1,4 +1,4 @@
-"""Initial-data strategies (cfm_jax/babbling.py and each task's ``babbling_reference``).
+"""Initial-data strategies (cfm_jax/tasks/babbling.py and each task's ``babbling_reference``).
 
 Oracles: the strategies' definitions. ``home`` and ``reaching`` must not depend on the test
 references (the babbling data of a config is identical when only ``task.targets`` change, or
@@ -18,8 +18,10 @@ import numpy as np
 import pytest
 from tiny import tiny_config
 
-from cfm_jax import algorithm, babbling, references, training
 from cfm_jax import config as config_lib
+from cfm_jax.learning import algorithm
+from cfm_jax.runs import training
+from cfm_jax.tasks import babbling, references
 
 
 def _keys(n=2):
@@ -111,7 +113,7 @@ def test_legged_babbling_ignores_the_recorded_motion_unless_it_uses_it(name):
 
 
 def test_reaching_goals_lie_inside_the_shrunk_ranges_and_hold_is_at_rest():
-    from cfm_jax import robots
+    from cfm_jax.sim import robots
 
     iiwa = robots.load("iiwa14")
     starts = jnp.broadcast_to(jnp.asarray(iiwa.home, jnp.float32), (2000, 7))
@@ -151,7 +153,7 @@ def test_traced_minimum_jerk_matches_the_host_reference():
 def test_standing_forces_carry_the_weight():
     import mujoco
 
-    from cfm_jax import robots
+    from cfm_jax.sim import robots
 
     solo = robots.load("solo12")
     forces = babbling.standing_forces(solo, 4).reshape(4, 3)

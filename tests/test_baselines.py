@@ -1,4 +1,4 @@
-"""Baselines (cfm_jax/baselines.py): the operational-space oracle, task-space PD, the
+"""Baselines (cfm_jax/tasks/baselines.py): the operational-space oracle, task-space PD, the
 implicit-damping term both oracles use, the site tracking metric, the NumPy closed loop and
 the joint-space (inverse dynamics) oracle.
 
@@ -20,8 +20,10 @@ import numpy as np
 import pytest
 from sites import mujoco_site_acceleration, random_states
 
-from cfm_jax import _shipped, baselines, opspace, references, robots, rollout, tasks
+from cfm_jax import _shipped, tasks
 from cfm_jax.config import SIMULATORS
+from cfm_jax.sim import opspace, robots, rollout
+from cfm_jax.tasks import baselines, references
 
 # ---- oracle -----------------------------------------------------------------------------
 

@@ -17,7 +17,8 @@ import mujoco
 import numpy as np
 from tiny import tiny_config
 
-from cfm_jax import bench, training
+from cfm_jax.analysis import bench
+from cfm_jax.runs import training
 
 
 def test_bench_rollout_equals_python_loop_of_mj_step():
@@ -65,7 +66,7 @@ def test_bench_rollout_equals_python_loop_of_mj_step():
 
 def test_bench_cli_json_line():
     out = subprocess.run(
-        [sys.executable, "-m", "cfm_jax.bench", "--robot", "two_link_arm", "--batch", "3"]
+        [sys.executable, "-m", "cfm_jax.analysis.bench", "--robot", "two_link_arm", "--batch", "3"]
         + ["--steps", "5", "--repeats", "1", "--no-train", "--json"],
         capture_output=True,
         text=True,

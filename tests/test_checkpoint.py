@@ -1,4 +1,4 @@
-"""Checkpoints, resume after SIGKILL, divergence guards (cfm_jax/checkpoint.py, training.py).
+"""Checkpoints, resume after SIGKILL, divergence guards (cfm_jax/runs/checkpoint.py, training.py).
 
 Oracles: an uninterrupted run of the same config (bit-for-bit metrics), the files on disk,
 and faults injected on purpose: a real SIGKILL of a training subprocess, a truncated
@@ -22,8 +22,9 @@ import pytest
 from tiny import cli_command, tiny_config
 
 import cfm_jax
-from cfm_jax import checkpoint, native, training
 from cfm_jax import config as config_lib
+from cfm_jax.runs import checkpoint, training
+from cfm_jax.sim import native
 
 CFG = tiny_config(iterations=4, checkpoint_keep=2)
 STEPS = 30  # control steps per rollout (0.3 s at 0.01 s)
@@ -216,7 +217,7 @@ def test_resume_after_a_divergence_reproduces_its_flags_bit_for_bit(nan_run, tmp
 def test_a_sweep_keeps_the_cell_of_a_diverged_seed(nan_run, tmp_path, monkeypatch):
     # The same fault inside a sweep cell: the cell finishes with both seeds and its table
     # is train's under the same fault bit for bit (the diverged flag included).
-    from cfm_jax import sweeps
+    from cfm_jax.runs import sweeps
 
     _poison_the_simulator(monkeypatch)
     swept = sweeps.sweep(CFG, seeds=2, losses="joint", out_dir=str(tmp_path / "s"), progress=False)
@@ -400,7 +401,7 @@ def test_orbax_timing_note_is_not_printed_other_absl_warnings_are(tmp_path, capl
 
     from absl import logging as absl_logging
 
-    from cfm_jax.checkpoint import Checkpointer
+    from cfm_jax.runs.checkpoint import Checkpointer
 
     Checkpointer(str(tmp_path / "c"))
     with caplog.at_level(logging.WARNING, logger="absl"):

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cfm_jax import report
+from cfm_jax.analysis import report
 
 LOSSES = ("joint", "task", "distal", "supervised")
 ROOT = os.path.join(os.path.dirname(__file__), "..")
@@ -332,7 +332,7 @@ def _plain_per_seed(frame: pd.DataFrame, column: str, over: str) -> pd.Series:
 
 def _plain_p(d: np.ndarray) -> float:
     """The exact sign-flip p-value: every one of the 2^n sign vectors written out (bits of
-    0 .. 2^n - 1), not cfm_jax.stats."""
+    0 .. 2^n - 1), not cfm_jax.analysis.stats."""
     n = len(d)
     signs = 1 - 2 * ((np.arange(2**n)[:, None] >> np.arange(n)) & 1).astype(np.int8)
     sums = np.abs(signs @ d)
@@ -340,7 +340,7 @@ def _plain_p(d: np.ndarray) -> float:
 
 
 def test_every_verdict_recomputed_with_a_plain_exact_test_from_the_records():
-    """Independently of cfm_jax.stats and of claims.py's arithmetic: each comparison's
+    """Independently of cfm_jax.analysis.stats and of claims.py's arithmetic: each comparison's
     per-seed differences recomputed from the records with plain pandas (those of the
     comparison cells; the swap's from its metrics), its p-value by enumerating every sign
     vector, Holm's procedure as a plain loop, each verdict by the rule written out here; all

@@ -14,8 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from cfm_jax import cli, robots
+from cfm_jax import cli
 from cfm_jax import config as config_lib
+from cfm_jax.sim import robots
 
 BALL = (
     '<mujoco><worldbody><body name="b"><joint name="socket" type="ball"/>'
@@ -226,7 +227,7 @@ def test_a_new_run_into_a_folder_with_checkpoints_is_refused_up_front(
     # after its babbling, with Orbax's StepAlreadyExistsError traceback. Now: one error
     # line naming the losses and --resume before anything is computed or written; the
     # Python API raises a ConfigError naming resume=.
-    from cfm_jax import training
+    from cfm_jax.runs import training
 
     out = tmp_path / "out"
     (out / "task" / "checkpoints" / "3").mkdir(parents=True)
@@ -279,7 +280,7 @@ def test_an_out_that_is_a_file_or_cannot_be_made_is_one_error_line(
 def test_a_checkpoint_that_cannot_be_used_is_one_error_line(tmp_path, monkeypatch, capsys):
     # The library's CheckpointError (a damaged only checkpoint) ended the CLI in a traceback
     # (issue 67); its message, which says what to do, is now the one error line, exit 2.
-    from cfm_jax import checkpoint
+    from cfm_jax.runs import checkpoint
 
     message = ("checkpoint step 0 is not usable (its manifest does not parse); no earlier "
                "valid checkpoint exists: start the run again (cfm-jax train --restart moves "

@@ -132,7 +132,7 @@ def test_config_refuses_a_robot_its_task_cannot_run_on(
     check`` reports the task cannot run on, with the same reason."""
     from pathlib import Path
 
-    from cfm_jax import robot_check
+    from cfm_jax.analysis import robot_check
 
     if robot == KNEELESS_GO2:
         text = (Path(__file__).parent / "robots" / "quadrupeds" / "go2.xml").read_text()
@@ -237,7 +237,8 @@ def test_importing_every_module_and_the_cli_prints_nothing(tmp_path):
         pytest.skip("no Warp import message to filter on this install")
     assert "Failed to import warp" in open(spec.origin).read()
     imports = (
-        "import cfm_jax.cli, cfm_jax.training, cfm_jax.rollout, cfm_jax.rigid_body, sys; "
+        "import cfm_jax.cli, cfm_jax.runs.training, cfm_jax.sim.rollout, "
+        "cfm_jax.learning.rigid_body, sys; "
         "assert 'mujoco.mjx' in sys.modules"
     )
     done = subprocess.run([sys.executable, "-c", imports], capture_output=True, text=True,

@@ -207,7 +207,7 @@ def test_a_swap_block_is_the_shared_cells_config_of_its_seeds_and_blocks_combine
     share a seed. Oracle: the comparison's cell config, and two metrics files written here."""
     import swap_study
 
-    from cfm_jax import sweeps
+    from cfm_jax.runs import sweeps
 
     for first in comparison.BLOCKS:
         shared = comparison.Cell("inverse_dynamics", "shared", ("task", "joint"), (), first)

@@ -275,7 +275,7 @@ def test_for_task_defaults():
         0.0, 0.0, None, None)  # fmt: skip
     assert (arm.task.kp, arm.task.kd, arm.task.joint_kp, arm.task.joint_kd) == (
         100.0, 20.0, None, None)  # fmt: skip
-    from cfm_jax import babbling
+    from cfm_jax.tasks import babbling
 
     # Every task's initial data knows nothing of the test references: the arms reach to
     # random poses, the legged robot holds its standing pose (the selection run's choices).

@@ -13,7 +13,10 @@ import jax.numpy as jnp
 import numpy as np
 from tiny import tiny_config
 
-from cfm_jax import algorithm, config, networks, robots, rollout
+from cfm_jax import config
+from cfm_jax.analysis import robot_check
+from cfm_jax.learning import algorithm, networks
+from cfm_jax.sim import robots, rollout
 
 ARM3 = str(Path(__file__).parent / "three_joint_arm.xml")
 
@@ -86,10 +89,10 @@ def test_babbling_noise_is_the_matrix_times_gaussian_noise():
 def test_robot_check_noise_acceleration_is_the_same_on_every_joint():
     arm = robots.load(ARM3)
     a = np.min(np.asarray(arm.torque_limit) / np.diag(_home_inertia(arm)))
-    d = robots.dynamics(arm, babbling_noise=0.1, kd=20.0, control_dt=0.005,
+    d = robot_check.dynamics(arm, babbling_noise=0.1, kd=20.0, control_dt=0.005,
                         torque_scale="coupled")  # fmt: skip
     np.testing.assert_allclose(d.noise_acceleration, 0.1 * a * np.ones(3), rtol=1e-9)
-    per_joint = robots.dynamics(arm, 0.1, 20.0, 0.005, torque_scale="inertia")
+    per_joint = robot_check.dynamics(arm, 0.1, 20.0, 0.005, torque_scale="inertia")
     assert per_joint.noise_acceleration.max() > 1.2 * d.noise_acceleration.max()
 
 

@@ -1,4 +1,4 @@
-"""Ring-buffer data set (cfm_jax/dataset.py) against a plain Python list reference.
+"""Ring-buffer data set (cfm_jax/sim/dataset.py) against a plain Python list reference.
 
 Oracle: a Python list that appends the valid rows one by one and keeps the last
 ``capacity`` of them, laid out in ring order (row ``i`` of the buffer holds the transition
@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cfm_jax import dataset
+from cfm_jax.sim import dataset
 
 STATE_DIM, NV = 3, 2
 

@@ -7,9 +7,9 @@ stripped; tests/robots/README.md) and what the library tells about a robot befor
   two arms with a gripper (fingers coupled by an equality, moved by one servo) train their
   six arm joints and hold the fingers with the gripper's servo as published
   (tests/test_held_joints.py checks that mechanism against MuJoCo C).
-* :func:`cfm_jax.robots.dynamics` against MuJoCo's own forward dynamics (the acceleration a
-  torque gives, ``mj_forward``), not against the matrix inverse it uses, and in closed form
-  on a one-joint pendulum.
+* :func:`cfm_jax.analysis.robot_check.dynamics` against MuJoCo's own forward dynamics (the
+  acceleration a torque gives, ``mj_forward``), not against the matrix inverse it uses, and in
+  closed form on a one-joint pendulum.
 * A model MJX cannot build (a cylinder-box collision pair) runs on the native simulator;
   asked for on MJX it raises a ``RobotError`` naming the pair.
 """
@@ -24,10 +24,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import algorithm, babbling, robot_check, robots, tasks
 from cfm_jax import config as config_lib
-from cfm_jax.algorithm import Experiment
-from cfm_jax.tasks import legged
+from cfm_jax import tasks
+from cfm_jax.analysis import robot_check
+from cfm_jax.learning import algorithm
+from cfm_jax.learning.algorithm import Experiment
+from cfm_jax.sim import robots
+from cfm_jax.tasks import babbling, legged
 
 HERE = Path(__file__).parent
 DEV = HERE / "robots"
@@ -154,8 +157,8 @@ def _response(robot, torque, qpos=None):
 )
 def test_dynamics_against_mujoco_forward_dynamics(name):
     robot = robots.load(name, actuators="torque")
-    d = robots.dynamics(robot, babbling_noise=0.1, kd=20.0, control_dt=0.01, frequency=10.0)
-    by_limit = robots.dynamics(
+    d = robot_check.dynamics(robot, babbling_noise=0.1, kd=20.0, control_dt=0.01, frequency=10.0)
+    by_limit = robot_check.dynamics(
         robot, babbling_noise=0.1, kd=20.0, control_dt=0.01, torque_scale="limit"
     )
     n = robot.action_dim
@@ -188,7 +191,7 @@ def test_dynamics_of_a_pendulum_in_closed_form(tmp_path):
         <inertial pos="{r} 0 0" mass="{m}" diaginertia="1e-9 1e-9 1e-9"/></body></worldbody>
         <actuator><motor joint="j" ctrlrange="-{limit} {limit}"/></actuator></mujoco>"""
     )
-    d = robots.dynamics(robots.load(str(path)), babbling_noise=0.1, kd=20.0, control_dt=0.01)
+    d = robot_check.dynamics(robots.load(str(path)), babbling_noise=0.1, kd=20.0, control_dt=0.01)
     inertia = m * r**2 + a
     assert d.effective_inertia[0] == pytest.approx(inertia, rel=1e-6)
     assert d.limit_acceleration[0] == pytest.approx(limit / inertia, rel=1e-6)
@@ -276,7 +279,7 @@ def test_noise_velocity_of_a_damped_pendulum_against_one_mujoco_step(tmp_path):
         <actuator><motor joint="j" ctrlrange="-50 50"/></actuator></mujoco>"""
     )
     robot = robots.load(str(path))
-    d = robots.dynamics(robot, babbling_noise=0.1, kd=20.0, control_dt=0.01, frequency=10.0)
+    d = robot_check.dynamics(robot, babbling_noise=0.1, kd=20.0, control_dt=0.01, frequency=10.0)
     noise = 0.1 * robot.torque_scale(10.0)[0]  # one joint: its limit, 5 N m
     assert noise == pytest.approx(5.0)
     inertia = 0.15 * 0.2**2 + 1e-9

@@ -1,5 +1,5 @@
 """A rollout whose simulation diverges is frozen and recorded, on both simulators
-(cfm_jax/rollout.py, cfm_jax/native.py, algorithm.data_mask / divergence).
+(cfm_jax/sim/rollout.py, cfm_jax/sim/native.py, algorithm.data_mask / divergence).
 
 Robot: tests/diverging_arm.xml, the two-link arm with a 1e-10 kg forearm and no damping,
 armature or joint limits: gravity alone moves it normally (the forearm's gravity torque and
@@ -23,7 +23,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import algorithm, native, references, robots, rollout, tasks
+from cfm_jax import tasks
+from cfm_jax.learning import algorithm
+from cfm_jax.sim import native, robots, rollout
+from cfm_jax.tasks import references
 
 ARM = str(Path(__file__).parent / "diverging_arm.xml")
 DT, STEPS, KICK = 0.01, 12, 5  # control period, steps, step from which target 1 is kicked

@@ -27,45 +27,49 @@ ROOT = Path(__file__).resolve().parent.parent
 # timings, the five jump bisections) are marked ``doctest: +SKIP`` with the reason next to
 # them. Every public module is either here or in NOT_RUN with its reason.
 DOCTEST_MODULES = (
-    "algorithm",
-    "babbling",
-    "baselines",
-    "bench",
+    "learning.algorithm",
+    "tasks.babbling",
+    "tasks.baselines",
+    "analysis.bench",
     "config",
-    "dataset",
+    "sim.dataset",
     "envs",
-    "forward_models",
-    "locomotion",
-    "losses",
-    "native",
-    "networks",
-    "opspace",
-    "plots",
-    "recorder",
-    "references",
-    "render",
-    "report",
-    "rigid_body",
-    "robots",
-    "robot_check",
-    "rollout",
-    "quadruped",
-    "solo12",
-    "stats",
-    "sweeps",
+    "learning.forward_models",
+    "tasks.locomotion",
+    "learning.losses",
+    "sim.native",
+    "learning.networks",
+    "sim.opspace",
+    "analysis.plots",
+    "runs.recorder",
+    "tasks.references",
+    "sim.render",
+    "analysis.report",
+    "learning.rigid_body",
+    "sim.robots",
+    "analysis.robot_check",
+    "sim.rollout",
+    "sim.quadruped",
+    "sim.solo12",
+    "analysis.stats",
+    "runs.sweeps",
     "tasks",
     "tasks.inverse_dynamics",
     "tasks.legged",
     "tasks.operational_space",
     "tasks.scales",
-    "tensorboard",
-    "theory",
-    "training",
+    "analysis.tensorboard",
+    "analysis.theory",
+    "runs.training",
 )
 NOT_RUN = {
-    "checkpoint": "its examples train and resume runs (minutes)",
+    "sim": "a package: its modules' examples run",
+    "learning": "a package: its modules' examples run",
+    "analysis": "a package: its modules' examples run",
+    "runs": "a package: its modules' examples run",
+    "runs.checkpoint": "its examples train and resume runs (minutes)",
     "cli": "its examples are shell commands that train",
-    "torch_reference": "it needs the optional torch of the bench extra",
+    "analysis.torch_reference": "it needs the optional torch of the bench extra",
 }
 
 
@@ -136,7 +140,7 @@ def public_objects(package):
 def test_top_level_names_are_defined_in_public_modules():
     for name in cfm_jax.__all__:
         value = getattr(cfm_jax, name)
-        module = cfm_jax._LAZY[name].split(".")[1]
+        module = cfm_jax._LAZY[name].removeprefix("cfm_jax.")
         assert module in public_modules(), name
         assert value is getattr(importlib.import_module(f"cfm_jax.{module}"), name)
 
@@ -172,7 +176,7 @@ def test_the_checker_finds_gaps():
 def mjx_imported():
     """MuJoCo prints a note about its optional GPU back end the first time an MJX model is
     built; let that happen here, not inside an example whose output is compared."""
-    from cfm_jax import robots
+    from cfm_jax.sim import robots
 
     robots.load("two_link_arm")
 

@@ -11,8 +11,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from cfm_jax import config as config_lib
-from cfm_jax import envs, native, rollout
-from cfm_jax.algorithm import Experiment
+from cfm_jax import envs
+from cfm_jax.learning.algorithm import Experiment
+from cfm_jax.sim import native, rollout
 from cfm_jax.tasks import scales
 
 CONFIG = config_lib.Config(robot="two_link_arm", task=config_lib.TaskConfig(duration=0.2))
@@ -254,10 +255,10 @@ def test_registered_ids_build_the_environment_gymnasium_checks_and_renders():
     """``gymnasium.make`` of a registered id (the module imported by the id's prefix) is the
     environment built directly: the same observations and rewards for the same seed and
     actions. Gymnasium's own checker passes it, render check included, and a frame is the
-    one :func:`cfm_jax.render.render_frames` draws of the same state (its own renderer)."""
+    one :func:`cfm_jax.sim.render.render_frames` draws of the same state (its own renderer)."""
     import gymnasium
 
-    from cfm_jax import render
+    from cfm_jax.sim import render
 
     made = gymnasium.make("cfm_jax.envs:cfm_jax/Tracking-v0", config=CONFIG)
     direct = envs.TrackingEnv(CONFIG)

@@ -13,8 +13,9 @@ import numpy as np
 from tiny import tiny_config
 
 import cfm_jax
-from cfm_jax import cli, forward_models, networks
+from cfm_jax import cli
 from cfm_jax import config as config_lib
+from cfm_jax.learning import forward_models, networks
 
 KIND = "linear_test"
 

@@ -18,8 +18,10 @@ import numpy as np
 import pytest
 
 from cfm_jax import config as config_lib
-from cfm_jax import references, robots, rollout, tasks
+from cfm_jax import tasks
 from cfm_jax.config import ConfigError
+from cfm_jax.sim import robots, rollout
+from cfm_jax.tasks import references
 
 ARM = str(Path(__file__).parent / "gripper_arm.xml")
 CONTROL_DT = 0.01

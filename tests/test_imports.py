@@ -1,6 +1,7 @@
 """The modules of ``cfm_jax`` import each other one way: no import cycle, counting the
 imports inside functions too (the source is read, not executed, so an import that only
-runs when a function is called counts as much as one at the top).
+runs when a function is called counts as much as one at the top), and no import from a
+higher layer (:data:`LAYERS`: the folders, bottom up).
 
 Modules are the files of the package (``tasks.legged`` is one); an import of a package's
 module does not count as an import of the package's ``__init__``."""
@@ -100,6 +101,43 @@ def test_no_import_cycle_in_cfm_jax():
     edges = graph()
     detail = ["; ".join(f"{m} -> {sorted(edges[m] & set(c))}" for m in c) for c in found]
     assert not found, "import cycles:\n" + "\n".join(detail)
+
+
+# The layers, bottom up (docs/api/index.md): a module may import its own layer and those
+# below. Private helpers and the config sit below every folder; the package itself, the
+# command line and the Gymnasium environments above.
+LAYERS = ("", "sim", "tasks", "learning", "analysis", "runs", "top")
+TOP = {"", "cli", "envs"}
+
+
+def layer(module: str) -> int:
+    """The rank in :data:`LAYERS` of a dotted module name relative to the package."""
+    if module in TOP:
+        return LAYERS.index("top")
+    first = module.split(".")[0]
+    return LAYERS.index(first) if first in LAYERS else 0
+
+
+def upward(edges: dict[str, set[str]]) -> list[str]:
+    """Every import of a module from a higher layer, as ``"a -> b"`` (``import cfm_jax``
+    itself is not one: the package runs before any of its modules)."""
+    return sorted(f"{a} -> {b}" for a, bs in edges.items() for b in bs
+                  if b and layer(b) > layer(a))  # fmt: skip
+
+
+def test_no_import_from_a_higher_layer():
+    edges = graph()
+    assert {m.split(".")[0] for m in edges if "." in m} <= set(LAYERS), "a folder not in LAYERS"
+    assert not upward(edges), "imports from a higher layer:\n" + "\n".join(upward(edges))
+
+
+def test_the_layer_check_finds_an_upward_import():
+    """Negative control: the robots importing the babbling (a task's initial data), as
+    they did before the layers were folders, is caught; the babbling importing the robots
+    is not."""
+    edges = {"sim.robots": {"config", "tasks.babbling"}, "tasks.babbling": {"sim.robots"}}
+    assert upward(edges) == ["sim.robots -> tasks.babbling"]
+    assert layer("config") == 0 and layer("_xla") == 0 and layer("cli") == layer("") == 6
 
 
 def test_the_checker_finds_cycles_through_function_level_and_relative_imports(tmp_path):

@@ -11,7 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cfm_jax import _jax_private, _xla, native, robots
+from cfm_jax import _jax_private, _xla
+from cfm_jax.sim import native, robots
 
 PACKAGE = Path(__file__).resolve().parent.parent / "cfm_jax"
 PRIVATE = re.compile(r"^\s*(from\s+jax\._src\b|import\s+jax\._src\b)|jax\._src\.\w+\(", re.M)

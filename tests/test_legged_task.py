@@ -1,6 +1,6 @@
 """The legged tasks ``walk`` and ``jump`` on the Solo12 (cfm_jax/tasks.py ``LeggedTask``).
 
-Oracle: the references recorded by cfm_jax.locomotion from MuJoCo C on the same model.
+Oracle: the references recorded by cfm_jax.tasks.locomotion from MuJoCo C on the same model.
 Replaying a reference's own controller (feed-forward torque plus joint PD) in the
 library's compiled rollout must reproduce the recording, and then the desired quantity
 (reference accelerations and foot forces, no feedback error) must equal the observed one;
@@ -20,9 +20,12 @@ import numpy as np
 import pytest
 
 import cfm_jax
-from cfm_jax import algorithm, locomotion, quadruped, robots, rollout, solo12, tasks, training
 from cfm_jax import config as config_lib
-from cfm_jax.tasks import legged
+from cfm_jax import tasks
+from cfm_jax.learning import algorithm
+from cfm_jax.runs import training
+from cfm_jax.sim import quadruped, robots, rollout, solo12
+from cfm_jax.tasks import legged, locomotion
 
 QUADRUPEDS = Path(__file__).parent / "robots" / "quadrupeds"
 
@@ -119,7 +122,7 @@ def test_desired_acceleration_has_base_gains_on_the_base_and_joint_gains_on_the_
     np.testing.assert_allclose(np.asarray(same.desired_kp), 100.0)
     np.testing.assert_allclose(np.asarray(same.desired_kd), 20.0)
     # The values of the task built for cfg given to that task (as the compiled functions
-    # get them, cfm_jax.training.Knobs) give its s* bit for bit and leave it as it was.
+    # get them, cfm_jax.runs.training.Knobs) give its s* bit for bit and leave it as it was.
     assert same.value_names == ("desired_kp", "desired_kd")
     moved = same.with_values(task.values())
     np.testing.assert_array_equal(np.asarray(moved.desired(ref_t, qpos32, qvel32, None)), desired)
@@ -193,7 +196,7 @@ def test_legged_tasks_refuse_arms_and_slow_control(solo):
 def test_motions_choose_the_references_other_than_the_test_ones(solo):
     """``task.motions`` names the walk durations / jump clearances to follow (the selection
     of defaults runs on motions other than the test ones); oracle: the references
-    :mod:`cfm_jax.locomotion` records for those parameters, and the test set for None."""
+    :mod:`cfm_jax.tasks.locomotion` records for those parameters, and the test set for None."""
     config = config_lib.TaskConfig(name="jump", control_dt=0.004, motions=(0.065, 0.125))
     jump = tasks.make(solo, config, 0.004)
     expected = [locomotion.jump_reference(h) for h in (0.065, 0.125)]

@@ -1,4 +1,4 @@
-"""Locomotion references, their cache and replay (cfm_jax/locomotion.py) on robots/solo12.xml.
+"""Locomotion references, their cache and replay (cfm_jax/tasks/locomotion.py) on robots/solo12.xml.
 
 Oracles: MuJoCo C (``mj_inverse`` and re-simulation with the library's native stepper for
 dynamic consistency) and the requested task quantities (distance, jump height). The robot's
@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cfm_jax import locomotion as L
-from cfm_jax import solo12
-from cfm_jax.native import Stepper
+from cfm_jax.sim import solo12
+from cfm_jax.sim.native import Stepper
+from cfm_jax.tasks import locomotion as L
 
 
 @pytest.fixture(scope="session")
@@ -197,7 +197,7 @@ def test_references_of_a_loaded_robots_model_are_its_files_bit_for_bit(tmp_path,
     another timestep is another model: another entry, another motion."""
     import copy
 
-    from cfm_jax import robots
+    from cfm_jax.sim import robots
 
     solo = robots.load("solo12")
     assert L.model_bytes(solo.mj_model) == L.model_bytes(model)

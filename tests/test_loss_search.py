@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cfm_jax import locomotion
+from cfm_jax.tasks import locomotion
 
 optuna = pytest.importorskip("optuna")
 import loss_search  # noqa: E402

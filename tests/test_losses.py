@@ -1,4 +1,4 @@
-"""Losses (cfm_jax/losses.py) against hand-derived values and the paper's 1-D gradients.
+"""Losses (cfm_jax/learning/losses.py) against hand-derived values and the paper's 1-D gradients.
 
 Oracles: values computed by hand on small arrays (written out below), and the 1-D gradient
 formulas of paper section III-B for the composition ``s_p = f(g(beta))`` with ``g = beta``
@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cfm_jax import losses
+from cfm_jax.learning import losses
 
 # Small float32 inputs with exactly representable values: the hand-computed results are
 # small integers or binary fractions, so float32 arithmetic reproduces them exactly. Where a

@@ -4,7 +4,7 @@ MuJoCo C's, and every task's rollout of a fixed policy on MJX follows the native
 
 Oracles: the traced program itself (its primitives; the native simulator's rollout is the
 positive control, it must show its host callback), MuJoCo C in float64
-(:class:`cfm_jax.opspace.HostKinematics`, :class:`cfm_jax.baselines.HostOpspaceOracle`) at
+(:class:`cfm_jax.sim.opspace.HostKinematics`, :class:`cfm_jax.tasks.baselines.HostOpspaceOracle`) at
 random states, and the native simulator's rollout of the same policy (the task's oracle or
 its PD feedback; a 1 % gain change is the negative control)."""
 
@@ -20,8 +20,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cfm_jax import baselines, opspace, robots, rollout, tasks, training
 from cfm_jax import config as config_lib
+from cfm_jax import tasks
+from cfm_jax.runs import training
+from cfm_jax.sim import opspace, robots, rollout
+from cfm_jax.tasks import baselines
 
 CALLBACK = re.compile(r"callback|cfm_native_step")
 

@@ -10,7 +10,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import native, robots
+from cfm_jax.sim import native, robots
 
 SENSOR_ARM = """
 <mujoco>

@@ -1,4 +1,4 @@
-"""Forward ensemble, controller and normaliser (cfm_jax/networks.py).
+"""Forward ensemble, controller and normaliser (cfm_jax/learning/networks.py).
 
 Oracles: the documented bounds (torque limits; the PETS soft log-variance bounds, whose
 worst-case overshoot is derived below), applying each member's parameters on its own, and
@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cfm_jax import networks
+from cfm_jax.learning import networks
 
 STATE_DIM, NV = 4, 2
 LIMIT = jnp.array([20.0, 10.0])

@@ -1,4 +1,4 @@
-"""The networks' normalisers of ``loop.normaliser`` (cfm_jax/algorithm.py,
+"""The networks' normalisers of ``loop.normaliser`` (cfm_jax/learning/algorithm.py,
 cfm_jax/tasks/scales.py) and the legged tasks' ``task.desired``.
 
 Oracles: for ``data``, NumPy statistics of the data set's filled rows at every refit,
@@ -20,8 +20,10 @@ import numpy as np
 import pytest
 from tiny import tiny_config
 
-from cfm_jax import algorithm, config, dataset, networks, robots, tasks
-from cfm_jax.algorithm import Experiment
+from cfm_jax import config, tasks
+from cfm_jax.learning import algorithm, networks
+from cfm_jax.learning.algorithm import Experiment
+from cfm_jax.sim import dataset, robots
 from cfm_jax.tasks import scales
 
 ARM3 = str(Path(__file__).parent / "three_joint_arm.xml")

@@ -1,4 +1,4 @@
-"""Operational-space kinematics (cfm_jax/opspace.py): site lookup, host and JAX kinematics.
+"""Operational-space kinematics (cfm_jax/sim/opspace.py): site lookup, host and JAX kinematics.
 
 Oracles: closed-form planar kinematics of the two-link arm and the iiwa's home pose worked
 by hand from the facts sheet; central finite differences of MuJoCo's site positions and of
@@ -24,8 +24,8 @@ from sites import (
     site_kinematics_closed_form,
 )
 
-from cfm_jax import opspace
 from cfm_jax.config import ConfigError
+from cfm_jax.sim import opspace
 
 # ---- site -------------------------------------------------------------------------------
 

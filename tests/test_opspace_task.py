@@ -1,5 +1,5 @@
 """The ``opspace`` task wired into the rollout and Algorithm 1 (cfm_jax/tasks.py
-``OperationalSpaceTask``, cfm_jax/training.py).
+``OperationalSpaceTask``, cfm_jax/runs/training.py).
 
 Oracles: MuJoCo C replaying the rollout's executed torques (site positions from
 ``data.site_xpos``, site velocities from ``mj_objectVelocity``), the operational-space
@@ -19,7 +19,9 @@ import pytest
 
 import cfm_jax
 from cfm_jax import config as config_lib
-from cfm_jax import rollout, tasks, training
+from cfm_jax import tasks
+from cfm_jax.runs import training
+from cfm_jax.sim import rollout
 
 
 def test_task_sizes_and_desired_index(iiwa):
@@ -81,7 +83,7 @@ def test_oracle_realises_desired_site_acceleration(iiwa):
     # over the step is the desired one (up to float32 velocities / h).
     # Targets 2 cm from the home flange, reached in 0.2 s: accelerations of a few m/s^2 that
     # need no clipped torque.
-    from cfm_jax import opspace
+    from cfm_jax.sim import opspace
 
     dt = iiwa.timestep
     home = np.asarray(opspace.ee_position(iiwa, iiwa.home), np.float64)

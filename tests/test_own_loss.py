@@ -1,5 +1,5 @@
 """A loss of your own, from outside the library (issue 66): one function and one
-``cfm_jax.losses.register`` call in the user's file; it trains from the command line
+``cfm_jax.learning.losses.register`` call in the user's file; it trains from the command line
 (``cfm-jax --import``), from Python, and resumes. Also the CLI's end-to-end run: the files
 it promises, on a real subprocess of the entry point.
 
@@ -30,7 +30,7 @@ TINY = TINY.replace(
 TARGETS = 5  # default targets of every robot
 
 USER_FILE = """
-from cfm_jax import losses
+from cfm_jax.learning import losses
 
 
 def my_joint(q, d_desired, d_output):  # the joint loss, written by a user

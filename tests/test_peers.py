@@ -107,8 +107,8 @@ def test_reward_scale_is_pd_only_on_the_selection_motions():
     # on the selection motions: PD-only's reward is then -1 a step on average there.
     import jax
 
-    from cfm_jax import rollout
-    from cfm_jax.algorithm import Experiment
+    from cfm_jax.learning.algorithm import Experiment
+    from cfm_jax.sim import rollout
 
     task = Experiment(peers.selection_config(CONFIG)).task
     out = rollout.run(task, lambda step, key: task.feedback(step), jax.random.key(0))

@@ -1,5 +1,5 @@
-"""The figures (cfm_jax/plots.py): each is returned as a matplotlib Figure and written only
-when given a path, and the learning curves draw the statistics of cfm_jax/report.py (the
+"""The figures (cfm_jax/analysis/plots.py): each is returned as a matplotlib Figure and written only
+when given a path, and the learning curves draw the statistics of cfm_jax/analysis/report.py (the
 hand-computed frames of tests/test_report.py) as their lines and bands, read back from the
 returned figure."""
 
@@ -13,7 +13,8 @@ import pandas as pd
 import pytest
 from test_report import JOINT, SUPERVISED, TASK, _hand_frame, _metrics
 
-from cfm_jax import locomotion, plots, report
+from cfm_jax.analysis import plots, report
+from cfm_jax.tasks import locomotion
 
 
 def _lines(ax):

@@ -1,6 +1,6 @@
 """A quadruped read from its MJCF alone (issue 65, item 1): legs, feet, hips and standing pose.
 
-Oracles: the Solo12's closed-form leg kinematics (cfm_jax.solo12, from the robot's facts
+Oracles: the Solo12's closed-form leg kinematics (cfm_jax.sim.solo12, from the robot's facts
 sheet); the published quadrupeds' own joint names, whose leg prefixes are written out here by
 hand; MuJoCo's forward kinematics for the computed standing pose; hand-written MJCF files for
 the models that are not quadrupeds."""
@@ -13,7 +13,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import locomotion, quadruped, robot_check, solo12
+from cfm_jax.analysis import robot_check
+from cfm_jax.sim import quadruped, solo12
+from cfm_jax.tasks import locomotion
 
 QUADRUPEDS = Path(__file__).parent / "robots" / "quadrupeds"
 
@@ -279,7 +281,7 @@ def test_a_published_quadruped_gets_a_ground_and_foot_sensors_that_read_the_cont
     assert nothing == [] and solo.nsensor == solo12.load_model().nsensor
 
 
-# ---- references from the description (cfm_jax.locomotion.Legs.of) ---------------------------
+# ---- references from the description (cfm_jax.tasks.locomotion.Legs.of) ------------------------
 
 
 def test_the_general_legs_on_the_solo12_give_its_closed_form_references():

@@ -1,4 +1,4 @@
-"""Cartesian references of the operational-space task (cfm_jax/references.py): quintic
+"""Cartesian references of the operational-space task (cfm_jax/tasks/references.py): quintic
 straight lines of the end-effector site, default targets, the reach check, and the desired
 acceleration for a site.
 
@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 from sites import IIWA_HOME_FLANGE, IIWA_REACH, L1, L2, SHOULDER_Z, site_kinematics_closed_form
 
-from cfm_jax import opspace, references
 from cfm_jax.config import ConfigError
+from cfm_jax.sim import opspace
+from cfm_jax.tasks import references
 
 
 def test_cartesian_reaching_quintic_straight_lines(iiwa):

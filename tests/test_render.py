@@ -1,4 +1,4 @@
-"""Offscreen rendering (cfm_jax/render.py). Skipped with the reason when no OpenGL context can
+"""Offscreen rendering (cfm_jax/sim/render.py). Skipped with the reason when no OpenGL context can
 be created (set MUJOCO_GL=egl on headless Linux)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import render, solo12
+from cfm_jax.sim import render, solo12
 
 OK, WHY = render.render_available()
 needs_gl = pytest.mark.skipif(not OK, reason=f"no offscreen OpenGL: {WHY}")

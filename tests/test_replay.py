@@ -1,4 +1,4 @@
-"""Recorded data sets and replays (cfm_jax/dataset.py ``save``/``load``/``Recorded``,
+"""Recorded data sets and replays (cfm_jax/sim/dataset.py ``save``/``load``/``Recorded``,
 ``cfm_jax.train(config, data=...)``).
 
 Oracle: the run that recorded the data. Replaying a run's own data set with the same
@@ -15,8 +15,9 @@ import pytest
 from tiny import cli_command, tiny_config
 
 import cfm_jax
-from cfm_jax import dataset, training
 from cfm_jax.config import ConfigError
+from cfm_jax.runs import training
+from cfm_jax.sim import dataset
 
 TINY = tiny_config()
 

@@ -1,4 +1,4 @@
-"""Summary tables and statistics (cfm_jax/report.py) against hand-computed numbers; the
+"""Summary tables and statistics (cfm_jax/analysis/report.py) against hand-computed numbers; the
 figures drawn from them are tested in tests/test_plots.py."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 import scipy.stats
 
-from cfm_jax import report
+from cfm_jax.analysis import report
 
 
 def _metrics():
@@ -357,7 +357,7 @@ def test_cli_summary_file_has_the_interval_and_the_paired_table(tmp_path):
 
 
 def test_sweep_summary_has_the_interval_and_the_paired_table_per_override():
-    from cfm_jax import sweeps
+    from cfm_jax.runs import sweeps
 
     metrics = pd.concat(
         [

@@ -15,8 +15,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cfm_jax import algorithm, robots, rollout, tasks
 from cfm_jax import config as config_lib
+from cfm_jax import tasks
+from cfm_jax.learning import algorithm
+from cfm_jax.sim import robots, rollout
 
 WALK = config_lib.TaskConfig(name="walk", desired="pd", kp=100.0, kd=20.0, motions=(0.8, 0.4))
 

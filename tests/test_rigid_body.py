@@ -19,7 +19,9 @@ from tiny import tiny_config
 
 import cfm_jax
 from cfm_jax import config as config_lib
-from cfm_jax import forward_models, networks, rigid_body, robots, tasks
+from cfm_jax import tasks
+from cfm_jax.learning import forward_models, networks, rigid_body
+from cfm_jax.sim import robots
 
 
 def _random_states(robot, rng, count):
@@ -262,7 +264,7 @@ def test_opspace_zero_residual_predicts_mujoco_qacc_and_site_acceleration(name, 
 
 
 def test_protocol_line_names_the_forward_model_and_a_nominal_that_is_not_the_default():
-    from cfm_jax import report
+    from cfm_jax.analysis import report
 
     base = config_lib.Config()
     assert report.protocol(base).endswith("; `forward.kind='mlp'`")

@@ -1,4 +1,4 @@
-"""Robot loading and checks (cfm_jax/robots.py).
+"""Robot loading and checks (cfm_jax/sim/robots.py).
 
 Oracles: small MJCF strings written here with known joints/actuators, and MuJoCo's C engine
 (``mj_fullM``) for the mass matrix. The physics numbers of the shipped XML files are tested
@@ -16,9 +16,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import robot_check, robots, tasks
+from cfm_jax import tasks
+from cfm_jax.analysis import robot_check
 from cfm_jax.config import ConfigError, TaskConfig
-from cfm_jax.robots import RobotError
+from cfm_jax.sim import robots
+from cfm_jax.sim.robots import RobotError
 
 ROBOT_DIR = Path(__file__).resolve().parents[1] / "robots"
 

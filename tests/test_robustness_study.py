@@ -1,7 +1,7 @@
 """experiments/robustness_study.py: the grid and its tables, on hand-made sweep outputs.
 
 Oracle: the numbers written into the fake runs (seed means, paired differences and falls
-computed by hand below) and :func:`cfm_jax.report.bootstrap_ci` (tested on its own in
+computed by hand below) and :func:`cfm_jax.analysis.report.bootstrap_ci` (tested on its own in
 test_report.py). No training runs here; the study's cells are the library's sweeps.
 """
 
@@ -20,7 +20,7 @@ import pytest
 import robustness_study as study
 
 from cfm_jax import config as config_lib
-from cfm_jax import report
+from cfm_jax.analysis import report
 
 
 def _as_run_today(recorded: dict) -> dict:

@@ -1,4 +1,4 @@
-"""MJX rollouts (cfm_jax/rollout.py) against MuJoCo's C engine and plain Python loops.
+"""MJX rollouts (cfm_jax/sim/rollout.py) against MuJoCo's C engine and plain Python loops.
 
 Oracles: ``mujoco.mj_step`` (C, float64) on the same torque sequence; a Python loop of
 ``mjx.step`` with the same policy.
@@ -17,8 +17,10 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from cfm_jax import baselines, native, references, rollout, tasks
+from cfm_jax import tasks
 from cfm_jax.config import SIMULATORS, ConfigError
+from cfm_jax.sim import native, rollout
+from cfm_jax.tasks import baselines, references
 
 CONTROL_DT = 0.01  # 5 physics steps of 0.002 s per control step
 

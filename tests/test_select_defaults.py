@@ -21,7 +21,7 @@ import select_defaults as select
 from tiny import assert_targets_are_not_the_test_targets
 
 from cfm_jax import config as config_lib
-from cfm_jax import locomotion
+from cfm_jax.tasks import locomotion
 
 LOSSES = ("joint", "task", "distal", "supervised")
 RECORDS = os.path.join(os.path.dirname(__file__), "..", "docs", "results", "selection")

@@ -10,8 +10,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import cli, config, references, report, rigid_body, robots, rollout, tasks
-from cfm_jax.robots import RobotError
+from cfm_jax import cli, config, tasks
+from cfm_jax.analysis import report
+from cfm_jax.learning import rigid_body
+from cfm_jax.sim import robots, rollout
+from cfm_jax.sim.robots import RobotError
+from cfm_jax.tasks import references
 
 # A vertical two-link arm under gravity with damping, armature, friction loss, joint ranges
 # and the implicitfast integrator (as Menagerie's arms); ACTUATORS and KEY are filled in.

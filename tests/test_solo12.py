@@ -14,7 +14,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax import locomotion, solo12
+from cfm_jax.sim import solo12
+from cfm_jax.tasks import locomotion
 
 SOLO = Path(__file__).resolve().parents[1] / "robots" / "solo12.xml"
 G = 9.81
@@ -249,7 +250,7 @@ def test_leg_fk_ik_match_mujoco(solo):
 # ---- fall detection ------------------------------------------------------------------------
 def _fell_loop(qpos, foot_force=None, height=0.10, tilt=0.8, clearance=0.005, knees=True):
     """The former NumPy fall check, copied as the oracle: a plain loop over states and legs,
-    knees from :func:`cfm_jax.solo12.knee_fk` (itself checked against MuJoCo above); a
+    knees from :func:`cfm_jax.sim.solo12.knee_fk` (itself checked against MuJoCo above); a
     ``knees`` switch added so that it also states the legged tasks' former rule."""
     qpos = np.asarray(qpos, float)
     batch = qpos.shape[:-1]

@@ -1,5 +1,5 @@
-"""cfm_jax.stats (issues 43 and 68): the few-run statistics against hand computations, closed
-forms and plain loops written here (the exact test against every assignment of signs
+"""cfm_jax.analysis.stats (issues 43 and 68): the few-run statistics against hand computations,
+closed forms and plain loops written here (the exact test against every assignment of signs
 enumerated with itertools)."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 from scipy.stats import mannwhitneyu
 
-from cfm_jax import stats
+from cfm_jax.analysis import stats
 
 
 def test_score_is_orders_of_magnitude_below_pd_only():

@@ -1,4 +1,4 @@
-"""Sweeps (cfm_jax/sweeps.py): the grid, the tidy table, resuming, and the Ray backend.
+"""Sweeps (cfm_jax/runs/sweeps.py): the grid, the tidy table, resuming, and the Ray backend.
 
 Oracles: separate single-seed ``cfm_jax.train`` runs for the vmapped seeds of a cell; an
 uninterrupted sweep for an interrupted and resumed one; the ``local`` backend for the
@@ -27,7 +27,8 @@ from tiny import tiny_config
 
 import cfm_jax
 from cfm_jax import config as config_lib
-from cfm_jax import report, sweeps, training
+from cfm_jax.analysis import report
+from cfm_jax.runs import sweeps, training
 
 TINY = tiny_config(iterations=1)  # two seeds, one iteration
 LOSSES = ["joint", "task"]

@@ -14,8 +14,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cfm_jax import references, robots, tasks
+from cfm_jax import tasks
 from cfm_jax.config import ConfigError, TaskConfig
+from cfm_jax.sim import robots
+from cfm_jax.tasks import references
 
 START = np.array([0.2, -1.0, 0.5])
 GOAL = np.array([0.8, 0.5, 0.5])  # the third joint does not move
@@ -162,9 +164,9 @@ def test_values_of_another_config_equal_a_task_built_for_it(arm, name):
     # Oracle: the task built from the config with other gains and other targets (the same
     # number). A PD-only rollout uses the reference and the gains twice, in s* (kp, kd) and
     # in the feedback torque (gain_p, gain_d); with that task's values swapped in (what
-    # cfm_jax.algorithm.Knobs carries into the compiled functions) it must be the same
+    # cfm_jax.learning.algorithm.Knobs carries into the compiled functions) it must be the same
     # rollout bit for bit, and differ from the original one.
-    from cfm_jax import rollout
+    from cfm_jax.sim import rollout
 
     if name == "opspace":
         config = TaskConfig(name=name, duration=0.2, site="tip")

@@ -1,4 +1,4 @@
-"""TensorBoard event files (cfm_jax/tensorboard.py, ``cfm-jax train --tensorboard``): the
+"""TensorBoard event files (cfm_jax/analysis/tensorboard.py, ``cfm-jax train --tensorboard``): the
 scalars read back from the file are the means of the rows the writer was given, and a
 missing tensorboardX is one clear error. A real run's event file is compared with its
 metrics.csv in tests/test_train.py (``test_cli_run_tensorboard_summary_and_files``).
@@ -18,7 +18,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cfm_jax import cli, tensorboard
+from cfm_jax import cli
+from cfm_jax.analysis import tensorboard
 
 NEEDS = "tensorboardX is not installed (pip install 'cfm_jax[tensorboard]')"
 

@@ -1,4 +1,4 @@
-"""Tests of cfm_jax.theory against independent oracles.
+"""Tests of cfm_jax.analysis.theory against independent oracles.
 
 Oracles: the paper's gradient formulas (section III-B/C), hand-derived closed forms, plain
 Python loops of the iteration written with hand-derived updates (no JAX), and numpy's least
@@ -14,7 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cfm_jax import losses, theory
+from cfm_jax.analysis import theory
+from cfm_jax.learning import losses
 
 RNG_SEED = 20210301
 F32_ATOL = 1e-5

@@ -1,4 +1,4 @@
-"""Algorithm 1 end to end (cfm_jax/training.py, cfm_jax/cli.py) on tiny configs.
+"""Algorithm 1 end to end (cfm_jax/runs/training.py, cfm_jax/cli.py) on tiny configs.
 
 Oracles: separate single-seed runs for the vmapped seed axis (a loop over seeds), a second
 identical run for determinism, XLA's compilation cache for "one compiled function per
@@ -24,7 +24,7 @@ from tiny import assert_each_loss_equals_it_alone, cli_command, tiny_config
 
 import cfm_jax
 from cfm_jax import config as config_lib
-from cfm_jax import training
+from cfm_jax.runs import training
 
 # The torque scaling and babbling gains before issue 41, on which the golden record and the
 # measurements in these tests' docstrings were made (the training shell does not depend on
@@ -293,7 +293,8 @@ def test_cli_run_tensorboard_summary_and_files(tmp_path, monkeypatch, capsys, ex
     pytest.importorskip("tensorboardX", reason="tensorboardX is not installed")
     from test_tensorboard import read_scalars
 
-    from cfm_jax import cli, report, tensorboard
+    from cfm_jax import cli
+    from cfm_jax.analysis import report, tensorboard
 
     out, events = tmp_path / "cli", tmp_path / "tb"
     command = cli_command(TINY, tmp_path, out, "joint", seeds=2, iterations=2)
@@ -433,7 +434,7 @@ def test_user_mjcf_arm_trains_without_code_changes(tmp_path):
 def test_progress_in_a_log_is_one_line_per_step(capsys):
     # Redirected to a file, a run printed its progress bar once, at the end of each loss:
     # nothing to follow in the log of a long run. Under pytest stdout is not a terminal.
-    from cfm_jax import recorder
+    from cfm_jax.runs import recorder
 
     with recorder.progress_bar(True) as bar:
         task = bar.add_task("arm joint: babbling + initial fit", total=4)

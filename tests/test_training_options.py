@@ -15,8 +15,9 @@ import numpy as np
 import optax
 import pytest
 
-from cfm_jax import algorithm, dataset, losses, networks
 from cfm_jax import config as cfg
+from cfm_jax.learning import algorithm, losses, networks
+from cfm_jax.sim import dataset
 
 GROUPS = ((1.0, (0, 1, 2)), (10.0, (2,)))
 
@@ -285,7 +286,7 @@ def test_config_fields_validate_and_round_trip():
 @pytest.mark.parametrize("name", ["task", "joint"])
 @pytest.mark.parametrize("cubic", [0.0, 0.1])
 def test_observed_goal_fixed_point_matches_a_plain_loop(name, cubic):
-    from cfm_jax import theory
+    from cfm_jax.analysis import theory
 
     system = theory.TrueSystem(gain=1.0, offset=0.0, cubic=cubic)
     model = theory.LinearModel(gain=1.2, offset=0.2)

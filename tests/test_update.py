@@ -1,4 +1,5 @@
-"""Model updates (the fits of cfm_jax/algorithm.py): gradient paths and that the fits do their job.
+"""Model updates (the fits of cfm_jax/learning/algorithm.py): gradient paths and that the fits do
+their job.
 
 Oracles:
 * the chain rule built by hand: ``dL/dbeta = (ds_p/dbeta)^T dL/ds_p`` with ``dL/ds_p`` the
@@ -21,7 +22,8 @@ import numpy as np
 import optax
 import pytest
 
-from cfm_jax import algorithm, dataset, networks
+from cfm_jax.learning import algorithm, networks
+from cfm_jax.sim import dataset
 
 S, NV = 4, 2
 LIMIT = np.array([20.0, 10.0])
@@ -169,7 +171,7 @@ def test_unknown_loss_name_raises(setup):
     with pytest.raises(
         ValueError,
         match=r"loss='mse' is not allowed: one of \('joint', 'task', "
-        r"'distal', 'supervised', 'distal_literal'.*cfm_jax.losses.register",
+        r"'distal', 'supervised', 'distal_literal'.*cfm_jax.learning.losses.register",
     ):
         algorithm.controller_objective(setup["cp"], setup["fp"], "mse", *rest)
 
@@ -349,7 +351,7 @@ def test_selected_output_gradient_matches_hand_built_chain_rule(loss):
 def registry(monkeypatch):
     """The loss registry, restored after the test (a test's losses stay out of the others)."""
     from cfm_jax import config as config_lib
-    from cfm_jax import losses
+    from cfm_jax.learning import losses
 
     monkeypatch.setattr(losses, "REGISTRY", dict(losses.REGISTRY))
     monkeypatch.setattr(config_lib, "CONTROLLER_LOSSES", config_lib.CONTROLLER_LOSSES)

@@ -1,4 +1,4 @@
-"""Videos of rollouts (cfm_jax.render.write_video, video; cfm_jax.training.rollout_qpos)
+"""Videos of rollouts (cfm_jax.sim.render.write_video, video; cfm_jax.runs.training.rollout_qpos)
 from real offscreen frames. Skipped with the reason when no OpenGL context can be created."""
 
 from __future__ import annotations
@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from tiny import tiny_config
 
-from cfm_jax import render, training
+from cfm_jax.runs import training
+from cfm_jax.sim import render
 
 OK, WHY = render.render_available()
 needs_gl = pytest.mark.skipif(not OK, reason=f"no offscreen OpenGL: {WHY}")

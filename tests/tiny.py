@@ -117,7 +117,8 @@ def assert_targets_are_not_the_test_targets(config) -> None:
     """An iiwa14 arm config's ``task.targets`` are selection targets: as many as the test
     targets, none within 0.1 (rad, or m for op-space) per coordinate of a test target
     (``references.default_targets`` with seed 0; op-space: their end-effector positions)."""
-    from cfm_jax import references, robots
+    from cfm_jax.sim import robots
+    from cfm_jax.tasks import references
 
     robot = robots.load("iiwa14")
     test = references.default_targets(robot.joint_range, robot.home)

@@ -1,6 +1,11 @@
 """The tasks and their registry: ``inverse_dynamics`` (:class:`JointSpaceTask`, which gives
 every task's interface), ``opspace`` (:class:`OperationalSpaceTask`), ``walk`` and ``jump``
 (:class:`LeggedTask`). A new task is a module with a ``make`` and a :func:`register` call.
+
+With them what a task is built from: the motions to track (:mod:`.references`, the walk and
+jump in :mod:`.locomotion`), the non-learned controllers compared against
+(:mod:`.baselines`), the initial data (motor babbling, :mod:`.babbling`) and the torque
+scales (:mod:`.scales`). Above :mod:`cfm_jax.sim`, below :mod:`cfm_jax.learning`.
 """
 
 from __future__ import annotations
@@ -122,7 +127,7 @@ def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native"):
     """The task object of a :class:`cfm_jax.config.TaskConfig` for a robot.
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
+      robot: a :class:`cfm_jax.sim.robots.Robot`.
       task: the :class:`cfm_jax.config.TaskConfig`; its ``name`` chooses the task.
       control_dt: control period (s), a multiple of the robot's timestep.
       simulator: ``"native"`` or ``"mjx"`` (with ``mjx`` the rollout has no host callback).
@@ -131,7 +136,7 @@ def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native"):
       ConfigError: no such task, or it does not fit the robot (the message says why).
 
     Examples:
-      >>> arm = cfm_jax.robots.load("two_link_arm")
+      >>> arm = cfm_jax.sim.robots.load("two_link_arm")
       >>> task = make(arm, TaskConfig(duration=1.0), control_dt=0.01)
       >>> type(task).__name__, task.targets, task.steps
       ('JointSpaceTask', 5, 100)

@@ -12,9 +12,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cfm_jax import babbling, baselines
 from cfm_jax.config import Config, ConfigError, TaskConfig, fail
-from cfm_jax.references import (
+from cfm_jax.tasks import babbling, baselines
+from cfm_jax.tasks.references import (
     Reference,
     as_jax,
     desired_acceleration,
@@ -48,7 +48,7 @@ class AccelerationOutput(NamedTuple):
 class JointSpaceTask:
     """The joint-space tracking task (``inverse_dynamics``), and the interface of every task.
 
-    The interface that :func:`cfm_jax.rollout.run` and :mod:`cfm_jax.training` call (here):
+    The interface that :func:`cfm_jax.sim.rollout.run` and :mod:`cfm_jax.runs.training` call (here):
 
     * ``state(qpos, qvel, features)``: the learning state ``s`` (``[q, qdot]``);
     * ``desired(ref_t, qpos, qvel, features)``: ``s*``, here
@@ -64,15 +64,15 @@ class JointSpaceTask:
       gains), passed to compiled code as arguments so that a sweep over them compiles once.
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
+      robot: a :class:`cfm_jax.sim.robots.Robot`.
       reference: a :class:`Reference` (NumPy, ``(targets, steps + 1, nq)``).
       kp: proportional gain (1/s^2) of the PD correction in the desired acceleration.
       kd: derivative gain (1/s) of the same correction.
       control_dt: control period (a multiple of the robot's timestep).
 
     Examples:
-      >>> arm = cfm_jax.robots.load("two_link_arm")
-      >>> ref = cfm_jax.references.quintic(arm.home, arm.home + 0.1, 0.5, control_dt=0.01)
+      >>> arm = cfm_jax.sim.robots.load("two_link_arm")
+      >>> ref = cfm_jax.tasks.references.quintic(arm.home, arm.home + 0.1, 0.5, control_dt=0.01)
       >>> task = JointSpaceTask(arm, ref, kp=100.0, kd=20.0, control_dt=0.01)
       >>> task.targets, task.steps, task.state_dim, task.desired_dim, task.output_dim
       (1, 50, 4, 2, 2)
@@ -118,7 +118,7 @@ class JointSpaceTask:
 
     def _babbling_gains(self, kp: float, kd: float):
         """Gains for the lightest inertia of the babbling's poses
-        (:func:`cfm_jax.baselines.babbling_joint_gains`).
+        (:func:`cfm_jax.tasks.baselines.babbling_joint_gains`).
         """
         poses = babbling.pose_sample(self.robot, self.reference_np.q[0, 0])
         return baselines.babbling_joint_gains(self.robot, kp, kd, poses)
@@ -151,7 +151,7 @@ class JointSpaceTask:
         and shapes.
 
         Examples:
-          >>> arm = cfm_jax.robots.load("two_link_arm")
+          >>> arm = cfm_jax.sim.robots.load("two_link_arm")
           >>> task = make(arm, TaskConfig(duration=0.5), control_dt=0.01)
           >>> softer = make(arm, TaskConfig(duration=0.5, kp=25.0), control_dt=0.01)
           >>> float(task.with_values(softer.values()).kp), float(task.kp)
@@ -213,7 +213,7 @@ class JointSpaceTask:
         """The state's and output's entries, ``(kind, index)`` of :mod:`cfm_jax.tasks.scales`.
 
         Examples:
-          >>> task = make(cfm_jax.robots.load("two_link_arm"), TaskConfig(duration=0.5), 0.01)
+          >>> task = make(cfm_jax.sim.robots.load("two_link_arm"), TaskConfig(duration=0.5), 0.01)
           >>> task.entries()["state"]
           (('position', 0), ('position', 1), ('velocity', 0), ('velocity', 1))
         """
@@ -267,7 +267,7 @@ class JointSpaceTask:
         """The output's :class:`AccelerationOutput`, or None if not an affine image of ``qacc``.
 
         Examples:
-          >>> arm = cfm_jax.robots.load("two_link_arm")
+          >>> arm = cfm_jax.sim.robots.load("two_link_arm")
           >>> make(arm, TaskConfig(duration=0.1), 0.01).acceleration_output()
           AccelerationOutput(entries=(0, 1), scale=1.0, affine=None)
         """
@@ -294,18 +294,19 @@ class JointSpaceTask:
 
     def loss_weights(self) -> tuple:
         """``((weight, (output index, ...)), ...)``, the groups of the ``norm`` controller loss
-        (:func:`cfm_jax.losses.grouped`); the arms: one group, the plain Euclidean norm.
+        (:func:`cfm_jax.learning.losses.grouped`); the arms: one group, the plain Euclidean norm.
         """
         return ((1.0, tuple(range(self.output_dim))),)
 
     def feedback(self, step):
-        """``K_p (q_ref - q) + K_d (qd_ref - qd)`` (:func:`cfm_jax.baselines.joint_pd_gains`)."""
+        """``K_p (q_ref - q) + K_d (qd_ref - qd)``
+        (:func:`cfm_jax.tasks.baselines.joint_pd_gains`)."""
         ref = step.reference
         return self.gain_p * self._q(ref.q - step.qpos) + self.gain_d * self._v(ref.qd - step.qvel)
 
     def oracle_policy(self, simulator: str):
-        """MuJoCo's inverse dynamics (:func:`cfm_jax.baselines.inverse_dynamics_oracle`), with held
-        or passive joints at zero desired acceleration.
+        """MuJoCo's inverse dynamics (:func:`cfm_jax.tasks.baselines.inverse_dynamics_oracle`), with
+        held or passive joints at zero desired acceleration.
         """
         oracle = baselines.inverse_dynamics_oracle(self.robot, simulator)
         robot = self.robot
@@ -324,7 +325,7 @@ def require_fixed_base(robot, name: str, every_joint: bool = False) -> None:
     """Refuse a robot an arm task cannot drive (a floating base, undriven joints).
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
+      robot: a :class:`cfm_jax.sim.robots.Robot`.
       name: the task's name, for the message.
       every_joint: whether the task also needs every joint driven by the controller.
 
@@ -332,7 +333,7 @@ def require_fixed_base(robot, name: str, every_joint: bool = False) -> None:
       ConfigError: a floating base, or with ``every_joint`` held or passive joints.
 
     Examples:
-      >>> require_fixed_base(cfm_jax.robots.load("two_link_arm"), "opspace")  # passes
+      >>> require_fixed_base(cfm_jax.sim.robots.load("two_link_arm"), "opspace")  # passes
     """
     if robot.floating_base:
         raise ConfigError(
@@ -353,13 +354,13 @@ def fits(robot) -> str:
     """Whether ``inverse_dynamics`` can run on ``robot`` (``cfm-jax robot check``).
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
+      robot: a :class:`cfm_jax.sim.robots.Robot`.
 
     Raises:
       ConfigError: it has a floating base.
 
     Examples:
-      >>> fits(cfm_jax.robots.load("two_link_arm"))
+      >>> fits(cfm_jax.sim.robots.load("two_link_arm"))
       ''
     """
     require_fixed_base(robot, "inverse_dynamics")
@@ -367,10 +368,10 @@ def fits(robot) -> str:
 
 
 def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") -> JointSpaceTask:
-    """The ``inverse_dynamics`` task of a config (:func:`cfm_jax.references.reaching`).
+    """The ``inverse_dynamics`` task of a config (:func:`cfm_jax.tasks.references.reaching`).
 
     Args:
-      robot: a fixed-base :class:`cfm_jax.robots.Robot`.
+      robot: a fixed-base :class:`cfm_jax.sim.robots.Robot`.
       task: the :class:`cfm_jax.config.TaskConfig`.
       control_dt: control period (s).
       simulator: ``"native"`` or ``"mjx"`` (the same task for both).
@@ -379,7 +380,7 @@ def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") 
       ConfigError: a floating base, or a target or the home pose outside the joint limits.
 
     Examples:
-      >>> task = make(cfm_jax.robots.load("two_link_arm"), TaskConfig(duration=0.5), 0.01)
+      >>> task = make(cfm_jax.sim.robots.load("two_link_arm"), TaskConfig(duration=0.5), 0.01)
       >>> task.targets, task.steps
       (5, 50)
     """

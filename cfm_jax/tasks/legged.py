@@ -8,7 +8,6 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 
-from cfm_jax import babbling, locomotion, quadruped, solo12
 from cfm_jax.config import (
     Config,
     ConfigError,
@@ -17,8 +16,10 @@ from cfm_jax.config import (
     LoopConfig,
     TaskConfig,
 )
-from cfm_jax.references import LeggedReference, as_jax_legged, minimum_jerk
+from cfm_jax.sim import quadruped, solo12
+from cfm_jax.tasks import babbling, locomotion
 from cfm_jax.tasks.inverse_dynamics import AccelerationOutput, JointSpaceTask
+from cfm_jax.tasks.references import LeggedReference, as_jax_legged, minimum_jerk
 
 
 def _quat_error(target, quat):
@@ -35,18 +36,18 @@ def _quat_error(target, quat):
 
 class LeggedTask(JointSpaceTask):
     """Legged locomotion (``walk``, ``jump``; paper section IV-B; docs/locomotion.md) for a
-    quadruped with one contact sensor per foot (:func:`cfm_jax.solo12.foot_forces`; a file
-    without them is given them when loaded, :func:`cfm_jax.quadruped.with_foot_sensors`).
+    quadruped with one contact sensor per foot (:func:`cfm_jax.sim.solo12.foot_forces`; a file
+    without them is given them when loaded, :func:`cfm_jax.sim.quadruped.with_foot_sensors`).
 
     State ``[qpos, f, qvel]`` (``f``: mean foot forces of the last period), output ``[qacc dt, f]``,
     ``qacc* = qacc_ref + kp e + kd (qvel_ref - qvel)``; a fall (:attr:`fall`) is terminal. The
-    robot is read through :func:`cfm_jax.locomotion.legs_of`: the Solo12's closed forms, or any
-    quadruped's description, whose references are the Solo12's motions scaled to it and
+    robot is read through :func:`cfm_jax.tasks.locomotion.legs_of`: the Solo12's closed forms, or
+    any quadruped's description, whose references are the Solo12's motions scaled to it and
     simulated on the robot's own model (``robot.mj_model``: a servo-driven quadruped loaded
     with ``robot_actuators='torque'`` runs on its converted motors).
 
     Args:
-      robot: a quadruped :class:`cfm_jax.robots.Robot` (:func:`cfm_jax.quadruped.describe`)
+      robot: a quadruped :class:`cfm_jax.sim.robots.Robot` (:func:`cfm_jax.sim.quadruped.describe`)
         with a torque motor on each leg joint (servos converted at load time count).
       task: the :class:`cfm_jax.config.TaskConfig`; ``motions`` None: the 5 test references;
         ``duration`` is not used, ``targets`` and ``home`` must be None.
@@ -95,7 +96,7 @@ class LeggedTask(JointSpaceTask):
                 raise ConfigError(
                     f"task.{field}={getattr(task, field)!r} is not allowed for task "
                     f"{task.name!r}: None (the legged tasks start from and follow their 5 "
-                    "recorded references, cfm_jax.locomotion.WALK_DURATIONS / JUMP_HEIGHTS)"
+                    "recorded references, cfm_jax.tasks.locomotion.WALK_DURATIONS / JUMP_HEIGHTS)"
                 )
         self.robot = robot
         self.sensor_rows = np.asarray(self.legs.sensor_rows)  # FL, FR, HL, HR
@@ -168,7 +169,8 @@ class LeggedTask(JointSpaceTask):
 
     def babbling_reference(self, strategy: str, key):
         """As :meth:`JointSpaceTask.babbling_reference` from keyframe ``home``, base at rest, no
-        feed-forward, the standing forces (:func:`cfm_jax.babbling.standing_forces`) as ``f*``."""
+        feed-forward, the standing forces (:func:`cfm_jax.tasks.babbling.standing_forces`) as
+        ``f*``."""
         if babbling.uses_reference(strategy):
             return self.reference
         robot, steps = self.robot, self.steps
@@ -299,10 +301,10 @@ class LeggedTask(JointSpaceTask):
 
 
 def legs_of(robot, refused: str = "the legged tasks cannot use robot") -> locomotion.Legs:
-    """The :class:`cfm_jax.locomotion.Legs` the references of ``robot`` are made with.
+    """The :class:`cfm_jax.tasks.locomotion.Legs` the references of ``robot`` are made with.
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
+      robot: a :class:`cfm_jax.sim.robots.Robot`.
       refused: the start of the error's message.
 
     Raises:
@@ -310,7 +312,7 @@ def legs_of(robot, refused: str = "the legged tasks cannot use robot") -> locomo
         sensor per foot; the message says what was found.
 
     Examples:
-      >>> legs_of(cfm_jax.robots.load("solo12")).kp  # the Solo12's closed forms
+      >>> legs_of(cfm_jax.sim.robots.load("solo12")).kp  # the Solo12's closed forms
       5.0
     """
     try:
@@ -320,17 +322,17 @@ def legs_of(robot, refused: str = "the legged tasks cannot use robot") -> locomo
 
 
 def fall_rule(robot, legs: locomotion.Legs):
-    """``fell(qpos, foot_force=None, xp=np)`` of ``robot``: the Solo12's :func:`cfm_jax.solo12.fell`
-    (:data:`cfm_jax.solo12.FALL`) where its kinematics are the Solo12's, else the same rule
-    read from the robot's model (:func:`cfm_jax.quadruped.fall_rule`, lengths scaled by
-    ``legs.scale``).
+    """``fell(qpos, foot_force=None, xp=np)`` of ``robot``: the Solo12's
+    :func:`cfm_jax.sim.solo12.fell` (:data:`cfm_jax.sim.solo12.FALL`) where its kinematics are the
+    Solo12's, else the same rule read from the robot's model
+    (:func:`cfm_jax.sim.quadruped.fall_rule`, lengths scaled by ``legs.scale``).
 
     Args:
-      robot: a quadruped :class:`cfm_jax.robots.Robot`.
-      legs: its :class:`cfm_jax.locomotion.Legs` (:func:`legs_of`).
+      robot: a quadruped :class:`cfm_jax.sim.robots.Robot`.
+      legs: its :class:`cfm_jax.tasks.locomotion.Legs` (:func:`legs_of`).
 
     Examples:
-      >>> solo = cfm_jax.robots.load("solo12")
+      >>> solo = cfm_jax.sim.robots.load("solo12")
       >>> bool(fall_rule(solo, legs_of(solo))(solo.home))
       False
     """
@@ -345,7 +347,7 @@ def fits(robot) -> str:
     """Whether the legged tasks can run on ``robot`` (``cfm-jax robot check``).
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
+      robot: a :class:`cfm_jax.sim.robots.Robot`.
 
     Returns:
       ``""``, or a note where the task runs but not with its defaults.
@@ -355,7 +357,7 @@ def fits(robot) -> str:
         converted at load time count) and a contact sensor per foot.
 
     Examples:
-      >>> fits(cfm_jax.robots.load("solo12"))
+      >>> fits(cfm_jax.sim.robots.load("solo12"))
       ''
     """
     if not robot.floating_base:
@@ -373,7 +375,7 @@ def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") 
     """The ``walk`` or ``jump`` task of a config.
 
     Args:
-      robot: a floating-base :class:`cfm_jax.robots.Robot` with the Solo12's feet.
+      robot: a floating-base :class:`cfm_jax.sim.robots.Robot` with the Solo12's feet.
       task: the :class:`cfm_jax.config.TaskConfig` (``name`` ``walk`` or ``jump``).
       control_dt: control period (s).
       simulator: ``"native"`` or ``"mjx"``: the same task serves both.

@@ -7,9 +7,11 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from cfm_jax import babbling, baselines, opspace
 from cfm_jax.config import Config, LoopConfig, TaskConfig, check_duration
-from cfm_jax.references import (
+from cfm_jax.sim import opspace
+from cfm_jax.tasks import babbling, baselines
+from cfm_jax.tasks.inverse_dynamics import AccelerationOutput, JointSpaceTask, require_fixed_base
+from cfm_jax.tasks.references import (
     as_jax_cartesian,
     cartesian_reaching,
     check_positions,
@@ -18,7 +20,6 @@ from cfm_jax.references import (
     desired_acceleration,
     minimum_jerk,
 )
-from cfm_jax.tasks.inverse_dynamics import AccelerationOutput, JointSpaceTask, require_fixed_base
 
 
 class OperationalSpaceTask(JointSpaceTask):
@@ -36,7 +37,7 @@ class OperationalSpaceTask(JointSpaceTask):
       simulator: ``"native"`` or ``"mjx"`` (where the site kinematics come from).
 
     Examples:
-      >>> arm = cfm_jax.robots.load("two_link_arm")
+      >>> arm = cfm_jax.sim.robots.load("two_link_arm")
       >>> config = TaskConfig(name="opspace", duration=1.0, site="tip")
       >>> task = OperationalSpaceTask(arm, config, control_dt=0.01)
       >>> task.reference.x.shape, task.output_dim, task.desired_index  # y = [qdd (2), xdd (3)]
@@ -152,14 +153,15 @@ class OperationalSpaceTask(JointSpaceTask):
         return AccelerationOutput(tuple(range(nv + 3)), 1.0, affine)
 
     def feedback(self, step):
-        """Task-space PD (:func:`cfm_jax.baselines.opspace_pd_policy`)."""
+        """Task-space PD (:func:`cfm_jax.tasks.baselines.opspace_pd_policy`)."""
         torque = baselines.opspace_pd_policy(
             self.robot, self.gain_p, self.gain_d, self.site, self.simulator
         )
         return torque(step.qpos, step.qvel, step.reference.x, step.reference.xd)
 
     def oracle_policy(self, simulator: str):
-        """The analytic operational-space controller (:func:`cfm_jax.baselines.opspace_oracle`)."""
+        """The analytic operational-space controller
+        (:func:`cfm_jax.tasks.baselines.opspace_oracle`)."""
         torque = baselines.opspace_oracle(self.robot, self.site, self._home_np, simulator=simulator)
 
         def policy(step, key):
@@ -173,13 +175,13 @@ def fits(robot) -> str:
     """Whether ``opspace`` can run on ``robot`` (``cfm-jax robot check``), and its site.
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
+      robot: a :class:`cfm_jax.sim.robots.Robot`.
 
     Raises:
       ConfigError: a floating base, held or passive joints, or no end-effector site.
 
     Examples:
-      >>> fits(cfm_jax.robots.load("iiwa14"))
+      >>> fits(cfm_jax.sim.robots.load("iiwa14"))
       "site 'flange'"
     """
     require_fixed_base(robot, "opspace", every_joint=True)
@@ -192,7 +194,7 @@ def make(
     """The ``opspace`` task of a config.
 
     Args:
-      robot: a fixed-base :class:`cfm_jax.robots.Robot`.
+      robot: a fixed-base :class:`cfm_jax.sim.robots.Robot`.
       task: the :class:`cfm_jax.config.TaskConfig`.
       control_dt: control period (s).
       simulator: ``"native"`` (site kinematics by a host callback) or ``"mjx"`` (in JAX).
@@ -201,7 +203,7 @@ def make(
       ConfigError: the robot has a floating base, or the site or a target does not fit it.
 
     Examples:
-      >>> arm = cfm_jax.robots.load("two_link_arm")
+      >>> arm = cfm_jax.sim.robots.load("two_link_arm")
       >>> make(arm, TaskConfig(name="opspace", duration=0.5, site="tip"), 0.01).steps
       50
     """

@@ -33,7 +33,7 @@ def gravity(robot) -> float:
     """``|g|`` of the robot's MJCF (m/s^2); :data:`STANDARD_GRAVITY` where it is zero.
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
+      robot: a :class:`cfm_jax.sim.robots.Robot`.
 
     Examples:
       >>> from cfm_jax import robots
@@ -49,7 +49,7 @@ def acceleration_scales(robot) -> np.ndarray:
     ``torque_limit / M_ii(home)`` (armature included); ``|g|`` for the unactuated ones.
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
+      robot: a :class:`cfm_jax.sim.robots.Robot`.
 
     Examples:
       >>> from cfm_jax import robots
@@ -97,7 +97,7 @@ def scales_of(robot, entries, control_dt: float) -> tuple[np.ndarray, np.ndarray
     Jacobian and ``A`` the :func:`acceleration_scales`; other kinds: docs/concepts/method.md.
 
     Args:
-      robot: a :class:`cfm_jax.robots.Robot`.
+      robot: a :class:`cfm_jax.sim.robots.Robot`.
       entries: a sequence of ``(kind, index)``, kinds of :data:`KINDS`.
       control_dt: the control period (s), for ``velocity_change``.
 

@@ -34,7 +34,9 @@ import pandas as pd
 from IPython.display import Markdown, display
 
 import cfm_jax  # first: it sets the XLA flag before JAX starts
-from cfm_jax import ControllerConfig, ForwardModelConfig, LoopConfig, TaskConfig, losses, report
+from cfm_jax import ControllerConfig, ForwardModelConfig, LoopConfig, TaskConfig
+from cfm_jax.analysis import report
+from cfm_jax.learning import losses
 
 # %% tags=["remove-cell"]
 # The tests run every notebook at a reduced size (CFM_JAX_DOCS_QUICK=1).

@@ -29,17 +29,11 @@ import numpy as np
 from IPython.display import HTML, Image, Markdown, display
 
 import cfm_jax  # first: it sets the XLA flag before JAX starts
-from cfm_jax import (
-    ControllerConfig,
-    ForwardModelConfig,
-    LoopConfig,
-    TaskConfig,
-    references,
-    render,
-    report,
-    robots,
-    training,
-)
+from cfm_jax import ControllerConfig, ForwardModelConfig, LoopConfig, TaskConfig
+from cfm_jax.analysis import report
+from cfm_jax.runs import training
+from cfm_jax.sim import render, robots
+from cfm_jax.tasks import references
 
 # %% tags=["remove-cell"]
 # The tests run every notebook at a reduced size (CFM_JAX_DOCS_QUICK=1).

@@ -18,7 +18,7 @@
 # to rest where the forward model *predicts* the goal, so a biased model gives a biased
 # controller; the **joint loss** comes to rest half-way between the goal and what was
 # observed, and iterating data collection pushes the observed state to the goal.
-# `cfm_jax.theory` makes each step computable. The full study, with figures for many
+# `cfm_jax.analysis.theory` makes each step computable. The full study, with figures for many
 # biases, is [The 1-D theory](../theory.md).
 #
 # Runs in well under a minute (6 s measured), so the tests run it at this size too
@@ -30,7 +30,7 @@ import matplotlib.pyplot as plt
 import pandas as pd
 
 import cfm_jax  # noqa: F401  (first: it sets the XLA flag before JAX starts)
-from cfm_jax import theory
+from cfm_jax.analysis import theory
 
 # %% [markdown]
 # ## A biased model of a linear system
@@ -49,7 +49,7 @@ print(model, "observed s_a =", observed)
 # %% [markdown]
 # ## Where each loss comes to rest, with $s_a$ held fixed
 #
-# The losses are the library's own (`cfm_jax.losses`), differentiated with `jax.grad`
+# The losses are the library's own (`cfm_jax.learning.losses`), differentiated with `jax.grad`
 # through $f \circ g$. Task: $f(\tau) = s_d$. Joint: $f(\tau) = (s_d + s_a)/2$. The distal
 # teacher's loss is linear in $s_p$ and has no rest point.
 

@@ -33,17 +33,10 @@ import matplotlib.pyplot as plt
 from IPython.display import HTML, Markdown, display
 
 import cfm_jax  # first: it sets the XLA flag before JAX starts
-from cfm_jax import (
-    ControllerConfig,
-    ForwardModelConfig,
-    LoopConfig,
-    TaskConfig,
-    plots,
-    render,
-    report,
-    robots,
-    training,
-)
+from cfm_jax import ControllerConfig, ForwardModelConfig, LoopConfig, TaskConfig
+from cfm_jax.analysis import plots, report
+from cfm_jax.runs import training
+from cfm_jax.sim import render, robots
 
 # %% tags=["remove-cell"]
 # The tests run every notebook at a reduced size (CFM_JAX_DOCS_QUICK=1).
