@@ -98,12 +98,16 @@ def mjx_builds(path: str, flags: list[str]) -> bool:
     """:func:`mjx_error` is None, asked of a child process (this one keeps off the GPU);
     a robot that does not load counts as built (the run itself then says why)."""
     probe = (
-        "import json, sys; sys.path.insert(0, sys.argv[1]); import robot_zoo; "
-        "print(json.dumps(robot_zoo.mjx_error(sys.argv[2], sys.argv[3:]) is None))"
+        "import json, sys; import robot_zoo; "
+        "print(json.dumps(robot_zoo.mjx_error(sys.argv[1], sys.argv[2:]) is None))"
     )
     here = os.path.dirname(os.path.abspath(__file__))
+    path_env = os.pathsep.join(p for p in (here, os.environ.get("PYTHONPATH")) if p)
     done = subprocess.run(
-        [sys.executable, "-c", probe, here, path, *flags], capture_output=True, text=True
+        [sys.executable, "-c", probe, path, *flags],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": path_env},
     )
     lines = done.stdout.strip().splitlines()
     return done.returncode != 0 or not lines or json.loads(lines[-1])

@@ -523,11 +523,8 @@ def test_swap_study_takes_its_data_sets_from_a_sweep_cell_of_the_same_config(loc
     """``swap_study.py --collected SWEEP_DIR`` uses the run that the sweep wrote for the very
     same config (the folder the sweep itself lists in cells.csv), and runs afresh in its own
     folder for any other config."""
-    sys.path.insert(0, os.path.join(ROOT, "experiments"))
-    try:
-        import swap_study
-    finally:
-        sys.path.pop(0)
+    import swap_study  # experiments/ is on pytest's path (pyproject.toml)
+
     _, out = local
     cells = pd.read_csv(out / "cells.csv").set_index("loss")
     for loss in LOSSES:
