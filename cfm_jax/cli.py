@@ -73,7 +73,8 @@ def train(
         it, the task's defaults (cfm_jax.config.for_task: for walk and jump the paper's
         quadruped networks and 250 Hz control).
       simulator: physics back end, native (MuJoCo C) or mjx; default: the config's (native).
-      resume: continue an interrupted run in OUT (same flags and config): every loss
+      resume: continue an interrupted run in OUT (same flags and config; a larger
+        --loop.iterations continues a finished one for more iterations): every loss
         resumes from its newest valid checkpoint in OUT/<loss>/checkpoints (finished losses
         are only re-evaluated), losses without checkpoints start fresh.
       restart: start the run in OUT again from nothing (for a run whose checkpoints are all
@@ -846,7 +847,8 @@ def _train_command(argv: list[str]) -> None:
          listed[0] if listed else "all"),
         ("out", Annotated[str, tyro_arg(metavar="DIR", help=_OUT_HELP)], "results/train"),
         ("resume", Annotated[bool, tyro_arg(help="continue an interrupted run in --out (same "
-         "flags and config): every loss resumes from its newest valid checkpoint in "
+         "flags and config; a larger --loop.iterations continues a finished run for more "
+         "iterations): every loss resumes from its newest valid checkpoint in "
          "OUT/LOSS/checkpoints (finished losses are only re-evaluated); losses without "
          "checkpoints start fresh.")], False),
         ("restart", Annotated[bool, tyro_arg(help="start the run in --out again from nothing "

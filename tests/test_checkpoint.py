@@ -7,6 +7,7 @@ checkpoint file, a NaN put into the simulator's state on the host and into the p
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -102,6 +103,27 @@ def test_resume_with_a_different_config_is_refused(uninterrupted):
     assert "seed (0 in the run, 5 now)" in message
     assert "task.kp (100.0 in the run, 50.0 now)" in message
     assert "loop" not in message  # only the fields that differ
+
+
+def test_a_finished_run_continued_for_more_iterations_equals_the_longer_run(
+    uninterrupted, experiment, tmp_path
+):
+    """Issue 67: a run that finished at 2 iterations, resumed with loop.iterations 4, gives
+    the metrics of the run that went to 4 at once, bit for bit: its data set is restored at
+    its own capacity and grown, its iteration 2 (a final evaluation before) is run with the
+    fits. A run cannot be continued for fewer iterations."""
+    short = CFG.replace(loop=dataclasses.replace(CFG.loop, iterations=2))
+    out = tmp_path / "short"
+    first = cfm_jax.train(short, progress=False, out_dir=str(out))
+    assert first.metrics.iteration.max() == 2 and first.metrics.forward_loss.isna().any()
+    continued = cfm_jax.train(CFG, progress=False, resume=str(out), experiment=experiment)
+    pd.testing.assert_frame_equal(continued.metrics, uninterrupted[0].metrics, check_exact=True)
+    pd.testing.assert_frame_equal(
+        pd.read_csv(out / "metrics.csv"), pd.read_csv(uninterrupted[1] / "metrics.csv")
+    )
+    assert json.loads((out / "config.json").read_text())["loop"]["iterations"] == 4
+    with pytest.raises(config_lib.ConfigError, match="goes to 4 iterations; a run continues"):
+        cfm_jax.train(short, progress=False, resume=str(out))
 
 
 def test_resume_from_a_directory_without_a_run(tmp_path):

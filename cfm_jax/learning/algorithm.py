@@ -216,8 +216,7 @@ class Setup:
         controller = networks.controller(
             config.controller.hidden, task.action_dim, task.desired_dim
         )
-        per_rollout = task.targets * task.steps
-        capacity = per_rollout * (config.loop.babbling_rollouts + config.loop.iterations)
+        capacity = data_capacity(task.targets * task.steps, config.loop)
         setup = cls(
             config,
             robot,
@@ -880,6 +879,25 @@ def fit_forward(forward, optimizer, params, opt_state, normaliser, data, key, st
         return jax.value_and_grad(forward.objective)(params, normaliser, batch)
 
     return _scan_steps(value_and_grad, optimizer, params, opt_state, key, steps)
+
+
+def data_capacity(transitions_per_rollout: int, loop, iterations: int | None = None) -> int:
+    """Rows of a run's data set: the babbling's rollouts and one rollout per iteration, each
+    ``transitions_per_rollout`` rows (every target's steps); nothing is ever overwritten.
+
+    Args:
+      transitions_per_rollout: rows one rollout adds (targets x steps).
+      loop: the run's :class:`cfm_jax.config.LoopConfig` (``babbling_rollouts``, ``iterations``).
+      iterations: the iterations to hold instead of ``loop.iterations`` (a run continued for
+        more iterations is restored into its first capacity, then grown).
+
+    Examples:
+      >>> from cfm_jax.config import LoopConfig
+      >>> data_capacity(500, LoopConfig(babbling_rollouts=2, iterations=4))
+      3000
+    """
+    iterations = loop.iterations if iterations is None else iterations
+    return transitions_per_rollout * (loop.babbling_rollouts + iterations)
 
 
 def _scan_steps(value_and_grad, optimizer, params, opt_state, key, steps: int):

@@ -68,6 +68,8 @@ class Recorder:
         self.stopped: list[dict] = []
         self.columns: list[str] = []
         self.checkpointer = None
+        # With resume: the run's loop.iterations when this one goes further (None: the same).
+        self.continued_from: int | None = None
         if resume is None and out_dir and ckpt_lib.has_steps(out_dir):
             raise config_lib.ConfigError(
                 f"out_dir={out_dir!r} is not allowed: it already holds checkpoints of a run; "
@@ -82,12 +84,27 @@ class Recorder:
                 )
             with open(saved_path) as f:
                 saved = json.load(f)
-            diff = config_lib.differences(saved, self.saved_config)
-            if diff:
-                raise config_lib.ConfigError(
-                    f"resume={resume!r} is not allowed: the run there has a different config "
-                    "in " + "; ".join(diff)
-                )
+            ran = saved.get("loop", {}).get("iterations")
+            now = config.loop.iterations
+            same = {**saved, "loop": {**saved.get("loop", {}), "iterations": now}}
+            if (
+                isinstance(ran, int)
+                and ran != now
+                and not config_lib.differences(same, self.saved_config)
+            ):
+                if ran > now:
+                    raise config_lib.ConfigError(
+                        f"loop.iterations={now!r} is not allowed with resume={resume!r}: the run "
+                        f"there goes to {ran} iterations; a run continues for more, not fewer"
+                    )
+                self.continued_from = ran  # a run (finished or not) continued for more
+            else:
+                diff = config_lib.differences(saved, self.saved_config)
+                if diff:
+                    raise config_lib.ConfigError(
+                        f"resume={resume!r} is not allowed: the run there has a different "
+                        "config in " + "; ".join(diff)
+                    )
         self.out_dir = out_dir
 
     def open(self, columns) -> None:

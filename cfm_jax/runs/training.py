@@ -322,7 +322,16 @@ def _run(exp, config, recorders: dict, recorded, knobs, bar) -> tuple[dict, floa
     initial = exp.init_each(names, keys, knobs, data=chunk)
     states, firsts = {}, {}
     for name in names:
-        start, firsts[name] = recorders[name].start(_index(initial.pop(0), 0))
+        template, ran = _index(initial.pop(0), 0), recorders[name].continued_from
+        if ran is None:
+            start, firsts[name] = recorders[name].start(template)
+        else:  # a run continued for more iterations: restored as it was, its data set grown
+            per_rollout = exp.transitions_per_rollout
+            start, firsts[name] = recorders[name].start(
+                _with_capacity(template, algorithm.data_capacity(per_rollout, config.loop, ran))
+            )
+            start = _with_capacity(start, algorithm.data_capacity(per_rollout, config.loop))
+        del template
         states[name] = _stack([start])
         del start
     earliest = min(firsts.values())
@@ -350,6 +359,12 @@ def _run(exp, config, recorders: dict, recorded, knobs, bar) -> tuple[dict, floa
         recorders[name].record(iterations, jax.device_get(final))
     bar.advance(task)
     return states, compile_seconds
+
+
+def _with_capacity(state, capacity: int):
+    """``state`` (leading seed axis) with its data set resized to ``capacity`` rows."""
+    data = jax.vmap(functools.partial(dataset.resized, capacity=capacity))(state.data)
+    return state.replace(data=data)
 
 
 def _run_dir(folder, loss: str, several: bool) -> str | None:

@@ -137,6 +137,39 @@ def add(dataset: Dataset, batch: Transitions, valid=None) -> Dataset:
     )
 
 
+def resized(dataset: Dataset, capacity: int) -> Dataset:
+    """``dataset`` with room for ``capacity`` rows. Grown: the rows in the order they came
+    (a full ring's oldest first), zero rows added at the end (as :func:`empty` makes them) and
+    the next row written after the last filled one; cut: the rows beyond ``capacity`` dropped
+    (unfilled ones only, for a state's shape). A run continued for more iterations grows its
+    data set so (the numbers do not depend on the unfilled rows: a longer run computes the
+    same ones, tested).
+
+    Args:
+      dataset: a :class:`Dataset` (no leading seed axis: ``jax.vmap`` it over seeds).
+      capacity: the new number of rows, at least the filled ones.
+
+    Examples:
+      >>> rows = Transitions(*(jnp.ones((4, d)) for d in (2, 1, 1, 1)))
+      >>> full = add(empty(capacity=4, state_dim=2, nv=1), rows)  # full: the next row is 0
+      >>> grown = resized(full, 6)
+      >>> grown.capacity, int(grown.size), int(grown.insert), grown.data.state[:, 0].tolist()
+      (6, 4, 4, [1.0, 1.0, 1.0, 1.0, 0.0, 0.0])
+    """
+    n = dataset.capacity
+    if capacity <= n:
+        data = jax.tree.map(lambda x: x[:capacity], dataset.data)
+        return dataset.replace(data=data, insert=dataset.insert % capacity)
+    shift = jnp.where(dataset.size >= n, dataset.insert, 0)  # a full ring: oldest row first
+
+    def grow(x):
+        x = jnp.roll(x, -shift, axis=0)
+        return jnp.concatenate([x, jnp.zeros((capacity - n,) + x.shape[1:], x.dtype)])
+
+    data = jax.tree.map(grow, dataset.data)
+    return dataset.replace(data=data, insert=dataset.size.astype(dataset.insert.dtype))
+
+
 def sample(dataset: Dataset, key, batch_size: int) -> Transitions:
     """:class:`Transitions` of ``batch_size`` rows drawn uniformly (with replacement) from
     the filled part.
