@@ -66,7 +66,7 @@ def test_backend_already_started_warns_clearly():
         "import jax.numpy as jnp; jnp.ones(1).block_until_ready()\n"
         "import cfm_jax, os\n"
         "print('fast', cfm_jax.FAST_XLA, 'flag' in os.environ.get('XLA_FLAGS', ''))\n"
-        "from cfm_jax import config, training\n"
+        "from cfm_jax import config\nfrom cfm_jax.runs import training\n"
         "cfg = config.Config(robot='two_link_arm', simulator='mjx')\n"
         "training.Experiment(cfg)\n"
     )

@@ -241,7 +241,7 @@ def plot_foot_force(
       title: the figure's title (None: the kind and foot).
 
     Examples:
-      >>> from cfm_jax import locomotion
+      >>> from cfm_jax.tasks import locomotion
       >>> ref = locomotion.walk_reference(0.2, use_cache=False)
       >>> figure = plot_foot_force(ref, observed=locomotion.replay(ref).foot_force)
       >>> [line.get_label() for line in figure.axes[0].get_lines()]  # the paper's Fig. 6

@@ -206,7 +206,7 @@ def degrees_trap(model, path: str) -> str | None:
       path: its MJCF file (for the compiler's angle unit).
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> degrees_trap(robots.load("iiwa14").mj_model, robots.resolve("iiwa14")) is None
       True
     """

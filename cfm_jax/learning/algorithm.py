@@ -257,7 +257,7 @@ def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:
       robot: its :class:`cfm_jax.sim.robots.Robot`.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> limit = cfm_jax.Config(loop=cfm_jax.LoopConfig(torque_scale="limit"))
       >>> torque_scale(limit, robots.load("two_link_arm")) is None
       True
@@ -784,7 +784,7 @@ def controller_objective(
       weights: None (a plain mean) or ``(batch,)`` row weights: ``sum w L / max(sum w, 1)``.
 
     Examples:
-      >>> from cfm_jax import networks
+      >>> from cfm_jax.learning import networks
       >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
       >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
       >>> g = networks.controller(hidden=(8,), nv=2)
@@ -858,7 +858,7 @@ def fit_forward(forward, optimizer, params, opt_state, normaliser, data, key, st
       ``(params, opt_state, mean loss over the steps)``.
 
     Examples:
-      >>> from cfm_jax import networks
+      >>> from cfm_jax.learning import networks
       >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
       >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
       >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))
@@ -882,14 +882,12 @@ def fit_forward(forward, optimizer, params, opt_state, normaliser, data, key, st
 
 
 def data_capacity(transitions_per_rollout: int, loop, iterations: int | None = None) -> int:
-    """Rows of a run's data set: the babbling's rollouts and one rollout per iteration, each
-    ``transitions_per_rollout`` rows (every target's steps); nothing is ever overwritten.
+    """Rows of a run's data set: the babbling's rollouts and one rollout per iteration.
 
     Args:
       transitions_per_rollout: rows one rollout adds (targets x steps).
       loop: the run's :class:`cfm_jax.config.LoopConfig` (``babbling_rollouts``, ``iterations``).
-      iterations: the iterations to hold instead of ``loop.iterations`` (a run continued for
-        more iterations is restored into its first capacity, then grown).
+      iterations: the iterations to hold instead of ``loop.iterations``.
 
     Examples:
       >>> from cfm_jax.config import LoopConfig
@@ -958,7 +956,7 @@ def fit_controller(
       ``(params, opt_state, mean loss over the steps)``.
 
     Examples:
-      >>> from cfm_jax import networks
+      >>> from cfm_jax.learning import networks
       >>> norm = networks.Normaliser.identity(state_dim=4, output_dim=2, torque_limit=jnp.ones(2))
       >>> fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
       >>> rows = dataset.Transitions(*(jnp.ones((10, d)) for d in (4, 2, 2, 2)))

@@ -80,7 +80,8 @@ def make(forward: ForwardModelConfig, robot, task) -> networks.Model:
       ConfigError: no kind of that name, or the kind does not fit the robot or task.
 
     Examples:
-      >>> from cfm_jax import config, robots, tasks
+      >>> from cfm_jax import config, tasks
+      >>> from cfm_jax.sim import robots
       >>> arm = robots.load("two_link_arm")
       >>> task = tasks.make(arm, config.TaskConfig(duration=0.1), control_dt=0.01)
       >>> make(config.ForwardModelConfig(hidden=(8,)), arm, task).terms is None

@@ -138,12 +138,8 @@ def add(dataset: Dataset, batch: Transitions, valid=None) -> Dataset:
 
 
 def resized(dataset: Dataset, capacity: int) -> Dataset:
-    """``dataset`` with room for ``capacity`` rows. Grown: the rows in the order they came
-    (a full ring's oldest first), zero rows added at the end (as :func:`empty` makes them) and
-    the next row written after the last filled one; cut: the rows beyond ``capacity`` dropped
-    (unfilled ones only, for a state's shape). A run continued for more iterations grows its
-    data set so (the numbers do not depend on the unfilled rows: a longer run computes the
-    same ones, tested).
+    """``dataset`` with ``capacity`` rows: grown, the rows in order (a full ring's oldest
+    first), zero rows added and the next row after the last filled one; cut, rows dropped.
 
     Args:
       dataset: a :class:`Dataset` (no leading seed axis: ``jax.vmap`` it over seeds).

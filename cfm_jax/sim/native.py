@@ -78,7 +78,7 @@ class Stepper:
       threads: size of the thread pool; None: ``min(2, os.cpu_count())``.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> stepper = Stepper(robots.load("two_link_arm").mj_model, n_sub=5, threads=1)
       >>> stepper(np.zeros(2), np.zeros(2), np.zeros(2))[2].shape  # no batch; no sensors
       (5, 0)
@@ -289,7 +289,7 @@ def host_step(stepper: Stepper, qpos, qvel, ctrl, fast: bool = True):
 
     Examples:
       >>> import jax
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> stepper = Stepper(robots.load("two_link_arm").mj_model, n_sub=5, threads=1)
       >>> step = jax.jit(jax.vmap(lambda q, qd, u: host_step(stepper, q, qd, u)))
       >>> step(np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 2)))[0].shape

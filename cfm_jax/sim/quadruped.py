@@ -39,7 +39,7 @@ class QuadrupedError(ValueError):
     """A model that :func:`describe` cannot read as a quadruped; the message says why.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> describe(robots.load("iiwa14").mj_model)
       Traceback (most recent call last):
       cfm_jax.sim.quadruped.QuadrupedError: it has 0 free joints; a quadruped has one, its base's
@@ -63,7 +63,7 @@ class Leg:
       length: the chain's length, joint anchor to joint anchor to the foot's centre.
 
     Examples:
-      >>> from cfm_jax import solo12
+      >>> from cfm_jax.sim import solo12
       >>> leg = describe(solo12.load_model()).legs[1]
       >>> leg.name, leg.foot_geom, leg.qpos, round(leg.foot_radius, 3)
       ('FR', 'FR_foot', (10, 11, 12), 0.017)
@@ -93,7 +93,7 @@ class Quadruped:
       model: the ``mujoco.MjModel`` it was read from (for :meth:`leg_ik`).
 
     Examples:
-      >>> from cfm_jax import solo12
+      >>> from cfm_jax.sim import solo12
       >>> robot = describe(solo12.load_model())
       >>> robot.standing_from, round(robot.standing_height, 4), robot.feet.shape
       ("keyframe 'home'", 0.2384, (4, 3))
@@ -132,7 +132,7 @@ class Quadruped:
           closest foot position it found.
 
         Examples:
-          >>> from cfm_jax import solo12
+          >>> from cfm_jax.sim import solo12
           >>> robot = describe(solo12.load_model())
           >>> np.round(robot.leg_ik(0, solo12.leg_fk([0.1, 0.7, -1.4], 0)), 9).tolist()
           [0.1, 0.7, -1.4]
@@ -168,7 +168,7 @@ class Quadruped:
         standing: MuJoCo's forward kinematics.
 
         Examples:
-          >>> from cfm_jax import solo12
+          >>> from cfm_jax.sim import solo12
           >>> robot = describe(solo12.load_model())
           >>> np.round(robot.foot_position(0, [0.0, 0.8, -1.6]), 4).tolist()
           [0.1946, 0.148, -0.2229]
@@ -244,7 +244,7 @@ def describe(model) -> Quadruped:
         around the base; the message names what was found.
 
     Examples:
-      >>> from cfm_jax import solo12
+      >>> from cfm_jax.sim import solo12
       >>> robot = describe(solo12.load_model())
       >>> [leg.name for leg in robot.legs], robot.legs[0].joints
       (['FL', 'FR', 'HL', 'HR'], ('FL_HAA', 'FL_HFE', 'FL_KFE'))
@@ -499,7 +499,7 @@ def with_foot_sensors(path: str):
       QuadrupedError: as :func:`describe`.
 
     Examples:
-      >>> from cfm_jax import solo12
+      >>> from cfm_jax.sim import solo12
       >>> with_foot_sensors(solo12.model_path())[1]  # it declares its own
       []
     """
@@ -531,7 +531,7 @@ def add_foot_sensors(spec) -> list[str]:
 
     Examples:
       >>> import mujoco
-      >>> from cfm_jax import solo12
+      >>> from cfm_jax.sim import solo12
       >>> add_foot_sensors(mujoco.MjSpec.from_file(solo12.model_path()))  # it has its own
       []
     """
@@ -608,7 +608,7 @@ class FallRule:
       max_pull: largest downward force (N) a foot may exert on the floor.
 
     Examples:
-      >>> from cfm_jax import solo12
+      >>> from cfm_jax.sim import solo12
       >>> rule = fall_rule(describe(solo12.load_model()), scale=1.0)
       >>> bool(rule(solo12.load_model().key("home").qpos)), rule.min_base_height
       (False, 0.1)
@@ -629,7 +629,7 @@ class FallRule:
           xp: the array module, ``numpy`` or ``jax.numpy``.
 
         Examples:
-          >>> from cfm_jax import solo12
+          >>> from cfm_jax.sim import solo12
           >>> rule = fall_rule(describe(solo12.load_model()), scale=1.0)
           >>> np.round(rule.knee_positions(solo12.load_model().key("home").qpos)[:, 2], 4)
           array([-0.1115, -0.1115, -0.1115, -0.1115])
@@ -692,7 +692,7 @@ def fall_rule(robot: Quadruped, scale: float, limits=None) -> FallRule:
       limits: a :class:`cfm_jax.sim.solo12.FallLimits` to scale.
 
     Examples:
-      >>> from cfm_jax import solo12
+      >>> from cfm_jax.sim import solo12
       >>> fall_rule(describe(solo12.load_model()), scale=2.0).min_base_height
       0.2
     """

@@ -105,7 +105,7 @@ class FrameRenderer:
       track: the free camera follows body 1's subtree COM (height fixed by ``lookat``).
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> arm = robots.load("two_link_arm")
       >>> with FrameRenderer(arm.mj_model) as renderer:  # needs OpenGL  # doctest: +SKIP
       ...     renderer.frame(arm.home).shape
@@ -172,7 +172,7 @@ def render_frames(
       track: the free camera follows body 1's subtree COM (height fixed by ``lookat``).
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> arm = robots.load("two_link_arm")
       >>> render_frames(arm.mj_model, arm.home).shape  # needs OpenGL  # doctest: +SKIP
       (1, 240, 320, 3)
@@ -210,7 +210,7 @@ def frame_strip(
       gap: white pixels between frames (the image returned: ``n * (width + gap) - gap`` wide).
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> arm = robots.load("two_link_arm")
       >>> frame_strip(arm.mj_model, [arm.home] * 9, "strip.png")  # needs OpenGL  # doctest: +SKIP
     """
@@ -333,7 +333,7 @@ def video(
       track: as for :func:`render_frames`.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> arm = robots.load("two_link_arm")
       >>> video(arm, [arm.home] * 20, "arm.gif", fps=20, every=2)  # needs OpenGL  # doctest: +SKIP
     """

@@ -70,7 +70,7 @@ def substeps(robot, control_dt: float) -> int:
       ConfigError: ``control_dt`` is not a positive multiple of the timestep.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> substeps(robots.load("two_link_arm"), 0.01)
       5
     """
@@ -102,7 +102,9 @@ def run(task, policy, key, simulator="native", restart: bool = False) -> Rollout
         terminal step the rollout is the one without restarts.
 
     Examples:
-      >>> from cfm_jax import references, robots, tasks
+      >>> from cfm_jax.tasks import references
+      >>> from cfm_jax.sim import robots
+      >>> from cfm_jax import tasks
       >>> robot = robots.load("two_link_arm")
       >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
       >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)
@@ -220,7 +222,7 @@ def mjx_physics(robot, n_sub: int):
       n_sub: physics steps per call (:func:`substeps`).
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> physics = jax.jit(mjx_physics(robots.load("two_link_arm"), 5))
       >>> bool(physics(jnp.zeros(2), jnp.zeros(2), jnp.zeros(2))[1][0] < 0)  # it falls
       True
@@ -256,7 +258,7 @@ def native_physics(robot, n_sub: int):
       n_sub: physics steps per call (:func:`substeps`).
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> physics = jax.jit(native_physics(robots.load("two_link_arm"), 5))
       >>> bool(physics(jnp.zeros(2), jnp.zeros(2), jnp.zeros(2))[1][0] < 0)  # it falls
       True
@@ -281,7 +283,7 @@ def controller_policy(controller, params, normaliser):
       normaliser: the :class:`cfm_jax.learning.networks.Normaliser` it was trained with.
 
     Examples:
-      >>> from cfm_jax import networks
+      >>> from cfm_jax.learning import networks
       >>> g = networks.controller(hidden=(8,), nv=2)
       >>> norm = networks.Normaliser.identity(4, 2, jnp.ones(2))
       >>> policy = controller_policy(g, g.init(jax.random.key(0), 4), norm)
@@ -352,7 +354,10 @@ def mixed_policy(task, controller, parameters: MixedPolicy, simulator="native"):
       simulator: ``"native"`` or ``"mjx"`` (for the oracle).
 
     Examples:
-      >>> from cfm_jax import networks, references, robots, tasks
+      >>> from cfm_jax.learning import networks
+      >>> from cfm_jax.tasks import references
+      >>> from cfm_jax.sim import robots
+      >>> from cfm_jax import tasks
       >>> robot = robots.load("two_link_arm")
       >>> ref = references.quintic(robot.home, robot.home + 0.1, duration=0.2, control_dt=0.01)
       >>> task = tasks.JointSpaceTask(robot, ref, kp=100.0, kd=20.0, control_dt=0.01)

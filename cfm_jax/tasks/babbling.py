@@ -77,7 +77,7 @@ def actuated_joints(robot) -> tuple[np.ndarray, np.ndarray]:
       robot: a :class:`cfm_jax.sim.robots.Robot`.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> index, limits = actuated_joints(robots.load("two_link_arm"))
       >>> index.tolist(), limits.shape
       ([0, 1], (2, 2))
@@ -109,7 +109,7 @@ def random_poses(key, robot, start):
       start: ``(..., nq)`` start poses; the goals have the same shape.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> arm = robots.load("two_link_arm")
       >>> goals = random_poses(jax.random.key(0), arm, jnp.zeros((5, 2)))
       >>> goals.shape, bool(jnp.all(jnp.abs(goals) <= arm.joint_range[:, 1]))
@@ -135,7 +135,7 @@ def pose_sample(robot, start, count: int = POSE_SAMPLE) -> np.ndarray:
       count: poses in the sample, ``start`` included.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> poses = pose_sample(robots.load("two_link_arm"), np.zeros(2), count=4)
       >>> poses.shape, poses[0].tolist()  # start first
       ((4, 2), [0.0, 0.0])
@@ -157,7 +157,7 @@ def standing_forces(robot, feet: int) -> np.ndarray:
       feet: the number of feet.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> np.round(standing_forces(robots.load("solo12"), 4)[:3].astype(float), 2).tolist()
       [0.0, 0.0, 6.13]
     """

@@ -61,7 +61,9 @@ def inverse_dynamics_oracle(robot, simulator="native"):
       simulator: ``"native"`` (MuJoCo C through ``jax.pure_callback``) or ``"mjx"``.
 
     Examples:
-      >>> from cfm_jax import references, robots, rollout, tasks
+      >>> from cfm_jax.tasks import references
+      >>> from cfm_jax.sim import robots, rollout
+      >>> from cfm_jax import tasks
       >>> arm = robots.load("two_link_arm")
       >>> ref = references.quintic(arm.home, arm.home + 0.1, duration=0.2, control_dt=0.01)
       >>> task = tasks.JointSpaceTask(arm, ref, kp=100.0, kd=20.0, control_dt=0.01)
@@ -100,7 +102,7 @@ def constraints_act(mj_model) -> bool:
       mj_model: a ``mujoco.MjModel``.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> constraints_act(robots.load("two_link_arm").mj_model)
       False
     """
@@ -167,7 +169,7 @@ def implicit_damping(mj_model) -> np.ndarray:
       mj_model: a ``mujoco.MjModel``.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> implicit_damping(robots.load("two_link_arm").mj_model).tolist()
       [0.0002, 0.0002]
     """
@@ -236,7 +238,7 @@ def joint_pd_gains(robot, kp: float, kd: float, home) -> tuple[np.ndarray, np.nd
       home: ``(nq,)`` the pose at which the mass matrix is taken.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> arm = robots.load("two_link_arm")
       >>> k_p, k_d = joint_pd_gains(arm, 100.0, 20.0, arm.home)
       >>> bool(np.allclose(k_p / k_d, 5.0))
@@ -261,7 +263,7 @@ def babbling_joint_gains(robot, kp: float, kd: float, poses) -> tuple[np.ndarray
       poses: ``(n, nq)`` the poses the babbling may visit.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> arm = robots.load("two_link_arm")
       >>> k_p, k_d = babbling_joint_gains(arm, 100.0, 20.0, arm.home[None])
       >>> bool(np.all(k_d <= joint_pd_gains(arm, 100.0, 20.0, arm.home)[1]))
@@ -294,7 +296,7 @@ class HostOpspaceOracle:
       null_kd: null-space derivative gain (1/s).
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> iiwa = robots.load("iiwa14")
       >>> HostOpspaceOracle(iiwa)(iiwa.home, np.zeros(7), np.zeros(3)).shape
       (7,)
@@ -378,7 +380,7 @@ def opspace_oracle(
       simulator: ``"native"`` or ``"mjx"``.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> iiwa = robots.load("iiwa14")
       >>> jax.jit(opspace_oracle(iiwa))(iiwa.home, np.zeros(7), np.zeros(3)).shape
       (7,)
@@ -423,7 +425,7 @@ def mjx_opspace_oracle(
       null_kd: null-space derivative gain (1/s).
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> iiwa = robots.load("iiwa14")
       >>> torque = mjx_opspace_oracle(iiwa)
       >>> # not run: compiling MJX's op-space oracle of the iiwa takes 25-40 s on a CPU
@@ -476,7 +478,7 @@ def opspace_pd_gains(
       home: ``(nq,)`` pose where ``Lambda`` is taken, or None for ``robot.home``.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> gain_p, gain_d = opspace_pd_gains(robots.load("two_link_arm"), 100.0, 20.0, "tip")
       >>> gain_p.shape, bool(np.allclose(gain_p / 100.0, gain_d / 20.0))
       ((3, 3), True)
@@ -500,7 +502,7 @@ def opspace_pd_policy(
       simulator: where the site kinematics come from, ``"native"`` or ``"mjx"``.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> iiwa = robots.load("iiwa14")
       >>> torque = opspace_pd_policy(iiwa, *opspace_pd_gains(iiwa, 100.0, 20.0))
       >>> x = opspace.ee_position(iiwa, iiwa.home)
@@ -591,7 +593,8 @@ def host_rollout(
       home: ``(nq,)`` start pose (at rest), or None for ``robot.home``.
 
     Examples:
-      >>> from cfm_jax import references, robots
+      >>> from cfm_jax.tasks import references
+      >>> from cfm_jax.sim import robots
       >>> arm = robots.load("two_link_arm")
       >>> ref = references.cartesian_reaching(
       ...     arm, "tip", [[0.5, 0.0, 1.4]], duration=0.5, control_dt=0.01)

@@ -57,7 +57,8 @@ class LeggedTask(JointSpaceTask):
       ConfigError: the robot or ``control_dt`` does not fit, or ``targets``/``home`` is given.
 
     Examples:
-      >>> from cfm_jax import config, robots
+      >>> from cfm_jax import config
+      >>> from cfm_jax.sim import robots
       >>> walk = config.for_task("walk").task  # not run below: 5 references, ~6 s uncached
       >>> task = LeggedTask(robots.load("solo12"), walk, walk.control_dt)  # doctest: +SKIP
       >>> task.targets, task.steps, task.state_dim, task.desired_dim  # doctest: +SKIP
@@ -384,7 +385,8 @@ def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") 
       ConfigError: the task does not fit the robot (the message says why).
 
     Examples:
-      >>> from cfm_jax import config, robots
+      >>> from cfm_jax import config
+      >>> from cfm_jax.sim import robots
       >>> walk = config.for_task("walk").task  # not run below: 5 references, ~6 s uncached
       >>> make(robots.load("solo12"), walk, walk.control_dt).targets  # doctest: +SKIP
       5

@@ -283,7 +283,7 @@ class Legs:
             a contact sensor.
 
         Examples:
-          >>> from cfm_jax import quadruped
+          >>> from cfm_jax.sim import quadruped
           >>> legs = Legs.of(quadruped.with_foot_sensors(solo12.model_path())[0])
           >>> set(legs.kp.tolist()), set(legs.kd.tolist()), legs.scale  # the Solo12's own
           ({5.0}, {0.1}, 1.0)

@@ -143,7 +143,7 @@ def driven_targets(robot, home, seed: int = 0) -> np.ndarray:
       seed: as :func:`default_targets`.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> driven_targets(robots.load("two_link_arm"), np.zeros(2)).shape
       (5, 2)
     """
@@ -167,7 +167,8 @@ def reaching(robot, task: TaskConfig, control_dt: float) -> Reference:
       ConfigError: targets or home not valid (:func:`check_positions`), or a bad duration.
 
     Examples:
-      >>> from cfm_jax import config, robots
+      >>> from cfm_jax import config
+      >>> from cfm_jax.sim import robots
       >>> reaching(robots.load("two_link_arm"), config.TaskConfig(duration=1.0), 0.01).q.shape
       (5, 101, 2)
     """
@@ -195,7 +196,7 @@ def check_positions(field: str, positions: np.ndarray, robot) -> None:
       ConfigError: the wrong length, or the first position outside its joint's range.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> check_positions("task.targets", np.array([[0.0, 9.0]]), robots.load("two_link_arm"))
       Traceback (most recent call last):
       ...
@@ -307,7 +308,7 @@ def reach(robot, site: int | str | None = None) -> tuple[float, np.ndarray, str]
       ``(reach in m, base position (3,), base joint name)``.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> length, base, joint = reach(robots.load("two_link_arm"), "tip")
       >>> round(length, 6), base.tolist(), joint
       (0.9, [0.0, 0.0, 1.0], 'shoulder')
@@ -362,7 +363,7 @@ def default_cartesian_targets(
       seed: as :func:`default_targets`.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> targets = default_cartesian_targets(robots.load("two_link_arm"), "tip")
       >>> targets.shape, bool(np.all(targets[:, 1] == 0.0))  # the arm moves in the x-z plane
       ((5, 3), True)
@@ -384,7 +385,7 @@ def check_targets(robot, targets, site: int | str | None = None) -> np.ndarray:
       ConfigError: not a non-empty finite ``(k, 3)`` array, or a target beyond :func:`reach`.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> check_targets(robots.load("two_link_arm"), [[2.0, 0.0, 0.0]], "tip")
       Traceback (most recent call last):
       ...
@@ -437,7 +438,7 @@ def cartesian_reaching(
       ConfigError: bad site, home, targets (:func:`check_targets`) or duration.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> arm = robots.load("two_link_arm")
       >>> ref = cartesian_reaching(arm, "tip", [[0.5, 0.0, 1.4]], duration=0.5, control_dt=0.01)
       >>> ref.x.shape, np.round(ref.x[0, 0], 3).tolist(), ref.x[0, -1].tolist()  # home to goal
@@ -503,7 +504,7 @@ def as_jax_legged(references) -> LeggedReference:
       references: :class:`cfm_jax.tasks.locomotion.LocomotionReference` s, one per target.
 
     Examples:
-      >>> from cfm_jax import locomotion
+      >>> from cfm_jax.tasks import locomotion
       >>> walks = [locomotion.walk_reference(d, use_cache=False) for d in (0.1, 0.2)]
       >>> ref = as_jax_legged(walks)  # horizons of 25 and 50 steps
       >>> ref.qpos.shape, ref.active.sum(axis=1).tolist(), bool(jnp.all(ref.qacc[0, 25:] == 0))

@@ -36,7 +36,7 @@ def gravity(robot) -> float:
       robot: a :class:`cfm_jax.sim.robots.Robot`.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> gravity(robots.load("iiwa14"))
       9.81
     """
@@ -52,7 +52,7 @@ def acceleration_scales(robot) -> np.ndarray:
       robot: a :class:`cfm_jax.sim.robots.Robot`.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> acceleration_scales(robots.load("solo12"))[:6].tolist() == [9.81] * 6  # floating base
       True
     """
@@ -105,7 +105,7 @@ def scales_of(robot, entries, control_dt: float) -> tuple[np.ndarray, np.ndarray
       ValueError: an unknown kind.
 
     Examples:
-      >>> from cfm_jax import robots
+      >>> from cfm_jax.sim import robots
       >>> [a.tolist() for a in scales_of(robots.load("two_link_arm"), [("velocity", 0)], 0.01)]
       [[0.0], [8.0]]
     """
@@ -144,7 +144,8 @@ def robot_scales(task) -> dict:
       ConfigError: the task has no ``entries()``.
 
     Examples:
-      >>> from cfm_jax import config, robots, tasks
+      >>> from cfm_jax import config, tasks
+      >>> from cfm_jax.sim import robots
       >>> task = tasks.make(robots.load("two_link_arm"), config.TaskConfig(duration=0.5), 0.01)
       >>> robot_scales(task)["state_std"][2:].tolist()  # joint velocities
       [8.0, 8.0]
