@@ -32,12 +32,12 @@ class Recorder:
     Args:
       config: the run's :class:`cfm_jax.config.Config`.
       out_dir: directory for the result files, or None (nothing written).
-      resume: the ``out_dir`` of an interrupted run of the same config, or None.
+      resume: a run's ``out_dir`` (same config; a larger loop.iterations continues it).
       progress_fn: ``progress_fn(iteration, rows)``, called with each iteration's new rows.
 
     Raises:
       ConfigError: ``out_dir`` holds checkpoints and ``resume`` is None, or ``resume`` names
-        no run directory or a run of another config (the fields are listed).
+        no run directory or a run of another config (listed), or of more iterations.
 
     Attributes:
       rows: the metric rows so far (dicts, one per seed and target).
