@@ -102,6 +102,41 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda item: -FILE_SECONDS.get(item.path.name, 0))  # stable
 
 
+# CFM_JAX_COMPILE_REPORT=DIR: each worker writes DIR/compile_<worker>.json, the seconds of
+# JAX's trace, lowering and XLA-compile events per test (this process only, not the CLI
+# subprocesses), for docs/development.md's "CI time". Off by default.
+_REPORT = os.environ.get("CFM_JAX_COMPILE_REPORT")
+_COMPILE_NAMES = (
+    "jaxpr_trace_duration",
+    "jaxpr_to_mlir_module_duration",
+    "backend_compile_duration",
+)
+_COMPILE_EVENTS = {f"/jax/core/compile/{name}": name for name in _COMPILE_NAMES}
+_compile_seconds: dict = {}
+_current_test = ["(collection)"]
+
+if _REPORT:
+    from jax import monitoring
+
+    def _on_event(event: str, seconds: float, **_) -> None:
+        if event in _COMPILE_EVENTS:
+            key = (_current_test[0], _COMPILE_EVENTS[event])
+            _compile_seconds[key] = _compile_seconds.get(key, 0.0) + seconds
+
+    monitoring.register_event_duration_secs_listener(_on_event)
+
+    def pytest_runtest_setup(item):
+        _current_test[0] = item.nodeid
+
+    def pytest_sessionfinish(session):
+        import json
+
+        os.makedirs(_REPORT, exist_ok=True)
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        with open(os.path.join(_REPORT, f"compile_{worker}.json"), "w") as f:
+            json.dump([[*key, round(s, 3)] for key, s in _compile_seconds.items()], f)
+
+
 # The robots most test files use, loaded once per worker (robots.load parses the MJCF).
 @pytest.fixture(scope="session")
 def iiwa():
