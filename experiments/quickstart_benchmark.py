@@ -12,6 +12,8 @@ Not a test: prints numbers and writes them to ``docs/benchmarks.md`` (the sectio
   ``cfm-jax train --robot two_link_arm --iterations 1``. A runs with its compilation cache
   (``CFM_JAX_COMPILATION_CACHE``) in a folder of its own, filled by the warm-up run; one
   more run of A with an empty cache folder gives the cold start.
+* **Where the compilation went**, both commits: one quickstart each with an empty
+  compilation cache and ``JAX_LOG_COMPILES=1``, JAX's log lines summed per jitted program.
 * **The quickstart's split**, one run in this process with timers around the
   :class:`cfm_jax.learning.algorithm.Experiment` calls of :func:`cfm_jax.train` (each waits for its
   result) and JAX's compile-time events: building the experiment, babbling and the initial
@@ -21,6 +23,7 @@ Not a test: prints numbers and writes them to ``docs/benchmarks.md`` (the sectio
 Usage (nothing else running on the machine):
   git worktree add /tmp/before <commit before the change>
   python experiments/quickstart_benchmark.py --before /tmp/before [--runs 3]
+      [--before-name COMMIT] [--quickstart-only]
 """
 
 from __future__ import annotations
@@ -83,6 +86,58 @@ def cold_run(python: str, flags: list[str]) -> float:
                         os.path.join(out, "run"), "--quiet"], env=env, check=True,
                        capture_output=True)  # fmt: skip
         return time.perf_counter() - start
+
+
+COMPILE_LINE = re.compile(
+    r"Finished (XLA compilation of|tracing \+ transforming|jaxpr to MLIR module conversion) "
+    r"(?:jit\()?([^ )]+)\)?(?: for (?:jit|pjit))? in ([0-9.]+) sec"
+)
+STAGES = {"XLA compilation of": "compile", "tracing + transforming": "trace",
+          "jaxpr to MLIR module conversion": "lower"}  # fmt: skip
+
+
+def programs(python: str, tree: str | None) -> tuple[float, dict]:
+    """One quickstart of the code of ``tree`` (None: this checkout) with an empty compilation
+    cache and ``JAX_LOG_COMPILES=1``: its wall seconds and ``{program: {stage: s}}`` summed
+    from JAX's log lines (any JAX version that logs them; the same for both commits)."""
+    with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
+        env = {**os.environ, "CFM_JAX_COMPILATION_CACHE": cache, "JAX_LOG_COMPILES": "1"}
+        if tree:
+            env["PYTHONPATH"] = tree
+        start = time.perf_counter()
+        done = subprocess.run([python, "-m", "cfm_jax.cli", "train", "--out",
+                               os.path.join(out, "run"), "--quiet"], env=env, check=True,
+                              capture_output=True, text=True)  # fmt: skip
+        wall = time.perf_counter() - start
+    found: dict = collections.defaultdict(lambda: collections.defaultdict(float))
+    for stage, name, seconds in COMPILE_LINE.findall(done.stderr):
+        found[name][STAGES[stage]] += float(seconds)
+    return wall, {name: dict(stages) for name, stages in found.items()}
+
+
+def programs_table(before: tuple[float, dict], after: tuple[float, dict]) -> list[str]:
+    """Markdown lines: each program's trace + lower + compile seconds in both runs (the
+    largest first, programs under 0.5 s in both summed in one row), the totals and the rest."""
+    rows, small = [], [0.0, 0.0]
+    names = set(before[1]) | set(after[1])
+    total = [sum(sum(v.values()) for v in run[1].values()) for run in (before, after)]
+    for name in names:
+        pair = [sum(run[1].get(name, {}).values()) for run in (before, after)]
+        if max(pair) < 0.5:
+            small = [small[0] + pair[0], small[1] + pair[1]]
+        else:
+            rows.append((name, *pair))
+    rows.sort(key=lambda row: -max(row[1:]))
+    lines = ["| program (jit) | before: trace + lower + compile (s) | after (s) |", "|---|---|---|"]
+    lines += [f"| `{name}` | {b:.1f} | {a:.1f} |" for name, b, a in rows]
+    lines += [
+        f"| the other programs (each under 0.5 s) | {small[0]:.1f} | {small[1]:.1f} |",
+        f"| **all compilation** | **{total[0]:.1f}** | **{total[1]:.1f}** |",
+        f"| the rest of the run (computing, writing) | {before[0] - total[0]:.1f} | "
+        f"{after[0] - total[1]:.1f} |",
+        f"| **wall, empty compilation cache** | **{before[0]:.1f}** | **{after[0]:.1f}** |",
+    ]
+    return lines
 
 
 def split() -> tuple[dict, float, dict]:
@@ -172,10 +227,14 @@ def write(path: str, section: str) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--before", required=True, help="checkout of the code before")
+    parser.add_argument("--before-name", default="<checkout>",
+                        help="how the page names --before (e.g. its commit)")  # fmt: skip
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--timeout", type=int, default=1800, help="per farm-bench call (s)")
     parser.add_argument("--out", default=os.path.join(ROOT, "docs", "benchmarks.md"))
     parser.add_argument("--skip-whole", action="store_true", help="the split only")
+    parser.add_argument("--quickstart-only", action="store_true",
+                        help="time the quickstart alone, not the 2-link command")  # fmt: skip
     args = parser.parse_args()
     python = sys.executable
     stamp = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
@@ -184,22 +243,27 @@ def main() -> None:
         cache = tempfile.mkdtemp(prefix="cfm_jax_bench_cache_")
         env = {**os.environ, "CFM_JAX_COMPILATION_CACHE": cache}
         for label, flags in COMMANDS.items():
+            if args.quickstart_only and flags:
+                continue
             a = train_command(python, "/tmp/cfm_bench_a", flags, None)
             b = train_command(python, "/tmp/cfm_bench_b", flags, args.before)
             got = farm_bench(a, b, args.runs, args.timeout, env)
             cold = cold_run(python, flags)
             rows.append((label, got, cold))
         shutil.rmtree(cache, ignore_errors=True)
+    compiled = programs(python, args.before), programs(python, None)
     phases, wall, events = split()
     lines = [
-        f"## The research loop: quickstart and a 1-iteration run, {stamp}",
+        "## The research loop: "
+        + ("the quickstart" if args.quickstart_only else "quickstart and a 1-iteration run")
+        + f", {stamp}",
         "",
-        "`python experiments/quickstart_benchmark.py --before <checkout>` (issue 46), nothing "
+        f"`python experiments/quickstart_benchmark.py --before {args.before_name}`, nothing "
         f"else on the machine ({os.cpu_count()} cores). Whole commands timed from outside by "
         "`farm-bench` (median of the runs after one warm-up; A and B in turn, the ratio pair "
-        "by pair): *after* is this checkout, the losses trained together, with its "
-        "compilation cache warmed by the warm-up run; *before* is the code of `--before`, the "
-        "losses one after another; *after, cold* is one run with an empty compilation cache.",
+        "by pair): *after* is this checkout, *before* the code of `--before`, each with its "
+        "compilation cache warmed by the warm-up run; *after, cold* is one run with an empty "
+        "compilation cache.",
         "",
         "| command | before: wall (s) | after: wall (s) | after / before | after, cold (s) | peak MiB before / after | runs |",  # noqa: E501
         "|---|---|---|---|---|---|---|",
@@ -231,6 +295,14 @@ def main() -> None:
         "",
         "JAX's compile events in that run (s): "
         + ", ".join(f"{name} {seconds:.1f}" for name, seconds in sorted(events.items())),
+    ]
+    lines += [
+        "",
+        "Where the compilation went: one quickstart of each commit with an empty compilation "
+        "cache and `JAX_LOG_COMPILES=1`, JAX's own log lines summed per program (the names "
+        "of the jitted functions; a program renamed between the commits is two rows):",
+        "",
+        *programs_table(*compiled),
     ]
     section = "\n".join(lines)
     print(section)
