@@ -77,15 +77,16 @@ def farm_bench(a: str, b: str, runs: int, timeout: int, env: dict) -> dict:
     return out
 
 
-def cold_run(python: str, flags: list[str]) -> float:
-    """Wall seconds of one run of this checkout's command with an empty compilation cache."""
+def cold_run(python: str, flags: list[str], **env: str) -> tuple[float, str]:
+    """One run of ``cfm-jax train FLAGS`` with an empty compilation cache and the variables
+    ``env`` added: its wall seconds and what it wrote to stderr."""
     with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
-        env = {**os.environ, "CFM_JAX_COMPILATION_CACHE": cache}
+        env = {**os.environ, "CFM_JAX_COMPILATION_CACHE": cache, **env}
         start = time.perf_counter()
-        subprocess.run([python, "-m", "cfm_jax.cli", "train", *flags, "--out",
-                        os.path.join(out, "run"), "--quiet"], env=env, check=True,
-                       capture_output=True)  # fmt: skip
-        return time.perf_counter() - start
+        done = subprocess.run([python, "-m", "cfm_jax.cli", "train", *flags, "--out",
+                               os.path.join(out, "run"), "--quiet"], env=env, check=True,
+                              capture_output=True, text=True)  # fmt: skip
+        return time.perf_counter() - start, done.stderr
 
 
 COMPILE_LINE = re.compile(
@@ -100,17 +101,10 @@ def programs(python: str, tree: str | None) -> tuple[float, dict]:
     """One quickstart of the code of ``tree`` (None: this checkout) with an empty compilation
     cache and ``JAX_LOG_COMPILES=1``: its wall seconds and ``{program: {stage: s}}`` summed
     from JAX's log lines (any JAX version that logs them; the same for both commits)."""
-    with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
-        env = {**os.environ, "CFM_JAX_COMPILATION_CACHE": cache, "JAX_LOG_COMPILES": "1"}
-        if tree:
-            env["PYTHONPATH"] = tree
-        start = time.perf_counter()
-        done = subprocess.run([python, "-m", "cfm_jax.cli", "train", "--out",
-                               os.path.join(out, "run"), "--quiet"], env=env, check=True,
-                              capture_output=True, text=True)  # fmt: skip
-        wall = time.perf_counter() - start
+    extra = {"JAX_LOG_COMPILES": "1", **({"PYTHONPATH": tree} if tree else {})}
+    wall, stderr = cold_run(python, [], **extra)
     found: dict = collections.defaultdict(lambda: collections.defaultdict(float))
-    for stage, name, seconds in COMPILE_LINE.findall(done.stderr):
+    for stage, name, seconds in COMPILE_LINE.findall(stderr):
         found[name][STAGES[stage]] += float(seconds)
     return wall, {name: dict(stages) for name, stages in found.items()}
 
@@ -248,7 +242,7 @@ def main() -> None:
             a = train_command(python, "/tmp/cfm_bench_a", flags, None)
             b = train_command(python, "/tmp/cfm_bench_b", flags, args.before)
             got = farm_bench(a, b, args.runs, args.timeout, env)
-            cold = cold_run(python, flags)
+            cold, _ = cold_run(python, flags)
             rows.append((label, got, cold))
         shutil.rmtree(cache, ignore_errors=True)
     compiled = programs(python, args.before), programs(python, None)
