@@ -35,8 +35,9 @@ before any trial ran; the program stops if the committed rule differs from this 
 Resumable and in pieces (``--budget`` seconds: no trial starts after them): each study lives
 in a journal file (``--out/<peer>/journal.log``, committed) and each trial's runs in
 ``--runs/<peer>/<values' hash>/seed<N>`` (not committed; a trial killed while running is
-marked failed on the next start, its values tried again first, and its runs resume from their
-last checkpoint). After every trial ``--out`` gets ``trials.csv`` (one row per trial) and
+marked failed on the next start, its values tried again first, its finished seeds' scores read
+back from ``--out/<peer>/seeds`` (committed) and its other runs resumed from their last
+checkpoint where ``--runs`` still has it). After every trial ``--out`` gets ``trials.csv`` (one row per trial) and
 ``chosen.json`` (each peer's lowest-scoring trial, whether its study is complete, and the
 SB3 arguments ``experiments/peers.py --hyper`` reads).
 
@@ -390,6 +391,31 @@ def base_config(quick: bool = False):
     return peers.selection_config(config)
 
 
+def seed_score(peer: str, values: dict, seed: int, config, pd_only: float, checkpoints,
+               args) -> float:  # fmt: skip
+    """One selection seed's run score. A finished seed's score is kept in
+    ``--out/<peer>/seeds/<values' hash>_seed<N>.json`` (committed, a few bytes), so a trial
+    killed between seeds (a session's end, a machine whose scratch is wiped) reruns only the
+    seeds it had not finished; the runs themselves live in ``--runs`` and may be lost."""
+    key = f"{_hash(values)}_seed{seed}"
+    kept = os.path.join(args.out, peer, "seeds", f"{key}.json")
+    if os.path.exists(kept):
+        with open(kept) as f:
+            record = json.load(f)
+        if record["values"] != loss_search._key(values):
+            raise ValueError(f"{kept}: kept for other values than the trial's (hash clash)")
+        return float(record["score"])
+    out = os.path.join(args.runs, peer, _hash(values), f"seed{seed}")
+    peers.run_peer(peer, seed, config, out, checkpoints, hyper(peer, values))
+    score = run_score(pd.read_csv(os.path.join(out, "records.csv")), pd_only)
+    os.makedirs(os.path.dirname(kept), exist_ok=True)
+    part = f"{kept}.{os.getpid()}"
+    with open(part, "w") as f:
+        json.dump({"values": loss_search._key(values), "seed": seed, "score": score}, f)
+    os.replace(part, kept)
+    return score
+
+
 def run_trial(search, peer: str, config, pd_only: float, args) -> dict:
     """Ask, run the peer on each selection seed (resumable), score, tell; the trial's record."""
     algorithm = peers.algorithm_of(peer)
@@ -401,9 +427,7 @@ def run_trial(search, peer: str, config, pd_only: float, args) -> dict:
     start = time.perf_counter()
     scores = []
     for seed in seeds:
-        out = os.path.join(args.runs, peer, _hash(values), f"seed{seed}")
-        peers.run_peer(peer, seed, config, out, checkpoints, hyper(peer, values))
-        scores.append(run_score(pd.read_csv(os.path.join(out, "records.csv")), pd_only))
+        scores.append(seed_score(peer, values, seed, config, pd_only, checkpoints, args))
     seconds = time.perf_counter() - start
     value = float(np.mean(scores))
     trial.set_user_attr("seconds", round(seconds, 1))

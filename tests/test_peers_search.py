@@ -6,6 +6,7 @@ trials, and a tiny run of the program itself on the two-link arm."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
@@ -118,7 +119,7 @@ def test_round_robin_then_the_defaults_then_done(tmp_path):
     assert chosen["sac_residual"]["hyper"]["gradient_steps"] == 1
 
 
-def test_the_program_runs_a_tiny_search_and_records_it(tmp_path):
+def test_the_program_runs_a_tiny_search_and_records_it(tmp_path, monkeypatch):
     out, runs = str(tmp_path / "out"), str(tmp_path / "runs")
     quick = ["--quick", "--out", out, "--runs", runs, "--run-budget", "0.2", "--every", "0.1"]
     with pytest.raises(SystemExit, match="no rule"):
@@ -147,6 +148,21 @@ def test_the_program_runs_a_tiny_search_and_records_it(tmp_path):
         assert json.load(f)["hyper"]["residual_scale"] == values["residual_scale"]
     pd_only = peers.pd_only_mse(peers_search.base_config(quick=True))
     assert chosen["score"] == pytest.approx(peers_search.run_score(records, pd_only))
+    # Each finished seed's score is kept beside the journal; a trial run again (killed between
+    # seeds, its runs lost) reads it back instead of running the seed again.
+    kept = os.path.join(out, "sac_residual", "seeds", f"{peers_search._hash(values)}_seed100.json")
+    with open(kept) as f:
+        assert json.load(f)["score"] == chosen["score"]
+    shutil.rmtree(runs)
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("a kept seed ran again")
+
+    monkeypatch.setattr(peers, "run_peer", must_not_run)
+    again = argparse.Namespace(out=out, runs=runs)
+    assert peers_search.seed_score("sac_residual", values, 100, None, pd_only, [], again) == (
+        chosen["score"]
+    )
     # The study's command reads the choice.
     hypers, source = peers.tuned(os.path.join(out, "chosen.json"))
     assert hypers["sac_residual"] == chosen["hyper"] and hypers["ppo"] == {}
