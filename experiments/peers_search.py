@@ -37,9 +37,9 @@ in a journal file (``--out/<peer>/journal.log``, committed) and each trial's run
 ``--runs/<peer>/<values' hash>/seed<N>`` (not committed; a trial killed while running is
 marked failed on the next start, its values tried again first, its finished seeds' scores read
 back from ``--out/<peer>/seeds`` (committed) and its other runs resumed from their last
-checkpoint where ``--runs`` still has it). After every trial ``--out`` gets ``trials.csv`` (one row per trial) and
-``chosen.json`` (each peer's lowest-scoring trial, whether its study is complete, and the
-SB3 arguments ``experiments/peers.py --hyper`` reads).
+checkpoint where ``--runs`` still has it). After every trial ``--out`` gets ``trials.csv``
+(one row per trial) and ``chosen.json`` (each peer's lowest-scoring trial, whether its study
+is complete, and the SB3 arguments ``experiments/peers.py --hyper`` reads).
 
 Usage:
   python experiments/peers_search.py --write-rule     # the rule, before the first trial

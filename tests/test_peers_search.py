@@ -160,9 +160,8 @@ def test_the_program_runs_a_tiny_search_and_records_it(tmp_path, monkeypatch):
 
     monkeypatch.setattr(peers, "run_peer", must_not_run)
     again = argparse.Namespace(out=out, runs=runs)
-    assert peers_search.seed_score("sac_residual", values, 100, None, pd_only, [], again) == (
-        chosen["score"]
-    )
+    kept_score = peers_search.seed_score("sac_residual", values, 100, None, pd_only, [], again)
+    assert kept_score == chosen["score"]
     # The study's command reads the choice.
     hypers, source = peers.tuned(os.path.join(out, "chosen.json"))
     assert hypers["sac_residual"] == chosen["hyper"] and hypers["ppo"] == {}
