@@ -124,7 +124,7 @@ def _run_train(base, names, out, resume, data, quiet, tensorboard=None, restart=
         config_lib.fail("--tensorboard", tensorboard, tensorboard_lib.MISSING)
     start = time.perf_counter()
     _check_out(out)
-    experiment = train_lib.Experiment(base)  # checks robot and config: nothing written yet
+    experiment = train_lib.Experiment.shared(base)  # checks robot, config: nothing written yet
     if data is not None:  # a bad --data is refused before anything is written
         train_lib.recorded_for(experiment, base, data)
     runs = [out] + [os.path.join(out, name) for name in names]

@@ -172,7 +172,7 @@ class TrackingEnv(gymnasium.Env):
                 config.task.name,
                 "an arm task ('inverse_dynamics', 'opspace'): the legged tasks are not wrapped yet",
             )
-        experiment = experiment or Experiment(config)
+        experiment = experiment or Experiment.shared(config)
         self.task, self.robot = experiment.task, experiment.robot
         self.control_dt = self.task.control_dt
         self.references = references

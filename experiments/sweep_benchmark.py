@@ -38,19 +38,20 @@ def _config(iterations: int, seeds: int):
 def _run(config, overrides, fresh: bool) -> tuple[float, object, int, list[dict]]:
     """Wall time, result, number of Experiments built and their compilation counts."""
     import cfm_jax
+    from cfm_jax.learning import algorithm
     from cfm_jax.runs import sweeps
 
     built = []
 
     def runner(cell_config, run_dir):
         if fresh:
-            sweeps._EXPERIMENTS.clear()
-        before = set(map(id, sweeps._EXPERIMENTS.values()))
+            algorithm.clear_shared()
+        before = set(map(id, algorithm._SHARED.values()))
         output = sweeps.run_cell(cell_config, run_dir)
-        built.extend(e for e in sweeps._EXPERIMENTS.values() if id(e) not in before)
+        built.extend(e for e in algorithm._SHARED.values() if id(e) not in before)
         return output
 
-    sweeps._EXPERIMENTS.clear()
+    algorithm.clear_shared()
     start = time.perf_counter()
     result = cfm_jax.sweep(
         config, seeds=config.loop.seeds, losses=["joint"], overrides=overrides,

@@ -7,6 +7,7 @@ checkpoint file, a NaN put into the simulator's state on the host and into the p
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import json
 import os
@@ -24,6 +25,7 @@ from tiny import cli_command, tiny_config
 
 import cfm_jax
 from cfm_jax import config as config_lib
+from cfm_jax.learning import algorithm
 from cfm_jax.runs import checkpoint, training
 from cfm_jax.sim import native
 
@@ -54,7 +56,7 @@ def test_checkpoints_written_and_pruned(uninterrupted):
 
 
 def test_same_seed_twice_identical(uninterrupted):
-    again = cfm_jax.train(CFG, progress=False)
+    again = cfm_jax.train(CFG, progress=False, experiment=cfm_jax.Experiment(CFG))
     pd.testing.assert_frame_equal(again.metrics, uninterrupted[0].metrics, check_exact=True)
 
 
@@ -337,8 +339,8 @@ def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path, monke
     # retrained (its checkpoint files untouched), and the final tables are the same.
     # The first run is a real subprocess of the entry point (its tables are the oracle of
     # every later command); the later commands run in this process through cli.main, the
-    # same code without a fresh interpreter each, on one Experiment (built once for the
-    # run's config, as the sweeps reuse one: the numbers are those of a fresh one,
+    # same code without a fresh interpreter each, on the one Experiment the process keeps
+    # for the run's config (Experiment.shared: the numbers are those of a fresh one,
     # test_train.py), each a separate cfm-jax command on the files the previous one left.
     out = tmp_path / "cli"
     command = cli_command(CFG, tmp_path, out, "joint,task", seeds=2, iterations=2)
@@ -348,9 +350,7 @@ def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path, monke
     task_complete = pd.read_csv(out / "task" / "metrics.csv")
     import shutil
 
-    built = {}
-    monkeypatch.setattr(training, "Experiment", lambda config: built.setdefault(
-        "experiment", cfm_jax.Experiment(config)))  # fmt: skip
+    monkeypatch.setattr(algorithm, "_SHARED", collections.OrderedDict())  # kept: none yet
 
     def cli(*flags):
         return cli_in_process(*command[3:], *flags)
@@ -412,7 +412,7 @@ def test_cli_resume_continues_each_loss_and_restart_starts_again(tmp_path, monke
     assert f"now in {aside}" in again.stderr
     assert (aside / manifests[0].relative_to(out)).read_text() == "{"
     pd.testing.assert_frame_equal(pd.read_csv(aside / "metrics.csv"), complete, check_exact=True)
-    assert len(built) == 1  # the in-process commands ran on one Experiment
+    assert len(algorithm._SHARED) == 1  # the in-process commands ran on one Experiment
 
 
 def test_orbax_timing_note_is_not_printed_other_absl_warnings_are(tmp_path, caplog):

@@ -28,6 +28,7 @@ from tiny import tiny_config
 import cfm_jax
 from cfm_jax import config as config_lib
 from cfm_jax.analysis import report
+from cfm_jax.learning import algorithm
 from cfm_jax.runs import sweeps, training
 
 TINY = tiny_config(iterations=1)  # two seeds, one iteration
@@ -199,7 +200,7 @@ def test_a_cell_equals_train_of_its_config_with_the_seeds_vmapped(local):
     # value overrides' cells below against fresh ones).
     frame = local[0].metrics
     frame = frame[frame.loss == "joint"].drop(columns=["cell", *OVERRIDES]).reset_index(drop=True)
-    experiment = sweeps.experiment_for(TINY)
+    experiment = cfm_jax.Experiment.shared(TINY)
     alone = cfm_jax.train(TINY, progress=False, experiment=experiment).metrics
     assert sorted(frame.seed.unique()) == [0, 1]
     pd.testing.assert_frame_equal(frame[list(alone.columns)], alone, check_exact=True)
@@ -212,7 +213,7 @@ def test_value_overrides_compile_once_and_equal_separate_runs(tmp_path):
     # (its values baked in, as before they became arguments); the sweep's rows of that cell
     # must equal it bit for bit. The cells checked differ from the first cell in one field
     # each, so each field is seen to reach the compiled program.
-    sweeps._EXPERIMENTS.clear()
+    algorithm.clear_shared()
     near, far = (0.3, 0.6), (-0.4, 1.2)
     targets = [tuple([near] * 5), tuple([near, far, near, far, near])]
     overrides = {
@@ -223,8 +224,8 @@ def test_value_overrides_compile_once_and_equal_separate_runs(tmp_path):
     result = cfm_jax.sweep(
         TINY, seeds=2, losses=LOSSES, overrides=overrides, out_dir=str(tmp_path), progress=False
     )
-    assert len(sweeps._EXPERIMENTS) == 1
-    counts = next(iter(sweeps._EXPERIMENTS.values())).compilations()
+    assert len(algorithm._SHARED) == 1
+    counts = next(iter(algorithm._SHARED.values())).compilations()
     # The two losses of a cell's values train together: one rollout program for both.
     names = ("babbling_data", "prepare_from_data", "collect[1]", "init[joint]", "init[task]")
     for name in (*names, "refit[joint]", "refit[task]"):
@@ -242,7 +243,7 @@ def test_value_overrides_compile_once_and_equal_separate_runs(tmp_path):
             ),
             controller=config_lib.ControllerConfig(**{**base["controller"], "learning_rate": lr}),
         )
-        alone = cfm_jax.train(config, progress=False)
+        alone = cfm_jax.train(config, progress=False, experiment=cfm_jax.Experiment(config))
         mine = frame[
             (frame.loss == "joint")
             & (frame["controller.learning_rate"] == lr)

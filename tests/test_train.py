@@ -9,6 +9,7 @@ every paper loss learns end to end on both simulators, in the default run).
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import json
 import re
@@ -24,7 +25,9 @@ from tiny import assert_each_loss_equals_it_alone, cli_command, tiny_config
 
 import cfm_jax
 from cfm_jax import config as config_lib
+from cfm_jax.learning import algorithm
 from cfm_jax.runs import training
+from cfm_jax.sim import robots
 
 # The torque scaling and babbling gains before issue 41, on which the golden record and the
 # measurements in these tests' docstrings were made (the training shell does not depend on
@@ -38,7 +41,10 @@ TARGETS = 5  # default targets of every robot
 
 @pytest.fixture(scope="module")
 def experiment():
-    return training.Experiment(TINY)
+    """TINY's experiment, the one ``cfm_jax.train(TINY)`` without ``experiment=`` takes
+    (:meth:`Experiment.shared`; the kept ones dropped first, so that it is new here)."""
+    algorithm.clear_shared()
+    return training.Experiment.shared(TINY)
 
 
 @pytest.fixture(scope="module")
@@ -234,6 +240,34 @@ def test_experiment_reuse_is_refused_for_a_different_structure(experiment):
         cfm_jax.train(other, progress=False, experiment=experiment)
 
 
+def test_the_kept_experiment_is_one_per_structure_and_robot_model(tmp_path, monkeypatch):
+    # Experiment.shared keys on the config's structure and the loaded model's bytes: another
+    # seed, loss or runtime value is the same experiment; another structure, or the same path
+    # after the file was edited, is a new one (with the file's new numbers); the oldest goes.
+    monkeypatch.setattr(algorithm, "_SHARED", collections.OrderedDict())  # the fixture's kept
+    first = training.Experiment.shared(TINY)
+    same = TINY.replace(seed=7, loss="task", task=dataclasses.replace(TINY.task, kp=30.0))
+    assert training.Experiment.shared(same) is first
+    longer = TINY.replace(loop=dataclasses.replace(TINY.loop, iterations=3))
+    assert training.Experiment.shared(longer) is not first
+    text = open(robots.resolve("two_link_arm")).read()
+    path = tmp_path / "arm.xml"
+    path.write_text(text)
+    mine = TINY.replace(robot=str(path))
+    before = training.Experiment.shared(mine)
+    assert training.Experiment.shared(mine) is before
+    path.write_text(text.replace('size="0.025" mass="0.8"', 'size="0.025" mass="0.9"'))
+    after = training.Experiment.shared(mine)
+    assert after is not before
+    masses = [float(e.robot.mj_model.body_mass.sum()) for e in (before, after)]
+    assert masses[1] - masses[0] == pytest.approx(0.1)
+    monkeypatch.setattr(algorithm, "SHARED_EXPERIMENTS", 1)
+    assert training.Experiment.shared(TINY) is first  # found: nothing dropped
+    four = TINY.replace(loop=dataclasses.replace(TINY.loop, iterations=4))
+    newest = training.Experiment.shared(four)
+    assert list(algorithm._SHARED.values()) == [newest]
+
+
 def test_runtime_fields_reuse_the_compilations_and_equal_a_fresh_experiment(experiment, two_seeds):
     # Every field of config.RUNTIME_FIELDS changed at once (home moves the default targets
     # with it; explicit targets are in test_sweep.py). Oracle: the same config on an
@@ -251,14 +285,15 @@ def test_runtime_fields_reuse_the_compilations_and_equal_a_fresh_experiment(expe
     )
     assert config_lib.structure(other) == config_lib.structure(TINY)
     before = experiment.compilations()
-    shared = cfm_jax.train(other, progress=False, experiment=experiment)
+    shared = cfm_jax.train(other, progress=False)  # on the kept experiment (the fixture)
+    assert training.Experiment.shared(other) is experiment
     assert experiment.compilations() == before
     # One program per compiled function (the rollout has one more for the baselines' seed
     # axis of 1).
     names = ("babbling_data", "prepare_from_data", "init[joint]", "collect[1]", "refit[joint]")
     for name in (*names, "evaluate"):
         assert before[name] == 1, before
-    fresh = cfm_jax.train(other, progress=False)
+    fresh = cfm_jax.train(other, progress=False, experiment=training.Experiment(other))
     pd.testing.assert_frame_equal(shared.metrics, fresh.metrics, check_exact=True)
     pd.testing.assert_frame_equal(shared.baselines, fresh.baselines, check_exact=True)
     assert shared.rms_reach == fresh.rms_reach != two_seeds.rms_reach  # the moved targets

@@ -40,6 +40,7 @@ Examples:
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 import hashlib
@@ -48,6 +49,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import optax
 import pandas as pd
@@ -1300,6 +1302,24 @@ class Experiment:
         self._cache: dict = {}  # host-side results: prepared states, baselines, tasks
         self.knobs = Knobs.of(config, self.robot, self.task)
 
+    @classmethod
+    def shared(cls, config: config_lib.Config) -> Experiment:
+        """The experiment this process keeps for configs of ``config``'s
+        :func:`cfm_jax.config.structure` and robot model bytes (an edited MJCF file gets a new
+        one), built on first use; the last :data:`SHARED_EXPERIMENTS` are kept."""
+        robot = robots.of_config(config)  # a bad robot fails here, named
+        model = np.zeros(mujoco.mj_sizeModel(robot.mj_model), np.uint8)
+        mujoco.mj_saveModel(robot.mj_model, None, model)
+        structure = json.dumps(config_lib.structure(config), sort_keys=True)
+        key = (structure, hashlib.sha256(model.tobytes()).hexdigest())
+        if key in _SHARED:
+            _SHARED.move_to_end(key)
+            return _SHARED[key]
+        experiment = _SHARED[key] = cls(config)
+        while len(_SHARED) > SHARED_EXPERIMENTS:
+            _SHARED.popitem(last=False)
+        return experiment
+
     # The setup's parts, as attributes of the experiment.
     robot = property(lambda self: self.setup.robot)
     task = property(lambda self: self.setup.task)
@@ -1631,6 +1651,21 @@ def _slice(tree, i: int):
 def _index(tree, i: int):
     """Entry ``i`` of a pytree's leading axis."""
     return jax.tree.map(lambda x: x[i], tree)
+
+
+SHARED_EXPERIMENTS = 4
+"""Experiments :meth:`Experiment.shared` keeps per process (also per Ray worker)."""
+_SHARED: collections.OrderedDict = collections.OrderedDict()
+
+
+def clear_shared() -> None:
+    """Drops the experiments :meth:`Experiment.shared` keeps (their programs and data).
+
+    Examples:
+      >>> clear_shared(); len(_SHARED)
+      0
+    """
+    _SHARED.clear()
 
 
 def _fingerprint(tree) -> bytes:

@@ -11,7 +11,6 @@ never shadows it.)
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import hashlib
 import importlib.util
@@ -35,9 +34,6 @@ BACKENDS = ("local", "ray")
 
 RESERVED = {"loss": "losses", "seed": "seeds", "loop.seeds": "seeds"}
 """Config paths that are axes of the sweep itself, not overrides (path -> argument)."""
-
-EXPERIMENT_CACHE_SIZE = 2
-"""Compiled experiments kept per process (also per Ray worker), most recent first."""
 
 
 class SweepError(RuntimeError):
@@ -377,35 +373,6 @@ def _column_value(value):
 
 # ----- running one cell ---------------------------------------------------------------
 
-_EXPERIMENTS: collections.OrderedDict = collections.OrderedDict()
-
-
-def experiment_for(config: config_lib.Config):
-    """A :class:`cfm_jax.learning.algorithm.Experiment` for ``config``, reused for configs of the
-    same :func:`cfm_jax.config.structure`; the last :data:`EXPERIMENT_CACHE_SIZE` are kept.
-
-    Args:
-      config: the config of a cell.
-
-    Examples:
-      >>> config = config_lib.Config(robot="two_link_arm")
-      >>> # not run: it builds an Experiment (1.5 s) and keeps it in this process's cache
-      >>> same = experiment_for(config.replace(loss="task", seed=3))  # doctest: +SKIP
-      >>> experiment_for(config) is same  # doctest: +SKIP
-      True
-    """
-    from cfm_jax.runs import training
-
-    key = json.dumps(config_lib.structure(config), sort_keys=True)
-    if key in _EXPERIMENTS:
-        _EXPERIMENTS.move_to_end(key)
-        return _EXPERIMENTS[key]
-    experiment = training.Experiment(config)
-    _EXPERIMENTS[key] = experiment
-    while len(_EXPERIMENTS) > EXPERIMENT_CACHE_SIZE:
-        _EXPERIMENTS.popitem(last=False)
-    return experiment
-
 
 def run_cell(
     config: config_lib.Config, run_dir: str | None = None, progress: bool = False
@@ -430,7 +397,7 @@ def run_cell(
     from cfm_jax.runs import training
 
     start = time.perf_counter()
-    experiment = experiment_for(config)
+    experiment = training.Experiment.shared(config)
     resume = run_dir if _resumable(run_dir, config) else None
     try:
         result = training.train(
@@ -485,7 +452,7 @@ def run_cells(
     if others:
         raise ValueError(f"run_cells: the configs differ in more than the loss: {others[0]}")
     start = time.perf_counter()
-    experiment = experiment_for(first)
+    experiment = training.Experiment.shared(first)
     names = [c.loss for c in configs]
     out = dict(zip(names, run_dirs, strict=True))
     resume = {name: folder for name, folder in out.items() if _resumable(folder, first)}

@@ -134,8 +134,8 @@ class TrainResult:
         Args:
           seed: which seed (a number of ``config.seed .. config.seed + loop.seeds - 1``);
             None: the first.
-          experiment: an :class:`Experiment` of the run's config to take the task from (saves
-            building it), or None.
+          experiment: an :class:`Experiment` of the run's config to take the task from, or
+            None (:meth:`Experiment.shared`).
 
         Raises:
           ValueError: a run of several losses (take ``result.of(loss).policy()``), or a seed
@@ -155,7 +155,7 @@ class TrainResult:
         if not isinstance(seed, int) or not first <= seed < first + count:
             config_lib.fail("seed", seed, f"one of the run's seeds, {first} to {first + count - 1}")
         one = _index(self.state, seed - first)
-        experiment = experiment or Experiment(self.config)
+        experiment = experiment or Experiment.shared(self.config)
         task, controller = experiment.task, experiment.setup.controller
         limit = jnp.asarray(experiment.robot.torque_limit, jnp.float32)
 
@@ -232,7 +232,8 @@ def train(
       out_dir: directory for the result files (created), or None; with ``losses``, each loss's
         files go to ``out_dir/<loss>`` (or ``out_dir[loss]``, a mapping of folders).
       experiment: an :class:`Experiment` to reuse, built for a config that differs from
-        ``config`` at most in the loss and :data:`cfm_jax.config.RUNTIME_FIELDS`.
+        ``config`` at most in the loss and :data:`cfm_jax.config.RUNTIME_FIELDS`; None: the
+        one this process keeps for ``config`` (:meth:`Experiment.shared`).
       resume: the ``out_dir`` of an interrupted run of ``config``: continue from its newest
         valid checkpoint (results go there unless ``out_dir`` says otherwise), bit for bit;
         with ``losses``, each loss with checkpoints in its folder (``resume/<loss>`` or
@@ -273,8 +274,8 @@ def train(
         run_out = _run_dir(out_dir or resume, name, several)
         recorders[name] = Recorder(config.replace(loss=name), run_out, run_resume, progress_fn)
     if experiment is None:
-        exp = Experiment(config)
-        knobs = exp.knobs
+        exp = Experiment.shared(config)
+        knobs = exp.knobs_for(config)
     else:
         exp, knobs = experiment, experiment.knobs_for(config)  # refuses another structure
     recorded = None if data is None else recorded_for(exp, config, data)
@@ -388,7 +389,8 @@ def rollout_qpos(result, *, seed: int = 0, experiment=None) -> np.ndarray:
     Args:
       result: a :class:`TrainResult`.
       seed: index into the run's seeds.
-      experiment: the :class:`Experiment` of ``result.config`` to reuse (built when None).
+      experiment: the :class:`Experiment` of ``result.config`` to reuse (None:
+        :meth:`Experiment.shared`).
 
     Raises:
       ValueError: ``seed`` out of range.
@@ -399,7 +401,7 @@ def rollout_qpos(result, *, seed: int = 0, experiment=None) -> np.ndarray:
     seeds = result.config.loop.seeds
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < seeds:
         raise ValueError(f"seed={seed!r} is not allowed: an index in [0, {seeds})")
-    exp = experiment if experiment is not None else Experiment(result.config)
+    exp = experiment if experiment is not None else Experiment.shared(result.config)
     state = jax.tree.map(lambda x: x[seed : seed + 1], result.state)
     policy = jax.vmap(exp.learned_policy)(state)
     keys = jax.vmap(algorithm.evaluation_key)(state)  # as Experiment.evaluate
