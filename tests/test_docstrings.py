@@ -38,6 +38,7 @@ DOCTEST_MODULES = (
     "tasks.locomotion",
     "learning.losses",
     "sim.native",
+    "sim.host",
     "learning.networks",
     "sim.opspace",
     "analysis.plots",

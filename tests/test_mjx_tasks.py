@@ -23,10 +23,10 @@ import pytest
 from cfm_jax import config as config_lib
 from cfm_jax import tasks
 from cfm_jax.runs import training
-from cfm_jax.sim import opspace, robots, rollout
+from cfm_jax.sim import host, opspace, robots, rollout
 from cfm_jax.tasks import baselines
 
-CALLBACK = re.compile(r"callback|cfm_native_step")
+CALLBACK = re.compile(rf"callback|{host.TARGET}")  # a host call: Python or the FFI target
 
 COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
 """XLA's CPU back end without LLVM optimisation: these rollouts are tiny, and optimising

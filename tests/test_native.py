@@ -4,13 +4,15 @@ Oracle: a fresh ``MjData`` per state, ``qpos, qvel, ctrl`` set, ``mj_step`` call
 times, ``sensordata`` read after each step (MuJoCo's own loop, no batching, no threads).
 """
 
+import os
+
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
 
-from cfm_jax.sim import native, robots
+from cfm_jax.sim import host, native, robots
 
 SENSOR_ARM = """
 <mujoco>
@@ -219,3 +221,124 @@ def test_host_step_eager_and_unbatched(sensor_arm):
     for a, b, w in zip(eager, jitted, want, strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         np.testing.assert_allclose(np.asarray(a), w[0], rtol=1e-6, atol=1e-6)
+
+
+def _step_twice(stepper, q, qd, u):
+    step = jax.jit(jax.vmap(lambda a, b, c: native.host_step(stepper, a, b, c)))
+    return [np.asarray(x) for x in step(q, qd, u)]
+
+
+def test_host_step_without_the_ffi_target_falls_back_with_the_same_results(monkeypatch):
+    # Where JAX cannot register the FFI target (no jax.ffi, another ABI), registered() says
+    # so and host_step takes jax.pure_callback: the same numbers as the FFI target's.
+    arm = robots.load("two_link_arm")
+    stepper = native.Stepper(arm.mj_model, n_sub=3, threads=1)
+    rng = np.random.default_rng(3)
+    q, qd, u = (jnp.asarray(rng.uniform(-1, 1, (4, 2)), jnp.float32) for _ in range(3))
+    ffi = _step_twice(stepper, q, qd, u)
+    # The FFI target is registered for XLA:CPU only; on a GPU both runs fall back.
+    assert native.FAST_CALLBACK is (jax.default_backend() == "cpu") is host.registered()
+
+    def no_ffi(*args, **kwargs):
+        raise AttributeError("this JAX has no jax.ffi.register_ffi_target")
+
+    monkeypatch.setattr(host, "_REGISTERED", None)  # as in a new process
+    monkeypatch.setattr(jax.ffi, "register_ffi_target", no_ffi)
+    public = _step_twice(stepper, q, qd, u)
+    assert native.FAST_CALLBACK is False and host.registered() is False
+    for a, b in zip(public, ffi, strict=True):
+        np.testing.assert_array_equal(a, b)
+    # Oracle: MuJoCo C stepped directly by the Stepper, no JAX.
+    want = stepper(np.asarray(q), np.asarray(qd), np.asarray(u))
+    for a, w in zip(public, want, strict=True):
+        np.testing.assert_array_equal(a, np.asarray(w, np.float32))
+
+
+def test_host_step_on_another_backend_uses_pure_callback(monkeypatch):
+    # On a GPU the FFI target (registered for XLA:CPU only) is not used: the step goes
+    # through jax.pure_callback and FAST_CALLBACK says False. The backend's name is what
+    # host_step decides on.
+    arm = robots.load("two_link_arm")
+    stepper = native.Stepper(arm.mj_model, n_sub=2, threads=1)
+    rng = np.random.default_rng(5)
+    q, qd, u = (jnp.asarray(rng.uniform(-1, 1, (3, 2)), jnp.float32) for _ in range(3))
+    monkeypatch.setattr(native, "FAST_CALLBACK", None)
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    step = jax.jit(jax.vmap(lambda a, b, c: native.host_step(stepper, a, b, c)))
+    traced = str(step.trace(q, qd, u).jaxpr)
+    assert "pure_callback" in traced and host.TARGET not in traced
+    got = step(q, qd, u)
+    assert native.FAST_CALLBACK is False
+    want = stepper(np.asarray(q), np.asarray(qd), np.asarray(u))  # MuJoCo C, no JAX
+    for a, w in zip(got, want, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(w, np.float32))
+
+
+def test_an_error_in_the_host_function_is_raised_by_the_program(monkeypatch):
+    # Through the FFI target an exception in Python cannot cross XLA: the handler turns it
+    # into XLA's error, which the compiled call raises, with the exception's message.
+    if jax.default_backend() != "cpu":
+        pytest.skip("the FFI target is XLA:CPU's")
+    arm = robots.load("two_link_arm")
+    stepper = native.Stepper(arm.mj_model, n_sub=2, threads=1)
+    q = jnp.zeros((2, 2), jnp.float32)
+    _step_twice(stepper, q, q, q)  # registered, and compiled
+
+    def broken(*args):
+        raise RuntimeError("the stepper broke")
+
+    monkeypatch.setitem(host._FUNCTIONS, stepper.key, broken)
+    with pytest.raises(Exception, match="RuntimeError: the stepper broke"):
+        _step_twice(stepper, q, q + 1.0, q)
+
+
+def test_the_stepper_key_is_the_model_and_the_step(tmp_path):
+    # Programs name a stepper by its key, so JAX's cache serves them in a new process: the
+    # same file loaded twice gives the same key; another model, n_sub or pool does not.
+    arm, again = robots.load("two_link_arm"), robots.load("two_link_arm")
+    assert arm.mj_model is not again.mj_model
+    one = native.Stepper(arm.mj_model, n_sub=3, threads=1)
+    assert native.Stepper(again.mj_model, n_sub=3, threads=1).key == one.key
+    assert native.Stepper(arm.mj_model, n_sub=4, threads=1).key != one.key
+    assert native.Stepper(arm.mj_model, n_sub=3, threads=2).key != one.key
+    heavier = robots.load("two_link_arm").mj_model
+    heavier.body_mass[-1] += 0.1
+    assert native.Stepper(heavier, n_sub=3, threads=1).key != one.key
+
+
+CACHED = """
+import sys, jax, numpy as np
+jax.config.update("jax_compilation_cache_dir", sys.argv[1])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+import cfm_jax
+from jax import monitoring
+from cfm_jax.sim import native, robots
+events = []
+monitoring.register_event_listener(lambda event, **_: events.append(event))
+stepper = native.Stepper(robots.load("two_link_arm").mj_model, n_sub=3, threads=1)
+roll = jax.jit(lambda q: jax.lax.scan(
+    lambda q, _: (native.host_step(stepper, q, q, -q)[0], q), q, None, length=4)[1])
+out = np.asarray(roll(np.full((2, 2), 0.3, np.float32)))
+print(events.count("/jax/compilation_cache/cache_hits"),
+      events.count("/jax/compilation_cache/cache_misses"), out.tobytes().hex())
+"""
+
+
+def test_a_native_program_is_read_from_the_persistent_cache_in_a_new_process(tmp_path):
+    # Two processes, one empty cache folder: the first compiles the rollout (a miss) and
+    # writes it; the second reads it (a hit, no miss) and gives the same bits. With a
+    # jax.pure_callback the second would compile again (JAX writes no such program).
+    import subprocess
+    import sys
+
+    if jax.default_backend() != "cpu":
+        pytest.skip("the FFI target is XLA:CPU's")
+    cache = tmp_path / "cache"
+    runs = [
+        subprocess.run([sys.executable, "-c", CACHED, str(cache)], capture_output=True,
+                       text=True, timeout=300, env={**os.environ, "JAX_COMPILATION_CACHE_DIR": ""})
+        for _ in range(2)
+    ]  # fmt: skip
+    (hits0, misses0, out0), (hits1, misses1, out1) = (r.stdout.split() for r in runs)
+    assert int(misses0) >= 1 and (int(hits1), int(misses1)) == (int(misses0), 0)
+    assert out1 == out0

@@ -5,12 +5,13 @@
 from __future__ import annotations
 
 import copy
+import hashlib
 import os
 import threading
 
 import numpy as np
 
-from cfm_jax import _jax_private
+from cfm_jax.sim import host as host_lib
 
 MAXVAL = 1e10
 """MuJoCo's ``mjMAXVAL``: a state entry NaN, infinite or beyond it in magnitude is *bad*."""
@@ -48,6 +49,26 @@ def bad_rows(x: np.ndarray) -> np.ndarray:
     """
     with np.errstate(invalid="ignore"):
         return ~np.all(np.abs(x) <= MAXVAL, axis=-1)
+
+
+def model_digest(mj_model) -> str:
+    """A digest of a model's bytes as MuJoCo saves them (the same in every process): the
+    part of a host function's key (:func:`cfm_jax.sim.host.host_call`) that names its model.
+
+    Args:
+      mj_model: a ``mujoco.MjModel``.
+
+    Examples:
+      >>> from cfm_jax.sim import robots
+      >>> a, b = robots.load("two_link_arm").mj_model, robots.load("two_link_arm").mj_model
+      >>> model_digest(a) == model_digest(b), len(model_digest(a))
+      (True, 32)
+    """
+    import mujoco
+
+    saved = np.zeros(mujoco.mj_sizeModel(mj_model), np.uint8)
+    mujoco.mj_saveModel(mj_model, None, saved)
+    return hashlib.sha256(saved.tobytes()).hexdigest()[:32]
 
 
 class _Buffers:
@@ -125,6 +146,9 @@ class Stepper:
         refused that call: every later batch takes the checked call)."""
         self._buffers: dict[int, _Buffers] = {}
         self._lock = threading.Lock()
+        self.key = f"step-{model_digest(self.model)}-{self.n_sub}-{self.threads}"
+        """What the compiled programs name this stepper by: the model's bytes, ``n_sub`` and
+        ``threads`` (the same in every process, so JAX's cache serves the programs)."""
 
     def __call__(self, qpos, qvel, ctrl):
         import mujoco
@@ -207,74 +231,10 @@ class Stepper:
 
 # ----- the JAX operation ------------------------------------------------------------------
 
-_PRIMITIVE = None
 FAST_CALLBACK: bool | None = None
-"""Whether :func:`host_step` calls XLA's host callback directly (None: not used yet)."""
-
-
-def _primitive():
-    """The ``cfm_native_step`` primitive, built on first use; None without the private API."""
-    global _PRIMITIVE, FAST_CALLBACK
-    if FAST_CALLBACK is not None:
-        return _PRIMITIVE
-    private = _jax_private.host_callback_lowering()
-    if private is None:
-        FAST_CALLBACK = False
-        return None
-    emit, op_sharding = private.emit, private.op_sharding
-    import jax
-    import jax.numpy as jnp
-    from jax.extend.core import Primitive
-    from jax.interpreters import batching, mlir
-
-    prim = Primitive("cfm_native_step")
-    prim.multiple_results = True
-    private.requires_devices(prim)
-
-    def abstract_eval(qpos, qvel, ctrl, *, stepper):
-        del ctrl
-        model = stepper.model
-        batch = qpos.shape[:-1]
-        return (
-            jax.core.ShapedArray(qpos.shape, jnp.float32),
-            jax.core.ShapedArray(qvel.shape, jnp.float32),
-            jax.core.ShapedArray((*batch, stepper.n_sub, model.nsensordata), jnp.float32),
-        )
-
-    def impl(qpos, qvel, ctrl, *, stepper):
-        out = stepper(np.asarray(qpos), np.asarray(qvel), np.asarray(ctrl))
-        return tuple(jnp.asarray(x) for x in out)
-
-    def batch_rule(args, dims, *, stepper):
-        # As vmap_method="broadcast_all": the whole batch in one host call.
-        (size,) = {a.shape[d] for a, d in zip(args, dims, strict=True) if d is not None}
-        moved = [
-            jnp.broadcast_to(a, (size, *a.shape)) if d is None else jnp.moveaxis(a, d, 0)
-            for a, d in zip(args, dims, strict=True)
-        ]
-        return prim.bind(*moved, stepper=stepper), (0, 0, 0)
-
-    def lowering(ctx, *args, stepper):
-        sharding = op_sharding(ctx.module_context.axis_context, None, ctx.avals_out)
-        results, _, _ = emit(
-            ctx,
-            stepper,
-            None,
-            list(args),
-            ctx.avals_in,
-            ctx.avals_out,
-            has_side_effect=False,
-            returns_token=False,
-            sharding=sharding,
-        )
-        return results
-
-    prim.def_abstract_eval(abstract_eval)
-    prim.def_impl(impl)
-    batching.primitive_batchers[prim] = batch_rule
-    mlir.register_lowering(prim, lowering, platform="cpu")
-    _PRIMITIVE, FAST_CALLBACK = prim, True
-    return prim
+"""Whether :func:`host_step` (``fast=True``) steps through the FFI target of
+:func:`cfm_jax.sim.host.host_call` here (None: not called yet; False: off XLA:CPU, or where JAX
+cannot register it: ``jax.pure_callback``, whose programs JAX's cache does not keep)."""
 
 
 def host_step(stepper: Stepper, qpos, qvel, ctrl, fast: bool = True):
@@ -285,7 +245,9 @@ def host_step(stepper: Stepper, qpos, qvel, ctrl, fast: bool = True):
       qpos: positions ``(..., nq)``.
       qvel: velocities ``(..., nv)``.
       ctrl: controls ``(..., nu)``.
-      fast: on CPU, call XLA's host callback directly, not ``jax.pure_callback`` (same result).
+      fast: on CPU, step through :func:`cfm_jax.sim.host.host_call`'s FFI target, not
+        ``jax.pure_callback`` (the same result; a program that calls the target is kept in
+        JAX's persistent compilation cache, one with a Python callback is not).
 
     Examples:
       >>> import jax
@@ -300,12 +262,8 @@ def host_step(stepper: Stepper, qpos, qvel, ctrl, fast: bool = True):
 
     qpos, qvel, ctrl = (jnp.asarray(x, jnp.float32) for x in (qpos, qvel, ctrl))
     global FAST_CALLBACK
-    on_cpu = jax.default_backend() == "cpu"
-    prim = _primitive() if fast and on_cpu else None
-    if not on_cpu and FAST_CALLBACK is None:
-        FAST_CALLBACK = False  # the direct host callback is registered for XLA:CPU only
-    if prim is not None:
-        return tuple(prim.bind(qpos, qvel, ctrl, stepper=stepper))
+    if fast:
+        FAST_CALLBACK = jax.default_backend() == "cpu" and host_lib.registered()
     shapes = (
         jax.ShapeDtypeStruct(qpos.shape, jnp.float32),
         jax.ShapeDtypeStruct(qvel.shape, jnp.float32),
@@ -313,4 +271,4 @@ def host_step(stepper: Stepper, qpos, qvel, ctrl, fast: bool = True):
             (*qpos.shape[:-1], stepper.n_sub, stepper.model.nsensordata), jnp.float32
         ),
     )
-    return tuple(jax.pure_callback(stepper, shapes, qpos, qvel, ctrl, vmap_method="broadcast_all"))
+    return host_lib.host_call(stepper.key, stepper, shapes, qpos, qvel, ctrl, fast=fast)

@@ -1,8 +1,8 @@
 """Kinematics of an end-effector site (a MuJoCo site's origin, world frame) for the
 operational-space task: :func:`kinematics` takes them from MuJoCo C on the host
-(:class:`HostKinematics`, one ``jax.pure_callback`` per batch: it compiles in 0.13 s, MJX in
-over 30 s) or from MJX (:func:`mjx_kinematics`), as constants of the state under
-``jax.grad``. See docs/opspace.md.
+(:class:`HostKinematics`, one host call per batch through :func:`cfm_jax.sim.host.host_call`: it
+compiles in 0.13 s, MJX in over 30 s) or from MJX (:func:`mjx_kinematics`), as constants of
+the state under ``jax.grad``. See docs/opspace.md.
 """
 
 from __future__ import annotations
@@ -16,6 +16,8 @@ import numpy as np
 
 from cfm_jax._mjx import mjx
 from cfm_jax.config import ConfigError, check_simulator
+from cfm_jax.sim import native
+from cfm_jax.sim.host import host_call
 
 DEFAULT_SITES = ("ee", "flange", "attachment_site")
 """Site names tried in order when no site is configured."""
@@ -214,7 +216,8 @@ _HOSTS: dict = {}
 
 
 def host_function(kind, robot, site: int, *args):
-    """``kind(robot, site, *args)``, built once, returning float32, for ``jax.pure_callback``.
+    """``kind(robot, site, *args)``, built once, returning float32, for
+    :func:`cfm_jax.sim.host.host_call` (its ``key``: the kind, the model's bytes, site and args).
 
     Args:
       kind: a class such as :class:`HostKinematics` or
@@ -236,6 +239,7 @@ def host_function(kind, robot, site: int, *args):
     def host(*arrays):
         return jax.tree.map(lambda a: np.asarray(a, np.float32), function(*arrays))
 
+    host.key = f"{kind.__name__}-{native.model_digest(robot.mj_model)}-{site}-{args!r}"
     return host
 
 
@@ -269,7 +273,7 @@ def kinematics(
     shapes = Kinematics(
         *(jax.ShapeDtypeStruct(batch + shape, jnp.float32) for shape in ((3,), (3,), (3, nv), (3,)))
     )
-    return jax.pure_callback(host, shapes, qpos, qvel, vmap_method="broadcast_all")
+    return host_call(host.key, host, shapes, qpos, qvel)
 
 
 def mjx_site(robot, site: int | str | None):

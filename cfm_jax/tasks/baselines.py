@@ -20,6 +20,7 @@ import numpy as np
 from cfm_jax._mjx import mjx
 from cfm_jax.config import check_simulator
 from cfm_jax.sim import native, opspace, rollout
+from cfm_jax.sim.host import host_call
 from cfm_jax.tasks import references
 
 # Gains of the null-space posture term of the oracle (1/s^2 and 1/s): a critically damped
@@ -58,7 +59,7 @@ def inverse_dynamics_oracle(robot, simulator="native"):
 
     Args:
       robot: a :class:`cfm_jax.sim.robots.Robot` with a fixed base.
-      simulator: ``"native"`` (MuJoCo C through ``jax.pure_callback``) or ``"mjx"``.
+      simulator: ``"native"`` (MuJoCo C through :func:`cfm_jax.sim.host.host_call`) or ``"mjx"``.
 
     Examples:
       >>> from cfm_jax.tasks import references
@@ -77,7 +78,7 @@ def inverse_dynamics_oracle(robot, simulator="native"):
         return _constrained_oracle(mj, simulator)
 
     if simulator == "native":
-        return _host_policy(_native_inverse(mj, damping))
+        return _host_policy(_native_inverse(mj, damping), f"inverse-{native.model_digest(mj)}")
 
     model = robot.mjx_model
     blank = mjx.make_data(model)
@@ -136,7 +137,9 @@ def _constrained_oracle(mj_model, simulator: str):
             mujoco.mj_inverse(model, data)
             return data.qfrc_inverse
 
-        return _host_policy(_rows(row, model.nq, model.nv))
+        return _host_policy(
+            _rows(row, model.nq, model.nv), f"mj_inverse-{native.model_digest(mj_model)}"
+        )
 
     # MJX's discrete inverse of the Euler step tests the damping with a Python `if` on an
     # array (it fails under jit): that step's conversion is done here, as MuJoCo does it,
@@ -211,16 +214,15 @@ def _rows(row, nq: int, nv: int):
     return inverse
 
 
-def _host_policy(inverse):
+def _host_policy(inverse, name: str):
     """``policy(step, key) -> tau``: the host function ``inverse(qpos, qvel, qdd*)`` through
-    ``jax.pure_callback`` (batched over any vmapped axis)."""
+    :func:`cfm_jax.sim.host.host_call` under ``name`` (batched over any vmapped axis)."""
 
     def policy(step, key):
         del key
         shape = jax.ShapeDtypeStruct(jnp.shape(step.desired), jnp.float32)
-        return jax.pure_callback(
-            inverse, shape, step.qpos, step.qvel, step.desired, vmap_method="broadcast_all"
-        )
+        args = (jnp.asarray(x, jnp.float32) for x in (step.qpos, step.qvel, step.desired))
+        return host_call(name, inverse, shape, *args)
 
     return policy
 
@@ -368,8 +370,9 @@ def opspace_oracle(
 ):
     """:class:`HostOpspaceOracle` as a float32 JAX function ``torque(qpos, qvel, xdd_desired)``.
 
-    ``"native"``: one ``jax.pure_callback`` per batch into an oracle built once per (model,
-    site, home, gains); ``"mjx"``: :func:`mjx_opspace_oracle`. Torques are not clipped.
+    ``"native"``: one host call (:func:`cfm_jax.sim.host.host_call`) per batch into an oracle built
+    once per (model, site, home, gains); ``"mjx"``: :func:`mjx_opspace_oracle`. Torques are
+    not clipped.
 
     Args:
       robot: a fixed-base :class:`cfm_jax.sim.robots.Robot`.
@@ -402,7 +405,7 @@ def opspace_oracle(
         args = [jax.lax.stop_gradient(jnp.asarray(a, jnp.float32)) for a in (qpos, qvel)]
         desired = jax.lax.stop_gradient(jnp.asarray(xdd_desired, jnp.float32))
         shape = jax.ShapeDtypeStruct(desired.shape[:-1] + (robot.nv,), jnp.float32)
-        return jax.pure_callback(host, shape, *args, desired, vmap_method="broadcast_all")
+        return host_call(host.key, host, shape, *args, desired)
 
     return torque
 
