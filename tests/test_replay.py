@@ -112,7 +112,7 @@ def test_cli_replays_a_recorded_data_set(recorded_run, experiment, tmp_path, mon
     result, path = recorded_run
     out = tmp_path / "cli_replay"
     command = cli_command(TINY, tmp_path, out, "joint", seeds=2, iterations=2)
-    monkeypatch.setattr(training, "Experiment", lambda config: experiment)
+    monkeypatch.setattr(training.Experiment, "shared", classmethod(lambda cls, config: experiment))
 
     done = cli_in_process(*command[3:], "--data", str(path))
     assert done.returncode == 0, done.stderr[-2000:]

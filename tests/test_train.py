@@ -334,7 +334,7 @@ def test_cli_run_tensorboard_summary_and_files(tmp_path, monkeypatch, capsys, ex
     out, events = tmp_path / "cli", tmp_path / "tb"
     command = cli_command(TINY, tmp_path, out, "joint", seeds=2, iterations=2)
     monkeypatch.setattr(sys, "argv", ["cfm-jax", *command[3:], "--tensorboard", str(events)])
-    monkeypatch.setattr(training, "Experiment", lambda config: experiment)
+    monkeypatch.setattr(training.Experiment, "shared", classmethod(lambda cls, config: experiment))
     results, rows_seen = [], []
     real_train, real_call = training.train, tensorboard.TensorBoardWriter.__call__
     monkeypatch.setattr(training, "train", lambda *a, **k: results.append(real_train(*a, **k))
