@@ -144,8 +144,9 @@ def use_compilation_cache() -> str | None:
     same shapes loads its programs instead of compiling them), unless the user set one
     (``jax_compilation_cache_dir``) or turned it off; returns the folder in use, or None.
 
-    Programs that call back into Python (the native simulator's rollouts) are compiled every
-    time: JAX does not cache them. Idempotent."""
+    The native simulator's rollouts are cached too (their host calls go through an FFI
+    target, :mod:`cfm_jax.sim.host`); JAX caches no program with a ``jax.pure_callback``.
+    Idempotent."""
     import jax
 
     current = jax.config.jax_compilation_cache_dir
