@@ -49,7 +49,6 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 import optax
 import pandas as pd
@@ -58,7 +57,7 @@ from flax import struct
 from cfm_jax import _xla, tasks
 from cfm_jax import config as config_lib
 from cfm_jax.learning import forward_models, losses, networks
-from cfm_jax.sim import dataset, robots
+from cfm_jax.sim import dataset, native, robots
 from cfm_jax.sim import rollout as rollout_lib
 from cfm_jax.tasks import babbling, scales
 
@@ -1304,14 +1303,11 @@ class Experiment:
 
     @classmethod
     def shared(cls, config: config_lib.Config) -> Experiment:
-        """The experiment this process keeps for configs of ``config``'s
-        :func:`cfm_jax.config.structure` and robot model bytes (an edited MJCF file gets a new
-        one), built on first use; the last :data:`SHARED_EXPERIMENTS` are kept."""
+        """The experiment kept for ``config``'s :func:`cfm_jax.config.structure` and robot model
+        bytes (an edited MJCF: a new one), built on first use; :data:`SHARED_EXPERIMENTS` kept."""
         robot = robots.of_config(config)  # a bad robot fails here, named
-        model = np.zeros(mujoco.mj_sizeModel(robot.mj_model), np.uint8)
-        mujoco.mj_saveModel(robot.mj_model, None, model)
         structure = json.dumps(config_lib.structure(config), sort_keys=True)
-        key = (structure, hashlib.sha256(model.tobytes()).hexdigest())
+        key = (structure, native.model_digest(robot.mj_model))
         if key in _SHARED:
             _SHARED.move_to_end(key)
             return _SHARED[key]

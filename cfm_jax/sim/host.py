@@ -156,6 +156,18 @@ def registered() -> bool:
     return _REGISTERED
 
 
+def here() -> bool:
+    """Whether :func:`host_call` takes the FFI target here (XLA:CPU, :func:`registered`).
+
+    Examples:
+      >>> here()  # on a CPU
+      True
+    """
+    import jax
+
+    return jax.default_backend() == "cpu" and registered()
+
+
 def host_call(key: str, fn: Callable, shapes, *args, fast: bool = True):
     """``fn(*args)`` on the host as a JAX operation (float32 in and out, no gradient; a
     ``vmap`` passes the whole batch in one call).
@@ -179,7 +191,7 @@ def host_call(key: str, fn: Callable, shapes, *args, fast: bool = True):
     """
     import jax
 
-    if fast and jax.default_backend() == "cpu" and registered():
+    if fast and here():
         _FUNCTIONS.setdefault(key, fn)
         leaves, tree = jax.tree.flatten(shapes)
         call = jax.ffi.ffi_call(TARGET, leaves, vmap_method="broadcast_all")

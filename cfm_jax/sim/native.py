@@ -232,9 +232,8 @@ class Stepper:
 # ----- the JAX operation ------------------------------------------------------------------
 
 FAST_CALLBACK: bool | None = None
-"""Whether :func:`host_step` (``fast=True``) steps through the FFI target of
-:func:`cfm_jax.sim.host.host_call` here (None: not called yet; False: off XLA:CPU, or where JAX
-cannot register it: ``jax.pure_callback``, whose programs JAX's cache does not keep)."""
+"""Whether :func:`host_step` (``fast=True``) takes the FFI target (:func:`cfm_jax.sim.host.here`;
+None: not called yet; False: ``jax.pure_callback``, whose programs JAX's cache does not keep)."""
 
 
 def host_step(stepper: Stepper, qpos, qvel, ctrl, fast: bool = True):
@@ -263,7 +262,7 @@ def host_step(stepper: Stepper, qpos, qvel, ctrl, fast: bool = True):
     qpos, qvel, ctrl = (jnp.asarray(x, jnp.float32) for x in (qpos, qvel, ctrl))
     global FAST_CALLBACK
     if fast:
-        FAST_CALLBACK = jax.default_backend() == "cpu" and host_lib.registered()
+        FAST_CALLBACK = host_lib.here()
     shapes = (
         jax.ShapeDtypeStruct(qpos.shape, jnp.float32),
         jax.ShapeDtypeStruct(qvel.shape, jnp.float32),

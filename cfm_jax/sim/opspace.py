@@ -233,13 +233,15 @@ def host_function(kind, robot, site: int, *args):
     """
     key = (kind.__name__, id(robot.mj_model), site, args)
     if key not in _HOSTS:
-        _HOSTS[key] = (robot.mj_model, kind(robot, site, *args))
-    function = _HOSTS[key][1]
+        digest = native.model_digest(robot.mj_model)
+        _HOSTS[key] = (robot.mj_model, kind(robot, site, *args),
+                       f"{kind.__name__}-{digest}-{site}-{args!r}")  # fmt: skip
+    _, function, name = _HOSTS[key]
 
     def host(*arrays):
         return jax.tree.map(lambda a: np.asarray(a, np.float32), function(*arrays))
 
-    host.key = f"{kind.__name__}-{native.model_digest(robot.mj_model)}-{site}-{args!r}"
+    host.key = name
     return host
 
 
