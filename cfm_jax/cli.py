@@ -1049,15 +1049,14 @@ def main() -> None:
 
 
 def _imports(argv: list[str]) -> list[str]:
-    """Import the modules of the leading ``--import MODULE`` options (repeatable; a module
-    name importable from the working directory, or a ``.py`` file), in order, so that what
-    they register (:func:`cfm_jax.learning.losses.register`,
-    :func:`cfm_jax.learning.forward_models.register`, :func:`cfm_jax.tasks.register`) is known
-    before the command parses; the rest of ``argv``.
-
-    Raises:
-      ConfigError: ``--import`` without a value, or a module that cannot be imported.
-    """
+    # Import the modules of the leading ``--import MODULE`` options (repeatable; a module
+    # name importable from the working directory, or a ``.py`` file), in order, so that what
+    # they register (:func:`cfm_jax.learning.losses.register`,
+    # :func:`cfm_jax.learning.forward_models.register`, :func:`cfm_jax.tasks.register`) is known
+    # before the command parses; the rest of ``argv``.
+    #
+    # Raises:
+    #   ConfigError: ``--import`` without a value, or a module that cannot be imported.
     import importlib
     import importlib.util
     import os

@@ -173,12 +173,13 @@ def test_one_compiled_function_per_loss_iteration(experiment, two_seeds):
 
 
 def test_losses_batched_equal_each_loss_alone(experiment, two_seeds):
-    # The losses trained together (issue 46): the four paper losses from one babbling and
-    # one initial fit of f per seed, against each loss alone.
-    losses = ("joint", "task", "distal", "supervised")
+    # The losses trained together (issue 46): every library loss from one babbling and
+    # one initial fit of f per seed, against each loss alone, and against the record.
+    losses = ("joint", "task", "distal", "supervised", "distal_literal")  # the library's
     result = cfm_jax.train(TINY, progress=False, experiment=experiment, losses=losses)
     assert result.losses == losses
-    assert result.state.iteration.shape == (4, 2)
+    assert result.state.iteration.shape == (len(losses), 2)
+    assert_bit_identical("losses", result)
     assert_each_loss_equals_it_alone(experiment, result)
     # One rollout program for the four losses (the fixture's joint run's), one initial fit
     # and one refit program per loss; training them again compiles nothing.
@@ -190,7 +191,7 @@ def test_losses_batched_equal_each_loss_alone(experiment, two_seeds):
     assert experiment.compilations() == before
     # An iteration of the stacked state: each loss's slice is that loss's iteration.
     stacked = experiment.iteration_losses(losses, result.state)
-    assert stacked[1]["tracking_mse"].shape == (4, 2, TARGETS)
+    assert stacked[1]["tracking_mse"].shape == (len(losses), 2, TARGETS)
     for i, loss in enumerate(losses):
         one = experiment.iteration_losses((loss,), jax.tree.map(lambda x, i=i: x[i : i + 1],
                                                                 result.state))  # fmt: skip

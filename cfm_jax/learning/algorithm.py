@@ -1,6 +1,6 @@
 """Algorithm 1 of the paper in one place: the whole program from a config to the loss gradient
-(docs/concepts/method.md); :func:`cfm_jax.train` is the impure shell around it (the loop,
-result files, checkpoints: :mod:`cfm_jax.runs.training`, :mod:`cfm_jax.runs.recorder`).
+(docs/concepts/method.md); :func:`cfm_jax.train` is the impure shell around it (result
+files, checkpoints, progress: :mod:`cfm_jax.runs.training`, :mod:`cfm_jax.runs.recorder`).
 
 Read top to bottom:
 
@@ -18,7 +18,8 @@ Read top to bottom:
    (:mod:`cfm_jax.learning.losses`) meets the forward model and is differentiated.
 4. **Rollouts and metrics**: :func:`rollout` on the config's simulator, :func:`metrics`.
 5. **Compiled, vmapped over seeds**: :class:`Experiment` jit-compiles these functions once
-   per config structure and runs them for every seed (and, one after the other, every loss).
+   per config structure and runs them for every seed (and, one after the other, every loss);
+   :meth:`Experiment.run` is the whole run: the start, each iteration, the final evaluation.
 
 Examples:
   >>> from cfm_jax import config as cfg
@@ -45,6 +46,7 @@ import dataclasses
 import functools
 import hashlib
 import json
+import time
 from typing import Any
 
 import jax
@@ -1576,6 +1578,78 @@ class Experiment:
             state, collected, knobs
         )
         return state, out
+
+    # ----- the whole run: the start, every iteration, the final evaluation ----------------
+
+    def run(self, records, keys, knobs: Knobs | None = None, data=None, progress=None):
+        """Algorithm 1 for each loss of ``records`` and every seed of ``keys``: :meth:`init_each`
+        (or a loss's resumed state), each iteration for each loss that has reached it
+        (:meth:`iteration_losses`, one loss after the other), the final :meth:`evaluate`.
+        Returns each loss's final state (leading ``(1, seed)`` axes) and the first
+        iteration's wall time, its compilation included (NaN: none ran).
+
+        Args:
+          records: ``{loss: record}``, told each step: ``record.continued_from`` (the
+            iterations of a run continued for more, or None), ``start(template) -> (state,
+            first iteration)``, ``iteration(i, state, previous, metrics) -> state to go on
+            from``, ``record(iteration, metrics)`` (:class:`cfm_jax.runs.recorder.Recorder`).
+          keys: one PRNG key per seed.
+          knobs: the runtime values (None: this experiment's).
+          data: a :class:`cfm_jax.sim.dataset.Recorded` to replay, or None.
+          progress: ``progress(steps, next_stage)`` after the start, each iteration and the
+            final evaluation (``loop.iterations + 2`` steps in all), or None.
+        """
+        knobs, names = self._knobs(knobs), tuple(records)
+        iterations, per_rollout = self.config.loop.iterations, self.transitions_per_rollout
+        progress = progress or (lambda steps, next_stage: None)
+        chunk = None
+        if data is not None:
+            chunk = data.chunk(0, self.config.loop.babbling_rollouts * per_rollout)
+        initial = self.init_each(names, keys, knobs, data=chunk)
+        states, firsts = {}, {}
+        for name in names:
+            template, ran = _index(initial.pop(0), 0), records[name].continued_from
+            if ran is None:
+                start, firsts[name] = records[name].start(template)
+            else:  # a run continued for more iterations: restored as it was, its data set grown
+                start, firsts[name] = records[name].start(self.resized(template, ran))
+                start = self.resized(start)
+            del template
+            states[name] = _stack([start])
+            del start
+        earliest, compile_seconds = min(firsts.values()), float("nan")
+
+        def stage(i):  # what comes after i iterations
+            return f"iteration {i + 1}" if i < iterations else "final evaluation"
+
+        progress(1 + earliest, stage(earliest))
+        for i in range(earliest, iterations):  # a resumed loss goes on from its own iteration
+            t0 = time.perf_counter()
+            chunk = None if data is None else data.chunk(i + 1, per_rollout)
+            for name in (name for name in names if firsts[name] <= i):
+                new, metrics = self.iteration_losses((name,), states[name], knobs, data=chunk)
+                metrics = jax.device_get(_index(metrics, 0))
+                one = _index(new, 0)
+                previous = functools.partial(_index, states[name], 0)  # copied only if needed
+                kept = records[name].iteration(i, one, previous, metrics)
+                # A seed stopped by a non-finite update keeps its previous state.
+                states[name] = new if kept is one else _stack([kept])
+                del new, one, previous, kept
+            if np.isnan(compile_seconds):
+                compile_seconds = time.perf_counter() - t0
+            progress(1, stage(i + 1))
+        for name in names:
+            final = self.evaluate(_index(states[name], 0), knobs)
+            records[name].record(iterations, jax.device_get(final))
+        progress(1, None)
+        return states, compile_seconds
+
+    def resized(self, state: TrainState, iterations: int | None = None) -> TrainState:
+        """``state`` (leading seed axis) with a data set of :func:`data_capacity` rows for
+        ``iterations`` iterations (None: ``loop.iterations``)."""
+        capacity = data_capacity(self.transitions_per_rollout, self.config.loop, iterations)
+        data = jax.vmap(functools.partial(dataset.resized, capacity=capacity))(state.data)
+        return state.replace(data=data)
 
     def rollout(
         self, policy: rollout_lib.MixedPolicy, keys, knobs: Knobs | None = None

@@ -1,2 +1,2 @@
-"""The impure shell around :mod:`cfm_jax.learning`: the loop (:func:`training.train`),
-its files and checkpoints, and sweeps of many configs."""
+"""The impure shell around :mod:`cfm_jax.learning`: :func:`training.train` (a run's
+records, files and checkpoints, its progress) and sweeps of many configs."""

@@ -1,12 +1,12 @@
-"""Algorithm 1's impure shell: :func:`train` runs the compiled functions of an
-:class:`cfm_jax.learning.algorithm.Experiment` in a loop around a
-:class:`cfm_jax.runs.recorder.Recorder` (result files, checkpoints and resume, stopped seeds,
-``progress_fn``), with the progress display and the replay of a recorded data set."""
+"""Algorithm 1's impure shell: :func:`train` runs
+:meth:`cfm_jax.learning.algorithm.Experiment.run` (the start, the iterations, the final
+evaluation) with a :class:`cfm_jax.runs.recorder.Recorder` per loss (result files,
+checkpoints and resume, stopped seeds, ``progress_fn``), the progress display and the
+replay of a recorded data set."""
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -26,7 +26,6 @@ from cfm_jax.learning.algorithm import (  # noqa: F401 (Knobs, METRIC_COLUMNS: r
     TrainState,
     _concatenate,
     _index,
-    _stack,
 )
 from cfm_jax.runs import checkpoint as ckpt_lib
 from cfm_jax.runs.recorder import Recorder, progress_bar
@@ -273,17 +272,26 @@ def train(
             run_resume = None  # a loss that never reached its first checkpoint starts afresh
         run_out = _run_dir(out_dir or resume, name, several)
         recorders[name] = Recorder(config.replace(loss=name), run_out, run_resume, progress_fn)
-    if experiment is None:
-        exp = Experiment.shared(config)
-        knobs = exp.knobs_for(config)
-    else:
-        exp, knobs = experiment, experiment.knobs_for(config)  # refuses another structure
+    exp = experiment if experiment is not None else Experiment.shared(config)
+    knobs = exp.knobs_for(config)  # refuses a config of another structure
+    rms_reach = exp.task_for(config).tracking_scale
+    keys = jax.vmap(jax.random.key)(jnp.asarray(config_lib.seeds_of(config), jnp.uint32))
     recorded = None if data is None else recorded_for(exp, config, data)
     for recorder in recorders.values():
         recorder.open(exp.metric_columns)
+    label = f"{config.robot} {','.join(names)}"
     try:
         with progress_bar(progress) as bar:
-            states, compile_seconds = _run(exp, config, recorders, recorded, knobs, bar)
+            task = bar.add_task(
+                f"{label}: babbling + initial fit", total=config.loop.iterations + 2
+            )
+
+            def shown(steps, next_stage):
+                bar.advance(task, steps)
+                if next_stage is not None:
+                    bar.update(task, description=f"{label}: {next_stage}")
+
+            states, compile_seconds = exp.run(recorders, keys, knobs, recorded, shown)
     finally:  # a run stopped by an exception keeps its last checkpoint whole
         for recorder in recorders.values():
             recorder.flush()
@@ -291,81 +299,19 @@ def train(
     for name in names:
         recorders[name].finish(_index(states[name], 0), baselines, recorded)
     return TrainResult(
-        config=config if several else config.replace(loss=names[0]),
+        config=config,
         metrics=pd.concat([r.metrics() for r in recorders.values()], ignore_index=True),
         baselines=baselines,
         state=_concatenate([states.pop(name) for name in names])
         if several
         else _index(states[names[0]], 0),
-        rms_reach=exp.task_for(config).tracking_scale,
+        rms_reach=rms_reach,
         seconds=time.perf_counter() - start,
         compile_seconds=compile_seconds,
         stopped=[entry for r in recorders.values() for entry in r.stopped],
         warnings=_take_warnings(),
         losses=names if several else (),
     )
-
-
-def _run(exp, config, recorders: dict, recorded, knobs, bar) -> tuple[dict, float]:
-    """:func:`train`'s loop: the losses' start (babbling and the fit of f once per seed, then
-    each loss's initial fit, or its resumed checkpoint), each iteration for each loss that
-    has reached it (:meth:`Experiment.iteration_losses` of that loss alone, one loss after
-    the other: only one loss's iteration is in memory beside the states), the final
-    evaluation. Returns each loss's final state (leading axes ``(1, seed)``) and the first
-    iteration's wall time, its compilation included."""
-    names, iterations = tuple(recorders), config.loop.iterations
-    label = f"{config.robot} {','.join(names)}"
-    task = bar.add_task(f"{label}: babbling + initial fit", total=iterations + 2)
-    keys = jax.vmap(jax.random.key)(jnp.asarray(config_lib.seeds_of(config), jnp.uint32))
-    chunk = None
-    if recorded is not None:
-        chunk = recorded.chunk(0, config.loop.babbling_rollouts * exp.transitions_per_rollout)
-    initial = exp.init_each(names, keys, knobs, data=chunk)
-    states, firsts = {}, {}
-    for name in names:
-        template, ran = _index(initial.pop(0), 0), recorders[name].continued_from
-        if ran is None:
-            start, firsts[name] = recorders[name].start(template)
-        else:  # a run continued for more iterations: restored as it was, its data set grown
-            per_rollout = exp.transitions_per_rollout
-            start, firsts[name] = recorders[name].start(
-                _with_capacity(template, algorithm.data_capacity(per_rollout, config.loop, ran))
-            )
-            start = _with_capacity(start, algorithm.data_capacity(per_rollout, config.loop))
-        del template
-        states[name] = _stack([start])
-        del start
-    earliest = min(firsts.values())
-    bar.advance(task, 1 + earliest)
-    compile_seconds = float("nan")
-    for i in range(earliest, iterations):  # a resumed loss goes on from its own iteration
-        bar.update(task, description=f"{label}: iteration {i + 1}")
-        t0 = time.perf_counter()
-        chunk = None if recorded is None else recorded.chunk(i + 1, exp.transitions_per_rollout)
-        for name in (name for name in names if firsts[name] <= i):
-            new, metrics = exp.iteration_losses((name,), states[name], knobs, data=chunk)
-            metrics = jax.device_get(_index(metrics, 0))
-            one = _index(new, 0)
-            previous = functools.partial(_index, states[name], 0)  # copied only if needed
-            kept = recorders[name].iteration(i, one, previous, metrics)
-            # A seed stopped by a non-finite update keeps its previous state.
-            states[name] = new if kept is one else _stack([kept])
-            del new, one, previous, kept
-        if np.isnan(compile_seconds):
-            compile_seconds = time.perf_counter() - t0
-        bar.advance(task)
-    bar.update(task, description=f"{label}: final evaluation")
-    for name in names:
-        final = exp.evaluate(_index(states[name], 0), knobs)
-        recorders[name].record(iterations, jax.device_get(final))
-    bar.advance(task)
-    return states, compile_seconds
-
-
-def _with_capacity(state, capacity: int):
-    """``state`` (leading seed axis) with its data set resized to ``capacity`` rows."""
-    data = jax.vmap(functools.partial(dataset.resized, capacity=capacity))(state.data)
-    return state.replace(data=data)
 
 
 def _run_dir(folder, loss: str, several: bool) -> str | None:

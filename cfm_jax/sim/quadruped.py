@@ -416,17 +416,17 @@ def _hip_to_foot(robot: Quadruped, leg: int, joints) -> list[np.ndarray]:
 
 
 def _computed_standing(rough: Quadruped) -> tuple[np.ndarray, str]:
-    """``(qpos, standing_from)``: the standing pose of a quadruped without keyframe, from
-    its legs ``rough`` read at ``qpos0`` with the base level. Each foot centre is placed
-    under its hip (the anchor of the leg's second-to-last joint) in x, at its ``qpos0``
-    lateral place in y, and :func:`standing_depth` of the leg's reach below the hip (the
-    depths of the four legs averaged, so all four feet touch the ground when the legs
-    differ slightly); :meth:`Quadruped.leg_ik` solves each leg from both knee bends
-    (the last joint at +1 and -1 rad, where its range allows) and keeps, of the solutions
-    that reach the foot, the one whose knee (the last joint's anchor) points toward the
-    middle of the body along x, as the Solo12's do (front knees behind their feet, hind
-    knees ahead of theirs), else the other, else the closest. The base is then lowered
-    until the feet touch z = 0 (:func:`_read`)."""
+    # ``(qpos, standing_from)``: the standing pose of a quadruped without keyframe, from
+    # its legs ``rough`` read at ``qpos0`` with the base level. Each foot centre is placed
+    # under its hip (the anchor of the leg's second-to-last joint) in x, at its ``qpos0``
+    # lateral place in y, and :func:`standing_depth` of the leg's reach below the hip (the
+    # depths of the four legs averaged, so all four feet touch the ground when the legs
+    # differ slightly); :meth:`Quadruped.leg_ik` solves each leg from both knee bends
+    # (the last joint at +1 and -1 rad, where its range allows) and keeps, of the solutions
+    # that reach the foot, the one whose knee (the last joint's anchor) points toward the
+    # middle of the body along x, as the Solo12's do (front knees behind their feet, hind
+    # knees ahead of theirs), else the other, else the closest. The base is then lowered
+    # until the feet touch z = 0 (:func:`_read`).
     model = rough.model
     ratio = standing_depth()
     qpos = rough.standing.copy()
