@@ -172,6 +172,54 @@ def test_one_compiled_function_per_loss_iteration(experiment, two_seeds):
     assert compiled["refit[joint]"]._cache_size() == 1
 
 
+def test_experiment_run_is_the_plain_loop_and_tells_its_records_in_order(experiment):
+    # Experiment.run (the whole run, issue 66) against the plain loop of the experiment's
+    # own steps: init_each, one iteration_losses per iteration, evaluate; bit for bit. A
+    # minimal record (no files) sees start, each iteration, then the final metrics.
+    keys = jax.vmap(jax.random.key)(jnp.arange(2, dtype=jnp.uint32))
+
+    class Record:
+        continued_from = None
+
+        def __init__(self):
+            self.calls, self.metrics = [], []
+
+        def start(self, template):
+            self.calls.append("start")
+            return template, 0
+
+        def iteration(self, i, state, previous, metrics):
+            self.calls.append(f"iteration {i}")
+            self.metrics.append(metrics)
+            return state
+
+        def record(self, iteration, metrics):
+            self.calls.append(f"record {iteration}")
+            self.metrics.append(metrics)
+
+    record, shown = Record(), []
+    states, seconds = experiment.run(
+        {"task": record}, keys, progress=lambda steps, stage: shown.append((steps, stage))
+    )
+    (state,) = experiment.init_each(("task",), keys)
+    expected = []
+    for _ in range(TINY.loop.iterations):
+        state, metrics = experiment.iteration_losses(("task",), state)
+        expected.append(jax.tree.map(lambda x: np.asarray(x[0]), metrics))
+    expected.append(experiment.evaluate(jax.tree.map(lambda x: x[0], state)))
+    assert record.calls == ["start", "iteration 0", "iteration 1", "record 2"]
+    for got, want in zip(record.metrics, expected, strict=True):
+        assert sorted(got) == sorted(want)
+        for name in want:
+            np.testing.assert_array_equal(np.asarray(got[name]), np.asarray(want[name]))
+    for got, want in zip(jax.tree.leaves(states["task"]), jax.tree.leaves(state), strict=True):
+        if jnp.issubdtype(got.dtype, jax.dtypes.prng_key):
+            got, want = jax.random.key_data(got), jax.random.key_data(want)
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    assert shown == [(1, "iteration 1"), (1, "iteration 2"), (1, "final evaluation"), (1, None)]
+    assert seconds > 0
+
+
 def test_losses_batched_equal_each_loss_alone(experiment, two_seeds):
     # The losses trained together (issue 46): every library loss from one babbling and
     # one initial fit of f per seed, against each loss alone, and against the record.
