@@ -31,6 +31,7 @@ from cfm_jax.learning import algorithm
 from cfm_jax.learning.algorithm import Experiment
 from cfm_jax.sim import robots
 from cfm_jax.tasks import babbling, legged
+from cfm_jax.tasks.baselines import pd_loop_radius
 
 HERE = Path(__file__).parent
 DEV = HERE / "robots"
@@ -296,9 +297,13 @@ def test_noise_velocity_of_a_damped_pendulum_against_one_mujoco_step(tmp_path):
 
 
 def test_robot_check_warns_where_the_numbers_say_so(tmp_path):
-    coupled = robot_check.check(str(DEV / "m1013.xml"), actuators="torque").text
+    coupled = robot_check.check(str(DEV / "kinova_gen3.xml"), actuators="torque").text
     assert "PD-only baseline's feedback is unstable" in coupled
     assert "babbling's feedback is unstable" not in coupled
+    # The M1013's number kd dt lambda_max is 2.2, but its joints' damping makes the loop
+    # stable (test_pd_loop_radius_against_mujoco): no warning.
+    damped = robot_check.check(str(DEV / "m1013.xml"), actuators="torque").text
+    assert "= 2.21)" in damped and "is unstable" not in damped
     # A pendulum whose only limit gives it 1e5 rad/s^2: noise 0.1 of it, 100 rad/s a period.
     path = tmp_path / "strong.xml"
     path.write_text(
@@ -311,6 +316,64 @@ def test_robot_check_warns_where_the_numbers_say_so(tmp_path):
     assert "babbling noise changes j's velocity by about 100 rad/s" in strong
     shipped = robot_check.check("iiwa14").text
     assert "dynamics at the start pose" in shipped and "!" not in shipped.split("dynamics")[1]
+
+
+def test_pd_loop_radius_of_a_two_joint_arm_in_closed_form(tmp_path):
+    # Two hinges in a plane, gravity off, no damping, Euler with the control period as its
+    # timestep (one step a period). With gains G (kp, kd), G diagonal, the error obeys
+    # v' = v - h M^-1 G (kp q + kd v), q' = q + h v'; in the modes of M^-1 G (eigenvalues
+    # lam) each is [[1 - h^2 lam kp, h - h^2 lam kd], [-h lam kp, 1 - h lam kd]]: trace
+    # 2 - h lam kd - h^2 lam kp, determinant 1 - h lam kd (by hand).
+    h = 0.01
+    path = tmp_path / "two.xml"
+    path.write_text(f"""<mujoco><option gravity="0 0 0" timestep="{h}" integrator="Euler"/>
+        <worldbody><body><joint name="a" type="hinge" axis="0 0 1"/>
+        <geom type="capsule" fromto="0 0 0 0.5 0 0" size="0.03" mass="2"/>
+        <body pos="0.5 0 0"><joint name="b" type="hinge" axis="0 0 1"/>
+        <geom type="capsule" fromto="0 0 0 0.4 0 0" size="0.02" mass="0.3"/></body></body>
+        </worldbody><actuator><motor joint="a" ctrlrange="-50 50"/>
+        <motor joint="b" ctrlrange="-50 50"/></actuator></mujoco>""")
+    arm = robots.load(str(path))
+    pose = np.array([0.3, 0.4])
+    inertia = arm.mass_matrix(pose)
+    for gains, kp, kd in ((np.diag(inertia), 100.0, 20.0), (np.diag(inertia), 100.0, 190.0),
+                          (np.array([1.0, 0.05]), 400.0, 60.0)):  # fmt: skip
+        lam = np.linalg.eigvals(np.linalg.solve(inertia, np.diag(gains))).real
+        roots = [np.roots([1.0, -(2 - h * x * kd - h * h * x * kp), 1 - h * x * kd]) for x in lam]
+        want = np.abs(roots).max()
+        got = pd_loop_radius(arm, kp * gains, kd * gains, pose, h)
+        assert got == pytest.approx(want, rel=1e-9)
+    # The second case is unstable (the coupled mode has lam kd h > 2), the first is not.
+    assert pd_loop_radius(arm, 100 * np.diag(inertia), 190 * np.diag(inertia), pose, h) > 1
+    assert pd_loop_radius(arm, 100 * np.diag(inertia), 20 * np.diag(inertia), pose, h) < 1
+
+
+@pytest.mark.parametrize("arm", ["kinova_gen3", "m1013"])
+def test_pd_loop_radius_against_mujoco(arm):
+    """The PD-only loop at home, simulated by MuJoCo C (gravity off, a 1e-7 rad start error,
+    the torque held over each period's five steps): its error grows or decays per period by the
+    radius. The Gen3 (implicitfast, no damping) diverges at 4.3 a period; the M1013 (Euler,
+    damping 20-180), whose kd dt lambda_max is 2.2, decays."""
+    robot = robots.load(str(DEV / f"{arm}.xml"), actuators="torque")
+    model, dt = robot.mj_model, 0.01
+    model.opt.gravity[:] = 0.0
+    dofs = np.asarray(robot.actuated_dofs)
+    gains = np.diag(robot.mass_matrix(robot.home))[dofs]
+    radius = pd_loop_radius(robot, 100 * gains, 20 * gains, robot.home, dt)
+    data = mujoco.MjData(model)
+    data.qpos[:] = robot.home
+    data.qpos[dofs] += 1e-7 * np.random.default_rng(0).standard_normal(len(dofs))
+    periods, tail = (12, 6) if radius > 1 else (3000, 1000)
+    size = []
+    for _ in range(periods):
+        error, velocity = data.qpos[dofs] - robot.home[dofs], data.qvel[dofs]
+        data.ctrl[robot.actuator_of_joint] = -(100 * gains * error + 20 * gains * velocity)
+        for _ in range(round(dt / robot.timestep)):
+            mujoco.mj_step(model, data)
+        size.append(np.linalg.norm(np.r_[data.qpos[dofs] - robot.home[dofs], dt * data.qvel[dofs]]))
+    rate = (size[-1] / size[-1 - tail]) ** (1 / tail)
+    assert rate == pytest.approx(radius, rel=1e-3)
+    assert (radius > 1) == (arm == "kinova_gen3") and (size[-1] > size[0]) == (radius > 1)
 
 
 # ---- the babbling's gains and noise on an arm with light links ---------------------------

@@ -12,7 +12,7 @@ import numpy as np
 from cfm_jax import tasks as tasks_lib
 from cfm_jax.sim import robots
 from cfm_jax.sim.robots import Robot
-from cfm_jax.tasks import babbling
+from cfm_jax.tasks import babbling, baselines
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,8 +56,12 @@ class Dynamics:
       limit_acceleration: ``|M^-1| @ limit`` (rad/s^2): what the torque limits can give.
       noise_acceleration: std of each joint's acceleration under the babbling noise.
       noise_velocity: std of each joint's velocity change over one control period from rest.
-      pd_number: ``kd dt lambda_max(diag(M) M^-1)``: PD-only feedback is stable below 2.
+      pd_number: ``kd dt lambda_max(diag(M) M^-1)``, the PD-only feedback's damping per
+        control period in its fastest mode, with neither the joints' damping nor the sub-steps.
       babbling_pd_number: the same for the babbling's feedback, the largest over its poses.
+      pd_radius: the spectral radius of the PD-only loop at the start pose over one control
+        period (:func:`cfm_jax.tasks.baselines.pd_loop_radius`): stable below 1.
+      babbling_pd_radius: the same for the babbling's feedback, the largest over its poses.
 
     Examples:
       >>> round(dynamics(robots.load("iiwa14"), 0.1, kd=20.0, control_dt=0.01).pd_number, 2)
@@ -71,6 +75,8 @@ class Dynamics:
     noise_velocity: np.ndarray
     pd_number: float
     babbling_pd_number: float
+    pd_radius: float
+    babbling_pd_radius: float
 
 
 def dynamics(
@@ -80,6 +86,7 @@ def dynamics(
     control_dt: float,
     torque_scale: str = "inertia",
     frequency: float = np.inf,
+    kp: float = 100.0,
 ) -> Dynamics:
     """The :class:`Dynamics` of ``robot``'s actuated joints at ``robot.home`` (MuJoCo C).
 
@@ -90,6 +97,7 @@ def dynamics(
       control_dt: the control period (s).
       torque_scale: ``Config.loop.torque_scale`` (``inertia``, ``coupled`` or ``limit``).
       frequency: the task's feedback frequency (rad/s); ``inf`` leaves damping out.
+      kp: ``Config.task.kp`` (1/s^2), for the loops' radii.
 
     Examples:
       >>> dynamics(robots.load("two_link_arm"), 0.1, kd=20.0, control_dt=0.01).joints
@@ -110,8 +118,15 @@ def dynamics(
     poses = babbling.pose_sample(robot, robot.home)
     # M(q)^-1 at the babbling's poses: the lightest inertia and the loop's number.
     inverses = np.linalg.inv(robot.mass_matrices(poses))
-    lightest = np.diag(robot.lightest_inertia(poses))
-    babbling_number = np.abs(np.linalg.eigvals(lightest @ inverses[:, dofs][:, :, dofs])).max()
+    lightest = robot.lightest_inertia(poses)
+    babbling_number = np.abs(
+        np.linalg.eigvals(np.diag(lightest) @ inverses[:, dofs][:, :, dofs])
+    ).max()
+    diagonal = np.diag(full)[dofs]
+    radius = baselines.pd_loop_radius(robot, kp * diagonal, kd * diagonal, robot.home, control_dt)
+    babbling_radius = max(
+        baselines.pd_loop_radius(robot, kp * lightest, kd * lightest, q, control_dt) for q in poses
+    )
     # Over a control period the joints' damping acts as (M + h D)^-1 (MuJoCo's implicit
     # damping): the velocity a held torque gives in one period.
     damped = np.linalg.inv(full + control_dt * np.diag(model.dof_damping))[np.ix_(dofs, dofs)]
@@ -123,6 +138,8 @@ def dynamics(
         noise_velocity=control_dt * np.sqrt(np.diag(damped @ noise @ noise.T @ damped.T)),
         pd_number=float(kd * control_dt * np.max(np.abs(np.linalg.eigvals(coupling)))),
         babbling_pd_number=float(kd * control_dt * babbling_number),
+        pd_radius=radius,
+        babbling_pd_radius=babbling_radius,
     )
 
 
@@ -133,7 +150,7 @@ def _dynamics_lines(robot: Robot) -> list[str]:
     task, loop = config_lib.TaskConfig(), config_lib.LoopConfig()
     dt = task.control_period(robot.timestep)
     frequency = task.feedback_frequency(dt)
-    d = dynamics(robot, loop.babbling_noise, task.kd, dt, loop.torque_scale, frequency)
+    d = dynamics(robot, loop.babbling_noise, task.kd, dt, loop.torque_scale, frequency, task.kp)
     lines = [
         f"dynamics at the start pose (defaults: loop.babbling_noise {loop.babbling_noise:g} "
         f"of the torque scale, loop.torque_scale {loop.torque_scale} at the feedback's "
@@ -146,20 +163,24 @@ def _dynamics_lines(robot: Robot) -> list[str]:
             f" rad/s^2 at rest, {d.noise_velocity[j]:.3g} rad/s per control period (std)"
         )
     lines.append(
-        "  PD-only baseline's feedback number kd * dt * lambda_max(diag(M) M^-1) = "
-        f"{d.pd_number:.2f}; the babbling's, largest over its poses = {d.babbling_pd_number:.2f}"
+        "  PD-only baseline's feedback (torque gains task.kp, task.kd x diag M(home)): its loop's "
+        f"radius over a control period at the start pose {d.pd_radius:.4f} (stable below 1; "
+        f"kd * dt * lambda_max(diag(M) M^-1) = {d.pd_number:.2f}); the babbling's feedback: its "
+        f"largest radius over the poses it visits {d.babbling_pd_radius:.4f}"
     )
-    if d.pd_number >= 2:
+    feedback = task.kp > 0 or task.kd > 0
+    if feedback and d.pd_radius >= 1:
         lines.append(
-            "  ! the PD-only baseline's feedback is unstable at this control period: its "
-            "torque gains are kd * diag M(home), and the joints' coupling through M^-1 "
-            f"multiplies them (number {d.pd_number:.2f} >= 2). The baseline is what it is; "
-            "lower task.kd or task.control_dt for a stable one."
+            "  ! the PD-only baseline's feedback is unstable at the start pose at this control "
+            f"period (radius {d.pd_radius:.3g} >= 1): its torque gains are kd * diag M(home), "
+            "and the joints' coupling through M^-1 multiplies them. The baseline is what it "
+            "is (its torque limits bound it); lower task.kd or task.control_dt for a stable "
+            "one (docs/how-to/own-robot.md)."
         )
-    if d.babbling_pd_number >= 2:
+    if feedback and d.babbling_pd_radius >= 1:
         lines.append(
-            "  ! the babbling's feedback is unstable at some of the poses it visits (number "
-            f"{d.babbling_pd_number:.2f} >= 2): the initial data will oscillate. Lower "
+            "  ! the babbling's feedback is unstable at some of the poses it visits (radius "
+            f"{d.babbling_pd_radius:.3g} >= 1): the initial data will oscillate. Lower "
             "task.kd or task.control_dt."
         )
     worst = int(np.argmax(d.noise_velocity))
