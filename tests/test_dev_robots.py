@@ -36,7 +36,15 @@ from cfm_jax.tasks.baselines import pd_loop_radius
 HERE = Path(__file__).parent
 DEV = HERE / "robots"
 # The arms with one actuator per joint, and those with a gripper.
-ARMS = ("flexiv_rizon4", "m1013", "lite6", "lite6_continuous", "kuka_iiwa_14", "kinova_gen3")
+ARMS = (
+    "flexiv_rizon4",
+    "m1013",
+    "lite6",
+    "lite6_continuous",
+    "kuka_iiwa_14",
+    "kinova_gen3",
+    "franka_fr3",
+)
 GRIPPERS = ("piper", "arx_l5")
 
 
