@@ -168,8 +168,7 @@ def _dynamics_lines(robot: Robot) -> list[str]:
         f"kd * dt * lambda_max(diag(M) M^-1) = {d.pd_number:.2f}); the babbling's feedback: its "
         f"largest radius over the poses it visits {d.babbling_pd_radius:.4f}"
     )
-    feedback = task.kp > 0 or task.kd > 0
-    if feedback and d.pd_radius >= 1:
+    if d.pd_radius >= 1:
         lines.append(
             "  ! the PD-only baseline's feedback is unstable at the start pose at this control "
             f"period (radius {d.pd_radius:.3g} >= 1): its torque gains are kd * diag M(home), "
@@ -177,7 +176,7 @@ def _dynamics_lines(robot: Robot) -> list[str]:
             "is (its torque limits bound it); lower task.kd or task.control_dt for a stable "
             "one (docs/how-to/own-robot.md)."
         )
-    if feedback and d.babbling_pd_radius >= 1:
+    if d.babbling_pd_radius >= 1:
         lines.append(
             "  ! the babbling's feedback is unstable at some of the poses it visits (radius "
             f"{d.babbling_pd_radius:.3g} >= 1): the initial data will oscillate. Lower "
