@@ -286,7 +286,7 @@ BABBLING = ("home", "reaching", "reference_pd", "oracle")
 """Values of ``Config.loop.babbling`` (:mod:`cfm_jax.tasks.babbling`; see :class:`LoopConfig`)."""
 
 
-TORQUE_SCALES = ("inertia", "limit", "coupled")
+TORQUE_SCALES = ("inertia", "limit", "coupled", "pose")
 """Values of ``Config.loop.torque_scale`` (see :class:`LoopConfig`): the formulas are in
 :meth:`cfm_jax.sim.robots.Robot.torque_scale` and
 :meth:`~cfm_jax.sim.robots.Robot.coupled_torque_scale`, why ``coupled`` is the arm default in
@@ -746,7 +746,9 @@ class LoopConfig:
       babbling_noise: std of the babbling torque noise, a fraction of each joint's torque scale.
       torque_scale: scale of the babbling noise, f's torque input and g's output, one of
         :data:`TORQUE_SCALES`: ``coupled`` (default; alike accelerations at home, with the
-        joints' coupling), ``inertia`` (the same, each joint alone) or ``limit`` (the limits).
+        joints' coupling), ``pose`` (the coupled scale at each state's own pose, through
+        ``M(q)``: f's input and g's output; the babbling noise stays ``coupled``'s; needs
+        MJX), ``inertia`` (the same at home, each joint alone) or ``limit`` (the limits).
       babbling_gains: the babbling's joint PD gains, one of :data:`BABBLING_GAINS`:
         ``lightest`` (default; by each joint's lightest inertia over the poses it may visit,
         stable everywhere) or ``baseline`` (the PD-only baseline's).

@@ -95,7 +95,7 @@ def dynamics(
       babbling_noise: ``Config.loop.babbling_noise`` (a fraction of the torque scale).
       kd: ``Config.task.kd`` (1/s).
       control_dt: the control period (s).
-      torque_scale: ``Config.loop.torque_scale`` (``inertia``, ``coupled`` or ``limit``).
+      torque_scale: ``Config.loop.torque_scale`` (``inertia``, ``coupled``, ``pose`` or ``limit``).
       frequency: the task's feedback frequency (rad/s); ``inf`` leaves damping out.
       kp: ``Config.task.kp`` (1/s^2), for the loops' radii.
 
@@ -108,7 +108,7 @@ def dynamics(
     dofs = np.asarray(robot.actuated_dofs)
     inverse = np.linalg.inv(full)[np.ix_(dofs, dofs)]
     limit = np.asarray(robot.torque_limit, np.float64)
-    if torque_scale == "coupled":
+    if torque_scale in ("coupled", "pose"):  # the babbling's noise is T n at home for both
         noise = babbling_noise * robot.coupled_torque_scale(frequency)  # torque T n
     else:
         scale = robot.torque_scale(frequency) if torque_scale == "inertia" else limit

@@ -47,6 +47,7 @@ import functools
 import hashlib
 import json
 import time
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -58,7 +59,7 @@ from flax import struct
 
 from cfm_jax import _xla, tasks
 from cfm_jax import config as config_lib
-from cfm_jax.learning import forward_models, losses, networks
+from cfm_jax.learning import forward_models, losses, networks, rigid_body
 from cfm_jax.sim import dataset, native, robots
 from cfm_jax.sim import rollout as rollout_lib
 from cfm_jax.tasks import babbling, scales
@@ -175,6 +176,7 @@ class Setup:
       forward: the forward model (:func:`cfm_jax.learning.forward_models.make`).
       controller: the controller (:func:`cfm_jax.learning.networks.controller`).
       capacity: rows of the data set (babbling and every iteration's rollout).
+      pose_scale: :func:`pose_scale` (``loop.torque_scale = "pose"``), or None.
 
     Examples:
       >>> setup = Setup.of(cfm_jax.Config(robot="two_link_arm"))
@@ -189,6 +191,7 @@ class Setup:
     forward: Any
     controller: Any
     capacity: int
+    pose_scale: Callable | None = None
 
     @classmethod
     def of(cls, config: config_lib.Config) -> Setup:
@@ -206,6 +209,7 @@ class Setup:
             for name, needed in (
                 ("simulator='mjx'", config.simulator == "mjx"),
                 ("forward.kind='rigid_body'", config.forward.kind == "rigid_body"),
+                ("loop.torque_scale='pose'", config.loop.torque_scale == "pose"),
             )
             if needed
         ]
@@ -228,6 +232,7 @@ class Setup:
             forward,
             controller,
             capacity,
+            pose_scale(config, robot, task),
         )
         loss_groups(setup)  # validates controller.loss_weights against the task's output
         return setup
@@ -268,9 +273,42 @@ def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:
     if config.loop.torque_scale == "limit":
         return None
     frequency = config.task.feedback_frequency(config.task.control_period(robot.timestep))
-    if config.loop.torque_scale == "coupled":
+    if config.loop.torque_scale in ("coupled", "pose"):
         return robot.coupled_torque_scale(frequency)
     return robot.torque_scale(frequency)
+
+
+def pose_scale(config: config_lib.Config, robot, task) -> Callable | None:
+    """``loop.torque_scale = "pose"``: the coupled scale :func:`torque_scale` ``T`` at each
+    state's own pose, ``T(q) = T + a (M(q) - M(home))`` (``a`` the acceleration the scale gives
+    every joint, :meth:`cfm_jax.sim.robots.Robot.coupled_torque_scale`; ``M`` the actuated dofs'
+    block, by MJX); this function returns the added term, ``states -> (..., k, k)``, for
+    :attr:`cfm_jax.learning.networks.Normaliser.pose_scale`. None for the other scales.
+
+    Args:
+      config: a :class:`cfm_jax.config.Config`.
+      robot: its :class:`cfm_jax.sim.robots.Robot` (one MJX builds).
+      task: the task built for it (its ``configuration(state) -> (qpos, qvel)``).
+
+    Examples:
+      >>> config = cfm_jax.Config(robot="two_link_arm", loop=cfm_jax.LoopConfig(torque_scale="pose"))
+      >>> setup = Setup.of(config)
+      >>> home = setup.task.state(setup.robot.home, jnp.zeros(2), None)
+      >>> bool(jnp.allclose(jax.jit(setup.pose_scale)(home), 0.0, atol=1e-4))  # T(home) = T
+      True
+    """
+    if config.loop.torque_scale != "pose":
+        return None
+    frequency = config.task.feedback_frequency(config.task.control_period(robot.timestep))
+    acceleration = robot._torque_scale(frequency)[1]
+    dofs = np.asarray(robot.actuated_dofs)
+    home = jnp.asarray(robot.mass_matrix(robot.home)[np.ix_(dofs, dofs)], jnp.float32)
+    mass = rigid_body.mass_function(robot.mj_model, dofs, task.configuration)
+
+    def added(states):
+        return jnp.float32(acceleration) * (mass(states) - home)
+
+    return added
 
 
 # ----- the listing ----------------------------------------------------------------------
@@ -535,6 +573,7 @@ def _start(
             weights=valid,
             desired_index=task.desired_index,
             torque_scale=knobs.torque_scale,
+            pose_scale=setup.pose_scale,
         )
     elif cfg.loop.normaliser == "robot":
         normaliser = networks.Normaliser.from_scales(
@@ -542,6 +581,7 @@ def _start(
             torque_limit=setup.robot.torque_limit,
             desired_index=task.desired_index,
             torque_scale=knobs.torque_scale,
+            pose_scale=setup.pose_scale,
         )
     else:  # "data"
         normaliser = data_normaliser(setup, data, knobs.torque_scale)
@@ -581,6 +621,7 @@ def data_normaliser(setup: Setup, data: dataset.Dataset, torque_scale=None) -> n
         weights=filled,
         desired_index=setup.task.desired_index,
         torque_scale=torque_scale,
+        pose_scale=setup.pose_scale,
     )
 
 
@@ -806,7 +847,8 @@ def controller_objective(
         # In the scaled torque space the forward model's input uses (tau / S, T^-1 tau, or
         # the limits): a unit error there moves every joint alike, so the wrist's small
         # torques weigh as much as the shoulder's large ones.
-        predicted, executed = normaliser.torque(predicted), normaliser.torque(batch.action)
+        predicted = normaliser.torque(predicted, batch.state)
+        executed = normaliser.torque(batch.action, batch.state)
         distance = losses.supervised if groups is None else _norm_distance
         return _mean(loss.fn(predicted, executed, distance), weights)
     goal_input = batch.desired if goal == "desired" else normaliser.select(batch.observed)
@@ -1056,13 +1098,14 @@ def mixed_policy(setup: Setup, **weights) -> rollout_lib.MixedPolicy:
     # normaliser): its normaliser has the run's structure, a torque scale (its value
     # unused) or None.
     structure = {"limit": None, "inertia": np.ones(task.action_dim),
-                 "coupled": np.eye(task.action_dim)}  # fmt: skip
+                 "coupled": np.eye(task.action_dim), "pose": np.eye(task.action_dim)}  # fmt: skip
     norm = networks.Normaliser.identity(
         task.state_dim,
         task.output_dim,
         setup.robot.torque_limit,
         task.desired_index,
         torque_scale=structure[setup.config.loop.torque_scale],
+        pose_scale=setup.pose_scale,
     )
     return rollout_lib.MixedPolicy.of(dummy, norm, task.action_dim, **weights)
 

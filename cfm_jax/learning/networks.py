@@ -7,6 +7,7 @@ torque limits (:func:`controller`). Both see inputs scaled by a :class:`Normalis
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -33,6 +34,9 @@ class Normaliser:
         (:meth:`cfm_jax.sim.robots.Robot.torque_scale`), or None: the limits. The forward model
         takes ``T^-1 tau``, the controller puts out ``torque_limit tanh(T u / torque_limit)``.
       desired_index: static, the output entries the desired quantity specifies (None: all).
+      pose_scale: static, None or ``pose_scale(states) -> (..., action_dim, action_dim)``
+        added to a matrix ``T`` at each state's own pose (``loop.torque_scale = "pose"``:
+        :func:`cfm_jax.learning.algorithm.pose_scale`); where no state is given, ``T`` alone.
 
     Examples:
       >>> norm = Normaliser.from_data(jnp.array([[0.0], [2.0]]), jnp.array([[1.0], [3.0]]),
@@ -48,10 +52,17 @@ class Normaliser:
     torque_limit: jax.Array
     desired_index: tuple[int, ...] | None = struct.field(pytree_node=False, default=None)
     torque_scale: jax.Array | None = None
+    pose_scale: Callable | None = struct.field(pytree_node=False, default=None)
 
     @classmethod
     def identity(
-        cls, state_dim: int, output_dim: int, torque_limit, desired_index=None, torque_scale=None
+        cls,
+        state_dim: int,
+        output_dim: int,
+        torque_limit,
+        desired_index=None,
+        torque_scale=None,
+        pose_scale=None,
     ) -> Normaliser:
         return cls(
             jnp.zeros(state_dim),
@@ -61,11 +72,19 @@ class Normaliser:
             jnp.asarray(torque_limit, jnp.float32),
             _index(desired_index, output_dim),
             _scale(torque_scale),
+            pose_scale,
         )
 
     @classmethod
     def from_data(
-        cls, states, observed, torque_limit, weights=None, desired_index=None, torque_scale=None
+        cls,
+        states,
+        observed,
+        torque_limit,
+        weights=None,
+        desired_index=None,
+        torque_scale=None,
+        pose_scale=None,
     ) -> Normaliser:
         """Statistics of ``states`` and ``observed`` (rows of nonzero ``weights``; std >= 1e-3)."""
         floor = 1e-3
@@ -89,6 +108,7 @@ class Normaliser:
             jnp.asarray(torque_limit, jnp.float32),
             _index(desired_index, observed.shape[-1]),
             _scale(torque_scale),
+            pose_scale,
         )
 
     @classmethod
@@ -101,6 +121,7 @@ class Normaliser:
         torque_limit,
         desired_index=None,
         torque_scale=None,
+        pose_scale=None,
     ) -> Normaliser:
         """A normaliser of given centres and scales (:func:`cfm_jax.tasks.scales.robot_scales`)."""
         state_mean, state_std, output_mean, output_std, torque_limit = (
@@ -115,25 +136,41 @@ class Normaliser:
             torque_limit,
             _index(desired_index, output_mean.shape[-1]),
             _scale(torque_scale),
+            pose_scale,
         )
 
     def state(self, s):
         return (s - self.state_mean) / self.state_std
 
-    def torque(self, tau):
-        """Scaled torque: ``tau / torque_scale``, or ``T^-1 tau`` for a matrix ``T``."""
+    def torque(self, tau, state=None):
+        """Scaled torque: ``tau / torque_scale``, or ``T^-1 tau`` for a matrix ``T`` (at the
+        pose of ``state``, ``(..., state_dim)``, with a ``pose_scale``)."""
         scale = self.torque_limit if self.torque_scale is None else self.torque_scale
+        if self.pose_scale is not None and state is not None:
+            scale = self._at_pose(scale, state, tau.shape)
+            return jnp.linalg.solve(scale, tau[..., None])[..., 0]
         if scale.ndim == 2:  # a coupled scale T: T^-1 tau
             return jnp.linalg.solve(scale, tau[..., None])[..., 0]
         return tau / scale
 
-    def torque_output(self, u):
-        """The controller's torque for its network's output ``u`` (see ``torque_scale``)."""
+    def torque_output(self, u, state=None):
+        """The controller's torque for its network's output ``u`` (see ``torque_scale``; at the
+        pose of ``state`` with a ``pose_scale``)."""
         if self.torque_scale is None:
             return self.torque_limit * jnp.tanh(u)
+        if self.pose_scale is not None and state is not None:
+            scale = self._at_pose(self.torque_scale, state, u.shape)
+            return self.torque_limit * jnp.tanh((scale @ u[..., None])[..., 0] / self.torque_limit)
         if self.torque_scale.ndim == 2:  # a coupled scale T
             return self.torque_limit * jnp.tanh((u @ self.torque_scale.T) / self.torque_limit)
         return self.torque_limit * jnp.tanh(self.torque_scale * u / self.torque_limit)
+
+    def _at_pose(self, scale, state, shape):
+        """``T + pose_scale(state)``, ``shape + (action_dim,)`` (a torque's leading axes)."""
+        if scale.ndim != 2:
+            raise ValueError("a pose_scale needs a matrix torque_scale (action_dim, action_dim)")
+        full = scale + self.pose_scale(state)
+        return jnp.broadcast_to(full, shape + shape[-1:])
 
     def output(self, y):
         """Normalised observed / predicted quantity ``(..., output_dim)``."""
@@ -313,7 +350,7 @@ def forward_model(
 
     def apply(params, normaliser: Normaliser, state, tau, per_member: bool = False, terms=None):
         del terms  # the ensemble needs nothing but (s, tau)
-        x = jnp.concatenate([normaliser.state(state), normaliser.torque(tau)], -1)
+        x = jnp.concatenate([normaliser.state(state), normaliser.torque(tau, state)], -1)
         in_axes = (0, 0) if per_member else (0, None)
         out = jax.vmap(mlp.apply, in_axes=in_axes)(params["members"], x)
         mean, raw = jnp.split(out, 2, axis=-1)
@@ -372,6 +409,6 @@ def controller(hidden: tuple[int, ...], nv: int, desired_dim: int | None = None)
 
     def apply(params, normaliser: Normaliser, state, desired):
         x = jnp.concatenate([normaliser.state(state), normaliser.desired(desired)], -1)
-        return normaliser.torque_output(mlp.apply(params, x))
+        return normaliser.torque_output(mlp.apply(params, x), state)
 
     return Model(init, apply)

@@ -150,7 +150,18 @@ def physics_terms(model, actuated_dofs, qpos, qvel) -> Terms:
       >>> physics_terms(arm.mjx_model, arm.actuated_dofs, zero, zero).gain.shape  # doctest: +SKIP
       (2, 2)
     """
-    data = mjx.make_data(model).replace(qpos=qpos, qvel=qvel)
+    data = _inertia(model, mjx.make_data(model).replace(qpos=qpos, qvel=qvel))
+    data = mjx.fwd_velocity(model, data)  # com_vel, passive, rne, tendon_bias
+    mass = mjx.full_m(model, data)
+    select = jnp.zeros((model.nv, len(actuated_dofs)), mass.dtype)
+    select = select.at[jnp.asarray(actuated_dofs), jnp.arange(len(actuated_dofs))].set(1.0)
+    rhs = jnp.concatenate([select, (data.qfrc_passive - data.qfrc_bias)[:, None]], axis=1)
+    solution = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(mass), rhs)
+    return Terms(solution[:, :-1], solution[:, -1])
+
+
+def _inertia(model, data):
+    """``data`` with the joint-space inertia of its ``qpos`` (``qM``, armature included)."""
     for stage in (
         mjx.kinematics,
         mjx.com_pos,
@@ -159,13 +170,39 @@ def physics_terms(model, actuated_dofs, qpos, qvel) -> Terms:
         mjx.tendon_armature,
     ):
         data = stage(model, data)
-    data = mjx.fwd_velocity(model, data)  # com_vel, passive, rne, tendon_bias
-    mass = mjx.full_m(model, data)
-    select = jnp.zeros((model.nv, len(actuated_dofs)), mass.dtype)
-    select = select.at[jnp.asarray(actuated_dofs), jnp.arange(len(actuated_dofs))].set(1.0)
-    rhs = jnp.concatenate([select, (data.qfrc_passive - data.qfrc_bias)[:, None]], axis=1)
-    solution = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(mass), rhs)
-    return Terms(solution[:, :-1], solution[:, -1])
+    return data
+
+
+def mass_function(model: mujoco.MjModel, actuated_dofs, configuration):
+    """``mass(states) -> (..., k, k)``: the block of the actuated dofs of ``M(qpos)`` (by
+    MJX, armature included), ``qpos`` of ``configuration(states)``; float32.
+
+    Args:
+      model: a ``mujoco.MjModel`` (put on the device here).
+      actuated_dofs: ``(k,)`` dof index of each torque.
+      configuration: the task's ``configuration(state) -> (qpos, qvel)``.
+
+    Examples:
+      >>> arm = robots.load("two_link_arm")
+      >>> mass = mass_function(arm.mj_model, arm.actuated_dofs, lambda s: (s[..., :2], s[..., 2:]))
+      >>> m = jax.jit(mass)(jnp.zeros((3, 4)))  # 2 s: MJX's inertia compiles
+      >>> m.shape, bool(np.allclose(m[0], arm.mass_matrix(np.zeros(2)), rtol=1e-5))
+      ((3, 2, 2), True)
+    """
+    device_model = mjx.put_model(model)
+    dofs = jnp.asarray(np.asarray(actuated_dofs))
+
+    def one(qpos):
+        data = _inertia(device_model, mjx.make_data(device_model).replace(qpos=qpos))
+        return mjx.full_m(device_model, data)[dofs[:, None], dofs[None, :]]
+
+    def mass(states):
+        lead = states.shape[:-1]
+        qpos, _ = configuration(states.reshape((-1, states.shape[-1])))
+        out = jax.vmap(one)(qpos)
+        return out.reshape(lead + out.shape[1:]).astype(jnp.float32)
+
+    return mass
 
 
 def terms_function(model: mujoco.MjModel, actuated_dofs, configuration, affine=None):
