@@ -291,8 +291,8 @@ def pose_scale(config: config_lib.Config, robot, task) -> Callable | None:
       task: the task built for it (its ``configuration(state) -> (qpos, qvel)``).
 
     Examples:
-      >>> config = cfm_jax.Config(robot="two_link_arm", loop=cfm_jax.LoopConfig(torque_scale="pose"))
-      >>> setup = Setup.of(config)
+      >>> pose = cfm_jax.LoopConfig(torque_scale="pose")
+      >>> setup = Setup.of(cfm_jax.Config(robot="two_link_arm", loop=pose))
       >>> home = setup.task.state(setup.robot.home, jnp.zeros(2), None)
       >>> bool(jnp.allclose(jax.jit(setup.pose_scale)(home), 0.0, atol=1e-4))  # T(home) = T
       True
