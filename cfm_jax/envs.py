@@ -10,7 +10,8 @@ robot's own scales (:func:`cfm_jax.tasks.scales.robot_scales`), float32. The act
 * ``limit``: ``a * tau_max``;
 * ``scale``: through the torque scale cfm_jax's controller acts through
   (:func:`cfm_jax.learning.algorithm.torque_scale` of ``config.loop.torque_scale``, the coupled
-  scale ``T`` built from the mass matrix for the arms), the controller's own squashing
+  scale ``T`` built from the mass matrix for the arms; ``pose``: ``T`` at home), the
+  controller's own squashing
   :meth:`cfm_jax.learning.networks.Normaliser.torque_output` of ``u = reach * a``, ``reach`` (
   :func:`action_reach`) the output at which every joint gets to ``tanh(1)`` (76%) of its
   limit;
