@@ -123,3 +123,19 @@ def test_a_run_trains_with_the_pose_scale_and_continues(tmp_path):
 def test_the_pose_scale_is_a_config_value_checked_by_name():
     with pytest.raises(config.ConfigError, match="loop.torque_scale.*'pose'"):
         config.LoopConfig(torque_scale="poses")
+
+
+def test_the_positive_definite_solve_is_numpys():
+    """The pose path's solve (a Cholesky in array operations, no LAPACK batch: see its
+    docstring) against NumPy's float64 ``solve``, on a batch of ill-conditioned matrices."""
+    rng = np.random.default_rng(3)
+    for k in (1, 3, 7):
+        half = rng.normal(size=(6, k, k))
+        a = half @ half.transpose(0, 2, 1) + np.diag(np.logspace(-3, 0, k))
+        b = rng.normal(size=(6, k))
+        expected = np.linalg.solve(a, b[..., None])[..., 0]
+        got = jax.jit(networks._positive_definite_solve)(jnp.asarray(a, jnp.float32),
+                                                         jnp.asarray(b, jnp.float32))  # fmt: skip
+        # float32 against float64: relative to the solution's size and a's conditioning.
+        tolerance = 1e-6 * np.linalg.cond(a).max() * np.abs(expected).max()
+        np.testing.assert_allclose(got, expected, atol=tolerance)

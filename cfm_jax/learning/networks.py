@@ -147,8 +147,7 @@ class Normaliser:
         pose of ``state``, ``(..., state_dim)``, with a ``pose_scale``)."""
         scale = self.torque_limit if self.torque_scale is None else self.torque_scale
         if self.pose_scale is not None and state is not None:
-            scale = self._at_pose(scale, state, tau.shape)
-            return jnp.linalg.solve(scale, tau[..., None])[..., 0]
+            return _positive_definite_solve(self._at_pose(scale, state, tau.shape), tau)
         if scale.ndim == 2:  # a coupled scale T: T^-1 tau
             return jnp.linalg.solve(scale, tau[..., None])[..., 0]
         return tau / scale
@@ -186,6 +185,29 @@ class Normaliser:
     def desired(self, d):
         """Normalised desired quantity (the output's statistics at ``desired_index``)."""
         return (d - self.select(self.output_mean)) / self.select(self.output_std)
+
+
+def _positive_definite_solve(a, b):
+    """``a^-1 b`` for symmetric positive definite ``a (..., k, k)`` and ``b (..., k)``, by a
+    Cholesky factorisation written out in array operations over the leading axes.
+
+    Not ``jnp.linalg.solve``: on the CPU a batch of LAPACK factorisations splits over XLA's
+    thread pool and waits there, and two of them at once (the supervised loss's two torques)
+    took both threads of a 2-core machine and never returned (jaxlib 0.8, a Gen3 run)."""
+    k = a.shape[-1]
+    low = [[None] * k for _ in range(k)]  # the Cholesky factor L, a = L L^T, by entries
+    for j in range(k):
+        diagonal = jnp.sqrt(a[..., j, j] - sum(low[j][m] ** 2 for m in range(j)))
+        low[j][j] = diagonal
+        for i in range(j + 1, k):
+            low[i][j] = (a[..., i, j] - sum(low[i][m] * low[j][m] for m in range(j))) / diagonal
+    y = []  # L y = b
+    for i in range(k):
+        y.append((b[..., i] - sum(low[i][m] * y[m] for m in range(i))) / low[i][i])
+    x = [None] * k  # L^T x = y
+    for i in reversed(range(k)):
+        x[i] = (y[i] - sum(low[m][i] * x[m] for m in range(i + 1, k))) / low[i][i]
+    return jnp.stack(x, -1)
 
 
 def _scale(torque_scale):
