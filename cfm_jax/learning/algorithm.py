@@ -300,7 +300,7 @@ def pose_scale(config: config_lib.Config, robot, task) -> Callable | None:
     if config.loop.torque_scale != "pose":
         return None
     frequency = config.task.feedback_frequency(config.task.control_period(robot.timestep))
-    acceleration = robot._torque_scale(frequency)[1]
+    acceleration = robot.scale_acceleration(frequency)
     dofs = np.asarray(robot.actuated_dofs)
     home = jnp.asarray(robot.mass_matrix(robot.home)[np.ix_(dofs, dofs)], jnp.float32)
     mass = rigid_body.mass_function(robot.mj_model, dofs, task.configuration)

@@ -242,6 +242,18 @@ class Robot:
         """
         return self._torque_scale(frequency)[0]
 
+    def scale_acceleration(self, frequency: float = np.inf) -> float:
+        """The acceleration ``a`` :meth:`torque_scale` gives every joint (rad/s^2).
+
+        Args:
+          frequency: as :meth:`torque_scale`.
+
+        Examples:
+          >>> round(load("two_link_arm").scale_acceleration(10.0), 1)
+          58.5
+        """
+        return self._torque_scale(frequency)[1]
+
     def _torque_scale(self, frequency: float) -> tuple[np.ndarray, float]:
         """:meth:`torque_scale` and the acceleration ``a`` it gives every joint."""
         if not frequency > 0:  # also NaN
