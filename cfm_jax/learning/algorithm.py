@@ -272,10 +272,15 @@ def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:
     """
     if config.loop.torque_scale == "limit":
         return None
-    frequency = config.task.feedback_frequency(config.task.control_period(robot.timestep))
+    frequency = _feedback_frequency(config, robot)
     if config.loop.torque_scale in ("coupled", "pose"):
         return robot.coupled_torque_scale(frequency)
     return robot.torque_scale(frequency)
+
+
+def _feedback_frequency(config: config_lib.Config, robot) -> float:
+    """The task's PD feedback frequency at its control period on ``robot``."""
+    return config.task.feedback_frequency(config.task.control_period(robot.timestep))
 
 
 def pose_scale(config: config_lib.Config, robot, task) -> Callable | None:
@@ -299,8 +304,7 @@ def pose_scale(config: config_lib.Config, robot, task) -> Callable | None:
     """
     if config.loop.torque_scale != "pose":
         return None
-    frequency = config.task.feedback_frequency(config.task.control_period(robot.timestep))
-    acceleration = robot.scale_acceleration(frequency)
+    acceleration = robot.scale_acceleration(_feedback_frequency(config, robot))
     dofs = np.asarray(robot.actuated_dofs)
     home = jnp.asarray(robot.mass_matrix(robot.home)[np.ix_(dofs, dofs)], jnp.float32)
     mass = rigid_body.mass_function(robot.mj_model, dofs, task.configuration)

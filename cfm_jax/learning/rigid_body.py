@@ -192,17 +192,23 @@ def mass_function(model: mujoco.MjModel, actuated_dofs, configuration):
     device_model = mjx.put_model(model)
     dofs = jnp.asarray(np.asarray(actuated_dofs))
 
-    def one(qpos):
+    def one(qpos, qvel):
         data = _inertia(device_model, mjx.make_data(device_model).replace(qpos=qpos))
         return mjx.full_m(device_model, data)[dofs[:, None], dofs[None, :]]
 
-    def mass(states):
-        lead = states.shape[:-1]
-        qpos, _ = configuration(states.reshape((-1, states.shape[-1])))
-        out = jax.vmap(one)(qpos)
-        return out.reshape(lead + out.shape[1:]).astype(jnp.float32)
+    return _per_state(one, configuration)
 
-    return mass
+
+def _per_state(one, configuration):
+    """``states -> one(*configuration(state))`` over any leading axes, float32."""
+
+    def over(states):
+        lead = states.shape[:-1]
+        qpos, qvel = configuration(states.reshape((-1, states.shape[-1])))
+        out = jax.vmap(one)(qpos, qvel)
+        return jax.tree.map(lambda x: x.reshape(lead + x.shape[1:]).astype(jnp.float32), out)
+
+    return over
 
 
 def terms_function(model: mujoco.MjModel, actuated_dofs, configuration, affine=None):
@@ -235,13 +241,7 @@ def terms_function(model: mujoco.MjModel, actuated_dofs, configuration, affine=N
         gain = jnp.matmul(a, terms.gain, precision=exact)
         return Terms(gain, jnp.matmul(a, terms.drift, precision=exact) + b)
 
-    def terms(state):
-        lead = state.shape[:-1]
-        qpos, qvel = configuration(state.reshape((-1, state.shape[-1])))
-        out = jax.vmap(one)(qpos, qvel)
-        return jax.tree.map(lambda x: x.reshape(lead + x.shape[1:]).astype(jnp.float32), out)
-
-    return terms
+    return _per_state(one, configuration)
 
 
 def structured(residual: networks.Model, terms, output_dim: int, entries, scale: float):
