@@ -537,6 +537,81 @@ def _mse_text(result) -> str:
     return text + (f"; {diverged} diverged" if diverged else "")
 
 
+def rank_test(later, earlier) -> float:
+    """Two-sided p-value of an exact two-sample permutation test of the seeds' robot-seconds
+    to a level (a seed that never reaches it, None: inf): the difference of mean ranks, every split
+    of the pooled seeds enumerated (scipy; two-sided: twice the smaller tail), no random number.
+
+    Examples:
+      >>> round(rank_test([500, 600, 700, 800, 900], [20, 20, 30, 30, 30]), 4)  # 2 of 252 splits
+      0.0079
+    """
+    from scipy import stats as scipy_stats
+
+    def statistic(x, y):
+        ranks = scipy_stats.rankdata(np.concatenate([x, y]))
+        return ranks[: len(x)].mean() - ranks[len(x) :].mean()
+
+    samples = tuple(
+        np.array([np.inf if x is None else x for x in s], float) for s in (later, earlier)
+    )
+    result = scipy_stats.permutation_test(
+        samples, statistic, permutation_type="independent", n_resamples=np.inf
+    )
+    return float(result.pvalue)
+
+
+def headline(records: pd.DataFrame) -> str:
+    """The README's sentence on the peers, from the records alone (``tests/test_peers.py``
+    checks that the README says it): each method's robot-seconds to PD-only's MSE and to 10x
+    below it (the median of the seeds' first crossings; how many seeds, where not all), and
+    how many times the robot-seconds of cfm_jax's slowest loss the fastest peer needs to get
+    10x below PD-only, with :func:`rank_test` of the two's seeds."""
+    pd_only, _ = levels(records)
+    rows = summary_rows(records, pd_only)
+
+    def reach(row, key):
+        median, reached, seeds = row[key]
+        if median is None:
+            return f"none in {row['last']:.0f}"
+        return f"{median:.0f}" + ("" if reached == seeds else f" ({reached}/{seeds})")
+
+    seeds = " or ".join(str(n) for n in sorted({row["to_pd"][2] for row in rows}))
+    text = (
+        f"robot-seconds to PD-only's error / to 10x below it (median of {seeds} seeds' first "
+        "crossings): "
+        + ", ".join(
+            f"{row['method']} {reach(row, 'to_pd')} / {reach(row, 'to_tenth')}" for row in rows
+        )
+        + f" (PD-only {pd_only:.2g} rad^2)."
+    )
+    every = [
+        r for r in rows if r["to_tenth"][0] is not None and r["to_tenth"][1] == r["to_tenth"][2]
+    ]
+    losses = [r for r in every if r["method"] in LOSSES]
+    peers = [r for r in every if r["method"] in PEERS]
+    if not peers or len(losses) < len({r["method"] for r in rows} & set(LOSSES)):
+        return text + " No peer gets 10x below PD-only on every seed within its budget."
+    slowest = max(losses, key=lambda r: r["to_tenth"][0])
+    fastest = min(peers, key=lambda r: r["to_tenth"][0])
+    curves = seed_curves(records)
+    later, earlier = (
+        list(first_crossings(curves[curves.method == r["method"]], pd_only / 10).values())
+        for r in (fastest, slowest)
+    )
+    if min(len(later), len(earlier)) < 2:
+        verdict = "too few seeds for a test"
+    else:
+        p = rank_test(later, earlier)
+        verdict = f"p = {p:.2g}" + ("" if p < 0.05 else ", not resolved")
+    return text + (
+        f" To 10x below PD-only the fastest peer, {fastest['method']}, needs "
+        f"{fastest['to_tenth'][0] / slowest['to_tenth'][0]:.0f}x the robot-seconds of cfm_jax's "
+        f"slowest loss, {slowest['method']} (exact two-sample permutation test of their seeds' "
+        f"crossings, {verdict})."
+    )
+
+
 def table(records: pd.DataFrame, pd_only: float, oracle: float) -> str:
     """The page's table (Markdown) from the records: the same records give the same text."""
     lines = [
