@@ -211,6 +211,22 @@ def test_readme_headline_is_the_committed_records():
     assert " ".join(text.split()) in readme
 
 
+def test_headline_ratio_is_the_medians_and_the_exact_test():
+    """The headline's ratio on made-up records: a loss 10x below PD-only at 20 or 30 s on every
+    seed, a peer at 500-900 s; the ratio of the medians by hand (700 / 30) and the exact test's
+    p (only 2 of the 252 splits are as extreme)."""
+    rows = [("pd_only", 0, np.nan, 0, 1.0, 0, np.nan), ("oracle", 0, np.nan, 0, 1e-6, 0, np.nan)]
+    for seed, cross in enumerate([20, 30, 30, 20, 30]):
+        rows += [("joint", seed, t, 0, 0.05 if t >= cross else 2.0, 0, 1.0) for t in (10, 20, 30)]
+    for seed, cross in enumerate([500, 600, 700, 800, 900]):
+        rows += [("sac", seed, t, 0, 0.05 if t >= cross else 2.0, 0, 1.0)
+                 for t in range(100, 1001, 100)]  # fmt: skip
+    text = peers.headline(pd.DataFrame(rows, columns=peers.COLUMNS))
+    assert "joint 30 / 30, sac 700 / 700 (PD-only 1 rad^2)" in text  # both levels crossed at once
+    assert f"needs {700 / 30:.2g}x the robot-seconds of cfm_jax's slowest loss, joint" in text
+    assert f"p = {2 / 252:.2g})" in text
+
+
 def test_rank_test_is_a_plain_enumeration_of_the_splits():
     """peers.rank_test (scipy's exact permutation test) against every split of the pooled seeds
     enumerated by hand, with ties and seeds that never reach the level."""
