@@ -498,6 +498,7 @@ def summary_rows(records: pd.DataFrame, pd_only: float) -> list[dict]:
             to_pd=time_to(mine, pd_only),
             crossings=first_crossings(mine, pd_only),
             to_tenth=time_to(mine, pd_only / 10),
+            tenth_crossings=first_crossings(mine, pd_only / 10),
             at_cfm=_mse_at(mine, cfm_budget) if np.isfinite(cfm_budget) else (None, None, 0),
             at_peer=(
                 _mse_at(mine, peer_budget)
@@ -596,11 +597,7 @@ def headline(records: pd.DataFrame) -> str:
         return text + " No peer gets 10x below PD-only on every seed within its budget."
     slowest = max(losses, key=lambda r: r["to_tenth"][0])
     fastest = min(peers, key=lambda r: r["to_tenth"][0])
-    curves = seed_curves(records)
-    later, earlier = (
-        list(first_crossings(curves[curves.method == r["method"]], pd_only / 10).values())
-        for r in (fastest, slowest)
-    )
+    later, earlier = (list(r["tenth_crossings"].values()) for r in (fastest, slowest))
     if min(len(later), len(earlier)) < 2:
         verdict = "too few seeds for a test"
     else:
