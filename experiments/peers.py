@@ -20,9 +20,10 @@ Not a test: a study. It runs
   the selection motions). Their episodes follow the task's references in turn, the references
   every iteration of Algorithm 1 rolls out on (the babbling knows none of them; neither
   method sees the reference controller). Every peer is evaluated every ``--every``
-  robot-seconds (100 by default; robot-seconds = environment steps x control period) with
-  its deterministic policy on each test reference; evaluation episodes are not learning
-  data. The tracking MSE is the library's metric (``tests/test_envs.py``);
+  robot-seconds (100 by default; robot-seconds = environment steps x control period), and
+  every ``--early-every`` (10, cfm_jax's resolution) before that, with its deterministic
+  policy on each test reference; evaluation episodes are not learning data. The tracking
+  MSE is the library's metric (``tests/test_envs.py``);
 
 then writes ``--page`` (``docs/results/peers.md``): a log-log figure of test tracking MSE
 against robot-seconds (mean over seeds and its 95% bootstrap band; PD-only and oracle as
@@ -36,7 +37,9 @@ Resumable: a finished cfm_jax loss or peer seed is read, not run again; an inter
 cfm_jax loss resumes from its checkpoints; an interrupted peer resumes from its last
 robot-second checkpoint (its model, normalisation, optimiser and replay buffer as SB3 saves
 them; a resumed peer is not bit-identical to an uninterrupted one: SB3 does not save its
-random state). ``--records`` (the page's data, committed) is rewritten after every piece.
+random state). A peer begun on a coarser grid gets the checkpoints it passed from a replay
+of its seed from the start, checked bit for bit against it (:func:`_replay`). ``--records``
+(the page's data, committed) is rewritten after every piece.
 
 The peers' hyperparameters: each peer's choice of its search (``experiments/peers_search.py``,
 on the selection motions, by a rule committed before its first trial; ``--hyper``), SB3's
@@ -46,6 +49,7 @@ budget (PPO is cheap: run it until its curve is flat).
 Usage:
   python experiments/peers.py [--seeds 5] [--methods joint,...,sac,sac_residual,ppo,...]
       [--budget 2000] [--peer-budgets ppo=20000,ppo_residual=20000] [--every 100]
+      [--early-every 10]
       [--out results/peers] [--page docs/results/peers.md] [--hyper FILE]
       [--records docs/results/peers_records.csv] [--train-flags "..."] [--jobs 2]
       [--page-only]
@@ -88,6 +92,10 @@ COLUMNS = ["method", "seed", "robot_s", "target", "tracking_mse", "diverged", "w
 whole run of the loss, all seeds, on every row)."""
 EVERY = 100.0
 """Robot-seconds between the peers' evaluations (``--every``)."""
+EARLY = 10.0
+"""Robot-seconds between the study's evaluations before the first ``EVERY`` (``--early-every``):
+cfm_jax's resolution (one iteration's rollouts of the five 2-s motions), so that a peer that
+gets to a level within its first ``EVERY`` s is not charged the whole of it."""
 
 
 def algorithm_of(method: str) -> str:
@@ -102,20 +110,27 @@ def algorithm_of(method: str) -> str:
     return method.split("_")[0]
 
 
-def default_checkpoints(budget: float, every: float = EVERY) -> list[float]:
+def default_checkpoints(budget: float, every: float = EVERY, early: float | None = None):
     """Robot-second checkpoints on a linear grid: every ``every`` s up to ``budget`` (and
-    ``budget`` itself where the grid misses it), fine enough that robot-seconds to a level are
-    not set by the grid.
+    ``budget`` itself where the grid misses it), and every ``early`` s before the first
+    ``every`` where given, fine enough that robot-seconds to a level are not set by the grid.
 
     Examples:
       >>> default_checkpoints(450)
       [100.0, 200.0, 300.0, 400.0, 450.0]
+      >>> default_checkpoints(250, early=25)
+      [25.0, 50.0, 75.0, 100.0, 200.0, 250.0]
     """
-    if not (every > 0 and budget > 0):
-        raise ValueError(f"every={every!r}, budget={budget!r}: both must be > 0 (robot-seconds)")
+    if not (every > 0 and budget > 0 and (early is None or early > 0)):
+        raise ValueError(
+            f"every={every!r}, budget={budget!r}, early={early!r}: each must be > 0 (robot-s)"
+        )
     points = [every * k for k in range(1, int(np.floor(budget / every + 1e-9)) + 1)]
     if not points or points[-1] < budget - 1e-9:
         points.append(float(budget))
+    if early is not None:
+        first = min(every, budget)
+        points = [early * k for k in range(1, int(np.ceil(first / early - 1e-9)))] + points
     return [float(p) for p in points]
 
 
@@ -286,6 +301,10 @@ def run_peer(
         model = algorithm("MlpPolicy", venv, seed=seed, device="cpu", verbose=0, **arguments)
         pd.DataFrame(columns=COLUMNS).to_csv(records, index=False)
     dt = env.control_dt
+    passed = [p for p in checkpoints
+              if p not in state["done"] and int(round(p / dt)) <= model.num_timesteps]  # fmt: skip
+    if passed:
+        _replay(method, seed, config, out, state, passed, hyper)
     for point in checkpoints:
         if point in state["done"]:
             continue
@@ -313,6 +332,45 @@ def run_peer(
         with open(state_path, "w") as f:
             json.dump(state, f)
     with open(state_path, "w") as f:
+        json.dump(state, f)
+
+
+def _replay(method, seed, config, out: str, state: dict, passed: list, hyper: dict) -> None:
+    """Checkpoints a run has passed without evaluating them (it began on a coarser grid): the
+    same seed run again from the start in ``OUT/replay`` through them and on to the run's next
+    evaluated checkpoint, whose rows must equal the run's bit for bit (the same run: the seed,
+    the code and the machine's arithmetic) before the replay's rows of ``passed`` join the
+    run's records; otherwise the program stops and says so. A replay cut short starts again
+    (a resumed SB3 run draws anew from its seed, so it is not the same run)."""
+    import shutil
+
+    records_path = os.path.join(out, "records.csv")
+    records = pd.read_csv(records_path)
+    later = sorted(p for p in state["done"] if p > max(passed))
+    if not later:
+        raise SystemExit(f"peers: {out}: nothing evaluated after {max(passed)} s to check a replay")
+    points = sorted(passed) + [later[0]]
+    folder = os.path.join(out, "replay")
+    if not _peer_finished(folder, points):
+        shutil.rmtree(folder, ignore_errors=True)
+        print(f"peers: {method} seed {seed}: replaying to {points[-1]} s for {passed}", flush=True)
+        run_peer(method, seed, config, folder, points, hyper)
+    replay = pd.read_csv(os.path.join(folder, "records.csv"))
+    check = replay.robot_s.max()
+    keys = ["robot_s", "target", "tracking_mse", "diverged"]
+    mine = replay[replay.robot_s == check][keys].reset_index(drop=True)
+    theirs = records[records.robot_s == check][keys].reset_index(drop=True)
+    if theirs.empty or not mine.equals(theirs):
+        raise SystemExit(
+            f"peers: {out}: the replay's rows at {check} s differ from the run's "
+            f"({mine.tracking_mse.tolist()} against {theirs.tracking_mse.tolist()}): not the "
+            "same run (another machine's arithmetic?); rerun the seed from the start"
+        )
+    early = replay[(replay.robot_s < check) & ~replay.robot_s.isin(records.robot_s)]
+    merged = pd.concat([records, early]).sort_values(["robot_s", "target"], kind="stable")
+    merged.to_csv(records_path, index=False)
+    state["done"] = sorted(set(state["done"]) | set(passed))
+    with open(os.path.join(out, "state.json"), "w") as f:
         json.dump(state, f)
 
 
@@ -431,13 +489,18 @@ def seed_curves(records: pd.DataFrame) -> pd.DataFrame:
     return curves
 
 
-def first_crossings(curves: pd.DataFrame, level: float) -> dict:
+def first_crossings(curves: pd.DataFrame, level: float, before: bool = False) -> dict:
     """Per seed, the first checkpoint (robot-seconds) whose MSE is at or below ``level``, or
-    None where none is."""
+    None where none is; with ``before``, the checkpoint before that one (0 where it is the
+    first): the crossing lies between the two."""
     firsts = {}
     for seed, mine in curves.groupby("seed"):
         reached = mine[mine.tracking_mse <= level].robot_s
-        firsts[int(seed)] = float(reached.min()) if len(reached) else None
+        first = float(reached.min()) if len(reached) else None
+        if before and first is not None:
+            earlier = mine[mine.robot_s < first].robot_s
+            first = float(earlier.max()) if len(earlier) else 0.0
+        firsts[int(seed)] = first
     return firsts
 
 
@@ -499,6 +562,7 @@ def summary_rows(records: pd.DataFrame, pd_only: float) -> list[dict]:
             crossings=first_crossings(mine, pd_only),
             to_tenth=time_to(mine, pd_only / 10),
             tenth_crossings=first_crossings(mine, pd_only / 10),
+            tenth_before=first_crossings(mine, pd_only / 10, before=True),
             at_cfm=_mse_at(mine, cfm_budget) if np.isfinite(cfm_budget) else (None, None, 0),
             at_peer=(
                 _mse_at(mine, peer_budget)
@@ -597,18 +661,35 @@ def headline(records: pd.DataFrame) -> str:
         return text + " No peer gets 10x below PD-only on every seed within its budget."
     slowest = max(losses, key=lambda r: r["to_tenth"][0])
     fastest = min(peers, key=lambda r: r["to_tenth"][0])
-    later, earlier = (list(r["tenth_crossings"].values()) for r in (fastest, slowest))
+    later, before, earlier = (
+        list(r[key].values())
+        for r, key in ((fastest, "tenth_crossings"), (fastest, "tenth_before"),
+                       (slowest, "tenth_crossings"))
+    )  # fmt: skip
     if min(len(later), len(earlier)) < 2:
         verdict = "too few seeds for a test"
-    else:
-        p = rank_test(later, earlier)
+    elif not _ranks_above(before, earlier):
+        verdict = "not resolved: at the checkpoints before its crossings the peer ranks first"
+    else:  # the crossing lies between two checkpoints: the test at either end, the larger p
+        p = max(rank_test(later, earlier), rank_test(before, earlier))
         verdict = f"p = {p:.2g}" + ("" if p < 0.05 else ", not resolved")
+    slow = slowest["to_tenth"][0]
+    low, high = float(np.median(before)) / slow, fastest["to_tenth"][0] / slow
+    times = f"{low:.2g}x to {high:.2g}x" if low > 0 else f"at most {high:.2g}x"
     return text + (
-        f" To 10x below PD-only the fastest peer, {fastest['method']}, needs "
-        f"{fastest['to_tenth'][0] / slowest['to_tenth'][0]:.2g}x the robot-seconds of cfm_jax's "
-        f"slowest loss, {slowest['method']} (exact two-sample permutation test of their seeds' "
-        f"crossings, {verdict})."
+        f" To 10x below PD-only the fastest peer, {fastest['method']}, needs {times} the "
+        f"robot-seconds of cfm_jax's slowest loss, {slowest['method']} (from the peer's "
+        "checkpoint before its crossing to the crossing; exact two-sample permutation test of "
+        f"their seeds' crossings at either end, the larger p: {verdict})."
     )
+
+
+def _ranks_above(x, y) -> bool:
+    """Whether the seeds ``x`` have the higher mean rank among ``x`` and ``y`` pooled."""
+    from scipy import stats as scipy_stats
+
+    ranks = scipy_stats.rankdata([np.inf if v is None else v for v in [*x, *y]])
+    return ranks[: len(x)].mean() > ranks[len(x) :].mean()
 
 
 def table(records: pd.DataFrame, pd_only: float, oracle: float) -> str:
@@ -704,17 +785,28 @@ def describe(config, command: str, checkpoints: dict, hypers: dict, source: str)
 
 
 def _grid_text(points) -> str:
-    """``every D s from A to B s`` for an evenly spaced grid, else the points.
+    """``every D s from A to B s`` for an evenly spaced grid (and ``, then every E s to C s``
+    for each further evenly spaced stretch), else the points.
 
     Examples:
       >>> _grid_text([100.0, 200.0, 300.0]), _grid_text([10.0, 20.0, 50.0])
       ('every 100 s from 100 to 300 s', 'at 10, 20, 50 s')
+      >>> _grid_text([25.0, 50.0, 75.0, 100.0, 200.0, 300.0])
+      'every 25 s from 25 to 100 s, then every 100 s to 300 s'
     """
     points = [float(p) for p in points]
-    steps = np.diff(points)
-    if len(points) > 2 and np.allclose(steps, steps[0]):
-        return f"every {steps[0]:g} s from {points[0]:g} to {points[-1]:g} s"
-    return "at " + ", ".join(f"{p:g}" for p in points) + " s"
+    stretches, i = [], 0  # (first, last, step) of each evenly spaced stretch
+    while i < len(points) - 1:
+        step, j = points[i + 1] - points[i], i + 1
+        while j < len(points) - 1 and np.isclose(points[j + 1] - points[j], step):
+            j += 1
+        stretches.append((points[i], points[j], step, j - i))
+        i = j
+    if not stretches or stretches[0][3] < 2 or len(stretches) > 3:
+        return "at " + ", ".join(f"{p:g}" for p in points) + " s"
+    first, last, step, _ = stretches[0]
+    text = f"every {step:g} s from {first:g} to {last:g} s"
+    return text + "".join(f", then every {e:g} s to {b:g} s" for _, b, e, _ in stretches[1:])
 
 
 PLACES = ("--out", "--page", "--records")
@@ -874,6 +966,12 @@ def main(argv: list[str] | None = None) -> None:
         help="PEER=SECONDS,... : a peer's own budget (PPO run until its curve is flat)",
     )
     parser.add_argument(
+        "--early-every",
+        type=float,
+        default=EARLY,
+        help="robot-seconds between evaluations before the first --every",
+    )
+    parser.add_argument(
         "--every", type=float, default=EVERY, help="robot-seconds between evaluations"
     )
     parser.add_argument(
@@ -912,13 +1010,15 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--jobs={args.jobs}: a positive number")
     if not args.every > 0:
         parser.error(f"--every={args.every}: a positive number of robot-seconds")
+    if not args.early_every > 0:
+        parser.error(f"--early-every={args.early_every}: a positive number of robot-seconds")
     try:
         budgets = _budgets(args.peer_budgets, args.budget)
     except ValueError as error:
         parser.error(str(error))
     checkpoints = {
         peer: [float(x) for x in args.checkpoints.split(",")] if args.checkpoints
-        else default_checkpoints(budgets[peer], args.every)
+        else default_checkpoints(budgets[peer], args.every, args.early_every)
         for peer in PEERS
     }  # fmt: skip
     command = " ".join(["python experiments/peers.py", *(shlex.quote(a) for a in argv)])

@@ -62,6 +62,37 @@ def test_sac_checkpoints_resume_and_records(tmp_path):
     assert resumed.obs_rms.count > saved.obs_rms.count + 29
 
 
+def test_a_coarse_grid_gets_its_passed_checkpoints_from_a_replay(tmp_path):
+    """A run begun on a coarser grid, given a finer one, replays its seed to the checkpoints it
+    passed: its records then equal, bit for bit, those of a run on the finer grid from the start
+    (SAC learning from step 5); a replay that is not the same run stops the program."""
+    hyper = {"learning_starts": 5, "batch_size": 8}
+    coarse, fine = [0.3, 0.6], [0.1, 0.2, 0.3, 0.6]
+    keys = ["robot_s", "target", "tracking_mse", "diverged"]
+
+    def rows(out):
+        return pd.read_csv(os.path.join(out, "records.csv"))[keys]
+
+    begun, whole = str(tmp_path / "begun"), str(tmp_path / "whole")
+    peers.run_peer("sac_residual", 3, CONFIG, begun, coarse, hyper)
+    peers.run_peer("sac_residual", 3, CONFIG, whole, fine, hyper)
+    tampered = str(tmp_path / "tampered")
+    import shutil
+
+    shutil.copytree(begun, tampered)
+    peers.run_peer("sac_residual", 3, CONFIG, begun, fine, hyper)
+    pd.testing.assert_frame_equal(rows(begun), rows(whole), check_exact=True)
+    assert peers._peer_finished(begun, fine)
+    assert rows(begun).robot_s.unique().tolist() == pytest.approx(fine)
+    assert rows(whole).tracking_mse.nunique() == 20  # it learns: no two checkpoints alike
+    path = os.path.join(tampered, "records.csv")
+    records = pd.read_csv(path)
+    records.loc[records.robot_s == 0.3, "tracking_mse"] *= 1 + 1e-12
+    records.to_csv(path, index=False)
+    with pytest.raises(SystemExit, match="differ from the run's"):
+        peers.run_peer("sac_residual", 3, CONFIG, tampered, fine, hyper)
+
+
 def _env(action="limit", config=CONFIG):
     return envs.TrackingEnv(config, references="test", action=action)
 
@@ -223,8 +254,31 @@ def test_headline_ratio_is_the_medians_and_the_exact_test():
                  for t in range(100, 1001, 100)]  # fmt: skip
     text = peers.headline(pd.DataFrame(rows, columns=peers.COLUMNS))
     assert "joint 30 / 30, sac 700 / 700 (PD-only 1 rad^2)" in text  # both levels crossed at once
-    assert f"needs {700 / 30:.2g}x the robot-seconds of cfm_jax's slowest loss, joint" in text
-    assert f"p = {2 / 252:.2g})" in text
+    # The crossing lies between the checkpoint before it (median 600 s) and itself (700 s).
+    assert (
+        f"needs {600 / 30:.2g}x to {700 / 30:.2g}x the robot-seconds of cfm_jax's slowest "
+        "loss, joint" in text
+    )
+    assert f"the larger p: p = {2 / 252:.2g})" in text
+    # A peer that crosses at its first checkpoint may have crossed at any time before it: at
+    # the checkpoints before its crossings (10 s and 0) it ranks before the loss (20-30 s).
+    rows = [r for r in rows if r[0] != "sac"]
+    for seed, cross in enumerate([100, 100, 100, 100, 100]):
+        grid = (10, 100, 200) if seed == 0 else (100, 200)
+        rows += [("sac", seed, t, 0, 0.05 if t >= cross else 2.0, 0, 1.0) for t in grid]
+    text = peers.headline(pd.DataFrame(rows, columns=peers.COLUMNS))
+    assert f"needs at most {100 / 30:.2g}x the robot-seconds" in text
+    assert "not resolved: at the checkpoints before its crossings the peer ranks first)" in text
+    # Peer after the loss at both ends, but only at the crossings clearly: before them (25, 100,
+    # 200, 300, 400 s against 20, 20, 30, 30, 30) the pooled ranks 1.5 1.5 3 5 5 5 7 8 9 10 put
+    # the peer's at a sum of 37, which 7 of the 252 splits reach: two-sided 14/252.
+    rows = [r for r in rows if r[0] != "sac"]
+    for seed, cross in enumerate([100, 200, 300, 400, 500]):
+        grid = (25, 100, 200) if seed == 0 else range(100, 601, 100)
+        rows += [("sac", seed, t, 0, 0.05 if t >= cross else 2.0, 0, 1.0) for t in grid]
+    text = peers.headline(pd.DataFrame(rows, columns=peers.COLUMNS))
+    assert f"needs {200 / 30:.2g}x to {300 / 30:.2g}x the robot-seconds" in text
+    assert f"the larger p: p = {14 / 252:.2g}, not resolved)" in text
 
 
 def test_rank_test_is_a_plain_enumeration_of_the_splits():
@@ -254,6 +308,8 @@ def test_rank_test_is_a_plain_enumeration_of_the_splits():
 
 def test_the_grid_is_linear_and_first_crossings_are_a_plain_loop():
     assert peers.default_checkpoints(2000) == [100.0 * k for k in range(1, 21)]
+    early = peers.default_checkpoints(2000, early=10)  # cfm_jax's resolution before 100 s
+    assert early == [10.0 * k for k in range(1, 10)] + [100.0 * k for k in range(1, 21)]
     rng = np.random.default_rng(3)
     rows = []
     for seed in range(4):
@@ -267,6 +323,14 @@ def test_the_grid_is_linear_and_first_crossings_are_a_plain_loop():
         if mse <= level and expected[int(seed)] is None:
             expected[int(seed)] = float(robot_s)
     assert peers.first_crossings(curves, level) == expected
+    before = {}  # the checkpoint before each seed's crossing, 0 where it is the first
+    for seed, first in expected.items():
+        if first is not None:
+            mine = curves[(curves.seed == seed) & (curves.robot_s < first)].robot_s
+            before[seed] = float(mine.max()) if len(mine) else 0.0
+        else:
+            before[seed] = None
+    assert peers.first_crossings(curves, level, before=True) == before
     reached = sorted(x for x in expected.values() if x is not None)
     median = float(np.median(reached)) if reached else None
     assert peers.time_to(curves, level) == (median, len(reached), 4)
