@@ -602,6 +602,14 @@ def _mse_text(result) -> str:
     return text + (f"; {diverged} diverged" if diverged else "")
 
 
+def _rank_gap(x, y) -> float:
+    """The mean rank of the seeds ``x`` minus that of ``y``, both pooled (None: inf)."""
+    from scipy import stats as scipy_stats
+
+    ranks = scipy_stats.rankdata([np.inf if v is None else v for v in [*x, *y]])
+    return ranks[: len(x)].mean() - ranks[len(x) :].mean()
+
+
 def rank_test(later, earlier) -> float:
     """Two-sided p-value of an exact two-sample permutation test of the seeds' robot-seconds
     to a level (a seed that never reaches it, None: inf): the difference of mean ranks, every split
@@ -613,15 +621,11 @@ def rank_test(later, earlier) -> float:
     """
     from scipy import stats as scipy_stats
 
-    def statistic(x, y):
-        ranks = scipy_stats.rankdata(np.concatenate([x, y]))
-        return ranks[: len(x)].mean() - ranks[len(x) :].mean()
-
     samples = tuple(
         np.array([np.inf if x is None else x for x in s], float) for s in (later, earlier)
     )
     result = scipy_stats.permutation_test(
-        samples, statistic, permutation_type="independent", n_resamples=np.inf
+        samples, _rank_gap, permutation_type="independent", n_resamples=np.inf
     )
     return float(result.pvalue)
 
@@ -631,7 +635,8 @@ def headline(records: pd.DataFrame) -> str:
     checks that the README says it): each method's robot-seconds to PD-only's MSE and to 10x
     below it (the median of the seeds' first crossings; how many seeds, where not all), and
     how many times the robot-seconds of cfm_jax's slowest loss the fastest peer needs to get
-    10x below PD-only, with :func:`rank_test` of the two's seeds."""
+    10x below PD-only (a range: from its checkpoints before its crossings to the crossings),
+    with :func:`rank_test` of the two's seeds at both ends."""
     pd_only, _ = levels(records)
     rows = summary_rows(records, pd_only)
 
@@ -668,7 +673,7 @@ def headline(records: pd.DataFrame) -> str:
     )  # fmt: skip
     if min(len(later), len(earlier)) < 2:
         verdict = "too few seeds for a test"
-    elif not _ranks_above(before, earlier):
+    elif not _rank_gap(before, earlier) > 0:
         verdict = "not resolved: at the checkpoints before its crossings the peer ranks first"
     else:  # the crossing lies between two checkpoints: the test at either end, the larger p
         p = max(rank_test(later, earlier), rank_test(before, earlier))
@@ -682,14 +687,6 @@ def headline(records: pd.DataFrame) -> str:
         "checkpoint before its crossing to the crossing; exact two-sample permutation test of "
         f"their seeds' crossings at either end, the larger p: {verdict})."
     )
-
-
-def _ranks_above(x, y) -> bool:
-    """Whether the seeds ``x`` have the higher mean rank among ``x`` and ``y`` pooled."""
-    from scipy import stats as scipy_stats
-
-    ranks = scipy_stats.rankdata([np.inf if v is None else v for v in [*x, *y]])
-    return ranks[: len(x)].mean() > ranks[len(x) :].mean()
 
 
 def table(records: pd.DataFrame, pd_only: float, oracle: float) -> str:
