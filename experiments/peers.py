@@ -750,6 +750,7 @@ def describe(config, command: str, checkpoints: dict, hypers: dict, source: str)
     import stable_baselines3
     import torch
 
+    from cfm_jax.analysis import bench
     from cfm_jax.learning.algorithm import Experiment
 
     task = Experiment(config).task
@@ -759,7 +760,7 @@ def describe(config, command: str, checkpoints: dict, hypers: dict, source: str)
     return {
         "command": command,
         "date": datetime.date.today().isoformat(),
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "machine": f"{bench.processor()}, {platform.machine()}, {os.cpu_count()} cores",
         "task": (
             f"{os.path.splitext(os.path.basename(config.robot))[0]}, {config.task.name}, "
             f"{task.targets} test motions of {task.steps * task.control_dt:g} s at "

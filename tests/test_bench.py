@@ -106,3 +106,12 @@ def test_no_recompilation_after_first_iteration():
     finally:
         listening[0] = False
     assert np.all(np.isfinite(np.asarray(metrics["forward_loss"])))
+
+
+def test_processor_is_the_one_golden_records_name():
+    """The benchmark pages and the peers' page name the processor as the golden records do:
+    ``tests/golden._cpu`` reads ``/proc/cpuinfo`` on its own (there: its ``model name``)."""
+    from golden import _cpu
+
+    assert bench.processor() == _cpu()["model"]
+    assert bench.machine().startswith(bench.processor() + ", ")

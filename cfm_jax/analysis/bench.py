@@ -385,6 +385,26 @@ def versions() -> str:
     return ", ".join(f"{n} {metadata.version(n)}" for n in names)
 
 
+def processor() -> str:
+    """The processor's model (``/proc/cpuinfo``'s ``model name``; where there is none, what
+    ``platform`` says): XLA compiles for the host's instruction set, so the last bits of a
+    run's numbers belong to it.
+
+    Examples:
+      >>> isinstance(processor(), str) and processor() != ""
+      True
+    """
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                if key.strip() == "model name" and value.strip():
+                    return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def machine() -> str:
     """Processor, cores, memory (``?`` without ``/proc/meminfo``), OS, Python and ``XLA_FLAGS``.
 
@@ -398,7 +418,7 @@ def machine() -> str:
     except OSError:
         memory = "?"
     return (
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {memory}, "
+        f"{processor()}, {os.cpu_count()} cores, {memory}, "
         f"{platform.system()} {platform.release()}, Python {platform.python_version()}, "
         f"XLA_FLAGS={os.environ.get('XLA_FLAGS', '')!r}"
     )
