@@ -8,24 +8,19 @@ robot's own scales (:func:`cfm_jax.tasks.scales.robot_scales`), float32. The act
 ``[-1, 1]`` becomes a torque by one of :data:`ACTIONS`:
 
 * ``limit``: ``a * tau_max``;
-* ``scale``: through the torque scale cfm_jax's controller acts through
-  (:func:`cfm_jax.learning.algorithm.torque_scale` of ``config.loop.torque_scale``, the coupled
-  scale ``T`` built from the mass matrix for the arms; ``pose``: ``T`` at home), the
-  controller's own squashing
-  :meth:`cfm_jax.learning.networks.Normaliser.torque_output` of ``u = reach * a``, ``reach`` (
-  :func:`action_reach`) the output at which every joint gets to ``tanh(1)`` (76%) of its
-  limit;
+* ``scale``: the controller's own squashing
+  (:meth:`cfm_jax.learning.networks.Normaliser.torque_output`, the torque scale of
+  ``config.loop.torque_scale``; ``pose``: at home) of ``u = reach * a``, where every joint
+  gets to ``tanh(1)`` (76%) of its limit (:func:`action_reach`);
 * ``residual``: the task's PD feedback torque (the PD-only baseline's,
   :meth:`cfm_jax.tasks.JointSpaceTask.feedback`) plus ``residual_scale`` times the ``scale``
   torque of ``a``, clipped to the limits as :func:`cfm_jax.sim.rollout.run` clips: ``a = 0`` is
   PD-only. Residual-RL practice scales the residual down (a small ``residual_scale``) so that
   early exploration perturbs the feedback instead of overriding it.
 
-The reward is minus the mean square of the next state's tracking error times
-``reward_scale`` (with 1, an episode's mean ``-reward`` is
-:func:`cfm_jax.sim.rollout.tracking_mse`). Episodes are truncated after the reference's steps and
-terminated when the simulation diverges (``info["diverged"]``, with the reward of the last good
-state).
+The reward is minus the next state's squared tracking error times ``reward_scale`` (with 1,
+an episode's mean ``-reward`` is :func:`cfm_jax.sim.rollout.tracking_mse`). Episodes end after
+the reference's steps, or when the simulation diverges (``info["diverged"]``).
 
 ``render_mode="rgb_array"`` makes :meth:`TrackingEnv.render` return the current frame
 (MuJoCo's offscreen renderer, :mod:`cfm_jax.sim.render`; needs OpenGL). The environments are

@@ -164,6 +164,33 @@ def test_incomplete_last_step_is_skipped_on_resume(uninterrupted, experiment, tm
     pd.testing.assert_frame_equal(resumed.metrics, uninterrupted[0].metrics, check_exact=True)
 
 
+def test_resume_with_no_complete_checkpoint_starts_from_the_beginning(
+    uninterrupted, experiment, tmp_path
+):
+    # A kill while the first checkpoint was written (seen in a study) leaves one step without
+    # manifest and nothing else: resume removes it, says so, and trains from the beginning,
+    # as a fresh run of the same config and seed does (the uninterrupted run's tables).
+    import shutil
+
+    out = _copy_run(uninterrupted[1], tmp_path / "run")
+    steps = sorted(int(p.name) for p in (out / "checkpoints").iterdir() if p.name.isdigit())
+    for step in steps[1:]:
+        shutil.rmtree(out / "checkpoints" / str(step))
+    os.remove(out / "checkpoints" / str(steps[0]) / checkpoint.MANIFEST)
+    os.remove(out / "metrics.csv")
+    with pytest.warns(UserWarning) as caught:
+        resumed = cfm_jax.train(CFG, progress=False, resume=str(out), experiment=experiment)
+    said = " ".join(str(w.message) for w in caught)
+    assert f"skipping checkpoint step {steps[0]}" in said
+    assert "no complete checkpoint" in said and "starts from the beginning" in said
+    pd.testing.assert_frame_equal(resumed.metrics, uninterrupted[0].metrics, check_exact=True)
+    pd.testing.assert_frame_equal(
+        pd.read_csv(out / "metrics.csv"),
+        pd.read_csv(uninterrupted[1] / "metrics.csv"),
+        check_exact=True,
+    )
+
+
 def _poison_the_simulator(monkeypatch):
     """Put a NaN into the state MuJoCo returns for the first batch element (seed 0,
     target 0) at control step 9 of the rollout of iteration index 1 (the second one)."""

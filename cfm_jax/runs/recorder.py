@@ -123,11 +123,19 @@ class Recorder:
 
     def start(self, state: TrainState) -> tuple[TrainState, int]:
         """``(state, first iteration)``: with ``resume``, the newest usable checkpoint's (its rows
-        and stopped seeds restored; ``state``: the template), else ``state``, saved as step 0."""
+        and stopped seeds restored; ``state``: the template), else (also where no checkpoint is
+        complete: a kill before the first) ``state``, saved as step 0."""
         if self.resume is not None and self.checkpointer is not None:
-            state, self.rows, first, self.stopped = _restore(self.checkpointer, state)
-            self._write_metrics()
-            return state, first
+            restored = _restore(self.checkpointer, state)
+            if restored is not None:
+                state, self.rows, first, self.stopped = restored
+                self._write_metrics()
+                return state, first
+            warnings.warn(
+                f"no complete checkpoint in {self.checkpointer.directory} (the run was stopped "
+                "before its first was written): it starts from the beginning",
+                stacklevel=3,
+            )
         self._save(state, 0, final=self.config.loop.iterations == 0)
         return state, 0
 
@@ -289,8 +297,9 @@ def _segments(
 
 
 def _restore(checkpointer, template: TrainState):
-    """Newest usable checkpoint, ``(state, rows, completed iterations, stopped)``: a step a kill
-    left incomplete is removed with a warning; a corrupt one raises ``CheckpointError``."""
+    """Newest usable checkpoint, ``(state, rows, completed iterations, stopped)``, or None where
+    no step is complete: a step a kill left incomplete is removed with a warning; a corrupt one
+    raises ``CheckpointError``."""
     for step in reversed(checkpointer.steps()):
         problem = checkpointer.problem(step)
         if problem is not None and "is incomplete" in problem:
@@ -301,9 +310,7 @@ def _restore(checkpointer, template: TrainState):
         rows = [r for r in meta["rows"] if r["iteration"] < step]
         stopped = [e for e in meta.get("stopped", []) if e["iteration"] < step]
         return state, rows, step, stopped
-    raise ckpt_lib.CheckpointError(
-        f"no usable checkpoint in {checkpointer.directory}: start the run again without resume"
-    )
+    return None
 
 
 def progress_bar(enabled: bool):
