@@ -99,7 +99,7 @@ def page(result: dict, coupled: str, pose: str) -> str:
     ]
     for arm, row in result["per_arm"].iterrows():
         lines.append(
-            f"| {arm} | {row.pairs} | {row.mean_d:+.2f} | {int(row.diverged_coupled)} | "
+            f"| {arm} | {int(row.pairs)} | {row.mean_d:+.2f} | {int(row.diverged_coupled)} | "
             f"{int(row.diverged_pose)} |"
         )
     lines.append("")
