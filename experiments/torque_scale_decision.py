@@ -23,7 +23,6 @@ import os
 import numpy as np
 import pandas as pd
 
-LOSSES = ("joint", "task", "distal", "supervised")
 FLOOR = 1000.0  # a diverged run scores log10(FLOOR x PD-only), the floor of the searches
 
 
