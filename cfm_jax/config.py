@@ -286,10 +286,10 @@ BABBLING = ("home", "reaching", "reference_pd", "oracle")
 """Values of ``Config.loop.babbling`` (:mod:`cfm_jax.tasks.babbling`; see :class:`LoopConfig`)."""
 
 
-TORQUE_SCALES = ("inertia", "limit", "coupled", "pose")
+TORQUE_SCALES = ("auto", "inertia", "limit", "coupled", "pose")
 """Values of ``Config.loop.torque_scale`` (see :class:`LoopConfig`): the formulas are in
 :meth:`cfm_jax.sim.robots.Robot.torque_scale` and
-:meth:`~cfm_jax.sim.robots.Robot.coupled_torque_scale`, why ``coupled`` is the arm default in
+:meth:`~cfm_jax.sim.robots.Robot.coupled_torque_scale`, why ``auto`` is the arm default in
 docs/how-to/own-robot.md."""
 
 
@@ -745,10 +745,10 @@ class LoopConfig:
       babbling_rollouts: babbling rollouts per target (each ``targets x steps`` transitions).
       babbling_noise: std of the babbling torque noise, a fraction of each joint's torque scale.
       torque_scale: scale of the babbling noise, f's torque input and g's output, one of
-        :data:`TORQUE_SCALES`: ``coupled`` (default; alike accelerations at home, with the
-        joints' coupling), ``pose`` (the coupled scale at each state's own pose, through
-        ``M(q)``: f's input and g's output; the babbling noise stays ``coupled``'s; needs
-        MJX), ``inertia`` (the same at home, each joint alone) or ``limit`` (the limits).
+        :data:`TORQUE_SCALES`: ``auto`` (default; :func:`cfm_jax.learning.algorithm.scale_kind`),
+        ``coupled`` (alike accelerations at home, with the joints' coupling), ``pose`` (that at
+        each state's own pose, through MJX's ``M(q)``; the babbling noise stays ``coupled``'s),
+        ``inertia`` (at home, each joint alone) or ``limit`` (the limits).
       babbling_gains: the babbling's joint PD gains, one of :data:`BABBLING_GAINS`:
         ``lightest`` (default; by each joint's lightest inertia over the poses it may visit,
         stable everywhere) or ``baseline`` (the PD-only baseline's).
@@ -773,7 +773,7 @@ class LoopConfig:
     babbling: str = "reaching"
     babbling_rollouts: int = 2
     babbling_noise: float = 0.1
-    torque_scale: str = "coupled"
+    torque_scale: str = "auto"
     babbling_gains: str = "lightest"
     normaliser: str = "babbling"
     restart_on_terminal: bool = False

@@ -55,6 +55,22 @@ until its second round replaced them), as dotted config paths: the robustness ce
 on them pin them (``round1-*``), so that their records stay reproducible."""
 
 
+BEFORE_POSE = {"loop.torque_scale": "coupled"}
+"""The arms' torque scale before issue 64's decision made ``auto`` (pose where MJX builds the
+robot) the default (docs/results/torque_scale_decision.md): every study record of an arm task
+made before it ran on it, so :func:`for_task` pins it."""
+
+
+def for_task(task: str, **changes) -> config_lib.Config:
+    """:func:`cfm_jax.config.for_task` with the torque scale the studies' records were made
+    on (:data:`BEFORE_POSE`) where the default would be ``auto``: the claims', comparison's,
+    robustness, selection, search and benchmark cells stay what they were."""
+    config = config_lib.for_task(task, **changes)
+    if config.loop.torque_scale != "auto":
+        return config
+    return with_changes(config, BEFORE_POSE)
+
+
 def with_changes(config: config_lib.Config, changes) -> config_lib.Config:
     """``config`` with ``changes`` (a mapping or pairs of dotted path ``section.field`` and
     value, e.g. ``{"loop.babbling": "home"}``): the one cell of :func:`cfm_jax.runs.sweeps.grid`

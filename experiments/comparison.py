@@ -124,7 +124,7 @@ class Cell:
     def config(self, seeds: int = SEEDS, quick: bool = False) -> config_lib.Config:
         """The cell's config: the task's defaults with ``changes``, its iterations and seeds
         (``first_seed`` first)."""
-        config = config_lib.for_task(self.task, robot=_study.ROBOT[self.task])
+        config = _study.for_task(self.task, robot=_study.ROBOT[self.task])
         changes = {**dict(self.changes), "loop.iterations": ITERATIONS[self.task]}
         config = _study.with_changes(config, changes)
         if quick:

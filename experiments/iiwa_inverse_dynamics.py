@@ -23,13 +23,12 @@ import os
 import _study
 
 import cfm_jax
-from cfm_jax import config as config_lib
 from cfm_jax.analysis import report
 
 
 def main() -> None:
     args = _study.parser(__doc__.split("\n")[0], "results/iiwa_inverse_dynamics").parse_args()
-    config = config_lib.for_task("inverse_dynamics", robot="iiwa14")
+    config = _study.for_task("inverse_dynamics", robot="iiwa14")
     result, seconds, config = _study.run(config, args)
     rms_reach = cfm_jax.Experiment.shared(config).task.tracking_scale
     table = report.summary(result.metrics, result.baselines, rms_reach)

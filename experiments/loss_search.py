@@ -162,7 +162,7 @@ def defaults_values(task: str) -> dict:
     """The task's shared defaults (its library defaults, ``config.for_task``) as a point of its
     search space, ``{factor: value}``: the values of the trial that every study also scores
     (:data:`AMENDMENT_DEFAULTS`)."""
-    config = config_lib.for_task(task, robot=select_defaults.ROBOT[task])
+    config = _study.for_task(task, robot=select_defaults.ROBOT[task])
     values = {}
     for name, (path, _) in space(task).items():
         found = set()
@@ -197,7 +197,7 @@ def complete(frame: pd.DataFrame, task: str, loss: str, trials: int = TRIALS) ->
 
 def trial_config(task: str, changes: dict, quick: bool = False) -> config_lib.Config:
     """The task's library defaults on its selection motions with ``changes``."""
-    config = config_lib.for_task(task, robot=select_defaults.ROBOT[task])
+    config = _study.for_task(task, robot=select_defaults.ROBOT[task])
     motions = select_defaults.selection_motions(task, config)
     if task in ("walk", "jump"):
         motions["motion_family"] = "selection"

@@ -1023,7 +1023,11 @@ def main(argv: list[str] | None = None) -> None:
     if not args.page_only:
         from cfm_jax import config as config_lib
 
+        # The torque scale the study's records were made on (``_study.BEFORE_POSE``) unless
+        # the flags name one.
         flags = shlex.split(args.train_flags)
+        if "--loop.torque-scale" not in flags:
+            flags = ["--loop.torque-scale", "coupled", *flags]
         # Every method's config and the baselines: the cfm_jax runs' (without a loss among
         # the methods, the joint loss's run still gives them).
         runs = [m for m in methods if m in LOSSES] or ["joint"]

@@ -385,9 +385,11 @@ def base_config(quick: bool = False):
     defaults); ``quick``: the two-link arm's 0.2 s reaches."""
     from cfm_jax import config as config_lib
 
-    config = config_lib.Config()
+    loop = config_lib.LoopConfig(torque_scale="coupled")  # the records' (_study.BEFORE_POSE)
+    config = config_lib.Config(loop=loop)
     if quick:
-        config = config_lib.Config(robot="two_link_arm", task=config_lib.TaskConfig(duration=0.2))
+        short = config_lib.TaskConfig(duration=0.2)
+        config = config_lib.Config(robot="two_link_arm", task=short, loop=loop)
     return peers.selection_config(config)
 
 

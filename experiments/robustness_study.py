@@ -123,7 +123,7 @@ class Cell:
     def config(self, iterations: int) -> config_lib.Config:
         """The cell's config: the task's defaults with ``changes``, run for the cell's own
         iterations when it has them, else ``iterations``."""
-        config = config_lib.for_task(self.task, robot=self.robot)
+        config = _study.for_task(self.task, robot=self.robot)
         iterations = iterations if self.iterations is None else self.iterations
         return _study.with_changes(config, {**dict(self.changes), "loop.iterations": iterations})
 
@@ -144,7 +144,7 @@ def _value(config: config_lib.Config, path: str):
 def changed_factors(task: str) -> dict:
     """The options whose default the selection run changed for ``task``, with their old
     values (dotted path: value)."""
-    config = config_lib.for_task(task)
+    config = _study.for_task(task)
     chosen = {p: v for p, v in BEFORE.items() if p not in _study.BEFORE_TORQUE_SCALING}
     return {p: v for p, v in chosen.items() if _value(config, p) != v}
 

@@ -296,7 +296,7 @@ class Cell:
 
     def config(self, iterations: int | None = None) -> config_lib.Config:
         task = self.task
-        config = config_lib.for_task(task, robot=ROBOT[task])
+        config = _study.for_task(task, robot=ROBOT[task])
         changes = {
             "loop.iterations": ITERATIONS[task] if iterations is None else iterations,
             **self.changes(),

@@ -31,7 +31,8 @@ def _config(iterations: int, seeds: int):
     return base.replace(
         forward=cfg.ForwardModelConfig(initial_steps=100, steps_per_iteration=50),
         controller=cfg.ControllerConfig(initial_steps=100, steps_per_iteration=50),
-        loop=cfg.LoopConfig(iterations=iterations, seeds=seeds),
+        # the torque scale the page's numbers were measured on (_study.BEFORE_POSE)
+        loop=cfg.LoopConfig(iterations=iterations, seeds=seeds, torque_scale="coupled"),
     )
 
 

@@ -106,6 +106,9 @@ def baselines(arm: str, simulator: str):
         robot_torque_limit=torque_limit(arm),
         simulator=simulator,
         task=config_lib.TaskConfig(duration=0.3),
+        # The baselines do not depend on the torque scale; the default pose scale would put
+        # MJX's mass matrix into their rollouts' programs (weight 0) and its compile time here.
+        loop=config_lib.LoopConfig(torque_scale="coupled"),
     )
     # MJX's programs without LLVM optimisation: they compile in about 35 s instead of 50 s
     # (the PiPER, beside two studies) for a rollout of 0.3 s; the numbers move in float32's
@@ -477,9 +480,17 @@ def test_a_model_mjx_cannot_build_runs_native_and_names_the_pair_on_mjx():
     found = robot_check.check(path)
     assert "MJX builds it: no (the native simulator runs it)" in found.text
     short = config_lib.TaskConfig(duration=0.1)
-    table = Experiment(config_lib.Config(robot=path, task=short)).baselines()
+    # The default torque scale 'auto' is the coupled one here (pose needs MJX), and says so.
+    assert "loop.torque_scale 'auto' gives 'coupled' here (MJX cannot build it" in found.text
+    default = Experiment(config_lib.Config(robot=path, task=short))
+    assert default.setup.pose_scale is None
+    frequency = short.feedback_frequency(short.control_period(robot.timestep))
+    np.testing.assert_allclose(np.asarray(default.knobs.torque_scale),
+                               robot.coupled_torque_scale(frequency), rtol=1e-6)  # fmt: skip
+    table = default.baselines()
     assert np.isfinite(table.tracking_mse).all()
     rigid = config_lib.ForwardModelConfig(kind="rigid_body")
-    for changes in ({"simulator": "mjx"}, {"forward": rigid}):
+    pose = config_lib.LoopConfig(torque_scale="pose")  # asked for by name: refused
+    for changes in ({"simulator": "mjx"}, {"forward": rigid}, {"loop": pose}):
         with pytest.raises(robots.RobotError, match="MJX cannot build.*CYLINDER"):
             Experiment(config_lib.Config(robot=path, task=short, **changes))

@@ -282,7 +282,7 @@ def test_the_torque_scale_is_a_value_of_the_config_that_follows_the_gains():
             state, _ = prepare(jax.random.key(0), knobs)
             np.testing.assert_array_equal(state.normaliser.torque_scale, knobs.torque_scale)
         assert prepare._cache_size() == 1  # the second kp compiled nothing
-    assert config.LoopConfig().torque_scale == "coupled"  # the arm tasks' default
+    assert config.LoopConfig().torque_scale == "auto"  # the arm tasks' default (pose here)
     # The damping (0.1 N m s) makes the scales of the two gains differ.
     assert not np.array_equal(arm.torque_scale(5.0), arm.torque_scale(10.0))
     limit = tiny_config(torque_scale="limit")

@@ -120,6 +120,21 @@ def test_a_run_trains_with_the_pose_scale_and_continues(tmp_path):
     assert np.all(np.isfinite(again.metrics.tracking_mse))
 
 
+def test_the_default_is_the_pose_scale_where_mjx_builds_the_robot():
+    # 'auto' (the default since issue 64's decision) builds what 'pose' builds: the same
+    # knobs and the same pose term at random states (its fallback to 'coupled' where MJX
+    # cannot build the robot: tests/test_dev_robots.py).
+    assert config.LoopConfig().torque_scale == "auto"
+    auto = algorithm.Setup.of(config.Config(robot=ARM3))
+    named = config.LoopConfig(torque_scale="pose")
+    pose = algorithm.Setup.of(config.Config(robot=ARM3, loop=named))
+    assert algorithm.scale_kind(auto.config, auto.robot) == "pose"
+    knobs = [algorithm.Knobs.of(s.config, s.robot, s.task) for s in (auto, pose)]
+    assert jax.tree.all(jax.tree.map(lambda a, b: bool(jnp.all(a == b)), *knobs))
+    states = jnp.asarray(np.random.default_rng(1).normal(size=(5, auto.task.state_dim)))
+    np.testing.assert_array_equal(auto.pose_scale(states), pose.pose_scale(states))
+
+
 def test_the_pose_scale_is_a_config_value_checked_by_name():
     with pytest.raises(config.ConfigError, match="loop.torque_scale.*'pose'"):
         config.LoopConfig(torque_scale="poses")

@@ -214,8 +214,9 @@ def test_the_chosen_values_are_the_rule_s_choices_and_the_library_s_defaults():
                 assert getattr(getattr(defaults, section), field) == value, (member, path)
             # Issue 41 made the arms' torque scaling and babbling gains robot-aware after
             # the selection ran (inverse dynamics coupled, op-space per joint, each by its
-            # own check); the legged defaults keep the limits.
-            want = {"inverse_dynamics": "coupled", "opspace": "inertia"}.get(member, "limit")
+            # own check; since issue 64's rule inverse dynamics 'auto', pose where MJX builds
+            # the robot); the legged defaults keep the limits.
+            want = {"inverse_dynamics": "auto", "opspace": "inertia"}.get(member, "limit")
             assert defaults.loop.torque_scale == want, member
             assert defaults.loop.babbling_gains == "lightest", member
             together = select.defaults_cell(member).config()

@@ -15,7 +15,7 @@ from cfm_jax.config import Config, ConfigError, LoopConfig, TaskConfig
 STATED = {
     "inverse_dynamics": {"robot": "iiwa14", "task.control_dt": 0.01, "task.kp": 100.0,
                          "task.desired": "pd", "forward.kind": "mlp",
-                         "loop.babbling": "reaching", "loop.torque_scale": "coupled"},
+                         "loop.babbling": "reaching", "loop.torque_scale": "auto"},
     "opspace": {"robot": "iiwa14", "task.control_dt": 0.01, "task.kp": 100.0,
                 "forward.kind": "mlp", "loop.babbling": "reaching",
                 "loop.torque_scale": "inertia"},

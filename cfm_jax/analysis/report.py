@@ -70,7 +70,8 @@ def protocol(config) -> str:
 
         model += "; " + robots.conversion_note(config.robot, config.robot_torque_limit)
     scale = getattr(loop, "torque_scale", "limit")
-    noise_of = {"limit": "the limit", "coupled": "the coupled torque scale, T n"}.get(
+    coupled = "the coupled torque scale, T n"
+    noise_of = {"limit": "the limit", "coupled": coupled, "pose": coupled, "auto": coupled}.get(
         scale, "each joint's torque scale"
     )
     babbling_gains = getattr(loop, "babbling_gains", "baseline")

@@ -10,6 +10,7 @@ import mujoco
 import numpy as np
 
 from cfm_jax import tasks as tasks_lib
+from cfm_jax.learning import algorithm
 from cfm_jax.sim import robots
 from cfm_jax.sim.robots import Robot
 from cfm_jax.tasks import babbling, baselines
@@ -95,7 +96,7 @@ def dynamics(
       babbling_noise: ``Config.loop.babbling_noise`` (a fraction of the torque scale).
       kd: ``Config.task.kd`` (1/s).
       control_dt: the control period (s).
-      torque_scale: ``Config.loop.torque_scale`` (``inertia``, ``coupled``, ``pose`` or ``limit``).
+      torque_scale: ``Config.loop.torque_scale`` (:data:`cfm_jax.config.TORQUE_SCALES`).
       frequency: the task's feedback frequency (rad/s); ``inf`` leaves damping out.
       kp: ``Config.task.kp`` (1/s^2), for the loops' radii.
 
@@ -108,7 +109,7 @@ def dynamics(
     dofs = np.asarray(robot.actuated_dofs)
     inverse = np.linalg.inv(full)[np.ix_(dofs, dofs)]
     limit = np.asarray(robot.torque_limit, np.float64)
-    if torque_scale in ("coupled", "pose"):  # the babbling's noise is T n at home for both
+    if torque_scale in ("auto", "coupled", "pose"):  # the babbling's noise is T n at home
         noise = babbling_noise * robot.coupled_torque_scale(frequency)  # torque T n
     else:
         scale = robot.torque_scale(frequency) if torque_scale == "inertia" else limit
@@ -151,10 +152,14 @@ def _dynamics_lines(robot: Robot) -> list[str]:
     dt = task.control_period(robot.timestep)
     frequency = task.feedback_frequency(dt)
     d = dynamics(robot, loop.babbling_noise, task.kd, dt, loop.torque_scale, frequency, task.kp)
+    kind = algorithm.scale_kind(config_lib.Config(loop=loop), robot)
+    why = "MJX builds it" if kind == "pose" else "MJX cannot build it; pose needs MJX"
     lines = [
+        f"torque scale: loop.torque_scale {loop.torque_scale!r} gives {kind!r} here ({why}; "
+        "docs/results/torque_scale_decision.md)",
         f"dynamics at the start pose (defaults: loop.babbling_noise {loop.babbling_noise:g} "
-        f"of the torque scale, loop.torque_scale {loop.torque_scale} at the feedback's "
-        f"{frequency:g} rad/s, task.kd {task.kd:g} 1/s, control period {dt:g} s):"
+        f"of the torque scale, at home, at the feedback's "
+        f"{frequency:g} rad/s, task.kd {task.kd:g} 1/s, control period {dt:g} s):",
     ]
     for j, name in enumerate(d.joints):
         lines.append(

@@ -254,11 +254,30 @@ def _babbling_gains(config: config_lib.Config, values: dict) -> dict:
     return values
 
 
+def scale_kind(config: config_lib.Config, robot) -> str:
+    """The torque scale ``config.loop.torque_scale`` gives on ``robot``: ``"auto"`` (the
+    default) is ``"pose"`` where MJX builds the robot, else ``"coupled"``
+    (docs/results/torque_scale_decision.md); any other value is itself.
+
+    Args:
+      config: a :class:`cfm_jax.config.Config`.
+      robot: its :class:`cfm_jax.sim.robots.Robot`.
+
+    Examples:
+      >>> from cfm_jax.sim import robots
+      >>> scale_kind(cfm_jax.Config(), robots.load("two_link_arm"))
+      'pose'
+    """
+    kind = config.loop.torque_scale
+    if kind == "auto":
+        return "pose" if robot.mjx_error is None else "coupled"
+    return kind
+
+
 def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:
-    """The torque scale of ``config.loop.torque_scale`` at the task's feedback frequency
-    (float64): ``"inertia"`` :meth:`cfm_jax.sim.robots.Robot.torque_scale`, ``(action_dim,)``;
-    ``"coupled"`` :meth:`cfm_jax.sim.robots.Robot.coupled_torque_scale`, ``(action_dim,
-    action_dim)``; ``"limit"`` None (the torque limits scale the torques).
+    """The torque scale :func:`scale_kind` names, at the task's feedback frequency (float64):
+    ``"inertia"`` :meth:`cfm_jax.sim.robots.Robot.torque_scale`, ``(action_dim,)``; ``"coupled"``
+    and ``"pose"`` :meth:`cfm_jax.sim.robots.Robot.coupled_torque_scale`; ``"limit"`` None.
 
     Args:
       config: a :class:`cfm_jax.config.Config`.
@@ -270,10 +289,11 @@ def torque_scale(config: config_lib.Config, robot) -> np.ndarray | None:
       >>> torque_scale(limit, robots.load("two_link_arm")) is None
       True
     """
-    if config.loop.torque_scale == "limit":
+    kind = scale_kind(config, robot)
+    if kind == "limit":
         return None
     frequency = _feedback_frequency(config, robot)
-    if config.loop.torque_scale in ("coupled", "pose"):
+    if kind in ("coupled", "pose"):
         return robot.coupled_torque_scale(frequency)
     return robot.torque_scale(frequency)
 
@@ -302,7 +322,7 @@ def pose_scale(config: config_lib.Config, robot, task) -> Callable | None:
       >>> bool(jnp.allclose(jax.jit(setup.pose_scale)(home), 0.0, atol=1e-4))  # T(home) = T
       True
     """
-    if config.loop.torque_scale != "pose":
+    if scale_kind(config, robot) != "pose":
         return None
     acceleration = robot.scale_acceleration(_feedback_frequency(config, robot))
     dofs = np.asarray(robot.actuated_dofs)
@@ -1108,7 +1128,7 @@ def mixed_policy(setup: Setup, **weights) -> rollout_lib.MixedPolicy:
         task.output_dim,
         setup.robot.torque_limit,
         task.desired_index,
-        torque_scale=structure[setup.config.loop.torque_scale],
+        torque_scale=structure[scale_kind(setup.config, setup.robot)],
         pose_scale=setup.pose_scale,
     )
     return rollout_lib.MixedPolicy.of(dummy, norm, task.action_dim, **weights)

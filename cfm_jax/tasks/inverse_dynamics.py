@@ -395,7 +395,7 @@ def default_config() -> Config:
     Examples:
       >>> config = default_config()
       >>> config.robot, config.loop.babbling, config.forward.kind, config.loop.torque_scale
-      ('iiwa14', 'reaching', 'mlp', 'coupled')
+      ('iiwa14', 'reaching', 'mlp', 'auto')
     """
     return Config(task=TaskConfig(name="inverse_dynamics"))
 
