@@ -20,7 +20,9 @@
 # starts from the same babbling data and the same initial forward model, because they share
 # one `Experiment`; each loss compiles its iteration once.
 #
-# About a minute on two CPU cores at the default size (51 s measured); `CFM_JAX_DOCS_QUICK=1` runs a
+# About 6.5 minutes on two CPU cores at the default size (390 s measured; 51 s under the coupled
+# torque scale, the default before 2026-12-01: the pose scale's MJX inertia compiles into every
+# program); `CFM_JAX_DOCS_QUICK=1` runs a
 # reduced size (the tests do).
 #
 # Small runs are noisy: the full-size study (3 seeds x 10 iterations, paper-size
@@ -64,7 +66,8 @@ if QUICK:  # the tests' reduced size
         controller=ControllerConfig(
             hidden=(32,), initial_steps=30, steps_per_iteration=10, batch_size=64
         ),
-        loop=LoopConfig(iterations=1, seeds=1, babbling_rollouts=1),
+        # coupled: the default pose scale's MJX compile would be most of a run this short
+        loop=LoopConfig(iterations=1, seeds=1, babbling_rollouts=1, torque_scale="coupled"),
     )
 
 # %% [markdown]

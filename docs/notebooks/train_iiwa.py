@@ -20,7 +20,9 @@
 # We plot the learning curves against the oracle and PD-only baselines and render a video
 # of the learned controller.
 #
-# At its default size this notebook runs in about a minute on two CPU cores (51 s measured).
+# At its default size this notebook runs in about 3.5 minutes on two CPU cores (214 s measured; 51 s
+# under the coupled torque scale, the default before 2026-12-01: the pose scale's MJX inertia
+# compiles into every program).
 # `CFM_JAX_DOCS_QUICK=1` (what the tests set) runs it at a reduced size in well under a
 # minute; the code path is the same.
 
@@ -70,7 +72,8 @@ if QUICK:  # the tests' reduced size
     controller = ControllerConfig(
         hidden=(32, 32), initial_steps=50, steps_per_iteration=20, batch_size=64
     )
-    loop = LoopConfig(iterations=1, seeds=1, babbling_rollouts=1)
+    # coupled: the default pose scale's MJX compile would be most of a run this short
+    loop = LoopConfig(iterations=1, seeds=1, babbling_rollouts=1, torque_scale="coupled")
     task = TaskConfig(duration=0.3)
 
 # %%
