@@ -18,7 +18,7 @@ from tiny import tiny_config
 import cfm_jax
 from cfm_jax import config
 from cfm_jax.learning import algorithm, networks
-from cfm_jax.sim import robots
+from cfm_jax.sim import dataset, robots
 
 ARM3 = str(Path(__file__).parent / "three_joint_arm.xml")
 
@@ -102,6 +102,49 @@ def test_the_networks_take_the_scale_at_their_states_pose():
     mean, _ = fm.apply(theta, norm, states, tau)
     same, _ = fm.apply(theta, plain.replace(torque_scale=jnp.ones(2)), states, unscaled)
     np.testing.assert_allclose(mean, same, rtol=1e-4, atol=1e-5)
+
+
+def test_data_rows_carry_the_pose_term_that_the_fits_use(arm3):
+    """The pose term is computed once per data-set row (``with_terms``: MuJoCo C's ``T(q) -
+    T`` at the row's pose), and the losses on rows use the stored term, not ``pose_scale``."""
+    cfg, setup = arm3
+    robot = setup.robot
+    poses = _poses(robot, 5, seed=4)
+    states = jnp.asarray(np.concatenate([poses, np.zeros_like(poses)], 1), jnp.float32)
+    rows = dataset.Transitions(states, jnp.ones((5, 3)), jnp.ones((5, 3)), jnp.ones((5, 3)))
+    stored = np.asarray(jax.jit(algorithm.with_terms, static_argnums=0)(setup, rows).pose)
+    home = robot.mass_matrix(robot.home)
+    a = np.min(np.asarray(robot.torque_limit) / np.diag(home))
+    oracle = np.stack([a * (robot.mass_matrix(p) - home) for p in poses])
+    np.testing.assert_allclose(stored, oracle, atol=2e-5 * np.abs(oracle).max())
+    # The objectives read the rows' term: a row term that is not pose_scale's changes them
+    # exactly as a pose_scale giving that term does.
+    scale, added = jnp.array([[2.0, 0.5], [0.5, 1.0]]), jnp.array([[1.0, -0.2], [-0.2, 0.5]])
+    plain = networks.Normaliser.identity(4, 2, jnp.array([50.0, 50.0]), torque_scale=scale)
+    by_state = plain.replace(pose_scale=lambda s: s[..., :1, None] * added)
+    other = jnp.array([[0.3, 0.1], [0.1, 0.2]])
+    by_rows = by_state.replace(pose_scale=lambda s: jnp.zeros(s.shape[:-1] + (2, 2)))
+    fixed = plain.replace(pose_scale=lambda s: jnp.broadcast_to(other, s.shape[:-1] + (2, 2)))
+    batch = dataset.Transitions(*(jnp.asarray(np.random.default_rng(5).normal(size=(6, d)),
+                                              jnp.float32) for d in (4, 2, 2, 2)))  # fmt: skip
+    g = networks.controller(hidden=(8,), nv=2)
+    fm = networks.forward_model(hidden=(8,), ensemble_size=2, nv=2)
+    beta, theta = g.init(jax.random.key(0), 4), fm.init(jax.random.key(1), 4)
+    posed = batch._replace(pose=jnp.broadcast_to(other, (6, 2, 2)))
+    for loss in ("joint", "supervised"):
+
+        def objective(norm, rows, loss=loss):
+            return algorithm.controller_objective(beta, theta, loss, fm, g, norm, rows)
+
+        assert float(objective(by_rows, posed)) == float(objective(fixed, batch))
+        assert float(objective(by_state, posed)) != float(objective(by_state, batch))
+
+    def members(rows):  # f's objective scores member e on minibatch e
+        return jax.tree.map(lambda x: jnp.stack([x, x]), rows)
+
+    assert float(fm.objective(theta, by_rows, members(posed))) == float(
+        fm.objective(theta, fixed, members(batch))
+    )
 
 
 @pytest.mark.slow  # MJX's inertia compiles into every fit and rollout: ~100 s of CPU

@@ -586,7 +586,7 @@ def _start(
         task.desired_dim,
         task.action_dim,
         task.output_dim,
-        terms=None if chunk.terms is None else jax.tree.map(lambda x: x[0], chunk.terms),
+        *jax.tree.map(lambda x: x[0], (chunk.terms, chunk.pose)),
     )
     data = dataset.add(empty, chunk, valid)
     if cfg.loop.normaliser == "babbling":
@@ -865,6 +865,7 @@ def controller_objective(
     if goal not in ("desired", "observed"):
         raise ValueError(f"goal={goal!r} is not allowed: 'desired' or 'observed'")
     loss = losses.get(loss)
+    normaliser = normaliser.at_rows(batch)
     if not loss.forward:
         achieved = normaliser.select(batch.observed)
         predicted = controller.apply(controller_params, normaliser, batch.state, achieved)
@@ -1151,9 +1152,10 @@ def learned_policy(setup: Setup, state: TrainState) -> rollout_lib.MixedPolicy:
 
 
 def with_terms(setup: Setup, transitions: dataset.Transitions) -> dataset.Transitions:
-    """``transitions`` with the forward model's per-transition ``terms`` of their states,
-    computed once where they enter the data set or the metrics (unchanged when the model has
-    none, as ``mlp``, or they are set).
+    """``transitions`` with the forward model's per-transition ``terms`` of their states and
+    the pose scale's ``pose`` term (:func:`pose_scale`), computed once where they enter the
+    data set or the metrics (each unchanged where the run has none, as ``mlp`` or a scale
+    other than pose, or where it is set).
 
     Args:
       setup: the run's :class:`Setup`.
@@ -1165,6 +1167,8 @@ def with_terms(setup: Setup, transitions: dataset.Transitions) -> dataset.Transi
       >>> with_terms(setup, rows).terms is None  # the mlp kind
       True
     """
+    if setup.pose_scale is not None and transitions.pose is None:
+        transitions = transitions._replace(pose=setup.pose_scale(transitions.state))
     if setup.forward.terms is None or transitions.terms is not None:
         return transitions
     return transitions._replace(terms=setup.forward.terms(transitions.state))
@@ -1208,7 +1212,7 @@ def metrics(setup: Setup, state: TrainState, result: rollout_lib.Rollout) -> dic
       ['finite_fraction', 'prediction_error', 'predicted_task_error']
     """
     t = with_terms(setup, result.transitions)
-    norm = state.normaliser
+    norm = state.normaliser.at_rows(t)
     forward, controller = setup.forward, setup.controller
     predicted = norm.output_inverse(
         forward.predict(state.forward_params, norm, t.state, t.action, terms=t.terms)

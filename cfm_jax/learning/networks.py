@@ -37,6 +37,7 @@ class Normaliser:
       pose_scale: static, None or ``pose_scale(states) -> (..., action_dim, action_dim)``
         added to a matrix ``T`` at each state's own pose (``loop.torque_scale = "pose"``:
         :func:`cfm_jax.learning.algorithm.pose_scale`); where no state is given, ``T`` alone.
+      pose: None, or the term of the rows at hand (:meth:`at_rows`), used for it.
 
     Examples:
       >>> norm = Normaliser.from_data(jnp.array([[0.0], [2.0]]), jnp.array([[1.0], [3.0]]),
@@ -53,6 +54,7 @@ class Normaliser:
     desired_index: tuple[int, ...] | None = struct.field(pytree_node=False, default=None)
     torque_scale: jax.Array | None = None
     pose_scale: Callable | None = struct.field(pytree_node=False, default=None)
+    pose: jax.Array | None = None
 
     @classmethod
     def identity(
@@ -139,6 +141,12 @@ class Normaliser:
             pose_scale,
         )
 
+    def at_rows(self, rows):
+        """For data-set rows (:class:`cfm_jax.sim.dataset.Transitions`): the pose term their
+        ``pose`` holds, computed once when they were added, stands in for ``pose_scale`` at
+        their states (the same numbers without MJX in every fit step)."""
+        return self if rows.pose is None else self.replace(pose=rows.pose)
+
     def state(self, s):
         return (s - self.state_mean) / self.state_std
 
@@ -168,7 +176,7 @@ class Normaliser:
         """``T + pose_scale(state)``, ``shape + (action_dim,)`` (a torque's leading axes)."""
         if scale.ndim != 2:
             raise ValueError("a pose_scale needs a matrix torque_scale (action_dim, action_dim)")
-        full = scale + self.pose_scale(state)
+        full = scale + (self.pose_scale(state) if self.pose is None else self.pose)
         return jnp.broadcast_to(full, shape + shape[-1:])
 
     def output(self, y):
@@ -301,6 +309,7 @@ def pets(init, apply, terms=None) -> Model:
     """
 
     def objective(params, normaliser: Normaliser, batch):
+        normaliser = normaliser.at_rows(batch)
         extra = {} if batch.terms is None else {"terms": batch.terms}
         mean, log_var = apply(
             params, normaliser, batch.state, batch.action, per_member=True, **extra

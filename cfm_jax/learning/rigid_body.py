@@ -196,7 +196,7 @@ def mass_function(model: mujoco.MjModel, actuated_dofs, configuration):
         data = _inertia(device_model, mjx.make_data(device_model).replace(qpos=qpos))
         return mjx.full_m(device_model, data)[dofs[:, None], dofs[None, :]]
 
-    return _per_state(one, configuration)
+    return _per_state(jax.jit(one), configuration)
 
 
 def _per_state(one, configuration):

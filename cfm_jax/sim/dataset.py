@@ -27,6 +27,8 @@ class Transitions(NamedTuple):
       observed: the observed quantity the forward model predicts, ``(n, output_dim)``.
       terms: the forward model's per-transition terms (``Model.terms``, computed when the
         row is added; :func:`save` omits them), a pytree of ``(n, ...)`` arrays, or None.
+      pose: the pose torque scale's term at ``state`` (``loop.torque_scale = "pose"``,
+        computed when the row is added; :func:`save` omits it), ``(n, k, k)``, or None.
 
     Examples:
       >>> Transitions(*(jnp.zeros((3, d)) for d in (4, 2, 2, 2))).state.shape
@@ -38,6 +40,7 @@ class Transitions(NamedTuple):
     action: jax.Array
     observed: jax.Array
     terms: Any = None
+    pose: Any = None
 
 
 RECORDED_FIELDS = ("state", "desired", "action", "observed")
@@ -75,6 +78,7 @@ def empty(
     action_dim: int | None = None,
     output_dim: int | None = None,
     terms: Any = None,
+    pose: Any = None,
 ) -> Dataset:
     """An empty :class:`Dataset` of ``capacity`` float32 zero rows.
 
@@ -85,6 +89,7 @@ def empty(
       action_dim: size of the action (default ``nv``).
       output_dim: size of the observed quantity (default ``nv``).
       terms: the forward model's terms of one row (a pytree giving the shapes), or None.
+      pose: the pose term of one row (its shape), or None.
 
     Examples:
       >>> empty(capacity=8, state_dim=4, nv=2, output_dim=5).data.observed.shape
@@ -92,9 +97,8 @@ def empty(
     """
     dims = (state_dim, nv, action_dim or nv, output_dim or nv)
     data = Transitions(*(jnp.zeros((capacity, d), jnp.float32) for d in dims))
-    if terms is not None:
-        rows = jax.tree.map(lambda x: jnp.zeros((capacity,) + jnp.shape(x), jnp.float32), terms)
-        data = data._replace(terms=rows)
+    rows = jax.tree.map(lambda x: jnp.zeros((capacity,) + jnp.shape(x), jnp.float32), (terms, pose))
+    data = data._replace(terms=rows[0], pose=rows[1])
     return Dataset(data, jnp.int32(0), jnp.int32(0))
 
 
