@@ -292,6 +292,9 @@ TORQUE_SCALES = ("auto", "inertia", "limit", "coupled", "pose")
 :meth:`~cfm_jax.sim.robots.Robot.coupled_torque_scale`, why ``auto`` is the arm default in
 docs/how-to/own-robot.md."""
 
+COUPLED_NOISE_SCALES = ("auto", "coupled", "pose")
+"""The :data:`TORQUE_SCALES` whose babbling noise is ``T n``, the coupled scale at home."""
+
 
 BABBLING_GAINS = ("lightest", "baseline")
 """Values of ``Config.loop.babbling_gains`` (:func:`cfm_jax.tasks.baselines.babbling_joint_gains`).

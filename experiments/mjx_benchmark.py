@@ -51,8 +51,13 @@ def config_for(task: str, simulator: str, fit_steps: int):
         controller=cfg.ControllerConfig(
             hidden=(64,), initial_steps=fit_steps, steps_per_iteration=fit_steps
         ),
-        # the torque scale the page's numbers were measured on (_study.BEFORE_POSE)
-        loop=cfg.LoopConfig(iterations=2, seeds=1, babbling_rollouts=1, torque_scale="coupled"),
+        # the torque scale the page's numbers were measured on
+        loop=cfg.LoopConfig(
+            iterations=2,
+            seeds=1,
+            babbling_rollouts=1,
+            torque_scale=_study.BEFORE_POSE["loop.torque_scale"],
+        ),
     )
 
 

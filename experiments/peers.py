@@ -1021,13 +1021,14 @@ def main(argv: list[str] | None = None) -> None:
     }  # fmt: skip
     command = " ".join(["python experiments/peers.py", *(shlex.quote(a) for a in argv)])
     if not args.page_only:
+        import _study
+
         from cfm_jax import config as config_lib
 
-        # The torque scale the study's records were made on (``_study.BEFORE_POSE``) unless
-        # the flags name one.
+        # The torque scale the study's records were made on unless the flags name one.
         flags = shlex.split(args.train_flags)
         if "--loop.torque-scale" not in flags:
-            flags = ["--loop.torque-scale", "coupled", *flags]
+            flags = ["--loop.torque-scale", _study.BEFORE_POSE["loop.torque_scale"], *flags]
         # Every method's config and the baselines: the cfm_jax runs' (without a loss among
         # the methods, the joint loss's run still gives them).
         runs = [m for m in methods if m in LOSSES] or ["joint"]

@@ -383,9 +383,11 @@ def _recover(search) -> None:
 def base_config(quick: bool = False):
     """The study's task on the selection motions: the quickstart (``cfm-jax train``'s
     defaults); ``quick``: the two-link arm's 0.2 s reaches."""
+    import _study
+
     from cfm_jax import config as config_lib
 
-    loop = config_lib.LoopConfig(torque_scale="coupled")  # the records' (_study.BEFORE_POSE)
+    loop = config_lib.LoopConfig(torque_scale=_study.BEFORE_POSE["loop.torque_scale"])
     config = config_lib.Config(loop=loop)
     if quick:
         short = config_lib.TaskConfig(duration=0.2)

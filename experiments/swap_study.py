@@ -64,8 +64,9 @@ def base_config(seeds: int, iterations: int, quick: bool, first_seed: int = 0) -
     """The iiwa14's inverse-dynamics defaults (``first_seed`` onwards): with ``first_seed``
     10 or 20 and 10 seeds, the config of the comparison's shared cell of that block
     (``experiments/comparison.py``), whose task and joint runs are then step 1's data sets."""
-    # The torque scale of the comparison's cells (``_study.BEFORE_POSE``).
-    loop = config_lib.LoopConfig(iterations=iterations, seeds=seeds, torque_scale="coupled")
+    # The torque scale of the comparison's cells.
+    scale = _study.BEFORE_POSE["loop.torque_scale"]
+    loop = config_lib.LoopConfig(iterations=iterations, seeds=seeds, torque_scale=scale)
     if quick:  # the two-link arm with the studies' quick networks and fit steps
         return _study.quick_config(config_lib.Config(robot="two_link_arm", loop=loop,
                                                      seed=first_seed))  # fmt: skip

@@ -31,8 +31,10 @@ def _config(iterations: int, seeds: int):
     return base.replace(
         forward=cfg.ForwardModelConfig(initial_steps=100, steps_per_iteration=50),
         controller=cfg.ControllerConfig(initial_steps=100, steps_per_iteration=50),
-        # the torque scale the page's numbers were measured on (_study.BEFORE_POSE)
-        loop=cfg.LoopConfig(iterations=iterations, seeds=seeds, torque_scale="coupled"),
+        # the torque scale the page's numbers were measured on
+        loop=cfg.LoopConfig(
+            iterations=iterations, seeds=seeds, torque_scale=_study.BEFORE_POSE["loop.torque_scale"]
+        ),
     )
 
 

@@ -494,3 +494,21 @@ def test_a_model_mjx_cannot_build_runs_native_and_names_the_pair_on_mjx():
     for changes in ({"simulator": "mjx"}, {"forward": rigid}, {"loop": pose}):
         with pytest.raises(robots.RobotError, match="MJX cannot build.*CYLINDER"):
             Experiment(config_lib.Config(robot=path, task=short, **changes))
+
+
+def test_an_integrator_mjx_lacks_is_named_with_its_remedy(tmp_path):
+    # MuJoCo's 'implicit' integrator (the published Panda's and Sawyer's): MJX implements
+    # Euler, RK4 and implicitfast. The error names it and the remedy, and the remedy builds.
+    text = (Path(__file__).parent.parent / "robots" / "two_link_arm.xml").read_text()
+    for integrator, builds in (("implicit", False), ("implicitfast", True)):
+        path = tmp_path / f"{integrator}.xml"
+        path.write_text(text.replace('integrator="Euler"', f'integrator="{integrator}"', 1))
+        robot = robots.load(str(path))
+        assert robot.mj_model.opt.integrator == getattr(
+            mujoco.mjtIntegrator, f"mjINT_{integrator.upper()}"
+        )
+        if builds:
+            assert robot.mjx_error is None
+        else:
+            assert "mjINT_IMPLICIT)" in robot.mjx_error
+            assert '<option integrator="implicitfast"/>' in robot.mjx_error

@@ -8,6 +8,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 import pandas as pd
 
+from cfm_jax import config as config_lib
 from cfm_jax.learning import forward_models, losses
 
 CONFIDENCE = 0.95
@@ -31,8 +32,6 @@ def config_record(config) -> dict:
       'two_link_arm'
     """
     import json
-
-    from cfm_jax import config as config_lib
 
     record = json.loads(json.dumps(config_lib.to_dict(config)))
     if getattr(config, "robot_actuators", "strict") != "strict":
@@ -71,9 +70,8 @@ def protocol(config) -> str:
         model += "; " + robots.conversion_note(config.robot, config.robot_torque_limit)
     scale = getattr(loop, "torque_scale", "limit")
     coupled = "the coupled torque scale, T n"
-    noise_of = {"limit": "the limit", "coupled": coupled, "pose": coupled, "auto": coupled}.get(
-        scale, "each joint's torque scale"
-    )
+    noise_of = {"limit": "the limit", **dict.fromkeys(config_lib.COUPLED_NOISE_SCALES, coupled)}
+    noise_of = noise_of.get(scale, "each joint's torque scale")
     babbling_gains = getattr(loop, "babbling_gains", "baseline")
     if task.name == "inverse_dynamics" and babbling_gains != "baseline":
         noise_of += f", `loop.babbling_gains={babbling_gains!r}`"

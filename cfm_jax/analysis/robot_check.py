@@ -9,6 +9,7 @@ import dataclasses
 import mujoco
 import numpy as np
 
+from cfm_jax import config as config_lib
 from cfm_jax import tasks as tasks_lib
 from cfm_jax.learning import algorithm
 from cfm_jax.sim import robots
@@ -109,7 +110,7 @@ def dynamics(
     dofs = np.asarray(robot.actuated_dofs)
     inverse = np.linalg.inv(full)[np.ix_(dofs, dofs)]
     limit = np.asarray(robot.torque_limit, np.float64)
-    if torque_scale in ("auto", "coupled", "pose"):  # the babbling's noise is T n at home
+    if torque_scale in config_lib.COUPLED_NOISE_SCALES:  # the babbling's noise is T n at home
         noise = babbling_noise * robot.coupled_torque_scale(frequency)  # torque T n
     else:
         scale = robot.torque_scale(frequency) if torque_scale == "inertia" else limit
@@ -146,8 +147,6 @@ def dynamics(
 
 def _dynamics_lines(robot: Robot) -> list[str]:
     """The report's lines on :func:`dynamics` at the defaults, with warnings."""
-    from cfm_jax import config as config_lib
-
     task, loop = config_lib.TaskConfig(), config_lib.LoopConfig()
     dt = task.control_period(robot.timestep)
     frequency = task.feedback_frequency(dt)

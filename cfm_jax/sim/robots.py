@@ -175,10 +175,12 @@ class Robot:
             return mjx.put_model(self.mj_model)
         except NotImplementedError as error:
             raise RobotError(
-                f"robot={self.name!r}: MJX cannot build this model: {error} The native "
+                f"robot={self.name!r}: MJX cannot build this model ({error}). The native "
                 "simulator (simulator='native', the default) runs it; simulator='mjx' and "
-                "forward.kind='rigid_body' need MJX (remove or exclude those collision "
-                "geoms, e.g. with <contact><exclude>, or use the native simulator)"
+                "forward.kind='rigid_body' need MJX (change what MJX names: a collision pair "
+                "it has no function for, exclude those geoms with <contact><exclude>; an "
+                "integrator it lacks, as 'implicit', <option integrator=\"implicitfast\"/>; "
+                "or use the native simulator)"
             ) from error
 
     @property
