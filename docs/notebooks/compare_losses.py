@@ -20,9 +20,9 @@
 # starts from the same babbling data and the same initial forward model, because they share
 # one `Experiment`; each loss compiles its iteration once.
 #
-# About 6.5 minutes on two CPU cores at the default size (390 s measured; 51 s under the coupled
-# torque scale, the default before 2026-12-01: the pose scale's MJX inertia compiles into every
-# program); `CFM_JAX_DOCS_QUICK=1` runs a
+# About 6.5 minutes on two CPU cores at the default size (390 s measured while the pose scale's
+# MJX inertia ran in every fit step, before its term was stored per data row on 2026-12-01; 51 s
+# under the coupled torque scale, the default before it); `CFM_JAX_DOCS_QUICK=1` runs a
 # reduced size (the tests do).
 #
 # Small runs are noisy: the full-size study (3 seeds x 10 iterations, paper-size

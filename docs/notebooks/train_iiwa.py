@@ -20,9 +20,9 @@
 # We plot the learning curves against the oracle and PD-only baselines and render a video
 # of the learned controller.
 #
-# At its default size this notebook runs in about 3.5 minutes on two CPU cores (214 s measured; 51 s
-# under the coupled torque scale, the default before 2026-12-01: the pose scale's MJX inertia
-# compiles into every program).
+# At its default size this notebook runs in about 3.5 minutes on two CPU cores (214 s measured
+# while the pose scale's MJX inertia ran in every fit step, before its term was stored per data
+# row on 2026-12-01; 51 s under the coupled torque scale, the default before it).
 # `CFM_JAX_DOCS_QUICK=1` (what the tests set) runs it at a reduced size in well under a
 # minute; the code path is the same.
 
