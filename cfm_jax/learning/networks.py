@@ -142,9 +142,7 @@ class Normaliser:
         )
 
     def at_rows(self, rows):
-        """For data-set rows (:class:`cfm_jax.sim.dataset.Transitions`): the pose term their
-        ``pose`` holds, computed once when they were added, stands in for ``pose_scale`` at
-        their states (the same numbers without MJX in every fit step)."""
+        """For data-set ``rows``: their stored ``pose`` term stands in for ``pose_scale``."""
         return self if rows.pose is None else self.replace(pose=rows.pose)
 
     def state(self, s):

@@ -27,8 +27,7 @@ class Transitions(NamedTuple):
       observed: the observed quantity the forward model predicts, ``(n, output_dim)``.
       terms: the forward model's per-transition terms (``Model.terms``, computed when the
         row is added; :func:`save` omits them), a pytree of ``(n, ...)`` arrays, or None.
-      pose: the pose torque scale's term at ``state`` (``loop.torque_scale = "pose"``,
-        computed when the row is added; :func:`save` omits it), ``(n, k, k)``, or None.
+      pose: the pose scale's term at ``state``, ``(n, k, k)``, added as ``terms``, or None.
 
     Examples:
       >>> Transitions(*(jnp.zeros((3, d)) for d in (4, 2, 2, 2))).state.shape
