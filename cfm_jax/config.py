@@ -754,7 +754,8 @@ class LoopConfig:
         ``inertia`` (at home, each joint alone) or ``limit`` (the limits).
       babbling_gains: the babbling's joint PD gains, one of :data:`BABBLING_GAINS`:
         ``lightest`` (default; by each joint's lightest inertia over the poses it may visit,
-        stable everywhere) or ``baseline`` (the PD-only baseline's).
+        or its damping where that outweighs it; stable everywhere) or ``baseline`` (the
+        PD-only baseline's).
       normaliser: both networks' scaling, one of :data:`NORMALISERS`: ``babbling`` (default;
         the initial data's statistics), ``data`` (the data set's, before every refit) or
         ``robot`` (fixed, from the MJCF and the task: :mod:`cfm_jax.tasks.scales`).

@@ -126,8 +126,9 @@ def dynamics(
     ).max()
     diagonal = np.diag(full)[dofs]
     radius = baselines.pd_loop_radius(robot, kp * diagonal, kd * diagonal, robot.home, control_dt)
+    gain_p, gain_d = baselines.babbling_joint_gains(robot, kp, kd, poses)
     babbling_radius = max(
-        baselines.pd_loop_radius(robot, kp * lightest, kd * lightest, q, control_dt) for q in poses
+        baselines.pd_loop_radius(robot, gain_p, gain_d, q, control_dt) for q in poses
     )
     # Over a control period the joints' damping acts as (M + h D)^-1 (MuJoCo's implicit
     # damping): the velocity a held torque gives in one period.
