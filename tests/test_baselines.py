@@ -21,9 +21,10 @@ import pytest
 from sites import mujoco_site_acceleration, random_states
 
 from cfm_jax import _shipped, tasks
+from cfm_jax.analysis import robot_check
 from cfm_jax.config import SIMULATORS
 from cfm_jax.sim import opspace, robots, rollout
-from cfm_jax.tasks import baselines, references
+from cfm_jax.tasks import babbling, baselines, references
 
 # ---- oracle -----------------------------------------------------------------------------
 
@@ -316,3 +317,57 @@ def test_the_oracle_counts_dry_friction(friction_arm, simulator):
     # the frictionloss, no more.
     gap = np.abs(np.asarray(out.transitions.action[0]) - tau)
     assert 0.3 < gap.max() <= 0.5 + 1e-3
+
+
+def _wrist(tmp_path, frictionloss: float):
+    """A one-hinge wrist about the vertical (no gravity torque): inertia 1e-4 kg m^2, no
+    armature, damping 2 N m s/rad (the published xArm7's last joint), a 20 N m motor."""
+    path = tmp_path / f"wrist_{frictionloss}.xml"
+    path.write_text(f"""<mujoco model="wrist"><option timestep="0.002" integrator="Euler"/>
+  <worldbody><body name="link"><joint name="roll" axis="0 0 1" range="-3 3" damping="2"
+    frictionloss="{frictionloss}"/><inertial pos="0 0 0" mass="0.1" diaginertia="1e-4 1e-4 1e-4"/>
+  </body></worldbody>
+  <actuator><motor joint="roll" ctrlrange="-20 20"/></actuator></mujoco>""")
+    return robots.load(str(path))
+
+
+def _hold(robot, gain_p, gain_d, q_ref: float, periods: int, n_sub: int = 5) -> np.ndarray:
+    """MuJoCo C: the joint PD on a held reference, its torque held for ``n_sub`` steps."""
+    data = mujoco.MjData(robot.mj_model)
+    errors = [q_ref - data.qpos[0]]
+    for _ in range(periods):
+        data.ctrl[:] = gain_p * (q_ref - data.qpos) - gain_d * data.qvel
+        mujoco.mj_step(robot.mj_model, data, n_sub)
+        errors.append(q_ref - data.qpos[0])
+    return np.asarray(errors)
+
+
+def test_babbling_stiffness_moves_a_damped_joint_at_the_feedback_frequency(tmp_path, iiwa):
+    kp, kd, dt, e0 = 100.0, 20.0, 0.01, 0.5
+    wrist = _wrist(tmp_path, 0.0)
+    gain_p, gain_d = baselines.babbling_joint_gains(wrist, kp, kd, wrist.home[None])
+    inertia = float(wrist.lightest_inertia(wrist.home[None])[0])
+    # Damping outweighs inertia at w = sqrt(kp) = 10 rad/s (2 / 10 > 1e-4): stiffness w D.
+    np.testing.assert_allclose([gain_p[0], gain_d[0]], [10.0 * 2.0, kd * inertia], rtol=1e-12)
+    # Hand derivation: with I << h D the velocity is tau / D within a physics step, so the
+    # held error shrinks by (1 - dt K_p / D) = (1 - dt w) = 0.9 a period; the neglected
+    # inertia (I / (I + h D) = 2.4% of a step) and K_d (2e-3 against D = 2) move it < 3%.
+    errors = _hold(wrist, gain_p, gain_d, e0, periods=10)
+    np.testing.assert_allclose(errors[1:] / e0, 0.9 ** np.arange(1, 11), rtol=0.03)
+    # kp I (the babbling's stiffness before): the joint stays where it started.
+    assert _hold(wrist, kp * inertia, gain_d, e0, periods=10)[-1] > 0.99 * e0
+    # With the published wrist's dry friction (1 N m) the old stiffness (7e-3 N m at 0.5 rad)
+    # leaves it stuck (MuJoCo's soft friction lets it creep, < 1% in a second); the new one
+    # moves it through its friction to a dead band of a few F / K_p = 0.05 rad (on so light
+    # a joint MuJoCo's soft constraint holds up to about 1.8 N m: 0.09 rad).
+    dry = _wrist(tmp_path, 1.0)
+    assert _hold(dry, kp * inertia, gain_d, e0, periods=100)[-1] > 0.99 * e0
+    assert _hold(dry, gain_p, gain_d, e0, periods=100)[-1] < 0.2 * e0
+    # Where inertia outweighs damping (the shipped iiwa14) the gains stay kp I, kd I exactly.
+    poses = babbling.pose_sample(iiwa, iiwa.home)
+    lightest = iiwa.lightest_inertia(poses)
+    for got, want in zip(baselines.babbling_joint_gains(iiwa, kp, kd, poses), (kp, kd)):
+        np.testing.assert_array_equal(got, want * lightest)
+    # `robot check` names the joints whose stiffness their damping sets.
+    for robot, damped in ((wrist, ("roll",)), (iiwa, ())):
+        assert robot_check.dynamics(robot, 0.1, kd, dt, kp=kp).babbling_damped == damped

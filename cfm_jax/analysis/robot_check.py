@@ -64,6 +64,7 @@ class Dynamics:
       pd_radius: the spectral radius of the PD-only loop at the start pose over one control
         period (:func:`cfm_jax.tasks.baselines.pd_loop_radius`): stable below 1.
       babbling_pd_radius: the same for the babbling's feedback, the largest over its poses.
+      babbling_damped: the joints whose babbling stiffness their damping sets.
 
     Examples:
       >>> round(dynamics(robots.load("iiwa14"), 0.1, kd=20.0, control_dt=0.01).pd_number, 2)
@@ -79,6 +80,7 @@ class Dynamics:
     babbling_pd_number: float
     pd_radius: float
     babbling_pd_radius: float
+    babbling_damped: tuple[str, ...] = ()
 
 
 def dynamics(
@@ -143,6 +145,7 @@ def dynamics(
         babbling_pd_number=float(kd * control_dt * babbling_number),
         pd_radius=radius,
         babbling_pd_radius=babbling_radius,
+        babbling_damped=tuple(n for n, p in zip(joints, gain_p > kp * lightest) if p),
     )
 
 
@@ -172,6 +175,8 @@ def _dynamics_lines(robot: Robot) -> list[str]:
         f"radius over a control period at the start pose {d.pd_radius:.4f} (stable below 1; "
         f"kd * dt * lambda_max(diag(M) M^-1) = {d.pd_number:.2f}); the babbling's feedback: its "
         f"largest radius over the poses it visits {d.babbling_pd_radius:.4f}"
+        + (f"; its stiffness is sqrt(kp) x damping on {', '.join(d.babbling_damped)} (their "
+           "damping outweighs their inertia)" if d.babbling_damped else "")
     )
     if d.pd_radius >= 1:
         lines.append(

@@ -251,15 +251,12 @@ def joint_pd_gains(robot, kp: float, kd: float, home) -> tuple[np.ndarray, np.nd
 
 
 def babbling_joint_gains(robot, kp: float, kd: float, poses) -> tuple[np.ndarray, np.ndarray]:
-    """The babbling's torque PD gains ``(max(kp I_j, w D_j), kd I_j)``, ``I_j`` each joint's
-    lightest effective inertia over ``poses`` (:meth:`cfm_jax.sim.robots.Robot.lightest_inertia`),
-    ``D_j`` its damping, ``w = sqrt(kp)`` the feedback's frequency.
+    """The babbling's torque PD gains ``(max(kp I_j, w D_j), kd I_j)``: ``I_j`` each joint's
+    lightest effective inertia over ``poses``, ``D_j`` its damping, ``w = sqrt(kp)``.
 
-    :func:`joint_pd_gains` fit the home pose only: on light arms without armature they are
-    unstable far from it; these damp no joint alone faster than ``kd`` at any pose of the
-    sample. Where a joint's damping outweighs its inertia (``D_j / w > I_j``) ``kp I_j`` would
-    leave it behind its reach (and inside its dry friction); ``w D_j`` makes the damped joint
-    follow its error at ``w`` (docs/how-to/own-robot.md).
+    :func:`joint_pd_gains` fit home only: unstable far from it on light arms. These damp no
+    joint alone faster than ``kd`` anywhere; ``w D_j`` makes a joint whose damping outweighs
+    its inertia follow its error at ``w`` (docs/how-to/own-robot.md).
 
     Args:
       robot: a :class:`cfm_jax.sim.robots.Robot`.
