@@ -49,6 +49,28 @@ def test_the_arm_joints_are_driven_the_fingers_held_the_pendulum_passive(actuato
     assert ctrl.tolist() == [4.0, -2.0, np.float32(0.02)]
 
 
+def test_a_held_servo_without_a_torque_limit_is_recorded_as_load_keeps_it(tmp_path):
+    # The published I2RT YAM's gripper servo has no forcerange: load() keeps it as published
+    # (held), so the run's record of the conversion (robots.conversion, written before any
+    # training) must not ask for its limit either; it lists the converted servos only.
+    path = tmp_path / "unlimited_gripper.xml"
+    path.write_text(Path(ARM).read_text().replace('forcerange="-5 5"', ""))
+    assert robots.load(str(path), actuators="torque").held_joints == ARM_HELD
+    assert robots.conversion(str(path)) == []  # the arm's motors are motors, the gripper held
+    spec = mujoco.MjSpec.from_file(str(path))
+    spec.actuators[0].gaintype = mujoco.mjtGain.mjGAIN_FIXED  # a shoulder servo, no limit
+    spec.actuators[0].biastype = mujoco.mjtBias.mjBIAS_AFFINE
+    spec.actuators[0].biasprm[:3] = [0.0, -30.0, 0.0]
+    spec.actuators[0].ctrllimited = 0
+    servo = tmp_path / "servo_shoulder.xml"
+    servo.write_text(spec.to_xml())
+    with pytest.raises(robots.RobotError, match=r"servos of joints \['shoulder'\]"):
+        robots.conversion(str(servo))  # a driven servo still needs one
+
+
+ARM_HELD = ("left_finger", "right_finger")
+
+
 def _task(arm):
     return tasks.make(arm, config_lib.TaskConfig(duration=0.4), CONTROL_DT)
 

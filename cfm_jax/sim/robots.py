@@ -603,7 +603,8 @@ def conversion(name_or_path: str, torque_limit=None) -> list[dict]:
     """
     path = resolve(name_or_path)
     model = compile_file(path)
-    servos = servo_limits(model, torque_limit, f"robot={name_or_path!r} ({path})")
+    where = f"robot={name_or_path!r} ({path})"
+    servos = servo_limits(model, torque_limit, where, keep=held_joints(model)[1])  # as load()
     return [
         {"joint": joint_name(model, int(model.actuator_trnid[a, 0])), "servo": kind,
          "torque_limit": float(limit), "source": source}
