@@ -196,7 +196,8 @@ def run_robot(
             extra = ["--task", task, *extra]
         cmd = [sys.executable, "-m", "cfm_jax.cli", "train", "--robot", path, *load,
                "--seeds", str(seeds), "--out", out, "--quiet", *extra]  # fmt: skip
-        if os.path.isdir(os.path.join(out)) and os.listdir(out):
+        # Resume what a run left; a folder holding only an earlier refusal has no run.
+        if os.path.isdir(out) and set(os.listdir(out)) - {REFUSED}:
             cmd.append("--resume")
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:

@@ -102,6 +102,27 @@ def test_a_refusal_and_a_robot_not_yet_run_stay_in_the_table(tmp_path):
     assert "| d | not run yet |" in text
 
 
+def test_a_refused_robot_runs_again_afresh_and_a_started_one_resumes(tmp_path, monkeypatch):
+    # A folder holding only an earlier refusal has no run to resume (the CLI refuses a
+    # resume there, hiding the file's own reason); a folder with a started run resumes it.
+    calls = []
+
+    def run(cmd, **kwargs):
+        if "train" in cmd:  # the zoo's other children (git, the machine's probe) aside
+            calls.append(cmd)
+        return robot_zoo.subprocess.CompletedProcess(cmd, 1, "", "cfm-jax: error: f): nope")
+
+    monkeypatch.setattr(robot_zoo.subprocess, "run", run)
+    out = tmp_path / "arm"
+    robot_zoo.run_robot("arm.xml", str(out), 1, [])  # refused: writes the reason
+    assert os.listdir(out) == [robot_zoo.REFUSED] and "--resume" not in calls[-1]
+    robot_zoo.run_robot("arm.xml", str(out), 1, [])
+    assert "--resume" not in calls[-1]
+    (out / "config.json").write_text("{}")  # a run that started
+    robot_zoo.run_robot("arm.xml", str(out), 1, [])
+    assert "--resume" in calls[-1]
+
+
 def test_code_version_is_the_commit_and_says_when_tracked_files_changed(tmp_path):
     import subprocess
 
