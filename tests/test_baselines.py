@@ -366,7 +366,8 @@ def test_babbling_stiffness_moves_a_damped_joint_at_the_feedback_frequency(tmp_p
     # Where inertia outweighs damping (the shipped iiwa14) the gains stay kp I, kd I exactly.
     poses = babbling.pose_sample(iiwa, iiwa.home)
     lightest = iiwa.lightest_inertia(poses)
-    for got, want in zip(baselines.babbling_joint_gains(iiwa, kp, kd, poses), (kp, kd)):
+    gains = baselines.babbling_joint_gains(iiwa, kp, kd, poses)
+    for got, want in zip(gains, (kp, kd), strict=True):
         np.testing.assert_array_equal(got, want * lightest)
     # `robot check` names the joints whose stiffness their damping sets.
     for robot, damped in ((wrist, ("roll",)), (iiwa, ())):

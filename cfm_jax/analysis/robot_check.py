@@ -145,7 +145,7 @@ def dynamics(
         babbling_pd_number=float(kd * control_dt * babbling_number),
         pd_radius=radius,
         babbling_pd_radius=babbling_radius,
-        babbling_damped=tuple(n for n, p in zip(joints, gain_p > kp * lightest) if p),
+        babbling_damped=tuple(n for n, p in zip(joints, gain_p > kp * lightest, strict=True) if p),
     )
 
 
@@ -175,8 +175,12 @@ def _dynamics_lines(robot: Robot) -> list[str]:
         f"radius over a control period at the start pose {d.pd_radius:.4f} (stable below 1; "
         f"kd * dt * lambda_max(diag(M) M^-1) = {d.pd_number:.2f}); the babbling's feedback: its "
         f"largest radius over the poses it visits {d.babbling_pd_radius:.4f}"
-        + (f"; its stiffness is sqrt(kp) x damping on {', '.join(d.babbling_damped)} (their "
-           "damping outweighs their inertia)" if d.babbling_damped else "")
+        + (
+            f"; its stiffness is sqrt(kp) x damping on {', '.join(d.babbling_damped)} (their "
+            "damping outweighs their inertia)"
+            if d.babbling_damped
+            else ""
+        )
     )
     if d.pd_radius >= 1:
         lines.append(
