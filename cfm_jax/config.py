@@ -309,6 +309,8 @@ ROBOT_ACTUATORS = ("strict", "torque")
 
 DESIRED = ("pd", "next_velocity")
 """Values of ``Config.task.desired`` (see :class:`TaskConfig`)."""
+ORACLES = ("period", "step")
+"""Values of ``Config.task.oracle`` (see :class:`TaskConfig`)."""
 MOTION_FAMILIES = ("test", "selection")
 """Values of ``Config.task.motion_family`` (see :class:`TaskConfig`)."""
 CONTROLLER_GOALS = ("desired", "observed")
@@ -475,6 +477,11 @@ class TaskConfig:
       desired: how the legged tasks build ``s*``, one of :data:`DESIRED`: ``pd`` (default;
         the gains above) or ``next_velocity`` (the authors' code: ``v_ref(t+1) - v(t)``; needs
         ``kp = kd = 0``, joint gains None). The arm tasks take ``pd`` only.
+      oracle: the baseline oracle, one of :data:`ORACLES`: ``period`` (``inverse_dynamics``'s
+        default; MuJoCo's inverse dynamics made exact over the held control period,
+        :func:`cfm_jax.tasks.baselines.over_the_period`) or ``step`` (the other tasks'; for
+        ``inverse_dynamics`` the inverse of the period's first physics step, what runs
+        recorded before ``oracle`` existed did).
 
     Examples:
       >>> task = TaskConfig(duration=1.0, targets=((0.2, -0.3),))
@@ -495,6 +502,7 @@ class TaskConfig:
     motions: tuple[float, ...] | None = TASK_DEFAULT
     motion_family: str = TASK_DEFAULT
     desired: str = TASK_DEFAULT
+    oracle: str = TASK_DEFAULT
 
     def control_period(self, timestep: float) -> float:
         """Seconds between controller steps: ``control_dt``, else the physics ``timestep``.
@@ -539,6 +547,11 @@ class TaskConfig:
                 _nonnegative_float(f"task.{field}", getattr(self, field))
         if not isinstance(self.desired, str) or self.desired not in DESIRED:
             fail("task.desired", self.desired, f"one of {DESIRED}")
+        if not isinstance(self.oracle, str) or self.oracle not in ORACLES:
+            fail("task.oracle", self.oracle, f"one of {ORACLES}")
+        if self.oracle == "period" and self.name != "inverse_dynamics":
+            fail("task.oracle", self.oracle, f"'step' for task {self.name!r} (the period-exact "
+                 "oracle is the joint-space task's, task.name='inverse_dynamics')")  # fmt: skip
         if not isinstance(self.motion_family, str) or self.motion_family not in MOTION_FAMILIES:
             fail("task.motion_family", self.motion_family, f"one of {MOTION_FAMILIES}")
         if self.name in TASK_CHECKS:
@@ -960,6 +973,7 @@ GENERIC: dict[str, dict[str, Any]] = {
         "motions": None,
         "motion_family": "test",
         "desired": "pd",
+        "oracle": "step",
     },
 }
 """Generic value of each field left at :data:`TASK_DEFAULT` by section (``config``: top
@@ -1028,7 +1042,8 @@ def from_dict(data: dict) -> Config:
     """Inverse of :func:`to_dict`; lists are accepted for tuples, :data:`DERIVED` keys ignored.
 
     Missing fields take their defaults, except in configs written before the field existed:
-    ``loop.babbling`` then takes :data:`BABBLING_BEFORE`'s, ``task.desired`` ``"pd"`` (what ran).
+    ``loop.babbling`` then takes :data:`BABBLING_BEFORE`'s, ``task.desired`` ``"pd"`` and
+    ``task.oracle`` ``"step"`` (what ran).
 
     Args:
       data: a dict as written by :func:`to_dict` (a run's ``config.json``).
@@ -1080,6 +1095,8 @@ def from_dict(data: dict) -> Config:
                 # Written before task.desired existed: every task's s* was the PD form then
                 # (today a task's default may differ: the walk's is next_velocity).
                 value["desired"] = "pd"
+            if key == "task" and "oracle" not in value:
+                value["oracle"] = "step"  # written before task.oracle: the one-step oracle ran
             kwargs[key] = cls(**value)
         else:
             kwargs[key] = value

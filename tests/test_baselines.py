@@ -372,3 +372,92 @@ def test_babbling_stiffness_moves_a_damped_joint_at_the_feedback_frequency(tmp_p
     # `robot check` names the joints whose stiffness their damping sets.
     for robot, damped in ((wrist, ("roll",)), (iiwa, ())):
         assert robot_check.dynamics(robot, 0.1, kd, dt, kp=kp).babbling_damped == damped
+
+
+def _damped_arm(tmp_path, frictionloss: float):
+    """The two-link arm with joint damping 5 N m s/rad (50x the shipped arm's: within the
+    10 ms control period its velocities relax towards ``tau / D``, as on published arms
+    whose damping outweighs their inertia), dry friction ``frictionloss``."""
+    text = (_shipped.robot_dir() / "two_link_arm.xml").read_text()
+    text = text.replace('damping="0.1"', f'damping="5" frictionloss="{frictionloss}"', 1)
+    path = tmp_path / f"damped_{frictionloss}.xml"
+    path.write_text(text)
+    return robots.load(str(path))
+
+
+def _held_in_mujoco(arm, qpos, qvel, tau, n_sub):
+    """``(qvel' - qvel) / period`` of MuJoCo C (float64) with ``tau`` held ``n_sub`` steps."""
+    model, data = arm.mj_model, mujoco.MjData(arm.mj_model)
+    out = []
+    for q, v, t in zip(qpos, qvel, np.asarray(tau, np.float64), strict=True):
+        mujoco.mj_resetData(model, data)
+        data.qpos[:], data.qvel[:] = q, v
+        data.ctrl[arm.actuator_of_joint] = t / arm.gear
+        mujoco.mj_step(model, data, n_sub)
+        out.append((data.qvel - v) / (n_sub * model.opt.timestep))
+    return np.asarray(out)
+
+
+@pytest.mark.parametrize(
+    "simulator, frictionloss", [("native", 0.0), ("mjx", 0.0), ("native", 0.5)]
+)
+def test_the_period_oracle_realises_s_star_over_the_held_period(tmp_path, simulator,
+                                                                 frictionloss):  # fmt: skip
+    # Oracle: MuJoCo C with the oracle's torque held for the control period's 5 physics
+    # steps, as the rollout holds it. The one-step inverse (task.oracle='step') realises s*
+    # in the first step only and misses it over the period; 'period' solves the period.
+    arm = _damped_arm(tmp_path, frictionloss)
+    n_sub, control_dt = 5, 5 * arm.timestep
+    ref = references.quintic(arm.home, arm.home + 0.1, duration=0.1, control_dt=control_dt)
+    rng = np.random.default_rng(0)
+    rows = 16
+    qpos = (arm.home + 0.3 * rng.standard_normal((rows, 2))).astype(np.float32)
+    qvel = (0.2 * rng.standard_normal((rows, 2))).astype(np.float32)
+    desired = (2.0 * rng.standard_normal((rows, 2))).astype(np.float32)
+    step = rollout.Step(0, qpos, qvel, None, None, desired, None)
+
+    def realised(oracle):
+        task = tasks.JointSpaceTask(arm, ref, 100.0, 20.0, control_dt, oracle=oracle)
+        axes = rollout.Step(None, 0, 0, None, None, 0, None)
+        policy = jax.vmap(task.oracle_policy(simulator), in_axes=(axes, None))
+        tau = np.asarray(jax.jit(policy)(step, jax.random.key(0)))
+        assert np.all(np.abs(tau) < 0.9 * arm.torque_limit), tau  # no clipping in the way
+        return _held_in_mujoco(arm, qpos, qvel, tau, n_sub)
+
+    miss = np.abs(realised("step") - desired).max()
+    error = np.abs(realised("period") - desired).max()
+    assert miss > 1.0, miss  # the one-step inverse: off by more than 1 rad/s^2
+    # float32 velocities (|qvel| < 1 rad/s: rounding 6e-8) over a 10 ms period: 6e-6 rad/s^2
+    # per row and velocity; measured 1.3e-6 (native), 3.9e-6 (mjx), 2.5e-6 (friction).
+    assert error < 5e-5, error
+
+
+def test_rows_without_s_star_ask_the_simulator_nothing():
+    # The period oracle's Newton loop on a batch whose s* is NaN (a rollout that weights the
+    # oracle 0) runs no step: the simulator (here a counting affine response) is never called.
+    calls = []
+
+    def count(tau):
+        calls.append(tau.shape)
+        return np.asarray(tau, np.float32)
+
+    def response(step, tau):
+        out = jax.ShapeDtypeStruct(tau.shape, jnp.float32)
+        return 2.0 * jax.pure_callback(count, out, tau, vmap_method="expand_dims") + 1.0
+
+    exact = baselines.over_the_period(lambda step, key: jnp.zeros(2), response, jnp.full(2, 9.0))
+    axes = rollout.Step(None, None, None, None, None, 0, None)
+    policy = jax.jit(jax.vmap(exact, in_axes=(axes, None)))
+
+    def ask(desired):
+        calls.clear()
+        step = rollout.Step(0, None, None, None, None, jnp.asarray(desired, jnp.float32), None)
+        return np.asarray(policy(step, None)), len(calls)
+
+    tau, n = ask([[3.0, 5.0], [np.nan, 1.0]])
+    np.testing.assert_allclose(tau[0], [1.0, 2.0], rtol=1e-6)  # (s* - 1) / 2
+    np.testing.assert_array_equal(tau[1], [0.0, 0.0])  # unrefined: the start
+    assert n == baselines.PERIOD_NEWTON_STEPS + 1
+    tau, n = ask([[np.nan, 1.0], [np.nan, np.nan]])
+    np.testing.assert_array_equal(tau, 0.0)
+    assert n == 0

@@ -310,6 +310,20 @@ def test_a_config_written_before_loop_babbling_reads_as_what_ran():
     assert config_lib.from_dict({"robot": "iiwa14"}).loop.babbling == "reaching"
 
 
+def test_the_oracle_is_the_period_one_for_the_arms_and_the_one_step_one_in_old_records():
+    assert config.TaskConfig().oracle == "period"
+    for task in ("opspace", "walk", "jump"):
+        assert config.TaskConfig(name=task).oracle == "step"
+        with pytest.raises(config.ConfigError, match=rf"task.oracle='period' .* task '{task}'"):
+            config.TaskConfig(name=task, oracle="period")
+    with pytest.raises(config.ConfigError, match=r"task.oracle='exact' .* \('period', 'step'\)"):
+        config.TaskConfig(oracle="exact")
+    data = config.to_dict(config.Config())
+    assert config.from_dict(data).task.oracle == "period"
+    del data["task"]["oracle"]  # a config.json written before the field: the one-step oracle ran
+    assert config.from_dict(data).task.oracle == "step"
+
+
 def test_motions_are_for_the_legged_tasks_only():
     walk = config.TaskConfig(name="walk", motions=[1.25, 2.75])
     assert walk.motions == (1.25, 2.75)

@@ -23,10 +23,11 @@ def tiny_config(**loop) -> config_lib.Config:
     library's defaults before the selection run: the golden records (tests/golden/) were
     made with them, so that the tests built on this config keep checking those options bit
     for bit; tests/learning.py runs the defaults. Its torque scale is ``coupled``, the arms'
-    default before issue 64 (the default ``auto``, pose here, is tests/test_pose_scale.py's)."""
+    default before issue 64 (the default ``auto``, pose here, is tests/test_pose_scale.py's);
+    its oracle the one-step ``step`` (the default ``period`` is tests/test_baselines.py's)."""
     return config_lib.Config(
         robot="two_link_arm",
-        task=config_lib.TaskConfig(duration=0.3),
+        task=config_lib.TaskConfig(duration=0.3, oracle="step"),
         forward=config_lib.ForwardModelConfig(
             hidden=(16,),
             ensemble_size=2,

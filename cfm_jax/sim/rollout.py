@@ -378,12 +378,16 @@ def mixed_policy(task, controller, parameters: MixedPolicy, simulator="native"):
             tau = tau + parameters.noise_std @ noise
         else:
             tau = tau + parameters.noise_std * noise
+        # Rows that weight the oracle 0 (a batch of policies makes the cond a select) ask it
+        # nothing: s* NaN, which its solvers skip (baselines.over_the_period).
+        active = parameters.oracle_weight != 0
+        asked = step._replace(desired=jnp.where(active, step.desired, jnp.nan))
         tau_oracle = jax.lax.cond(
-            parameters.oracle_weight != 0,
-            lambda: oracle(step, key),
+            active,
+            lambda: oracle(asked, key),
             lambda: jnp.zeros_like(tau),
         )
-        return tau + parameters.oracle_weight * tau_oracle
+        return tau + jnp.where(active, parameters.oracle_weight * tau_oracle, 0.0)
 
     return policy
 

@@ -95,6 +95,75 @@ def inverse_dynamics_oracle(robot, simulator="native"):
     return policy
 
 
+# Newton steps of :func:`over_the_period` and the size of its finite-difference probes (a
+# fraction of each joint's torque limit: the response is close to affine in the torque, so
+# a probe well above float32's rounding of the velocities costs nothing in accuracy).
+PERIOD_NEWTON_STEPS = 2
+PERIOD_PROBE = 1e-2
+
+
+def over_the_period(policy, response, limit, steps: int = PERIOD_NEWTON_STEPS):
+    """``policy`` made exact over the control period: Newton's method on the simulator.
+
+    The torque is held for the period's physics steps; an oracle that inverts one of them
+    misses what the others do (on a joint whose damping outweighs its inertia the velocity
+    relaxes towards ``tau / D`` within the period: issue 64, the M1013's one-step oracle
+    tracked 1000x worse than this one). From ``policy``'s torque, each step solves
+    ``response(tau) = s*`` with the Jacobian of ``response`` by finite differences (one
+    probe per joint, towards zero torque, batched into one simulator call) and keeps the
+    torque of the smallest residual seen, clipped to ``limit``. Rows whose ``s*`` is not
+    finite are returned as ``policy`` gives them, unrefined: a rollout that weights the
+    oracle 0 passes NaN there (:func:`cfm_jax.sim.rollout.mixed_policy`), and its loop then
+    runs no step.
+
+    Args:
+      policy: ``policy(step, key) -> tau (k,)``, the one-step oracle (the start).
+      response: ``response(step, tau) -> (k,)``, what the task observes after the period
+        with ``tau`` held (the simulator); ``s*`` is ``step.desired``.
+      limit: ``(k,)`` torque limit.
+      steps: Newton steps (``steps + 1`` simulator calls of ``k + 1`` rows each).
+
+    Examples:
+      >>> arm = jnp.array([[2.0, 0.0], [0.0, 0.5]])  # an affine response, A tau + b
+      >>> def response(step, tau):
+      ...     return arm @ tau + 1.0
+      >>> start = lambda step, key: jnp.zeros(2)
+      >>> class Step(NamedTuple):
+      ...     desired: jax.Array
+      >>> exact = over_the_period(start, response, jnp.array([10.0, 10.0]))
+      >>> np.allclose(exact(Step(jnp.array([3.0, 2.0])), None), [1.0, 2.0])
+      True
+    """
+    limit = jnp.asarray(limit, jnp.float32)
+    probe = PERIOD_PROBE * limit
+
+    def refined(step, key):
+        tau = jnp.clip(policy(step, key), -limit, limit)
+        active = jnp.all(jnp.isfinite(step.desired))
+
+        def newton(carry):
+            i, tau, best, best_error = carry
+            # Probes towards zero torque stay within the limits.
+            size = jnp.where(tau > 0, -probe, probe)
+            rows = jnp.concatenate([tau[None], tau + jnp.diag(size)])
+            residual = jax.vmap(lambda t: response(step, t) - step.desired)(rows)
+            error = jnp.max(jnp.abs(residual[0]))
+            better = error < best_error
+            best = jnp.where(better, tau, best)
+            jacobian = ((residual[1:] - residual[0]) / size[:, None]).T
+            step_ = jnp.linalg.lstsq(jacobian, residual[0])[0]
+            tau = jnp.clip(tau - step_, -limit, limit)
+            return i + 1, tau, best, jnp.where(better, error, best_error)
+
+        start = (jnp.int32(0), tau, tau, jnp.asarray(jnp.inf, tau.dtype))
+        _, _, best, _ = jax.lax.while_loop(
+            lambda carry: active & (carry[0] <= steps), newton, start
+        )
+        return best
+
+    return refined
+
+
 def constraints_act(mj_model) -> bool:
     """Whether constraint forces act on the model at every step, not only at a limit or a
     contact: dry friction of a joint or tendon (``frictionloss``) or an equality constraint.
@@ -199,15 +268,17 @@ def _native_inverse(mj_model, implicit_damping):
 
 def _rows(row, nq: int, nv: int):
     """The batched host function ``(qpos, qvel, qacc) -> float32`` of ``row``, a float64
-    function of one state and acceleration, applied to each row of any leading shape."""
+    function of one state and acceleration, applied to each row of any leading shape (NaN
+    where an input is not finite: such a row is not asked of MuJoCo)."""
 
     def inverse(qpos, qvel, qacc):
         shape = np.shape(qacc)
         qpos = np.asarray(qpos, np.float64).reshape(-1, nq)
         qvel = np.asarray(qvel, np.float64).reshape(-1, nv)
         qacc = np.asarray(qacc, np.float64).reshape(-1, nv)
-        out = np.empty_like(qacc)
-        for i in range(qacc.shape[0]):
+        out = np.full_like(qacc, np.nan)
+        asked = np.isfinite(qpos).all(1) & np.isfinite(qvel).all(1) & np.isfinite(qacc).all(1)
+        for i in np.flatnonzero(asked):
             out[i] = row(qpos[i], qvel[i], qacc[i])
         return out.astype(np.float32).reshape(shape)
 

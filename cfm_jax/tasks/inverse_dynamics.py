@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from cfm_jax.config import Config, ConfigError, TaskConfig, fail
+from cfm_jax.sim import rollout
 from cfm_jax.tasks import babbling, baselines
 from cfm_jax.tasks.references import (
     Reference,
@@ -69,6 +70,7 @@ class JointSpaceTask:
       kp: proportional gain (1/s^2) of the PD correction in the desired acceleration.
       kd: derivative gain (1/s) of the same correction.
       control_dt: control period (a multiple of the robot's timestep).
+      oracle: one of :data:`cfm_jax.config.ORACLES` (:meth:`oracle_policy`).
 
     Examples:
       >>> arm = cfm_jax.sim.robots.load("two_link_arm")
@@ -86,8 +88,17 @@ class JointSpaceTask:
     output_unit = "(rad/s$^2$)$^2$"
     metric_names: tuple[str, ...] = ()
 
-    def __init__(self, robot, reference: Reference, kp: float, kd: float, control_dt: float):
+    def __init__(
+        self,
+        robot,
+        reference: Reference,
+        kp: float,
+        kd: float,
+        control_dt: float,
+        oracle: str = "period",
+    ):
         self.robot = robot
+        self.oracle = oracle
         self.reference_np = reference
         self.reference = as_jax(reference)
         self.control_dt = float(control_dt)
@@ -306,19 +317,32 @@ class JointSpaceTask:
 
     def oracle_policy(self, simulator: str):
         """MuJoCo's inverse dynamics (:func:`cfm_jax.tasks.baselines.inverse_dynamics_oracle`), with
-        held or passive joints at zero desired acceleration.
+        held or passive joints at zero desired acceleration; with ``oracle="period"`` made exact
+        over the held control period on the simulator
+        (:func:`cfm_jax.tasks.baselines.over_the_period`).
         """
         oracle = baselines.inverse_dynamics_oracle(self.robot, simulator)
         robot = self.robot
-        if robot.drives_every_dof:
+        if not robot.drives_every_dof:
+            one_step = oracle
+
+            def oracle(step, key):
+                qacc = jnp.zeros(step.desired.shape[:-1] + (robot.nv,), step.desired.dtype)
+                full = step._replace(desired=qacc.at[..., robot.actuated_dofs].set(step.desired))
+                return self._v(one_step(full, key))
+
+        if self.oracle == "step":
             return oracle
+        n_sub = rollout.substeps(robot, self.control_dt)
+        physics = (rollout.native_physics if simulator == "native" else rollout.mjx_physics)(
+            robot, n_sub
+        )
 
-        def policy(step, key):
-            qacc = jnp.zeros(step.desired.shape[:-1] + (robot.nv,), step.desired.dtype)
-            full = step._replace(desired=qacc.at[..., robot.actuated_dofs].set(step.desired))
-            return self._v(oracle(full, key))
+        def response(step, tau):
+            qpos, qvel, sensors = physics(step.qpos, step.qvel, robot.torque_to_ctrl(tau))
+            return self.observed(step, qpos, qvel, self.features(qpos, qvel, sensors))
 
-        return policy
+        return baselines.over_the_period(oracle, response, robot.torque_limit)
 
 
 def require_fixed_base(robot, name: str, every_joint: bool = False) -> None:
@@ -385,7 +409,8 @@ def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") 
       (5, 50)
     """
     require_fixed_base(robot, task.name)
-    return JointSpaceTask(robot, reaching(robot, task, control_dt), task.kp, task.kd, control_dt)
+    reference = reaching(robot, task, control_dt)
+    return JointSpaceTask(robot, reference, task.kp, task.kd, control_dt, task.oracle)
 
 
 def default_config() -> Config:
@@ -397,7 +422,7 @@ def default_config() -> Config:
       >>> config.robot, config.loop.babbling, config.forward.kind, config.loop.torque_scale
       ('iiwa14', 'reaching', 'mlp', 'auto')
     """
-    return Config(task=TaskConfig(name="inverse_dynamics"))
+    return Config(task=TaskConfig(name="inverse_dynamics", oracle="period"))
 
 
 def check_config(task: TaskConfig) -> None:
