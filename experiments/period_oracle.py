@@ -24,6 +24,7 @@ import time
 
 import numpy as np
 import pandas as pd
+import robot_zoo
 
 from cfm_jax import config as config_lib
 from cfm_jax.analysis import report
@@ -73,12 +74,13 @@ def row(folder: str) -> dict:
     }
 
 
-def page(rows: list[dict], command: str) -> str:
-    """The Markdown page of ``rows``."""
+def page(rows: list[dict], command: str, note: str = "") -> str:
+    """The Markdown page of ``rows`` (``note``: a paragraph after the table)."""
     lines = [
         "# The oracle over the held control period, on the published arms",
         "",
-        f"Written by `{command}`, {datetime.date.today().isoformat()}. The baselines of each "
+        f"Written by `{command}`, {datetime.date.today().isoformat()}, code "
+        f"{robot_zoo.code_version()}. The baselines of each "
         "zoo run's config with `task.oracle=\"period\"` (MuJoCo's inverse dynamics made exact "
         "over the control period on the simulator: `baselines.over_the_period`), the default "
         "since session 34. `one step`: the oracle the runs recorded (the inverse of the "
@@ -88,23 +90,22 @@ def page(rows: list[dict], command: str) -> str:
         "seeds, diverged ones left out), how many track worse than the period oracle. "
         "Tracking MSE in rad^2, means over the 5 targets.",
         "",
-        "| robot | PD-only | oracle, one step | oracle, period | smallest learned | "
-        "oracle below | s |",
-        "|---|---:|---:|---:|---|---:|---:|",
+        "| robot | PD-only | oracle, one step | oracle, period | smallest learned | oracle below |",
+        "|---|---:|---:|---:|---|---:|",
     ]
     for r in rows:
         lines.append(
             f"| {r['robot']} | {r['pd_only']:.3g} | {r['one_step']:.3g} | {r['period']:.3g} | "
-            f"{r['smallest']:.3g} ({r['smallest_of']}) | {r['below']}/{r['seeds']} | "
-            f"{r['seconds']:.0f} |"
+            f"{r['smallest']:.3g} ({r['smallest_of']}) | {r['below']}/{r['seeds']} |"
         )
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + ([f"\n{note}"] if note else [])) + "\n"
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("folders", nargs="+", help="robot folders of robot_zoo runs")
     parser.add_argument("--table", required=True, help="the Markdown page to write")
+    parser.add_argument("--note", default="", help="a paragraph after the table")
     args = parser.parse_args(argv)
     rows = []
     for folder in args.folders:
@@ -113,12 +114,12 @@ def main(argv=None) -> None:
         print(
             f"{r['robot']}: one step {r['one_step']:.3g}, period {r['period']:.3g}, smallest "
             f"learned {r['smallest']:.3g}; oracle below {r['below']}/{r['seeds']}; PD-only "
-            f"{r['pd_only']:.3g} (again {r['pd_only_again']:.3g})",
+            f"{r['pd_only']:.3g} (again {r['pd_only_again']:.3g}); {r['seconds']:.0f} s",
             flush=True,
         )
     command = "python experiments/period_oracle.py --table " + args.table + " ..."
     with open(args.table, "w") as f:
-        f.write(page(rows, command))
+        f.write(page(rows, command, args.note))
 
 
 if __name__ == "__main__":
