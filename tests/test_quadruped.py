@@ -7,6 +7,7 @@ the models that are not quadrupeds."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import mujoco
@@ -388,3 +389,32 @@ def test_the_fall_rule_of_any_quadruped_finds_its_knees_as_mujoco_does():
     pulling[2, 2] = -1.0
     assert rule(standing, foot_force=pulling) and not rule(standing, foot_force=-pulling)
     assert rule.min_base_height == pytest.approx(0.10 * scale)
+
+
+@pytest.mark.parametrize("name", sorted(PUBLISHED))
+def test_the_highest_jump_is_sized_to_what_the_robot_lands(name):
+    # Oracle: the robot's own fall rule on the states of the jump, simulated in MuJoCo C.
+    # Scaled by length alone (0.17 m x the standing-height ratio), the highest jump fell on
+    # the Go2 (tilt 33 deg on landing) and the Barkour vB, and asked the ANYmal C for more
+    # than it reaches (0.296 of 0.330 m). Sized by what each lands (jump_height_scale), its
+    # clearance is 0.17 m times that factor and it lands.
+    from cfm_jax.sim import robots
+
+    flags = json.loads((QUADRUPEDS / "robots.json").read_text())[f"{name}.xml"]
+    robot = robots.load(str(QUADRUPEDS / f"{name}.xml"), actuators=flags[1])
+    legs = locomotion.legs_of(robot.mj_model)
+    rule = quadruped.fall_rule(quadruped.describe(legs.model), legs.scale)
+    scale = locomotion.jump_height_scale(legs)
+    landed = locomotion.largest_landed_jump(legs)
+    solo = locomotion.largest_landed_jump(locomotion.legs_of(solo12.load_model()))
+    assert scale == min(legs.scale, landed / solo) < legs.scale
+    highest = max(locomotion.JUMP_HEIGHTS)
+    jump = locomotion.jump_reference(highest, model=robot.mj_model, use_cache=False)
+    target = highest * scale
+    assert abs(locomotion.jump_clearance(jump, legs) - target) <= 0.02 * target
+    assert target < landed
+    assert not np.asarray(rule(jump.qpos, jump.foot_force)).any()
+    if name == "go2":  # the rule bites: a harder push (0.215 m of clearance) falls
+        harder, _ = locomotion.simulate_jump(locomotion.JumpParams(push_force=296.0), legs=legs)
+        assert locomotion.jump_clearance(harder, legs) > landed
+        assert np.asarray(rule(harder.qpos, harder.foot_force)).any()

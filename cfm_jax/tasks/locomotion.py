@@ -669,13 +669,70 @@ def jump_clearance(ref_or_rec, legs: Legs | None = None) -> float:
     return float(lowest.max())
 
 
+# Push forces of the scan for the largest jump a robot lands (from a quarter of its weight to
+# three times it, geometric): enough to place the landing limit within a step of 25 %.
+LANDED_SCAN = 9
+_LANDED: dict = {}
+
+
+def largest_landed_jump(legs: Legs, control_dt: float = CONTROL_DT) -> float:
+    """The largest foot clearance (m) of the reference controller's jumps that do not fall.
+
+    The jump of :class:`JumpParams` with push forces from a quarter of the robot's weight to
+    three times it (:data:`LANDED_SCAN`, geometric); a jump falls when the robot's fall rule
+    (:func:`cfm_jax.sim.quadruped.fall_rule`) holds at any control step. Measures what the
+    robot's legs, mass and motors can land, for :func:`jump_height_scale`.
+
+    Args:
+      legs: the robot's :class:`Legs`.
+      control_dt: control period (s).
+
+    Examples:
+      >>> round(largest_landed_jump(legs_of(solo12.load_model())), 3)  # no push falls
+      0.256
+    """
+    from cfm_jax.sim import quadruped
+
+    key = (model_bytes(legs.model), float(control_dt))
+    if key not in _LANDED:
+        rule = quadruped.fall_rule(quadruped.describe(legs.model), legs.scale)
+        weight = _total_mass(legs.model) * -legs.model.opt.gravity[2]
+        landed = 0.0
+        for force in np.geomspace(weight / 4, 3 * weight, LANDED_SCAN):
+            sim = _jump_run(JumpParams(), float(force), legs, control_dt)
+            rec = sim.recording()
+            ref = _to_reference(rec, legs, sim.n_sub, control_dt, "jump", {})
+            if not np.asarray(rule(ref.qpos, ref.foot_force)).any():
+                solo = legs.sites is not None
+                landed = max(landed, jump_clearance(rec, None if solo else legs))
+        _LANDED[key] = landed
+    return _LANDED[key]
+
+
+def jump_height_scale(legs: Legs, control_dt: float = CONTROL_DT) -> float:
+    """The factor of a robot's jump heights over the Solo12's: its length scale
+    (``legs.scale``), or less where the robot lands less (:func:`largest_landed_jump` over
+    the Solo12's), so that each jump is the same fraction of what it can land. The Solo12: 1.
+
+    Args:
+      legs: the robot's :class:`Legs`.
+      control_dt: control period (s).
+
+    Examples:
+      >>> jump_height_scale(legs_of(solo12.load_model()))
+      1.0
+    """
+    solo = largest_landed_jump(legs_of(solo12.load_model()), control_dt)
+    return min(legs.scale, largest_landed_jump(legs, control_dt) / solo)
+
+
 def simulate_jump(params: JumpParams, model=None, control_dt: float = CONTROL_DT, legs=None):
     """Run the jump controller, as :func:`simulate_walk`; ``params.push_force`` None is
     bisected until :func:`jump_clearance` is ``params.height`` to 2 % (kept in ``ref.params``).
 
     Args:
       params: the :class:`JumpParams` (the Solo12's; another robot's scaled as the walk's,
-        the requested clearance included).
+        the requested clearance by :func:`jump_height_scale`).
       model: the ``mujoco.MjModel`` (None: :func:`cfm_jax.sim.solo12.load_model`).
       control_dt: control period (s), a whole number of physics steps.
       legs: the robot's :class:`Legs` (None: :func:`legs_of` ``model``).
@@ -689,11 +746,11 @@ def simulate_jump(params: JumpParams, model=None, control_dt: float = CONTROL_DT
         legs = legs_of(model if model is not None else solo12.load_model())
     model = legs.model
     solo = legs.sites is not None  # the Solo12's closed form measures its clearance
-    height = params.height * legs.scale
     weight = _total_mass(model) * -model.opt.gravity[2]
     if params.push_force is not None:
         force = params.push_force
     else:
+        height = params.height * jump_height_scale(legs, control_dt)
         lo, hi = weight / 4, 3.0 * weight
         force = hi
         for _ in range(30):
