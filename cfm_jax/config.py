@@ -477,11 +477,9 @@ class TaskConfig:
       desired: how the legged tasks build ``s*``, one of :data:`DESIRED`: ``pd`` (default;
         the gains above) or ``next_velocity`` (the authors' code: ``v_ref(t+1) - v(t)``; needs
         ``kp = kd = 0``, joint gains None). The arm tasks take ``pd`` only.
-      oracle: the baseline oracle, one of :data:`ORACLES`: ``period`` (``inverse_dynamics``'s
-        default; MuJoCo's inverse dynamics made exact over the held control period,
-        :func:`cfm_jax.tasks.baselines.over_the_period`) or ``step`` (the other tasks'; for
-        ``inverse_dynamics`` the inverse of the period's first physics step, what runs
-        recorded before ``oracle`` existed did).
+      oracle: one of :data:`ORACLES`: ``period`` (``inverse_dynamics``'s default: exact over
+        the held control period, :func:`cfm_jax.tasks.baselines.over_the_period`) or ``step``
+        (the other tasks'; the one-step inverse, what runs recorded before the field used).
 
     Examples:
       >>> task = TaskConfig(duration=1.0, targets=((0.2, -0.3),))

@@ -105,16 +105,12 @@ PERIOD_PROBE = 1e-2
 def over_the_period(policy, response, limit, steps: int = PERIOD_NEWTON_STEPS):
     """``policy`` made exact over the control period: Newton's method on the simulator.
 
-    The torque is held for the period's physics steps; an oracle that inverts one of them
-    misses what the others do (on a joint whose damping outweighs its inertia the velocity
-    relaxes towards ``tau / D`` within the period: issue 64, the M1013's one-step oracle
-    tracked 1000x worse than this one). From ``policy``'s torque, each step solves
-    ``response(tau) = s*`` with the Jacobian of ``response`` by finite differences (one
-    probe per joint, towards zero torque, batched into one simulator call) and keeps the
-    torque of the smallest residual seen, clipped to ``limit``. Rows whose ``s*`` is not
-    finite are returned as ``policy`` gives them, unrefined: a rollout that weights the
-    oracle 0 passes NaN there (:func:`cfm_jax.sim.rollout.mixed_policy`), and its loop then
-    runs no step.
+    The torque is held for the period's physics steps, and inverting the first one misses the
+    others (a damped joint's velocity relaxes within the period; issue 64). From ``policy``'s
+    torque each step solves ``response(tau) = s*`` (Jacobian by finite differences, one probe
+    per joint towards zero torque, one simulator call) and keeps the torque of the smallest
+    residual, clipped to ``limit``. Rows whose ``s*`` is not finite (a rollout that weights
+    the oracle 0, :func:`cfm_jax.sim.rollout.mixed_policy`) are not refined: no step runs.
 
     Args:
       policy: ``policy(step, key) -> tau (k,)``, the one-step oracle (the start).

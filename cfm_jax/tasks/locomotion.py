@@ -676,12 +676,9 @@ _LANDED: dict = {}
 
 
 def largest_landed_jump(legs: Legs, control_dt: float = CONTROL_DT) -> float:
-    """The largest foot clearance (m) of the reference controller's jumps that do not fall.
-
-    The jump of :class:`JumpParams` with push forces from a quarter of the robot's weight to
-    three times it (:data:`LANDED_SCAN`, geometric); a jump falls when the robot's fall rule
-    (:func:`cfm_jax.sim.quadruped.fall_rule`) holds at any control step. Measures what the
-    robot's legs, mass and motors can land, for :func:`jump_height_scale`.
+    """The largest foot clearance (m) of the reference controller's jumps that do not fall
+    (:class:`JumpParams`, push forces of :data:`LANDED_SCAN`; fallen: the robot's
+    :func:`cfm_jax.sim.quadruped.fall_rule` at any control step).
 
     Args:
       legs: the robot's :class:`Legs`.
@@ -689,7 +686,7 @@ def largest_landed_jump(legs: Legs, control_dt: float = CONTROL_DT) -> float:
 
     Examples:
       >>> round(largest_landed_jump(legs_of(solo12.load_model())), 3)  # no push falls
-      0.256
+      0.255
     """
     from cfm_jax.sim import quadruped
 
@@ -710,9 +707,8 @@ def largest_landed_jump(legs: Legs, control_dt: float = CONTROL_DT) -> float:
 
 
 def jump_height_scale(legs: Legs, control_dt: float = CONTROL_DT) -> float:
-    """The factor of a robot's jump heights over the Solo12's: its length scale
-    (``legs.scale``), or less where the robot lands less (:func:`largest_landed_jump` over
-    the Solo12's), so that each jump is the same fraction of what it can land. The Solo12: 1.
+    """A robot's jump heights over the Solo12's: ``legs.scale``, or less where it lands less
+    (:func:`largest_landed_jump` over the Solo12's). The Solo12: 1.
 
     Args:
       legs: the robot's :class:`Legs`.
