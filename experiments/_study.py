@@ -61,11 +61,19 @@ robot) the default (docs/results/torque_scale_decision.md): every study record o
 made before it ran on it, so :func:`for_task` pins it."""
 
 
+BEFORE_PERIOD = {"task.oracle": "step"}
+"""The arms' oracle before session 34 made ``period`` the default: every study record of an
+arm task ran the one-step oracle, so :func:`for_task` pins it."""
+
+
 def for_task(task: str, **changes) -> config_lib.Config:
     """:func:`cfm_jax.config.for_task` with the torque scale the studies' records were made
-    on (:data:`BEFORE_POSE`) where the default would be ``auto``: the claims', comparison's,
-    robustness, selection, search and benchmark cells stay what they were."""
+    on (:data:`BEFORE_POSE`) where the default would be ``auto``, and their one-step oracle
+    (:data:`BEFORE_PERIOD`): the claims', comparison's, robustness, selection, search and
+    benchmark cells stay what they were."""
     config = config_lib.for_task(task, **changes)
+    if config.task.oracle == "period":
+        config = with_changes(config, BEFORE_PERIOD)
     if config.loop.torque_scale != "auto":
         return config
     return with_changes(config, BEFORE_POSE)

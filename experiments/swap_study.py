@@ -67,10 +67,11 @@ def base_config(seeds: int, iterations: int, quick: bool, first_seed: int = 0) -
     # The torque scale of the comparison's cells.
     scale = _study.BEFORE_POSE["loop.torque_scale"]
     loop = config_lib.LoopConfig(iterations=iterations, seeds=seeds, torque_scale=scale)
+    task = config_lib.TaskConfig(oracle=_study.BEFORE_PERIOD["task.oracle"])  # the records'
     if quick:  # the two-link arm with the studies' quick networks and fit steps
         return _study.quick_config(config_lib.Config(robot="two_link_arm", loop=loop,
-                                                     seed=first_seed))  # fmt: skip
-    return config_lib.Config(robot="iiwa14", loop=loop, seed=first_seed)
+                                                     task=task, seed=first_seed))  # fmt: skip
+    return config_lib.Config(robot="iiwa14", loop=loop, task=task, seed=first_seed)
 
 
 def done(run_dir: str, config: config_lib.Config) -> bool:

@@ -56,7 +56,9 @@ def test_an_own_cell_is_the_defaults_with_its_lowest_trial_on_the_test_motions(t
     assert set(cells) == {"shared", "own-joint"}  # distal and task wait for their search
     assert comparison.pending([task], str(tmp_path)) == [
         f"{task}/own-{loss}" for loss in ("task", "distal", "supervised")]  # fmt: skip
-    defaults = config_lib.for_task(task, robot="iiwa14")
+    import _study
+
+    defaults = _study.for_task(task, robot="iiwa14")  # the records' oracle and torque scale
     own, shared = cells["own-joint"].config(), cells["shared"].config()
     assert cells["own-joint"].losses == ("joint",)
     assert shared.replace(seed=0, loop=defaults.loop) == defaults  # the shared cell: defaults

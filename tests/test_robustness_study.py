@@ -35,6 +35,8 @@ def _as_run_today(recorded: dict) -> dict:
     loop.setdefault("restart_on_terminal", False)
     # task.motion_family (issue 43) came later: every record followed the test motions' family
     task = {**recorded["task"], "motion_family": recorded["task"].get("motion_family", "test")}
+    # task.oracle (session 34) came later: every record ran the one-step oracle
+    task.setdefault("oracle", "step")
     # and the forward section's rigid_body fields as they are read today (forward.options)
     forward = config_lib.upgrade_forward(recorded["forward"])
     return {**recorded, "loop": loop, "task": task, "forward": forward}

@@ -224,6 +224,7 @@ def test_the_chosen_values_are_the_rule_s_choices_and_the_library_s_defaults():
             want = _study.with_changes(defaults, {
                 "loop.iterations": select.ITERATIONS[member],
                 **_study.BEFORE_TORQUE_SCALING,
+                **(_study.BEFORE_PERIOD if defaults.task.oracle == "period" else {}),
                 **{f"task.{k}": v for k, v in motions.items()}})  # fmt: skip
             assert together == want, member
 
