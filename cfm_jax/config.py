@@ -475,8 +475,9 @@ class TaskConfig:
         ``selection``, the gait of :data:`cfm_jax.tasks.locomotion.SELECTION_MOTIONS`, on which
         hyperparameters are chosen: no window of its motions is one of a test motion.
       desired: how the legged tasks build ``s*``, one of :data:`DESIRED`: ``pd`` (default;
-        the gains above) or ``next_velocity`` (the authors' code: ``v_ref(t+1) - v(t)``; needs
-        ``kp = kd = 0``, joint gains None). The arm tasks take ``pd`` only.
+        the gains above) or ``next_velocity`` (the authors' code: ``v_ref(t+1) - v(t)``, plus
+        ``control_dt joint_kp (q_ref - q)`` on the joints; needs ``kp = kd = 0``, ``joint_kd``
+        None). The arm tasks take ``pd`` only.
       oracle: one of :data:`ORACLES`: ``period`` (``inverse_dynamics``'s default: exact over
         the held control period, :func:`cfm_jax.tasks.baselines.over_the_period`) or ``step``
         (the other tasks'; the one-step inverse, what runs recorded before the field used).
@@ -555,19 +556,14 @@ class TaskConfig:
         if self.name in TASK_CHECKS:
             TASK_CHECKS[self.name](self)
         if self.desired == "next_velocity":
-            for field, allowed in (
-                ("kp", 0.0),
-                ("kd", 0.0),
-                ("joint_kp", None),
-                ("joint_kd", None),
-            ):
+            for field, allowed in (("kp", 0.0), ("kd", 0.0), ("joint_kd", None)):
                 if getattr(self, field) != allowed:
                     fail(
                         f"task.{field}",
                         getattr(self, field),
                         f"{allowed!r} with task.desired='next_velocity' (its gains are fixed: "
-                        "kp = 0 and kd = 1 / control_dt on the base and the joints; for PD "
-                        "gains in s* set task.desired='pd')",
+                        "kp = 0 and kd = 1 / control_dt on the base and the joints, plus "
+                        "task.joint_kp on the joints; for other gains set task.desired='pd')",
                     )
         if self.site is not None and (not isinstance(self.site, str) or not self.site):
             fail("task.site", self.site, "None or the name of a site of the robot's MJCF")

@@ -3,7 +3,7 @@
 Not a test: prints numbers and writes them to ``docs/benchmarks_mjx.md`` and into the
 ``<!-- mjx-benchmark -->`` section of ``docs/benchmarks.md`` (``benchmark.py`` keeps the
 section when it rewrites that page). For each task at its default references (targets,
-horizon, control rate; one seed) and for both simulators it measures:
+horizon, control rate, oracle; one seed) and for both simulators it measures:
 
 * the rollout of every target (the babbling policy, which carries every branch of the
   mixed policy: controller, feedback, oracle, noise), compiled once: compile + first call,
@@ -13,12 +13,14 @@ horizon, control rate; one seed) and for both simulators it measures:
   small networks and fits (``--fit-steps`` Adam steps each), second call (the first
   compiles).
 
+``TASK:ORACLE`` in ``--tasks`` measures a task with another ``task.oracle`` (the default list
+has ``inverse_dynamics:step``: the period-exact oracle's cost against the one-step one's).
 Networks are small (``hidden=(64,)``) so that the physics is what is measured. Run with
 nothing else on the machine. On a GPU the same script measures the GPU (``--tasks`` to
 choose).
 
 Usage:
-  python experiments/mjx_benchmark.py [--tasks inverse_dynamics,opspace,walk,jump]
+  python experiments/mjx_benchmark.py [--tasks inverse_dynamics,inverse_dynamics:step,...]
       [--repeats 3] [--fit-steps 20] [--out docs/benchmarks_mjx.md]
 """
 
@@ -36,13 +38,17 @@ import _study
 import cfm_jax  # noqa: F401  (first: it sets the XLA flag before JAX starts)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-TASKS = ("inverse_dynamics", "opspace", "walk", "jump")
+TASKS = ("inverse_dynamics", "inverse_dynamics:step", "opspace", "walk", "jump")
 
 
-def config_for(task: str, simulator: str, fit_steps: int):
+def config_for(task: str, simulator: str, fit_steps: int, oracle: str | None = None):
+    import dataclasses
+
     from cfm_jax import config as cfg
 
     base = cfg.for_task(task)
+    if oracle is not None:
+        base = base.replace(task=dataclasses.replace(base.task, oracle=oracle))
     return base.replace(
         simulator=simulator,
         forward=cfg.ForwardModelConfig(
@@ -61,12 +67,12 @@ def config_for(task: str, simulator: str, fit_steps: int):
     )
 
 
-def measure(task: str, simulator: str, repeats: int, fit_steps: int) -> dict:
+def measure(task: str, simulator: str, repeats: int, fit_steps: int, oracle=None) -> dict:
     import jax
 
     from cfm_jax.runs import training
 
-    exp = training.Experiment(config_for(task, simulator, fit_steps))
+    exp = training.Experiment(config_for(task, simulator, fit_steps, oracle))
     policy = exp.babbling_policy()
     rollout = jax.jit(exp.rollout_one)
     key = jax.random.key(0)
@@ -90,6 +96,7 @@ def measure(task: str, simulator: str, repeats: int, fit_steps: int) -> dict:
     steps = exp.task.targets * exp.task.steps
     return {
         "task": task,
+        "oracle": exp.config.task.oracle,
         "simulator": simulator,
         "robot": exp.config.robot,
         "targets": exp.task.targets,
@@ -118,14 +125,19 @@ def main() -> None:
     load = os.getloadavg()[0]
     device = f"{jax.default_backend()} ({jax.devices()[0].device_kind})"
     rows = []
-    for task in args.tasks.split(","):
+    for item in args.tasks.split(","):
+        task, _, oracle = item.partition(":")
+        oracle = oracle or None
         for simulator in ("native", "mjx"):
-            path = os.path.join(args.results, f"{jax.default_backend()}-{task}-{simulator}.json")
+            # one-step-oracle rows keep the file names they had before task.oracle existed
+            used = config_for(task, simulator, 1, oracle).task.oracle
+            named = task if used == "step" else f"{task}-{used}"
+            path = os.path.join(args.results, f"{jax.default_backend()}-{named}-{simulator}.json")
             if os.path.isfile(path):  # resumable: one file per measured pair
                 with open(path) as f:
                     rows.append(json.load(f))
                 continue
-            row = measure(task, simulator, args.repeats, args.fit_steps)
+            row = measure(task, simulator, args.repeats, args.fit_steps, oracle)
             print(json.dumps(row), flush=True)
             with open(path, "w") as f:
                 json.dump(row, f)
@@ -142,13 +154,14 @@ def main() -> None:
         f"Algorithm 1 with `hidden=(64,)` networks and {args.fit_steps} Adam steps per fit "
         "(the second call; the first compiles).",
         "",
-        "| task | robot | simulator | targets x steps | rollout compile (s) | rollout (s) "
-        "| control steps/s | iteration (s) | first iteration (s) |",
-        "|---|---|---|---:|---:|---:|---:|---:|---:|",
+        "| task | robot | oracle | simulator | targets x steps | rollout compile (s) "
+        "| rollout (s) | control steps/s | iteration (s) | first iteration (s) |",
+        "|---|---|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         lines.append(
-            f"| {r['task']} | {r['robot']} | {r['simulator']} | {r['targets']} x {r['steps']} "
+            f"| {r['task']} | {r['robot']} | {r.get('oracle', 'step')} | {r['simulator']} "
+            f"| {r['targets']} x {r['steps']} "
             f"| {r['rollout_compile_s']:.1f} | {r['rollout_s']:.3f} | {r['steps_per_s']:.0f} "
             f"| {r['iteration_s']:.2f} | {r['iteration_first_s']:.1f} |"
         )

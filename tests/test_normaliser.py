@@ -229,6 +229,18 @@ def test_next_velocity_desired_is_the_reference_next_velocity_minus_the_velocity
     # arithmetic on velocities up to ~20 rad/s times 250/s, times dt: atol 2e-5.
     np.testing.assert_allclose(desired[:, :18], ref.qvel[1 : n + 1] - qvel, atol=2e-5)
     np.testing.assert_allclose(desired[:, 18:], ref.foot_force_mean.reshape(n, 12), atol=1e-4)
+    # With joint position feedback: + control_dt joint_kp (q_ref(t) - q(t)) on the joints
+    # (qpos 7.. are the joints, qvel 6..), the base's entries unchanged.
+    fed_config = dataclasses.replace(walk_config, desired="next_velocity", joint_kp=1000.0)
+    fed = tasks.make(solo, fed_config, 0.004)
+    fed_desired = jax.jit(jax.vmap(fed.desired))(
+        ref_t, jnp.asarray(qpos, jnp.float32), jnp.asarray(qvel, jnp.float32), jnp.zeros((n, 12))
+    )
+    fed_desired = np.asarray(fed_desired, np.float64)
+    expected = ref.qvel[1 : n + 1] - qvel
+    expected[:, 6:] += 0.004 * 1000.0 * (ref.qpos[:n, 7:] - qpos[:, 7:])
+    np.testing.assert_allclose(fed_desired[:, :18], expected, atol=2e-5)
+    np.testing.assert_array_equal(fed_desired[:, :6], desired[:, :6])
 
 
 def test_config_of_normaliser_and_desired():
@@ -241,6 +253,9 @@ def test_config_of_normaliser_and_desired():
         config.TaskConfig(name="walk", desired="next_velocity", kp=100.0)
     with pytest.raises(config.ConfigError, match=r"task.joint_kd=5.0 is not allowed: None"):
         config.TaskConfig(name="jump", desired="next_velocity", kp=0, kd=0, joint_kd=5.0)
+    with pytest.raises(config.ConfigError, match=r"task.joint_kp=-1.0"):
+        config.TaskConfig(name="walk", desired="next_velocity", kp=0, kd=0, joint_kp=-1.0)
+    assert config.TaskConfig(name="walk", desired="next_velocity", joint_kp=10.0).joint_kp == 10
     with pytest.raises(config.ConfigError, match="task.desired"):
         config.TaskConfig(desired="velocity")
     walk = config.for_task("walk")  # next_velocity and data: the selection run's choices

@@ -194,6 +194,9 @@ def test_robot_check_reports_the_legs_it_read():
     assert "FL: joints FL_hip_joint, FL_thigh_joint, FL_calf_joint; foot FL" in text
     assert "HL: joints RL_hip_joint" in text and "standing pose: keyframe 'home'" in text
     assert "added at load time: a ground plane 'floor' at z = 0" in text  # Menagerie's has none
+    legs = locomotion.legs_of_file(str(QUADRUPEDS / "go2.xml"))
+    scale = locomotion.jump_height_scale(legs)  # 0.635: what it lands, below its length scale
+    assert f"jump heights: the Solo12's times {scale:.3f} (length scale {legs.scale:.3f};" in text
 
 
 def test_the_numeric_leg_ik_is_the_solo12_closed_form():

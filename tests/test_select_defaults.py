@@ -330,33 +330,46 @@ def test_a_task_s_own_check_starts_from_its_family_s_defaults_and_chooses_by_the
     assert select.TASK_CHECK in page.split("\n## opspace")[1]
 
 
-def test_the_walk_s_restart_check_differs_from_the_defaults_cell_in_that_option_alone(tmp_path):
-    """The walk's own check (``WALK_CHECK``, written before it ran): its one cell is the walk's
-    defaults cell (round 2's, already recorded) with ``loop.restart_on_terminal=True`` and
-    nothing else changed; the rule chooses by hand-made scores; the page of a piece with
-    its records shows the check's text and table after the rounds."""
+def test_the_walk_s_checks_differ_from_the_defaults_cell_in_their_option_alone(tmp_path):
+    """The walk's own checks (``WALK_CHECK``, ``WALK_FEEDBACK_CHECK``, each written before it
+    ran): each cell is the walk's defaults cell (round 2's, already recorded) with one option
+    changed (``loop.restart_on_terminal=True``; ``task.joint_kp=1000``) and nothing else; the
+    rule chooses by hand-made scores; the page of a piece with its records shows the checks'
+    texts and tables after the rounds."""
     task = "walk"
     base = select.defaults_cell(task)
     checks = select.check_cells(task)
-    assert [c.name for c in checks] == ["check_restart_after_a_fall=True"]
-    assert select.cells_of(task)[-1] == checks[0]
+    names = ["check_restart_after_a_fall=True", "check_joint_position_feedback_in_sstar=1000.0"]
+    assert [c.name for c in checks] == names
+    assert select.cells_of(task)[-2:] == checks
     assert checks[0].config() == base.config().replace(
         loop=dataclasses.replace(base.config().loop, restart_on_terminal=True)
     )
-    frames = {base: _frame([-1.0] * 4), checks[0]: _frame([-1.5, -1.0, -1.0, -1.0])}
-    assert select.check_choices(frames, task)["restart after a fall"][0] is True
-    frames[checks[0]] = _frame([-0.5] * 4)
-    assert select.check_choices(frames, task)["restart after a fall"][0] is False
-    # The page: copy the walk's records and add a made-up check record.
+    assert checks[1].config() == base.config().replace(
+        task=dataclasses.replace(base.config().task, joint_kp=1000.0)
+    )
+    frames = {base: _frame([-1.0] * 4), checks[0]: _frame([-1.5, -1.0, -1.0, -1.0]),
+              checks[1]: _frame([-0.5] * 4)}  # fmt: skip
+    chosen = select.check_choices(frames, task)
+    assert chosen["restart after a fall"][0] is True
+    assert chosen["joint position feedback in s*"][0] is None  # the base's value
+    frames[checks[0]], frames[checks[1]] = _frame([-0.5] * 4), _frame([-1.0, -1.0, -1.2, -1.0])
+    chosen = select.check_choices(frames, task)
+    assert chosen["restart after a fall"][0] is False
+    assert chosen["joint position feedback in s*"][0] == 1000.0
+    # The page: copy the walk's records and add a made-up record of the last check.
     for cell in select.cells_of(task)[:-1]:
         if _study.recorded(select.record_dir(RECORDS, cell)):
             shutil.copytree(
                 select.record_dir(RECORDS, cell), select.record_dir(str(tmp_path), cell)
             )
-    fake = select.record_dir(str(tmp_path), checks[0])
-    shutil.copytree(select.record_dir(RECORDS, base), fake)
+    fake = select.record_dir(str(tmp_path), checks[1])
+    if not os.path.isdir(fake):
+        shutil.copytree(select.record_dir(RECORDS, base), fake)
     page = select.tables(str(tmp_path), ["walk"])
     walk = page.split("\n## walk")[1]
     assert select.WALK_CHECK in walk and "check_restart_after_a_fall=True |" in walk
+    assert select.WALK_FEEDBACK_CHECK in walk
+    assert "check_joint_position_feedback_in_sstar=1000.0 |" in walk
     round_one = walk.split("### walk, round 2")[0]
     assert "check_restart" not in round_one

@@ -63,6 +63,8 @@ def protocol(config) -> str:
             f"s* the desired next velocity (`task.desired={task.desired!r}`: kp 0, kd "
             f"1/control_dt{rate} on base and joints)"
         )
+        if task.joint_kp:
+            gains = gains[:-1] + f", joint_kp {task.joint_kp:g})"
     model = forward_models.describe(config.forward)
     if getattr(config, "robot_actuators", "strict") != "strict":
         from cfm_jax.sim import robots

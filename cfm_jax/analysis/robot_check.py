@@ -223,7 +223,27 @@ def _legs_lines(robot: Robot) -> list[str]:
         ["quadruped: yes, read from the file (cfm_jax.sim.quadruped):"]
         + ["  " + line for line in found.summary().splitlines()]
         + added
+        + _jump_lines(robot)
     )
+
+
+def _jump_lines(robot: Robot) -> list[str]:
+    """How high the jump task's references go on this quadruped
+    (:func:`cfm_jax.tasks.locomotion.jump_height_scale`); none where its legs cannot be read."""
+    from cfm_jax.sim import solo12
+    from cfm_jax.tasks import locomotion
+
+    try:
+        legs = locomotion.legs_of(robot.mj_model)
+        scale, landed = locomotion.jump_height_scale(legs), locomotion.largest_landed_jump(legs)
+        solo = locomotion.largest_landed_jump(locomotion.legs_of(solo12.load_model()))
+    except (ValueError, RuntimeError) as error:
+        return [f"  jump heights: not computed ({error})"]
+    return [
+        f"  jump heights: the Solo12's times {scale:.3f} (length scale {legs.scale:.3f}; the "
+        f"highest reference jump it lands by its fall rule clears {landed:.3f} m, the "
+        f"Solo12's {solo:.3f} m)"
+    ]
 
 
 SMALL_RANGE = 0.2

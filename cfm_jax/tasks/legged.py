@@ -140,12 +140,14 @@ class LeggedTask(JointSpaceTask):
     def _desired_gains(self, task: TaskConfig) -> dict:
         """``desired_kp``, ``desired_kd`` ``(6 + joints,)``, the PD gains in ``s*``: ``task.kp``,
         ``task.kd`` on the base, ``task.joint_kp``, ``task.joint_kd`` (None: the base's) on joints;
-        with ``next_velocity`` 0 and ``1 / control_dt``, so ``s* = v_ref(t+1) - v(t)``."""
+        with ``next_velocity`` ``kp`` 0 (``task.joint_kp`` on the joints, None: 0) and ``kd``
+        ``1 / control_dt``, so ``s* = v_ref(t+1) - v(t) + control_dt joint_kp (q_ref - q)``."""
         if task.desired == "next_velocity":
-            n = 6 + self.robot.action_dim
+            joints = self.robot.action_dim
+            joint_kp = 0.0 if task.joint_kp is None else float(task.joint_kp)
             return {
-                "desired_kp": jnp.zeros(n, jnp.float32),
-                "desired_kd": jnp.full(n, 1.0 / self.control_dt, jnp.float32),
+                "desired_kp": jnp.asarray([0.0] * 6 + [joint_kp] * joints, jnp.float32),
+                "desired_kd": jnp.full(6 + joints, 1.0 / self.control_dt, jnp.float32),
             }
         kp, kd = float(task.kp), float(task.kd)
         joint_kp = kp if task.joint_kp is None else float(task.joint_kp)

@@ -694,14 +694,14 @@ def largest_landed_jump(legs: Legs, control_dt: float = CONTROL_DT) -> float:
     if key not in _LANDED:
         rule = quadruped.fall_rule(quadruped.describe(legs.model), legs.scale)
         weight = _total_mass(legs.model) * -legs.model.opt.gravity[2]
+        feet = None if legs.sites is not None else legs  # the Solo12's sites, else the legs
         landed = 0.0
         for force in np.geomspace(weight / 4, 3 * weight, LANDED_SCAN):
             sim = _jump_run(JumpParams(), float(force), legs, control_dt)
             rec = sim.recording()
             ref = _to_reference(rec, legs, sim.n_sub, control_dt, "jump", {})
             if not np.asarray(rule(ref.qpos, ref.foot_force)).any():
-                solo = legs.sites is not None
-                landed = max(landed, jump_clearance(rec, None if solo else legs))
+                landed = max(landed, jump_clearance(rec, feet))
         _LANDED[key] = landed
     return _LANDED[key]
 
