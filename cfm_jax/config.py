@@ -465,7 +465,9 @@ class TaskConfig:
       kp: proportional gain (1/s^2) in ``qdd* = qdd_ref + kp (q_ref - q) + kd (qd_ref - qd)``
         (legged tasks: on the base); ``kp = kd = 0``: pure feed-forward.
       kd: derivative gain (1/s) of the same correction.
-      joint_kp: legged tasks only: proportional gain (1/s^2) on the joints; None: ``kp``.
+      joint_kp: legged tasks only: proportional gain (1/s^2) on the joints; None: ``kp``
+        (``next_velocity``: 0). Left out, the task's default where ``desired`` is the task's
+        default form (the walk: 1000 with ``next_velocity``), else None.
       joint_kd: legged tasks only: derivative gain (1/s) on the joints; None: ``kd``.
       site: ``opspace``: the end-effector site; None: the first of ``ee``, ``flange`` and
         ``attachment_site``.
@@ -534,7 +536,11 @@ class TaskConfig:
     def __post_init__(self):
         if not isinstance(self.name, str) or self.name not in TASKS:
             fail("task.name", self.name, f"one of {TASKS}")
+        own_joint_kp = self.joint_kp is TASK_DEFAULT
         _resolve(self, self.name, "task")
+        if own_joint_kp and self.desired != _task_default(self.name, "task", "desired"):
+            # A task's joint_kp is its own s* form's: another form takes the generic gain.
+            object.__setattr__(self, "joint_kp", GENERIC["task"]["joint_kp"])
         _positive_float("task.duration", self.duration)
         if self.control_dt is not None:
             _positive_float("task.control_dt", self.control_dt)

@@ -66,14 +66,23 @@ BEFORE_PERIOD = {"task.oracle": "step"}
 arm task ran the one-step oracle, so :func:`for_task` pins it."""
 
 
+BEFORE_WALK_FEEDBACK = {"task.joint_kp": None}
+"""The walk's ``s*`` before session 35's selection check gave it joint position feedback
+(``task.joint_kp``): every study record of the walk ran without it, so :func:`for_task`
+pins it."""
+
+
 def for_task(task: str, **changes) -> config_lib.Config:
     """:func:`cfm_jax.config.for_task` with the torque scale the studies' records were made
-    on (:data:`BEFORE_POSE`) where the default would be ``auto``, and their one-step oracle
-    (:data:`BEFORE_PERIOD`): the claims', comparison's, robustness, selection, search and
-    benchmark cells stay what they were."""
+    on (:data:`BEFORE_POSE`) where the default would be ``auto``, their one-step oracle
+    (:data:`BEFORE_PERIOD`) and the walk's ``s*`` without joint position feedback
+    (:data:`BEFORE_WALK_FEEDBACK`): the claims', comparison's, robustness, selection, search
+    and benchmark cells stay what they were."""
     config = config_lib.for_task(task, **changes)
     if config.task.oracle == "period":
         config = with_changes(config, BEFORE_PERIOD)
+    if config.task.joint_kp is not None and config.task.desired == "next_velocity":
+        config = with_changes(config, BEFORE_WALK_FEEDBACK)
     if config.loop.torque_scale != "auto":
         return config
     return with_changes(config, BEFORE_POSE)

@@ -241,7 +241,7 @@ CHOSEN = {
 second round's (``SECOND_ROUND``) in place of round 1's for its factors. A test recomputes
 them from the records and checks that ``config.for_task`` gives the base with these."""
 
-TASK_CHOSEN: dict[str, dict] = {}
+TASK_CHOSEN: dict[str, dict] = {"walk": {"task.joint_kp": 1000.0}}
 """Per task with a check (``TASK_CHECKS``): the values its check chose where they left the
 family's defaults (set from the records by hand, checked by a test); ``config.for_task``
 gives them in place of ``CHOSEN``'s for that task only (the same test checks it)."""

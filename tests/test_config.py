@@ -269,10 +269,12 @@ def test_for_task_defaults():
     with pytest.raises(config_lib.ConfigError, match="task.name='swim' is not allowed"):
         config_lib.for_task("swim")
     # Legged tasks: no PD gains (s* is the desired next velocity, kp 0 and kd 1/control_dt
-    # implied by task.desired; the joints take the base's through joint_kp = None); arms:
-    # kp 100, kd 20.
+    # implied by task.desired), the walk with joint position feedback 1000/s^2 (its
+    # selection check), the jump without (joint_kp None: 0); arms: kp 100, kd 20.
     assert (walk.task.kp, walk.task.kd, walk.task.joint_kp, walk.task.joint_kd) == (
-        0.0, 0.0, None, None)  # fmt: skip
+        0.0, 0.0, 1000.0, None)  # fmt: skip
+    jump = config_lib.for_task("jump").task
+    assert (jump.kp, jump.kd, jump.joint_kp, jump.joint_kd) == (0.0, 0.0, None, None)
     assert (arm.task.kp, arm.task.kd, arm.task.joint_kp, arm.task.joint_kd) == (
         100.0, 20.0, None, None)  # fmt: skip
     from cfm_jax.tasks import babbling

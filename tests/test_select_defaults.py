@@ -225,6 +225,8 @@ def test_the_chosen_values_are_the_rule_s_choices_and_the_library_s_defaults():
                 "loop.iterations": select.ITERATIONS[member],
                 **_study.BEFORE_TORQUE_SCALING,
                 **(_study.BEFORE_PERIOD if defaults.task.oracle == "period" else {}),
+                # the walk's defaults cell is the family's, before its own check's choice
+                **(_study.BEFORE_WALK_FEEDBACK if member == "walk" else {}),
                 **{f"task.{k}": v for k, v in motions.items()}})  # fmt: skip
             assert together == want, member
 

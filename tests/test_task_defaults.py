@@ -20,11 +20,11 @@ STATED = {
                 "forward.kind": "mlp", "loop.babbling": "reaching",
                 "loop.torque_scale": "inertia"},
     "walk": {"robot": "solo12", "task.control_dt": 0.004, "task.kp": 0.0, "task.kd": 0.0,
-             "task.desired": "next_velocity", "forward.kind": "rigid_body",
+             "task.joint_kp": 1000.0, "task.desired": "next_velocity", "forward.kind": "rigid_body",
              "forward.hidden": (1000, 500, 500), "controller.loss_form": "squared",
              "loop.babbling": "home", "loop.normaliser": "data", "loop.torque_scale": "limit"},
 }  # fmt: skip
-STATED["jump"] = STATED["walk"]
+STATED["jump"] = {**STATED["walk"], "task.joint_kp": None}  # the walk's own s* feedback
 
 
 def value(cfg: Config, path: str):
@@ -54,6 +54,11 @@ def test_fields_given_win_over_the_task_defaults_and_sections_are_whole():
     # A walk with PD gains in s*: desired says so, the gains given are taken.
     pd = TaskConfig(name="walk", desired="pd", kp=100.0, kd=20.0, joint_kp=2000.0)
     assert (pd.kp, pd.joint_kp, pd.control_dt) == (100.0, 2000.0, 0.004)
+    # The walk's joint_kp (1000) is its next-velocity s*'s: the PD form left without one takes
+    # the generic None (the joints' gains are kp's), given one takes it, as is None given.
+    assert TaskConfig(name="walk", desired="pd", kp=100.0, kd=20.0).joint_kp is None
+    assert TaskConfig(name="walk").joint_kp == 1000.0
+    assert TaskConfig(name="walk", joint_kp=None).joint_kp is None
     with pytest.raises(ConfigError, match=r"task.kp=100.0 .*set task.desired='pd'"):
         TaskConfig(name="walk", kp=100.0)
     # The robot given wins; the sections left out are the task's.

@@ -396,11 +396,17 @@ def make(robot, task: TaskConfig, control_dt: float, simulator: str = "native") 
     return LeggedTask(robot, task, control_dt)
 
 
+WALK_JOINT_KP = 1000.0
+"""The walk's joint position feedback in ``s*`` (1/s^2, ``task.joint_kp``): chosen by the
+selection run's second walk check (docs/results/selection/); the jump has none."""
+
+
 def default_config(name: str = "walk") -> Config:
     """The defaults of the legged task ``name`` (what :func:`cfm_jax.config.for_task` gives).
 
     The paper's networks, 250 Hz, ``home`` babbling, and what the selection run chose (``s*``,
-    forward model, normaliser, fit start, loss form; docs/results/selection/).
+    the walk's joint position feedback in it, forward model, normaliser, fit start, loss form;
+    docs/results/selection/).
 
     Args:
       name: ``walk`` or ``jump``.
@@ -410,9 +416,12 @@ def default_config(name: str = "walk") -> Config:
       >>> jump.robot, jump.task.control_dt, jump.forward.start, jump.controller.loss_form
       ('solo12', 0.004, 'warm_new_optimizer', 'squared')
     """
+    joint_kp = WALK_JOINT_KP if name == "walk" else None
     return Config(
         robot="solo12",
-        task=TaskConfig(name=name, control_dt=0.004, kp=0.0, kd=0.0, desired="next_velocity"),
+        task=TaskConfig(
+            name=name, control_dt=0.004, kp=0.0, kd=0.0, joint_kp=joint_kp, desired="next_velocity"
+        ),
         forward=ForwardModelConfig(
             hidden=(1000, 500, 500), ensemble_size=1, kind="rigid_body", start="warm_new_optimizer"
         ),
