@@ -45,6 +45,15 @@ import pandas as pd
 FOOT = "FR"  # the paper's Fig. 6 shows the front right foot
 
 
+def study_config(task: str):
+    """The config this script trains (before its seeds and iterations): the task's defaults
+    as the records were made (``_study.for_task``: the walk's ``s*`` without joint position
+    feedback), the robustness study's default cell's."""
+    import _study
+
+    return _study.for_task(task)
+
+
 def table_1(metrics: pd.DataFrame, baselines: pd.DataFrame) -> pd.DataFrame:
     """Last-iteration force MSE, falls and base tracking per loss (and the baselines)."""
     from cfm_jax.analysis import report
@@ -216,7 +225,12 @@ def main() -> None:
         os.makedirs(out, exist_ok=True)
     else:
         if not args.figures_only:
+            os.makedirs(out, exist_ok=True)
+            base = os.path.join(out, "study_config.json")
+            with open(base, "w") as f:
+                json.dump(config_lib.to_dict(study_config(args.task)), f, indent=1)
             cli.train(
+                config=base,
                 task=args.task,
                 loss=args.loss,
                 seeds=args.seeds,

@@ -182,7 +182,7 @@ def test_one_cell_per_changed_default_with_its_old_value(monkeypatch):
     """Had the options before the selection differed from today's defaults only in the
     babbling and the fit start, the study would add two 3-seed cells per task, each with
     one old value and the other defaults; the two networks' starts are one factor."""
-    defaults = config_lib.for_task("walk")
+    defaults = _study.for_task("walk")  # the study's cells' base (the records' s*)
     old_babbling = next(b for b in config_lib.BABBLING if b != defaults.loop.babbling)
     old_start = next(s for s in config_lib.FIT_STARTS if s != defaults.forward.start)
     before = {p: getattr(getattr(defaults, p.split(".")[0]), p.split(".")[1]) for p in study.BEFORE}
@@ -208,11 +208,12 @@ def test_one_cell_per_changed_default_with_its_old_value(monkeypatch):
     assert babbling == walk and start == walk
 
 
-def test_the_default_cells_run_the_configs_of_reproduce_all():
+def test_the_default_cells_run_the_configs_of_reproduce_all(tmp_path):
     """The headline results are the robustness study's default cells; reproduce_all.py's
     parts (through their scripts) run the very same configs, so either reproduces the
     other's numbers (a sweep cell is cfm_jax.train of its config, test_sweep.py)."""
     import _study
+    import solo_study
     import swap_study
 
     from cfm_jax import cli
@@ -230,9 +231,15 @@ def test_the_default_cells_run_the_configs_of_reproduce_all():
     iiwa = iiwa.replace(loop=dataclasses.replace(iiwa.loop, iterations=args.iterations))
     assert plain(iiwa) == plain(cells["inverse_dynamics"].config(10))
     assert plain(swap_study.base_config(5, 10, quick=False)) == plain(iiwa)
-    # opspace_study.py and solo_study.py call cli.train with these flags (their defaults).
+    # opspace_study.py calls cli.train with these flags (its defaults), solo_study.py with
+    # its study_config written to a file (the records' s*: the walk's without joint feedback).
     for task, robot in (("opspace", "iiwa14"), ("walk", None), ("jump", None)):
-        flags = cli._base_config(robot, task, "joint", 0, 5, 10, None, None, None, None)
+        base = None
+        if task != "opspace":
+            base = str(tmp_path / f"{task}.json")
+            with open(base, "w") as f:
+                json.dump(config_lib.to_dict(solo_study.study_config(task)), f)
+        flags = cli._base_config(robot, task, "joint", 0, 5, 10, base, None, None, None)
         assert plain(flags) == plain(cells[task].config(10)), task
         assert cells[task].seeds == 5
 
