@@ -119,6 +119,7 @@ def main() -> None:
     args = parser.parse_args()
     import jax
 
+    from cfm_jax import config as config_lib
     from cfm_jax.analysis import bench
 
     os.makedirs(args.results, exist_ok=True)
@@ -130,7 +131,7 @@ def main() -> None:
         oracle = oracle or None
         for simulator in ("native", "mjx"):
             # one-step-oracle rows keep the file names they had before task.oracle existed
-            used = config_for(task, simulator, 1, oracle).task.oracle
+            used = oracle or config_lib.for_task(task).task.oracle
             named = task if used == "step" else f"{task}-{used}"
             path = os.path.join(args.results, f"{jax.default_backend()}-{named}-{simulator}.json")
             if os.path.isfile(path):  # resumable: one file per measured pair
