@@ -126,6 +126,8 @@ def main(argv=None) -> None:
     parser.add_argument("--out", default=OUT)
     parser.add_argument("--blocks", default=",".join(map(str, comparison.BLOCKS)),
                         help=f"comma-separated first seeds, from {comparison.BLOCKS}")  # fmt: skip
+    parser.add_argument("--budget", type=float, default=float("inf"),
+                        help="seconds: start no further block after this (a piece)")  # fmt: skip
     parser.add_argument("--table", action="store_true", help="write the page only")
     parser.add_argument("--quick", action="store_true", help="tiny networks, 2 seeds, 1 it.")
     parser.add_argument("--quiet", action="store_true")
@@ -139,8 +141,9 @@ def main(argv=None) -> None:
                      f"{comparison.BLOCKS}")  # fmt: skip
     if not args.table:
         todo = [cell(first) for first in blocks]
-        _study.run_cells("walk_feedback", todo, args, comparison.run_cell,
-                         comparison.finished, label=lambda c: f"(seeds {c.first_seed}-)")  # fmt: skip
+        label = lambda c: f"(seeds {c.first_seed}-)"  # noqa: E731
+        _study.run_cells("walk_feedback", todo, args, comparison.run_cell, comparison.finished,
+                         label=label)  # fmt: skip
     frame = table(blocks, args.out)
     if frame.empty:
         print("walk_feedback: no block recorded yet")
