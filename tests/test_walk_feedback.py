@@ -1,0 +1,103 @@
+"""experiments/walk_feedback.py: the comparison's walk cell with joint position feedback in
+``s*`` against its committed record without it (issue 65, goal 2)."""
+
+from __future__ import annotations
+
+import os
+
+import comparison
+import pandas as pd
+import pytest
+import walk_feedback
+
+from cfm_jax import config as config_lib
+from cfm_jax.tasks import legged
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _flat(config) -> dict:
+    out = {}
+    for name, value in config_lib.to_dict(config).items():
+        if isinstance(value, dict):
+            out.update({f"{name}.{k}": v for k, v in value.items()})
+        else:
+            out[name] = value
+    return out
+
+
+def test_the_cell_is_the_comparisons_walk_cell_with_only_the_joint_gain_changed():
+    before = _flat(comparison.Cell("walk", "shared", ("joint",)).config())
+    after = _flat(walk_feedback.cell(comparison.FIRST_SEED).config())
+    changed = {k for k in before if before[k] != after[k]}
+    assert changed == {"task.joint_kp"}
+    assert (before["task.joint_kp"], after["task.joint_kp"]) == (None, legged.WALK_JOINT_KP)
+    assert after["task.desired"] == "next_velocity" and after["loop.iterations"] == 30
+    # the record folders are the comparison's layout, under another root
+    assert comparison.record_dir("X", walk_feedback.cell(20)).endswith(
+        os.path.join("X", "cells", "walk", "shared", "seeds-20-29")
+    )
+
+
+def _write_cell(root: str, first: int, tracking: dict, fell: dict, pd_only: float) -> None:
+    folder = comparison.record_dir(root, walk_feedback.cell(first))
+    os.makedirs(folder)
+    rows = []
+    for (loss, seed), values in tracking.items():
+        for target, value in enumerate(values):
+            for iteration in (0, 1):  # iteration 0 rows must not count
+                rows.append({"loss": loss, "seed": seed, "iteration": iteration,
+                             "target": target, "tracking_mse": value if iteration else 9.0,
+                             "fell": float(fell.get((loss, seed, target), 0) if iteration
+                                           else 1)})  # fmt: skip
+    pd.DataFrame(rows).to_csv(os.path.join(folder, "metrics.csv"), index=False)
+    baselines = pd.DataFrame({"baseline": ["oracle", "oracle", "pd_only", "pd_only"],
+                              "target": [0, 1, 0, 1],
+                              "tracking_mse": [0.0, 0.0, pd_only - 1, pd_only + 1]})  # fmt: skip
+    baselines.to_csv(os.path.join(folder, "baselines.csv"), index=False)
+
+
+def test_the_table_counts_falls_and_seed_means_by_hand(tmp_path, monkeypatch):
+    monkeypatch.setattr(walk_feedback.losses_lib, "PAPER_LOSSES", ("joint", "task"))
+    before, after = str(tmp_path / "before"), str(tmp_path / "after")
+    # two walks per seed; seeds 10, 11 in block 10 and 20 in block 20
+    _write_cell(before, 10, {("joint", 10): [1, 3], ("joint", 11): [5, 7],
+                             ("task", 10): [2, 2], ("task", 11): [2, 4]},
+                {("joint", 10, 0): 1, ("joint", 11, 1): 1}, pd_only=3.0)  # fmt: skip
+    _write_cell(before, 20, {("joint", 20): [0, 0], ("task", 20): [6, 6]},
+                {("task", 20, 0): 1, ("task", 20, 1): 1}, pd_only=3.0)  # fmt: skip
+    ones = {(loss, seed): [1, 1] for loss in ("joint", "task") for seed in (10, 11)}
+    _write_cell(after, 10, ones, {}, pd_only=3.0)
+    table = walk_feedback.table([10, 20], out=after, before=before)
+    # 'after' lacks block 20: only 'before' is tabled
+    assert table["s*"].tolist() == ["before", "before"]
+    joint, task = table.to_dict("records")
+    assert joint["seeds"] == 3 and joint["fell"] == "2 of 6"
+    assert joint["tracking_mse"] == pytest.approx((2 + 6 + 0) / 3)  # seed means 2, 6, 0
+    assert joint["seeds_below_pd"] == "2 of 3" and joint["pd_only"] == 3.0
+    assert task["fell"] == "2 of 6" and task["tracking_mse"] == pytest.approx((2 + 3 + 6) / 3)
+    assert task["seeds_below_pd"] == "1 of 3"  # 3 is not below 3
+    assert joint["ci_low"] <= joint["tracking_mse"] <= joint["ci_high"]
+    both = walk_feedback.table([10], out=after, before=before)
+    assert both["s*"].tolist() == ["before", "before", "after", "after"]
+    assert both.iloc[2]["fell"] == "0 of 4" and both.iloc[2]["seeds_below_pd"] == "2 of 2"
+    page = walk_feedback.page(both, [10])
+    assert "| after | joint | 2 | 0 of 4 | 1 | [1, 1] | 3 | 2 of 2 |" in page
+
+
+def test_the_committed_page_is_the_scripts_output_on_the_committed_records():
+    path = os.path.join(ROOT, "docs", "results", "walk_feedback.md")
+    if not os.path.isfile(path):
+        pytest.skip("no page yet")
+    blocks = [b for b in comparison.BLOCKS
+              if os.path.isdir(comparison.record_dir(walk_feedback.OUT,
+                                                     walk_feedback.cell(b)))]  # fmt: skip
+    page = walk_feedback.page(walk_feedback.table(blocks), blocks)
+    with open(path) as f:
+        assert f.read() == page
+
+
+def test_a_bad_block_is_refused_with_the_allowed_ones(capsys):
+    with pytest.raises(SystemExit):
+        walk_feedback.main(["--blocks", "15", "--table"])
+    assert "--blocks='15' is not allowed: first seeds from (10, 20)" in capsys.readouterr().err
