@@ -285,6 +285,55 @@ def test_a_published_quadruped_gets_a_ground_and_foot_sensors_that_read_the_cont
     assert nothing == [] and solo.nsensor == solo12.load_model().nsensor
 
 
+def _barkour_with_bits(default: tuple[int, int], feet: tuple[int, int], plane=None):
+    """The Barkour vB's spec (its 4 foot spheres are its only geoms) with the file's
+    top-level contact bits ``default`` and the feet's ``feet`` (contype, conaffinity), and
+    a ground plane of ``plane`` bits declared in the file where given."""
+    spec = mujoco.MjSpec.from_file(str(QUADRUPEDS / "barkour_vb_mjx.xml"))
+    spec.default.geom.contype, spec.default.geom.conaffinity = default
+    for geom in spec.geoms:
+        geom.contype, geom.conaffinity = feet
+    if plane is not None:
+        floor = spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05])
+        floor.contype, floor.conaffinity = plane
+    return spec
+
+
+def test_the_added_floor_meets_feet_whose_file_makes_geoms_collide_with_nothing():
+    # As Menagerie's Barkour v0 MJX file: every geom defaults to contype 0 conaffinity 0
+    # and the feet are contype 1 conaffinity 0. Oracle: MuJoCo's collision detection.
+    spec = _barkour_with_bits(default=(0, 0), feet=(1, 0))
+    assert quadruped.add_foot_sensors(spec)[0] == "a ground plane 'floor' at z = 0"
+    model = spec.compile()
+    found = quadruped.describe(model)
+    data = mujoco.MjData(model)
+    data.qpos[:] = found.standing
+    data.qpos[2] -= 0.01  # every foot 1 cm into the ground
+    mujoco.mj_forward(model, data)
+    floor = model.geom("floor").id
+    touching = {int(g) for c in data.contact[: data.ncon] for g in (c.geom1, c.geom2)}
+    assert floor in touching and {leg.foot_id for leg in found.legs} <= touching
+
+
+def test_a_foot_that_cannot_touch_the_ground_is_refused_naming_it():
+    # The file's own plane on bit 1 and feet on bit 2 only: nothing collides.
+    spec = _barkour_with_bits(default=(1, 1), feet=(2, 2), plane=(1, 1))
+    with pytest.raises(quadruped.QuadrupedError, match=r"its F[LR] foot \(geom '.*'\) cannot "
+                       r"touch the ground plane 'floor': contype 2 conaffinity 2 against the "
+                       r"floor's 1 and 1, and no <contact><pair> of the two"):  # fmt: skip
+        quadruped.add_foot_sensors(spec)
+    # A <pair> of each foot and the plane is enough (as robots/solo12.xml declares them).
+    spec = _barkour_with_bits(default=(1, 1), feet=(2, 2), plane=(1, 1))
+    model = spec.compile()
+    plane = [g for g in spec.geoms if g.type == mujoco.mjtGeom.mjGEOM_PLANE][0]
+    plane.name = "ground"
+    for leg in quadruped.describe(model).legs:
+        foot = spec.geoms[leg.foot_id]
+        foot.name = f"{leg.name}_sphere"
+        spec.add_pair(geomname1=foot.name, geomname2="ground")
+    assert "on 'ground'" in quadruped.add_foot_sensors(spec)[-1]
+
+
 # ---- references from the description (cfm_jax.tasks.locomotion.Legs.of) ------------------------
 
 

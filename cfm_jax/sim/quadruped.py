@@ -513,7 +513,8 @@ def with_foot_sensors(path: str):
 def add_foot_sensors(spec) -> list[str]:
     """Give the quadruped of ``spec`` (a ``mujoco.MjSpec``, edited in place) what the legged
     tasks read of the ground: a ground plane (where the world body has no plane: ``floor``,
-    z = 0, the contact defaults) and one contact sensor per foot of :func:`describe`
+    z = 0, MuJoCo's contact defaults, contact bit 1 and the feet's bits whichever the file's
+    own default) and one contact sensor per foot of :func:`describe`
     (``data="found force normal tangent"``, ``reduce="mindist"``, ``num=1``, as
     ``robots/solo12.xml`` declares them), named ``<leg>_contact`` and added in the order
     FL, FR, HL, HR after the spec's sensors; an unnamed foot geom is named ``<leg>_foot``.
@@ -527,7 +528,8 @@ def add_foot_sensors(spec) -> list[str]:
       what was added, in words (an empty list: nothing).
 
     Raises:
-      QuadrupedError: as :func:`describe`.
+      QuadrupedError: as :func:`describe`; or a foot that cannot touch the ground plane (no
+        shared contact bit, no ``<contact><pair>``), named.
 
     Examples:
       >>> import mujoco
@@ -551,6 +553,7 @@ def add_foot_sensors(spec) -> list[str]:
             pair = {int(model.sensor_objid[i]), int(model.sensor_refid[i])}
             sensed |= {f for f in feet if f in pair and pair - {f} <= set(planes)}
     if planes and set(feet) <= sensed:
+        _feet_touch(model, found, planes[0])
         return []
     added = []
     geoms = list(spec.geoms)
@@ -559,8 +562,18 @@ def add_foot_sensors(spec) -> list[str]:
         if not floor.name:
             floor.name = "floor"
     else:
+        # The floor's contact bits are set, not inherited from the file's top-level default
+        # (an MJX variant's may be contype 0 conaffinity 0, which collides with nothing): bit
+        # 1 both ways, as a scene's floor has, and whatever bits the feet carry, so that each
+        # foot meets it (MuJoCo: contype of one & conaffinity of the other, either way round).
         floor = spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE,
                                         size=[0.0, 0.0, 0.05])  # fmt: skip
+        floor.contype = 1 | functools.reduce(
+            int.__or__, (int(model.geom_conaffinity[f]) for f in feet)
+        )
+        floor.conaffinity = 1 | functools.reduce(
+            int.__or__, (int(model.geom_contype[f]) for f in feet)
+        )
         added.append("a ground plane 'floor' at z = 0")
     for leg in found.legs:
         geom = geoms[leg.foot_id]
@@ -585,7 +598,39 @@ def add_foot_sensors(spec) -> list[str]:
     again = [model.geom(g).name for g in (leg.foot_id for leg in describe(model).legs)]
     if again != names:
         raise QuadrupedError(f"its feet {names} were not found again after adding the sensors")
+    _feet_touch(model, describe(model), model.geom(floor.name).id)
     return added
+
+
+def _feet_touch(model, robot: Quadruped, floor: int) -> None:
+    """Raise :class:`QuadrupedError` unless every foot of ``robot`` can touch the ground
+    plane ``floor`` (a geom id): a ``<contact><pair>`` of the two, or their contact bits
+    (contype of one and conaffinity of the other share a bit), and no ``<exclude>`` of
+    their bodies."""
+    pairs = {frozenset(map(int, ab)) for ab in zip(model.pair_geom1, model.pair_geom2, strict=True)}
+    excluded = {frozenset((int(b) >> 16, int(b) & 0xFFFF)) for b in model.exclude_signature}
+    for leg in robot.legs:
+        foot = leg.foot_id
+        if frozenset((foot, floor)) in pairs:
+            continue
+        bits = (model.geom_contype[foot] & model.geom_conaffinity[floor]) or (
+            model.geom_contype[floor] & model.geom_conaffinity[foot]
+        )
+        bodies = frozenset((int(model.geom_bodyid[foot]), int(model.geom_bodyid[floor])))
+        if bits and bodies not in excluded:
+            continue
+        why = (
+            f"contype {model.geom_contype[foot]} conaffinity {model.geom_conaffinity[foot]} "
+            f"against the floor's {model.geom_contype[floor]} and "
+            f"{model.geom_conaffinity[floor]}, and no <contact><pair> of the two"
+        )
+        if bits:
+            why = "an <exclude> of their bodies"
+        raise QuadrupedError(
+            f"its {leg.name} foot (geom {_geom_name(model, foot)!r}) cannot touch the ground "
+            f"plane {_geom_name(model, floor)!r}: {why}; give the foot a contype or "
+            "conaffinity bit the floor shares, or a <pair> with it"
+        )
 
 
 @dataclasses.dataclass(frozen=True)
