@@ -34,7 +34,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _study  # noqa: E402
 import comparison  # noqa: E402
 
-from cfm_jax.analysis import report  # noqa: E402
+from cfm_jax.analysis import report, stats  # noqa: E402
 from cfm_jax.learning import losses as losses_lib  # noqa: E402
 from cfm_jax.tasks import legged  # noqa: E402
 
@@ -95,7 +95,38 @@ def table(blocks, out: str = OUT, before: str = BEFORE) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def page(frame: pd.DataFrame, blocks) -> str:
+def paired(blocks, out: str = OUT, before: str = BEFORE, alpha: float = 0.05) -> pd.DataFrame:
+    """Per loss and measure, after - before on the seeds both have: ``log10 error`` (each
+    seed's mean over the walks of log10 tracking MSE, as the claims page compares losses) and
+    ``falls`` (each seed's walks fallen at the last iteration); the mean difference, the
+    exact sign-flip p-value (:func:`cfm_jax.analysis.stats.sign_flip_p`) and Holm's
+    correction over the family of every loss and measure; ``verdict`` "clear" where Holm
+    rejects at ``alpha``, else "not resolved". Empty until both have every block."""
+    old, new = last_rows(before, blocks), last_rows(out, blocks)
+    if old is None or new is None:
+        return pd.DataFrame()
+    rows = []
+    for loss in losses_lib.PAPER_LOSSES:
+        runs = [f[f.loss == loss] for f in (old, new)]
+        per_seed = {
+            "log10 error": [np.log10(r.tracking_mse).groupby(r.seed).mean() for r in runs],
+            "falls": [(r.fell > 0).groupby(r.seed).sum() for r in runs],
+        }
+        for measure, (a, b) in per_seed.items():
+            seeds = sorted(set(a.index) & set(b.index))
+            d = b.loc[seeds].to_numpy(float) - a.loc[seeds].to_numpy(float)
+            rows.append({"loss": loss, "measure": measure, "seeds": len(seeds),
+                         "mean_difference": float(d.mean()),
+                         "after_lower": int((d < 0).sum()), "after_higher": int((d > 0).sum()),
+                         "p": stats.sign_flip_p(d)})  # fmt: skip
+    frame = pd.DataFrame(rows)
+    corrected = stats.holm(frame.p.to_numpy(), alpha)
+    frame["holm_p"] = corrected.adjusted.to_numpy()
+    frame["verdict"] = np.where(corrected.reject, "clear", "not resolved")
+    return frame
+
+
+def page(frame: pd.DataFrame, blocks, tests: pd.DataFrame | None = None) -> str:
     seeds = ", ".join(f"{b}-{b + comparison.SEEDS - 1}" for b in blocks)
     lines = [
         "# The Solo12 walk with joint position feedback in s* (issue 65, goal 2)",
@@ -117,6 +148,24 @@ def page(frame: pd.DataFrame, blocks) -> str:
         lines.append(f"| {r._1} | {r.loss} | {r.seeds} | {r.fell} | {r.tracking_mse:.3g} | "
                      f"[{r.ci_low:.3g}, {r.ci_high:.3g}] | {r.pd_only:.3g} | "
                      f"{r.seeds_below_pd} |")  # fmt: skip
+    if tests is not None and not tests.empty:
+        lines += [
+            "",
+            "## After - before, paired by seed",
+            "",
+            "Per seed: the mean over the walks of log10 tracking MSE (as the claims page compares",
+            "losses), and the walks fallen; after - before on the same seed; p: the exact",
+            "two-sided sign-flip test of no difference (every sign assignment counted); Holm's",
+            f"correction over these {len(tests)} tests; clear: Holm rejects at 0.05.",
+            "",
+            "| loss | measure | seeds | mean after - before | seeds lower / higher after | "
+            "p | Holm p | verdict |",
+            "|---|---|---:|---:|---|---:|---:|---|",
+        ]
+        for r in tests.itertuples():
+            lines.append(f"| {r.loss} | {r.measure} | {r.seeds} | {r.mean_difference:+.3g} | "
+                         f"{r.after_lower} / {r.after_higher} | {r.p:.2g} | {r.holm_p:.2g} | "
+                         f"{r.verdict} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
@@ -148,10 +197,10 @@ def main(argv=None) -> None:
     if frame.empty:
         print("walk_feedback: no block recorded yet")
         return
-    path = os.path.join(os.path.dirname(args.out), "walk_feedback.md")
-    with open(path, "w") as f:
-        f.write(page(frame, blocks))
-    print(page(frame, blocks))
+    text = page(frame, blocks, paired(blocks, args.out))
+    with open(os.path.join(os.path.dirname(args.out), "walk_feedback.md"), "w") as f:
+        f.write(text)
+    print(text)
 
 
 if __name__ == "__main__":

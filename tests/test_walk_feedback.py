@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 
 import comparison
+import numpy as np
 import pandas as pd
 import pytest
 import walk_feedback
@@ -83,6 +84,22 @@ def test_the_table_counts_falls_and_seed_means_by_hand(tmp_path, monkeypatch):
     assert both.iloc[2]["fell"] == "0 of 4" and both.iloc[2]["seeds_below_pd"] == "2 of 2"
     page = walk_feedback.page(both, [10])
     assert "| after | joint | 2 | 0 of 4 | 1 | [1, 1] | 3 | 2 of 2 |" in page
+    # Paired by seed, after - before, block 10 only (block 20 has no 'after').
+    assert walk_feedback.paired([10, 20], out=after, before=before).empty
+    tests = walk_feedback.paired([10], out=after, before=before).set_index(["loss", "measure"])
+    joint_log = tests.loc[("joint", "log10 error")]
+    # before: seed 10 mean(log10 1, log10 3), seed 11 mean(log10 5, log10 7); after: 0, 0
+    by_hand = -(np.log10(3) / 2 + (np.log10(5) + np.log10(7)) / 2) / 2
+    assert joint_log.mean_difference == pytest.approx(by_hand)
+    assert (joint_log.after_lower, joint_log.after_higher, joint_log.p) == (2, 0, 0.5)  # 2 of 4
+    falls = tests.loc[("joint", "falls")]
+    assert (falls.mean_difference, falls.p) == (-1.0, 0.5)  # one fall per seed before, none after
+    assert tests.loc[("task", "falls")].p == 1.0  # no falls either side: no difference
+    # Holm over the 4 tests: 4 x 0.5 and 1 cap at 1; nothing is clear at two seeds.
+    assert tests.holm_p.tolist() == [1.0] * 4 and set(tests.verdict) == {"not resolved"}
+    assert "| joint | falls | 2 | -1 | 2 / 0 | 0.5 | 1 | not resolved |" in walk_feedback.page(
+        both, [10], tests.reset_index()
+    )
 
 
 def test_the_committed_page_is_the_scripts_output_on_the_committed_records():
