@@ -525,3 +525,33 @@ def test_an_integrator_mjx_lacks_is_named_with_its_remedy(tmp_path):
         else:
             assert "mjINT_IMPLICIT)" in robot.mjx_error
             assert '<option integrator="implicitfast"/>' in robot.mjx_error
+
+
+def test_a_model_mjx_builds_but_cannot_step_is_refused_as_one_it_cannot_build(tmp_path):
+    # An elliptic friction cone with a frictionless (condim 1) geom, as Menagerie's Unitree
+    # Go1 has: mjx.put_model accepts it, and MJX (3.x here) fails only when a step is traced
+    # (the oracle: jax.jit(mjx.step) of it raises). Pyramidal, the same model steps.
+    from cfm_jax._mjx import mjx
+
+    text = (Path(__file__).parent.parent / "robots" / "two_link_arm.xml").read_text()
+    for cone, steps in (("elliptic", False), ("pyramidal", True)):
+        path = tmp_path / f"{cone}.xml"
+        path.write_text(text.replace("<worldbody>", f'<option cone="{cone}"/>\n<worldbody>', 1)
+                        .replace("<geom ", '<geom condim="1" ', 1))  # fmt: skip
+        robot = robots.load(str(path))
+        assert robot.mj_model.opt.cone == getattr(mujoco.mjtCone, f"mjCONE_{cone.upper()}")
+        model = mjx.put_model(robot.mj_model)  # builds either way
+        try:
+            jax.jit(mjx.step)(model, mjx.make_data(model))
+            stepped = True
+        except Exception:  # noqa: BLE001  whatever MJX raises
+            stepped = False
+        assert stepped == steps
+        if steps:
+            assert robot.mjx_error is None
+        else:
+            assert "MJX cannot build this model (mjx.step: " in robot.mjx_error
+            short = config_lib.TaskConfig(duration=0.1)
+            rigid = config_lib.ForwardModelConfig(kind="rigid_body")
+            with pytest.raises(robots.RobotError, match=r"\(mjx\.step: "):
+                Experiment(config_lib.Config(robot=str(path), task=short, forward=rigid))

@@ -82,6 +82,30 @@ def resolve(name_or_path: str) -> str:
     return str(path)
 
 
+_MJX_STEP_ERRORS: dict[str, str | None] = {}
+""":func:`_mjx_step_error` per model digest (one trace per model and process)."""
+
+
+def _mjx_step_error(mj_model, model) -> str | None:
+    """What MJX raises when it traces one ``mjx.step`` of ``model`` (the MJX model of
+    ``mj_model``; shapes only, ``jax.eval_shape``: nothing is compiled or run), as
+    ``"<exception type>: <first line>"``, or None. Some models MJX refuses only there, not
+    in ``put_model`` (a ``condim=1`` geom under an elliptic cone: NotImplementedError)."""
+    import jax
+
+    from cfm_jax._mjx import mjx
+    from cfm_jax.sim import native
+
+    key = native.model_digest(mj_model)
+    if key not in _MJX_STEP_ERRORS:
+        try:
+            jax.eval_shape(mjx.step, model, mjx.make_data(model))
+            _MJX_STEP_ERRORS[key] = None
+        except Exception as error:  # noqa: BLE001  MJX's own failure, whatever its type
+            _MJX_STEP_ERRORS[key] = f"{type(error).__name__}: {error}".split("\n")[0]
+    return _MJX_STEP_ERRORS[key]
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class Robot:
     """A torque-controlled robot: a fixed-base arm or a floating-base (legged) robot.
@@ -168,11 +192,17 @@ class Robot:
     @cached_property
     def mjx_model(self):
         """The MJX model, built by :func:`load` outside any trace; :class:`RobotError` where
-        MJX cannot build it (e.g. a cylinder-box collision; the native simulator can)."""
+        MJX cannot build it (e.g. a cylinder-box collision; the native simulator can) or
+        cannot trace its step (e.g. a ``condim=1`` geom under an elliptic cone: MJX builds
+        that model and refuses it only when a step is traced, :func:`_mjx_step_error`)."""
         from cfm_jax._mjx import mjx
 
         try:
-            return mjx.put_model(self.mj_model)
+            model = mjx.put_model(self.mj_model)
+            step_error = _mjx_step_error(self.mj_model, model)
+            if step_error is not None:
+                raise NotImplementedError(f"mjx.step: {step_error}")  # said as put_model's
+            return model
         except NotImplementedError as error:
             raise RobotError(
                 f"robot={self.name!r}: MJX cannot build this model ({error}). The native "
