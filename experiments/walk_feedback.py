@@ -85,11 +85,11 @@ def table(blocks, out: str = OUT, before: str = BEFORE) -> pd.DataFrame:
         for loss in losses_lib.PAPER_LOSSES:
             frame = last[last.loss == loss]
             per_seed = frame.groupby("seed").tracking_mse.mean().to_numpy()
-            low, high = report.bootstrap_ci(per_seed)
+            ci = report.mean_ci(per_seed)
             rows.append({"s*": label, "loss": loss, "seeds": len(per_seed),
                          "fell": f"{int((frame.fell > 0).sum())} of {len(frame)}",
-                         "tracking_mse": float(np.mean(per_seed)), "ci_low": low,
-                         "ci_high": high, "pd_only": pd_only,
+                         "tracking_mse": ci["mean"], "ci_low": ci["low"],
+                         "ci_high": ci["high"], "pd_only": pd_only,
                          "seeds_below_pd": f"{int((per_seed < pd_only).sum())} of "
                                            f"{len(per_seed)}"})  # fmt: skip
     return pd.DataFrame(rows)
@@ -99,13 +99,13 @@ def paired(blocks, out: str = OUT, before: str = BEFORE, alpha: float = 0.05) ->
     """Per loss and measure, after - before on the seeds both have: ``log10 error`` (each
     seed's mean over the walks of log10 tracking MSE, as the claims page compares losses) and
     ``falls`` (each seed's walks fallen at the last iteration); the mean difference, the
-    exact sign-flip p-value (:func:`cfm_jax.analysis.stats.sign_flip_p`) and Holm's
-    correction over the family of every loss and measure; ``verdict`` "clear" where Holm
+    exact sign-flip p-value and Holm's correction over the family of every loss and measure
+    (:func:`cfm_jax.analysis.stats.paired_comparisons`); ``verdict`` "clear" where Holm
     rejects at ``alpha``, else "not resolved". Empty until both have every block."""
     old, new = last_rows(before, blocks), last_rows(out, blocks)
     if old is None or new is None:
         return pd.DataFrame()
-    rows = []
+    rows, differences = [], {}
     for loss in losses_lib.PAPER_LOSSES:
         runs = [f[f.loss == loss] for f in (old, new)]
         per_seed = {
@@ -115,14 +115,16 @@ def paired(blocks, out: str = OUT, before: str = BEFORE, alpha: float = 0.05) ->
         for measure, (a, b) in per_seed.items():
             seeds = sorted(set(a.index) & set(b.index))
             d = b.loc[seeds].to_numpy(float) - a.loc[seeds].to_numpy(float)
+            differences[f"{loss} {measure}"] = d
             rows.append({"loss": loss, "measure": measure, "seeds": len(seeds),
                          "mean_difference": float(d.mean()),
-                         "after_lower": int((d < 0).sum()), "after_higher": int((d > 0).sum()),
-                         "p": stats.sign_flip_p(d)})  # fmt: skip
+                         "after_lower": int((d < 0).sum()),
+                         "after_higher": int((d > 0).sum())})  # fmt: skip
+    tests = stats.paired_comparisons(differences, alpha)
     frame = pd.DataFrame(rows)
-    corrected = stats.holm(frame.p.to_numpy(), alpha)
-    frame["holm_p"] = corrected.adjusted.to_numpy()
-    frame["verdict"] = np.where(corrected.reject, "clear", "not resolved")
+    frame["p"] = tests.p.to_numpy()
+    frame["holm_p"] = tests.adjusted.to_numpy()
+    frame["verdict"] = np.where(tests.clear, "clear", "not resolved")
     return frame
 
 

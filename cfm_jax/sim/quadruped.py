@@ -568,12 +568,8 @@ def add_foot_sensors(spec) -> list[str]:
         # foot meets it (MuJoCo: contype of one & conaffinity of the other, either way round).
         floor = spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE,
                                         size=[0.0, 0.0, 0.05])  # fmt: skip
-        floor.contype = 1 | functools.reduce(
-            int.__or__, (int(model.geom_conaffinity[f]) for f in feet)
-        )
-        floor.conaffinity = 1 | functools.reduce(
-            int.__or__, (int(model.geom_contype[f]) for f in feet)
-        )
+        floor.contype = 1 | int(np.bitwise_or.reduce(model.geom_conaffinity[feet]))
+        floor.conaffinity = 1 | int(np.bitwise_or.reduce(model.geom_contype[feet]))
         added.append("a ground plane 'floor' at z = 0")
     for leg in found.legs:
         geom = geoms[leg.foot_id]
@@ -619,13 +615,11 @@ def _feet_touch(model, robot: Quadruped, floor: int) -> None:
         bodies = frozenset((int(model.geom_bodyid[foot]), int(model.geom_bodyid[floor])))
         if bits and bodies not in excluded:
             continue
-        why = (
+        why = "an <exclude> of their bodies" if bits else (
             f"contype {model.geom_contype[foot]} conaffinity {model.geom_conaffinity[foot]} "
             f"against the floor's {model.geom_contype[floor]} and "
             f"{model.geom_conaffinity[floor]}, and no <contact><pair> of the two"
-        )
-        if bits:
-            why = "an <exclude> of their bodies"
+        )  # fmt: skip
         raise QuadrupedError(
             f"its {leg.name} foot (geom {_geom_name(model, foot)!r}) cannot touch the ground "
             f"plane {_geom_name(model, floor)!r}: {why}; give the foot a contype or "

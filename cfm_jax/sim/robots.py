@@ -199,19 +199,21 @@ class Robot:
 
         try:
             model = mjx.put_model(self.mj_model)
-            step_error = _mjx_step_error(self.mj_model, model)
-            if step_error is not None:
-                raise NotImplementedError(f"mjx.step: {step_error}")  # said as put_model's
-            return model
         except NotImplementedError as error:
+            problem = str(error)
+        else:
+            step_error = _mjx_step_error(self.mj_model, model)
+            problem = None if step_error is None else f"mjx.step: {step_error}"
+        if problem is not None:
             raise RobotError(
-                f"robot={self.name!r}: MJX cannot build this model ({error}). The native "
+                f"robot={self.name!r}: MJX cannot build this model ({problem}). The native "
                 "simulator (simulator='native', the default) runs it; simulator='mjx' and "
                 "forward.kind='rigid_body' need MJX (change what MJX names: a collision pair "
                 "it has no function for, exclude those geoms with <contact><exclude>; an "
                 "integrator it lacks, as 'implicit', <option integrator=\"implicitfast\"/>; "
                 "or use the native simulator)"
-            ) from error
+            )
+        return model
 
     @property
     def mjx_error(self) -> str | None:
