@@ -153,15 +153,21 @@ def flags_of(folder: str) -> dict[str, list[str]]:
     return table
 
 
-def finished(out: str) -> bool:
+def finished(out: str, extra: list[str] = ()) -> bool:
     """Whether ``out`` holds a finished run: every loss has the metrics of its last
-    iteration (``summary.md`` alone is written after each loss)."""
+    iteration (``summary.md`` alone is written after each loss). A run that ``extra``
+    asks to take further (``--loop.iterations N`` above the run's) is not finished:
+    it resumes and continues."""
     try:
         with open(os.path.join(out, "config.json")) as f:
             iterations = json.load(f)["loop"]["iterations"]
         metrics = pd.read_csv(os.path.join(out, "metrics.csv"))
     except (OSError, KeyError, ValueError):
         return False
+    flags = list(extra)
+    for i, flag in enumerate(flags[:-1]):
+        if flag == "--loop.iterations":
+            iterations = max(iterations, int(flags[i + 1]))
     last = metrics.groupby("loss").iteration.max()
     return all(last.get(loss, -1) >= iterations for loss in LOSSES)
 
@@ -184,7 +190,7 @@ def run_robot(
     """``cfm-jax train`` on one robot (or read its finished run); a summary dict.
     ``defaults``: the task's MJX-sensitive defaults (:func:`defaults_of`), for the
     fallback rule and the row's record of it."""
-    done = finished(out)
+    done = finished(out, extra)
     start = time.perf_counter()
     error = None
     defaults = defaults if defaults is not None else {}

@@ -55,6 +55,9 @@ def test_a_run_is_finished_when_every_loss_reached_its_last_iteration(tmp_path):
     (tmp_path / "metrics.csv").write_text("\n".join(rows) + "\n")
     assert robot_zoo.finished(str(tmp_path))
     assert not robot_zoo.finished(str(tmp_path / "nothing"))
+    # Flags asking for more iterations than the run went: it is continued, not read.
+    assert not robot_zoo.finished(str(tmp_path), ["--loop.iterations", "3"])
+    assert robot_zoo.finished(str(tmp_path), ["--seeds", "3", "--loop.iterations", "2"])
 
 
 def _finished_run(out, mse: float) -> None:
