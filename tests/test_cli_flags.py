@@ -110,6 +110,7 @@ def test_config_output_round_trips_through_config(tmp_path, monkeypatch, capsys)
 
 
 KNEELESS_GO2 = "the Go2 without its front-left knee motor"
+WEAK_SOLO12 = "the Solo12 with a fifth of its torque"
 
 
 @pytest.mark.parametrize(
@@ -121,6 +122,9 @@ KNEELESS_GO2 = "the Go2 without its front-left knee motor"
         # front-left knee motor removed, written below): the legged tasks drive every leg
         # joint. (A quadruped driven by servos runs, converted at load time.)
         ("jump", KNEELESS_GO2, "strict", "have no torque motor of their own"),
+        # A quadruped too weak to stand up its own walk reference (the Solo12 with motors of
+        # 0.5 N m, not 2.7): the reference the task would follow falls by its fall rule.
+        ("walk", WEAK_SOLO12, "strict", "walk reference falls by the robot's own fall rule"),
         # A planar arm for the op-space task: no 3-D site to control.
         ("opspace", "two_link_arm", "strict", None),
     ],
@@ -140,6 +144,10 @@ def test_config_refuses_a_robot_its_task_cannot_run_on(
         assert text.count(motor) == 1
         robot = str(tmp_path / "go2_kneeless.xml")
         Path(robot).write_text(text.replace(motor, ""))
+    if robot == WEAK_SOLO12:
+        text = (Path(__file__).parents[1] / "robots" / "solo12.xml").read_text()
+        robot = str(tmp_path / "solo12_weak.xml")
+        Path(robot).write_text(text.replace('ctrlrange="-2.7 2.7"', 'ctrlrange="-0.5 0.5"'))
     why = robot_check.check(robot, actuators=actuators).tasks[task]
     assert why is not None and (reason is None or reason in why)
     argv = ["cfm-jax", "config", "--task", task, "--robot", robot]

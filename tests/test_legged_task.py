@@ -193,6 +193,29 @@ def test_legged_tasks_refuse_arms_and_slow_control(solo):
         tasks.make(solo, home, 0.004)
 
 
+def test_references_the_robots_own_fall_rule_calls_fallen_are_refused_naming_where(solo):
+    """A reference that the robot's fall rule calls fallen at some step cannot judge a
+    controller (tracking it perfectly counts as a fall): legged.check_references refuses it,
+    naming the reference, the step and the clause. Oracle: the Solo12's 1-s walk, upright as
+    recorded, edited by hand to fall at a known step in a known way."""
+    legs = legged.legs_of(solo)
+    walk = locomotion.walk_reference(1.0)
+    legged.check_references([walk], solo, legs)  # as recorded: never fallen
+    tipped = walk._replace(qpos=walk.qpos.copy())
+    tipped.qpos[120:, 3:7] = (np.cos(0.45), np.sin(0.45), 0.0, 0.0)  # rolled 0.9 rad > 0.8
+    with pytest.raises(config_lib.ConfigError) as refused:
+        legged.check_references([walk, tipped], solo, legs, "refused: ")
+    assert str(refused.value).startswith(
+        "refused: its 1-s walk reference falls by the robot's own fall rule at control step "
+        "120 of 250 (the base tilted more than 46 deg)"
+    )
+    pulling = walk._replace(qpos=walk.qpos.copy(), foot_force=walk.foot_force.copy())
+    pulling.foot_force[7, 2, 2] = -1.0  # the HL foot pulls the floor down at step 7
+    pulling.qpos[200:, 2] = 0.05  # and the base is low from step 200 (not reached)
+    with pytest.raises(config_lib.ConfigError, match=r"at control step 7 of 250 \(a foot pull"):
+        legged.check_references([pulling], solo, legs)
+
+
 def test_motions_choose_the_references_other_than_the_test_ones(solo):
     """``task.motions`` names the walk durations / jump clearances to follow (the selection
     of defaults runs on motions other than the test ones); oracle: the references

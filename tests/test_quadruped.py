@@ -443,6 +443,43 @@ def test_the_fall_rule_of_any_quadruped_finds_its_knees_as_mujoco_does():
     assert rule.min_base_height == pytest.approx(0.10 * scale)
 
 
+def test_the_fall_rules_clauses_are_the_rule_one_by_one():
+    """The clauses named in a refusal (solo12.fall_terms, FallRule.terms) make up the rule:
+    any of them is the verdict, on the Solo12's closed form and on the Go2's rule read from
+    its file, at random poses and foot forces; the height and tilt clauses are the base
+    height and MuJoCo's rotation of the base quaternion against the limits."""
+    rng = np.random.default_rng(1)
+    model, _ = quadruped.with_foot_sensors(str(QUADRUPEDS / "go2.xml"))
+    go2 = quadruped.describe(model)
+    go2_rule = quadruped.fall_rule(go2, scale=go2.standing_height / 0.2384)
+    solo = solo12.load_model().key("home").qpos
+    cases = [
+        (solo12.fell, solo12.fall_terms, solo, solo12.FALL.min_base_height),
+        (go2_rule, go2_rule.terms, go2.standing, go2_rule.min_base_height),
+    ]
+    for rule, terms_of, standing, lowest in cases:
+        qpos = np.tile(standing, (200, 1))
+        qpos[:, 2] *= rng.uniform(0.3, 1.3, 200)
+        quat = np.concatenate([np.ones((200, 1)), rng.normal(0.0, 0.4, (200, 3))], axis=1)
+        qpos[:, 3:7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+        qpos[:, 7:] += rng.normal(0.0, 0.1, (200, 12))
+        force = rng.normal(0.0, 1.0, (200, 4, 3))
+        force[..., 2] = np.abs(force[..., 2]) * np.where(rng.random((200, 4)) < 0.05, -1, 1)
+        terms = terms_of(qpos, force)
+        assert len(terms) == 4
+        either = np.any(np.stack(list(terms.values())), axis=0)
+        np.testing.assert_array_equal(either, rule(qpos, force))
+        assert all(0 < where.sum() < 200 for where in terms.values()), terms_of
+        rotation = np.zeros((200, 9))
+        for row, q in zip(rotation, qpos[:, 3:7], strict=True):
+            mujoco.mju_quat2Mat(row, q)
+        tilt = np.arccos(np.clip(rotation[:, 8], -1.0, 1.0))
+        height, tilted = list(terms.values())[:2]
+        np.testing.assert_array_equal(height, qpos[:, 2] < lowest)
+        np.testing.assert_array_equal(tilted, tilt > solo12.FALL.max_tilt)
+        assert list(terms)[1] == "the base tilted more than 46 deg"
+
+
 @pytest.mark.parametrize("name", sorted(PUBLISHED))
 def test_the_highest_jump_is_sized_to_what_the_robot_lands(name):
     # Oracle: the robot's own fall rule on the states of the jump, simulated in MuJoCo C.

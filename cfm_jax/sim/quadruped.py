@@ -701,14 +701,26 @@ class FallRule:
         """
         from cfm_jax.sim import solo12
 
-        limits = solo12.FallLimits(
+        knees = lambda q: self.knee_positions(q, xp)  # noqa: E731
+        return solo12.body_fell(qpos, self.corners, knees, self._limits(), foot_force, xp)
+
+    def terms(self, qpos, foot_force=None, xp=np) -> dict:
+        """The rule's clauses one by one (:func:`cfm_jax.sim.solo12.body_fall_terms`):
+        ``{what breaks the rule, in words: (...) bool}``; arguments as :meth:`__call__`."""
+        from cfm_jax.sim import solo12
+
+        knees = lambda q: self.knee_positions(q, xp)  # noqa: E731
+        return solo12.body_fall_terms(qpos, self.corners, knees, self._limits(), foot_force, xp)
+
+    def _limits(self):
+        from cfm_jax.sim import solo12
+
+        return solo12.FallLimits(
             min_base_height=self.min_base_height,
             max_tilt=self.max_tilt,
             body_clearance=self.body_clearance,
             max_pull=self.max_pull,
         )
-        knees = lambda q: self.knee_positions(q, xp)  # noqa: E731
-        return solo12.body_fell(qpos, self.corners, knees, limits, foot_force, xp)
 
 
 def _rotation(axis, angle, xp):

@@ -347,6 +347,27 @@ def fell(qpos, foot_force=None, limits: FallLimits = FALL, xp=np):
     return body_fell(qpos, BASE_CORNERS, knees, limits, foot_force, xp)
 
 
+def fall_terms(qpos, foot_force=None, limits: FallLimits = FALL, xp=np) -> dict:
+    """The clauses of :func:`fell` one by one (:func:`body_fall_terms`).
+
+    Args:
+      qpos: ``(..., 19)`` positions (base pose, 12 joints).
+      foot_force: ``(..., 4, 3)`` floor forces on the feet (world frame), or None.
+      limits: the :class:`FallLimits` (default: :data:`FALL`).
+      xp: the array module, ``numpy`` or ``jax.numpy``.
+
+    Examples:
+      >>> low = load_model().key("home").qpos.copy()
+      >>> low[2] = 0.05
+      >>> sorted(what for what, broken in fall_terms(low).items() if broken)[0]
+      'a body point less than 0.005 m above the floor'
+    """
+    knees = None
+    if limits.knees:
+        knees = lambda qpos: knee_positions(qpos[..., 7:19], xp=xp)  # noqa: E731
+    return body_fall_terms(qpos, BASE_CORNERS, knees, limits, foot_force, xp)
+
+
 def body_fell(qpos, corners, knees, limits: FallLimits, foot_force=None, xp=np):
     """:func:`fell` of a floating base whose body points are ``corners`` (base frame,
     ``(k, 3)``) and the points ``knees(qpos)`` returns (base frame, ``(..., m, 3)``; None:
@@ -365,6 +386,33 @@ def body_fell(qpos, corners, knees, limits: FallLimits, foot_force=None, xp=np):
       >>> bool(body_fell(load_model().key("home").qpos, BASE_CORNERS, None, FALL))
       False
     """
+    terms = list(body_fall_terms(qpos, corners, knees, limits, foot_force, xp).values())
+    out = terms[0]
+    for term in terms[1:]:
+        out = out | term
+    return xp.asarray(out)
+
+
+def body_fall_terms(qpos, corners, knees, limits: FallLimits, foot_force=None, xp=np) -> dict:
+    """The clauses of :func:`body_fell` one by one: ``{what breaks the rule: (...) bool}``,
+    the keys in words with their limits (the base too low, too tilted, a body point too near
+    the floor, and, given ``foot_force``, a foot pulling the floor).
+
+    Args:
+      qpos: ``(..., nq)`` positions (base pose first).
+      corners: the base's points, base frame, ``(k, 3)``.
+      knees: a function of ``qpos`` giving further body points, or None.
+      limits: the :class:`FallLimits`.
+      foot_force: ``(..., 4, 3)`` floor forces on the feet (world frame), or None.
+      xp: the array module, ``numpy`` or ``jax.numpy``.
+
+    Examples:
+      >>> rolled = load_model().key("home").qpos.copy()
+      >>> rolled[3:7] = (np.cos(0.45), np.sin(0.45), 0.0, 0.0)  # 0.9 rad about x
+      >>> terms = body_fall_terms(rolled, BASE_CORNERS, None, FALL)
+      >>> [what for what, broken in terms.items() if broken]
+      ['the base tilted more than 46 deg']
+    """
     qpos = np.asarray(qpos, float) if xp is np else xp.asarray(qpos)
     quat = qpos[..., 3:7] / xp.linalg.norm(qpos[..., 3:7], axis=-1, keepdims=True)
     rotation = quat_to_mat(quat, xp=xp)
@@ -376,12 +424,21 @@ def body_fell(qpos, corners, knees, limits: FallLimits, foot_force=None, xp=np):
         points = knees(qpos)  # (..., m, 3), base frame
         knee_z = height[..., None] + xp.einsum("...j,...kj->...k", up, points)
         lowest = xp.minimum(lowest, xp.min(knee_z, axis=-1))
-    out = (
-        (height < limits.min_base_height)
-        | (xp.arccos(xp.clip(up[..., 2], -1.0, 1.0)) > limits.max_tilt)
-        | (lowest < limits.body_clearance)
-    )
+    tilt = float(np.degrees(limits.max_tilt))
+    terms = {
+        f"the base origin lower than {limits.min_base_height:.3g} m": (
+            height < limits.min_base_height
+        ),
+        f"the base tilted more than {tilt:.0f} deg": (
+            xp.arccos(xp.clip(up[..., 2], -1.0, 1.0)) > limits.max_tilt
+        ),
+        f"a body point less than {limits.body_clearance:.3g} m above the floor": (
+            lowest < limits.body_clearance
+        ),
+    }
     if foot_force is not None:
         fz = xp.asarray(foot_force)[..., 2]
-        out = out | xp.any(fz < -limits.max_pull, axis=-1)
-    return xp.asarray(out)
+        terms[f"a foot pulling the floor (more than {limits.max_pull:.3g} N)"] = xp.any(
+            fz < -limits.max_pull, axis=-1
+        )
+    return terms

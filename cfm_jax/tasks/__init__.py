@@ -159,5 +159,10 @@ register(
     structural=("home",),  # the Khatib oracle's null-space posture, in its host callback
     fits=operational_space.fits,
 )
-register("walk", legged.make, functools.partial(legged.default_config, "walk"), fits=legged.fits)
-register("jump", legged.make, functools.partial(legged.default_config, "jump"), fits=legged.fits)
+for _name in ("walk", "jump"):
+    register(
+        _name,
+        legged.make,
+        functools.partial(legged.default_config, _name),
+        fits=functools.partial(legged.fits, name=_name),
+    )

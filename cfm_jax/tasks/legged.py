@@ -4,6 +4,7 @@ recorded reference motions, with foot contact forces in its state."""
 from __future__ import annotations
 
 import functools
+import json
 
 import jax.numpy as jnp
 import numpy as np
@@ -103,17 +104,9 @@ class LeggedTask(JointSpaceTask):
         self.sensor_rows = np.asarray(self.legs.sensor_rows)  # FL, FR, HL, HR
         self.feet = len(self.legs.foot_geoms)
         self.fall = fall_rule(robot, self.legs)  # the metric ``fell``, and terminal steps
-        # the references are simulated on the model this task simulates: servos converted
-        # (robot_actuators='torque'), ground and foot sensors added, its timestep
-        kwargs = dict(control_dt=control_dt, model=robot.mj_model)
-        if task.motion_family == "selection":
-            kwargs.update(locomotion.SELECTION_MOTIONS[task.name])
-        if task.name == "walk":
-            durations = locomotion.WALK_DURATIONS if task.motions is None else task.motions
-            refs = [locomotion.walk_reference(d, **kwargs) for d in durations]
-        else:
-            heights = locomotion.JUMP_HEIGHTS if task.motions is None else task.motions
-            refs = [locomotion.jump_reference(h, **kwargs) for h in heights]
+        refs = references(robot, task, control_dt)
+        refused = f"task.name={task.name!r} is not allowed for robot {robot.name!r}: "
+        check_references(refs, robot, self.legs, refused)
         self.references = refs  # the NumPy recordings (the other tasks' reference_np)
         self.reference = as_jax_legged(refs)
         self.control_dt = float(control_dt)
@@ -324,6 +317,103 @@ def legs_of(robot, refused: str = "the legged tasks cannot use robot") -> locomo
         raise ConfigError(f"{refused} {robot.name!r}: {error}") from None
 
 
+def references(robot, task: TaskConfig, control_dt: float) -> list:
+    """The :class:`cfm_jax.tasks.locomotion.LocomotionReference` recordings ``task`` follows
+    on ``robot``: simulated on the model the task simulates (servos converted with
+    ``robot_actuators='torque'``, ground and foot sensors added, its timestep), cached.
+
+    Args:
+      robot: a quadruped :class:`cfm_jax.sim.robots.Robot`.
+      task: the :class:`cfm_jax.config.TaskConfig` (``walk`` or ``jump``; its motions).
+      control_dt: control period (s).
+
+    Examples:
+      >>> solo = cfm_jax.sim.robots.load("solo12")
+      >>> walk = TaskConfig(name="walk", motions=(0.5,))
+      >>> [ref.horizon for ref in references(solo, walk, 0.004)]
+      [125]
+    """
+    kwargs = dict(control_dt=control_dt, model=robot.mj_model)
+    if task.motion_family == "selection":
+        kwargs.update(locomotion.SELECTION_MOTIONS[task.name])
+    if task.name == "walk":
+        durations = locomotion.WALK_DURATIONS if task.motions is None else task.motions
+        return [locomotion.walk_reference(d, **kwargs) for d in durations]
+    heights = locomotion.JUMP_HEIGHTS if task.motions is None else task.motions
+    return [locomotion.jump_reference(h, **kwargs) for h in heights]
+
+
+def check_references(refs, robot, legs: locomotion.Legs, refused: str = "") -> None:
+    """Refuse references that the robot's own fall rule (:func:`fall_rule`, the rule that
+    judges the learned controllers) calls fallen at some control step: a controller that
+    tracked such a reference perfectly would be counted as falling, so no result on it
+    would mean anything. Each reference is judged on its recorded poses and foot forces.
+
+    Args:
+      refs: the :class:`cfm_jax.tasks.locomotion.LocomotionReference` recordings.
+      robot: the quadruped :class:`cfm_jax.sim.robots.Robot` they were made on.
+      legs: its :class:`cfm_jax.tasks.locomotion.Legs`.
+      refused: the start of the error's message (before "its ... reference falls").
+
+    Raises:
+      ConfigError: the first reference that falls: which, at which control step, and
+        which of the rule's clauses it breaks.
+
+    Examples:
+      >>> solo = cfm_jax.sim.robots.load("solo12")
+      >>> walks = [locomotion.walk_reference(1.0)]
+      >>> check_references(walks, solo, legs_of(solo))  # no fall: nothing raised
+    """
+    terms_of = fall_terms(robot, legs)
+    for ref in refs:
+        terms = terms_of(ref.qpos, ref.foot_force)
+        fallen = np.any(np.stack(list(terms.values())), axis=0)
+        if not fallen.any():
+            continue
+        step = int(np.argmax(fallen))
+        broken = [what for what, where in terms.items() if where[step]]
+        params = json.loads(ref.params)
+        motion = (
+            f"{params['duration']:g}-s walk" if ref.kind == "walk" else
+            f"{params['height']:g}-m jump"
+        )  # fmt: skip
+        raise ConfigError(
+            f"{refused}its {motion} reference falls by the robot's own "
+            f"fall rule at control step {step} of {ref.horizon} ({'; '.join(broken)}): the "
+            f"reference generator's {ref.kind} (joint PD along planned foot paths, no balance "
+            "feedback) does not keep this robot up, and a controller tracking it would be "
+            "counted as fallen"
+        )
+
+
+def _solo12_kinematics(robot) -> bool:
+    """Whether ``robot``'s model has the Solo12's kinematics (:func:`solo12.check_model`)."""
+    try:
+        solo12.check_model(robot.mj_model, robot.name)
+    except ConfigError:
+        return False
+    return True
+
+
+def fall_terms(robot, legs: locomotion.Legs):
+    """``terms(qpos, foot_force=None, xp=np)``: the clauses of :func:`fall_rule` one by one,
+    ``{what breaks the rule, in words: (...) bool}``.
+
+    Args:
+      robot: a quadruped :class:`cfm_jax.sim.robots.Robot`.
+      legs: its :class:`cfm_jax.tasks.locomotion.Legs` (:func:`legs_of`).
+
+    Examples:
+      >>> solo = cfm_jax.sim.robots.load("solo12")
+      >>> terms = fall_terms(solo, legs_of(solo))(solo.home)
+      >>> len(terms), any(terms.values())
+      (3, False)
+    """
+    if _solo12_kinematics(robot):
+        return functools.partial(solo12.fall_terms, limits=solo12.FALL)
+    return quadruped.fall_rule(quadruped.describe(robot.mj_model), legs.scale).terms
+
+
 def fall_rule(robot, legs: locomotion.Legs):
     """``fell(qpos, foot_force=None, xp=np)`` of ``robot``: the Solo12's
     :func:`cfm_jax.sim.solo12.fell` (:data:`cfm_jax.sim.solo12.FALL`) where its kinematics are the
@@ -339,25 +429,29 @@ def fall_rule(robot, legs: locomotion.Legs):
       >>> bool(fall_rule(solo, legs_of(solo))(solo.home))
       False
     """
-    try:
-        solo12.check_model(robot.mj_model, robot.name)
-    except ConfigError:
-        return quadruped.fall_rule(quadruped.describe(robot.mj_model), legs.scale)
-    return functools.partial(solo12.fell, limits=solo12.FALL)
+    if _solo12_kinematics(robot):
+        return functools.partial(solo12.fell, limits=solo12.FALL)
+    return quadruped.fall_rule(quadruped.describe(robot.mj_model), legs.scale)
 
 
-def fits(robot) -> str:
-    """Whether the legged tasks can run on ``robot`` (``cfm-jax robot check``).
+def fits(robot, name: str = "walk") -> str:
+    """Whether the legged task ``name`` can run on ``robot`` (``cfm-jax robot check``): a
+    quadruped whose default walks (:func:`references`, generated here and cached for
+    training) do not fall by its own fall rule (:func:`check_references`), or some of
+    whose jumps land (:func:`cfm_jax.tasks.locomotion.largest_landed_jump`; the jump
+    references themselves are judged when the task builds them).
 
     Args:
       robot: a :class:`cfm_jax.sim.robots.Robot`.
+      name: ``walk`` or ``jump``.
 
     Returns:
       ``""``, or a note where the task runs but not with its defaults.
 
     Raises:
       ConfigError: no floating base, or not a quadruped with a torque motor per joint (servos
-        converted at load time count) and a contact sensor per foot.
+        converted at load time count) and a contact sensor per foot, or a default reference
+        that falls.
 
     Examples:
       >>> fits(cfm_jax.sim.robots.load("solo12"))
@@ -365,7 +459,18 @@ def fits(robot) -> str:
     """
     if not robot.floating_base:
         raise ConfigError("the legged tasks need a floating base (a free joint at the root)")
-    legs_of(robot)
+    legs = legs_of(robot)
+    task = default_config(name).task
+    if name == "walk":  # the five walks: seconds to generate (cached for training)
+        check_references(references(robot, task, task.control_dt), robot, legs)
+    elif locomotion.largest_landed_jump(legs, task.control_dt) <= 0.0:
+        # The jumps are sized to what lands (jump_height_scale); building them takes a
+        # minute, so they are judged one by one where the task builds them (LeggedTask).
+        raise ConfigError(
+            "no jump of the reference controller lands by the robot's own fall rule (push "
+            f"forces from a quarter of its weight to three times it, {locomotion.LANDED_SCAN} "
+            "tried), so there is no jump reference to learn"
+        )
     if robot.mjx_error is not None:  # the defaults' rigid-body forward model runs on MJX
         return (
             "not with its defaults: forward.kind='rigid_body' needs MJX, which cannot build "
