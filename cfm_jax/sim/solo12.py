@@ -399,12 +399,13 @@ def body_fall_terms(qpos, corners, knees, limits: FallLimits, foot_force=None, x
     the floor, and, given ``foot_force``, a foot pulling the floor).
 
     Args:
-      qpos: ``(..., nq)`` positions (base pose first).
-      corners: the base's points, base frame, ``(k, 3)``.
-      knees: a function of ``qpos`` giving further body points, or None.
-      limits: the :class:`FallLimits`.
-      foot_force: ``(..., 4, 3)`` floor forces on the feet (world frame), or None.
-      xp: the array module, ``numpy`` or ``jax.numpy``.
+      qpos: positions, base pose first, ``(..., nq)``.
+      corners: points of the base in its own frame, ``(k, 3)``.
+      knees: ``knees(qpos)``, more body points in the base frame, or None.
+      limits: the thresholds, a :class:`FallLimits`.
+      foot_force: the floor's forces on the four feet in the world frame, ``(..., 4, 3)``;
+        None: no foot clause.
+      xp: ``numpy`` or ``jax.numpy``.
 
     Examples:
       >>> rolled = load_model().key("home").qpos.copy()
