@@ -65,6 +65,14 @@ def last_rows(out: str, blocks) -> pd.DataFrame | None:
     return metrics[metrics.iteration == metrics.iteration.max()]
 
 
+def recorded(out: str = OUT) -> list[int]:
+    """The blocks whose record under ``out`` is written (its ``metrics.csv``): what the page
+    covers, whichever blocks a call ran."""
+    return [first for first in comparison.BLOCKS
+            if os.path.isfile(os.path.join(comparison.record_dir(out, cell(first)),
+                                           "metrics.csv"))]  # fmt: skip
+
+
 def baseline(out: str, first: int, name: str) -> float:
     """A baseline's mean base tracking (the cell's ``baselines.csv``) over the test walks."""
     frame = pd.read_csv(os.path.join(comparison.record_dir(out, cell(first)), "baselines.csv"))
@@ -195,11 +203,11 @@ def main(argv=None) -> None:
         label = lambda c: f"(seeds {c.first_seed}-)"  # noqa: E731
         _study.run_cells("walk_feedback", todo, args, comparison.run_cell, comparison.finished,
                          label=label)  # fmt: skip
-    frame = table(blocks, args.out)
-    if frame.empty:
+    blocks = recorded(args.out)  # the page covers every recorded block
+    if not blocks:
         print("walk_feedback: no block recorded yet")
         return
-    text = page(frame, blocks, paired(blocks, args.out))
+    text = page(table(blocks, args.out), blocks, paired(blocks, args.out))
     with open(os.path.join(os.path.dirname(args.out), "walk_feedback.md"), "w") as f:
         f.write(text)
     print(text)
