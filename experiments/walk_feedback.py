@@ -136,7 +136,40 @@ def paired(blocks, out: str = OUT, before: str = BEFORE, alpha: float = 0.05) ->
     return frame
 
 
-def page(frame: pd.DataFrame, blocks, tests: pd.DataFrame | None = None) -> str:
+def against_pd(blocks, out: str = OUT, alpha: float = 0.05) -> pd.DataFrame:
+    """Per loss, with feedback (``out``'s records): whether it tracks below PD-only, the
+    seed as the unit. Per seed the mean over the walks of log10 of the loss's tracking MSE
+    over PD-only's on the same walk (``baselines.csv``); the exact sign-flip p-value and
+    Holm's correction over the losses (:func:`cfm_jax.analysis.stats.paired_comparisons`);
+    ``verdict`` "clear below PD-only" / "clear above PD-only" where Holm rejects at
+    ``alpha``, else "not resolved". Empty while no block is recorded."""
+    new = last_rows(out, blocks)
+    if new is None:
+        return pd.DataFrame()
+    base = pd.read_csv(os.path.join(comparison.record_dir(out, cell(blocks[0])),
+                                    "baselines.csv"))  # fmt: skip
+    pd_only = base[base.baseline == "pd_only"].groupby("target").tracking_mse.mean()
+    rows, differences = [], {}
+    for loss in losses_lib.PAPER_LOSSES:
+        frame = new[new.loss == loss]
+        ratio = np.log10(frame.tracking_mse.to_numpy()) - np.log10(
+            pd_only.loc[frame.target].to_numpy()
+        )
+        d = pd.Series(ratio, index=frame.seed.to_numpy()).groupby(level=0).mean().to_numpy()
+        differences[loss] = d
+        rows.append({"loss": loss, "seeds": len(d), "mean_log10_ratio": float(d.mean()),
+                     "below": int((d < 0).sum()), "above": int((d > 0).sum())})  # fmt: skip
+    tests = stats.paired_comparisons(differences, alpha)
+    frame = pd.DataFrame(rows)
+    frame["p"] = tests.p.to_numpy()
+    frame["holm_p"] = tests.adjusted.to_numpy()
+    side = np.where(frame.mean_log10_ratio < 0, "clear below PD-only", "clear above PD-only")
+    frame["verdict"] = np.where(tests.clear, side, "not resolved")
+    return frame
+
+
+def page(frame: pd.DataFrame, blocks, tests: pd.DataFrame | None = None,
+         pd_tests: pd.DataFrame | None = None) -> str:  # fmt: skip
     seeds = ", ".join(f"{b}-{b + comparison.SEEDS - 1}" for b in blocks)
     lines = [
         "# The Solo12 walk with joint position feedback in s* (issue 65, goal 2)",
@@ -176,6 +209,22 @@ def page(frame: pd.DataFrame, blocks, tests: pd.DataFrame | None = None) -> str:
             lines.append(f"| {r.loss} | {r.measure} | {r.seeds} | {r.mean_difference:+.3g} | "
                          f"{r.after_lower} / {r.after_higher} | {r.p:.2g} | {r.holm_p:.2g} | "
                          f"{r.verdict} |")  # fmt: skip
+    if pd_tests is not None and not pd_tests.empty:
+        lines += [
+            "",
+            "## After, each loss against PD-only",
+            "",
+            "Per seed: the mean over the walks of log10 (the loss's tracking MSE / PD-only's on",
+            "the same walk); p: the exact two-sided sign-flip test of no difference; Holm's",
+            f"correction over these {len(pd_tests)} losses; clear: Holm rejects at 0.05.",
+            "",
+            "| loss | seeds | mean log10 (loss / PD-only) | seeds below / above | p | Holm p | "
+            "verdict |",
+            "|---|---:|---:|---|---:|---:|---|",
+        ]
+        for r in pd_tests.itertuples():
+            lines.append(f"| {r.loss} | {r.seeds} | {r.mean_log10_ratio:+.3g} | {r.below} / "
+                         f"{r.above} | {r.p:.2g} | {r.holm_p:.2g} | {r.verdict} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
@@ -207,7 +256,8 @@ def main(argv=None) -> None:
     if not blocks:
         print("walk_feedback: no block recorded yet")
         return
-    text = page(table(blocks, args.out), blocks, paired(blocks, args.out))
+    text = page(table(blocks, args.out), blocks, paired(blocks, args.out),
+                against_pd(blocks, args.out))  # fmt: skip
     with open(os.path.join(os.path.dirname(args.out), "walk_feedback.md"), "w") as f:
         f.write(text)
     print(text)

@@ -100,13 +100,34 @@ def test_the_table_counts_falls_and_seed_means_by_hand(tmp_path, monkeypatch):
     assert "| joint | falls | 2 | -1 | 2 / 0 | 0.5 | 1 | not resolved |" in walk_feedback.page(
         both, [10], tests.reset_index()
     )
+    # Each loss against PD-only (after): PD-only tracks 2 and 4 on the two walks, every
+    # after-seed 1 and 1: per seed mean(log10 1/2, log10 1/4), both seeds below.
+    versus = walk_feedback.against_pd([10], out=after).set_index("loss")
+    joint = versus.loc["joint"]
+    assert joint.mean_log10_ratio == pytest.approx((np.log10(0.5) + np.log10(0.25)) / 2)
+    assert (joint.seeds, joint.below, joint.above, joint.p) == (2, 2, 0, 0.5)  # 2 of 4 signs
+    assert versus.holm_p.tolist() == [1.0, 1.0] and set(versus.verdict) == {"not resolved"}
+    # Ten seeds all below would be clear (p = 2 / 2^10, Holm x 2): the verdict names the side.
+    ten = {(loss, seed): [1, 1] for loss in ("joint", "task") for seed in range(10, 20)}
+    _write_cell(str(tmp_path / "ten"), 10, ten, {}, pd_only=3.0)
+    clear = walk_feedback.against_pd([10], out=str(tmp_path / "ten"))
+    assert clear.p.tolist() == [2 / 2**10] * 2
+    assert set(clear.verdict) == {"clear below PD-only"}
+    assert "| joint | 10 | -0.452 | 10 / 0 | 0.002 | 0.0039 | clear below PD-only |" in (
+        walk_feedback.page(both, [10], None, clear)
+    )
 
 
 def test_the_committed_page_is_the_scripts_output_on_the_committed_records():
     path = os.path.join(ROOT, "docs", "results", "walk_feedback.md")
     blocks = walk_feedback.recorded()
     assert blocks, "the page exists, so some block is recorded"
-    page = walk_feedback.page(walk_feedback.table(blocks), blocks, walk_feedback.paired(blocks))
+    page = walk_feedback.page(
+        walk_feedback.table(blocks),
+        blocks,
+        walk_feedback.paired(blocks),
+        walk_feedback.against_pd(blocks),
+    )
     with open(path) as f:
         assert f.read() == page
 
