@@ -128,12 +128,7 @@ def paired(blocks, out: str = OUT, before: str = BEFORE, alpha: float = 0.05) ->
                          "mean_difference": float(d.mean()),
                          "after_lower": int((d < 0).sum()),
                          "after_higher": int((d > 0).sum())})  # fmt: skip
-    tests = stats.paired_comparisons(differences, alpha)
-    frame = pd.DataFrame(rows)
-    frame["p"] = tests.p.to_numpy()
-    frame["holm_p"] = tests.adjusted.to_numpy()
-    frame["verdict"] = np.where(tests.clear, "clear", "not resolved")
-    return frame
+    return _decided(rows, differences, alpha)
 
 
 def against_pd(blocks, out: str = OUT, alpha: float = 0.05) -> pd.DataFrame:
@@ -159,12 +154,22 @@ def against_pd(blocks, out: str = OUT, alpha: float = 0.05) -> pd.DataFrame:
         differences[loss] = d
         rows.append({"loss": loss, "seeds": len(d), "mean_log10_ratio": float(d.mean()),
                      "below": int((d < 0).sum()), "above": int((d > 0).sum())})  # fmt: skip
+    frame = _decided(rows, differences, alpha)
+    side = np.where(frame.mean_log10_ratio < 0, "clear below PD-only", "clear above PD-only")
+    frame["verdict"] = np.where(frame.verdict == "clear", side, frame.verdict)
+    return frame
+
+
+def _decided(rows: list[dict], differences: dict, alpha: float) -> pd.DataFrame:
+    """``rows`` as a frame with each comparison's exact sign-flip ``p``, Holm's ``holm_p``
+    over them all (:func:`cfm_jax.analysis.stats.paired_comparisons` of ``differences``, in
+    the rows' order) and ``verdict`` "clear" where Holm rejects at ``alpha``, else "not
+    resolved"."""
     tests = stats.paired_comparisons(differences, alpha)
     frame = pd.DataFrame(rows)
     frame["p"] = tests.p.to_numpy()
     frame["holm_p"] = tests.adjusted.to_numpy()
-    side = np.where(frame.mean_log10_ratio < 0, "clear below PD-only", "clear above PD-only")
-    frame["verdict"] = np.where(tests.clear, side, "not resolved")
+    frame["verdict"] = np.where(tests.clear, "clear", "not resolved")
     return frame
 
 

@@ -341,10 +341,7 @@ def fell(qpos, foot_force=None, limits: FallLimits = FALL, xp=np):
       >>> bool(fell(kneel)), bool(fell(kneel, limits=FallLimits(body_clearance=0.0, knees=False)))
       (True, False)
     """
-    knees = None
-    if limits.knees:
-        knees = lambda qpos: knee_positions(qpos[..., 7:19], xp=xp)  # noqa: E731
-    return body_fell(qpos, BASE_CORNERS, knees, limits, foot_force, xp)
+    return body_fell(qpos, BASE_CORNERS, _knee_points(limits, xp), limits, foot_force, xp)
 
 
 def fall_terms(qpos, foot_force=None, limits: FallLimits = FALL, xp=np) -> dict:
@@ -362,10 +359,15 @@ def fall_terms(qpos, foot_force=None, limits: FallLimits = FALL, xp=np) -> dict:
       >>> sorted(what for what, broken in fall_terms(low).items() if broken)[0]
       'a body point less than 0.005 m above the floor'
     """
-    knees = None
-    if limits.knees:
-        knees = lambda qpos: knee_positions(qpos[..., 7:19], xp=xp)  # noqa: E731
-    return body_fall_terms(qpos, BASE_CORNERS, knees, limits, foot_force, xp)
+    return body_fall_terms(qpos, BASE_CORNERS, _knee_points(limits, xp), limits, foot_force, xp)
+
+
+def _knee_points(limits: FallLimits, xp):
+    """The Solo12's knees as body points of :func:`body_fell` (None where ``limits`` leaves
+    them out)."""
+    if not limits.knees:
+        return None
+    return lambda qpos: knee_positions(qpos[..., 7:19], xp=xp)
 
 
 def body_fell(qpos, corners, knees, limits: FallLimits, foot_force=None, xp=np):
