@@ -95,12 +95,9 @@ def iqm(scores) -> float:
 
 
 def _bootstrap(arrays, statistic, reps: int, seed: int) -> np.ndarray:
-    """``statistic`` of ``reps`` stratified bootstrap resamples of the same-shaped ``(runs,
-    tasks)`` arrays: each task's runs resampled on their own (rliable's stratified
-    bootstrap), the arrays' runs together (paired). ``scipy.stats.bootstrap`` draws the run
-    indices, one sample per task. ``statistic`` reduces the last two axes of arrays with
-    leading batch axes (all resamples at once). Returns ``(reps,)``, or ``(k, reps)`` for a
-    statistic of ``k`` values."""
+    """``statistic`` (reducing the last two axes) of ``reps`` stratified, paired bootstrap
+    resamples of the ``(runs, tasks)`` arrays (rliable's; ``scipy.stats.bootstrap`` draws the
+    run indices per task). Returns ``(reps,)``, or ``(k, reps)`` for ``k`` values."""
     runs, tasks = arrays[0].shape
 
     def resampled(*indices, axis=-1):
@@ -328,13 +325,10 @@ def sign_flip_p(differences) -> float:
 
 
 def sign_flip_interval(differences, level: float) -> tuple[float, float]:
-    """The interval of shifts ``delta`` that the exact sign-flip test of ``differences -
-    delta`` does not reject at ``level``: the confidence interval of the mean difference
-    (coverage ``1 - level``) that goes with :func:`sign_flip_p`, so that it excludes 0 where
-    the test rejects at that level. Its ends are found by bisection to 1e-9 of the
-    differences' spread (an end where the p-value jumps, a shift of exactly 0 or of one of the
-    differences, is that point). Where n runs cannot reach ``level`` (``2 / 2^n > level``) no shift
-    is rejected: ``(-inf, inf)``.
+    """The shifts ``delta`` that the exact sign-flip test of ``differences - delta`` does not
+    reject at ``level``: the ``1 - level`` interval of the mean difference that excludes 0
+    where :func:`sign_flip_p` rejects. Ends by bisection to 1e-9 of the differences' spread;
+    ``(-inf, inf)`` where n runs cannot reach ``level`` (``2 / 2^n > level``).
 
     Args:
       differences: paired differences, one per run.

@@ -1305,11 +1305,8 @@ def _step_mean(result: rollout_lib.Rollout, before_terminal: bool = False):
 
 def _steps(result: rollout_lib.Rollout, before_terminal: bool):
     """``(targets, steps)`` mask of the steps inside each target's horizon and, with
-    ``before_terminal``, before the first terminal step (in a rollout that started again
-    after each fall, :func:`cfm_jax.sim.rollout.run`'s ``restart``: every step but the falls);
-    None when the task marks neither.
-    After a terminal step (a fall) the dynamics are not the models' to learn: the legged
-    models have foot-floor contacts only, so a fallen body sinks through the floor."""
+    ``before_terminal``, before the first fall (after a restart: every step but the falls;
+    a fallen body's dynamics are not the models' to learn); None when the task marks neither."""
     extras = result.extras if isinstance(result.extras, dict) else {}
     masks = [extras["active"]] if "active" in extras else []
     if before_terminal and "restarted" in extras:  # started again after each fall
@@ -1595,14 +1592,11 @@ class Experiment:
         return [program(loss)(prepared, key_fit, knobs) for loss in losses]
 
     def iteration_losses(self, losses, state: TrainState, knobs: Knobs | None = None, data=None):
-        """:func:`iteration` for every loss and seed of ``state`` (leading
-        ``(loss, seed)`` axes), for each loss in two programs: :func:`collect`
-        (the rollouts and their metrics: the simulator; one program for every loss), then
-        :func:`refit_forward` and the loss's
-        :func:`refit_controller` (no simulator, so JAX's persistent
-        compilation cache keeps this program, the larger one). Each loss's slice is that loss
-        trained alone, bit for bit. Returns ``(state, metrics)``, metrics with leading
-        ``(loss, seed)`` axes.
+        """:func:`iteration` for every loss and seed of ``state`` (leading ``(loss, seed)``
+        axes) in two programs: :func:`collect` (the simulator, shared by the losses), then
+        :func:`refit_forward` and the loss's :func:`refit_controller` (no simulator: the
+        persistent compilation cache keeps it). Each loss's slice is that loss trained alone,
+        bit for bit. Returns ``(state, metrics)``, metrics with leading ``(loss, seed)`` axes.
 
         Args:
           losses: the losses of ``state``'s first axis, in order.

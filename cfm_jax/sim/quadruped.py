@@ -377,11 +377,9 @@ def _read(model, base: int, chains: dict, qpos: np.ndarray, standing_from: str) 
 
 @functools.cache
 def standing_depth() -> float:
-    """The Solo12's standing depth as a fraction of its legs' reach: at its keyframe
-    ``home`` each foot centre stands this fraction of the leg's reach (the chain's length
-    from the hip, the leg's second-to-last joint, to the foot centre) below its hip
-    (0.2229 m of 0.3246 m). A quadruped without keyframe stands at this depth
-    (:func:`describe`).
+    """The Solo12's foot depth below the hip at ``home`` over its leg's reach (hip, the
+    second-to-last joint, to foot centre: 0.2229 m of 0.3246 m); keyframe-less quadrupeds
+    stand at this depth (:func:`describe`).
 
     Examples:
       >>> round(standing_depth(), 4)
@@ -511,15 +509,11 @@ def with_foot_sensors(path: str):
 
 
 def add_foot_sensors(spec) -> list[str]:
-    """Give the quadruped of ``spec`` (a ``mujoco.MjSpec``, edited in place) what the legged
-    tasks read of the ground: a ground plane (where the world body has no plane: ``floor``,
-    z = 0, MuJoCo's contact defaults, contact bit 1 and the feet's bits whichever the file's
-    own default) and one contact sensor per foot of :func:`describe`
-    (``data="found force normal tangent"``, ``reduce="mindist"``, ``num=1``, as
-    ``robots/solo12.xml`` declares them), named ``<leg>_contact`` and added in the order
-    FL, FR, HL, HR after the spec's sensors; an unnamed foot geom is named ``<leg>_foot``.
-    Nothing is added where each foot has such a sensor already. Any other edit of the spec
-    (actuators: :func:`cfm_jax.sim.robots.convert`) composes with this one.
+    """Give the quadruped of ``spec`` (edited in place) what the legged tasks read of the
+    ground: a plane ``floor`` at z = 0 (where the world body has none; MuJoCo's contact
+    defaults) and a contact sensor ``<leg>_contact`` per foot, FL, FR, HL, HR, declared as
+    ``robots/solo12.xml`` declares them (unnamed foot geoms become ``<leg>_foot``). Nothing
+    is added where each foot has one already; composes with :func:`cfm_jax.sim.robots.convert`.
 
     Args:
       spec: a ``mujoco.MjSpec`` of a quadruped (:func:`describe` of its compiled model).
@@ -705,8 +699,7 @@ class FallRule:
         return solo12.body_fell(qpos, self.corners, knees, self._limits(), foot_force, xp)
 
     def terms(self, qpos, foot_force=None, xp=np) -> dict:
-        """The rule's clauses one by one (:func:`cfm_jax.sim.solo12.body_fall_terms`):
-        ``{what breaks the rule, in words: (...) bool}``; arguments as :meth:`__call__`."""
+        """The clauses one by one (:func:`cfm_jax.sim.solo12.body_fall_terms`)."""
         from cfm_jax.sim import solo12
 
         knees = lambda q: self.knee_positions(q, xp)  # noqa: E731

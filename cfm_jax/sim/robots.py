@@ -575,11 +575,9 @@ def convert(path: str, model, torque_limit=None, where: str = "robot", keep=(), 
 
 
 def _as_quadruped(path: str, model):
-    """``(model, added, standing, spec)``: a quadruped's model with the ground and the foot
-    contact sensors the legged tasks read (:func:`cfm_jax.sim.quadruped.add_foot_sensors`;
-    ``model`` itself where it has them), what was added, its standing pose and the edited
-    ``mujoco.MjSpec`` (None where nothing was added), which :func:`convert` edits further;
-    any other model as it is, ``()``, None and None."""
+    """``(model, added, standing, spec)``: a quadruped with ground and foot sensors
+    (:func:`cfm_jax.sim.quadruped.add_foot_sensors`), what was added, its standing pose and
+    the edited spec (None: nothing added); any other model as it is, ``()``, None, None."""
     from cfm_jax.sim import quadruped
 
     try:

@@ -363,8 +363,7 @@ def fall_terms(qpos, foot_force=None, limits: FallLimits = FALL, xp=np) -> dict:
 
 
 def _knee_points(limits: FallLimits, xp):
-    """The Solo12's knees as body points of :func:`body_fell` (None where ``limits`` leaves
-    them out)."""
+    """The Solo12's knees as body points of :func:`body_fell`, or None."""
     if not limits.knees:
         return None
     return lambda qpos: knee_positions(qpos[..., 7:19], xp=xp)
@@ -396,9 +395,7 @@ def body_fell(qpos, corners, knees, limits: FallLimits, foot_force=None, xp=np):
 
 
 def body_fall_terms(qpos, corners, knees, limits: FallLimits, foot_force=None, xp=np) -> dict:
-    """The clauses of :func:`body_fell` one by one: ``{what breaks the rule: (...) bool}``,
-    the keys in words with their limits (the base too low, too tilted, a body point too near
-    the floor, and, given ``foot_force``, a foot pulling the floor).
+    """The clauses of :func:`body_fell` one by one, ``{what breaks the rule, in words: bool}``.
 
     Args:
       qpos: positions, base pose first, ``(..., nq)``.

@@ -318,9 +318,8 @@ def legs_of(robot, refused: str = "the legged tasks cannot use robot") -> locomo
 
 
 def references(robot, task: TaskConfig, control_dt: float) -> list:
-    """The :class:`cfm_jax.tasks.locomotion.LocomotionReference` recordings ``task`` follows
-    on ``robot``: simulated on the model the task simulates (servos converted with
-    ``robot_actuators='torque'``, ground and foot sensors added, its timestep), cached.
+    """The reference recordings ``task`` follows on ``robot``, simulated on the task's model
+    (servos converted, ground and foot sensors added), cached.
 
     Args:
       robot: a quadruped :class:`cfm_jax.sim.robots.Robot`.
@@ -344,10 +343,8 @@ def references(robot, task: TaskConfig, control_dt: float) -> list:
 
 
 def check_references(refs, robot, legs: locomotion.Legs, refused: str = "") -> None:
-    """Refuse references that the robot's own fall rule (:func:`fall_rule`, the rule that
-    judges the learned controllers) calls fallen at some control step: a controller that
-    tracked such a reference perfectly would be counted as falling, so no result on it
-    would mean anything. Each reference is judged on its recorded poses and foot forces.
+    """Refuse references that fall by the robot's own :func:`fall_rule` (judged on their
+    recorded poses and foot forces): tracking one perfectly would count as a fall.
 
     Args:
       refs: the :class:`cfm_jax.tasks.locomotion.LocomotionReference` recordings.
@@ -396,8 +393,7 @@ def _solo12_kinematics(robot) -> bool:
 
 
 def fall_terms(robot, legs: locomotion.Legs):
-    """``terms(qpos, foot_force=None, xp=np)``: the clauses of :func:`fall_rule` one by one,
-    ``{what breaks the rule, in words: (...) bool}``.
+    """``terms(qpos, foot_force=None, xp=np)``: :func:`fall_rule`'s clauses one by one.
 
     Args:
       robot: a quadruped :class:`cfm_jax.sim.robots.Robot`.
@@ -435,11 +431,8 @@ def fall_rule(robot, legs: locomotion.Legs):
 
 
 def fits(robot, name: str = "walk") -> str:
-    """Whether the legged task ``name`` can run on ``robot`` (``cfm-jax robot check``): a
-    quadruped whose default walks (:func:`references`, generated here and cached for
-    training) do not fall by its own fall rule (:func:`check_references`), or some of
-    whose jumps land (:func:`cfm_jax.tasks.locomotion.largest_landed_jump`; the jump
-    references themselves are judged when the task builds them).
+    """Whether the legged task ``name`` runs on ``robot``: a quadruped whose default walks do
+    not fall (:func:`check_references`), or some of whose jumps land.
 
     Args:
       robot: a :class:`cfm_jax.sim.robots.Robot`.

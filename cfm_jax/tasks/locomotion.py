@@ -260,17 +260,12 @@ class Legs:
 
     @classmethod
     def of(cls, model) -> Legs:
-        """Any motor-driven quadruped's legs (:func:`cfm_jax.sim.quadruped.describe`): numeric
-        leg kinematics on MuJoCo's Jacobians, and gains per joint from the Solo12's joint at
-        the same place in the leg (counted from the foot: knee, hip, abduction). ``kp`` is
-        the larger of the Solo12's ``KP`` scaled by the body's load (``M g L``: mass,
-        gravity, leg length) and the gain that gives the joint the Solo12's joint's natural
-        frequency at the robot's time scale (the square root of :attr:`scale`):
-        ``KP (I / I_solo) / scale``, with ``I`` the joint's effective inertia (the joint-space
-        mass matrix's diagonal at the standing pose, rotor armature included). ``kd`` keeps
-        the Solo12's joint's damping ratio at that ``kp``, the joint's passive damping ``b``
-        (``dof_damping``) counted in: ``kd + b = KD sqrt(kp I / (KP I_solo))``, ``kd`` at
-        least 0. On the Solo12 itself these are its ``KP`` and ``KD``.
+        """Any motor-driven quadruped's legs: numeric kinematics on MuJoCo's Jacobians, and
+        per joint the Solo12's gains at the same place in the leg (knee, hip, abduction).
+        ``kp = max(KP M g L / (M g L)_solo, KP (I / I_solo) / scale)`` (load; natural
+        frequency at the robot's time scale), ``I`` the joint-space mass matrix's diagonal
+        at the standing pose; ``kd + b = KD sqrt(kp I / (KP I_solo))``, ``b`` the passive
+        ``dof_damping``, ``kd >= 0``. On the Solo12 these are its ``KP`` and ``KD``.
 
         Args:
           model: a ``mujoco.MjModel`` with one contact sensor per foot on the ground
