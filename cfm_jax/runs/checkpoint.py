@@ -129,11 +129,9 @@ class Checkpointer:
         return sorted(self._manager.all_steps())
 
     def save(self, step: int, state, meta: dict) -> None:
-        """Write ``state`` and JSON ``meta`` as ``step``, in the background: it returns once the
-        state is copied, and the files are written while training goes on (Orbax's async
-        save). The step's manifest, which makes it complete, is written when the write has
-        finished, at the next :meth:`save`, :meth:`wait` or :meth:`close`; a step a kill
-        interrupts has none and is skipped on resume."""
+        """Write ``state`` and JSON ``meta`` as ``step`` in the background (Orbax's async
+        save). The manifest that makes the step complete is written at the next :meth:`save`,
+        :meth:`wait` or :meth:`close`; a step a kill interrupts has none and is skipped."""
         self.wait()
         ocp = self._ocp
         self._manager.save(

@@ -623,12 +623,9 @@ def _feet_touch(model, robot: Quadruped, floor: int) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class FallRule:
-    """When a quadruped has fallen, from its pose alone (traceable under ``jit``/``vmap``):
-    the rule of :func:`cfm_jax.sim.solo12.fell` for any quadruped, its lengths scaled by the
-    robot's standing height over the Solo12's. Fallen: the base origin below
-    ``min_base_height``, the base tilted more than ``max_tilt``, a corner of the base's
-    collision geoms' bounding boxes or a knee (each leg's last joint anchor) less than
-    ``body_clearance`` above the floor, or (given the foot forces) a foot pulling the floor.
+    """:func:`cfm_jax.sim.solo12.fell` for any quadruped (traceable), its lengths scaled by
+    the standing height over the Solo12's; its body points are the corners of the base's
+    collision boxes and the knees (each leg's last joint anchor).
 
     Attributes:
       corners: the base's points, base frame, ``(k, 3)``: the 8 corners of each collision

@@ -316,11 +316,8 @@ class JointSpaceTask:
         return self.gain_p * self._q(ref.q - step.qpos) + self.gain_d * self._v(ref.qd - step.qvel)
 
     def oracle_policy(self, simulator: str):
-        """MuJoCo's inverse dynamics (:func:`cfm_jax.tasks.baselines.inverse_dynamics_oracle`), with
-        held or passive joints at zero desired acceleration; with ``oracle="period"`` made exact
-        over the held control period on the simulator
-        (:func:`cfm_jax.tasks.baselines.over_the_period`).
-        """
+        """MuJoCo's inverse dynamics (:func:`cfm_jax.tasks.baselines.inverse_dynamics_oracle`;
+        held joints at zero acceleration), exact over the period with ``oracle="period"``."""
         oracle = baselines.inverse_dynamics_oracle(self.robot, simulator)
         robot = self.robot
         if not robot.drives_every_dof:
