@@ -160,6 +160,41 @@ def against_pd(blocks, out: str = OUT, alpha: float = 0.05) -> pd.DataFrame:
     return frame
 
 
+CONFIRMATION = (
+    "Written on 2026-12-02, before any result of seeds 20-29 was seen (the test against "
+    "PD-only was added after the first block's counts had been): goal 2 is confirmed on the "
+    "second block alone when (1) its best loss, the lowest mean log10 ratio to PD-only, falls "
+    "in none of its test walks, (2) that loss is clear below PD-only by the test above on this "
+    "block alone (Holm over the four losses) and (3) every model-based loss falls in at most "
+    "2 of its test walks."
+)
+"""The confirmation rule, fixed before the second block's results existed."""
+
+
+def confirmation(out: str = OUT, block: int = comparison.BLOCKS[1],
+                 alpha: float = 0.05) -> pd.DataFrame:  # fmt: skip
+    """:data:`CONFIRMATION`'s checks on ``block`` alone: one row per check with what was
+    measured and whether it ``holds``. Empty until ``block`` is recorded."""
+    if block not in recorded(out):
+        return pd.DataFrame()
+    versus = against_pd([block], out, alpha).set_index("loss")
+    last = last_rows(out, [block])
+    falls = {loss: f"{int((last[last.loss == loss].fell > 0).sum())} of "
+                   f"{int((last.loss == loss).sum())}" for loss in versus.index}  # fmt: skip
+    fallen = {loss: int(text.split()[0]) for loss, text in falls.items()}
+    best = str(versus.mean_log10_ratio.idxmin())
+    row = versus.loc[best]
+    rows = [
+        (f"the best loss ({best}) falls in no test walk", falls[best], fallen[best] == 0),
+        (f"the best loss ({best}) is clear below PD-only",
+         f"{row.verdict}, Holm p {row.holm_p:.2g}", row.verdict == "clear below PD-only"),
+    ] + [
+        (f"{loss} falls in at most 2 test walks", falls[loss], fallen[loss] <= 2)
+        for loss in versus.index if losses_lib.get(loss).forward
+    ]  # fmt: skip
+    return pd.DataFrame(rows, columns=["check", "measured", "holds"])
+
+
 def _decided(rows: list[dict], differences: dict, alpha: float) -> pd.DataFrame:
     """``rows`` as a frame with each comparison's exact sign-flip ``p``, Holm's ``holm_p``
     over them all (:func:`cfm_jax.analysis.stats.paired_comparisons` of ``differences``, in
@@ -174,7 +209,8 @@ def _decided(rows: list[dict], differences: dict, alpha: float) -> pd.DataFrame:
 
 
 def page(frame: pd.DataFrame, blocks, tests: pd.DataFrame | None = None,
-         pd_tests: pd.DataFrame | None = None) -> str:  # fmt: skip
+         pd_tests: pd.DataFrame | None = None,
+         confirm: pd.DataFrame | None = None) -> str:  # fmt: skip
     seeds = ", ".join(f"{b}-{b + comparison.SEEDS - 1}" for b in blocks)
     lines = [
         "# The Solo12 walk with joint position feedback in s* (issue 65, goal 2)",
@@ -230,6 +266,13 @@ def page(frame: pd.DataFrame, blocks, tests: pd.DataFrame | None = None,
         for r in pd_tests.itertuples():
             lines.append(f"| {r.loss} | {r.seeds} | {r.mean_log10_ratio:+.3g} | {r.below} / "
                          f"{r.above} | {r.p:.2g} | {r.holm_p:.2g} | {r.verdict} |")  # fmt: skip
+    if confirm is not None and not confirm.empty:
+        verdict = "confirmed" if confirm.holds.all() else "not confirmed"
+        lines += ["", "## Confirmation on seeds 20-29 alone", "", CONFIRMATION, "",
+                  "| check | measured | holds |", "|---|---|---|"]  # fmt: skip
+        for r in confirm.itertuples():
+            lines.append(f"| {r.check} | {r.measured} | {'yes' if r.holds else 'no'} |")
+        lines += ["", f"Goal 2 on seeds 20-29: **{verdict}**."]
     return "\n".join(lines) + "\n"
 
 
@@ -262,7 +305,7 @@ def main(argv=None) -> None:
         print("walk_feedback: no block recorded yet")
         return
     text = page(table(blocks, args.out), blocks, paired(blocks, args.out),
-                against_pd(blocks, args.out))  # fmt: skip
+                against_pd(blocks, args.out), confirmation(args.out))  # fmt: skip
     with open(os.path.join(os.path.dirname(args.out), "walk_feedback.md"), "w") as f:
         f.write(text)
     print(text)

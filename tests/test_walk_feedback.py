@@ -118,6 +118,34 @@ def test_the_table_counts_falls_and_seed_means_by_hand(tmp_path, monkeypatch):
     )
 
 
+def test_the_confirmation_checks_the_second_block_alone_by_hand(tmp_path, monkeypatch):
+    monkeypatch.setattr(walk_feedback.losses_lib, "PAPER_LOSSES", ("joint", "supervised"))
+    out = str(tmp_path / "after")
+    # Block 10 (not the confirmation's): every seed far below PD-only, none fell.
+    _write_cell(out, 10, {(loss, seed): [1e-3, 1e-3] for loss in ("joint", "supervised")
+                          for seed in range(10, 20)}, {}, pd_only=3.0)  # fmt: skip
+    assert walk_feedback.confirmation(out).empty  # block 20 not recorded yet
+    # Block 20: joint at half of PD-only on both walks of every seed, one walk fell;
+    # supervised (no forward model: no falls limit) above PD-only, 5 walks fell.
+    tracking = {("joint", seed): [1.0, 2.0] for seed in range(20, 30)}
+    tracking |= {("supervised", seed): [4.0, 8.0] for seed in range(20, 30)}
+    fell = {("joint", 21, 0): 1} | {("supervised", seed, 1): 1 for seed in range(20, 25)}
+    _write_cell(out, 20, tracking, fell, pd_only=3.0)  # PD-only 2 and 4 on the two walks
+    checks = walk_feedback.confirmation(out)
+    assert checks.check.tolist() == [
+        "the best loss (joint) falls in no test walk",
+        "the best loss (joint) is clear below PD-only",
+        "joint falls in at most 2 test walks",
+    ]
+    # 10 seeds all below, p = 2 / 2^10, Holm over 2 losses: 0.0039; joint fell once of 20.
+    assert checks.measured.tolist() == ["1 of 20", "clear below PD-only, Holm p 0.0039", "1 of 20"]
+    assert checks.holds.tolist() == [False, True, True]
+    page = walk_feedback.page(walk_feedback.table([10, 20], out=out), [10, 20], None, None,
+                              checks)  # fmt: skip
+    assert "| the best loss (joint) falls in no test walk | 1 of 20 | no |" in page
+    assert page.rstrip().endswith("Goal 2 on seeds 20-29: **not confirmed**.")
+
+
 def test_the_committed_page_is_the_scripts_output_on_the_committed_records():
     path = os.path.join(ROOT, "docs", "results", "walk_feedback.md")
     blocks = walk_feedback.recorded()
@@ -127,6 +155,7 @@ def test_the_committed_page_is_the_scripts_output_on_the_committed_records():
         blocks,
         walk_feedback.paired(blocks),
         walk_feedback.against_pd(blocks),
+        walk_feedback.confirmation(),
     )
     with open(path) as f:
         assert f.read() == page
