@@ -173,12 +173,14 @@ def finished(out: str, extra: list[str] = ()) -> bool:
 
 
 def machine() -> str:
-    """JAX's first device, the processor, its cores and JAX's version, as ``cfm-jax train``
-    sees them (asked of a child process, so that this one never takes the GPU's memory)."""
+    """JAX's first device, the processor's model and architecture (XLA compiles for its
+    instruction set: a seed's numbers reproduce on the same kind of CPU only), its cores and
+    JAX's version, as ``cfm-jax train`` sees them (asked of a child process, so that this one
+    never takes the GPU's memory)."""
     probe = (
-        "import os, platform, jax; d = jax.devices()[0]; "
-        "print(f'{d.device_kind} ({platform.machine()}, {os.cpu_count()} cores), "
-        "jax {jax.__version__}')"
+        "import os, platform, jax; from cfm_jax.analysis import bench; d = jax.devices()[0]; "
+        "print(f'{d.device_kind} ({bench.processor()}, {platform.machine()}, "
+        "{os.cpu_count()} cores), jax {jax.__version__}')"
     )
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
     return done.stdout.strip() if done.returncode == 0 else "unknown"

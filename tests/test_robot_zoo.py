@@ -167,9 +167,16 @@ def test_the_machine_that_ran_a_robot_is_in_its_row(tmp_path):
     rows = {line.split(" | ")[0]: line for line in page.read_text().splitlines()}
     assert rows["| a"].endswith("| Some GPU, jax 9 |")
     assert rows["| b"].endswith("| not recorded |")
-    # What a new run records: the device and JAX that this interpreter's child sees.
+    # What a new run records: the device, the processor's model (/proc/cpuinfo's first
+    # "model name", where there is one) and JAX that this interpreter's child sees.
     kind = jax.devices()[0].device_kind
-    want = f"{kind} ({platform.machine()}, {os.cpu_count()} cores), jax {jax.__version__}"
+    model = platform.processor() or platform.machine()
+    if os.path.exists("/proc/cpuinfo"):
+        names = [line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo")
+                 if line.split(":")[0].strip() == "model name"]  # fmt: skip
+        model = names[0] if names else model
+    want = (f"{kind} ({model}, {platform.machine()}, {os.cpu_count()} cores), "
+            f"jax {jax.__version__}")  # fmt: skip
     assert robot_zoo.machine() == want
 
 
