@@ -172,6 +172,19 @@ def finished(out: str, extra: list[str] = ()) -> bool:
     return all(last.get(loss, -1) >= iterations for loss in LOSSES)
 
 
+def _vectors() -> str:
+    """The processor's widest vector instructions as the probe's f-string part: ``" AVX-512"``,
+    ``" AVX2"`` or nothing (one model name, e.g. "AMD EPYC", covers CPUs with and without
+    AVX-512, which round differently)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            flags = next((line.split(":", 1)[1].split() for line in f
+                          if line.split(":")[0].strip() == "flags"), [])  # fmt: skip
+    except OSError:
+        return ""
+    return " AVX-512" if "avx512f" in flags else " AVX2" if "avx2" in flags else ""
+
+
 def machine() -> str:
     """JAX's first device, the processor's model and architecture (XLA compiles for its
     instruction set: a seed's numbers reproduce on the same kind of CPU only), its cores and
@@ -179,9 +192,9 @@ def machine() -> str:
     never takes the GPU's memory)."""
     probe = (
         "import os, platform, jax; from cfm_jax.analysis import bench; d = jax.devices()[0]; "
-        "print(f'{d.device_kind} ({bench.processor()}, {platform.machine()}, "
+        "print(f'{d.device_kind} ({bench.processor()}VECTORS, {platform.machine()}, "
         "{os.cpu_count()} cores), jax {jax.__version__}')"
-    )
+    ).replace("VECTORS", _vectors())
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
     return done.stdout.strip() if done.returncode == 0 else "unknown"
 

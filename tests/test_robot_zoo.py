@@ -175,6 +175,9 @@ def test_the_machine_that_ran_a_robot_is_in_its_row(tmp_path):
         names = [line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo")
                  if line.split(":")[0].strip() == "model name"]  # fmt: skip
         model = names[0] if names else model
+        flags = next(line.split(":", 1)[1].split() for line in open("/proc/cpuinfo")
+                     if line.startswith("flags"))  # fmt: skip
+        model += " AVX-512" if "avx512f" in flags else " AVX2" if "avx2" in flags else ""
     want = (f"{kind} ({model}, {platform.machine()}, {os.cpu_count()} cores), "
             f"jax {jax.__version__}")  # fmt: skip
     assert robot_zoo.machine() == want
