@@ -179,9 +179,8 @@ def confirmation(out: str = OUT, block: int = comparison.BLOCKS[1],
         return pd.DataFrame()
     versus = against_pd([block], out, alpha).set_index("loss")
     last = last_rows(out, [block])
-    falls = {loss: f"{int((last[last.loss == loss].fell > 0).sum())} of "
-                   f"{int((last.loss == loss).sum())}" for loss in versus.index}  # fmt: skip
-    fallen = {loss: int(text.split()[0]) for loss, text in falls.items()}
+    fallen = {loss: int((last[last.loss == loss].fell > 0).sum()) for loss in versus.index}
+    falls = {loss: f"{fallen[loss]} of {int((last.loss == loss).sum())}" for loss in fallen}
     best = str(versus.mean_log10_ratio.idxmin())
     row = versus.loc[best]
     rows = [
