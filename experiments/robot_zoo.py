@@ -51,6 +51,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LOSSES = ("joint", "task", "distal", "supervised")
 REFUSED = "zoo_refused.txt"  # in a robot's output folder: why its last run failed
 CODE = "zoo_code.txt"  # in a robot's output folder: the commit of the code that ran it
+# (``START..END`` where the code changed while it ran: the last piece's start and end)
 MACHINE = "zoo_machine.txt"  # and the machine that ran it: JAX's device, cores, JAX version
 ARMS = "inverse_dynamics"  # the default task (the arms' table)
 # The defaults that need MJX, and what replaces them on a robot MJX cannot build.
@@ -220,6 +221,7 @@ def run_robot(
         # Resume what a run left; a folder holding only an earlier refusal has no run.
         if os.path.isdir(out) and set(os.listdir(out)) - {REFUSED}:
             cmd.append("--resume")
+        started = code_version()
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             lines = (proc.stderr or proc.stdout).strip().splitlines()
@@ -239,8 +241,9 @@ def run_robot(
     if not done and error is None:
         with open(timing, "w") as f:
             f.write(f"{wall:.0f}\n")
+        ended = code_version()  # a run the code changed under names both commits
         with open(code, "w") as f:
-            f.write(code_version() + "\n")
+            f.write((started if ended == started else f"{started}..{ended}") + "\n")
         with open(os.path.join(out, MACHINE), "w") as f:
             f.write(machine() + "\n")
     row["wall_s"] = float(open(timing).read()) if os.path.exists(timing) else float("nan")

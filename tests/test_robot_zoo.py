@@ -105,6 +105,25 @@ def test_a_refusal_and_a_robot_not_yet_run_stay_in_the_table(tmp_path):
     assert "| d | not run yet |" in text
 
 
+def test_the_code_column_names_both_commits_when_the_code_changed_during_a_run(
+    tmp_path, monkeypatch
+):
+    versions = iter(["aaa1111", "bbb2222+changes", "ccc3333", "ccc3333"])
+    monkeypatch.setattr(robot_zoo, "code_version", lambda root=None: next(versions))
+    monkeypatch.setattr(robot_zoo, "machine", lambda: "a machine")
+
+    def run(cmd, **kwargs):  # "trains": leaves a finished run in --out
+        _finished_run(type(tmp_path)(cmd[cmd.index("--out") + 1]), 0.5)
+        return robot_zoo.subprocess.CompletedProcess(cmd, 0, "", "")
+
+    monkeypatch.setattr(robot_zoo.subprocess, "run", run)
+    for name in ("first", "second"):
+        row = robot_zoo.run_robot("arm.xml", str(tmp_path / name), 1, [])
+        assert row["error"] is None
+    assert (tmp_path / "first" / robot_zoo.CODE).read_text() == "aaa1111..bbb2222+changes\n"
+    assert (tmp_path / "second" / robot_zoo.CODE).read_text() == "ccc3333\n"
+
+
 def test_a_refused_robot_runs_again_afresh_and_a_started_one_resumes(tmp_path, monkeypatch):
     # A folder holding only an earlier refusal has no run to resume (the CLI refuses a
     # resume there, hiding the file's own reason); a folder with a started run resumes it.
