@@ -473,6 +473,40 @@ def _swap(family, path: str):
     return better, similar, str(int(metrics.seed.nunique()))
 
 
+def _legged_claims(family: Family, tasks: dict, robustness: dict, task: str) -> list[Claim]:
+    """The claims of the legged ``task`` (Fig. 5, its success, Table I, Fig. 4), their
+    comparisons added to ``family``."""
+    beats, claims = [("joint", n) for n in OTHERS], []
+    seeds = _seeds_text(tasks[task].values())
+    label = f"Fig. 5 ({task})"
+    claims.append(Claim(label, f"Solo12 {task}: the joint loss tracks the base best", "beats",
+                        _ranking(family, tasks, label, task, "tracking_mse", "last", beats),
+                        exploratory(robustness, task, "tracking_mse", "last"), seeds))  # fmt: skip
+    label = f"Fig. 5 ({task}, success)"
+    parts = _ranking(family, tasks, label, task, "failed", "last", beats)
+    falls = "; ".join(f"{ARMS[k]}: failed runs {failures_text(a)}"
+                      for k, a in tasks[task].items() if a is not None)  # fmt: skip
+    claims.append(Claim(label, f"Solo12 {task}: only the joint loss succeeds (fraction of "
+                        "failed runs per seed)", "beats", parts, falls, seeds))  # fmt: skip
+    label = f"Table I ({task})"
+    claims.append(Claim(label, f"Solo12 {task}: the joint loss tracks the foot forces best",
+                        "beats", _ranking(family, tasks, label, task, "force_mse", "last", beats),
+                        exploratory(robustness, task, "force_mse", "last"), seeds))  # fmt: skip
+    label = f"Fig. 4 ({task})"
+    error = _ranking(family, tasks, f"{label} prediction error", task, "prediction_error",
+                     "all", [("joint", "task")])  # fmt: skip
+    predicted = _ranking(family, tasks, f"{label} predicted task error", task,
+                         "predicted_task_error", "all", [("task", "joint")])  # fmt: skip
+    parts = {k: None if error[k] is None else
+             [(error[k][0][0], "prediction error joint - task"),
+              (predicted[k][0][0], "predicted task error task - joint")]
+             for k in error}  # fmt: skip
+    claims.append(Claim(label, f"Solo12 {task}: during learning the joint loss's forward-model "
+                        "prediction error is lower than the task loss's, whose predicted task "
+                        "error is lower", "parts", parts, "", seeds))  # fmt: skip
+    return claims
+
+
 def plan_claims(family: Family, tasks: dict, robustness: dict, swap_path: str) -> list[Claim]:
     """The paper's claims in the page's order, their comparisons added to ``family`` (the
     primary family of ``claims_plan.md``)."""
@@ -484,33 +518,7 @@ def plan_claims(family: Family, tasks: dict, robustness: dict, swap_path: str) -
                          exploratory(robustness, task, column, over),
                          _seeds_text(tasks[task].values())))  # fmt: skip
     for task in LEGGED:
-        seeds = _seeds_text(tasks[task].values())
-        label = f"Fig. 5 ({task})"
-        out.append(Claim(label, f"Solo12 {task}: the joint loss tracks the base best", "beats",
-                         _ranking(family, tasks, label, task, "tracking_mse", "last", beats),
-                         exploratory(robustness, task, "tracking_mse", "last"), seeds))  # fmt: skip
-        label = f"Fig. 5 ({task}, success)"
-        parts = _ranking(family, tasks, label, task, "failed", "last", beats)
-        falls = "; ".join(f"{ARMS[k]}: failed runs {failures_text(a)}"
-                          for k, a in tasks[task].items() if a is not None)  # fmt: skip
-        out.append(Claim(label, f"Solo12 {task}: only the joint loss succeeds (fraction of "
-                         "failed runs per seed)", "beats", parts, falls, seeds))  # fmt: skip
-        label = f"Table I ({task})"
-        out.append(Claim(label, f"Solo12 {task}: the joint loss tracks the foot forces best",
-                         "beats", _ranking(family, tasks, label, task, "force_mse", "last", beats),
-                         exploratory(robustness, task, "force_mse", "last"), seeds))  # fmt: skip
-        label = f"Fig. 4 ({task})"
-        error = _ranking(family, tasks, f"{label} prediction error", task, "prediction_error",
-                         "all", [("joint", "task")])  # fmt: skip
-        predicted = _ranking(family, tasks, f"{label} predicted task error", task,
-                             "predicted_task_error", "all", [("task", "joint")])  # fmt: skip
-        parts = {k: None if error[k] is None else
-                 [(error[k][0][0], "prediction error joint - task"),
-                  (predicted[k][0][0], "predicted task error task - joint")]
-                 for k in error}  # fmt: skip
-        out.append(Claim(label, f"Solo12 {task}: during learning the joint loss's forward-model "
-                         "prediction error is lower than the task loss's, whose predicted task "
-                         "error is lower", "parts", parts, "", seeds))  # fmt: skip
+        out += _legged_claims(family, tasks, robustness, task)
     swap = _swap(family, swap_path)
     if swap is None:
         out.append(Claim("Fig. 3c", "data-set swap", "parts", {"shared": None, "own": "-"}))
@@ -576,7 +584,7 @@ def claim_rows(family: Family, claims: list[Claim]) -> list[tuple]:
     return rows
 
 
-def summary_rows(family: Family, claims: list[Claim], theory: tuple) -> list[tuple]:
+def summary_rows(family: Family, claims: list[Claim], theory: tuple | None) -> list[tuple]:
     """The page's first table: per claim its verdicts, its comparisons' effects (mean per-seed
     difference [exact interval at the Holm level]; in bold the clear ones) and seeds."""
     rows = []
@@ -599,8 +607,9 @@ def summary_rows(family: Family, claims: list[Claim], theory: tuple) -> list[tup
                 effects.append(f"*{ARMS['own']}:*")
         rows.append((claim.label, verdict(family, claim, "shared"), verdict(family, claim, "own"),
                      "<br>".join(effects), claim.seeds))  # fmt: skip
-    verdict_1d, _ = theory
-    rows.append(("III-B (1-D)", verdict_1d, "-", "closed forms (no seeds)", "-"))
+    if theory is not None:
+        verdict_1d, _ = theory
+        rows.append(("III-B (1-D)", verdict_1d, "-", "closed forms (no seeds)", "-"))
     return rows
 
 
@@ -799,6 +808,60 @@ def _page(tasks: dict, summary: list[tuple], rows: list[tuple], family: Family, 
     return "\n".join(lines) + "\n"
 
 
+FEEDBACK = os.path.join(comparison.ROOT, "docs", "results", "walk_feedback")
+"""The walk's records under today's ``s*`` (``experiments/walk_feedback.py``): the second
+family of ``claims_plan.md``'s amendment 2."""
+
+
+def feedback_family(feedback_dir: str = FEEDBACK, seed: int = 0):
+    """The walk's claims under today's ``s*`` on every block of seeds (amendment 2), decided
+    as a family of their own: ``(claims, family)``, or None until every block is recorded."""
+    cell = comparison.Cell("walk", comparison.SHARED, LOSSES)
+    if complete_blocks(feedback_dir, [cell]) != comparison.BLOCKS:
+        return None
+    metrics, baselines = read_blocks(feedback_dir, cell)
+    source = "the comparison's shared walk cell with joint position feedback in s*"
+    tasks = {"walk": {"shared": Arm(metrics, baselines, source), "own": None}}
+    family = Family()
+    found = _legged_claims(family, tasks, {}, "walk")
+    family.solve(seed)
+    return found, family
+
+
+def feedback_section(found, feedback_dir: str = FEEDBACK) -> list[str]:
+    """The page's section on the walk under today's ``s*`` (the plan's amendment 2):
+    ``found``, :func:`feedback_family`'s answer for ``feedback_dir``."""
+    lines = [
+        "## The Solo12 walk under today's `s*` (the plan's amendment 2)",
+        "",
+        "The walk's claims again, on the comparison's shared walk cell with joint position "
+        "feedback in `s*` (`experiments/walk_feedback.py`, seeds 10-29, nothing else "
+        "changed; [its page](walk_feedback.md)), as a second family of their own: Holm over "
+        "its comparisons only, the rule above. The verdicts above are the walk's under the "
+        "earlier `s*`; no own cells were run for this one.",
+        "",
+    ]
+    if found is None:
+        cell = comparison.Cell("walk", comparison.SHARED, LOSSES)
+        done = [f"{b}-{b + comparison.SEEDS - 1}" for b in complete_blocks(feedback_dir, [cell])]
+        return lines + [f"Not decided yet: decided once seeds 10-29 are all recorded "
+                        f"(recorded: {', '.join(done) or 'none'}).", ""]  # fmt: skip
+    found_claims, family = found
+    lines += [
+        "| claim | shared defaults | effects: A - B [exact interval at its Holm level] "
+        "(bold: clear) | seeds |",
+        "|---|---|---|---|",
+        *(f"| {r[0]} | {r[1]} | {r[3]} | {r[4]} |"
+          for r in summary_rows(family, found_claims, None)),
+        "",
+        f"{len(family.differences)} comparisons; clear: {int(family.table.clear.sum())}. "
+        "Each comparison's per-seed differences, p-value and Holm level: "
+        "[claims_feedback_comparisons.csv](claims_feedback_comparisons.csv).",
+        "",
+    ]  # fmt: skip
+    return lines
+
+
 def decide(comparison_dir: str, records_dir: str, swap_path: str, seed: int = 0):
     """The headline cells per task, the primary family decided (bootstrap ``seed``: effect
     sizes only) and the paper's claims: ``(tasks, family, claims)``; :func:`verdict` gives
@@ -811,7 +874,14 @@ def decide(comparison_dir: str, records_dir: str, swap_path: str, seed: int = 0)
     return tasks, family, claims
 
 
-def write(comparison_dir: str, records_dir: str, swap_path: str, out: str, seed: int = 0) -> str:
+def write(
+    comparison_dir: str,
+    records_dir: str,
+    swap_path: str,
+    out: str,
+    seed: int = 0,
+    feedback_dir: str = FEEDBACK,
+) -> str:
     """Write the claims page ``out``, its figures and ``claims_comparisons.csv`` beside it
     from the comparison records (``comparison_dir``), the robustness records
     (``records_dir``, the stand-ins and the exploratory notes) and the swap study's metrics
@@ -831,6 +901,12 @@ def write(comparison_dir: str, records_dir: str, swap_path: str, out: str, seed:
     forest(family, os.path.join(folder, "claims_forest.png"))
     comparisons_frame(family).to_csv(os.path.join(folder, "claims_comparisons.csv"), index=False)
     text = _page(tasks, summary_rows(family, claims, theory), rows, family, seed)
+    second = feedback_family(feedback_dir, seed)
+    text += "\n" + "\n".join(feedback_section(second, feedback_dir))
+    if second is not None:
+        comparisons_frame(second[1]).to_csv(
+            os.path.join(folder, "claims_feedback_comparisons.csv"), index=False
+        )
     with open(out, "w") as f:
         f.write(text)
     return text
@@ -842,6 +918,7 @@ def main() -> None:
     parser.add_argument("--records", default="docs/results/robustness")
     parser.add_argument("--swap", default="docs/results/swap/swap_metrics.csv")
     parser.add_argument("--out", default="docs/results/claims.md")
+    parser.add_argument("--feedback", default=FEEDBACK, help="the walk under today's s*")
     parser.add_argument(
         "--seed",
         type=int,
@@ -849,7 +926,7 @@ def main() -> None:
         help="the bootstrap's seed (effect sizes only; no verdict moves)",
     )
     args = parser.parse_args()
-    print(write(args.comparison, args.records, args.swap, args.out, args.seed))
+    print(write(args.comparison, args.records, args.swap, args.out, args.seed, args.feedback))
 
 
 if __name__ == "__main__":

@@ -509,3 +509,42 @@ def test_readme_results_table_is_the_committed_records():
             for baseline in ("oracle", "pd_only"):
                 row.append(fmt(baselines[baselines.baseline == baseline].tracking_mse.mean()))
             assert "| " + " | ".join(row) + " |" in readme, (task, key)
+
+
+def test_the_walk_under_todays_s_star_is_a_family_of_its_own(tmp_path):
+    """The plan's amendment 2: the walk's claims on the feedback cell's records, 11
+    comparisons under Holm of their own, decided only once every block of seeds is
+    recorded. Hand-made records: on every seed the joint loss tracks the base and the foot
+    forces 10x better than each other loss, its prediction error is 10x lower than the task
+    loss's, whose predicted task error is 10x lower than the joint loss's; nobody falls."""
+    cell = comparison.Cell("walk", comparison.SHARED, claims.LOSSES)
+    factor = {"joint": 1.0, "task": 10.0, "distal": 10.0, "supervised": 10.0}
+    blocks = comparison.BLOCKS
+    for first in blocks:
+        rows = [{"loss": loss, "seed": seed, "iteration": it, "target": t,
+                 "tracking_mse": 1e-4 * factor[loss], "force_mse": 1.0 * factor[loss],
+                 "prediction_error": 1.0 * factor[loss],
+                 "predicted_task_error": 10.0 / factor[loss] if loss != "joint" else 10.0,
+                 "fell": 0.0, "diverged": 0.0}
+                for loss in claims.LOSSES for seed in range(first, first + comparison.SEEDS)
+                for it in (0, 1) for t in range(2)]  # fmt: skip
+        folder = comparison.record_dir(str(tmp_path), cell.block(first))
+        os.makedirs(folder)
+        pd.DataFrame(rows).to_csv(os.path.join(folder, "metrics.csv"), index=False)
+        pd.DataFrame({"baseline": ["pd_only"] * 2 + ["oracle"] * 2, "target": [0, 1, 0, 1],
+                      "tracking_mse": [1e-2, 1e-2, 0.0, 0.0]}).to_csv(
+            os.path.join(folder, "baselines.csv"), index=False)  # fmt: skip
+        if first == blocks[0]:  # one block of two: not decided
+            assert claims.feedback_family(str(tmp_path)) is None
+            assert "(recorded: 10-19)" in "\n".join(claims.feedback_section(None, str(tmp_path)))
+    found, family = claims.feedback_family(str(tmp_path))
+    assert len(family.differences) == 11
+    verdicts = {c.label: claims.verdict(family, c, "shared") for c in found}
+    assert verdicts == {"Fig. 5 (walk)": "reproduces", "Fig. 5 (walk, success)": "not resolved",
+                        "Table I (walk)": "reproduces", "Fig. 4 (walk)": "reproduces"}  # fmt: skip
+    # 20 seeds of one sign: p = 2 / 2^20 each, below Holm's first level 0.05 / 11.
+    clear = family.table[family.table.clear]
+    assert len(clear) == 8 and np.allclose(clear.p, 2 / 2**20)  # 3 + 3 + 2: not success
+    assert all(claims.verdict(family, c, "own") == "not run yet" for c in found)
+    text = "\n".join(claims.feedback_section((found, family), str(tmp_path)))
+    assert "11 comparisons; clear: 8." in text
