@@ -492,23 +492,35 @@ def test_readme_results_table_is_the_committed_records():
     robustness = claims.records(os.path.join(results, "robustness"))
     tasks = claims.arms(os.path.join(results, "comparison"), robustness)
     assert set(tasks) == set(labels) and all(t["shared"] is not None for t in tasks.values())
+
+    def row(label, metrics, baselines, legged):
+        means = report.seed_means(metrics, column="tracking_mse")
+        final = metrics[metrics.iteration == metrics.iteration.max()]
+        cells = [label]
+        for loss in LOSSES:
+            ci = report.mean_ci(means[means.loss == loss].set_index("seed").tracking_mse)
+            text = f"{fmt(ci['mean'])} [{fmt(ci['low'])}, {fmt(ci['high'])}]"
+            if legged:
+                text += f"; {int(report.failed_runs(final[final.loss == loss]).sum())} fell"
+            cells.append(text)
+        for baseline in ("oracle", "pd_only"):
+            cells.append(fmt(baselines[baselines.baseline == baseline].tracking_mse.mean()))
+        return "| " + " | ".join(cells) + " |"
+
     for task, pair in tasks.items():
         for key, arm in pair.items():
             if arm is None:
                 continue
-            metrics, baselines = arm.metrics, arm.baselines
-            means = report.seed_means(metrics, column="tracking_mse")
-            final = metrics[metrics.iteration == metrics.iteration.max()]
-            row = [labels[task] + ("" if key == "shared" else ", each at its best")]
-            for loss in LOSSES:
-                ci = report.mean_ci(means[means.loss == loss].set_index("seed").tracking_mse)
-                text = f"{fmt(ci['mean'])} [{fmt(ci['low'])}, {fmt(ci['high'])}]"
-                if task in ("walk", "jump"):
-                    text += f"; {int(report.failed_runs(final[final.loss == loss]).sum())} fell"
-                row.append(text)
-            for baseline in ("oracle", "pd_only"):
-                row.append(fmt(baselines[baselines.baseline == baseline].tracking_mse.mean()))
-            assert "| " + " | ".join(row) + " |" in readme, (task, key)
+            label = labels[task] + ("" if key == "shared" else ", each at its best")
+            got = row(label, arm.metrics, arm.baselines, task in ("walk", "jump"))
+            assert got in readme, (task, key)
+    # The walk under today's s* (joint position feedback): the blocks recorded so far.
+    cell = comparison.Cell("walk", comparison.SHARED, LOSSES)
+    blocks = claims.complete_blocks(claims.FEEDBACK, [cell])
+    seeds = f"seeds {blocks[0]}-{blocks[-1] + comparison.SEEDS - 1}"
+    metrics, baselines = claims.read_blocks(claims.FEEDBACK, cell, blocks)
+    label = f"Solo12 walk, base pose, today's `s*` ({seeds})"
+    assert row(label, metrics, baselines, True) in readme
 
 
 def test_the_walk_under_todays_s_star_is_a_family_of_its_own(tmp_path):
