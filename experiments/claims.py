@@ -48,6 +48,7 @@ import numpy as np
 import pandas as pd
 import robustness_study
 import select_defaults
+import walk_feedback
 
 from cfm_jax.analysis import report, stats
 
@@ -808,18 +809,18 @@ def _page(tasks: dict, summary: list[tuple], rows: list[tuple], family: Family, 
     return "\n".join(lines) + "\n"
 
 
-FEEDBACK = os.path.join(comparison.ROOT, "docs", "results", "walk_feedback")
+FEEDBACK = walk_feedback.OUT
 """The walk's records under today's ``s*`` (``experiments/walk_feedback.py``): the second
 family of ``claims_plan.md``'s amendment 2."""
+FEEDBACK_CELL = walk_feedback.cell(comparison.BLOCKS[0])
 
 
 def feedback_family(feedback_dir: str = FEEDBACK, seed: int = 0):
     """The walk's claims under today's ``s*`` on every block of seeds (amendment 2), decided
     as a family of their own: ``(claims, family)``, or None until every block is recorded."""
-    cell = comparison.Cell("walk", comparison.SHARED, LOSSES)
-    if complete_blocks(feedback_dir, [cell]) != comparison.BLOCKS:
+    if complete_blocks(feedback_dir, [FEEDBACK_CELL]) != comparison.BLOCKS:
         return None
-    metrics, baselines = read_blocks(feedback_dir, cell)
+    metrics, baselines = read_blocks(feedback_dir, FEEDBACK_CELL)
     source = "the comparison's shared walk cell with joint position feedback in s*"
     tasks = {"walk": {"shared": Arm(metrics, baselines, source), "own": None}}
     family = Family()
@@ -842,8 +843,8 @@ def feedback_section(found, feedback_dir: str = FEEDBACK) -> list[str]:
         "",
     ]
     if found is None:
-        cell = comparison.Cell("walk", comparison.SHARED, LOSSES)
-        done = [f"{b}-{b + comparison.SEEDS - 1}" for b in complete_blocks(feedback_dir, [cell])]
+        blocks = complete_blocks(feedback_dir, [FEEDBACK_CELL])
+        done = [f"{b}-{b + comparison.SEEDS - 1}" for b in blocks]
         return lines + [f"Not decided yet: decided once seeds 10-29 are all recorded "
                         f"(recorded: {', '.join(done) or 'none'}).", ""]  # fmt: skip
     found_claims, family = found

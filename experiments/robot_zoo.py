@@ -40,6 +40,7 @@ import argparse
 import datetime
 import json
 import os
+import platform
 import subprocess
 import sys
 import time
@@ -191,13 +192,15 @@ def machine() -> str:
     instruction set: a seed's numbers reproduce on the same kind of CPU only), its cores and
     JAX's version, as ``cfm-jax train`` sees them (asked of a child process, so that this one
     never takes the GPU's memory)."""
-    probe = (
-        "import os, platform, jax; from cfm_jax.analysis import bench; d = jax.devices()[0]; "
-        "print(f'{d.device_kind} ({bench.processor()}VECTORS, {platform.machine()}, "
-        "{os.cpu_count()} cores), jax {jax.__version__}')"
-    ).replace("VECTORS", _vectors())
+    from cfm_jax.analysis import bench
+
+    probe = "import jax; print(jax.devices()[0].device_kind); print(jax.__version__)"
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
-    return done.stdout.strip() if done.returncode == 0 else "unknown"
+    if done.returncode != 0:
+        return "unknown"
+    kind, version = done.stdout.strip().rsplit("\n", 1)  # a device kind may hold spaces
+    return (f"{kind} ({bench.processor()}{_vectors()}, {platform.machine()}, "
+            f"{os.cpu_count()} cores), jax {version}")  # fmt: skip
 
 
 def run_robot(
