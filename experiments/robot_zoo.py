@@ -55,6 +55,8 @@ CODE = "zoo_code.txt"  # in a robot's output folder: the commit of the code that
 # (``START..END`` where the code changed while it ran: the last piece's start and end)
 MACHINE = "zoo_machine.txt"  # and the machine that ran it: JAX's device, cores, JAX version
 ARMS = "inverse_dynamics"  # the default task (the arms' table)
+ARMS_FOLDER = os.path.join(ROOT, "tests", "robots")  # the arms' development set
+ARMS_PAGE = os.path.join("docs", "results", "robots.md")  # its page, the --table default
 # The defaults that need MJX, and what replaces them on a robot MJX cannot build.
 NEEDS_MJX = {"forward.kind": ("rigid_body", "mlp"), "simulator": ("mjx", "native")}
 
@@ -449,10 +451,11 @@ def page(
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--robots", default=os.path.join(ROOT, "tests", "robots"))
+    parser.add_argument("--robots", default=ARMS_FOLDER)
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--out", default=os.path.join(ROOT, "results", "robot_zoo"))
-    parser.add_argument("--table", default=os.path.join(ROOT, "docs", "results", "robots.md"))
+    parser.add_argument("--table", help=f"the page to write; default {ARMS_PAGE} (the arms' set "
+                        "only: another folder or a --tag must name its own)")  # fmt: skip
     parser.add_argument("--only", default="", help="comma-separated file stems")
     parser.add_argument(
         "--tasks",
@@ -474,6 +477,14 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if not os.path.isdir(args.robots):
         raise SystemExit(f"robot_zoo: --robots {args.robots!r} is not a folder")
+    if args.table is None:  # the arms' page is written over only by the arms' own run
+        if os.path.realpath(args.robots) != os.path.realpath(ARMS_FOLDER) or args.tag:
+            parser.error(
+                f"--table is required with --robots {args.robots!r}"
+                + (f" --tag {args.tag!r}" if args.tag else "")
+                + f": the default page, {ARMS_PAGE}, is the arms' development set"
+            )
+        args.table = os.path.join(ROOT, ARMS_PAGE)
     files = sorted(f for f in os.listdir(args.robots) if f.endswith(".xml"))
     stems = [os.path.splitext(f)[0] for f in files]
     wanted = set(args.only.split(",")) if args.only else set(stems)

@@ -85,6 +85,21 @@ def test_only_one_robot_still_tables_every_finished_run(tmp_path):
     assert "| a | 0.5; below PD 1/1 |" in text and "| b | 0.25; below PD 1/1 |" in text
 
 
+def test_another_folder_or_a_variant_must_name_its_page(tmp_path, capsys):
+    # The default page is the arms' set's: a quadruped folder or a --tag run without --table
+    # is refused before anything runs or is written (it once wrote over the arms' page).
+    robots = tmp_path / "robots"
+    robots.mkdir()
+    (robots / "a.xml").write_text("<mujoco/>")
+    arms_page = os.path.join(robot_zoo.ROOT, robot_zoo.ARMS_PAGE)
+    before = os.path.getmtime(arms_page)
+    for flags in (["--robots", str(robots)], ["--tag", "it30"]):
+        with pytest.raises(SystemExit):
+            robot_zoo.main([*flags, "--out", str(tmp_path / "out"), "--only", "zz"])
+        assert "--table is required" in capsys.readouterr().err
+    assert os.path.getmtime(arms_page) == before and not (tmp_path / "out").exists()
+
+
 def test_a_refusal_and_a_robot_not_yet_run_stay_in_the_table(tmp_path):
     # c is refused by the library (no actuators); a later --only a run keeps c's reason
     # and says that d was not run, instead of dropping their rows.
