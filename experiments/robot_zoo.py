@@ -506,8 +506,11 @@ def main(argv: list[str] | None = None) -> None:
         note = ""
         if args.tag:
             ran = {f"{row['robot']}.xml" for rows in results.values() for row in rows}
-            note = f"Variant `{args.tag}`: added flags per file " + ", ".join(
-                f"{k}: `{' '.join(v)}`" for k, v in sorted(extra.items()) if k in ran
+            flags_file = os.path.relpath(args.flags_file, ROOT) if args.flags_file else ""
+            given = f" --flags-file {flags_file}" if flags_file else ""
+            note = (
+                f"Variant `{args.tag}` (`--tag {args.tag}{given}`): added flags per file "
+                + ", ".join(f"{k}: `{' '.join(v)}`" for k, v in sorted(extra.items()) if k in ran)
             )
         os.makedirs(os.path.dirname(os.path.abspath(args.table)), exist_ok=True)
         with open(args.table, "w") as f:

@@ -100,6 +100,21 @@ def test_another_folder_or_a_variant_must_name_its_page(tmp_path, capsys):
     assert os.path.getmtime(arms_page) == before and not (tmp_path / "out").exists()
 
 
+def test_a_variant_page_names_its_tag_and_flags_file(tmp_path):
+    robots = tmp_path / "robots"
+    robots.mkdir()
+    (robots / "a.xml").write_text("<mujoco/>")
+    flags = tmp_path / "more.json"
+    flags.write_text(json.dumps({"a.xml": ["--loop.iterations", "1"]}))
+    _finished_run(tmp_path / "out" / "seeds1_v" / "a", 0.5)
+    page = tmp_path / "v.md"
+    robot_zoo.main(["--robots", str(robots), "--seeds", "1", "--out", str(tmp_path / "out"),
+                    "--table", str(page), "--tag", "v", "--flags-file", str(flags)])  # fmt: skip
+    given = os.path.relpath(flags, robot_zoo.ROOT)
+    assert f"Variant `v` (`--tag v --flags-file {given}`): added flags per file a.xml: " \
+           "`--loop.iterations 1`" in page.read_text()  # fmt: skip
+
+
 def test_a_refusal_and_a_robot_not_yet_run_stay_in_the_table(tmp_path):
     # c is refused by the library (no actuators); a later --only a run keeps c's reason
     # and says that d was not run, instead of dropping their rows.
